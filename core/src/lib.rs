@@ -1,0 +1,46 @@
+//! # cosem-core
+//!
+//! Collaborative semantic map matching for robots, in `no_std` Rust with no
+//! allocator: the same code builds a robot's local semantic voxel map on a
+//! microcontroller and on a laptop, bit for bit.
+//!
+//! Data flows one way, and the modules follow it:
+//!
+//! 1. [`classes`]: the class table (SemanticKITTI's 19 classes) and the
+//!    mapping from raw dataset ids.
+//! 2. [`map`]: labelled points are fused into a [`map::LocalMap`], a
+//!    fixed-capacity voxel hash map holding per voxel a sub-voxel mean
+//!    position, an occupancy log-odds, a hit count and a Bayes-fused label
+//!    distribution, in 24 bytes (32 with its index). Coarser levels of a
+//!    resolution pyramid are built from it without allocation.
+//! 3. [`wire`]: checksums (and, later, the compact encoding maps travel in).
+//!
+//! Capacities are set by the storage: [`map::ArrayStorage`] fixes them at
+//! compile time (`FixedMap<N>`), [`map::SliceStorage`] borrows buffers the
+//! caller owns. A full map is a typed error or a documented eviction
+//! ([`map::FullPolicy`]); NaN and out-of-range points are typed errors.
+//!
+//! ## Features
+//! - `defmt`: derives `defmt::Format` for the public types, for firmware logs.
+//!
+//! ## Example
+//! ```
+//! use cosem_core::classes::Class;
+//! use cosem_core::map::{FixedMap, ArrayStorage, MapConfig};
+//!
+//! let mut map = FixedMap::<64>::new(ArrayStorage::new(), MapConfig::default()).unwrap();
+//! map.insert_point([1.03, 2.0, 0.1], Class::Pole).unwrap();
+//! map.insert_point([1.05, 2.1, 0.1], Class::Pole).unwrap();
+//! assert_eq!(map.len(), 1);
+//! assert_eq!(map.voxels()[0].class(), Some(Class::Pole));
+//! ```
+#![no_std]
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+
+#[cfg(test)]
+extern crate std;
+
+pub mod classes;
+pub mod map;
+pub mod wire;

@@ -1,0 +1,149 @@
+//! Voxel keys: integer cell coordinates, and the hash the table uses.
+
+use serde::{Deserialize, Serialize};
+
+/// Why a point could not be given a voxel key.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum KeyError {
+    /// A coordinate was NaN or infinite.
+    NonFinite,
+    /// The cell index does not fit the key's 16-bit range
+    /// (±32767 cells: ±6.5 km at 0.2 m).
+    OutOfRange,
+}
+
+impl core::fmt::Display for KeyError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            KeyError::NonFinite => f.write_str("coordinate is NaN or infinite"),
+            KeyError::OutOfRange => f.write_str("voxel index out of the 16-bit key range"),
+        }
+    }
+}
+
+/// Integer cell of a voxel: `floor(p / resolution)` per axis, in the map's
+/// anchor frame. Sixteen bits per axis keep a stored voxel small; a local map
+/// spans at most ±32767 cells.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct VoxelKey {
+    /// Cell index along x.
+    pub x: i16,
+    /// Cell index along y.
+    pub y: i16,
+    /// Cell index along z.
+    pub z: i16,
+}
+
+/// Where a point falls: its voxel and its position inside the voxel, each
+/// axis in `[0, 1)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CellPoint {
+    /// The voxel the point falls in.
+    pub key: VoxelKey,
+    /// Position inside the voxel, each axis in `[0, 1)`.
+    pub fraction: [f32; 3],
+}
+
+impl VoxelKey {
+    /// A key from cell indices already in range.
+    pub const fn new(x: i16, y: i16, z: i16) -> Self {
+        VoxelKey { x, y, z }
+    }
+
+    /// A key from wide cell indices, checking the range.
+    pub fn from_cell(x: i32, y: i32, z: i32) -> Result<Self, KeyError> {
+        let c = |v: i32| i16::try_from(v).map_err(|_| KeyError::OutOfRange);
+        Ok(VoxelKey { x: c(x)?, y: c(y)?, z: c(z)? })
+    }
+
+    /// The voxel holding point `p` on a grid of cell size `1 / inv_resolution`,
+    /// and the point's position inside it.
+    pub fn locate(p: [f32; 3], inv_resolution: f32) -> Result<CellPoint, KeyError> {
+        if !p.iter().all(|v| v.is_finite()) {
+            return Err(KeyError::NonFinite);
+        }
+        let mut cell = [0i16; 3];
+        let mut fraction = [0f32; 3];
+        for axis in 0..3 {
+            let scaled = p[axis] * inv_resolution;
+            let floor = libm::floorf(scaled);
+            // Checked in float before the cast: out-of-range values saturate.
+            if !(floor >= i16::MIN as f32 && floor <= i16::MAX as f32) {
+                return Err(KeyError::OutOfRange);
+            }
+            cell[axis] = floor as i16;
+            let f = scaled - floor;
+            // `scaled - floor` can round up to 1.0 for values just below an integer.
+            fraction[axis] = if f < 1.0 { f } else { 0.999_999_9 };
+        }
+        Ok(CellPoint { key: VoxelKey { x: cell[0], y: cell[1], z: cell[2] }, fraction })
+    }
+
+    /// The key `(dx, dy, dz)` cells away, if it is in range.
+    pub fn offset(self, dx: i32, dy: i32, dz: i32) -> Option<Self> {
+        VoxelKey::from_cell(i32::from(self.x) + dx, i32::from(self.y) + dy, i32::from(self.z) + dz).ok()
+    }
+
+    /// The key of the coarser cell, `factor` times larger, that contains this one.
+    pub fn coarsen(self, factor: u16) -> Self {
+        let f = i32::from(factor.max(1));
+        let d = |v: i16| (i32::from(v).div_euclid(f)) as i16;
+        VoxelKey { x: d(self.x), y: d(self.y), z: d(self.z) }
+    }
+
+    /// Lower corner of the cell in metres.
+    pub fn corner(self, resolution: f32) -> [f32; 3] {
+        [f32::from(self.x) * resolution, f32::from(self.y) * resolution, f32::from(self.z) * resolution]
+    }
+
+    /// Centre of the cell in metres.
+    pub fn center(self, resolution: f32) -> [f32; 3] {
+        let h = 0.5;
+        [
+            (f32::from(self.x) + h) * resolution,
+            (f32::from(self.y) + h) * resolution,
+            (f32::from(self.z) + h) * resolution,
+        ]
+    }
+
+    /// A 48-bit packing of the key (x in the high bits); also its order.
+    pub fn packed(self) -> u64 {
+        let u = |v: i16| u64::from(v as u16);
+        (u(self.x) << 32) | (u(self.y) << 16) | u(self.z)
+    }
+
+    /// A well-mixed 32-bit hash, the same on every platform.
+    pub fn hash32(self) -> u32 {
+        // splitmix64 finaliser.
+        let mut z = self.packed().wrapping_add(0x9E37_79B9_7F4A_7C15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        (z ^ (z >> 31)) as u32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn locate_floors_and_checks_range() {
+        let c = VoxelKey::locate([0.25, -0.05, 1.0], 5.0).unwrap();
+        assert_eq!(c.key, VoxelKey::new(1, -1, 5));
+        assert!(c.fraction.iter().all(|f| (0.0..1.0).contains(f)));
+        assert_eq!(VoxelKey::locate([f32::NAN, 0.0, 0.0], 5.0), Err(KeyError::NonFinite));
+        assert_eq!(VoxelKey::locate([0.0, f32::INFINITY, 0.0], 5.0), Err(KeyError::NonFinite));
+        assert_eq!(VoxelKey::locate([0.0, 0.0, 7000.0], 5.0), Err(KeyError::OutOfRange));
+        assert_eq!(VoxelKey::locate([0.0, -6553.6, 0.0], 5.0).map(|c| c.key.y), Ok(-32768));
+        assert_eq!(VoxelKey::locate([0.0, 0.0, 1e30], 5.0), Err(KeyError::OutOfRange));
+    }
+
+    #[test]
+    fn coarsen_is_floor_division() {
+        assert_eq!(VoxelKey::new(3, -1, -4).coarsen(2), VoxelKey::new(1, -1, -2));
+        assert_eq!(VoxelKey::new(i16::MIN, i16::MAX, 0).coarsen(4), VoxelKey::new(-8192, 8191, 0));
+        assert_eq!(VoxelKey::new(0, 0, 0).offset(0, 0, i32::from(i16::MAX) + 1), None);
+    }
+}

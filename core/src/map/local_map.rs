@@ -1,0 +1,533 @@
+//! `LocalMap`: fusing labelled points into a fixed-capacity voxel map.
+
+use super::key::{KeyError, VoxelKey};
+use super::labels::{LabelDistribution, SensorModel};
+use super::table::{self, Probe, VoxelStorage, SLOTS_PER_VOXEL};
+use super::voxel::{quantise_fraction, SemanticVoxel, LOGODDS_UNITS};
+use crate::classes::Class;
+
+/// What a full map does with a point that would need a new voxel.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FullPolicy {
+    /// Refuse it with [`InsertError::Full`] (default): the caller decides.
+    #[default]
+    Reject,
+    /// Keep the voxels nearest to `anchor` (usually the anchor frame's origin):
+    /// evict the farthest eighth of the capacity at once, then drop every later
+    /// point at or beyond the distance where eviction cut, so that the map
+    /// stays a consistent ball around the anchor instead of a patchwork.
+    EvictFarthest {
+        /// Point whose neighbourhood is kept, in map coordinates.
+        anchor: [f32; 3],
+    },
+}
+
+/// How a map fuses points.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MapConfig {
+    /// Voxel edge length in metres (default 0.2, the paper's).
+    pub resolution: f32,
+    /// Label sensor model for Bayes fusion.
+    pub sensor: SensorModel,
+    /// Log-odds added by a hit (default 0.85, OctoMap's `p_hit` = 0.7).
+    pub hit_logodds: f32,
+    /// Upper clamp of the occupancy log-odds (default 3.5, OctoMap's 0.97).
+    pub max_logodds: f32,
+    /// Behaviour when the capacity is reached.
+    pub when_full: FullPolicy,
+}
+
+impl Default for MapConfig {
+    fn default() -> Self {
+        MapConfig {
+            resolution: 0.2,
+            sensor: SensorModel::default(),
+            hit_logodds: 0.85,
+            max_logodds: 3.5,
+            when_full: FullPolicy::Reject,
+        }
+    }
+}
+
+impl MapConfig {
+    /// The default configuration at another resolution.
+    pub fn with_resolution(resolution: f32) -> Self {
+        MapConfig { resolution, ..MapConfig::default() }
+    }
+}
+
+/// Why a map could not be set up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigError {
+    /// The resolution is not a positive finite number in [1 mm, 1 km].
+    Resolution,
+    /// The sensor model's accuracy is not in `(1/19, 1)`.
+    SensorModel,
+    /// The occupancy parameters are not finite, positive and below 30.
+    Occupancy,
+    /// The eviction anchor is not finite.
+    Anchor,
+    /// The storage has no voxels, more than `u32::MAX - 1`, or too few index slots.
+    Storage,
+}
+
+/// Why a point or voxel was not inserted. The map is unchanged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum InsertError {
+    /// A coordinate was NaN or infinite.
+    NonFinite,
+    /// The voxel index is outside the key range.
+    OutOfRange,
+    /// The map is full and its policy is [`FullPolicy::Reject`].
+    Full,
+    /// [`LocalMap::insert_voxel`]: the map already holds this key.
+    DuplicateKey,
+}
+
+impl From<KeyError> for InsertError {
+    fn from(e: KeyError) -> Self {
+        match e {
+            KeyError::NonFinite => InsertError::NonFinite,
+            KeyError::OutOfRange => InsertError::OutOfRange,
+        }
+    }
+}
+
+impl core::fmt::Display for InsertError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            InsertError::NonFinite => "coordinate is NaN or infinite",
+            InsertError::OutOfRange => "voxel index out of the 16-bit key range",
+            InsertError::Full => "map is full",
+            InsertError::DuplicateKey => "voxel key already in the map",
+        })
+    }
+}
+
+/// Why a coarser level could not be built. The output map is left empty.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CoarsenError {
+    /// The factor is zero or the coarse resolution is not valid.
+    Factor,
+    /// The output map's capacity is too small.
+    Full,
+}
+
+/// What happened to an inserted point.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Insertion {
+    /// It started a new voxel.
+    Created,
+    /// It was fused into an existing voxel.
+    Fused,
+    /// [`FullPolicy::EvictFarthest`] dropped it: it lies beyond the kept ball.
+    Dropped,
+}
+
+/// A robot's local semantic map: voxels of one resolution in its anchor frame.
+///
+/// Capacity is fixed by the storage; nothing allocates. Voxels are kept in
+/// insertion order, so iteration, and everything built on it, is
+/// deterministic.
+pub struct LocalMap<S: VoxelStorage> {
+    storage: S,
+    len: usize,
+    config: MapConfig,
+    inv_resolution: f32,
+    evidence: u16,
+    hit_units: i16,
+    max_units: i16,
+    /// Squared radius beyond which points are dropped, after an eviction.
+    keep_radius_sq: f32,
+    evicted: usize,
+}
+
+fn dist_sq(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+}
+
+/// The 27 offsets of a neighbourhood, the centre first.
+const NEIGHBOUR_OFFSETS: [[i8; 3]; 27] = {
+    let mut out = [[0i8; 3]; 27];
+    let mut i = 1;
+    let mut dx = -1;
+    while dx <= 1 {
+        let mut dy = -1;
+        while dy <= 1 {
+            let mut dz = -1;
+            while dz <= 1 {
+                if !(dx == 0 && dy == 0 && dz == 0) {
+                    out[i] = [dx, dy, dz];
+                    i += 1;
+                }
+                dz += 1;
+            }
+            dy += 1;
+        }
+        dx += 1;
+    }
+    out
+};
+
+impl<S: VoxelStorage> LocalMap<S> {
+    /// An empty map over `storage`.
+    pub fn new(mut storage: S, config: MapConfig) -> Result<Self, ConfigError> {
+        let capacity = storage.voxels().len();
+        if capacity == 0 || capacity >= u32::MAX as usize || storage.slots().len() < SLOTS_PER_VOXEL * capacity {
+            return Err(ConfigError::Storage);
+        }
+        let mut map = LocalMap {
+            storage: {
+                storage.parts_mut().1.fill(0);
+                storage
+            },
+            len: 0,
+            config,
+            inv_resolution: 1.0,
+            evidence: 1,
+            hit_units: 0,
+            max_units: 0,
+            keep_radius_sq: f32::INFINITY,
+            evicted: 0,
+        };
+        map.set_config(config)?;
+        Ok(map)
+    }
+
+    fn set_config(&mut self, config: MapConfig) -> Result<(), ConfigError> {
+        let r = config.resolution;
+        if !(r.is_finite() && (1e-3..=1e3).contains(&r)) {
+            return Err(ConfigError::Resolution);
+        }
+        if !config.sensor.is_valid() {
+            return Err(ConfigError::SensorModel);
+        }
+        let ok = |v: f32| v.is_finite() && v > 0.0 && v < 30.0;
+        if !ok(config.hit_logodds) || !ok(config.max_logodds) {
+            return Err(ConfigError::Occupancy);
+        }
+        if let FullPolicy::EvictFarthest { anchor } = config.when_full {
+            if !anchor.iter().all(|v| v.is_finite()) {
+                return Err(ConfigError::Anchor);
+            }
+        }
+        self.config = config;
+        self.inv_resolution = 1.0 / r;
+        self.evidence = config.sensor.evidence_units();
+        self.hit_units = libm::roundf(config.hit_logodds * LOGODDS_UNITS) as i16;
+        self.max_units = libm::roundf(config.max_logodds * LOGODDS_UNITS) as i16;
+        Ok(())
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &MapConfig {
+        &self.config
+    }
+
+    /// Voxel edge length in metres.
+    pub fn resolution(&self) -> f32 {
+        self.config.resolution
+    }
+
+    /// Number of voxels.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the map has no voxel.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Maximum number of voxels.
+    pub fn capacity(&self) -> usize {
+        self.storage.voxels().len()
+    }
+
+    /// Voxels removed so far by [`FullPolicy::EvictFarthest`].
+    pub fn evicted(&self) -> usize {
+        self.evicted
+    }
+
+    /// The radius beyond which points are now dropped, once eviction started.
+    pub fn keep_radius(&self) -> Option<f32> {
+        if self.keep_radius_sq.is_finite() {
+            Some(libm::sqrtf(self.keep_radius_sq))
+        } else {
+            None
+        }
+    }
+
+    /// Removes every voxel (keeps configuration and storage).
+    pub fn clear(&mut self) {
+        self.storage.parts_mut().1.fill(0);
+        self.len = 0;
+        self.keep_radius_sq = f32::INFINITY;
+        self.evicted = 0;
+    }
+
+    /// The voxels, in insertion order.
+    pub fn voxels(&self) -> &[SemanticVoxel] {
+        self.storage.voxels().get(..self.len).unwrap_or(&[])
+    }
+
+    /// Iterates over the voxels in insertion order.
+    pub fn iter(&self) -> core::slice::Iter<'_, SemanticVoxel> {
+        self.voxels().iter()
+    }
+
+    /// The voxel at a dense position (`0..len()`).
+    pub fn voxel(&self, index: usize) -> Option<&SemanticVoxel> {
+        self.voxels().get(index)
+    }
+
+    /// Dense position of the voxel with this key.
+    pub fn index_of(&self, key: VoxelKey) -> Option<usize> {
+        match table::probe(self.voxels(), self.storage.slots(), key) {
+            Probe::Found(i) => Some(i),
+            Probe::Vacant(_) => None,
+        }
+    }
+
+    /// The voxel with this key.
+    pub fn get(&self, key: VoxelKey) -> Option<&SemanticVoxel> {
+        self.index_of(key).and_then(|i| self.voxel(i))
+    }
+
+    /// The voxel holding point `p`, if any.
+    pub fn get_at(&self, p: [f32; 3]) -> Option<&SemanticVoxel> {
+        VoxelKey::locate(p, self.inv_resolution).ok().and_then(|c| self.get(c.key))
+    }
+
+    /// The occupied voxels among the 27 cells around `key` (itself included,
+    /// first), in a fixed order.
+    pub fn neighbours(&self, key: VoxelKey) -> Neighbours<'_, S> {
+        Neighbours { map: self, key, next: 0 }
+    }
+
+    /// Fuses one labelled point (map coordinates, metres): updates the
+    /// voxel's running mean, occupancy and label distribution.
+    pub fn insert_point(&mut self, p: [f32; 3], class: Class) -> Result<Insertion, InsertError> {
+        let evidence = self.evidence;
+        self.insert_with(p, |labels| labels.observe(class, evidence))
+    }
+
+    /// Fuses a point whose label evidence is given directly, in score units
+    /// per class (e.g. from a segmentation network's class probabilities).
+    pub fn insert_point_evidence(
+        &mut self,
+        p: [f32; 3],
+        evidence: &LabelDistribution,
+    ) -> Result<Insertion, InsertError> {
+        self.insert_with(p, |labels| labels.merge(evidence))
+    }
+
+    fn insert_with(
+        &mut self,
+        p: [f32; 3],
+        fuse: impl FnOnce(&mut LabelDistribution),
+    ) -> Result<Insertion, InsertError> {
+        let cell = VoxelKey::locate(p, self.inv_resolution)?;
+        if let FullPolicy::EvictFarthest { anchor } = self.config.when_full {
+            if dist_sq(p, anchor) >= self.keep_radius_sq {
+                return Ok(Insertion::Dropped);
+            }
+        }
+        let len = self.len;
+        let (voxels, slots) = self.storage.parts_mut();
+        let filled = voxels.get_mut(..len).unwrap_or(&mut []);
+        let slot = match table::probe(filled, slots, cell.key) {
+            Probe::Found(i) => {
+                if let Some(v) = filled.get_mut(i) {
+                    v.add_hit(cell.fraction, self.hit_units, self.max_units);
+                    fuse(&mut v.labels);
+                }
+                return Ok(Insertion::Fused);
+            }
+            Probe::Vacant(slot) => slot,
+        };
+        let slot = if self.len < self.capacity() {
+            slot
+        } else {
+            match self.config.when_full {
+                FullPolicy::Reject => return Err(InsertError::Full),
+                FullPolicy::EvictFarthest { anchor } => {
+                    self.evict_farthest(anchor);
+                    if dist_sq(p, anchor) >= self.keep_radius_sq || self.len >= self.capacity() {
+                        return Ok(Insertion::Dropped);
+                    }
+                    match table::probe(self.voxels(), self.storage.slots(), cell.key) {
+                        Probe::Vacant(s) => s,
+                        Probe::Found(_) => return Ok(Insertion::Dropped),
+                    }
+                }
+            }
+        };
+        let mut voxel = SemanticVoxel::first_hit(cell.key, cell.fraction, self.hit_units.min(self.max_units));
+        fuse(&mut voxel.labels);
+        self.push_at(slot, voxel);
+        Ok(Insertion::Created)
+    }
+
+    fn push_at(&mut self, slot: usize, voxel: SemanticVoxel) {
+        let len = self.len;
+        let (voxels, slots) = self.storage.parts_mut();
+        if let (Some(v), Some(s)) = (voxels.get_mut(len), slots.get_mut(slot)) {
+            *v = voxel;
+            *s = len as u32 + 1;
+            self.len += 1;
+        }
+    }
+
+    /// Adds a whole voxel as it is (map decoders). Rejects a key already present.
+    pub fn insert_voxel(&mut self, voxel: SemanticVoxel) -> Result<(), InsertError> {
+        match table::probe(self.voxels(), self.storage.slots(), voxel.key) {
+            Probe::Found(_) => Err(InsertError::DuplicateKey),
+            Probe::Vacant(_) if self.len >= self.capacity() => Err(InsertError::Full),
+            Probe::Vacant(slot) => {
+                self.push_at(slot, voxel);
+                Ok(())
+            }
+        }
+    }
+
+    /// Removes the voxels farthest from `anchor`: about an eighth of the
+    /// capacity, cut at a radius found with a 256-bin histogram of distances.
+    fn evict_farthest(&mut self, anchor: [f32; 3]) {
+        let res = self.config.resolution;
+        let mut max_d = 0.0f32;
+        for v in self.voxels() {
+            max_d = max_d.max(libm::sqrtf(dist_sq(v.key.center(res), anchor)));
+        }
+        const BINS: usize = 256;
+        let bin_of = |d: f32| -> usize {
+            if max_d <= 0.0 {
+                0
+            } else {
+                ((d / max_d * (BINS as f32 - 1.0)) as usize).min(BINS - 1)
+            }
+        };
+        let mut hist = [0usize; BINS];
+        for v in self.voxels() {
+            let b = bin_of(libm::sqrtf(dist_sq(v.key.center(res), anchor)));
+            if let Some(h) = hist.get_mut(b) {
+                *h += 1;
+            }
+        }
+        let target = (self.capacity() / 8).max(1);
+        let mut cut_bin = BINS - 1;
+        let mut acc = 0;
+        for b in (0..BINS).rev() {
+            acc += hist.get(b).copied().unwrap_or(0);
+            cut_bin = b;
+            if acc >= target {
+                break;
+            }
+        }
+        // Voxels in bins >= cut_bin go; the kept radius is that bin's lower edge.
+        let cut = if max_d <= 0.0 { 0.0 } else { cut_bin as f32 / (BINS as f32 - 1.0) * max_d };
+        let len = self.len;
+        let (voxels, slots) = self.storage.parts_mut();
+        let mut kept = 0;
+        for i in 0..len {
+            let Some(v) = voxels.get(i).copied() else { break };
+            if bin_of(libm::sqrtf(dist_sq(v.key.center(res), anchor))) < cut_bin {
+                if let Some(dst) = voxels.get_mut(kept) {
+                    *dst = v;
+                }
+                kept += 1;
+            }
+        }
+        self.evicted += len - kept;
+        self.len = kept;
+        table::rebuild(voxels.get(..kept).unwrap_or(&[]), slots);
+        self.keep_radius_sq = self.keep_radius_sq.min(cut * cut);
+    }
+
+    /// Builds the level `factor` times coarser into `out` (cleared first; its
+    /// resolution becomes `factor * resolution()`, its other settings stay).
+    /// Each coarse voxel fuses its children: hit-weighted mean position,
+    /// summed hits, the highest occupancy and the fused label evidence.
+    /// Nothing allocates; on error `out` is left empty.
+    pub fn coarsen_into<T: VoxelStorage>(&self, factor: u16, out: &mut LocalMap<T>) -> Result<(), CoarsenError> {
+        if factor == 0 {
+            return Err(CoarsenError::Factor);
+        }
+        out.clear();
+        let config = MapConfig { resolution: self.config.resolution * f32::from(factor), ..out.config };
+        out.set_config(config).map_err(|_| CoarsenError::Factor)?;
+        let f = f32::from(factor);
+        for v in self.iter() {
+            let ck = v.key.coarsen(factor);
+            let fine = v.mean_fraction();
+            let rel = |fk: i16, ckv: i16, fr: f32| {
+                ((i32::from(fk) - i32::from(ckv) * i32::from(factor)) as f32 + fr) / f
+            };
+            let fraction = [rel(v.key.x, ck.x, fine[0]), rel(v.key.y, ck.y, fine[1]), rel(v.key.z, ck.z, fine[2])];
+            let len = out.len;
+            let (voxels, slots) = out.storage.parts_mut();
+            let filled = voxels.get_mut(..len).unwrap_or(&mut []);
+            match table::probe(filled, slots, ck) {
+                Probe::Found(i) => {
+                    if let Some(c) = filled.get_mut(i) {
+                        c.absorb(v, fraction);
+                    }
+                }
+                Probe::Vacant(slot) => {
+                    if out.len >= out.capacity() {
+                        out.clear();
+                        return Err(CoarsenError::Full);
+                    }
+                    let mean = fraction.map(quantise_fraction);
+                    out.push_at(slot, SemanticVoxel::from_parts(ck, mean, v.occupancy_raw(), v.hits(), v.labels));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Axis-aligned bounds of the occupied cells (min corner, max corner), in metres.
+    pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
+        let first = self.voxels().first()?.key;
+        let (mut lo, mut hi) = (first, first);
+        for v in self.iter() {
+            let k = v.key;
+            lo = VoxelKey::new(lo.x.min(k.x), lo.y.min(k.y), lo.z.min(k.z));
+            hi = VoxelKey::new(hi.x.max(k.x), hi.y.max(k.y), hi.z.max(k.z));
+        }
+        let r = self.config.resolution;
+        let top = hi.corner(r);
+        Some((lo.corner(r), [top[0] + r, top[1] + r, top[2] + r]))
+    }
+}
+
+/// Iterator over the occupied cells of a 27-neighbourhood.
+pub struct Neighbours<'a, S: VoxelStorage> {
+    map: &'a LocalMap<S>,
+    key: VoxelKey,
+    next: usize,
+}
+
+impl<'a, S: VoxelStorage> Iterator for Neighbours<'a, S> {
+    type Item = (usize, &'a SemanticVoxel);
+
+    fn next(&mut self) -> Option<Self::Item> {
+        while let Some(o) = NEIGHBOUR_OFFSETS.get(self.next) {
+            self.next += 1;
+            let Some(k) = self.key.offset(i32::from(o[0]), i32::from(o[1]), i32::from(o[2])) else { continue };
+            if let Some(i) = self.map.index_of(k) {
+                if let Some(v) = self.map.voxel(i) {
+                    return Some((i, v));
+                }
+            }
+        }
+        None
+    }
+}

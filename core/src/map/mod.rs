@@ -1,0 +1,26 @@
+//! Stage 1: building a robot's local semantic map.
+//!
+//! - [`key`]: voxel keys and hashing;
+//! - [`labels`]: compact label distributions and the Bayes sensor model;
+//! - [`voxel`]: the 24-byte stored voxel;
+//! - [`table`]: storage (compile-time or caller-provided) and the index;
+//! - [`local_map`]: [`LocalMap`], which fuses points, finds neighbours and
+//!   builds coarser levels.
+
+pub mod key;
+pub mod labels;
+pub mod local_map;
+pub mod table;
+pub mod voxel;
+
+pub use key::{CellPoint, KeyError, VoxelKey};
+pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS};
+pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertion, LocalMap, MapConfig, Neighbours};
+pub use table::{ArrayStorage, SliceStorage, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};
+pub use voxel::SemanticVoxel;
+
+/// A map whose capacity is fixed at compile time: `N` voxels, `32 * N` bytes.
+pub type FixedMap<const N: usize> = LocalMap<ArrayStorage<N>>;
+
+#[cfg(test)]
+mod tests;
