@@ -98,9 +98,7 @@ const COLORS: [[u8; 3]; NUM_CLASSES] = [
 ];
 
 /// The raw SemanticKITTI id each class is written back as.
-const RAW_IDS: [u16; NUM_CLASSES] = [
-    10, 11, 15, 18, 20, 30, 31, 32, 40, 44, 48, 49, 50, 51, 70, 71, 72, 80, 81,
-];
+const RAW_IDS: [u16; NUM_CLASSES] = [10, 11, 15, 18, 20, 30, 31, 32, 40, 44, 48, 49, 50, 51, 70, 71, 72, 80, 81];
 
 impl Class {
     /// All classes in index order.

@@ -6,6 +6,7 @@
 //!
 //! Data flows one way, and the modules follow it:
 //!
+//! 0. [`geometry`]: rigid transforms and the conventions' pose syntax.
 //! 1. [`classes`]: the class table (SemanticKITTI's 19 classes) and the
 //!    mapping from raw dataset ids.
 //! 2. [`map`]: labelled points are fused into a [`map::LocalMap`], a
@@ -42,5 +43,6 @@
 extern crate std;
 
 pub mod classes;
+pub mod geometry;
 pub mod map;
 pub mod wire;

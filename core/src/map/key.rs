@@ -22,6 +22,8 @@ impl core::fmt::Display for KeyError {
     }
 }
 
+impl core::error::Error for KeyError {}
+
 /// Integer cell of a voxel: `floor(p / resolution)` per axis, in the map's
 /// anchor frame. Sixteen bits per axis keep a stored voxel small; a local map
 /// spans at most ±32767 cells.
@@ -70,7 +72,7 @@ impl VoxelKey {
             let scaled = p[axis] * inv_resolution;
             let floor = libm::floorf(scaled);
             // Checked in float before the cast: out-of-range values saturate.
-            if !(floor >= i16::MIN as f32 && floor <= i16::MAX as f32) {
+            if !(i16::MIN as f32..=i16::MAX as f32).contains(&floor) {
                 return Err(KeyError::OutOfRange);
             }
             cell[axis] = floor as i16;

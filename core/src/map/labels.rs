@@ -59,7 +59,7 @@ impl SensorModel {
         let p = self.accuracy;
         let nats = libm::logf(p * (NUM_CLASSES as f32 - 1.0) / (1.0 - p));
         let units = libm::roundf(nats * SCORE_UNITS_PER_NAT);
-        if !(units >= 1.0) {
+        if units.is_nan() || units < 1.0 {
             1
         } else if units >= SCORE_MAX as f32 {
             SCORE_MAX
@@ -80,6 +80,18 @@ pub enum LabelError {
     /// Slots are not in canonical order (score descending, then class).
     NotCanonical,
 }
+
+impl core::fmt::Display for LabelError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            LabelError::UnknownClass => "label slot names an unknown class",
+            LabelError::DuplicateClass => "two label slots name the same class",
+            LabelError::NotCanonical => "label slots are not in canonical order",
+        })
+    }
+}
+
+impl core::error::Error for LabelError {}
 
 /// The top classes of a voxel with their scores, canonically ordered:
 /// highest score first, ties by class index. Slot 0 holds the most probable
@@ -326,11 +338,22 @@ mod tests {
         // 5 units of trunk: every tracked class loses 5 against the pool.
         d.observe(Class::Trunk, 5);
         let e: alloc_free::Vec4 = d.entries().collect();
-        assert_eq!(e.0, [Some((Class::Pole, 35)), Some((Class::Building, 25)), Some((Class::Sidewalk, 15)), Some((Class::Road, 5))]);
+        assert_eq!(
+            e.0,
+            [Some((Class::Pole, 35)), Some((Class::Building, 25)), Some((Class::Sidewalk, 15)), Some((Class::Road, 5))]
+        );
         // 11 more: road (5) reaches the pool and frees its slot, trunk keeps 6.
         d.observe(Class::Trunk, 11);
         let e: alloc_free::Vec4 = d.entries().collect();
-        assert_eq!(e.0, [Some((Class::Pole, 30)), Some((Class::Building, 20)), Some((Class::Sidewalk, 10)), Some((Class::Trunk, 6))]);
+        assert_eq!(
+            e.0,
+            [
+                Some((Class::Pole, 30)),
+                Some((Class::Building, 20)),
+                Some((Class::Sidewalk, 10)),
+                Some((Class::Trunk, 6))
+            ]
+        );
         assert_eq!(LabelDistribution::from_raw(d.raw()), Ok(d));
     }
 

@@ -108,6 +108,22 @@ impl core::fmt::Display for InsertError {
     }
 }
 
+impl core::error::Error for InsertError {}
+
+impl core::fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            ConfigError::Resolution => "resolution must be a finite number in [0.001, 1000] m",
+            ConfigError::SensorModel => "label accuracy must be in (1/19, 1)",
+            ConfigError::Occupancy => "occupancy log-odds must be finite, positive and below 30",
+            ConfigError::Anchor => "eviction anchor is not finite",
+            ConfigError::Storage => "storage has no voxels, too many, or too few index slots",
+        })
+    }
+}
+
+impl core::error::Error for ConfigError {}
+
 /// Why a coarser level could not be built. The output map is left empty.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -117,6 +133,17 @@ pub enum CoarsenError {
     /// The output map's capacity is too small.
     Full,
 }
+
+impl core::fmt::Display for CoarsenError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            CoarsenError::Factor => "coarsening factor is zero or gives an invalid resolution",
+            CoarsenError::Full => "the coarse map's capacity is too small",
+        })
+    }
+}
+
+impl core::error::Error for CoarsenError {}
 
 /// What happened to an inserted point.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -467,9 +494,8 @@ impl<S: VoxelStorage> LocalMap<S> {
         for v in self.iter() {
             let ck = v.key.coarsen(factor);
             let fine = v.mean_fraction();
-            let rel = |fk: i16, ckv: i16, fr: f32| {
-                ((i32::from(fk) - i32::from(ckv) * i32::from(factor)) as f32 + fr) / f
-            };
+            let rel =
+                |fk: i16, ckv: i16, fr: f32| ((i32::from(fk) - i32::from(ckv) * i32::from(factor)) as f32 + fr) / f;
             let fraction = [rel(v.key.x, ck.x, fine[0]), rel(v.key.y, ck.y, fine[1]), rel(v.key.z, ck.z, fine[2])];
             let len = out.len;
             let (voxels, slots) = out.storage.parts_mut();

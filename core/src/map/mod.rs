@@ -5,17 +5,20 @@
 //! - [`voxel`]: the 24-byte stored voxel;
 //! - [`table`]: storage (compile-time or caller-provided) and the index;
 //! - [`local_map`]: [`LocalMap`], which fuses points, finds neighbours and
-//!   builds coarser levels.
+//!   builds coarser levels;
+//! - [`overlap`](mod@overlap): how much two maps agree under a transform.
 
 pub mod key;
 pub mod labels;
 pub mod local_map;
+pub mod overlap;
 pub mod table;
 pub mod voxel;
 
 pub use key::{CellPoint, KeyError, VoxelKey};
 pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS};
 pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertion, LocalMap, MapConfig, Neighbours};
+pub use overlap::overlap;
 pub use table::{ArrayStorage, SliceStorage, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};
 pub use voxel::SemanticVoxel;
 

@@ -34,7 +34,7 @@ fn stored_voxel_fits_the_budget() {
     assert_eq!(core::mem::size_of::<SemanticVoxel>(), 24);
     assert_eq!(core::mem::size_of::<LabelDistribution>(), 8);
     assert_eq!(core::mem::size_of::<VoxelKey>(), 6);
-    assert!(BYTES_PER_VOXEL <= 32, "{BYTES_PER_VOXEL} bytes per voxel");
+    const { assert!(BYTES_PER_VOXEL <= 32) };
     // Storage for N voxels is exactly N * 32 bytes, index included.
     assert_eq!(core::mem::size_of::<ArrayStorage<8192>>(), 8192 * BYTES_PER_VOXEL);
 }
@@ -261,7 +261,7 @@ proptest! {
         let mut evidence: Vec<u8> = minority.iter().copied().filter(|&c| c != Class::Vegetation.index()).collect();
         // v > 5/9 (v + m)  <=>  v > 1.25 m.
         let majority = evidence.len() * 5 / 4 + 1;
-        evidence.extend(core::iter::repeat(Class::Vegetation.index()).take(majority));
+        evidence.extend(core::iter::repeat_n(Class::Vegetation.index(), majority));
         let mut s = seed | 1;
         for i in (1..evidence.len()).rev() {
             s ^= s << 13; s ^= s >> 7; s ^= s << 17;
@@ -294,4 +294,21 @@ proptest! {
             prop_assert!(coarse.get(v.key.coarsen(factor)).is_some());
         }
     }
+}
+
+#[test]
+fn overlap_under_identity_and_shift() {
+    let mut a = heap_map(1000, MapConfig::default());
+    for i in 0..100 {
+        a.insert_point([i as f32 * 0.2 + 0.1, 0.1, 0.1], Class::Building).unwrap();
+    }
+    let id = crate::geometry::Isometry3::identity();
+    assert_eq!(overlap(&a, &a, &id), 1.0);
+    let far = crate::geometry::from_xyz_rpy(0.0, 5.0, 0.0, 0.0, 0.0, 0.0);
+    assert_eq!(overlap(&a, &a, &far), 0.0);
+    let mut b = heap_map(1000, MapConfig::default());
+    for i in 0..100 {
+        b.insert_point([i as f32 * 0.2 + 0.1, 0.1, 0.1], Class::Road).unwrap();
+    }
+    assert_eq!(overlap(&a, &b, &id), 0.0, "different classes do not overlap");
 }

@@ -125,7 +125,7 @@ impl SemanticVoxel {
 
 pub(crate) fn quantise_fraction(f: f32) -> u16 {
     let q = libm::floorf(f * POSITION_UNITS);
-    if !(q >= 0.0) {
+    if q.is_nan() || q < 0.0 {
         0
     } else if q >= 65535.0 {
         65535

@@ -1,0 +1,63 @@
+//! `cosem map`: frames -> local map -> `.cmap` file.
+
+use super::Error;
+use cosem_core::classes::MovingObjects;
+use cosem_core::map::{MapConfig, SensorModel};
+use cosem_host::kitti::{FrameRange, Sequence};
+use cosem_host::mapping::{build_map, PointFilter};
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// SemanticKITTI-layout folder (velodyne/, labels/, poses.txt, calib.txt).
+    #[arg(long)]
+    data: PathBuf,
+    /// Frames START:END[:STRIDE] (END exclusive); the first is the anchor.
+    #[arg(long)]
+    frames: FrameRange,
+    /// Voxel size (m).
+    #[arg(long, default_value_t = 0.2)]
+    voxel: f32,
+    /// Drop points farther than this from their sensor (m); no limit by default.
+    #[arg(long)]
+    max_range: Option<f32>,
+    /// Keep moving objects, mapped to their static class.
+    #[arg(long)]
+    keep_moving: bool,
+    /// Probability that a point's label is right (Bayes sensor model).
+    #[arg(long, default_value_t = SensorModel::default().accuracy)]
+    label_accuracy: f32,
+    /// Output map file.
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+pub fn run(a: Args) -> Result<(), Error> {
+    let t0 = Instant::now();
+    let seq = Sequence::open(&a.data)?;
+    let frames = seq.load_range(a.frames)?;
+    let filter = PointFilter {
+        max_range: a.max_range,
+        moving: if a.keep_moving { MovingObjects::AsStatic } else { MovingObjects::Skip },
+    };
+    let config =
+        MapConfig { resolution: a.voxel, sensor: SensorModel { accuracy: a.label_accuracy }, ..MapConfig::default() };
+    let (map, stats) = build_map(&frames, config, &filter)?;
+    let anchor_time = frames.first().and_then(|f| f.time);
+    let name = a.data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let bytes = cosem_host::cmap::write(&a.output, &map, anchor_time, Some(format!("{name} {}", a.frames)))?;
+    println!(
+        "{}: {} frames, {} points, {} kept, {} voxels at {} m, {} bytes ({:.1} bytes/voxel) in {:.2} s",
+        a.output.display(),
+        frames.len(),
+        stats.points,
+        stats.kept,
+        map.len(),
+        a.voxel,
+        bytes,
+        bytes as f64 / map.len().max(1) as f64,
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
+}

@@ -1,0 +1,79 @@
+//! The subcommands, one module each.
+
+mod bench;
+mod demo;
+mod export;
+mod info;
+mod map;
+mod synth;
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+
+/// Errors of the CLI: a message, possibly wrapping a typed error.
+pub type Error = Box<dyn std::error::Error + Send + Sync>;
+
+/// cosem: two robots, two semantic maps, one relative pose.
+#[derive(Parser, Debug)]
+#[command(name = "cosem", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Build a local semantic map from a range of SemanticKITTI frames.
+    Map(map::Args),
+    /// Describe a map file.
+    Info(info::Args),
+    /// Export a map to another format.
+    Export {
+        #[command(subcommand)]
+        format: export::Format,
+    },
+    /// Synthesise a SemanticKITTI-layout sequence (street scene + simulated LiDAR).
+    Synth(synth::Args),
+    /// Benchmarks that print numbers.
+    Bench {
+        #[command(subcommand)]
+        what: bench::What,
+    },
+    /// The main job on built-in data: synthesise, map two robots, describe.
+    Demo(demo::Args),
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> Result<(), Error> {
+    match cli.command {
+        Command::Map(a) => map::run(a),
+        Command::Info(a) => info::run(a),
+        Command::Export { format } => export::run(format),
+        Command::Synth(a) => synth::run(a),
+        Command::Bench { what } => bench::run(what),
+        Command::Demo(a) => demo::run(a),
+    }
+}
+
+/// Where real data lives: `COSEM_DATA`, else `../shared/data` (relative to
+/// the repository root, where the commands are run from).
+pub fn data_root() -> PathBuf {
+    match std::env::var_os("COSEM_DATA") {
+        Some(d) => PathBuf::from(d),
+        None => PathBuf::from("../shared/data"),
+    }
+}
+
+/// A class histogram of a map, largest first (ties by class index).
+pub fn class_histogram(map: &cosem_host::mapping::HostMap) -> Vec<(cosem_core::classes::Class, usize)> {
+    let mut counts = [0usize; cosem_core::classes::NUM_CLASSES];
+    for v in map.iter() {
+        if let Some(c) = v.class() {
+            counts[c.index() as usize] += 1;
+        }
+    }
+    let mut h: Vec<_> = cosem_core::classes::Class::ALL.iter().map(|c| (*c, counts[c.index() as usize])).collect();
+    h.retain(|(_, n)| *n > 0);
+    h.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    h
+}

@@ -1,0 +1,354 @@
+//! SemanticKITTI reader: scans, labels, poses, calibration, timestamps.
+//!
+//! Every malformed input is an error naming the file (and frame, line or
+//! byte offset) and what is wrong with it.
+
+use nalgebra::Matrix4;
+use std::path::{Path, PathBuf};
+
+/// Anything wrong with a SemanticKITTI-layout folder.
+#[derive(Debug, thiserror::Error)]
+pub enum KittiError {
+    /// A file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A scan file whose size is not a whole number of 16-byte points.
+    #[error("{path}: size {len} bytes is not a multiple of 16 (x, y, z, intensity as f32)")]
+    ScanSize {
+        /// The scan file.
+        path: PathBuf,
+        /// Its size.
+        len: u64,
+    },
+    /// A label file whose size is not a whole number of u32.
+    #[error("{path}: size {len} bytes is not a multiple of 4 (one u32 per point)")]
+    LabelSize {
+        /// The label file.
+        path: PathBuf,
+        /// Its size.
+        len: u64,
+    },
+    /// A label file whose count differs from its scan's.
+    #[error("{path}: {labels} labels for {points} points in the scan")]
+    LabelCount {
+        /// The label file.
+        path: PathBuf,
+        /// Labels in it.
+        labels: usize,
+        /// Points in the scan.
+        points: usize,
+    },
+    /// A non-finite coordinate in a scan.
+    #[error("{path}: non-finite coordinate at byte offset {offset}")]
+    NonFinite {
+        /// The scan file.
+        path: PathBuf,
+        /// Byte offset of the value.
+        offset: usize,
+    },
+    /// The poses file has no line for a frame.
+    #[error("{path}: no pose for frame {frame} (the file has {lines} pose lines)")]
+    MissingPose {
+        /// poses.txt.
+        path: PathBuf,
+        /// The frame asked for.
+        frame: usize,
+        /// Lines in the file.
+        lines: usize,
+    },
+    /// The calibration has no `Tr:` line.
+    #[error("{path}: no `Tr:` line (velodyne to camera transform)")]
+    MissingTr {
+        /// calib.txt.
+        path: PathBuf,
+    },
+    /// A frame's scan file does not exist.
+    #[error("{path}: frame {frame} is missing")]
+    MissingFrame {
+        /// The expected scan file.
+        path: PathBuf,
+        /// The frame.
+        frame: usize,
+    },
+    /// A text line that does not parse.
+    #[error("{path}:{line}: {what}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        what: String,
+    },
+    /// A frame range that does not parse or is empty.
+    #[error("frame range `{0}`: expected START:END[:STRIDE] with END > START and STRIDE >= 1")]
+    Range(String),
+}
+
+/// Frames `start..end` (end exclusive) every `stride`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameRange {
+    /// First frame.
+    pub start: usize,
+    /// One past the last frame.
+    pub end: usize,
+    /// Step.
+    pub stride: usize,
+}
+
+impl FrameRange {
+    /// The frames of the range.
+    pub fn frames(&self) -> impl Iterator<Item = usize> + Clone {
+        (self.start..self.end).step_by(self.stride)
+    }
+}
+
+impl std::str::FromStr for FrameRange {
+    type Err = KittiError;
+    fn from_str(s: &str) -> Result<Self, KittiError> {
+        let bad = || KittiError::Range(s.to_string());
+        let parts: Vec<&str> = s.split(':').collect();
+        if parts.len() < 2 || parts.len() > 3 {
+            return Err(bad());
+        }
+        let n = |t: &str| t.trim().parse::<usize>().map_err(|_| bad());
+        let start = n(parts[0])?;
+        let end = n(parts[1])?;
+        let stride = if parts.len() == 3 { n(parts[2])? } else { 1 };
+        if end <= start || stride == 0 {
+            return Err(bad());
+        }
+        Ok(FrameRange { start, end, stride })
+    }
+}
+
+impl std::fmt::Display for FrameRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.stride == 1 {
+            write!(f, "{}:{}", self.start, self.end)
+        } else {
+            write!(f, "{}:{}:{}", self.start, self.end, self.stride)
+        }
+    }
+}
+
+/// One raw scan: points in the LiDAR frame and raw label words.
+#[derive(Clone, Debug)]
+pub struct Scan {
+    /// Frame number.
+    pub frame: usize,
+    /// x, y, z (metres, LiDAR frame) and intensity.
+    pub points: Vec<[f32; 4]>,
+    /// Raw SemanticKITTI label words (semantic id in the low 16 bits).
+    pub labels: Vec<u32>,
+}
+
+/// A scan put into a robot's anchor frame.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// Frame number.
+    pub index: usize,
+    /// Timestamp (s), when `times.txt` is present.
+    pub time: Option<f64>,
+    /// Pose of this scan's LiDAR in the anchor frame.
+    pub pose: Matrix4<f64>,
+    /// Points in the anchor frame.
+    pub points: Vec<[f32; 3]>,
+    /// Range of each point from its own sensor (m).
+    pub ranges: Vec<f32>,
+    /// Raw label words.
+    pub labels: Vec<u32>,
+}
+
+/// A SemanticKITTI sequence folder.
+#[derive(Clone, Debug)]
+pub struct Sequence {
+    /// The folder.
+    pub dir: PathBuf,
+    /// Velodyne-to-camera transform `Tr`.
+    pub tr: Matrix4<f64>,
+    /// Camera-frame poses, one per line of poses.txt.
+    pub camera_poses: Vec<Matrix4<f64>>,
+    /// Timestamps, when times.txt is present.
+    pub times: Option<Vec<f64>>,
+}
+
+fn read(path: &Path) -> Result<Vec<u8>, KittiError> {
+    std::fs::read(path).map_err(|source| KittiError::Io { path: path.to_path_buf(), source })
+}
+
+fn read_text(path: &Path) -> Result<String, KittiError> {
+    let bytes = read(path)?;
+    String::from_utf8(bytes).map_err(|e| KittiError::Parse {
+        path: path.to_path_buf(),
+        line: 0,
+        what: format!("not UTF-8 text ({e})"),
+    })
+}
+
+/// Parses 12 numbers of a 3x4 row-major matrix into a 4x4 one.
+fn parse_3x4(path: &Path, line: usize, text: &str) -> Result<Matrix4<f64>, KittiError> {
+    let err = |what: String| KittiError::Parse { path: path.to_path_buf(), line, what };
+    let vals: Vec<f64> = text
+        .split_whitespace()
+        .map(|t| t.parse::<f64>().map_err(|_| err(format!("`{t}` is not a number"))))
+        .collect::<Result<_, _>>()?;
+    if vals.len() != 12 {
+        return Err(err(format!("expected 12 numbers (a 3x4 matrix), found {}", vals.len())));
+    }
+    if vals.iter().any(|v| !v.is_finite()) {
+        return Err(err("non-finite number".into()));
+    }
+    let mut m = Matrix4::identity();
+    for r in 0..3 {
+        for c in 0..4 {
+            m[(r, c)] = vals[r * 4 + c];
+        }
+    }
+    Ok(m)
+}
+
+/// Inverse of a rigid 4x4 transform.
+pub fn rigid_inverse(m: &Matrix4<f64>) -> Matrix4<f64> {
+    let r = m.fixed_view::<3, 3>(0, 0).transpose();
+    let t = -(r * m.fixed_view::<3, 1>(0, 3));
+    let mut out = Matrix4::identity();
+    out.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    out.fixed_view_mut::<3, 1>(0, 3).copy_from(&t);
+    out
+}
+
+impl Sequence {
+    /// Opens a folder: reads calib.txt (`Tr`), poses.txt and, if present, times.txt.
+    pub fn open(dir: impl AsRef<Path>) -> Result<Self, KittiError> {
+        let dir = dir.as_ref().to_path_buf();
+        let calib_path = dir.join("calib.txt");
+        let calib = read_text(&calib_path)?;
+        let mut tr = None;
+        for (i, line) in calib.lines().enumerate() {
+            if let Some(rest) = line.trim_start().strip_prefix("Tr:") {
+                tr = Some(parse_3x4(&calib_path, i + 1, rest)?);
+            }
+        }
+        let tr = tr.ok_or(KittiError::MissingTr { path: calib_path })?;
+        let poses_path = dir.join("poses.txt");
+        let mut camera_poses = Vec::new();
+        for (i, line) in read_text(&poses_path)?.lines().enumerate() {
+            if line.trim().is_empty() {
+                continue;
+            }
+            camera_poses.push(parse_3x4(&poses_path, i + 1, line)?);
+        }
+        let times_path = dir.join("times.txt");
+        let times = if times_path.exists() {
+            let mut t = Vec::new();
+            for (i, line) in read_text(&times_path)?.lines().enumerate() {
+                let s = line.trim();
+                if s.is_empty() {
+                    continue;
+                }
+                let v: f64 = s.parse().map_err(|_| KittiError::Parse {
+                    path: times_path.clone(),
+                    line: i + 1,
+                    what: format!("`{s}` is not a timestamp"),
+                })?;
+                t.push(v);
+            }
+            Some(t)
+        } else {
+            None
+        };
+        Ok(Sequence { dir, tr, camera_poses, times })
+    }
+
+    /// Path of a frame's scan.
+    pub fn scan_path(&self, frame: usize) -> PathBuf {
+        self.dir.join("velodyne").join(format!("{frame:06}.bin"))
+    }
+
+    /// Path of a frame's labels.
+    pub fn label_path(&self, frame: usize) -> PathBuf {
+        self.dir.join("labels").join(format!("{frame:06}.label"))
+    }
+
+    /// LiDAR pose of a scan in the world: `inv(Tr) * P_i * Tr`.
+    pub fn velodyne_pose(&self, frame: usize) -> Result<Matrix4<f64>, KittiError> {
+        let p = self.camera_poses.get(frame).ok_or_else(|| KittiError::MissingPose {
+            path: self.dir.join("poses.txt"),
+            frame,
+            lines: self.camera_poses.len(),
+        })?;
+        Ok(rigid_inverse(&self.tr) * p * self.tr)
+    }
+
+    /// `T_a_b = inv(V_a) * V_b`: frame b's LiDAR pose in frame a's LiDAR frame.
+    pub fn relative_pose(&self, a: usize, b: usize) -> Result<Matrix4<f64>, KittiError> {
+        Ok(rigid_inverse(&self.velodyne_pose(a)?) * self.velodyne_pose(b)?)
+    }
+
+    /// Reads one scan and its labels, checking sizes, counts and values.
+    pub fn read_scan(&self, frame: usize) -> Result<Scan, KittiError> {
+        let scan_path = self.scan_path(frame);
+        if !scan_path.exists() {
+            return Err(KittiError::MissingFrame { path: scan_path, frame });
+        }
+        let bytes = read(&scan_path)?;
+        if bytes.len() % 16 != 0 {
+            return Err(KittiError::ScanSize { path: scan_path, len: bytes.len() as u64 });
+        }
+        let mut points = Vec::with_capacity(bytes.len() / 16);
+        for (i, chunk) in bytes.chunks_exact(16).enumerate() {
+            let f = |k: usize| f32::from_le_bytes([chunk[4 * k], chunk[4 * k + 1], chunk[4 * k + 2], chunk[4 * k + 3]]);
+            let p = [f(0), f(1), f(2), f(3)];
+            if let Some(k) = p[..3].iter().position(|v| !v.is_finite()) {
+                return Err(KittiError::NonFinite { path: scan_path, offset: i * 16 + 4 * k });
+            }
+            points.push(p);
+        }
+        let label_path = self.label_path(frame);
+        if !label_path.exists() {
+            return Err(KittiError::MissingFrame { path: label_path, frame });
+        }
+        let lbytes = read(&label_path)?;
+        if lbytes.len() % 4 != 0 {
+            return Err(KittiError::LabelSize { path: label_path, len: lbytes.len() as u64 });
+        }
+        let labels: Vec<u32> = lbytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        if labels.len() != points.len() {
+            return Err(KittiError::LabelCount { path: label_path, labels: labels.len(), points: points.len() });
+        }
+        Ok(Scan { frame, points, labels })
+    }
+
+    /// Reads the frames of a range and puts them into the anchor frame (the
+    /// LiDAR frame of the range's first scan).
+    pub fn load_range(&self, range: FrameRange) -> Result<Vec<Frame>, KittiError> {
+        let anchor_inv = rigid_inverse(&self.velodyne_pose(range.start)?);
+        range
+            .frames()
+            .map(|i| {
+                let pose = anchor_inv * self.velodyne_pose(i)?;
+                let scan = self.read_scan(i)?;
+                let m = pose.cast::<f64>();
+                let mut points = Vec::with_capacity(scan.points.len());
+                let mut ranges = Vec::with_capacity(scan.points.len());
+                for p in &scan.points {
+                    let (x, y, z) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                    ranges.push((x * x + y * y + z * z).sqrt() as f32);
+                    points.push([
+                        (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
+                        (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
+                        (m[(2, 0)] * x + m[(2, 1)] * y + m[(2, 2)] * z + m[(2, 3)]) as f32,
+                    ]);
+                }
+                let time = self.times.as_ref().and_then(|t| t.get(i).copied());
+                Ok(Frame { index: i, time, pose, points, ranges, labels: scan.labels })
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,40 @@
+//! PLY export (binary little endian): x, y, z, colour, class index and the
+//! SemanticKITTI id. Opens in CloudCompare, MeshLab and Open3D.
+
+use std::io::Write;
+use std::path::Path;
+
+/// One exported point.
+#[derive(Clone, Copy, Debug)]
+pub struct PlyPoint {
+    /// Position (m).
+    pub position: [f32; 3],
+    /// Colour (RGB).
+    pub color: [u8; 3],
+    /// Class index (0..19), 255 for none.
+    pub class: u8,
+    /// Raw SemanticKITTI id.
+    pub label: u16,
+}
+
+/// Writes points to a PLY file.
+pub fn write(path: &Path, points: &[PlyPoint]) -> std::io::Result<()> {
+    let mut out = Vec::with_capacity(256 + points.len() * 18);
+    write!(
+        out,
+        "ply\nformat binary_little_endian 1.0\ncomment cosem map export\nelement vertex {}\n\
+         property float x\nproperty float y\nproperty float z\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\n\
+         property uchar class\nproperty ushort label\nend_header\n",
+        points.len()
+    )?;
+    for p in points {
+        for c in p.position {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+        out.extend_from_slice(&p.color);
+        out.push(p.class);
+        out.extend_from_slice(&p.label.to_le_bytes());
+    }
+    std::fs::write(path, out)
+}
