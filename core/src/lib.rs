@@ -14,7 +14,13 @@
 //!    position, an occupancy log-odds, a hit count and a Bayes-fused label
 //!    distribution, in 24 bytes (32 with its index). Coarser levels of a
 //!    resolution pyramid are built from it without allocation.
-//! 3. [`wire`]: checksums (and, later, the compact encoding maps travel in).
+//! 3. [`matching`]: EM map matching. A [`matching::Pyramid`] prepares each
+//!    map once (per-class coarse levels, hash index, normals); a
+//!    [`matching::Matcher`] aligns a scene to a model coarse to fine with an
+//!    annealed Gaussian weight and semantic compatibility, and returns a
+//!    [`matching::MatchResult`] with a status, inliers, overlap and the
+//!    information matrix.
+//! 4. [`wire`]: checksums (and, later, the compact encoding maps travel in).
 //!
 //! Capacities are set by the storage: [`map::ArrayStorage`] fixes them at
 //! compile time (`FixedMap<N>`), [`map::SliceStorage`] borrows buffers the
@@ -45,4 +51,5 @@ extern crate std;
 pub mod classes;
 pub mod geometry;
 pub mod map;
+pub mod matching;
 pub mod wire;

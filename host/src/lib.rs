@@ -2,6 +2,7 @@
 //! synthetic sequences, builds maps with `cosem-core`, and reads and writes
 //! map files. The `cosem` binary is a thin CLI over these modules.
 
+pub mod align;
 pub mod cmap;
 pub mod kitti;
 pub mod mapping;

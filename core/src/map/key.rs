@@ -24,6 +24,23 @@ impl core::fmt::Display for KeyError {
 
 impl core::error::Error for KeyError {}
 
+/// `floor(v)` for finite `v`, exact: truncation corrected for negatives
+/// (cheaper than a software floor on targets without a rounding instruction).
+/// Values beyond the `i32` range are returned as they are (they are whole
+/// numbers already, and out of any key range).
+#[inline]
+pub fn floor_f32(v: f32) -> f32 {
+    if v.is_nan() || v.abs() >= 2_147_483_520.0 {
+        return v;
+    }
+    let t = v as i32 as f32;
+    if t > v {
+        t - 1.0
+    } else {
+        t
+    }
+}
+
 /// Integer cell of a voxel: `floor(p / resolution)` per axis, in the map's
 /// anchor frame. Sixteen bits per axis keep a stored voxel small; a local map
 /// spans at most ±32767 cells.
@@ -70,7 +87,7 @@ impl VoxelKey {
         let mut fraction = [0f32; 3];
         for axis in 0..3 {
             let scaled = p[axis] * inv_resolution;
-            let floor = libm::floorf(scaled);
+            let floor = floor_f32(scaled);
             // Checked in float before the cast: out-of-range values saturate.
             if !(i16::MIN as f32..=i16::MAX as f32).contains(&floor) {
                 return Err(KeyError::OutOfRange);
@@ -84,8 +101,10 @@ impl VoxelKey {
     }
 
     /// The key `(dx, dy, dz)` cells away, if it is in range.
+    #[inline]
     pub fn offset(self, dx: i32, dy: i32, dz: i32) -> Option<Self> {
-        VoxelKey::from_cell(i32::from(self.x) + dx, i32::from(self.y) + dy, i32::from(self.z) + dz).ok()
+        let add = |v: i16, d: i32| i16::try_from(i32::from(v) + d).ok();
+        Some(VoxelKey { x: add(self.x, dx)?, y: add(self.y, dy)?, z: add(self.z, dz)? })
     }
 
     /// The key of the coarser cell, `factor` times larger, that contains this one.
@@ -140,6 +159,13 @@ mod tests {
         assert_eq!(VoxelKey::locate([0.0, 0.0, 7000.0], 5.0), Err(KeyError::OutOfRange));
         assert_eq!(VoxelKey::locate([0.0, -6553.6, 0.0], 5.0).map(|c| c.key.y), Ok(-32768));
         assert_eq!(VoxelKey::locate([0.0, 0.0, 1e30], 5.0), Err(KeyError::OutOfRange));
+    }
+
+    #[test]
+    fn floor_matches_libm() {
+        for v in [0.0f32, -0.0, 0.5, -0.5, 1.0, -1.0, 2.999_999_8, -2.999_999_8, 1e9, -1e9, 3e9, -3e9, 1e-30, -1e-30] {
+            assert_eq!(floor_f32(v), libm::floorf(v), "{v}");
+        }
     }
 
     #[test]

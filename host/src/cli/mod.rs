@@ -2,9 +2,11 @@
 
 mod bench;
 mod demo;
+mod eval;
 mod export;
 mod info;
 mod map;
+mod matching;
 mod synth;
 
 use clap::{Parser, Subcommand};
@@ -25,6 +27,10 @@ pub struct Cli {
 enum Command {
     /// Build a local semantic map from a range of SemanticKITTI frames.
     Map(map::Args),
+    /// Align a scene map to a model map: prints T_model_scene and its figures.
+    Match(matching::Args),
+    /// The paper's robustness protocol: many starts, success rates, errors.
+    Eval(eval::Args),
     /// Describe a map file.
     Info(info::Args),
     /// Export a map to another format.
@@ -47,6 +53,8 @@ enum Command {
 pub fn run(cli: Cli) -> Result<(), Error> {
     match cli.command {
         Command::Map(a) => map::run(a),
+        Command::Match(a) => matching::run(a),
+        Command::Eval(a) => eval::run(a),
         Command::Info(a) => info::run(a),
         Command::Export { format } => export::run(format),
         Command::Synth(a) => synth::run(a),

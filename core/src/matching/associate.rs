@@ -1,0 +1,285 @@
+//! E-step: data association through the voxel hash, and the accumulation of
+//! the weighted normal equations in the same pass (so no correspondence
+//! buffer is needed).
+//!
+//! Each scene entry, moved by the current transform, looks at the model
+//! entries of the 27 cells around it and takes the one of highest weight
+//! `exp(-d^2 / 2 sigma^2) * s`, where `s` is the semantic compatibility of the
+//! method. The Gaussian weight is also the Welsch robust kernel of the
+//! least-squares M-step: far pairs fade out instead of pulling.
+
+use super::pyramid::{Entry, Level};
+use super::settings::{Cost, Method};
+use crate::classes::NUM_CLASSES;
+use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
+
+/// `exp(x)` for `x <= 0`, to about 1e-4 relative: a weight, not a
+/// probability to report. Plain arithmetic, so every platform rounds alike.
+#[inline]
+pub fn exp_weight(x: f32) -> f32 {
+    if x.is_nan() || x <= -80.0 {
+        return 0.0;
+    }
+    // exp(x) = 2^k * exp(r), |r| <= ln2/2, with a degree-5 polynomial.
+    let k = libm::roundf(x * core::f32::consts::LOG2_E);
+    let r = x - k * core::f32::consts::LN_2;
+    let p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0)))));
+    p * f32::from_bits(((k as i32 + 127) as u32) << 23)
+}
+
+/// Probability that two entries carry the same class, each distribution
+/// taken as its top class with its probability and the rest spread evenly.
+pub fn compatibility(method: Method, a: &Entry, b: &Entry) -> f32 {
+    match method {
+        Method::Geometric => 1.0,
+        Method::CosemHard => {
+            if a.class == b.class && a.class != u8::MAX {
+                1.0
+            } else {
+                0.0
+            }
+        }
+        Method::Cosem => {
+            let others = (NUM_CLASSES - 1) as f32;
+            let pa = f32::from(a.confidence) / 255.0;
+            let pb = f32::from(b.confidence) / 255.0;
+            let (qa, qb) = ((1.0 - pa) / others, (1.0 - pb) / others);
+            if a.class == b.class {
+                pa * pb + others * qa * qb
+            } else {
+                pa * qb + pb * qa + (others - 1.0) * qa * qb
+            }
+        }
+    }
+}
+
+/// Sums of one E-step.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Normal {
+    /// `sum w J^T J`.
+    pub h: Matrix6<f32>,
+    /// `sum w J^T r`.
+    pub g: Vector6<f32>,
+    /// `sum w`.
+    pub sum_w: f32,
+    /// `sum w r^2`.
+    pub sum_wr2: f32,
+    /// `sum w |q|^2`: lever arm of the rotation.
+    pub sum_wq2: f32,
+    /// Associated scene entries.
+    pub pairs: u32,
+}
+
+impl Normal {
+    fn new() -> Self {
+        Normal { h: Matrix6::zeros(), g: Vector6::zeros(), sum_w: 0.0, sum_wr2: 0.0, sum_wq2: 0.0, pairs: 0 }
+    }
+
+    fn add_row(&mut self, j: &Vector6<f32>, r: f32, w: f32) {
+        // Upper triangle only; mirrored by `finish`.
+        for a in 0..6 {
+            let wa = w * j[a];
+            self.g[a] += wa * r;
+            for b in a..6 {
+                self.h[(a, b)] += wa * j[b];
+            }
+        }
+        self.sum_wr2 += w * r * r;
+    }
+
+    fn finish(&mut self) {
+        for a in 0..6 {
+            for b in 0..a {
+                self.h[(a, b)] = self.h[(b, a)];
+            }
+        }
+    }
+}
+
+/// The model entry a moved scene entry associates with, its weight and
+/// squared distance. It looks at the 2x2x2 block of cells on `q`'s side of
+/// its cell, which holds every model entry within half a cell of `q` (and
+/// some farther ones, up to `radius`).
+#[inline]
+fn best_match<'a>(
+    model: &Level<'a>,
+    s: &Entry,
+    q: &Point3<f32>,
+    sigma: f32,
+    radius: f32,
+    method: Method,
+) -> Option<(&'a Entry, f32, f32)> {
+    let cell = model.locate_with_fraction([q.x, q.y, q.z])?;
+    let (key, f) = (cell.key, cell.fraction);
+    let step = |v: f32| if v < 0.5 { -1 } else { 1 };
+    let (sx, sy, sz) = (step(f[0]), step(f[1]), step(f[2]));
+    let inv_two_sigma_sq = 0.5 / (sigma * sigma);
+    let radius_sq = radius * radius;
+    let mut best: Option<(&Entry, f32, f32)> = None;
+    for (dx, dy, dz) in
+        [(0, 0, 0), (sx, 0, 0), (0, sy, 0), (0, 0, sz), (sx, sy, 0), (sx, 0, sz), (0, sy, sz), (sx, sy, sz)]
+    {
+        let Some(k) = key.offset(dx, dy, dz) else { continue };
+        for m in model.cell(k) {
+            let d = [q.x - m.position[0], q.y - m.position[1], q.z - m.position[2]];
+            let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            if d2 > radius_sq {
+                continue;
+            }
+            let c = compatibility(method, s, m);
+            if c <= 0.0 {
+                continue;
+            }
+            let w = exp_weight(-d2 * inv_two_sigma_sq) * c;
+            if best.is_none_or(|(_, bw, _)| w > bw) {
+                best = Some((m, w, d2));
+            }
+        }
+    }
+    best
+}
+
+/// How one E-step associates.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Pass {
+    /// Gaussian width (m).
+    pub sigma: f32,
+    /// Largest association distance (m).
+    pub radius: f32,
+    /// Semantic compatibility.
+    pub method: Method,
+    /// Residual.
+    pub cost: Cost,
+    /// Use one scene entry in `stride`.
+    pub stride: usize,
+}
+
+/// One E-step at one level: associates every scene entry and accumulates the
+/// normal equations of the M-step at the transform `t`.
+pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>, pass: &Pass) -> Normal {
+    let Pass { sigma, radius, method, cost, stride } = *pass;
+    let mut n = Normal::new();
+    for s in scene.entries().iter().step_by(stride.max(1)) {
+        let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
+        let Some((m, w, _)) = best_match(model, s, &q, sigma, radius, method) else { continue };
+        if w.is_nan() || w <= 0.0 {
+            continue;
+        }
+        n.pairs += 1;
+        n.sum_w += w;
+        n.sum_wq2 += w * q.coords.norm_squared();
+        let mp = Vector3::new(m.position[0], m.position[1], m.position[2]);
+        let diff = q.coords - mp;
+        if cost == Cost::PointToPlane && m.is_planar() {
+            let nv = Vector3::new(m.normal[0], m.normal[1], m.normal[2]);
+            let r = nv.dot(&diff);
+            let qxn = q.coords.cross(&nv);
+            let j = Vector6::new(nv.x, nv.y, nv.z, qxn.x, qxn.y, qxn.z);
+            n.add_row(&j, r, w);
+        } else {
+            for k in 0..3 {
+                let mut e = Vector3::zeros();
+                e[k] = 1.0;
+                let qxe = q.coords.cross(&e);
+                let j = Vector6::new(e.x, e.y, e.z, qxe.x, qxe.y, qxe.z);
+                n.add_row(&j, diff[k], w);
+            }
+        }
+    }
+    n.finish();
+    n
+}
+
+/// Agreement of the two finest levels under `t`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Agreement {
+    /// Scene entries with a model entry within one cell.
+    pub inliers: u32,
+    /// Fraction of scene entries with a same-class model entry within one cell.
+    pub overlap: f32,
+    /// RMS distance of the inlier pairs.
+    pub rmse: f32,
+}
+
+/// The final pass over the scene entries of the finest level (one in
+/// `stride`): the agreement (inliers, the conventions' overlap, RMSE). The
+/// 2x2x2 block
+/// around a moved entry holds every model entry within half a cell; the other
+/// 19 cells of its neighbourhood are read only when that block does not
+/// settle the agreement.
+pub(crate) fn agreement(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>, stride: usize) -> Agreement {
+    let res = model.resolution();
+    let res_sq = res * res;
+    let stride = stride.max(1);
+    let (mut inliers, mut same, mut sum_d2, mut seen) = (0u32, 0u32, 0.0f32, 0u32);
+    for s in scene.entries().iter().step_by(stride) {
+        seen += 1;
+        let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
+        let Some(cell) = model.locate_with_fraction([q.x, q.y, q.z]) else { continue };
+        let f = cell.fraction;
+        let side = |v: f32| if v < 0.5 { -1 } else { 1 };
+        let (sx, sy, sz) = (side(f[0]), side(f[1]), side(f[2]));
+        let in_block =
+            |dx: i32, dy: i32, dz: i32| (dx == 0 || dx == sx) && (dy == 0 || dy == sy) && (dz == 0 || dz == sz);
+        // (nearest squared distance within one cell, a same-class entry there)
+        let mut found = (f32::INFINITY, false);
+        let visit = |found: &mut (f32, bool), dx: i32, dy: i32, dz: i32| {
+            let Some(k) = cell.key.offset(dx, dy, dz) else { return };
+            for m in model.cell(k) {
+                let d = [q.x - m.position[0], q.y - m.position[1], q.z - m.position[2]];
+                let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                if d2 <= res_sq {
+                    found.0 = found.0.min(d2);
+                    found.1 |= m.class == s.class;
+                }
+            }
+        };
+        for (dx, dy, dz) in
+            [(0, 0, 0), (sx, 0, 0), (0, sy, 0), (0, 0, sz), (sx, sy, 0), (sx, 0, sz), (0, sy, sz), (sx, sy, sz)]
+        {
+            visit(&mut found, dx, dy, dz);
+        }
+        // Settled: the nearest is within half a cell (so nothing outside the
+        // block is nearer) and a same-class entry was found.
+        if !(found.1 && found.0 <= 0.25 * res_sq) {
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        if !in_block(dx, dy, dz) {
+                            visit(&mut found, dx, dy, dz);
+                        }
+                    }
+                }
+            }
+        }
+        let (nearest, same_class) = found;
+        if nearest <= res_sq {
+            inliers += 1;
+            sum_d2 += nearest;
+            if same_class {
+                same += 1;
+            }
+        }
+    }
+    // Inliers are counted for the whole scene: the subset's count times the stride.
+    Agreement {
+        inliers: inliers.saturating_mul(stride as u32),
+        overlap: same as f32 / seen.max(1) as f32,
+        rmse: if inliers > 0 { libm::sqrtf(sum_d2 / inliers as f32) } else { 0.0 },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn fast_exp_is_close() {
+        let mut x = 0.0f32;
+        while x > -30.0 {
+            let (a, b) = (super::exp_weight(x), libm::expf(x));
+            assert!((a - b).abs() <= 2e-4 * b, "{x}: {a} vs {b}");
+            x -= 0.37;
+        }
+        assert_eq!(super::exp_weight(-100.0), 0.0);
+        assert_eq!(super::exp_weight(f32::NAN), 0.0);
+    }
+}

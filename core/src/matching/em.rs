@@ -1,0 +1,202 @@
+//! The coarse-to-fine EM driver: levels from coarse to fine, a Gaussian width
+//! annealed within each level, one iteration budget across all of them.
+
+use super::associate::{accumulate, agreement, Normal, Pass};
+use super::pyramid::{Pyramid, PyramidStorage, MAX_LEVELS};
+use super::result::{MatchResult, MatchStatus};
+use super::search::search;
+use super::settings::{MatchSettings, Method};
+use super::solve::{apply, min_eigenvalue, normalised_min_eigenvalue, step};
+use nalgebra::{Isometry3, Matrix6};
+
+/// Why a match could not be run at all (a run that fails to align returns a
+/// [`MatchResult`] with a status instead).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum MatchError {
+    /// The initial transform has a non-finite number.
+    NonFiniteInit,
+    /// The two pyramids' levels differ in resolution.
+    ResolutionMismatch,
+    /// Settings out of range (zero budget, widths or tolerances not positive,
+    /// annealing factor not in (0, 1]).
+    Settings,
+}
+
+impl core::fmt::Display for MatchError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            MatchError::NonFiniteInit => "initial transform is not finite",
+            MatchError::ResolutionMismatch => "model and scene pyramids have different resolutions",
+            MatchError::Settings => "match settings out of range",
+        })
+    }
+}
+
+impl core::error::Error for MatchError {}
+
+/// Aligns a scene map to a model map.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Matcher {
+    /// The settings.
+    pub settings: MatchSettings,
+}
+
+fn finite_iso(t: &Isometry3<f32>) -> bool {
+    t.translation.vector.iter().all(|v| v.is_finite()) && t.rotation.coords.iter().all(|v| v.is_finite())
+}
+
+impl Matcher {
+    /// A matcher with these settings.
+    pub fn new(settings: MatchSettings) -> Self {
+        Matcher { settings }
+    }
+
+    fn check(&self) -> Result<(), MatchError> {
+        let s = &self.settings;
+        let pos = |v: f32| v.is_finite() && v > 0.0;
+        let ok = s.max_iterations > 0
+            && pos(s.sigma_start)
+            && pos(s.sigma_end)
+            && s.sigma_end <= s.sigma_start
+            && pos(s.anneal)
+            && s.anneal <= 1.0
+            && pos(s.translation_tolerance)
+            && pos(s.rotation_tolerance)
+            && s.min_overlap.is_finite()
+            && s.degeneracy_threshold.is_finite();
+        if ok {
+            Ok(())
+        } else {
+            Err(MatchError::Settings)
+        }
+    }
+
+    /// Estimates `T_model_scene` starting from `init` (a `T_model_scene`).
+    /// Deterministic: the same inputs give bit-identical results.
+    pub fn align<A: PyramidStorage, B: PyramidStorage>(
+        &self,
+        model: &Pyramid<A>,
+        scene: &Pyramid<B>,
+        init: &Isometry3<f32>,
+    ) -> Result<MatchResult, MatchError> {
+        self.check()?;
+        if !finite_iso(init) {
+            return Err(MatchError::NonFiniteInit);
+        }
+        let s = &self.settings;
+        let levels = model.levels().min(scene.levels());
+        for l in 0..levels {
+            let (Some(m), Some(c)) = (model.level(l), scene.level(l)) else {
+                return Err(MatchError::ResolutionMismatch);
+            };
+            if (m.resolution() - c.resolution()).abs() > 1e-4 * m.resolution() {
+                return Err(MatchError::ResolutionMismatch);
+            }
+        }
+        let mut t = *init;
+        // Coarse search of the prior's window, then EM from the level of the
+        // footprint's cell size; without it, EM from the coarsest level.
+        let mut top = levels.saturating_sub(1);
+        if let (Some(window), Some(fm), Some(fs)) = (s.search, model.footprint(), scene.footprint()) {
+            if let Some(found) = search(fm, fs, init, &window, s.method != Method::Geometric) {
+                t = found.transform;
+                // The finest level whose cells hold the search's error (about one
+                // footprint cell).
+                while top > 0 && model.level(top - 1).is_some_and(|lv| lv.resolution() >= fm.cell()) {
+                    top -= 1;
+                }
+            }
+        }
+        let mut used = 0u32;
+        let mut per_level = [0u8; MAX_LEVELS];
+        let mut converged = false;
+        // Normal equations of the last finest-level iteration, scaled to the
+        // whole scene (they were summed over one entry in `stride`).
+        let mut last: Option<(Normal, f32)> = None;
+        for l in (0..=top).rev() {
+            let (Some(m), Some(c)) = (model.level(l), scene.level(l)) else { break };
+            let cell = m.resolution();
+            let floor = s.sigma_end * cell;
+            let mut sigma = s.sigma_start * cell;
+            let remaining = s.max_iterations.saturating_sub(used);
+            let stride = c.entries().len().div_ceil(s.max_scene_entries.max(1) as usize);
+            let budget = if l == 0 { remaining } else { s.max_iterations_per_level.min(remaining / 2) };
+            for _ in 0..budget {
+                let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, stride };
+                let n = accumulate(&m, &c, &t, &pass);
+                used += 1;
+                if let Some(p) = per_level.get_mut(l) {
+                    *p = p.saturating_add(1);
+                }
+                if n.pairs < 6 {
+                    break;
+                }
+                let Some(delta) = step(&n.h, &n.g, s.dof) else { break };
+                if l == 0 {
+                    last = Some((n, stride.max(1) as f32));
+                }
+                t = apply(&delta, &t);
+                // Coarse levels only need to hand over within the next level's
+                // reach: ten times looser.
+                let loose = if l == 0 { 1.0 } else { 10.0 };
+                let small = delta.fixed_rows::<3>(0).norm() < loose * s.translation_tolerance * cell
+                    && delta.fixed_rows::<3>(3).norm() < loose * s.rotation_tolerance;
+                let annealed = sigma <= floor * 1.0001;
+                sigma = (sigma * s.anneal).max(floor);
+                if small && annealed {
+                    converged = l == 0;
+                    break;
+                }
+            }
+        }
+        if !finite_iso(&t) {
+            // Cannot happen with finite steps; guard the promise anyway.
+            t = *init;
+            converged = false;
+        }
+        // Figures at the solution, at the finest level.
+        let (Some(m0), Some(c0)) = (model.level(0), scene.level(0)) else {
+            return Err(MatchError::ResolutionMismatch);
+        };
+        let cell = m0.resolution();
+        let agree = agreement(&m0, &c0, &t, c0.entries().len().div_ceil(s.max_agreement_entries.max(1) as usize));
+        // The information at the solution: the last finest-level iteration's
+        // normal equations (its update was below the tolerance, so they were
+        // taken at the solution to within it), else a fresh pass.
+        let (n, scale) = match last {
+            Some(found) if converged => found,
+            _ => {
+                let stride = c0.entries().len().div_ceil(s.max_scene_entries.max(1) as usize).max(1);
+                let pass = Pass { sigma: s.sigma_end * cell, radius: cell, method: s.method, cost: s.cost, stride };
+                (accumulate(&m0, &c0, &t, &pass), stride as f32)
+            }
+        };
+        let floor = 0.01 * cell;
+        let var = if n.sum_w > 0.0 { (n.sum_wr2 / n.sum_w).max(floor * floor) } else { 1.0 };
+        let information: Matrix6<f32> = n.h * (scale / var);
+        let lever = if n.sum_w > 0.0 { libm::sqrtf(n.sum_wq2 / n.sum_w) } else { 0.0 };
+        let degeneracy = normalised_min_eigenvalue(&n.h, n.sum_w, lever, s.dof);
+        let status = if agree.inliers < s.min_inliers || agree.overlap < s.min_overlap {
+            MatchStatus::NoOverlap
+        } else if degeneracy < s.degeneracy_threshold {
+            MatchStatus::Degenerate
+        } else if converged {
+            MatchStatus::Converged
+        } else {
+            MatchStatus::NotConverged
+        };
+        Ok(MatchResult {
+            transform: t,
+            status,
+            iterations: used,
+            iterations_per_level: per_level,
+            inliers: agree.inliers,
+            overlap: agree.overlap,
+            rmse: agree.rmse,
+            information,
+            min_eigenvalue: min_eigenvalue(&information),
+            degeneracy,
+        })
+    }
+}

@@ -1,0 +1,171 @@
+//! A map's semantic footprint: a bird's-eye grid where each cell holds the
+//! set of classes seen in its column (a 19-bit mask), with max-pooled copies
+//! for branch and bound, and the list of occupied cells for when the map is
+//! the scene. Both anchor frames are level (z against gravity), so a column
+//! mask is a rotation-invariant description of what stands there.
+
+use super::pyramid::Entry;
+use crate::map::key::floor_f32;
+
+/// Levels of max-pooling (windows of 1, 2, 4, ... 2^(POOL_LEVELS-1) cells).
+pub const POOL_LEVELS: usize = 6;
+
+/// Cells of padding below the data: the largest pooled window.
+const MARGIN: usize = 1 << (POOL_LEVELS - 1);
+
+/// Where a footprint lives inside the pyramid storage.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct FootprintInfo {
+    /// Cell size (m).
+    pub cell: f32,
+    /// Grid origin (m), lower corner.
+    pub origin: [f32; 2],
+    /// Grid size in cells.
+    pub width: usize,
+    pub height: usize,
+    /// Occupied cells listed (after the grids).
+    pub occupied: usize,
+}
+
+impl FootprintInfo {
+    /// u32 words the grids and list take.
+    pub fn words(&self) -> usize {
+        POOL_LEVELS * self.width * self.height + 3 * self.occupied
+    }
+}
+
+/// Read-only view of a footprint.
+#[derive(Clone, Copy)]
+pub struct Footprint<'a> {
+    pub(crate) info: FootprintInfo,
+    pub(crate) words: &'a [u32],
+}
+
+impl<'a> Footprint<'a> {
+    /// Cell size (m).
+    pub fn cell(&self) -> f32 {
+        self.info.cell
+    }
+
+    /// The class mask of pooled grid `h` at cell (i, j); 0 outside.
+    #[inline]
+    pub fn mask(&self, h: usize, i: i32, j: i32) -> u32 {
+        let (w, ht) = (self.info.width, self.info.height);
+        // Negative values wrap to huge ones and fail the same test.
+        let (iu, ju) = (i as usize, j as usize);
+        if iu >= w || ju >= ht {
+            return 0;
+        }
+        self.words.get(h * w * ht + ju * w + iu).copied().unwrap_or(0)
+    }
+
+    /// Cell index (i, j) of a point, unclamped.
+    #[inline]
+    pub fn cell_of(&self, x: f32, y: f32) -> (i32, i32) {
+        let inv = 1.0 / self.info.cell;
+        (floor_f32((x - self.info.origin[0]) * inv) as i32, floor_f32((y - self.info.origin[1]) * inv) as i32)
+    }
+
+    /// Occupied cells: (centre x, centre y, mean z, mask).
+    pub fn occupied(&self) -> impl Iterator<Item = ([f32; 3], u32)> + 'a {
+        let base = POOL_LEVELS * self.info.width * self.info.height;
+        let list = self.words.get(base..base + 3 * self.info.occupied).unwrap_or(&[]);
+        list.chunks_exact(3).map(|c| ([f32::from_bits(c[0]), f32::from_bits(c[1]), 0.0], c[2]))
+    }
+
+    /// Number of occupied cells.
+    pub fn occupied_len(&self) -> usize {
+        self.info.occupied
+    }
+}
+
+/// Builds a footprint of `entries` into `words`; the cell size starts at
+/// `cell` and doubles until the grids fit. `None` if nothing fits.
+pub(crate) fn build(entries: &[Entry], cell: f32, words: &mut [u32]) -> Option<FootprintInfo> {
+    let first = entries.first()?;
+    let (mut lo, mut hi) = ([first.position[0], first.position[1]], [first.position[0], first.position[1]]);
+    for e in entries {
+        for a in 0..2 {
+            lo[a] = lo[a].min(e.position[a]);
+            hi[a] = hi[a].max(e.position[a]);
+        }
+    }
+    let mut cell = cell;
+    for _ in 0..12 {
+        // A margin of one top-level block below the data in x and y: a search
+        // block may start there and still reach into the data, and its bound
+        // must see that.
+        let origin = [lo[0] - MARGIN as f32 * cell, lo[1] - MARGIN as f32 * cell];
+        let width = (libm::floorf((hi[0] - origin[0]) / cell) as usize) + 1;
+        let height = (libm::floorf((hi[1] - origin[1]) / cell) as usize) + 1;
+        let grid = width * height;
+        // Occupied cells are at most the grid's size.
+        if POOL_LEVELS * grid + 3 * grid.min(entries.len()) <= words.len() {
+            let mut info = FootprintInfo { cell, origin, width, height, occupied: 0 };
+            fill(entries, &mut info, words);
+            return Some(info);
+        }
+        cell *= 2.0;
+    }
+    None
+}
+
+fn fill(entries: &[Entry], info: &mut FootprintInfo, words: &mut [u32]) {
+    let (w, h) = (info.width, info.height);
+    let grid = w * h;
+    words.iter_mut().take(POOL_LEVELS * grid).for_each(|v| *v = 0);
+    let inv = 1.0 / info.cell;
+    for e in entries {
+        if e.class >= 32 {
+            continue;
+        }
+        let i = libm::floorf((e.position[0] - info.origin[0]) * inv) as usize;
+        let j = libm::floorf((e.position[1] - info.origin[1]) * inv) as usize;
+        if let Some(v) = words.get_mut(j.min(h - 1) * w + i.min(w - 1)) {
+            *v |= 1u32 << e.class;
+        }
+    }
+    // Max-pooling: level k ORs the 2x2 block of level k-1 at offset 2^(k-1),
+    // so cell (i, j) of level k covers [i, i + 2^k) x [j, j + 2^k).
+    for k in 1..POOL_LEVELS {
+        let step = 1usize << (k - 1);
+        for j in 0..h {
+            for i in 0..w {
+                let at = |ii: usize, jj: usize| -> u32 {
+                    if ii < w && jj < h {
+                        words.get((k - 1) * grid + jj * w + ii).copied().unwrap_or(0)
+                    } else {
+                        0
+                    }
+                };
+                let v = at(i, j) | at(i + step, j) | at(i, j + step) | at(i + step, j + step);
+                if let Some(dst) = words.get_mut(k * grid + j * w + i) {
+                    *dst = v;
+                }
+            }
+        }
+    }
+    // Occupied cells of twice the size (the 2x2 pooled level at even
+    // indices), in grid order: the points a scene is scored with. Coarser
+    // than the model's grid, they keep the search fast; the error they add
+    // stays within a cell, which EM removes.
+    let mut n = 0;
+    let base = POOL_LEVELS * grid;
+    for j in (0..h).step_by(2) {
+        for i in (0..w).step_by(2) {
+            let m = words.get(grid + j * w + i).copied().unwrap_or(0);
+            if m == 0 {
+                continue;
+            }
+            let cx = info.origin[0] + (i as f32 + 1.0) * info.cell;
+            let cy = info.origin[1] + (j as f32 + 1.0) * info.cell;
+            if let Some(dst) = words.get_mut(base + 3 * n..base + 3 * n + 3) {
+                dst[0] = cx.to_bits();
+                dst[1] = cy.to_bits();
+                dst[2] = m;
+                n += 1;
+            }
+        }
+    }
+    info.occupied = n;
+}

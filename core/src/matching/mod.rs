@@ -1,0 +1,54 @@
+//! Stage 3: EM map matching.
+//!
+//! - [`pyramid`]: the search structure, a semantic resolution pyramid with
+//!   a hash index per level and per-entry normals (one-off preparation);
+//! - [`footprint`], [`search`](mod@search): a bird's-eye class-mask grid per
+//!   map and a branch-and-bound search of the prior's window over it, which
+//!   puts EM in its basin from starts 10 m and 25 degrees off;
+//! - [`associate`]: the E-step, nearest-voxel association with Gaussian and
+//!   semantic weights;
+//! - [`solve`](mod@solve): the M-step, damped Gauss-Newton on SE(3) or 4-DoF;
+//! - [`em`]: [`Matcher`], the coarse-to-fine driver with annealing;
+//! - [`settings`], [`result`]: plain data in and out.
+//!
+//! ```
+//! use cosem_core::classes::Class;
+//! use cosem_core::geometry::from_xyz_rpy;
+//! use cosem_core::map::{ArrayStorage, FixedMap, MapConfig};
+//! use cosem_core::matching::{ArrayPyramidStorage, Matcher, MatchSettings, Pyramid};
+//!
+//! // A corner of two walls and a floor, seen by both robots.
+//! let mut map = FixedMap::<2048>::new(ArrayStorage::new(), MapConfig::default()).unwrap();
+//! for i in 0..30 {
+//!     for j in 0..12 {
+//!         let (a, b) = (i as f32 * 0.2, j as f32 * 0.2);
+//!         map.insert_point([a, b, 0.0], Class::Road).unwrap();
+//!         map.insert_point([a, 0.0, b + 0.2], Class::Building).unwrap();
+//!         map.insert_point([0.0, a, b + 0.2], Class::Fence).unwrap();
+//!     }
+//! }
+//! let model = Pyramid::build(&map, 3, 1.0, ArrayPyramidStorage::<4096, 4096>::new()).unwrap();
+//! let scene = Pyramid::build(&map, 3, 1.0, ArrayPyramidStorage::<4096, 4096>::new()).unwrap();
+//! let start = from_xyz_rpy(0.3, -0.2, 0.0, 0.0, 0.0, 0.05);
+//! let result = Matcher::new(MatchSettings::default()).align(&model, &scene, &start).unwrap();
+//! assert!(result.transform.translation.vector.norm() < 0.02);
+//! ```
+
+pub mod associate;
+pub mod em;
+pub mod footprint;
+pub mod pyramid;
+pub mod result;
+pub mod search;
+pub mod settings;
+pub mod solve;
+
+pub use em::{MatchError, Matcher};
+pub use footprint::Footprint;
+pub use pyramid::{ArrayPyramidStorage, Entry, Level, Pyramid, PyramidError, PyramidStorage, MAX_LEVELS};
+pub use result::{MatchResult, MatchStatus};
+pub use search::{SearchOutcome, SearchWindow};
+pub use settings::{Cost, Dof, MatchSettings, Method};
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,61 @@
+//! What a match returns.
+
+use super::pyramid::MAX_LEVELS;
+use nalgebra::{Isometry3, Matrix6};
+
+/// Verdict of a match, as the conventions spell it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum MatchStatus {
+    /// The finest level converged, the maps overlap, the geometry constrains
+    /// every degree of freedom.
+    Converged,
+    /// The iteration budget ran out before the finest level converged.
+    NotConverged,
+    /// The geometry leaves a direction unconstrained (e.g. a flat road alone).
+    Degenerate,
+    /// The maps do not overlap enough under the result to trust it.
+    NoOverlap,
+}
+
+impl MatchStatus {
+    /// The conventions' status string.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            MatchStatus::Converged => "Converged",
+            MatchStatus::NotConverged => "NotConverged",
+            MatchStatus::Degenerate => "Degenerate",
+            MatchStatus::NoOverlap => "NoOverlap",
+        }
+    }
+}
+
+/// The estimate `T_model_scene` and what backs it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MatchResult {
+    /// `T_model_scene`: maps scene coordinates into the model frame.
+    pub transform: Isometry3<f32>,
+    /// Verdict.
+    pub status: MatchStatus,
+    /// EM iterations used, all levels together.
+    pub iterations: u32,
+    /// Iterations per level (index 0 is the finest).
+    pub iterations_per_level: [u8; MAX_LEVELS],
+    /// Scene voxels with a model voxel within one voxel size at the end
+    /// (counted on the subset of `MatchSettings::max_agreement_entries`,
+    /// scaled to the whole scene).
+    pub inliers: u32,
+    /// The conventions' overlap under the result (on that subset).
+    pub overlap: f32,
+    /// Root mean square distance of the inlier pairs (m).
+    pub rmse: f32,
+    /// 6x6 information matrix, order (tx, ty, tz, rx, ry, rz), for a left
+    /// perturbation in the model frame: `sum w J^T J / s^2` at the solution,
+    /// with `s^2` the weighted mean squared residual.
+    pub information: Matrix6<f32>,
+    /// Smallest eigenvalue of `information`.
+    pub min_eigenvalue: f32,
+    /// Smallest eigenvalue of the information normalised to unit weight and
+    /// unit lever arm (dimensionless, 0 = unconstrained direction).
+    pub degeneracy: f32,
+}

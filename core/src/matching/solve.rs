@@ -1,0 +1,89 @@
+//! M-step: one damped Gauss-Newton step of the weighted least squares on
+//! SE(3) (or its 4-DoF subgroup), applied on the left in the model frame.
+
+use super::settings::Dof;
+use nalgebra::{Isometry3, Matrix4, Matrix6, Translation3, UnitQuaternion, Vector3, Vector4, Vector6};
+
+/// Indices of (tx, ty, tz, rz) in the 6-vector.
+const FOUR: [usize; 4] = [0, 1, 2, 5];
+
+/// Solves `(H + lambda I) delta = -g`. `None` when the system is singular.
+pub(crate) fn step(h: &Matrix6<f32>, g: &Vector6<f32>, dof: Dof) -> Option<Vector6<f32>> {
+    let scale = h.diagonal().iter().fold(0.0f32, |a, v| a.max(*v));
+    if !(scale > 0.0 && scale.is_finite()) {
+        return None;
+    }
+    let lambda = 1e-6 * scale;
+    let delta = match dof {
+        Dof::Six => {
+            let a = h + Matrix6::identity() * lambda;
+            a.cholesky()?.solve(&(-g))
+        }
+        Dof::Four => {
+            let mut a = Matrix4::zeros();
+            let mut b = Vector4::zeros();
+            for (i, &ii) in FOUR.iter().enumerate() {
+                b[i] = -g[ii];
+                for (j, &jj) in FOUR.iter().enumerate() {
+                    a[(i, j)] = h[(ii, jj)];
+                }
+                a[(i, i)] += lambda;
+            }
+            let x = a.cholesky()?.solve(&b);
+            let mut d = Vector6::zeros();
+            for (i, &ii) in FOUR.iter().enumerate() {
+                d[ii] = x[i];
+            }
+            d
+        }
+    };
+    delta.iter().all(|v| v.is_finite()).then_some(delta)
+}
+
+/// `Exp(delta) * t`: translation part first three, rotation vector last three.
+pub(crate) fn apply(delta: &Vector6<f32>, t: &Isometry3<f32>) -> Isometry3<f32> {
+    let rot = UnitQuaternion::from_scaled_axis(Vector3::new(delta[3], delta[4], delta[5]));
+    let d = Isometry3::from_parts(Translation3::new(delta[0], delta[1], delta[2]), rot);
+    let mut out = d * t;
+    out.rotation.renormalize();
+    out
+}
+
+/// Smallest eigenvalue of the information restricted to the estimated
+/// degrees of freedom, after scaling rotations by the lever arm `lever` and
+/// dividing by the total weight: dimensionless, 0 for an unconstrained
+/// direction, about 1/3 for a well-spread cloud of points.
+pub(crate) fn normalised_min_eigenvalue(h: &Matrix6<f32>, sum_w: f32, lever: f32, dof: Dof) -> f32 {
+    if !(sum_w > 0.0 && lever > 0.0) {
+        return 0.0;
+    }
+    let s = |i: usize| if i < 3 { 1.0 } else { 1.0 / lever };
+    let mut n = Matrix6::zeros();
+    for a in 0..6 {
+        for b in 0..6 {
+            n[(a, b)] = h[(a, b)] * s(a) * s(b) / sum_w;
+        }
+    }
+    let ev = match dof {
+        Dof::Six => nalgebra::SymmetricEigen::new(n).eigenvalues.iter().fold(f32::INFINITY, |a, v| a.min(*v)),
+        Dof::Four => {
+            let mut m = Matrix4::zeros();
+            for (i, &ii) in FOUR.iter().enumerate() {
+                for (j, &jj) in FOUR.iter().enumerate() {
+                    m[(i, j)] = n[(ii, jj)];
+                }
+            }
+            nalgebra::SymmetricEigen::new(m).eigenvalues.iter().fold(f32::INFINITY, |a, v| a.min(*v))
+        }
+    };
+    if ev.is_finite() {
+        ev.max(0.0)
+    } else {
+        0.0
+    }
+}
+
+/// Smallest eigenvalue of a symmetric 6x6 matrix.
+pub(crate) fn min_eigenvalue(m: &Matrix6<f32>) -> f32 {
+    nalgebra::SymmetricEigen::new(*m).eigenvalues.iter().fold(f32::INFINITY, |a, v| a.min(*v))
+}

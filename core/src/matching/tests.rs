@@ -1,0 +1,237 @@
+//! Matcher tests on small synthetic structures.
+
+use super::*;
+use crate::classes::Class;
+use crate::geometry::from_xyz_rpy;
+use crate::map::{LocalMap, MapConfig, SemanticVoxel, SliceStorage};
+use nalgebra::Isometry3;
+use proptest::prelude::*;
+use std::vec;
+use std::vec::Vec;
+
+/// Heap pyramid storage for tests.
+struct Heap {
+    entries: Vec<Entry>,
+    slots: Vec<u32>,
+    words: Vec<u32>,
+}
+
+impl PyramidStorage for Heap {
+    fn parts(&self) -> (&[Entry], &[u32], &[u32]) {
+        (&self.entries, &self.slots, &self.words)
+    }
+    fn parts_mut(&mut self) -> (&mut [Entry], &mut [u32], &mut [u32]) {
+        (&mut self.entries, &mut self.slots, &mut self.words)
+    }
+}
+
+/// Map storage on the heap (an inline 40k-voxel map would not fit a test
+/// thread's stack).
+struct HeapMap {
+    voxels: Vec<SemanticVoxel>,
+    slots: Vec<u32>,
+}
+
+impl crate::map::VoxelStorage for HeapMap {
+    fn voxels(&self) -> &[SemanticVoxel] {
+        &self.voxels
+    }
+    fn slots(&self) -> &[u32] {
+        &self.slots
+    }
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
+        (&mut self.voxels, &mut self.slots)
+    }
+}
+
+type Map = LocalMap<HeapMap>;
+
+fn new_map() -> Map {
+    let n = 40_000;
+    LocalMap::new(HeapMap { voxels: vec![SemanticVoxel::EMPTY; n], slots: vec![0; 2 * n] }, MapConfig::default())
+        .unwrap()
+}
+
+fn pyramid<S: crate::map::VoxelStorage>(map: &LocalMap<S>) -> Pyramid<Heap> {
+    let n = map.len() * 5;
+    Pyramid::build(
+        map,
+        4,
+        1.0,
+        Heap { entries: vec![Entry::default(); n], slots: vec![0; 2 * n], words: vec![0; 400_000] },
+    )
+    .unwrap()
+}
+
+/// An L-shaped street corner: floor, two walls, poles and a tree.
+fn corner(map: &mut Map, t: &Isometry3<f32>) {
+    let mut put = |p: [f32; 3], c: Class| {
+        let q = crate::geometry::transform_point(t, p);
+        map.insert_point(q, c).unwrap();
+    };
+    for i in 0..150 {
+        for j in 0..150 {
+            let (x, y) = (i as f32 * 0.1 - 5.0, j as f32 * 0.1 - 5.0);
+            put([x, y, 0.0], if y < 2.0 { Class::Road } else { Class::Sidewalk });
+        }
+    }
+    for i in 0..150 {
+        for k in 0..40 {
+            let (a, z) = (i as f32 * 0.1 - 5.0, k as f32 * 0.1);
+            put([a, 10.0, z], Class::Building);
+            if a < 4.0 {
+                put([10.0, a, z], Class::Fence);
+            }
+        }
+    }
+    for (px, py) in [(-3.0f32, 3.0f32), (2.0, -4.0), (6.0, 6.0)] {
+        for k in 0..60 {
+            for a in 0..8 {
+                let ang = a as f32 * core::f32::consts::FRAC_PI_4;
+                put([px + 0.1 * libm::cosf(ang), py + 0.1 * libm::sinf(ang), k as f32 * 0.1], Class::Pole);
+            }
+        }
+    }
+}
+
+fn errors(a: &Isometry3<f32>, b: &Isometry3<f32>) -> (f32, f32) {
+    let d = a * b.inverse();
+    (d.translation.vector.norm(), d.rotation.angle().to_degrees())
+}
+
+#[test]
+fn converges_from_far_starts_to_the_truth() {
+    let gt = from_xyz_rpy(1.5, -0.7, 0.05, 0.0, 0.0, 0.2);
+    let mut model = new_map();
+    corner(&mut model, &Isometry3::identity());
+    let mut scene = new_map();
+    corner(&mut scene, &gt.inverse());
+    let (pm, ps) = (pyramid(&model), pyramid(&scene));
+    for (dx, dy, dyaw) in [(0.0, 0.0, 0.0), (6.0, -6.0, 20.0), (-6.0, 6.0, -20.0)] {
+        let d = from_xyz_rpy(dx, dy, 0.0, 0.0, 0.0, f32::to_radians(dyaw));
+        let r = Matcher::default().align(&pm, &ps, &(d * gt)).unwrap();
+        let (et, er) = errors(&r.transform, &gt);
+        assert_eq!(r.status, MatchStatus::Converged, "start {dx} {dy} {dyaw}: {r:?}");
+        assert!(et < 0.05 && er < 0.2, "start {dx} {dy} {dyaw}: e_t {et} e_r {er}");
+        assert!(r.overlap > 0.9 && r.inliers > 1000 && r.rmse < 0.15, "{r:?}");
+        assert!(r.min_eigenvalue > 0.0 && r.degeneracy > 0.002, "{r:?}");
+    }
+}
+
+#[test]
+fn self_match_is_identity_and_bit_for_bit_repeatable() {
+    let mut m = new_map();
+    corner(&mut m, &Isometry3::identity());
+    let (a, b) = (pyramid(&m), pyramid(&m));
+    let r1 = Matcher::default().align(&a, &b, &Isometry3::identity()).unwrap();
+    let r2 = Matcher::default().align(&a, &b, &Isometry3::identity()).unwrap();
+    assert_eq!(r1.status, MatchStatus::Converged);
+    let (et, er) = errors(&r1.transform, &Isometry3::identity());
+    assert!(et < 1e-3 && er < 1e-3, "{et} {er}");
+    assert_eq!(r1, r2);
+    let bits = |r: &MatchResult| {
+        let v = r.transform.translation.vector;
+        let q = r.transform.rotation.coords;
+        [v.x, v.y, v.z, q.x, q.y, q.z, q.w].map(f32::to_bits)
+    };
+    assert_eq!(bits(&r1), bits(&r2));
+}
+
+#[test]
+fn flat_road_alone_is_degenerate() {
+    let mut m = new_map();
+    for i in 0..200 {
+        for j in 0..100 {
+            m.insert_point([i as f32 * 0.1, j as f32 * 0.1, 0.0], Class::Road).unwrap();
+        }
+    }
+    let p = pyramid(&m);
+    let r = Matcher::default().align(&p, &p, &from_xyz_rpy(0.3, 0.2, 0.0, 0.0, 0.0, 0.02)).unwrap();
+    assert_eq!(r.status, MatchStatus::Degenerate, "{r:?}");
+    assert!(r.degeneracy < 1e-3);
+}
+
+#[test]
+fn far_apart_maps_do_not_match() {
+    let mut model = new_map();
+    corner(&mut model, &Isometry3::identity());
+    let mut scene = new_map();
+    corner(&mut scene, &from_xyz_rpy(80.0, 0.0, 0.0, 0.0, 0.0, 0.0));
+    let r = Matcher::default().align(&pyramid(&model), &pyramid(&scene), &Isometry3::identity()).unwrap();
+    assert_eq!(r.status, MatchStatus::NoOverlap, "{r:?}");
+}
+
+#[test]
+fn four_dof_keeps_roll_and_pitch_of_the_start() {
+    let gt = from_xyz_rpy(1.0, 0.5, 0.0, 0.0, 0.0, 0.1);
+    let mut model = new_map();
+    corner(&mut model, &Isometry3::identity());
+    let mut scene = new_map();
+    corner(&mut scene, &gt.inverse());
+    let settings = MatchSettings { dof: Dof::Four, ..MatchSettings::default() };
+    let r = Matcher::new(settings)
+        .align(&pyramid(&model), &pyramid(&scene), &from_xyz_rpy(2.0, 0.0, 0.0, 0.0, 0.0, 0.3))
+        .unwrap();
+    let (roll, pitch, _) = r.transform.rotation.euler_angles();
+    assert!(roll.abs() < 1e-6 && pitch.abs() < 1e-6, "{roll} {pitch}");
+    let (et, er) = errors(&r.transform, &gt);
+    assert!(et < 0.05 && er < 0.2, "{et} {er}");
+}
+
+#[test]
+fn invalid_inputs_are_errors() {
+    let mut m = new_map();
+    corner(&mut m, &Isometry3::identity());
+    let p = pyramid(&m);
+    let mut bad = Isometry3::identity();
+    bad.translation.vector.x = f32::NAN;
+    assert_eq!(Matcher::default().align(&p, &p, &bad), Err(MatchError::NonFiniteInit));
+    let zero = MatchSettings { max_iterations: 0, ..MatchSettings::default() };
+    assert_eq!(Matcher::new(zero).align(&p, &p, &Isometry3::identity()), Err(MatchError::Settings));
+    // A pyramid of another resolution.
+    let mut coarse = LocalMap::new(crate::map::ArrayStorage::<4096>::new(), MapConfig::with_resolution(0.5)).unwrap();
+    coarse.insert_point([0.0; 3], Class::Road).unwrap();
+    let pc = pyramid(&coarse);
+    assert_eq!(Matcher::default().align(&p, &pc, &Isometry3::identity()), Err(MatchError::ResolutionMismatch));
+    // Too little storage is a typed error.
+    let tiny = Heap { entries: vec![Entry::default(); 10], slots: vec![0; 20], words: vec![] };
+    assert!(matches!(Pyramid::build(&m, 4, 1.0, tiny), Err(PyramidError::Full)));
+}
+
+fn small_map(points: &[([f32; 3], u8)]) -> (Vec<SemanticVoxel>, Vec<u32>) {
+    (vec![SemanticVoxel::EMPTY; points.len().max(1)], vec![0; 2 * points.len().max(1)])
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// Arbitrary maps and priors never panic and never give a non-finite
+    /// transform.
+    #[test]
+    fn arbitrary_maps_and_priors_are_safe(
+        a in prop::collection::vec(([-15.0f32..15.0, -15.0f32..15.0, -2.0f32..4.0], 0u8..19), 1..300),
+        b in prop::collection::vec(([-15.0f32..15.0, -15.0f32..15.0, -2.0f32..4.0], 0u8..19), 1..300),
+        t in [-40.0f32..40.0, -40.0f32..40.0, -5.0f32..5.0, -3.2f32..3.2, -3.2f32..3.2, -3.2f32..3.2],
+        method in 0u8..3,
+        four in any::<bool>(),
+    ) {
+        let (mut va, mut sa) = small_map(&a);
+        let (mut vb, mut sb) = small_map(&b);
+        let mut ma = LocalMap::new(SliceStorage { voxels: &mut va, slots: &mut sa }, MapConfig::default()).unwrap();
+        let mut mb = LocalMap::new(SliceStorage { voxels: &mut vb, slots: &mut sb }, MapConfig::default()).unwrap();
+        for (p, c) in &a { ma.insert_point(*p, Class::from_index(*c).unwrap()).unwrap(); }
+        for (p, c) in &b { mb.insert_point(*p, Class::from_index(*c).unwrap()).unwrap(); }
+        let settings = MatchSettings {
+            method: [Method::Cosem, Method::CosemHard, Method::Geometric][method as usize],
+            dof: if four { Dof::Four } else { Dof::Six },
+            ..MatchSettings::default()
+        };
+        let init = from_xyz_rpy(t[0], t[1], t[2], t[3], t[4], t[5]);
+        let r = Matcher::new(settings).align(&pyramid(&ma), &pyramid(&mb), &init).unwrap();
+        let v = r.transform.translation.vector;
+        let q = r.transform.rotation.coords;
+        prop_assert!(v.iter().chain(q.iter()).all(|x| x.is_finite()), "{:?}", r);
+        prop_assert!(r.overlap.is_finite() && r.rmse.is_finite() && r.degeneracy.is_finite());
+        prop_assert!(r.iterations <= settings.max_iterations);
+    }
+}

@@ -1,0 +1,124 @@
+//! Matching end to end: `cosem eval` from the paper grid's 8 corners and
+//! centre, and `cosem match` on the honesty cases. Tolerances from the
+//! matcher's requirements: Converged, e_t < 0.1 m, e_r < 0.2 degrees.
+
+use cosem_tests::{cosem_ok, real_data, synth};
+use serde_json::Value;
+use std::path::Path;
+
+fn eval_corners(data: &Path, a: &str, b: &str) -> Value {
+    let out = tempfile::NamedTempFile::new().unwrap();
+    let json = out.path().display().to_string();
+    let d = data.display().to_string();
+    cosem_ok(&["eval", "--data", &d, "--a", a, "--b", b, "--grid", "corners", "--json", &json]);
+    serde_json::from_str(&std::fs::read_to_string(out.path()).unwrap()).unwrap()
+}
+
+fn assert_all_converged(name: &str, v: &Value) {
+    assert_eq!(v["starts"], 9, "{name}");
+    let results = v["results"].as_array().unwrap();
+    assert_eq!(results.len(), 9);
+    for r in results {
+        let (et, er) = (r["e_t"].as_f64().unwrap(), r["e_r"].as_f64().unwrap());
+        assert_eq!(r["status"], "Converged", "{name}: {r}");
+        assert!(
+            et < 0.1 && er < 0.2,
+            "{name}: start ({}, {}, {}): e_t {et} m, e_r {er} deg",
+            r["dx"],
+            r["dy"],
+            r["dyaw"]
+        );
+    }
+    assert_eq!(v["methods"]["cosem"]["success_strict"], 1.0, "{name}");
+}
+
+#[test]
+fn synthetic_pair_from_the_grid_corners() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 16, 11);
+    let v = eval_corners(&seq, "0:8", "8:16");
+    assert_all_converged("synthetic", &v);
+}
+
+#[test]
+fn kitti00_pair_from_the_grid_corners() {
+    let Some(dir) = real_data("kitti00") else { return };
+    assert_all_converged("kitti00", &eval_corners(&dir, "0:5", "5:10"));
+}
+
+#[test]
+fn kitti00_loop_pair_from_the_grid_corners() {
+    let Some(dir) = real_data("kitti00-loop") else { return };
+    assert_all_converged("kitti00-loop", &eval_corners(&dir, "52:53", "4501:4502"));
+}
+
+fn map(dir: &Path, frames: &str, out: &Path) {
+    cosem_ok(&["map", "--data", &dir.display().to_string(), "--frames", frames, "-o", &out.display().to_string()]);
+}
+
+fn match_json(model: &Path, scene: &Path, extra: &[&str]) -> Value {
+    let (m, s) = (model.display().to_string(), scene.display().to_string());
+    let mut args = vec!["match", m.as_str(), s.as_str(), "--json"];
+    args.extend_from_slice(extra);
+    serde_json::from_str(&cosem_ok(&args)).unwrap()
+}
+
+#[test]
+fn far_apart_pair_is_not_converged() {
+    let Some(dir) = real_data("kitti00-loop") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("88.cmap"), tmp.path().join("850.cmap"));
+    map(&dir, "88:89", &a);
+    map(&dir, "850:851", &b);
+    for method in ["cosem", "cosem-hard", "geometric"] {
+        for (m, s) in [(&a, &b), (&b, &a)] {
+            let v = match_json(m, s, &["--method", method]);
+            assert_ne!(v["status"], "Converged", "{method}: {v}");
+        }
+    }
+}
+
+#[test]
+fn self_match_is_identity_and_json_is_complete() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 4, 4);
+    let m = tmp.path().join("a.cmap");
+    map(&seq, "0:4", &m);
+    let ply = tmp.path().join("merged.ply");
+    let v = match_json(&m, &m, &["--merged", &ply.display().to_string()]);
+    assert_eq!(v["status"], "Converged", "{v}");
+    let t: Vec<f64> = v["transform"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    assert_eq!(t.len(), 16);
+    let identity = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+    for (a, b) in t.iter().zip(identity) {
+        assert!((a - b).abs() < 1e-3, "{t:?}");
+    }
+    assert_eq!(v["information"].as_array().unwrap().len(), 36);
+    for k in ["iterations", "inliers", "overlap", "rmse", "time_ms", "min_eigenvalue"] {
+        assert!(v[k].as_f64().is_some(), "{k} missing: {v}");
+    }
+    assert!(v["overlap"].as_f64().unwrap() > 0.99);
+    // The merged cloud holds both maps.
+    let info: Value = serde_json::from_str(&cosem_ok(&["info", &m.display().to_string(), "--json"])).unwrap();
+    let header = std::fs::read(&ply).unwrap();
+    let text = String::from_utf8_lossy(&header[..200]);
+    assert!(text.contains(&format!("element vertex {}\n", 2 * info["voxels"].as_u64().unwrap())), "{text}");
+}
+
+#[test]
+fn match_rejects_bad_arguments_cleanly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 2, 4);
+    let m = tmp.path().join("a.cmap");
+    map(&seq, "0:2", &m);
+    let ms = m.display().to_string();
+    let e = cosem_tests::cosem_err(&["match", &ms, &ms, "--init", "1,2,3"]);
+    assert!(e.contains("6 numbers"), "{e}");
+    let e = cosem_tests::cosem_err(&["match", &ms, &ms, "--method", "icp"]);
+    assert!(e.contains("unknown method"), "{e}");
+    let e = cosem_tests::cosem_err(&["match", &ms, "/nonexistent.cmap"]);
+    assert!(e.contains("/nonexistent.cmap"), "{e}");
+}
