@@ -3,6 +3,7 @@
 //! map files. The `cosem` binary is a thin CLI over these modules.
 
 pub mod align;
+pub mod boxplot;
 pub mod cmap;
 pub mod kitti;
 pub mod mapping;

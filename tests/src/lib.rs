@@ -8,18 +8,28 @@ pub fn workspace_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().map(Path::to_path_buf).unwrap_or_default()
 }
 
-/// Path of the `cosem` binary of this build: `COSEM_BIN`, else next to the
-/// test executable's profile folder (cargo builds it for the host crate's
-/// integration tests in the same run).
+/// Path of the `cosem` binary of this build: `COSEM_BIN`, else the one in
+/// the test executable's profile folder, brought up to date once per test
+/// process with `cargo build` (a no-op when it is), so a test never runs a
+/// stale binary.
 pub fn cosem_bin() -> PathBuf {
     if let Some(p) = std::env::var_os("COSEM_BIN") {
         return PathBuf::from(p);
     }
     let exe = std::env::current_exe().expect("test executable path");
     let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile>/deps");
-    let bin = profile_dir.join(format!("cosem{}", std::env::consts::EXE_SUFFIX));
-    assert!(bin.exists(), "{} not built: run the tests with `cargo test --workspace`", bin.display());
-    bin
+    static BUILD: std::sync::Once = std::sync::Once::new();
+    BUILD.call_once(|| {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut cmd = Command::new(cargo);
+        cmd.args(["build", "--quiet", "-p", "cosem-host", "--bin", "cosem"]).current_dir(workspace_root());
+        if profile_dir.file_name().is_some_and(|n| n == "release") {
+            cmd.arg("--release");
+        }
+        let status = cmd.status().expect("run cargo build");
+        assert!(status.success(), "cargo build of the cosem binary failed");
+    });
+    profile_dir.join(format!("cosem{}", std::env::consts::EXE_SUFFIX))
 }
 
 /// Runs `cosem` with arguments from the workspace root.

@@ -53,11 +53,61 @@ pub fn compatibility(method: Method, a: &Entry, b: &Entry) -> f32 {
     }
 }
 
+/// Slots of [`Sampling`]: one per class and one for entries without one.
+const SAMPLING_SLOTS: usize = NUM_CLASSES + 1;
+
+/// Which scene entries an E-step uses: every `stride[c]`-th entry of class
+/// `c`, in level order. A class-balanced thinning: the budget is shared
+/// equally among the classes present (water-filling), so rare classes such
+/// as poles, trunks and signs, which pin the direction along a street, keep
+/// all their entries while road and building are thinned.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sampling {
+    stride: [u32; SAMPLING_SLOTS],
+}
+
+fn sampling_slot(class: u8) -> usize {
+    usize::from(class).min(SAMPLING_SLOTS - 1)
+}
+
+impl Sampling {
+    /// About `budget` entries of `entries`, shared equally among classes.
+    pub fn balanced(entries: &[Entry], budget: usize) -> Self {
+        let mut count = [0usize; SAMPLING_SLOTS];
+        for e in entries {
+            count[sampling_slot(e.class)] += 1;
+        }
+        let mut order = [0usize; SAMPLING_SLOTS];
+        for (i, o) in order.iter_mut().enumerate() {
+            *o = i;
+        }
+        order.sort_unstable_by_key(|&i| (count[i], i));
+        let mut left = budget.max(1);
+        let mut classes = count.iter().filter(|&&c| c > 0).count();
+        let mut stride = [1u32; SAMPLING_SLOTS];
+        for &i in &order {
+            let c = count[i];
+            if c == 0 {
+                continue;
+            }
+            let share = (left / classes.max(1)).max(1);
+            let st = c.div_ceil(share).max(1);
+            stride[i] = st as u32;
+            left = left.saturating_sub(c.div_ceil(st));
+            classes -= 1;
+        }
+        Sampling { stride }
+    }
+}
+
 /// Sums of one E-step.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Normal {
-    /// `sum w J^T J`.
+    /// `sum w J^T J` over the sampled entries: what the M-step solves.
     pub h: Matrix6<f32>,
+    /// The same, each entry counted `stride` times: an estimate of the sum
+    /// over all entries, for the information matrix.
+    pub h_all: Matrix6<f32>,
     /// `sum w J^T r`.
     pub g: Vector6<f32>,
     /// `sum w`.
@@ -72,16 +122,26 @@ pub(crate) struct Normal {
 
 impl Normal {
     fn new() -> Self {
-        Normal { h: Matrix6::zeros(), g: Vector6::zeros(), sum_w: 0.0, sum_wr2: 0.0, sum_wq2: 0.0, pairs: 0 }
+        Normal {
+            h: Matrix6::zeros(),
+            h_all: Matrix6::zeros(),
+            g: Vector6::zeros(),
+            sum_w: 0.0,
+            sum_wr2: 0.0,
+            sum_wq2: 0.0,
+            pairs: 0,
+        }
     }
 
-    fn add_row(&mut self, j: &Vector6<f32>, r: f32, w: f32) {
+    fn add_row(&mut self, j: &Vector6<f32>, r: f32, w: f32, scale: f32) {
         // Upper triangle only; mirrored by `finish`.
         for a in 0..6 {
             let wa = w * j[a];
             self.g[a] += wa * r;
             for b in a..6 {
-                self.h[(a, b)] += wa * j[b];
+                let v = wa * j[b];
+                self.h[(a, b)] += v;
+                self.h_all[(a, b)] += v * scale;
             }
         }
         self.sum_wr2 += w * r * r;
@@ -91,6 +151,7 @@ impl Normal {
         for a in 0..6 {
             for b in 0..a {
                 self.h[(a, b)] = self.h[(b, a)];
+                self.h_all[(a, b)] = self.h_all[(b, a)];
             }
         }
     }
@@ -150,16 +211,26 @@ pub(crate) struct Pass {
     pub method: Method,
     /// Residual.
     pub cost: Cost,
-    /// Use one scene entry in `stride`.
-    pub stride: usize,
+    /// Which scene entries take part.
+    pub sampling: Sampling,
 }
 
 /// One E-step at one level: associates every scene entry and accumulates the
 /// normal equations of the M-step at the transform `t`.
 pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>, pass: &Pass) -> Normal {
-    let Pass { sigma, radius, method, cost, stride } = *pass;
+    let Pass { sigma, radius, method, cost, sampling } = *pass;
     let mut n = Normal::new();
-    for s in scene.entries().iter().step_by(stride.max(1)) {
+    // Countdown per class: an entry is used when its class's reaches zero.
+    let mut skip = [0u32; SAMPLING_SLOTS];
+    for s in scene.entries() {
+        let k = sampling_slot(s.class);
+        if skip[k] > 0 {
+            skip[k] -= 1;
+            continue;
+        }
+        let stride = sampling.stride[k];
+        skip[k] = stride - 1;
+        let scale = stride as f32;
         let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
         let Some((m, w, _)) = best_match(model, s, &q, sigma, radius, method) else { continue };
         if w.is_nan() || w <= 0.0 {
@@ -175,14 +246,14 @@ pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32
             let r = nv.dot(&diff);
             let qxn = q.coords.cross(&nv);
             let j = Vector6::new(nv.x, nv.y, nv.z, qxn.x, qxn.y, qxn.z);
-            n.add_row(&j, r, w);
+            n.add_row(&j, r, w, scale);
         } else {
             for k in 0..3 {
                 let mut e = Vector3::zeros();
                 e[k] = 1.0;
                 let qxe = q.coords.cross(&e);
                 let j = Vector6::new(e.x, e.y, e.z, qxe.x, qxe.y, qxe.z);
-                n.add_row(&j, diff[k], w);
+                n.add_row(&j, diff[k], w, scale);
             }
         }
     }

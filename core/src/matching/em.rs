@@ -1,7 +1,7 @@
 //! The coarse-to-fine EM driver: levels from coarse to fine, a Gaussian width
 //! annealed within each level, one iteration budget across all of them.
 
-use super::associate::{accumulate, agreement, Normal, Pass};
+use super::associate::{accumulate, agreement, Normal, Pass, Sampling};
 use super::pyramid::{Pyramid, PyramidStorage, MAX_LEVELS};
 use super::result::{MatchResult, MatchStatus};
 use super::search::search;
@@ -111,19 +111,18 @@ impl Matcher {
         let mut used = 0u32;
         let mut per_level = [0u8; MAX_LEVELS];
         let mut converged = false;
-        // Normal equations of the last finest-level iteration, scaled to the
-        // whole scene (they were summed over one entry in `stride`).
-        let mut last: Option<(Normal, f32)> = None;
+        // Normal equations of the last finest-level iteration.
+        let mut last: Option<Normal> = None;
         for l in (0..=top).rev() {
             let (Some(m), Some(c)) = (model.level(l), scene.level(l)) else { break };
             let cell = m.resolution();
             let floor = s.sigma_end * cell;
             let mut sigma = s.sigma_start * cell;
             let remaining = s.max_iterations.saturating_sub(used);
-            let stride = c.entries().len().div_ceil(s.max_scene_entries.max(1) as usize);
+            let sampling = Sampling::balanced(c.entries(), s.max_scene_entries as usize);
             let budget = if l == 0 { remaining } else { s.max_iterations_per_level.min(remaining / 2) };
             for _ in 0..budget {
-                let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, stride };
+                let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, sampling };
                 let n = accumulate(&m, &c, &t, &pass);
                 used += 1;
                 if let Some(p) = per_level.get_mut(l) {
@@ -134,7 +133,7 @@ impl Matcher {
                 }
                 let Some(delta) = step(&n.h, &n.g, s.dof) else { break };
                 if l == 0 {
-                    last = Some((n, stride.max(1) as f32));
+                    last = Some(n);
                 }
                 t = apply(&delta, &t);
                 // Coarse levels only need to hand over within the next level's
@@ -164,17 +163,17 @@ impl Matcher {
         // The information at the solution: the last finest-level iteration's
         // normal equations (its update was below the tolerance, so they were
         // taken at the solution to within it), else a fresh pass.
-        let (n, scale) = match last {
+        let n = match last {
             Some(found) if converged => found,
             _ => {
-                let stride = c0.entries().len().div_ceil(s.max_scene_entries.max(1) as usize).max(1);
-                let pass = Pass { sigma: s.sigma_end * cell, radius: cell, method: s.method, cost: s.cost, stride };
-                (accumulate(&m0, &c0, &t, &pass), stride as f32)
+                let sampling = Sampling::balanced(c0.entries(), s.max_scene_entries as usize);
+                let pass = Pass { sigma: s.sigma_end * cell, radius: cell, method: s.method, cost: s.cost, sampling };
+                accumulate(&m0, &c0, &t, &pass)
             }
         };
         let floor = 0.01 * cell;
         let var = if n.sum_w > 0.0 { (n.sum_wr2 / n.sum_w).max(floor * floor) } else { 1.0 };
-        let information: Matrix6<f32> = n.h * (scale / var);
+        let information: Matrix6<f32> = n.h_all / var;
         let lever = if n.sum_w > 0.0 { libm::sqrtf(n.sum_wq2 / n.sum_w) } else { 0.0 };
         let degeneracy = normalised_min_eigenvalue(&n.h, n.sum_w, lever, s.dof);
         let status = if agree.inliers < s.min_inliers || agree.overlap < s.min_overlap {

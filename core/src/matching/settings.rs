@@ -81,8 +81,9 @@ pub struct MatchSettings {
     /// Most iterations spent on one coarse level (default 8); the finest
     /// level gets what is left of the budget.
     pub max_iterations_per_level: u32,
-    /// Scene entries used per iteration at most; larger levels are thinned
-    /// by a fixed stride (default 5000).
+    /// Scene entries used per iteration, about; larger levels are thinned,
+    /// class-balanced: the budget is shared equally among the classes
+    /// present, so rare ones keep all their entries (default 3000).
     pub max_scene_entries: u32,
     /// Scene entries the final figures (inliers, overlap, RMSE) are computed
     /// on at most (default 10000): exact up to that size, above it a 1-in-k
@@ -120,7 +121,7 @@ impl Default for MatchSettings {
             search: Some(SearchWindow { translation: 15.0, yaw: 30.0 * core::f32::consts::PI / 180.0 }),
             max_iterations: 50,
             max_iterations_per_level: 10,
-            max_scene_entries: 5_000,
+            max_scene_entries: 2_000,
             max_agreement_entries: 10_000,
             sigma_start: 1.0,
             sigma_end: 0.5,

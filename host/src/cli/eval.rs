@@ -4,9 +4,12 @@ use super::Error;
 use cosem_core::map::MapConfig;
 use cosem_core::matching::{MatchStatus, Matcher};
 use cosem_host::align::{corners, errors, grid, prepare, sample, to_matrix, Start, DEFAULT_LEVELS};
+use cosem_host::boxplot::{self, Panel};
 use cosem_host::kitti::{FrameRange, Sequence};
 use cosem_host::mapping::{build_map, PointFilter};
 use cosem_host::pose;
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -29,34 +32,70 @@ pub struct Args {
     #[arg(long, default_value = "paper")]
     grid: String,
     /// Keep every K-th grid value on each axis, counting outward from zero.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "limit")]
     grid_stride: Option<usize>,
     /// Keep N starts of the full grid, chosen by a fixed seed.
     #[arg(long)]
     limit: Option<usize>,
-    /// Methods, comma-separated.
+    /// Methods, comma-separated: cosem, cosem-hard, geometric.
     #[arg(long, default_value = "cosem")]
     method: String,
     /// Degrees of freedom: 6 or 4.
     #[arg(long, default_value_t = 6)]
     dof: u8,
-    /// Print every start.
+    /// Worker threads (each match itself runs on one); default: all cores.
     #[arg(long)]
-    verbose: bool,
+    threads: Option<usize>,
     /// Write the summary and every start's result as JSON to this file.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Write box plots of e_t and e_r per method to this SVG file.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Print every start.
+    #[arg(long)]
+    verbose: bool,
+}
+
+/// One start's outcome.
+struct Outcome {
+    start: Start,
+    status: MatchStatus,
+    et: f64,
+    er: f64,
+    iterations: u32,
+    time_ms: f64,
+    overlap: f32,
+    transform: Vec<f64>,
 }
 
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
     }
-    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
-    sorted[i]
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+fn sorted(v: impl Iterator<Item = f64>) -> Vec<f64> {
+    let mut v: Vec<f64> = v.collect();
+    v.sort_by(|a, b| a.total_cmp(b));
+    v
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
+    let methods: Vec<(String, cosem_core::matching::MatchSettings)> = a
+        .method
+        .split(',')
+        .map(|m| super::matching::settings(m.trim(), a.dof).map(|s| (m.trim().to_string(), s)))
+        .collect::<Result<_, _>>()?;
+    let starts: Vec<Start> = match (a.limit, a.grid_stride, a.grid.as_str()) {
+        (Some(n), _, _) => sample(n, 0xC05E),
+        (None, Some(k), _) => grid(k),
+        (None, None, "paper") => grid(1),
+        (None, None, "corners") => corners(),
+        (None, None, g) => return Err(format!("--grid {g}: expected paper or corners").into()),
+    };
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
     let seq = Sequence::open(&a.data)?;
     let config = MapConfig::with_resolution(a.voxel);
     let filter = PointFilter::default();
@@ -69,84 +108,100 @@ pub fn run(a: Args) -> Result<(), Error> {
     let prep_ms = t0.elapsed().as_secs_f64() * 1e3 / 2.0;
     let overlap = cosem_core::map::overlap(&map_a, &map_b, &pose::to_isometry(&gt));
     println!(
-        "maps: A {} voxels, B {} voxels, overlap {:.1}% under the ground truth; preparation {:.1} ms per map",
+        "maps: A {} voxels, B {} voxels at {} m, overlap {:.1}% under the ground truth; preparation {:.1} ms per map",
         map_a.len(),
         map_b.len(),
+        a.voxel,
         100.0 * overlap,
         prep_ms
     );
-    let starts: Vec<Start> = match (a.limit, a.grid_stride, a.grid.as_str()) {
-        (Some(n), _, _) => sample(n, 0xC05E),
-        (None, Some(k), _) => grid(k),
-        (None, None, "paper") => grid(1),
-        (None, None, "corners") => corners(),
-        (None, None, g) => return Err(format!("--grid {g}: expected paper or corners").into()),
-    };
+    println!("{} starts x {} method(s) on {} thread(s)", starts.len(), methods.len(), pool.current_num_threads());
+    let bar = ProgressBar::new((starts.len() * methods.len()) as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} matches, {elapsed} elapsed, eta {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
     let mut methods_json = serde_json::Map::new();
     let mut results_json = Vec::new();
-    for name in a.method.split(',') {
-        let settings = super::matching::settings(name.trim(), a.dof)?;
-        let matcher = Matcher::new(settings);
-        let mut et = Vec::new();
-        let mut er = Vec::new();
-        let mut times = Vec::new();
-        let mut iters = Vec::new();
-        let (mut strict, mut loose) = (0usize, 0usize);
-        for s in &starts {
-            let init = pose::to_isometry(&s.apply(&gt));
-            let t = Instant::now();
-            let r = matcher.align(&pa, &pb, &init)?;
-            times.push(t.elapsed().as_secs_f64() * 1e3);
-            let (e_t, e_r) = errors(&to_matrix(&r.transform), &gt);
-            let conv = r.status == MatchStatus::Converged;
-            strict += usize::from(conv && e_t < 0.5 && e_r < 1.0);
-            loose += usize::from(conv && e_t < 2.0 && e_r < 5.0);
-            if a.verbose {
-                if let (Some(window), Some(fm), Some(fs)) = (settings.search, pa.footprint(), pb.footprint()) {
-                    let ts = Instant::now();
-                    if let Some(o) = cosem_core::matching::search::search(
-                        fm,
-                        fs,
-                        &init,
-                        &window,
-                        settings.method != cosem_core::matching::Method::Geometric,
-                    ) {
-                        let (st, sr) = errors(&to_matrix(&o.transform), &gt);
-                        println!(
-                            "  search: e_t {st:.2} m e_r {sr:.2} deg, score {} (prior {}), {} nodes, {:.1} ms",
-                            o.score,
-                            o.prior_score,
-                            o.evaluations,
-                            ts.elapsed().as_secs_f64() * 1e3
-                        );
-                    }
-                }
+    let mut panels_t: Vec<(&str, Vec<f64>)> = Vec::new();
+    let mut panels_r: Vec<(&str, Vec<f64>)> = Vec::new();
+    for (name, settings) in &methods {
+        let matcher = Matcher::new(*settings);
+        let outcomes: Vec<Result<Outcome, cosem_core::matching::MatchError>> = pool.install(|| {
+            starts
+                .par_iter()
+                .map(|s| {
+                    let init = pose::to_isometry(&s.apply(&gt));
+                    let t = Instant::now();
+                    let r = matcher.align(&pa, &pb, &init)?;
+                    let time_ms = t.elapsed().as_secs_f64() * 1e3;
+                    let m = to_matrix(&r.transform);
+                    let (et, er) = errors(&m, &gt);
+                    bar.inc(1);
+                    Ok(Outcome {
+                        start: *s,
+                        status: r.status,
+                        et,
+                        er,
+                        iterations: r.iterations,
+                        time_ms,
+                        overlap: r.overlap,
+                        transform: pose::to_row_major(&m),
+                    })
+                })
+                .collect()
+        });
+        let outcomes: Vec<Outcome> = outcomes.into_iter().collect::<Result<_, _>>()?;
+        let conv = |o: &Outcome| o.status == MatchStatus::Converged;
+        let strict = outcomes.iter().filter(|o| conv(o) && o.et < 0.5 && o.er < 1.0).count();
+        let loose = outcomes.iter().filter(|o| conv(o) && o.et < 2.0 && o.er < 5.0).count();
+        let et = sorted(outcomes.iter().map(|o| o.et));
+        let er = sorted(outcomes.iter().map(|o| o.er));
+        let times = sorted(outcomes.iter().map(|o| o.time_ms));
+        let iters = sorted(outcomes.iter().map(|o| f64::from(o.iterations)));
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let n = outcomes.len().max(1) as f64;
+        let (s_strict, s_loose) = (strict as f64 / n, loose as f64 / n);
+        if a.verbose {
+            for o in &outcomes {
                 println!(
-                    "  start dx {:>5.1} dy {:>5.1} dyaw {:>5.1}: {:<12} e_t {:.3} m e_r {:.3} deg, {} it {:?}, ovl {:.2}, deg {:.4}, {:.1} ms",
-                    s.dx, s.dy, s.dyaw, r.status.as_str(), e_t, e_r, r.iterations, &r.iterations_per_level[..DEFAULT_LEVELS],
-                    r.overlap, r.degeneracy, times.last().copied().unwrap_or(0.0)
+                    "  {name} start dx {:>5.1} dy {:>5.1} dyaw {:>5.1}: {:<12} e_t {:.3} m, e_r {:.3} deg, {} it, overlap {:.2}, {:.1} ms",
+                    o.start.dx, o.start.dy, o.start.dyaw, o.status.as_str(), o.et, o.er, o.iterations, o.overlap, o.time_ms
                 );
             }
-            results_json.push(json!({
-                "method": name.trim(), "dx": s.dx, "dy": s.dy, "dyaw": s.dyaw,
-                "status": r.status.as_str(), "e_t": e_t, "e_r": e_r,
-                "iterations": r.iterations, "time_ms": times.last().copied().unwrap_or(0.0),
-                "overlap": r.overlap, "transform": pose::to_row_major(&to_matrix(&r.transform)),
-            }));
-            et.push(e_t);
-            er.push(e_r);
-            iters.push(f64::from(r.iterations));
         }
-        for v in [&mut et, &mut er, &mut times, &mut iters] {
-            v.sort_by(|x, y| x.total_cmp(y));
-        }
-        let n = starts.len() as f64;
-        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        bar.suspend(|| {
+            println!(
+                "{name}: strict {:.1}%, loose {:.1}% of {} starts",
+                100.0 * s_strict,
+                100.0 * s_loose,
+                outcomes.len()
+            );
+            println!(
+                "  e_t  median {:.3}  mean {:.3}  p95 {:.3}  max {:.3} m",
+                percentile(&et, 0.5),
+                mean(&et),
+                percentile(&et, 0.95),
+                et.last().copied().unwrap_or(f64::NAN)
+            );
+            println!(
+                "  e_r  median {:.3}  mean {:.3}  p95 {:.3}  max {:.3} deg",
+                percentile(&er, 0.5),
+                mean(&er),
+                percentile(&er, 0.95),
+                er.last().copied().unwrap_or(f64::NAN)
+            );
+            println!(
+                "  time per match median {:.1} ms (single thread), iterations median {}",
+                percentile(&times, 0.5),
+                percentile(&iters, 0.5)
+            );
+        });
         methods_json.insert(
-            name.trim().to_string(),
+            name.clone(),
             json!({
-                "success_strict": strict as f64 / n,
-                "success_loose": loose as f64 / n,
+                "success_strict": s_strict,
+                "success_loose": s_loose,
                 "et_median_m": percentile(&et, 0.5),
                 "et_mean_m": mean(&et),
                 "et_p95_m": percentile(&et, 0.95),
@@ -159,31 +214,47 @@ pub fn run(a: Args) -> Result<(), Error> {
                 "iterations_median": percentile(&iters, 0.5),
             }),
         );
-        println!(
-            "{name}: {} starts, strict {:.1}%, loose {:.1}%; e_t median {:.3} p95 {:.3} max {:.3} m; e_r median {:.3} p95 {:.3} max {:.3} deg; {:.1} ms/match, {} iterations (medians)",
-            starts.len(),
-            100.0 * strict as f64 / n,
-            100.0 * loose as f64 / n,
-            percentile(&et, 0.5),
-            percentile(&et, 0.95),
-            et.last().copied().unwrap_or(f64::NAN),
-            percentile(&er, 0.5),
-            percentile(&er, 0.95),
-            er.last().copied().unwrap_or(f64::NAN),
-            percentile(&times, 0.5),
-            percentile(&iters, 0.5),
-        );
+        for o in &outcomes {
+            results_json.push(json!({
+                "method": name, "dx": o.start.dx, "dy": o.start.dy, "dyaw": o.start.dyaw,
+                "status": o.status.as_str(), "e_t": o.et, "e_r": o.er, "iterations": o.iterations,
+                "time_ms": o.time_ms, "overlap": o.overlap, "transform": o.transform,
+            }));
+        }
+        panels_t.push((name.as_str(), outcomes.iter().map(|o| o.et).collect()));
+        panels_r.push((name.as_str(), outcomes.iter().map(|o| o.er).collect()));
     }
+    bar.finish_and_clear();
     if let Some(path) = &a.json {
         let out = json!({
             "maps": {"a_voxels": map_a.len(), "b_voxels": map_b.len(), "overlap": overlap},
             "starts": starts.len(),
+            "voxel": a.voxel,
+            "dof": a.dof,
             "preparation_ms": prep_ms,
             "ground_truth": pose::to_row_major(&gt),
             "methods": methods_json,
             "results": results_json,
         });
         std::fs::write(path, serde_json::to_string_pretty(&out)?).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    if let Some(path) = &a.plot {
+        let caption = format!(
+            "{} A={} B={}, {} starts, {} m voxels",
+            a.data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+            a.a,
+            a.b,
+            starts.len(),
+            a.voxel
+        );
+        let svg = boxplot::render(
+            &[
+                Panel { title: "translation error e_t", unit: "m", series: panels_t },
+                Panel { title: "rotation error e_r", unit: "deg", series: panels_r },
+            ],
+            &caption,
+        );
+        std::fs::write(path, svg).map_err(|e| format!("{}: {e}", path.display()))?;
     }
     Ok(())
 }

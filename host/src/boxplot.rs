@@ -1,0 +1,211 @@
+//! SVG box plots of error distributions, one box per method, like the
+//! paper's Fig. 5: the box spans the quartiles, the line is the median, the
+//! diamond the mean, the whiskers reach the farthest value within 1.5
+//! inter-quartile ranges, and dots are the values beyond. The value axis is
+//! logarithmic, so that sub-centimetre medians and ten-metre failures both
+//! show. Plain SVG text: no font library needed.
+
+use std::fmt::Write;
+
+/// One panel: a title, a unit, and per method its values.
+pub struct Panel<'a> {
+    /// Title, e.g. "translation error".
+    pub title: &'a str,
+    /// Unit of the values, e.g. "m".
+    pub unit: &'a str,
+    /// (method name, values).
+    pub series: Vec<(&'a str, Vec<f64>)>,
+}
+
+struct Stats {
+    q1: f64,
+    median: f64,
+    q3: f64,
+    mean: f64,
+    low: f64,
+    high: f64,
+}
+
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let pos = (sorted.len() - 1) as f64 * q;
+    let (i, f) = (pos.floor() as usize, pos - pos.floor());
+    let next = sorted.get(i + 1).copied().unwrap_or(sorted[i]);
+    sorted[i] + f * (next - sorted[i])
+}
+
+fn stats(sorted: &[f64]) -> Stats {
+    let (q1, median, q3) = (quantile(sorted, 0.25), quantile(sorted, 0.5), quantile(sorted, 0.75));
+    let iqr = q3 - q1;
+    let low = sorted.iter().copied().find(|v| *v >= q1 - 1.5 * iqr).unwrap_or(q1);
+    let high = sorted.iter().rev().copied().find(|v| *v <= q3 + 1.5 * iqr).unwrap_or(q3);
+    let mean = sorted.iter().sum::<f64>() / sorted.len().max(1) as f64;
+    Stats { q1, median, q3, mean, low, high }
+}
+
+/// Renders panels side by side as an SVG document.
+pub fn render(panels: &[Panel<'_>], caption: &str) -> String {
+    let (pw, ph) = (420.0, 360.0);
+    let (left, top, bottom) = (70.0, 50.0, 50.0);
+    let width = pw * panels.len() as f64;
+    let height = ph + 30.0;
+    let mut svg = String::new();
+    let _ = writeln!(
+        svg,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="12">"#
+    );
+    let _ = writeln!(svg, r#"<rect width="100%" height="100%" fill="white"/>"#);
+    let _ = writeln!(
+        svg,
+        r#"<text x="{}" y="20" text-anchor="middle" font-size="14">{}</text>"#,
+        width / 2.0,
+        escape(caption)
+    );
+    let colours = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd"];
+    for (pi, panel) in panels.iter().enumerate() {
+        let x0 = pi as f64 * pw;
+        let (plot_x, plot_w, plot_y, plot_h) = (x0 + left, pw - left - 20.0, top, ph - top - bottom + 30.0);
+        // Decades spanned by the positive finite values (zeros sit on the
+        // axis floor), at least one and at most eight.
+        let positive = panel.series.iter().flat_map(|(_, v)| v.iter().copied()).filter(|v| v.is_finite() && *v > 0.0);
+        let (lo, hi) = positive.fold((f64::INFINITY, 0.0f64), |(l, h), v| (l.min(v), h.max(v)));
+        let (lo, hi) = if lo.is_finite() { (lo.max(1e-6), hi.max(lo)) } else { (1e-3, 1.0) };
+        let d1 = hi.log10().ceil().max(lo.log10().floor() + 1.0);
+        let d0 = lo.log10().floor().max(d1 - 8.0);
+        let y = |v: f64| plot_y + plot_h - (v.max(10f64.powf(d0)).log10() - d0) / (d1 - d0) * plot_h;
+        let _ = writeln!(
+            svg,
+            r#"<text x="{}" y="{}" text-anchor="middle" font-size="13">{} ({})</text>"#,
+            plot_x + plot_w / 2.0,
+            top - 12.0,
+            escape(panel.title),
+            escape(panel.unit)
+        );
+        let _ = writeln!(
+            svg,
+            r##"<rect x="{plot_x}" y="{plot_y}" width="{plot_w}" height="{plot_h}" fill="none" stroke="#444"/>"##
+        );
+        let mut d = d0;
+        while d <= d1 + 1e-9 {
+            let yy = y(10f64.powf(d));
+            let _ =
+                writeln!(svg, r##"<line x1="{plot_x}" x2="{}" y1="{yy}" y2="{yy}" stroke="#ddd"/>"##, plot_x + plot_w);
+            let _ = writeln!(
+                svg,
+                r#"<text x="{}" y="{}" text-anchor="end">{}</text>"#,
+                plot_x - 6.0,
+                yy + 4.0,
+                format_tick(10f64.powf(d))
+            );
+            d += 1.0;
+        }
+        let n = panel.series.len().max(1) as f64;
+        for (si, (name, values)) in panel.series.iter().enumerate() {
+            let mut sorted: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+            sorted.sort_by(|a, b| a.total_cmp(b));
+            if sorted.is_empty() {
+                continue;
+            }
+            let st = stats(&sorted);
+            let cx = plot_x + plot_w * (si as f64 + 0.5) / n;
+            let bw = (plot_w / n * 0.5).min(60.0);
+            let c = colours[si % colours.len()];
+            let _ = writeln!(svg, r#"<line x1="{cx}" x2="{cx}" y1="{}" y2="{}" stroke="{c}"/>"#, y(st.low), y(st.q1));
+            let _ = writeln!(svg, r#"<line x1="{cx}" x2="{cx}" y1="{}" y2="{}" stroke="{c}"/>"#, y(st.q3), y(st.high));
+            for v in [st.low, st.high] {
+                let _ = writeln!(
+                    svg,
+                    r#"<line x1="{}" x2="{}" y1="{}" y2="{}" stroke="{c}"/>"#,
+                    cx - bw / 4.0,
+                    cx + bw / 4.0,
+                    y(v),
+                    y(v)
+                );
+            }
+            let (top_y, bot_y) = (y(st.q3), y(st.q1));
+            let _ = writeln!(
+                svg,
+                r#"<rect x="{}" y="{top_y}" width="{bw}" height="{}" fill="{c}" fill-opacity="0.25" stroke="{c}"/>"#,
+                cx - bw / 2.0,
+                (bot_y - top_y).max(1.0)
+            );
+            let _ = writeln!(
+                svg,
+                r#"<line x1="{}" x2="{}" y1="{}" y2="{}" stroke="{c}" stroke-width="2"/>"#,
+                cx - bw / 2.0,
+                cx + bw / 2.0,
+                y(st.median),
+                y(st.median)
+            );
+            let ym = y(st.mean);
+            let _ = writeln!(
+                svg,
+                r#"<path d="M{cx} {} L{} {ym} L{cx} {} L{} {ym} Z" fill="{c}"/>"#,
+                ym - 4.0,
+                cx + 4.0,
+                ym + 4.0,
+                cx - 4.0
+            );
+            for v in sorted.iter().filter(|v| **v < st.low || **v > st.high) {
+                let _ = writeln!(svg, r#"<circle cx="{cx}" cy="{}" r="2" fill="none" stroke="{c}"/>"#, y(*v));
+            }
+            let _ = writeln!(
+                svg,
+                r#"<text x="{cx}" y="{}" text-anchor="middle">{}</text>"#,
+                plot_y + plot_h + 18.0,
+                escape(name)
+            );
+        }
+    }
+    svg.push_str("</svg>\n");
+    svg
+}
+
+fn format_tick(v: f64) -> String {
+    if v >= 1.0 {
+        format!("{v:.0}")
+    } else {
+        let digits = (-v.log10()).ceil() as usize;
+        format!("{v:.digits$}")
+    }
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn renders_boxes_and_labels() {
+        let p = Panel {
+            title: "translation error",
+            unit: "m",
+            series: vec![("cosem", vec![0.01, 0.02, 0.03, 5.0]), ("geometric", vec![0.02, 0.5])],
+        };
+        let svg = render(&[p], "test");
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+        assert_eq!(svg.matches("<rect").count(), 1 + 1 + 2, "background, frame, two boxes");
+        assert!(svg.contains(">cosem</text>") && svg.contains(">geometric</text>"));
+        assert!(svg.contains("<circle"), "5.0 is an outlier");
+    }
+
+    #[test]
+    fn degenerate_values_give_a_finite_axis() {
+        for values in [vec![], vec![0.0, 0.0], vec![f64::NAN, f64::INFINITY], vec![1e-30, 1e30]] {
+            let p = Panel { title: "t", unit: "m", series: vec![("a", values)] };
+            let svg = render(&[p], "x");
+            assert!(svg.len() < 20_000 && svg.trim_end().ends_with("</svg>"));
+        }
+    }
+
+    #[test]
+    fn quartiles() {
+        let s = stats(&[1.0, 2.0, 3.0, 4.0, 5.0]);
+        assert_eq!((s.q1, s.median, s.q3, s.mean), (2.0, 3.0, 4.0, 3.0));
+    }
+}

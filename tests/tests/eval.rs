@@ -1,0 +1,92 @@
+//! `cosem eval`: the JSON schema, the plot, and semantics against geometry.
+
+use cosem_tests::{cosem_ok, real_data, synth};
+use serde_json::Value;
+use std::path::Path;
+
+fn eval(data: &Path, a: &str, b: &str, extra: &[&str]) -> (Value, String) {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("eval.json").display().to_string();
+    let plot = tmp.path().join("eval.svg");
+    let d = data.display().to_string();
+    let mut args = vec!["eval", "--data", d.as_str(), "--a", a, "--b", b, "--json", &json];
+    let p = plot.display().to_string();
+    args.extend_from_slice(&["--plot", &p]);
+    args.extend_from_slice(extra);
+    cosem_ok(&args);
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    (v, std::fs::read_to_string(plot).unwrap())
+}
+
+fn number(v: &Value, path: &[&str]) -> f64 {
+    let mut x = v;
+    for p in path {
+        x = &x[*p];
+    }
+    x.as_f64().unwrap_or_else(|| panic!("{} missing or not a number in {v}", path.join(".")))
+}
+
+#[test]
+fn synthetic_eval_schema_and_semantics_beat_or_tie_geometry() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 16, 21);
+    let (v, svg) = eval(&seq, "0:8", "8:16", &["--grid-stride", "5", "--method", "cosem,geometric", "--threads", "2"]);
+    assert_eq!(v["starts"], 27);
+    assert!(number(&v, &["maps", "a_voxels"]) > 1000.0 && number(&v, &["maps", "b_voxels"]) > 1000.0);
+    let overlap = number(&v, &["maps", "overlap"]);
+    assert!((0.0..=1.0).contains(&overlap) && overlap > 0.3, "{overlap}");
+    for m in ["cosem", "geometric"] {
+        for k in [
+            "success_strict",
+            "success_loose",
+            "et_median_m",
+            "et_p95_m",
+            "er_median_deg",
+            "er_p95_deg",
+            "time_ms_median",
+            "iterations_median",
+        ] {
+            let x = number(&v, &["methods", m, k]);
+            assert!(x.is_finite() && x >= 0.0, "{m}.{k} = {x}");
+        }
+        let (s, l) = (number(&v, &["methods", m, "success_strict"]), number(&v, &["methods", m, "success_loose"]));
+        assert!(s <= l && l <= 1.0, "fractions in 0..1, strict <= loose");
+    }
+    let results = v["results"].as_array().unwrap();
+    assert_eq!(results.len(), 2 * 27);
+    for r in results {
+        assert_eq!(r["transform"].as_array().unwrap().len(), 16);
+        assert!(["Converged", "NotConverged", "Degenerate", "NoOverlap"].contains(&r["status"].as_str().unwrap()));
+    }
+    let cosem = number(&v, &["methods", "cosem", "success_strict"]);
+    let geometric = number(&v, &["methods", "geometric", "success_strict"]);
+    assert!(cosem >= geometric, "cosem {cosem} < geometric {geometric}");
+    assert_eq!(cosem, 1.0);
+    assert!(svg.starts_with("<svg") && svg.contains(">cosem<") && svg.contains(">geometric<"));
+}
+
+#[test]
+fn eval_on_real_data_with_a_small_limit() {
+    let Some(dir) = real_data("kitti07") else { return };
+    let (v, _) = eval(&dir, "0:5", "5:10", &["--limit", "12"]);
+    assert_eq!(v["starts"], 12);
+    assert!(number(&v, &["methods", "cosem", "success_strict"]) >= 0.99);
+    assert!(number(&v, &["methods", "cosem", "et_median_m"]) < 0.05);
+    assert!(number(&v, &["methods", "cosem", "er_median_deg"]) < 0.1);
+}
+
+#[test]
+fn eval_4dof_and_bad_arguments() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 8, 5);
+    let (v, _) = eval(&seq, "0:4", "4:8", &["--limit", "3", "--dof", "4"]);
+    assert_eq!(v["dof"], 4);
+    assert_eq!(number(&v, &["methods", "cosem", "success_strict"]), 1.0);
+    let d = seq.display().to_string();
+    let e = cosem_tests::cosem_err(&["eval", "--data", &d, "--a", "0:4", "--b", "4:8", "--method", "cosem,icp"]);
+    assert!(e.contains("unknown method `icp`"), "{e}");
+    let e = cosem_tests::cosem_err(&["eval", "--data", &d, "--a", "0:4", "--b", "4:8", "--grid", "dense"]);
+    assert!(e.contains("--grid dense"), "{e}");
+}
