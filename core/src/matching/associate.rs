@@ -133,15 +133,21 @@ impl Normal {
         }
     }
 
-    fn add_row(&mut self, j: &Vector6<f32>, r: f32, w: f32, scale: f32) {
+    fn add_row(&mut self, j: &Vector6<f32>, r: f32, w: f32, scale: Option<f32>) {
         // Upper triangle only; mirrored by `finish`.
         for a in 0..6 {
             let wa = w * j[a];
             self.g[a] += wa * r;
             for b in a..6 {
-                let v = wa * j[b];
-                self.h[(a, b)] += v;
-                self.h_all[(a, b)] += v * scale;
+                self.h[(a, b)] += wa * j[b];
+            }
+        }
+        if let Some(scale) = scale {
+            for a in 0..6 {
+                let wa = w * j[a] * scale;
+                for b in a..6 {
+                    self.h_all[(a, b)] += wa * j[b];
+                }
             }
         }
         self.sum_wr2 += w * r * r;
@@ -213,12 +219,14 @@ pub(crate) struct Pass {
     pub cost: Cost,
     /// Which scene entries take part.
     pub sampling: Sampling,
+    /// Also sum the information over all entries (`Normal::h_all`).
+    pub information: bool,
 }
 
 /// One E-step at one level: associates every scene entry and accumulates the
 /// normal equations of the M-step at the transform `t`.
 pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>, pass: &Pass) -> Normal {
-    let Pass { sigma, radius, method, cost, sampling } = *pass;
+    let Pass { sigma, radius, method, cost, sampling, information } = *pass;
     let mut n = Normal::new();
     // Countdown per class: an entry is used when its class's reaches zero.
     let mut skip = [0u32; SAMPLING_SLOTS];
@@ -230,7 +238,7 @@ pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32
         }
         let stride = sampling.stride[k];
         skip[k] = stride - 1;
-        let scale = stride as f32;
+        let scale = information.then_some(stride as f32);
         let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
         let Some((m, w, _)) = best_match(model, s, &q, sigma, radius, method) else { continue };
         if w.is_nan() || w <= 0.0 {

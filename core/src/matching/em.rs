@@ -122,7 +122,7 @@ impl Matcher {
             let sampling = Sampling::balanced(c.entries(), s.max_scene_entries as usize);
             let budget = if l == 0 { remaining } else { s.max_iterations_per_level.min(remaining / 2) };
             for _ in 0..budget {
-                let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, sampling };
+                let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, sampling, information: l == 0 };
                 let n = accumulate(&m, &c, &t, &pass);
                 used += 1;
                 if let Some(p) = per_level.get_mut(l) {
@@ -167,7 +167,14 @@ impl Matcher {
             Some(found) if converged => found,
             _ => {
                 let sampling = Sampling::balanced(c0.entries(), s.max_scene_entries as usize);
-                let pass = Pass { sigma: s.sigma_end * cell, radius: cell, method: s.method, cost: s.cost, sampling };
+                let pass = Pass {
+                    sigma: s.sigma_end * cell,
+                    radius: cell,
+                    method: s.method,
+                    cost: s.cost,
+                    sampling,
+                    information: true,
+                };
                 accumulate(&m0, &c0, &t, &pass)
             }
         };

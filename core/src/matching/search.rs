@@ -26,7 +26,7 @@ pub struct SearchWindow {
 
 const MAX_ROOTS: usize = 1024;
 /// Scene points whose cells are cached per yaw; more are thinned by stride.
-const MAX_POINTS: usize = 4096;
+const MAX_POINTS: usize = 2048;
 const STACK: usize = 4 * POOL_LEVELS + 4;
 
 #[derive(Clone, Copy, Debug)]

@@ -86,8 +86,8 @@ pub struct MatchSettings {
     /// present, so rare ones keep all their entries (default 3000).
     pub max_scene_entries: u32,
     /// Scene entries the final figures (inliers, overlap, RMSE) are computed
-    /// on at most (default 10000): exact up to that size, above it a 1-in-k
-    /// subset at a fixed stride (overlap within about 0.5%).
+    /// on at most (default 5000): exact up to that size, above it a 1-in-k
+    /// subset at a fixed stride (overlap within about 0.7%).
     pub max_agreement_entries: u32,
     /// Gaussian width at the start of a level, in cells of that level
     /// (default 1.0).
@@ -122,7 +122,7 @@ impl Default for MatchSettings {
             max_iterations: 50,
             max_iterations_per_level: 10,
             max_scene_entries: 2_000,
-            max_agreement_entries: 10_000,
+            max_agreement_entries: 5_000,
             sigma_start: 1.0,
             sigma_end: 0.5,
             anneal: 0.7,
