@@ -64,6 +64,7 @@ struct Outcome {
     et: f64,
     er: f64,
     iterations: u32,
+    per_level: [u8; cosem_core::matching::MAX_LEVELS],
     time_ms: f64,
     overlap: f32,
     transform: Vec<f64>,
@@ -127,6 +128,14 @@ pub fn run(a: Args) -> Result<(), Error> {
     let mut panels_r: Vec<(&str, Vec<f64>)> = Vec::new();
     for (name, settings) in &methods {
         let matcher = Matcher::new(*settings);
+        // One untimed warm-up match per worker (caches, page faults), so
+        // that short runs time the steady state.
+        if let Some(first) = starts.first() {
+            let init = pose::to_isometry(&first.apply(&gt));
+            pool.broadcast(|_| matcher.align(&pa, &pb, &init).map(|_| ()))
+                .into_iter()
+                .collect::<Result<Vec<()>, _>>()?;
+        }
         let outcomes: Vec<Result<Outcome, cosem_core::matching::MatchError>> = pool.install(|| {
             starts
                 .par_iter()
@@ -144,6 +153,7 @@ pub fn run(a: Args) -> Result<(), Error> {
                         et,
                         er,
                         iterations: r.iterations,
+                        per_level: r.iterations_per_level,
                         time_ms,
                         overlap: r.overlap,
                         transform: pose::to_row_major(&m),
@@ -159,6 +169,10 @@ pub fn run(a: Args) -> Result<(), Error> {
         let er = sorted(outcomes.iter().map(|o| o.er));
         let times = sorted(outcomes.iter().map(|o| o.time_ms));
         let iters = sorted(outcomes.iter().map(|o| f64::from(o.iterations)));
+        // Median iterations at each level, finest first.
+        let per_level: Vec<f64> = (0..DEFAULT_LEVELS)
+            .map(|l| percentile(&sorted(outcomes.iter().map(|o| f64::from(o.per_level[l]))), 0.5))
+            .collect();
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         let n = outcomes.len().max(1) as f64;
         let (s_strict, s_loose) = (strict as f64 / n, loose as f64 / n);
@@ -192,9 +206,11 @@ pub fn run(a: Args) -> Result<(), Error> {
                 er.last().copied().unwrap_or(f64::NAN)
             );
             println!(
-                "  time per match median {:.1} ms (single thread), iterations median {}",
+                "  time per match median {:.1} ms (single thread), iterations median {} (per level, {} m first: {:?})",
                 percentile(&times, 0.5),
-                percentile(&iters, 0.5)
+                percentile(&iters, 0.5),
+                a.voxel,
+                per_level
             );
         });
         methods_json.insert(
@@ -212,12 +228,14 @@ pub fn run(a: Args) -> Result<(), Error> {
                 "er_max_deg": er.last().copied().unwrap_or(f64::NAN),
                 "time_ms_median": percentile(&times, 0.5),
                 "iterations_median": percentile(&iters, 0.5),
+                "iterations_per_level_median": per_level,
             }),
         );
         for o in &outcomes {
             results_json.push(json!({
                 "method": name, "dx": o.start.dx, "dy": o.start.dy, "dyaw": o.start.dyaw,
                 "status": o.status.as_str(), "e_t": o.et, "e_r": o.er, "iterations": o.iterations,
+                "iterations_per_level": &o.per_level[..DEFAULT_LEVELS],
                 "time_ms": o.time_ms, "overlap": o.overlap, "transform": o.transform,
             }));
         }
