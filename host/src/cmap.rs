@@ -1,6 +1,8 @@
-//! The `.cmap` map file: versioned, checksummed, postcard-encoded.
+//! The `.cmap` map file: versioned, checksummed, in the link's compact
+//! voxel encoding ([`cosem_core::wire::codec`]), so a map read from a file
+//! and the same map received over the link are identical.
 //!
-//! Layout (format 1):
+//! Layout (format 2):
 //!
 //! | bytes | content |
 //! |---|---|
@@ -8,25 +10,28 @@
 //! | 2 | format version, u16 little endian |
 //! | 4 | header length, u32 little endian |
 //! | n | header ([`CmapHeader`], postcard) |
-//! | … | `voxel_count` voxel records (postcard varints) |
+//! | … | chunks, each a LEB128 length then the chunk |
 //! | 4 | CRC-32 of everything before it, little endian |
 //!
-//! The link issue replaces the voxel records by the compact wire encoding;
-//! the version number makes old files fail loudly rather than decode wrongly.
+//! Files of another version are refused by name, never misread.
 
 use crate::mapping::{new_map, HostMap};
 use cosem_core::classes::CLASS_TABLE_VERSION;
-use cosem_core::map::{InsertError, LabelDistribution, MapConfig, SemanticVoxel, SensorModel, VoxelKey};
-use cosem_core::wire::crc32;
+use cosem_core::map::{MapConfig, SensorModel};
+use cosem_core::wire::{crc32, MapDecoder, MapEncoder};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// File magic.
 pub const MAGIC: [u8; 4] = *b"CMAP";
 /// Current format version.
-pub const FORMAT_VERSION: u16 = 1;
+pub const FORMAT_VERSION: u16 = 2;
 const PREAMBLE: usize = 10;
-const MIN_RECORD_BYTES: usize = 12;
+/// Chunk size in files (the link uses smaller ones).
+pub const FILE_CHUNK: usize = 4096;
+/// Fewest bits a voxel takes in the encoding (flag, confidence, occupancy,
+/// position, a one-bit gap): bounds the voxel count a file can claim.
+const MIN_VOXEL_BITS: usize = 19;
 
 /// What a map file says about its map.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -43,15 +48,6 @@ pub struct CmapHeader {
     pub anchor_time: Option<f64>,
     /// Where the map came from, e.g. `kitti00 0:5`.
     pub source: Option<String>,
-}
-
-#[derive(Serialize, Deserialize)]
-struct VoxelRecord {
-    key: [i16; 3],
-    mean: [u16; 3],
-    occupancy: i16,
-    hits: u16,
-    labels: [u16; 4],
 }
 
 /// Why a map file could not be read or written.
@@ -111,6 +107,24 @@ pub enum CmapError {
     },
 }
 
+/// The map's voxels in the compact encoding, as chunks of at most `chunk` bytes.
+pub fn encode_chunks(map: &HostMap, chunk: usize) -> Vec<Vec<u8>> {
+    let mut scratch = vec![0u32; map.len()];
+    let mut out = Vec::new();
+    // The scratch holds one entry per voxel and the buffer exceeds the
+    // minimum chunk, so the encoder cannot fail.
+    if let Ok(mut enc) = MapEncoder::new(map, &mut scratch) {
+        let mut buf = vec![0u8; chunk.max(cosem_core::wire::codec::MIN_CHUNK)];
+        while let Ok(n) = enc.next_chunk(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            out.push(buf[..n].to_vec());
+        }
+    }
+    out
+}
+
 /// Encodes a map into the file format.
 pub fn encode(map: &HostMap, anchor_time: Option<f64>, source: Option<String>) -> Vec<u8> {
     let header = CmapHeader {
@@ -122,25 +136,34 @@ pub fn encode(map: &HostMap, anchor_time: Option<f64>, source: Option<String>) -
         source,
     };
     let header_bytes = postcard::to_stdvec(&header).unwrap_or_default();
-    let mut out = Vec::with_capacity(PREAMBLE + header_bytes.len() + map.len() * 20 + 4);
+    let chunks = encode_chunks(map, FILE_CHUNK);
+    let mut out = Vec::with_capacity(PREAMBLE + header_bytes.len() + map.len() * 4 + 4);
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
     out.extend_from_slice(&(header_bytes.len() as u32).to_le_bytes());
     out.extend_from_slice(&header_bytes);
-    for v in map.iter() {
-        let rec = VoxelRecord {
-            key: [v.key.x, v.key.y, v.key.z],
-            mean: v.mean_raw(),
-            occupancy: v.occupancy_raw(),
-            hits: v.hits(),
-            labels: v.labels.raw(),
-        };
-        // Serialising plain integers into a Vec cannot fail.
-        out.extend_from_slice(&postcard::to_stdvec(&rec).unwrap_or_default());
+    for c in &chunks {
+        let mut n = c.len();
+        loop {
+            let byte = (n & 0x7F) as u8;
+            n >>= 7;
+            out.push(if n == 0 { byte } else { byte | 0x80 });
+            if n == 0 {
+                break;
+            }
+        }
+        out.extend_from_slice(c);
     }
     let crc = crc32(&out);
     out.extend_from_slice(&crc.to_le_bytes());
     out
+}
+
+/// Bytes of voxel encoding per voxel (what the link carries, chunk headers
+/// included, file framing excluded).
+pub fn wire_bytes_per_voxel(map: &HostMap, chunk: usize) -> f64 {
+    let bytes: usize = encode_chunks(map, chunk).iter().map(Vec::len).sum();
+    bytes as f64 / map.len().max(1) as f64
 }
 
 /// Decodes a map file's bytes; `path` names the file in errors.
@@ -181,10 +204,10 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(CmapHeader, HostMap), CmapEr
         ));
     }
     let count = header.voxel_count as usize;
-    if count.saturating_mul(MIN_RECORD_BYTES) > body_end - header_end {
+    if count.saturating_mul(MIN_VOXEL_BITS) > (body_end - header_end) * 8 {
         return Err(invalid(
             PREAMBLE,
-            format!("header claims {count} voxels, more than the {} bytes of records can hold", body_end - header_end),
+            format!("header claims {count} voxels, more than the {} bytes of chunks can hold", body_end - header_end),
         ));
     }
     let config = MapConfig {
@@ -193,30 +216,40 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(CmapHeader, HostMap), CmapEr
         ..MapConfig::default()
     };
     let mut map = new_map(count, config).map_err(|e| invalid(PREAMBLE, format!("header: {e}")))?;
-    let mut rest = &bytes[header_end..body_end];
-    for i in 0..count {
-        let offset = body_end - rest.len();
-        let (rec, tail): (VoxelRecord, &[u8]) = postcard::take_from_bytes(rest).map_err(|e| match e {
-            postcard::Error::DeserializeUnexpectedEnd => {
-                CmapError::Truncated { path: p(), offset: body_end, what: "voxel records" }
+    let mut decoder = MapDecoder::new(count);
+    let mut at = header_end;
+    let mut index = 0usize;
+    while at < body_end {
+        let start = at;
+        let mut len = 0usize;
+        let mut shift = 0;
+        loop {
+            let byte = *bytes.get(at).filter(|_| at < body_end).ok_or(CmapError::Truncated {
+                path: p(),
+                offset: at,
+                what: "chunk length",
+            })?;
+            at += 1;
+            len |= usize::from(byte & 0x7F) << shift;
+            shift += 7;
+            if byte & 0x80 == 0 {
+                break;
             }
-            e => invalid(offset, format!("voxel {i}: {e}")),
-        })?;
-        rest = tail;
-        let labels = LabelDistribution::from_raw(rec.labels)
-            .map_err(|e| invalid(offset, format!("voxel {i}: labels {:?}: {e:?}", rec.labels)))?;
-        if rec.hits == 0 {
-            return Err(invalid(offset, format!("voxel {i}: zero hits")));
+            if shift > 21 {
+                return Err(invalid(start, format!("chunk {index}: length varint too long")));
+            }
         }
-        let key = VoxelKey::new(rec.key[0], rec.key[1], rec.key[2]);
-        let voxel = SemanticVoxel::from_parts(key, rec.mean, rec.occupancy, rec.hits, labels);
-        map.insert_voxel(voxel).map_err(|e| match e {
-            InsertError::DuplicateKey => invalid(offset, format!("voxel {i}: duplicate key {:?}", rec.key)),
-            e => invalid(offset, format!("voxel {i}: {e}")),
+        let end = at.checked_add(len).filter(|&e| e <= body_end).ok_or(CmapError::Truncated {
+            path: p(),
+            offset: body_end,
+            what: "chunk",
         })?;
+        decoder.decode_chunk(&bytes[at..end], &mut map).map_err(|e| invalid(start, format!("chunk {index}: {e}")))?;
+        at = end;
+        index += 1;
     }
-    if !rest.is_empty() {
-        return Err(invalid(body_end - rest.len(), format!("{} bytes after the last voxel", rest.len())));
+    if !decoder.is_complete() {
+        return Err(invalid(body_end, format!("{} of {count} voxels present", decoder.decoded())));
     }
     Ok((header, map))
 }
@@ -250,14 +283,19 @@ mod tests {
     }
 
     #[test]
-    fn round_trip_is_identical() {
+    fn round_trip_keeps_the_map_and_is_idempotent() {
         let m = sample();
         let bytes = encode(&m, Some(1.5), Some("test".into()));
         let (h, back) = decode(&bytes, Path::new("x.cmap")).unwrap();
         assert_eq!(h.voxel_count as usize, m.len());
         assert_eq!(h.anchor_time, Some(1.5));
-        assert_eq!(back.voxels(), m.voxels());
+        assert_eq!(back.len(), m.len());
         assert_eq!(back.resolution(), m.resolution());
+        for v in m.iter() {
+            assert_eq!(back.get(v.key).and_then(|w| w.class()), v.class());
+        }
+        // What was read writes back byte for byte.
+        assert_eq!(encode(&back, Some(1.5), Some("test".into())), bytes);
     }
 
     #[test]
@@ -281,7 +319,7 @@ mod tests {
     fn a_valid_checksum_over_bad_records_is_still_rejected() {
         let mut bytes = encode(&sample(), None, None);
         bytes.truncate(bytes.len() - 4);
-        bytes.extend_from_slice(&[0xFF; 7]);
+        bytes.extend_from_slice(&[0x05, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]);
         let crc = crc32(&bytes);
         bytes.extend_from_slice(&crc.to_le_bytes());
         assert!(matches!(decode(&bytes, Path::new("a")), Err(CmapError::Invalid { .. })));

@@ -102,12 +102,17 @@ fn kitti00_map_matches_an_independent_count() {
 
 #[test]
 fn every_shared_sequence_maps_cleanly() {
-    for (name, frames) in [("kitti07", "0:10"), ("kitti00-loop", "52:53"), ("kitti08-loop", "1500:1501")] {
+    for (name, frames) in
+        [("kitti00", "0:5"), ("kitti07", "0:10"), ("kitti00-loop", "52:53"), ("kitti08-loop", "1500:1501")]
+    {
         let Some(dir) = real_data(name) else { continue };
         let tmp = tempfile::tempdir().unwrap();
         let map = tmp.path().join("m.cmap");
         cosem_ok(&["map", "--data", &dir.display().to_string(), "--frames", frames, "-o", &map.display().to_string()]);
         let info: Value = serde_json::from_str(&cosem_ok(&["info", &map.display().to_string(), "--json"])).unwrap();
         assert!(info["voxels"].as_u64().unwrap() > 10_000, "{name}: {info}");
+        // The compact encoding: at most 4 bytes per voxel on 0.2 m KITTI maps.
+        let wire = info["wire_bytes_per_voxel"].as_f64().unwrap();
+        assert!(wire <= 4.0, "{name}: {wire} bytes/voxel");
     }
 }

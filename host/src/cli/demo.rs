@@ -54,10 +54,13 @@ pub fn run(a: Args) -> Result<(), Error> {
     let filter = PointFilter::default();
     let (map_a, stats_a) = build_map(&seq.load_range(ra)?, config, &filter)?;
     let (map_b, stats_b) = build_map(&seq.load_range(rb)?, config, &filter)?;
-    // Robot B's map travels as bytes; what arrives must be what was sent.
+    // Robot B's map travels as bytes, in the compact (quantised) encoding:
+    // what arrives encodes back to exactly what was sent.
     let bytes_b = cosem_host::cmap::encode(&map_b, None, Some(format!("synthetic {rb}")));
     let (_, received_b) = cosem_host::cmap::decode(&bytes_b, &dir.join("robot_b.cmap"))?;
-    if received_b.voxels() != map_b.voxels() {
+    if received_b.len() != map_b.len()
+        || cosem_host::cmap::encode(&received_b, None, Some(format!("synthetic {rb}"))) != bytes_b
+    {
         return Err("robot B's map changed through the map encoding".into());
     }
     if a.out.is_some() {

@@ -52,6 +52,10 @@ pub struct Args {
     /// Write box plots of e_t and e_r per method to this SVG file.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// Pass both maps through the compact wire encoding (as if received
+    /// over the link) before matching: shows what quantisation costs.
+    #[arg(long)]
+    through_encoding: bool,
     /// Print every start.
     #[arg(long)]
     verbose: bool,
@@ -100,8 +104,14 @@ pub fn run(a: Args) -> Result<(), Error> {
     let seq = Sequence::open(&a.data)?;
     let config = MapConfig::with_resolution(a.voxel);
     let filter = PointFilter::default();
-    let (map_a, _) = build_map(&seq.load_range(a.a)?, config, &filter)?;
-    let (map_b, _) = build_map(&seq.load_range(a.b)?, config, &filter)?;
+    let (mut map_a, _) = build_map(&seq.load_range(a.a)?, config, &filter)?;
+    let (mut map_b, _) = build_map(&seq.load_range(a.b)?, config, &filter)?;
+    if a.through_encoding {
+        let name = std::path::Path::new("(encoded map)");
+        map_a = cosem_host::cmap::decode(&cosem_host::cmap::encode(&map_a, None, None), name)?.1;
+        map_b = cosem_host::cmap::decode(&cosem_host::cmap::encode(&map_b, None, None), name)?.1;
+        println!("maps passed through the wire encoding");
+    }
     let gt = seq.relative_pose(a.a.start, a.b.start)?;
     let t0 = Instant::now();
     let pa = prepare(&map_a, DEFAULT_LEVELS)?;

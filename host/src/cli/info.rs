@@ -21,6 +21,7 @@ pub fn run(a: Args) -> Result<(), Error> {
     let per_voxel = bytes as f64 / voxels.max(1) as f64;
     let hist = class_histogram(&map);
     let (lo, hi) = map.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
+    let wire = cosem_host::cmap::wire_bytes_per_voxel(&map, cosem_host::cmap::FILE_CHUNK);
     if a.json {
         let classes: serde_json::Map<String, serde_json::Value> =
             hist.iter().map(|(c, n)| (c.name().to_string(), json!(n))).collect();
@@ -32,6 +33,7 @@ pub fn run(a: Args) -> Result<(), Error> {
             "bytes": bytes,
             "bytes_per_voxel": per_voxel,
             "memory_bytes_per_voxel": BYTES_PER_VOXEL,
+            "wire_bytes_per_voxel": wire,
             "classes": classes,
             "anchor_time": header.anchor_time,
             "source": header.source,
@@ -49,6 +51,7 @@ pub fn run(a: Args) -> Result<(), Error> {
             lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
         );
         println!("  file:        {bytes} bytes, {per_voxel:.2} bytes/voxel");
+        println!("  encoding:    {wire:.2} bytes/voxel (as on the link)");
         println!("  memory:      {BYTES_PER_VOXEL} bytes/voxel (index included)");
         println!("  classes:");
         for (c, n) in &hist {

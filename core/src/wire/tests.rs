@@ -1,0 +1,189 @@
+//! Wire tests: the voxel codec.
+
+use super::codec::*;
+use crate::classes::Class;
+use crate::map::{LocalMap, MapConfig, SemanticVoxel, VoxelKey, VoxelStorage};
+use proptest::prelude::*;
+use std::vec;
+use std::vec::Vec;
+
+struct Heap {
+    voxels: Vec<SemanticVoxel>,
+    slots: Vec<u32>,
+}
+
+impl VoxelStorage for Heap {
+    fn voxels(&self) -> &[SemanticVoxel] {
+        &self.voxels
+    }
+    fn slots(&self) -> &[u32] {
+        &self.slots
+    }
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
+        (&mut self.voxels, &mut self.slots)
+    }
+}
+
+fn map(capacity: usize) -> LocalMap<Heap> {
+    let n = capacity.max(1);
+    LocalMap::new(Heap { voxels: vec![SemanticVoxel::EMPTY; n], slots: vec![0; 2 * n] }, MapConfig::default()).unwrap()
+}
+
+/// Encodes a whole map into chunks of at most `chunk` bytes.
+fn encode_all(m: &LocalMap<Heap>, chunk: usize) -> Vec<Vec<u8>> {
+    let mut scratch = vec![0u32; m.len()];
+    let mut enc = MapEncoder::new(m, &mut scratch).unwrap();
+    let mut out = Vec::new();
+    let mut buf = vec![0u8; chunk];
+    loop {
+        let n = enc.next_chunk(&mut buf).unwrap();
+        if n == 0 {
+            break;
+        }
+        assert!(n <= chunk);
+        out.push(buf[..n].to_vec());
+    }
+    out
+}
+
+fn decode_all(chunks: &[Vec<u8>], voxels: usize) -> Result<LocalMap<Heap>, DecodeError> {
+    let mut m = map(voxels);
+    let mut dec = MapDecoder::new(voxels);
+    for c in chunks {
+        dec.decode_chunk(c, &mut m)?;
+    }
+    assert!(dec.is_complete());
+    Ok(m)
+}
+
+/// A patch of street: a gently curved road surface, a wall and poles,
+/// sampled densely as a LiDAR would (about `n` * 10 voxels).
+fn street(n: usize) -> LocalMap<Heap> {
+    let mut m = map(40 * n);
+    for i in 0..n {
+        let x = i as f32 * 0.2;
+        for j in 0..8 {
+            let y = j as f32 * 0.2 - 0.8;
+            m.insert_point([x, y, 0.05 * (x * 0.3).sin()], if j < 6 { Class::Road } else { Class::Sidewalk }).unwrap();
+        }
+        m.insert_point([x, 4.0, 0.5], Class::Building).unwrap();
+        m.insert_point([x, 4.0, 0.7], Class::Building).unwrap();
+        if i % 17 == 0 {
+            for k in 0..10 {
+                m.insert_point([x, 2.0, k as f32 * 0.2], Class::Pole).unwrap();
+            }
+        }
+    }
+    m
+}
+
+#[test]
+fn morton_round_trips_and_orders() {
+    for k in [VoxelKey::new(0, 0, 0), VoxelKey::new(-1, 2, -3), VoxelKey::new(i16::MIN, i16::MAX, 77)] {
+        assert_eq!(key_of(morton(k)), Some(k));
+    }
+    assert!(morton(VoxelKey::new(-1, 0, 0)) < morton(VoxelKey::new(0, 0, 0)));
+    assert_eq!(morton(VoxelKey::new(1, 0, 0)) - morton(VoxelKey::new(0, 0, 0)), 1);
+    assert_eq!(key_of(1 << 48), None);
+}
+
+#[test]
+fn round_trip_is_lossy_but_idempotent() {
+    let m = street(500);
+    let chunks = encode_all(&m, 256);
+    let d = decode_all(&chunks, m.len()).unwrap();
+    assert_eq!(d.len(), m.len());
+    for v in m.iter() {
+        let w = d.get(v.key).unwrap();
+        assert_eq!(w.class(), v.class());
+        for (a, b) in v.position(0.2).iter().zip(w.position(0.2)) {
+            assert!((a - b).abs() <= 0.2 / 32.0 + 1e-4, "{a} {b}");
+        }
+    }
+    // Decoded maps encode to the same bytes, whatever the chunk size.
+    assert_eq!(encode_all(&d, 256), chunks);
+    let big: Vec<u8> = encode_all(&m, 1 << 16).concat();
+    let again: Vec<u8> = encode_all(&decode_all(&encode_all(&m, 1 << 16), m.len()).unwrap(), 1 << 16).concat();
+    assert_eq!(big, again);
+    let bytes: usize = chunks.iter().map(Vec::len).sum();
+    assert!((bytes as f64 / m.len() as f64) < 4.0, "{} bytes/voxel", bytes as f64 / m.len() as f64);
+}
+
+#[test]
+fn decoder_rejects_disorder_duplicates_and_overruns() {
+    let m = street(100);
+    let chunks = encode_all(&m, 64);
+    assert!(chunks.len() > 3);
+    // Replaying a chunk: its codes are not above the last one.
+    let mut target = map(m.len() * 2);
+    let mut dec = MapDecoder::new(m.len() * 2);
+    dec.decode_chunk(&chunks[0], &mut target).unwrap();
+    assert_eq!(dec.decode_chunk(&chunks[0], &mut target), Err(DecodeError::Order));
+    // More voxels than announced.
+    let mut dec = MapDecoder::new(1);
+    assert_eq!(dec.decode_chunk(&chunks[0], &mut map(10)), Err(DecodeError::TooMany));
+    // A full map.
+    let mut dec = MapDecoder::new(m.len());
+    let mut small = map(3);
+    assert_eq!(dec.decode_chunk(&chunks[0], &mut small), Err(DecodeError::Full));
+    // Empty and trailing.
+    assert_eq!(MapDecoder::new(9).decode_chunk(&[0], &mut map(9)), Err(DecodeError::Empty));
+    let mut long = chunks[1].clone();
+    long.push(0);
+    assert_eq!(MapDecoder::new(m.len()).decode_chunk(&long, &mut map(m.len())), Err(DecodeError::Trailing));
+    assert_eq!(MapDecoder::new(m.len()).decode_chunk(&[0x80; 9], &mut map(9)), Err(DecodeError::Varint));
+}
+
+#[test]
+fn encoder_needs_room() {
+    let m = street(10);
+    let mut scratch = vec![0u32; 2];
+    assert!(matches!(MapEncoder::new(&m, &mut scratch), Err(EncodeError::Scratch)));
+    let mut scratch = vec![0u32; m.len()];
+    let mut enc = MapEncoder::new(&m, &mut scratch).unwrap();
+    assert_eq!(enc.next_chunk(&mut [0u8; MIN_CHUNK - 1]), Err(EncodeError::Buffer));
+    assert!(enc.next_chunk(&mut [0u8; MIN_CHUNK]).unwrap() > 0);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(128))]
+
+    /// Any map round-trips, idempotently, with any chunk size.
+    #[test]
+    fn any_map_round_trips(
+        points in prop::collection::vec(([-300.0f32..300.0, -300.0f32..300.0, -20.0f32..20.0], 0u8..19), 1..300),
+        chunk in MIN_CHUNK..400usize,
+    ) {
+        let mut m = map(points.len());
+        for (p, c) in &points {
+            m.insert_point(*p, Class::from_index(*c).unwrap()).unwrap();
+        }
+        let chunks = encode_all(&m, chunk);
+        let d = decode_all(&chunks, m.len()).unwrap();
+        prop_assert_eq!(d.len(), m.len());
+        prop_assert_eq!(encode_all(&d, chunk), chunks);
+    }
+
+    /// Arbitrary and mutated chunks never panic; the decoder only errors or
+    /// inserts voxels it could account for.
+    #[test]
+    fn garbage_never_panics(
+        bytes in prop::collection::vec(any::<u8>(), 0..200),
+        flips in prop::collection::vec((any::<usize>(), any::<u8>()), 0..8),
+    ) {
+        let mut m = map(64);
+        let _ = MapDecoder::new(64).decode_chunk(&bytes, &mut m);
+        prop_assert!(m.len() <= 64);
+        let good = encode_all(&street(40), 300);
+        let mut c = good[0].clone();
+        for (i, x) in flips {
+            let n = c.len();
+            c[i % n] ^= x;
+        }
+        let mut m = map(500);
+        let mut dec = MapDecoder::new(500);
+        if dec.decode_chunk(&c, &mut m).is_ok() {
+            prop_assert_eq!(m.len(), dec.decoded());
+        }
+    }
+}
