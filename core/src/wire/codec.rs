@@ -27,6 +27,7 @@
 //! are identical.
 
 use super::bits::{rice_len, BitReader, BitWriter, Overflow, Truncated, MAX_RICE_K};
+use super::crc::Crc32;
 use crate::classes::{Class, NUM_CLASSES};
 use crate::map::labels::{LabelDistribution, SCORE_MAX, SCORE_UNITS_PER_NAT};
 use crate::map::voxel::LOGODDS_UNITS;
@@ -172,6 +173,21 @@ fn quantise(v: &SemanticVoxel) -> Quantised {
     }
 }
 
+/// Feeds one voxel's canonical record (6 bytes of code, 4 of quantised
+/// fields) into a digest: the same in the encoder and the decoder, whatever
+/// the chunking.
+fn digest_voxel(crc: &mut Crc32, code: u64, q: &Quantised) {
+    let packed = q.class
+        | (q.confidence << 5)
+        | (q.occupancy << 8)
+        | (q.position[0] << 10)
+        | (q.position[1] << 14)
+        | (q.position[2] << 18);
+    let c = code.to_le_bytes();
+    crc.update(&c[..6]);
+    crc.update(&packed.to_le_bytes());
+}
+
 fn rebuild(key: VoxelKey, q: &Quantised) -> Result<SemanticVoxel, DecodeError> {
     let mut labels = LabelDistribution::EMPTY;
     if q.class != NO_CLASS {
@@ -306,6 +322,16 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
         Ok(MapEncoder { map, order, next: 0 })
     }
 
+    /// Digest of the whole map's encoded content (all voxels, in stream
+    /// order): what [`MapDecoder::digest`] gives after the last chunk.
+    pub fn digest(&self) -> u32 {
+        let mut crc = Crc32::new();
+        for v in self.order.iter().filter_map(|&i| self.map.voxel(i as usize)) {
+            digest_voxel(&mut crc, morton(v.key), &quantise(v));
+        }
+        crc.finish()
+    }
+
     /// Voxels not yet encoded.
     pub fn remaining(&self) -> usize {
         self.order.len() - self.next
@@ -379,17 +405,24 @@ pub struct MapDecoder {
     expected: usize,
     decoded: usize,
     last: Option<u64>,
+    digest: Crc32,
 }
 
 impl MapDecoder {
     /// A decoder for a map of `voxels` voxels.
     pub fn new(voxels: usize) -> Self {
-        MapDecoder { expected: voxels, decoded: 0, last: None }
+        MapDecoder { expected: voxels, decoded: 0, last: None, digest: Crc32::new() }
     }
 
     /// Voxels decoded so far.
     pub fn decoded(&self) -> usize {
         self.decoded
+    }
+
+    /// Digest of the voxels decoded so far (compare with the sender's
+    /// [`MapEncoder::digest`] once complete).
+    pub fn digest(&self) -> u32 {
+        self.digest.finish()
     }
 
     /// Whether all announced voxels arrived.
@@ -450,6 +483,7 @@ impl MapDecoder {
                 InsertError::DuplicateKey => DecodeError::Order,
                 _ => DecodeError::Full,
             })?;
+            digest_voxel(&mut self.digest, code, &q);
             self.last = Some(code);
             self.decoded += 1;
             prev_class = Some(class);

@@ -17,7 +17,7 @@ const TABLE: [u32; 256] = {
 };
 
 /// Incremental CRC-32: feed bytes in any chunking, same result.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Crc32(u32);
 
 impl Default for Crc32 {

@@ -1,0 +1,207 @@
+//! The messages robots exchange, versioned and postcard-encoded.
+//!
+//! Every frame payload starts with [`PROTOCOL_VERSION`]; a peer speaking
+//! another version is told apart at the first frame. Floats from the wire
+//! are checked: a NaN or infinity is a typed error, never a value.
+
+use serde::{Deserialize, Serialize};
+
+/// Version of the link protocol (first byte of every payload).
+pub const PROTOCOL_VERSION: u8 = 1;
+
+/// First message of each side: who it is and what it speaks.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Hello {
+    /// Sender's robot id.
+    pub robot_id: u8,
+    /// Class table version ([`crate::classes::CLASS_TABLE_VERSION`]).
+    pub class_table: u16,
+    /// Voxel size of its map (m).
+    pub resolution: f32,
+    /// Largest frame payload it can receive.
+    pub max_payload: u16,
+}
+
+/// Announces a map: what the receiver must end up with.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MapHeader {
+    /// Identifies this transfer (the sender picks a new one per map).
+    pub map_id: u32,
+    /// Robot the map belongs to.
+    pub robot_id: u8,
+    /// Timestamp of the anchor scan (microseconds, sender's clock).
+    pub anchor_time_us: u64,
+    /// Voxels in the map.
+    pub voxel_count: u32,
+    /// Voxel size (m).
+    pub resolution: f32,
+    /// Bounds: min x, y, z, max x, y, z (m, anchor frame).
+    pub bounds: [f32; 6],
+    /// Digest of the whole map's encoded content (see `codec::MapDigest`).
+    pub digest: u32,
+}
+
+/// A match result a robot reports.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MatchReport {
+    /// Reporting robot.
+    pub robot_id: u8,
+    /// Status: 0 Converged, 1 NotConverged, 2 Degenerate, 3 NoOverlap.
+    pub status: u8,
+    /// `T_model_scene`, the top three rows of the 4x4 matrix, row by row.
+    pub transform: [f32; 12],
+    /// EM iterations.
+    pub iterations: u16,
+    /// Inlier voxels.
+    pub inliers: u32,
+    /// Overlap (0..1).
+    pub overlap: f32,
+    /// RMSE (m).
+    pub rmse: f32,
+}
+
+/// Why a transfer was abandoned.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AbortReason {
+    /// The receiver cannot hold the map.
+    TooLarge,
+    /// A chunk did not decode.
+    BadChunk,
+    /// The assembled map's digest differs from the header's.
+    Digest,
+    /// Incompatible resolution or class table.
+    Incompatible,
+    /// The sender gave up (retries exhausted).
+    GaveUp,
+}
+
+/// One message.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Message<'a> {
+    /// Who I am.
+    Hello(Hello),
+    /// A map follows.
+    MapHeader(MapHeader),
+    /// Part of the map's encoding, numbered from 1.
+    Chunk {
+        /// The transfer.
+        map_id: u32,
+        /// Sequence number (the header is 0).
+        seq: u32,
+        /// Encoded voxels ([`super::codec`]).
+        #[serde(borrow)]
+        data: &'a [u8],
+    },
+    /// All chunks before `seq` were sent; `seq` is one past the last.
+    End {
+        /// The transfer.
+        map_id: u32,
+        /// One past the last chunk's number.
+        seq: u32,
+    },
+    /// Frame `seq` of `map_id` arrived (the header is 0, `End` its `seq`).
+    Ack {
+        /// The transfer.
+        map_id: u32,
+        /// What is acknowledged.
+        seq: u32,
+    },
+    /// Frame `seq` is missing: send it again.
+    Nack {
+        /// The transfer.
+        map_id: u32,
+        /// What is wanted.
+        seq: u32,
+    },
+    /// The transfer is over without a map.
+    Abort {
+        /// The transfer.
+        map_id: u32,
+        /// Why.
+        reason: AbortReason,
+    },
+    /// A match result.
+    Report(MatchReport),
+}
+
+/// Why a payload is not a message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum MessageError {
+    /// Empty payload.
+    Empty,
+    /// Another protocol version.
+    Version(u8),
+    /// Not a well-formed message of this version.
+    Malformed,
+    /// Bytes after the message.
+    Trailing,
+    /// A float is NaN or infinite.
+    NonFinite,
+    /// The output buffer is too small.
+    Buffer,
+}
+
+impl core::fmt::Display for MessageError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            MessageError::Empty => f.write_str("empty payload"),
+            MessageError::Version(v) => write!(f, "protocol version {v}, expected {PROTOCOL_VERSION}"),
+            MessageError::Malformed => f.write_str("malformed message"),
+            MessageError::Trailing => f.write_str("bytes after the message"),
+            MessageError::NonFinite => f.write_str("non-finite number in a message"),
+            MessageError::Buffer => f.write_str("buffer too small for the message"),
+        }
+    }
+}
+
+impl core::error::Error for MessageError {}
+
+fn finite(values: &[f32]) -> Result<(), MessageError> {
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(MessageError::NonFinite)
+    }
+}
+
+impl<'a> Message<'a> {
+    /// Encodes the message (version byte first) into `out`; returns its length.
+    pub fn encode(&self, out: &mut [u8]) -> Result<usize, MessageError> {
+        self.check()?;
+        let (first, rest) = out.split_first_mut().ok_or(MessageError::Buffer)?;
+        *first = PROTOCOL_VERSION;
+        let used = postcard::to_slice(self, rest).map_err(|_| MessageError::Buffer)?;
+        Ok(1 + used.len())
+    }
+
+    /// Decodes a payload; borrows chunk data from it.
+    pub fn decode(payload: &'a [u8]) -> Result<Self, MessageError> {
+        let (&version, rest) = payload.split_first().ok_or(MessageError::Empty)?;
+        if version != PROTOCOL_VERSION {
+            return Err(MessageError::Version(version));
+        }
+        let (msg, tail): (Message<'a>, &[u8]) = postcard::take_from_bytes(rest).map_err(|_| MessageError::Malformed)?;
+        if !tail.is_empty() {
+            return Err(MessageError::Trailing);
+        }
+        msg.check()?;
+        Ok(msg)
+    }
+
+    fn check(&self) -> Result<(), MessageError> {
+        match self {
+            Message::Hello(h) => finite(&[h.resolution]),
+            Message::MapHeader(h) => {
+                finite(&[h.resolution])?;
+                finite(&h.bounds)
+            }
+            Message::Report(r) => {
+                finite(&r.transform)?;
+                finite(&[r.overlap, r.rmse])
+            }
+            _ => Ok(()),
+        }
+    }
+}
