@@ -50,6 +50,7 @@ extern crate std;
 
 pub mod classes;
 pub mod geometry;
+pub mod link;
 pub mod map;
 pub mod matching;
 pub mod wire;

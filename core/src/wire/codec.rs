@@ -14,10 +14,11 @@
 //! | occupancy: 1 to 4 hits' worth of log-odds | 2 |
 //! | mean position, 1/16 of the voxel per axis | 12 |
 //!
-//! The stream is cut into *chunks* of a bounded size, each decodable on its
-//! own (it starts with its voxel count and the absolute code of its first
-//! voxel), so a map larger than any buffer streams chunk by chunk and a lost
-//! chunk is resent alone. The decoder checks everything: codes strictly
+//! The stream is cut into *chunks* of a bounded size, decoded in order: a
+//! chunk starts with its voxel count and the gap from the previous chunk's
+//! last code to its first (the first chunk: the absolute code), so a map
+//! larger than any buffer streams chunk by chunk and a lost chunk is resent
+//! alone. The decoder checks everything: codes strictly
 //! increasing across chunks (no duplicates), classes in range, no trailing
 //! bits; it never panics, never loops without consuming input, never
 //! allocates.
@@ -41,7 +42,7 @@ const OCCUPANCY_STEP: f32 = 0.85;
 /// Bytes a chunk header takes at most (two LEB128 varints).
 pub const CHUNK_HEADER_MAX: usize = 5 + 7;
 /// Smallest chunk buffer the encoder accepts: a header and one voxel.
-pub const MIN_CHUNK: usize = CHUNK_HEADER_MAX + 12;
+pub const MIN_CHUNK: usize = CHUNK_HEADER_MAX + 8;
 const NO_CLASS: u32 = 31;
 const MORTON_LIMIT: u64 = 1 << 48;
 
@@ -285,6 +286,11 @@ fn write_varint(out: &mut [u8], at: &mut usize, mut v: u64) -> Result<(), Encode
     }
 }
 
+fn varint_len(v: u64) -> usize {
+    let bits = 64 - v.max(1).leading_zeros() as usize;
+    bits.div_ceil(7)
+}
+
 fn read_varint(input: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, DecodeError> {
     let mut v = 0u64;
     for i in 0..max_bytes {
@@ -332,6 +338,17 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
         crc.finish()
     }
 
+    /// Index (in stream order) of the next voxel to encode.
+    pub fn position(&self) -> usize {
+        self.next
+    }
+
+    /// Moves to voxel `index` of the stream (e.g. to encode a chunk again,
+    /// smaller). Beyond the end means done.
+    pub fn seek(&mut self, index: usize) {
+        self.next = index.min(self.order.len());
+    }
+
     /// Voxels not yet encoded.
     pub fn remaining(&self) -> usize {
         self.order.len() - self.next
@@ -352,8 +369,16 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
             return Err(EncodeError::Buffer);
         }
         let voxel = |i: usize| self.order.get(i).and_then(|&v| self.map.voxel(v as usize));
-        // Dry run: how many voxels fit after the largest header.
-        let budget = (out.len() - CHUNK_HEADER_MAX) * 8;
+        let first = voxel(self.next).ok_or(EncodeError::Buffer)?;
+        // The first code as a gap from the previous chunk's last one.
+        let lead = match self.next.checked_sub(1).and_then(voxel) {
+            Some(prev) => morton(first.key) - morton(prev.key) - 1,
+            None => morton(first.key),
+        };
+        // Dry run: how many voxels fit after the header (a voxel takes at
+        // least 18 bits, which bounds the count's varint).
+        let count_len = varint_len((out.len() * 8 / 18) as u64);
+        let budget = out.len().saturating_sub(count_len + varint_len(lead)) * 8;
         let (mut bits, mut n) = (0usize, 0usize);
         let (mut adapt, mut prev_code, mut prev_class) = (Adapt::new(), 0u64, None);
         while let Some(v) = voxel(self.next + n) {
@@ -372,10 +397,12 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
             prev_class = Some(q.class);
             n += 1;
         }
-        let first = voxel(self.next).ok_or(EncodeError::Buffer)?;
+        if n == 0 {
+            return Err(EncodeError::Buffer);
+        }
         let mut at = 0;
         write_varint(out, &mut at, n as u64)?;
-        write_varint(out, &mut at, morton(first.key))?;
+        write_varint(out, &mut at, lead)?;
         let mut w = BitWriter::new(out.get_mut(at..).ok_or(EncodeError::Buffer)?);
         let (mut adapt, mut prev_code, mut prev_class) = (Adapt::new(), 0u64, None);
         for i in 0..n {
@@ -441,7 +468,11 @@ impl MapDecoder {
         if n > self.expected - self.decoded {
             return Err(DecodeError::TooMany);
         }
-        let mut code = read_varint(chunk, &mut at, 7)?;
+        let lead = read_varint(chunk, &mut at, 7)?;
+        let mut code = match self.last {
+            Some(l) => l.checked_add(lead).and_then(|c| c.checked_add(1)).ok_or(DecodeError::Range)?,
+            None => lead,
+        };
         if code >= MORTON_LIMIT {
             return Err(DecodeError::Range);
         }

@@ -29,6 +29,8 @@ pub struct MapHeader {
     pub map_id: u32,
     /// Robot the map belongs to.
     pub robot_id: u8,
+    /// Class table version the labels refer to.
+    pub class_table: u16,
     /// Timestamp of the anchor scan (microseconds, sender's clock).
     pub anchor_time_us: u64,
     /// Voxels in the map.
@@ -83,35 +85,36 @@ pub enum Message<'a> {
     Hello(Hello),
     /// A map follows.
     MapHeader(MapHeader),
-    /// Part of the map's encoding, numbered from 1.
+    /// Part of the map's encoding.
     Chunk {
         /// The transfer.
         map_id: u32,
-        /// Sequence number (the header is 0).
+        /// Index of the chunk's first voxel in the stream.
         seq: u32,
         /// Encoded voxels ([`super::codec`]).
         #[serde(borrow)]
         data: &'a [u8],
     },
-    /// All chunks before `seq` were sent; `seq` is one past the last.
+    /// All voxels were sent; `seq` is the voxel count plus one.
     End {
         /// The transfer.
         map_id: u32,
-        /// One past the last chunk's number.
+        /// Voxel count plus one.
         seq: u32,
     },
-    /// Frame `seq` of `map_id` arrived (the header is 0, `End` its `seq`).
+    /// Cumulative acknowledgement: the receiver holds the first `seq`
+    /// voxels (after the header: 0; after `End`: the count plus one).
     Ack {
         /// The transfer.
         map_id: u32,
-        /// What is acknowledged.
+        /// Voxels held (or `End`'s `seq`).
         seq: u32,
     },
-    /// Frame `seq` is missing: send it again.
+    /// A frame was lost or broken: send again from voxel `seq`.
     Nack {
         /// The transfer.
         map_id: u32,
-        /// What is wanted.
+        /// First voxel wanted.
         seq: u32,
     },
     /// The transfer is over without a map.

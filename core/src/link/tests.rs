@@ -1,0 +1,335 @@
+//! A seeded lossy-line simulation of the link.
+
+use super::*;
+use crate::classes::Class;
+use crate::map::{LocalMap, MapConfig, SemanticVoxel, VoxelStorage};
+use crate::wire::codec::MapEncoder;
+use core::cell::RefCell;
+use core::convert::Infallible;
+use std::collections::VecDeque;
+use std::rc::Rc;
+use std::vec;
+use std::vec::Vec;
+
+struct Heap {
+    voxels: Vec<SemanticVoxel>,
+    slots: Vec<u32>,
+}
+
+impl VoxelStorage for Heap {
+    fn voxels(&self) -> &[SemanticVoxel] {
+        &self.voxels
+    }
+    fn slots(&self) -> &[u32] {
+        &self.slots
+    }
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
+        (&mut self.voxels, &mut self.slots)
+    }
+}
+
+fn map(capacity: usize) -> LocalMap<Heap> {
+    let n = capacity.max(1);
+    LocalMap::new(Heap { voxels: vec![SemanticVoxel::EMPTY; n], slots: vec![0; 2 * n] }, MapConfig::default()).unwrap()
+}
+
+/// A few hundred voxels: a road patch, a wall, a pole.
+fn small_map(seed: u32) -> LocalMap<Heap> {
+    let mut m = map(600);
+    let o = (seed % 7) as f32 * 0.2;
+    for i in 0..20 {
+        for j in 0..10 {
+            m.insert_point([o + i as f32 * 0.2, j as f32 * 0.2, 0.0], Class::Road).unwrap();
+        }
+        for k in 0..6 {
+            m.insert_point([o + i as f32 * 0.2, 3.0, k as f32 * 0.2], Class::Building).unwrap();
+        }
+    }
+    for k in 0..15 {
+        m.insert_point([1.0, 1.5, k as f32 * 0.2], Class::Pole).unwrap();
+    }
+    m
+}
+
+/// The line: bytes written by one side reach the other after the errors,
+/// at a bounded rate, except while stalled.
+struct Line {
+    wire: [VecDeque<u8>; 2],
+    inbox: [Rc<RefCell<VecDeque<u8>>>; 2],
+    rng: u64,
+    rate: f64,
+    stall_until: u64,
+    budget: f64,
+}
+
+impl Line {
+    fn next(&mut self) -> u64 {
+        self.rng ^= self.rng << 13;
+        self.rng ^= self.rng >> 7;
+        self.rng ^= self.rng << 17;
+        self.rng
+    }
+    fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Moves bytes for one millisecond.
+    fn tick(&mut self, now: u64, stall_chance: f64) {
+        if now < self.stall_until {
+            return;
+        }
+        if self.unit() < stall_chance {
+            self.stall_until = now + 200 + self.next() % 1800;
+            return;
+        }
+        self.budget += self.rate;
+        while self.budget >= 1.0 {
+            self.budget -= 1.0;
+            for d in 0..2 {
+                if let Some(b) = self.wire[d].pop_front() {
+                    self.inbox[1 - d].borrow_mut().push_back(b);
+                }
+            }
+        }
+    }
+}
+
+/// One side's port onto the line.
+struct Port {
+    side: usize,
+    line: Rc<RefCell<Line>>,
+    inbox: Rc<RefCell<VecDeque<u8>>>,
+    error_rate: f64,
+}
+
+impl embedded_io::ErrorType for Port {
+    type Error = Infallible;
+}
+
+impl embedded_io::Read for Port {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        let mut inbox = self.inbox.borrow_mut();
+        let n = buf.len().min(inbox.len());
+        for b in buf.iter_mut().take(n) {
+            *b = inbox.pop_front().unwrap_or(0);
+        }
+        Ok(n)
+    }
+}
+
+impl embedded_io::ReadReady for Port {
+    fn read_ready(&mut self) -> Result<bool, Infallible> {
+        Ok(!self.inbox.borrow().is_empty())
+    }
+}
+
+impl embedded_io::Write for Port {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        let mut line = self.line.borrow_mut();
+        for &b in buf {
+            if line.unit() < self.error_rate {
+                match line.next() % 3 {
+                    0 => {
+                        let flip = (line.next() as u8) | 1;
+                        line.wire[self.side].push_back(b ^ flip);
+                    }
+                    1 => {}
+                    _ => {
+                        line.wire[self.side].push_back(b);
+                        line.wire[self.side].push_back(b);
+                    }
+                }
+            } else {
+                line.wire[self.side].push_back(b);
+            }
+        }
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
+
+fn ports(seed: u64, error_rate: f64) -> (Port, Port, Rc<RefCell<Line>>) {
+    let inbox = [Rc::new(RefCell::new(VecDeque::new())), Rc::new(RefCell::new(VecDeque::new()))];
+    let line = Rc::new(RefCell::new(Line {
+        wire: [VecDeque::new(), VecDeque::new()],
+        inbox: inbox.clone(),
+        rng: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
+        // 115200 baud, 8N1: 11.52 bytes per millisecond.
+        rate: 11.52,
+        stall_until: 0,
+        budget: 0.0,
+    }));
+    let a = Port { side: 0, line: line.clone(), inbox: inbox[0].clone(), error_rate };
+    let b = Port { side: 1, line: line.clone(), inbox: inbox[1].clone(), error_rate };
+    (a, b, line)
+}
+
+#[derive(Debug, PartialEq)]
+enum Outcome {
+    Delivered,
+    Failed(LinkError),
+    Corrupted,
+}
+
+/// One transfer of a small map from A to B; returns what B ended with and
+/// A's retransmissions.
+fn transfer(seed: u64, error_rate: f64, stall_chance: f64) -> (Outcome, u32, u64) {
+    let sent = small_map(seed as u32);
+    // What B should end with: the map as the encoding carries it.
+    let mut scratch_ref = vec![0u32; sent.len()];
+    let digest = MapEncoder::new(&sent, &mut scratch_ref).unwrap().digest();
+    let mut scratch = vec![0u32; sent.len()];
+    let mut staging = map(1000);
+    let (mut pa, mut pb, line) = ports(seed, error_rate);
+    let config = LinkConfig::default();
+    let mut a = Endpoint::<Heap, Heap>::new(config, 0, seed as u32, 0, Some((&sent, &mut scratch)), None).unwrap();
+    let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut staging)).unwrap();
+    let (mut ra, mut rb) = (Ok(Progress::Busy), Ok(Progress::Busy));
+    for now in 0..2_000_000u64 {
+        line.borrow_mut().tick(now, stall_chance);
+        if ra == Ok(Progress::Busy) {
+            ra = a.step(&mut pa, now);
+        }
+        if rb == Ok(Progress::Busy) {
+            rb = b.step(&mut pb, now);
+        }
+        let a_over = ra != Ok(Progress::Busy);
+        let b_over = rb != Ok(Progress::Busy);
+        if a_over && b_over {
+            break;
+        }
+    }
+    let retrans = a.stats().retransmissions;
+    let received = b.received();
+    let bytes = a.stats().bytes_sent + b.stats().bytes_sent;
+    let outcome = match rb {
+        Ok(Progress::Done) if received => {
+            // Delivered: it must be exactly what was sent.
+            let mut s2 = vec![0u32; staging.len()];
+            let got = MapEncoder::new(&staging, &mut s2).unwrap().digest();
+            if got == digest && staging.len() == sent.len() {
+                Outcome::Delivered
+            } else {
+                Outcome::Corrupted
+            }
+        }
+        Err(e) => Outcome::Failed(e),
+        _ => Outcome::Failed(LinkError::Silent),
+    };
+    (outcome, retrans, bytes)
+}
+
+fn run(rate: f64, stalls: f64, n: u64) -> (usize, usize, f64) {
+    let (mut delivered, mut corrupted, mut retrans) = (0, 0, 0u64);
+    for seed in 1..=n {
+        let (o, r, _) = transfer(seed, rate, stalls);
+        match o {
+            Outcome::Delivered => delivered += 1,
+            Outcome::Corrupted => corrupted += 1,
+            Outcome::Failed(_) => {}
+        }
+        retrans += u64::from(r);
+    }
+    std::println!(
+        "byte error rate {:.1}%: {delivered}/{n} delivered, {corrupted} corrupted, {:.2} retransmissions per transfer",
+        rate * 100.0,
+        retrans as f64 / n as f64
+    );
+    (delivered, corrupted, retrans as f64 / n as f64)
+}
+
+#[test]
+fn clean_line_delivers_without_retransmission() {
+    let (o, r, bytes) = transfer(1, 0.0, 0.0);
+    assert_eq!(o, Outcome::Delivered);
+    assert_eq!(r, 0);
+    assert!(bytes > 0);
+}
+
+#[test]
+fn thousand_transfers_at_low_error_rates_all_arrive() {
+    for rate in [0.001, 0.01] {
+        let (delivered, corrupted, _) = run(rate, 0.0005, 1000);
+        assert_eq!(corrupted, 0);
+        assert_eq!(delivered, 1000, "at {rate}");
+    }
+}
+
+#[test]
+fn thousand_transfers_at_five_percent_mostly_arrive_and_never_corrupt() {
+    let (delivered, corrupted, _) = run(0.05, 0.0005, 1000);
+    assert_eq!(corrupted, 0);
+    assert!(delivered >= 950, "{delivered}/1000");
+}
+
+#[test]
+fn silent_peer_is_a_typed_error_in_bounded_time() {
+    let sent = small_map(1);
+    let mut scratch = vec![0u32; sent.len()];
+    let (mut pa, _pb, _line) = ports(3, 0.0);
+    let config = LinkConfig::default();
+    let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None).unwrap();
+    let mut result = Ok(Progress::Busy);
+    let mut when = 0;
+    for now in 0..200_000u64 {
+        result = a.step(&mut pa, now);
+        if result != Ok(Progress::Busy) {
+            when = now;
+            break;
+        }
+    }
+    assert!(matches!(result, Err(LinkError::GaveUp { seq: 0 }) | Err(LinkError::Silent)), "{result:?}");
+    assert!(when <= u64::from(config.silence_ms) + 1, "{when}");
+}
+
+#[test]
+fn a_map_too_large_is_refused_and_the_sender_told() {
+    let sent = small_map(1);
+    let mut scratch = vec![0u32; sent.len()];
+    let mut tiny = map(10);
+    let (mut pa, mut pb, line) = ports(5, 0.0);
+    let config = LinkConfig::default();
+    let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None).unwrap();
+    let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut tiny)).unwrap();
+    let (mut ra, mut rb) = (Ok(Progress::Busy), Ok(Progress::Busy));
+    for now in 0..10_000 {
+        line.borrow_mut().tick(now, 0.0);
+        if ra == Ok(Progress::Busy) {
+            ra = a.step(&mut pa, now);
+        }
+        if rb == Ok(Progress::Busy) {
+            rb = b.step(&mut pb, now);
+        }
+    }
+    assert!(matches!(rb, Err(LinkError::TooLarge { .. })), "{rb:?}");
+    assert_eq!(ra, Err(LinkError::PeerAborted(crate::wire::AbortReason::TooLarge)));
+    assert!(!b.received());
+}
+
+#[test]
+fn both_ways_at_once() {
+    let (m0, m1) = (small_map(2), small_map(5));
+    let (mut s0, mut s1) = (vec![0u32; m0.len()], vec![0u32; m1.len()]);
+    let (mut st0, mut st1) = (map(1000), map(1000));
+    let (mut p0, mut p1, line) = ports(9, 0.01);
+    let config = LinkConfig::default();
+    let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0)).unwrap();
+    let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1)).unwrap();
+    let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
+    for now in 0..100_000 {
+        line.borrow_mut().tick(now, 0.0);
+        if r0 == Ok(Progress::Busy) {
+            r0 = e0.step(&mut p0, now);
+        }
+        if r1 == Ok(Progress::Busy) {
+            r1 = e1.step(&mut p1, now);
+        }
+        if r0 != Ok(Progress::Busy) && r1 != Ok(Progress::Busy) {
+            break;
+        }
+    }
+    assert_eq!((r0, r1), (Ok(Progress::Done), Ok(Progress::Done)));
+    assert_eq!(st0.len(), m1.len());
+    assert_eq!(st1.len(), m0.len());
+}
