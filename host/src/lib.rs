@@ -11,3 +11,4 @@ pub mod ply;
 pub mod pose;
 pub mod rng;
 pub mod synth;
+pub mod transport;

@@ -414,6 +414,10 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
             return Err(e);
         }
         let r = self.step_inner(io, now);
+        // Lingering only serves the peer: if it hung up, we are done.
+        if r == Err(LinkError::Io) && self.linger_until.is_some() {
+            return Ok(Progress::Done);
+        }
         if let Err(e) = r {
             self.failed = Some(e);
             // Tell the peer, best effort, so it does not wait for nothing.

@@ -5,6 +5,7 @@ mod demo;
 mod eval;
 mod export;
 mod info;
+mod link;
 mod map;
 mod matching;
 mod synth;
@@ -31,6 +32,8 @@ enum Command {
     Match(matching::Args),
     /// The paper's robustness protocol: many starts, success rates, errors.
     Eval(eval::Args),
+    /// Exchange maps with a peer over TCP or a serial line, then match.
+    Link(link::Args),
     /// Describe a map file.
     Info(info::Args),
     /// Export a map to another format.
@@ -55,6 +58,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Map(a) => map::run(a),
         Command::Match(a) => matching::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Link(a) => link::run(a),
         Command::Info(a) => info::run(a),
         Command::Export { format } => export::run(format),
         Command::Synth(a) => synth::run(a),

@@ -1,0 +1,19 @@
+//! Any bytes as a chunk of voxel encoding: no panic, no hang, never more
+//! voxels than announced or than the map holds.
+#![no_main]
+
+use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
+use cosem_core::wire::MapDecoder;
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    let Some((&n, rest)) = data.split_first() else { return };
+    let mut map = LocalMap::new(ArrayStorage::<256>::new(), MapConfig::default()).unwrap();
+    let mut dec = MapDecoder::new(usize::from(n));
+    for chunk in rest.split(|&b| b == 0xFF) {
+        if dec.decode_chunk(chunk, &mut map).is_err() {
+            break;
+        }
+    }
+    assert!(map.len() <= usize::from(n).min(256));
+});

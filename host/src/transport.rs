@@ -1,0 +1,175 @@
+//! Byte streams for `cosem link`: TCP and serial ports, behind the
+//! `embedded-io` traits the core's link speaks (the firmware's UART driver
+//! implements the same ones).
+
+use cosem_core::link::Clock;
+use std::io::{Read as _, Write as _};
+use std::net::{TcpListener, TcpStream};
+use std::time::{Duration, Instant};
+
+/// An I/O error of a transport.
+#[derive(Debug)]
+pub struct TransportError(pub std::io::Error);
+
+impl embedded_io::Error for TransportError {
+    fn kind(&self) -> embedded_io::ErrorKind {
+        embedded_io::ErrorKind::Other
+    }
+}
+
+/// A TCP connection, read without blocking.
+pub struct Tcp {
+    stream: TcpStream,
+    peeked: Option<u8>,
+}
+
+impl Tcp {
+    /// Connects to `addr` (retrying for up to `wait` while the peer starts).
+    pub fn connect(addr: &str, wait: Duration) -> std::io::Result<Self> {
+        let start = Instant::now();
+        loop {
+            match TcpStream::connect(addr) {
+                Ok(s) => return Self::wrap(s),
+                Err(e) if start.elapsed() < wait => {
+                    let _ = e;
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// Accepts one connection on `listener`.
+    pub fn accept(listener: &TcpListener) -> std::io::Result<Self> {
+        let (s, _) = listener.accept()?;
+        Self::wrap(s)
+    }
+
+    fn wrap(stream: TcpStream) -> std::io::Result<Self> {
+        stream.set_nodelay(true)?;
+        stream.set_nonblocking(true)?;
+        Ok(Tcp { stream, peeked: None })
+    }
+}
+
+impl embedded_io::ErrorType for Tcp {
+    type Error = TransportError;
+}
+
+impl embedded_io::ReadReady for Tcp {
+    fn read_ready(&mut self) -> Result<bool, TransportError> {
+        if self.peeked.is_some() {
+            return Ok(true);
+        }
+        let mut b = [0u8; 1];
+        match self.stream.read(&mut b) {
+            Ok(0) => Err(TransportError(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "peer closed"))),
+            Ok(_) => {
+                self.peeked = Some(b[0]);
+                Ok(true)
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => Ok(false),
+            Err(e) => Err(TransportError(e)),
+        }
+    }
+}
+
+impl embedded_io::Read for Tcp {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, TransportError> {
+        if buf.is_empty() {
+            return Ok(0);
+        }
+        let mut n = 0;
+        if let Some(b) = self.peeked.take() {
+            buf[0] = b;
+            n = 1;
+        }
+        match self.stream.read(&mut buf[n..]) {
+            Ok(m) => Ok(n + m),
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => Ok(n),
+            Err(e) if n > 0 => {
+                let _ = e;
+                Ok(n)
+            }
+            Err(e) => Err(TransportError(e)),
+        }
+    }
+}
+
+impl embedded_io::Write for Tcp {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, TransportError> {
+        loop {
+            match self.stream.write(buf) {
+                Ok(n) => return Ok(n),
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => std::thread::sleep(Duration::from_micros(200)),
+                Err(e) => return Err(TransportError(e)),
+            }
+        }
+    }
+    fn flush(&mut self) -> Result<(), TransportError> {
+        loop {
+            match self.stream.flush() {
+                Ok(()) => return Ok(()),
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => std::thread::sleep(Duration::from_micros(200)),
+                Err(e) => return Err(TransportError(e)),
+            }
+        }
+    }
+}
+
+/// A serial port (8N1).
+pub struct Serial {
+    port: Box<dyn serialport::SerialPort>,
+}
+
+impl Serial {
+    /// Opens `device` at `baud`.
+    pub fn open(device: &str, baud: u32) -> Result<Self, serialport::Error> {
+        let port = serialport::new(device, baud).timeout(Duration::from_millis(10)).open()?;
+        Ok(Serial { port })
+    }
+}
+
+impl embedded_io::ErrorType for Serial {
+    type Error = TransportError;
+}
+
+impl embedded_io::ReadReady for Serial {
+    fn read_ready(&mut self) -> Result<bool, TransportError> {
+        self.port.bytes_to_read().map(|n| n > 0).map_err(|e| TransportError(e.into()))
+    }
+}
+
+impl embedded_io::Read for Serial {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, TransportError> {
+        match self.port.read(buf) {
+            Ok(n) => Ok(n),
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => Ok(0),
+            Err(e) => Err(TransportError(e)),
+        }
+    }
+}
+
+impl embedded_io::Write for Serial {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, TransportError> {
+        self.port.write(buf).map_err(TransportError)
+    }
+    fn flush(&mut self) -> Result<(), TransportError> {
+        self.port.flush().map_err(TransportError)
+    }
+}
+
+/// Wall-clock milliseconds since creation.
+pub struct HostClock(Instant);
+
+impl Default for HostClock {
+    fn default() -> Self {
+        HostClock(Instant::now())
+    }
+}
+
+impl Clock for HostClock {
+    fn now_ms(&self) -> u64 {
+        self.0.elapsed().as_millis() as u64
+    }
+}

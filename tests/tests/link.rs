@@ -1,0 +1,93 @@
+//! Two `cosem link` processes exchange maps over 127.0.0.1; each must print
+//! the transform `cosem match` gives on the same two map files.
+
+use cosem_tests::{cosem_bin, cosem_ok, real_data, synth, workspace_root};
+use serde_json::Value;
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Command, Stdio};
+
+fn transform(v: &Value) -> Vec<f64> {
+    v["transform"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+}
+
+fn exchange(a: &Path, b: &Path) {
+    let (sa, sb) = (a.display().to_string(), b.display().to_string());
+    let mut listener = Command::new(cosem_bin())
+        .args(["link", "--map", &sa, "--listen", "0", "--json"])
+        .current_dir(workspace_root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The listener says where it listens.
+    let mut err = BufReader::new(listener.stderr.take().unwrap());
+    let mut line = String::new();
+    err.read_line(&mut line).unwrap();
+    let addr = line.trim().strip_prefix("listening on ").unwrap_or_else(|| panic!("listener said: {line}")).to_string();
+    let client: Value = serde_json::from_str(&cosem_ok(&["link", "--map", &sb, "--tcp", &addr, "--json"])).unwrap();
+    let out = listener.wait_with_output().unwrap();
+    assert!(out.status.success(), "listener failed");
+    let server: Value = serde_json::from_str(&String::from_utf8_lossy(&out.stdout)).unwrap();
+    // Robot 0 holds A and matched B against it; robot 1 the other way.
+    let ab: Value = serde_json::from_str(&cosem_ok(&["match", &sa, &sb, "--json"])).unwrap();
+    let ba: Value = serde_json::from_str(&cosem_ok(&["match", &sb, &sa, "--json"])).unwrap();
+    assert_eq!(transform(&server["match"]), transform(&ab));
+    assert_eq!(transform(&client["match"]), transform(&ba));
+    assert_eq!(server["match"]["status"], ab["status"]);
+    let info = |p: &str| -> Value { serde_json::from_str(&cosem_ok(&["info", p, "--json"])).unwrap() };
+    assert_eq!(server["voxels_received"], info(&sb)["voxels"]);
+    assert_eq!(client["voxels_received"], info(&sa)["voxels"]);
+    for v in [&server, &client] {
+        for k in ["bytes_sent", "bytes_received", "frames", "retransmissions", "wire_bytes_per_voxel"] {
+            assert!(v[k].as_f64().is_some(), "{k} missing: {v}");
+        }
+        assert!(v["wire_bytes_per_voxel"].as_f64().unwrap() <= 4.0);
+    }
+}
+
+#[test]
+fn two_link_processes_agree_with_match_on_synthetic_maps() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 8, 13);
+    let (a, b) = (tmp.path().join("a.cmap"), tmp.path().join("b.cmap"));
+    for (m, f) in [(&a, "0:4"), (&b, "4:8")] {
+        cosem_ok(&["map", "--data", &seq.display().to_string(), "--frames", f, "-o", &m.display().to_string()]);
+    }
+    exchange(&a, &b);
+}
+
+#[test]
+fn two_link_processes_exchange_the_kitti00_maps() {
+    let Some(dir) = real_data("kitti00") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a.cmap"), tmp.path().join("b.cmap"));
+    for (m, f) in [(&a, "0:5"), (&b, "5:10")] {
+        cosem_ok(&["map", "--data", &dir.display().to_string(), "--frames", f, "-o", &m.display().to_string()]);
+    }
+    exchange(&a, &b);
+}
+
+#[test]
+fn link_without_a_peer_is_a_clean_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 2, 13);
+    let a = tmp.path().join("a.cmap");
+    cosem_ok(&["map", "--data", &seq.display().to_string(), "--frames", "0:2", "-o", &a.display().to_string()]);
+    // Nobody listens on this port: the connection is refused after retrying.
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    drop(listener);
+    let e = cosem_tests::cosem_err(&[
+        "link",
+        "--map",
+        &a.display().to_string(),
+        "--tcp",
+        &format!("127.0.0.1:{port}"),
+        "--connect-timeout",
+        "0.5",
+    ]);
+    assert!(e.contains(&format!("127.0.0.1:{port}")), "{e}");
+}
