@@ -31,6 +31,12 @@ pub struct LinkConfig {
     /// After both maps are through, keep answering for this long (ms), so a
     /// peer whose last ack was lost still gets one (default 1500).
     pub linger_ms: u32,
+    /// The line carries one direction at a time (a radio modem, RS-485): the
+    /// two maps go one after the other. Robot 0 sends first; any other robot
+    /// starts its own map once it holds the peer's. Within one transfer,
+    /// stop-and-wait already keeps one side talking at a time. Default off
+    /// (both maps at once on full-duplex lines).
+    pub half_duplex: bool,
 }
 
 impl Default for LinkConfig {
@@ -43,6 +49,7 @@ impl Default for LinkConfig {
             min_chunk: 20,
             silence_ms: 90_000,
             linger_ms: 1500,
+            half_duplex: false,
         }
     }
 }
@@ -137,6 +144,8 @@ enum TxPhase {
 
 struct Tx<'a, S: VoxelStorage> {
     encoder: MapEncoder<'a, S>,
+    /// When the frame in flight was last sent.
+    sent_at: u64,
     header: MapHeader,
     phase: TxPhase,
     /// First voxel of the chunk in flight (`End`: count plus one).
@@ -149,10 +158,48 @@ struct Tx<'a, S: VoxelStorage> {
     timeout: u32,
     retries: u8,
     chunk: usize,
-    clean: u32,
+    /// Bytes of frames sent, and of those how many frames failed (decayed):
+    /// the byte error rate estimate that sizes the chunks.
+    est_bytes: u32,
+    est_fails: u32,
+}
+
+/// Frame bytes around a chunk's data (message fields, chunk header, CRC,
+/// COBS, delimiter) plus its ack: the overhead a chunk pays each attempt.
+const CHUNK_OVERHEAD: usize = 32;
+
+impl<S: VoxelStorage> Tx<'_, S> {
+    /// Records an attempt of the frame in flight and sizes the next chunks.
+    /// A failure halves them, to get through a bad patch at once. A success
+    /// grows them by a quarter, but not past the size the line's estimated
+    /// byte error rate `r` favours: a frame of `L` bytes gets through with
+    /// probability about `(1 - r)^L`, so data per attempt peaks at `L = 1/r`.
+    fn record(&mut self, failed: bool, config: &LinkConfig) {
+        self.est_bytes = self.est_bytes.saturating_add(self.frame_len as u32);
+        if failed {
+            self.est_fails += 1;
+        }
+        if self.est_bytes > 64_000 {
+            self.est_bytes /= 2;
+            self.est_fails /= 2;
+        }
+        let (min, max) = (usize::from(config.min_chunk), usize::from(config.max_chunk));
+        if failed {
+            self.chunk = (self.chunk / 2).max(min);
+        } else {
+            // A prior of one error in 4000 bytes until evidence accumulates.
+            let rate = (self.est_fails as f32 + 0.5) / (self.est_bytes as f32 + 2000.0);
+            let target = ((1.0 / rate) as usize).saturating_sub(CHUNK_OVERHEAD).clamp(min, max);
+            if self.chunk < target {
+                self.chunk = (self.chunk + (self.chunk / 4).max(8)).min(target);
+            }
+        }
+    }
 }
 
 struct Rx<'a, S: VoxelStorage> {
+    /// The last nack sent for a broken frame: (voxel index, time).
+    nacked: Option<(u32, u64)>,
     /// `None`: this endpoint receives nothing.
     map: Option<&'a mut LocalMap<S>>,
     decoder: Option<MapDecoder>,
@@ -218,6 +265,7 @@ impl<'a, M: VoxelStorage> Tx<'a, M> {
 
     fn transmit<IO: Write>(&mut self, io: &mut IO, now: u64, stats: &mut LinkStats) -> Result<(), LinkError> {
         write_frame(io, &self.frame[..self.frame_len], stats)?;
+        self.sent_at = now;
         self.deadline = now + u64::from(self.timeout);
         Ok(())
     }
@@ -238,14 +286,7 @@ impl<'a, M: VoxelStorage> Tx<'a, M> {
             TxPhase::End if seq == count + 1 => None,
             _ => return Ok(()),
         };
-        // A clean run grows the chunks back.
-        if self.retries == 0 {
-            self.clean += 1;
-            if self.clean >= 8 {
-                self.chunk = (self.chunk * 2).min(usize::from(config.max_chunk));
-                self.clean = 0;
-            }
-        }
+        self.record(false, config);
         self.retries = 0;
         self.timeout = config.timeout_ms;
         match next {
@@ -278,20 +319,25 @@ impl<'a, M: VoxelStorage> Tx<'a, M> {
         self.transmit(io, now, stats)
     }
 
+    /// Resends after a timeout (`timed_out`: the line may be stalled, so the
+    /// timeout backs off) or a nack (the line is alive: resend at once, same
+    /// timeout).
     fn retransmit<IO: Write>(
         &mut self,
         io: &mut IO,
         now: u64,
         config: &LinkConfig,
         stats: &mut LinkStats,
+        timed_out: bool,
     ) -> Result<(), LinkError> {
         if self.retries >= config.max_retries {
             return Err(LinkError::GaveUp { seq: self.seq });
         }
         self.retries += 1;
-        self.clean = 0;
-        self.chunk = (self.chunk / 2).max(usize::from(config.min_chunk));
-        self.timeout = (self.timeout.saturating_mul(2)).min(config.max_timeout_ms);
+        self.record(true, config);
+        if timed_out {
+            self.timeout = (self.timeout.saturating_mul(2)).min(config.max_timeout_ms);
+        }
         stats.retransmissions += 1;
         self.resend(io, now, stats)
     }
@@ -343,6 +389,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                 };
                 Some(Tx {
                     encoder,
+                    sent_at: 0,
                     header,
                     phase: TxPhase::Header,
                     seq: 0,
@@ -353,7 +400,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                     timeout: config.timeout_ms,
                     retries: 0,
                     chunk: usize::from(config.max_chunk),
-                    clean: 0,
+                    est_bytes: 0,
+                    est_fails: 0,
                 })
             }
         };
@@ -366,7 +414,15 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
             robot_id,
             resolution,
             tx,
-            rx: Rx { map: staging, decoder: None, map_id: None, digest: 0, expected: 0, done: !receiving },
+            rx: Rx {
+                nacked: None,
+                map: staging,
+                decoder: None,
+                map_id: None,
+                digest: 0,
+                expected: 0,
+                done: !receiving,
+            },
             deframer: Deframer::new(),
             started: false,
             last_heard: 0,
@@ -447,7 +503,12 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                 max_payload: MAX_PAYLOAD as u16,
             };
             send_msg(io, &Message::Hello(hello), &mut self.stats)?;
-            if let Some(tx) = self.tx.as_mut() {
+        }
+        // Our map goes out now, or (half duplex, not robot 0) once the peer's
+        // is in.
+        let may_send = !self.config.half_duplex || self.robot_id == 0 || self.rx.done;
+        if let Some(tx) = self.tx.as_mut() {
+            if tx.frame_len == 0 && may_send {
                 tx.build(&mut self.stats)?;
                 tx.transmit(io, now, &mut self.stats)?;
             }
@@ -466,8 +527,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         }
         // Deadlines.
         if let Some(tx) = self.tx.as_mut() {
-            if tx.phase != TxPhase::Done && now >= tx.deadline {
-                tx.retransmit(io, now, &self.config, &mut self.stats)?;
+            if tx.frame_len > 0 && tx.phase != TxPhase::Done && now >= tx.deadline {
+                tx.retransmit(io, now, &self.config, &mut self.stats, true)?;
             }
         }
         if now.saturating_sub(self.last_heard) > u64::from(self.config.silence_ms) && self.linger_until.is_none() {
@@ -490,9 +551,17 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
             Err(_) => {
                 stats.bad_frames += 1;
                 // Receiving: ask at once for what is missing rather than let
-                // the sender wait for its timeout.
+                // the sender wait for its timeout; once per position and
+                // half-timeout, so broken acks on a shared line do not set
+                // off a storm of resends.
                 if let (Some(map_id), Some(dec), false) = (rx.map_id, rx.decoder.as_ref(), rx.done) {
-                    send_msg(io, &Message::Nack { map_id, seq: dec.decoded() as u32 }, stats)?;
+                    let held = dec.decoded() as u32;
+                    let recent =
+                        rx.nacked.is_some_and(|(s, t)| s == held && now < t + u64::from(config.timeout_ms / 2));
+                    if !recent {
+                        rx.nacked = Some((held, now));
+                        send_msg(io, &Message::Nack { map_id, seq: held }, stats)?;
+                    }
                 }
                 return Ok(());
             }
@@ -522,7 +591,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                         && t.phase != TxPhase::Done
                         && (seq == t.seq || t.phase == TxPhase::End)
                     {
-                        t.retransmit(io, now, config, stats)?;
+                        t.retransmit(io, now, config, stats, false)?;
                     }
                 }
             }

@@ -12,14 +12,17 @@
 //! `End`) and waits for its `Ack`. A lost frame or ack is resent after a
 //! timeout that doubles up to a ceiling; a `Nack` asks for it at once;
 //! duplicates are recognised by sequence number and acknowledged again;
-//! after too many retries the sender gives up with a typed error. Chunks
-//! shrink after a retransmission and grow back after a run of clean acks.
+//! after too many retries the sender gives up with a typed error. The
+//! sender estimates the line's byte error rate from its own attempts and
+//! sizes chunks for the most data per attempt (frames of about one over the
+//! rate); a chunk that must be resent is re-encoded at the current size.
 //! The receiver decodes into a staging map the caller provides, checks the
 //! voxel count and the digest of the whole map at `End`, and only then
 //! reports success: an aborted or corrupted transfer leaves the caller's
 //! current map untouched.
 
 mod endpoint;
+pub mod sim;
 
 pub use endpoint::{Endpoint, LinkConfig, LinkError, LinkStats, Progress};
 

@@ -5,9 +5,6 @@ use crate::classes::Class;
 use crate::map::{LocalMap, MapConfig, SemanticVoxel, VoxelStorage};
 use crate::wire::codec::MapEncoder;
 use core::cell::RefCell;
-use core::convert::Infallible;
-use std::collections::VecDeque;
-use std::rc::Rc;
 use std::vec;
 use std::vec::Vec;
 
@@ -51,118 +48,17 @@ fn small_map(seed: u32) -> LocalMap<Heap> {
     m
 }
 
-/// The line: bytes written by one side reach the other after the errors,
-/// at a bounded rate, except while stalled.
-struct Line {
-    wire: [VecDeque<u8>; 2],
-    inbox: [Rc<RefCell<VecDeque<u8>>>; 2],
-    rng: u64,
-    rate: f64,
-    stall_until: u64,
-    budget: f64,
-}
+/// A line of 64 KiB buffers at 115200 baud (11.52 bytes per millisecond).
+type Line = sim::SimLine<65536>;
 
-impl Line {
-    fn next(&mut self) -> u64 {
-        self.rng ^= self.rng << 13;
-        self.rng ^= self.rng >> 7;
-        self.rng ^= self.rng << 17;
-        self.rng
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    /// Moves bytes for one millisecond.
-    fn tick(&mut self, now: u64, stall_chance: f64) {
-        if now < self.stall_until {
-            return;
-        }
-        if self.unit() < stall_chance {
-            self.stall_until = now + 200 + self.next() % 1800;
-            return;
-        }
-        self.budget += self.rate;
-        while self.budget >= 1.0 {
-            self.budget -= 1.0;
-            for d in 0..2 {
-                if let Some(b) = self.wire[d].pop_front() {
-                    self.inbox[1 - d].borrow_mut().push_back(b);
-                }
-            }
-        }
-    }
-}
-
-/// One side's port onto the line.
-struct Port {
-    side: usize,
-    line: Rc<RefCell<Line>>,
-    inbox: Rc<RefCell<VecDeque<u8>>>,
-    error_rate: f64,
-}
-
-impl embedded_io::ErrorType for Port {
-    type Error = Infallible;
-}
-
-impl embedded_io::Read for Port {
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
-        let mut inbox = self.inbox.borrow_mut();
-        let n = buf.len().min(inbox.len());
-        for b in buf.iter_mut().take(n) {
-            *b = inbox.pop_front().unwrap_or(0);
-        }
-        Ok(n)
-    }
-}
-
-impl embedded_io::ReadReady for Port {
-    fn read_ready(&mut self) -> Result<bool, Infallible> {
-        Ok(!self.inbox.borrow().is_empty())
-    }
-}
-
-impl embedded_io::Write for Port {
-    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        let mut line = self.line.borrow_mut();
-        for &b in buf {
-            if line.unit() < self.error_rate {
-                match line.next() % 3 {
-                    0 => {
-                        let flip = (line.next() as u8) | 1;
-                        line.wire[self.side].push_back(b ^ flip);
-                    }
-                    1 => {}
-                    _ => {
-                        line.wire[self.side].push_back(b);
-                        line.wire[self.side].push_back(b);
-                    }
-                }
-            } else {
-                line.wire[self.side].push_back(b);
-            }
-        }
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> Result<(), Infallible> {
-        Ok(())
-    }
-}
-
-fn ports(seed: u64, error_rate: f64) -> (Port, Port, Rc<RefCell<Line>>) {
-    let inbox = [Rc::new(RefCell::new(VecDeque::new())), Rc::new(RefCell::new(VecDeque::new()))];
-    let line = Rc::new(RefCell::new(Line {
-        wire: [VecDeque::new(), VecDeque::new()],
-        inbox: inbox.clone(),
-        rng: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
-        // 115200 baud, 8N1: 11.52 bytes per millisecond.
-        rate: 11.52,
-        stall_until: 0,
-        budget: 0.0,
-    }));
-    let a = Port { side: 0, line: line.clone(), inbox: inbox[0].clone(), error_rate };
-    let b = Port { side: 1, line: line.clone(), inbox: inbox[1].clone(), error_rate };
-    (a, b, line)
+fn line(seed: u64, error_rate: f64, stall_chance: f64) -> std::boxed::Box<RefCell<Line>> {
+    std::boxed::Box::new(RefCell::new(Line::new(sim::SimConfig {
+        seed,
+        error_rate,
+        stall_chance,
+        bytes_per_ms: 11.52,
+        half_duplex: false,
+    })))
 }
 
 #[derive(Debug, PartialEq)]
@@ -181,13 +77,14 @@ fn transfer(seed: u64, error_rate: f64, stall_chance: f64) -> (Outcome, u32, u64
     let digest = MapEncoder::new(&sent, &mut scratch_ref).unwrap().digest();
     let mut scratch = vec![0u32; sent.len()];
     let mut staging = map(1000);
-    let (mut pa, mut pb, line) = ports(seed, error_rate);
+    let wire = line(seed, error_rate, stall_chance);
+    let (mut pa, mut pb) = Line::ports(&wire);
     let config = LinkConfig::default();
     let mut a = Endpoint::<Heap, Heap>::new(config, 0, seed as u32, 0, Some((&sent, &mut scratch)), None).unwrap();
     let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut staging)).unwrap();
     let (mut ra, mut rb) = (Ok(Progress::Busy), Ok(Progress::Busy));
     for now in 0..2_000_000u64 {
-        line.borrow_mut().tick(now, stall_chance);
+        wire.borrow_mut().tick(now);
         if ra == Ok(Progress::Busy) {
             ra = a.step(&mut pa, now);
         }
@@ -267,7 +164,8 @@ fn thousand_transfers_at_five_percent_mostly_arrive_and_never_corrupt() {
 fn silent_peer_is_a_typed_error_in_bounded_time() {
     let sent = small_map(1);
     let mut scratch = vec![0u32; sent.len()];
-    let (mut pa, _pb, _line) = ports(3, 0.0);
+    let wire = line(3, 0.0, 0.0);
+    let (mut pa, _pb) = Line::ports(&wire);
     let config = LinkConfig::default();
     let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None).unwrap();
     let mut result = Ok(Progress::Busy);
@@ -288,13 +186,14 @@ fn a_map_too_large_is_refused_and_the_sender_told() {
     let sent = small_map(1);
     let mut scratch = vec![0u32; sent.len()];
     let mut tiny = map(10);
-    let (mut pa, mut pb, line) = ports(5, 0.0);
+    let wire = line(5, 0.0, 0.0);
+    let (mut pa, mut pb) = Line::ports(&wire);
     let config = LinkConfig::default();
     let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None).unwrap();
     let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut tiny)).unwrap();
     let (mut ra, mut rb) = (Ok(Progress::Busy), Ok(Progress::Busy));
     for now in 0..10_000 {
-        line.borrow_mut().tick(now, 0.0);
+        wire.borrow_mut().tick(now);
         if ra == Ok(Progress::Busy) {
             ra = a.step(&mut pa, now);
         }
@@ -312,13 +211,14 @@ fn both_ways_at_once() {
     let (m0, m1) = (small_map(2), small_map(5));
     let (mut s0, mut s1) = (vec![0u32; m0.len()], vec![0u32; m1.len()]);
     let (mut st0, mut st1) = (map(1000), map(1000));
-    let (mut p0, mut p1, line) = ports(9, 0.01);
+    let wire = line(9, 0.01, 0.0);
+    let (mut p0, mut p1) = Line::ports(&wire);
     let config = LinkConfig::default();
     let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0)).unwrap();
     let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1)).unwrap();
     let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
     for now in 0..100_000 {
-        line.borrow_mut().tick(now, 0.0);
+        wire.borrow_mut().tick(now);
         if r0 == Ok(Progress::Busy) {
             r0 = e0.step(&mut p0, now);
         }
@@ -332,4 +232,40 @@ fn both_ways_at_once() {
     assert_eq!((r0, r1), (Ok(Progress::Done), Ok(Progress::Done)));
     assert_eq!(st0.len(), m1.len());
     assert_eq!(st1.len(), m0.len());
+}
+
+#[test]
+fn half_duplex_line_takes_turns_without_collisions() {
+    let (m0, m1) = (small_map(3), small_map(4));
+    let (mut s0, mut s1) = (vec![0u32; m0.len()], vec![0u32; m1.len()]);
+    let (mut st0, mut st1) = (map(1000), map(1000));
+    let wire = std::boxed::Box::new(RefCell::new(Line::new(sim::SimConfig {
+        seed: 11,
+        error_rate: 0.001,
+        stall_chance: 0.0,
+        bytes_per_ms: 11.52,
+        half_duplex: true,
+    })));
+    let (mut p0, mut p1) = Line::ports(&wire);
+    let config = LinkConfig { half_duplex: true, ..LinkConfig::default() };
+    let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0)).unwrap();
+    let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1)).unwrap();
+    let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
+    for now in 0..200_000 {
+        wire.borrow_mut().tick(now);
+        if r0 == Ok(Progress::Busy) {
+            r0 = e0.step(&mut p0, now);
+        }
+        if r1 == Ok(Progress::Busy) {
+            r1 = e1.step(&mut p1, now);
+        }
+        if r0 != Ok(Progress::Busy) && r1 != Ok(Progress::Busy) {
+            break;
+        }
+    }
+    assert_eq!((r0, r1), (Ok(Progress::Done), Ok(Progress::Done)));
+    assert_eq!((st0.len(), st1.len()), (m1.len(), m0.len()));
+    // Only the opening hellos and a rare ack crossing a resend may overlap.
+    let collisions = wire.borrow().collisions();
+    assert!(collisions < 10, "{collisions} collisions");
 }

@@ -12,6 +12,30 @@ use std::time::Instant;
 pub enum What {
     /// Points fused per second into a local map (single thread).
     Map(MapArgs),
+    /// Encode and decode throughput of the compact voxel encoding.
+    Wire(MapArgs),
+    /// Two maps exchanged over a simulated 115200-baud line, clean and lossy.
+    Link(LinkArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct LinkArgs {
+    /// SemanticKITTI-layout folder; default `$COSEM_DATA/kitti00`, else a
+    /// synthetic sequence.
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// Robot A's frames.
+    #[arg(long, default_value = "0:5")]
+    a: FrameRange,
+    /// Robot B's frames.
+    #[arg(long, default_value = "5:10")]
+    b: FrameRange,
+    /// Byte error rates to simulate (each byte flipped, dropped or duplicated).
+    #[arg(long, default_value = "0,0.001,0.01", value_delimiter = ',')]
+    error_rates: Vec<f64>,
+    /// Line speed (baud, 8N1).
+    #[arg(long, default_value_t = 115_200)]
+    baud: u32,
 }
 
 #[derive(clap::Args, Debug)]
@@ -34,7 +58,152 @@ pub struct MapArgs {
 pub fn run(w: What) -> Result<(), Error> {
     match w {
         What::Map(a) => bench_map(a),
+        What::Wire(a) => bench_wire(a),
+        What::Link(a) => bench_link(a),
     }
+}
+
+/// The data folder: given, else kitti00, else a fresh synthetic sequence.
+fn data_dir(given: Option<PathBuf>, frames: usize) -> Result<(PathBuf, Option<TempDir>), Error> {
+    if let Some(d) = given {
+        return Ok((d, None));
+    }
+    let kitti = data_root().join("kitti00");
+    if kitti.join("poses.txt").exists() {
+        return Ok((kitti, None));
+    }
+    let tmp = std::env::temp_dir().join(format!("cosem-bench-{}", std::process::id()));
+    let cfg = cosem_host::synth::SynthConfig { frames, ..Default::default() };
+    cosem_host::synth::write_sequence(&tmp, &cfg)?;
+    println!("(no kitti00 under {}: using a synthetic sequence)", data_root().display());
+    Ok((tmp.clone(), Some(TempDir(tmp))))
+}
+
+fn bench_wire(a: MapArgs) -> Result<(), Error> {
+    let (dir, _tmp) = data_dir(a.data, a.frames.end)?;
+    let seq = Sequence::open(&dir)?;
+    let frames = seq.load_range(a.frames)?;
+    let (map, _) =
+        cosem_host::mapping::build_map(&frames, MapConfig::with_resolution(a.voxel), &PointFilter::default())?;
+    let repeat = a.repeat.max(1);
+    let mut enc = Vec::new();
+    let mut dec = Vec::new();
+    let mut chunks = Vec::new();
+    for _ in 0..repeat {
+        let t = Instant::now();
+        chunks = cosem_host::cmap::encode_chunks(&map, 240);
+        enc.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        let mut out = new_map(map.len(), *map.config())?;
+        let mut d = cosem_core::wire::MapDecoder::new(map.len());
+        for c in &chunks {
+            d.decode_chunk(c, &mut out)?;
+        }
+        dec.push(t.elapsed().as_secs_f64());
+        if out.len() != map.len() {
+            return Err("decoded map lost voxels".into());
+        }
+    }
+    let bytes: usize = chunks.iter().map(Vec::len).sum();
+    let (te, td) = (median(enc), median(dec));
+    println!(
+        "bench wire: {} voxels at {} m from {} frames {} of {}",
+        map.len(),
+        a.voxel,
+        frames.len(),
+        a.frames,
+        dir.display()
+    );
+    println!(
+        "  encoding             {bytes} bytes in {} chunks of <= 240 bytes: {:.2} bytes/voxel",
+        chunks.len(),
+        bytes as f64 / map.len() as f64
+    );
+    println!(
+        "  encode               {:.1} M voxels/s ({:.1} MB/s of output, {:.2} ms)",
+        map.len() as f64 / te / 1e6,
+        bytes as f64 / te / 1e6,
+        te * 1e3
+    );
+    println!(
+        "  decode               {:.1} M voxels/s ({:.1} MB/s of input, {:.2} ms)",
+        map.len() as f64 / td / 1e6,
+        bytes as f64 / td / 1e6,
+        td * 1e3
+    );
+    println!("  (median of {repeat} runs, single thread, chunk size as on the link)");
+    Ok(())
+}
+
+fn bench_link(a: LinkArgs) -> Result<(), Error> {
+    use cosem_core::link::sim::{SimConfig, SimLine};
+    use cosem_core::link::{Endpoint, LinkConfig, Progress};
+    let (dir, _tmp) = data_dir(a.data, a.b.end)?;
+    let seq = Sequence::open(&dir)?;
+    let config = MapConfig::default();
+    let (ma, _) = cosem_host::mapping::build_map(&seq.load_range(a.a)?, config, &PointFilter::default())?;
+    let (mb, _) = cosem_host::mapping::build_map(&seq.load_range(a.b)?, config, &PointFilter::default())?;
+    println!(
+        "bench link: A {} voxels ({}), B {} voxels ({}) of {}, both ways at once, {} baud (8N1), simulated time",
+        ma.len(),
+        a.a,
+        mb.len(),
+        a.b,
+        dir.display(),
+        a.baud
+    );
+    for &rate in &a.error_rates {
+        let line = Box::new(std::cell::RefCell::new(SimLine::<65536>::new(SimConfig {
+            seed: 1,
+            error_rate: rate,
+            stall_chance: 0.0,
+            bytes_per_ms: f64::from(a.baud) / 10.0 / 1000.0,
+            half_duplex: false,
+        })));
+        let (mut p0, mut p1) = SimLine::ports(&line);
+        let (mut s0, mut s1) = (vec![0u32; ma.len()], vec![0u32; mb.len()]);
+        let (mut st0, mut st1) = (new_map(mb.len(), config)?, new_map(ma.len(), config)?);
+        let lc = LinkConfig::default();
+        let mut e0 = Endpoint::new(lc, 0, 1, 0, Some((&ma, &mut s0)), Some(&mut st0))?;
+        let mut e1 = Endpoint::new(lc, 1, 2, 0, Some((&mb, &mut s1)), Some(&mut st1))?;
+        let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
+        let (mut t0, mut t1) = (None, None);
+        let mut now = 0u64;
+        while (r0 == Ok(Progress::Busy) || r1 == Ok(Progress::Busy)) && now < 3_600_000 {
+            line.borrow_mut().tick(now);
+            if r0 == Ok(Progress::Busy) {
+                r0 = e0.step(&mut p0, now);
+            }
+            if r1 == Ok(Progress::Busy) {
+                r1 = e1.step(&mut p1, now);
+            }
+            // When each map was through (before the linger).
+            if t0.is_none() && e1.received() {
+                t0 = Some(now);
+            }
+            if t1.is_none() && e0.received() {
+                t1 = Some(now);
+            }
+            now += 1;
+        }
+        let (x, y) = (e0.stats(), e1.stats());
+        let secs = |t: Option<u64>| t.map(|v| format!("{:.1} s", v as f64 / 1e3)).unwrap_or_else(|| "never".into());
+        println!(
+            "  byte errors {:>5.1}%: A->B {} ({} bytes), B->A {} ({} bytes); {} + {} retransmissions; {}",
+            rate * 100.0,
+            secs(t0),
+            x.bytes_sent,
+            secs(t1),
+            y.bytes_sent,
+            x.retransmissions,
+            y.retransmissions,
+            match (r0, r1) {
+                (Ok(_), Ok(_)) => "both maps identical to the sent ones (digest checked)".to_string(),
+                (a, b) => format!("failed: {a:?} / {b:?}"),
+            }
+        );
+    }
+    Ok(())
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

@@ -45,6 +45,10 @@ pub struct Args {
     /// Degrees of freedom: 6 or 4.
     #[arg(long, default_value_t = 6)]
     dof: u8,
+    /// The line carries one direction at a time: robot 0 sends its map
+    /// first, the other after receiving it (both sides must say so).
+    #[arg(long)]
+    half_duplex: bool,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -67,7 +71,7 @@ pub fn run(a: Args) -> Result<(), Error> {
     let anchor_us = header.anchor_time.map(|t| (t * 1e6) as u64).unwrap_or(0);
     let clock = HostClock::default();
     let started = Instant::now();
-    let config = LinkConfig::default();
+    let config = LinkConfig { half_duplex: a.half_duplex, ..LinkConfig::default() };
     let mut endpoint =
         Endpoint::new(config, robot_id, map_id, anchor_us, Some((&ours, &mut scratch)), Some(&mut staging))?;
     let idle = || std::thread::sleep(Duration::from_micros(300));

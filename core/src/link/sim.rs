@@ -1,0 +1,190 @@
+//! A simulated serial line for tests and benchmarks: seeded, deterministic,
+//! allocation-free. Bytes written at one end reach the other at a fixed rate
+//! (e.g. 11.52 bytes per millisecond: 115200 baud, 8N1); each byte is, with
+//! probability `error_rate`, flipped, dropped or duplicated (a third each);
+//! with probability `stall_chance` per millisecond the line stalls for 0.2
+//! to 2 s. Time is virtual: call [`SimLine::tick`] once per millisecond.
+
+use core::cell::RefCell;
+use core::convert::Infallible;
+
+/// Parameters of a simulated line.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SimConfig {
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Probability that a byte is flipped, dropped or duplicated.
+    pub error_rate: f64,
+    /// Probability per millisecond that the line stalls.
+    pub stall_chance: f64,
+    /// Bytes per millisecond each way.
+    pub bytes_per_ms: f64,
+    /// One medium for both directions: when both ends transmit in the same
+    /// millisecond, the bytes of both collide and arrive garbled.
+    pub half_duplex: bool,
+}
+
+struct Ring<const N: usize> {
+    buf: [u8; N],
+    head: usize,
+    len: usize,
+}
+
+impl<const N: usize> Ring<N> {
+    const fn new() -> Self {
+        Ring { buf: [0; N], head: 0, len: 0 }
+    }
+    /// Appends; a full buffer drops the byte (an overrun, as on a UART).
+    fn push(&mut self, b: u8) {
+        if self.len < N {
+            self.buf[(self.head + self.len) % N] = b;
+            self.len += 1;
+        }
+    }
+    fn pop(&mut self) -> Option<u8> {
+        if self.len == 0 {
+            return None;
+        }
+        let b = self.buf[self.head];
+        self.head = (self.head + 1) % N;
+        self.len -= 1;
+        Some(b)
+    }
+}
+
+/// The line: `N` bytes of buffer in each direction, on the wire and in
+/// each receiver's inbox.
+pub struct SimLine<const N: usize> {
+    config: SimConfig,
+    wire: [Ring<N>; 2],
+    inbox: [Ring<N>; 2],
+    rng: u64,
+    stall_until: u64,
+    budget: f64,
+    collisions: u64,
+}
+
+impl<const N: usize> SimLine<N> {
+    /// Milliseconds in which both ends talked at once (half duplex).
+    pub fn collisions(&self) -> u64 {
+        self.collisions
+    }
+
+    /// A quiet line.
+    pub fn new(config: SimConfig) -> Self {
+        SimLine {
+            config,
+            wire: [Ring::new(), Ring::new()],
+            inbox: [Ring::new(), Ring::new()],
+            rng: config.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
+            stall_until: 0,
+            budget: 0.0,
+            collisions: 0,
+        }
+    }
+
+    fn next(&mut self) -> u64 {
+        self.rng ^= self.rng << 13;
+        self.rng ^= self.rng >> 7;
+        self.rng ^= self.rng << 17;
+        self.rng
+    }
+
+    fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Moves bytes for the millisecond `now`.
+    pub fn tick(&mut self, now: u64) {
+        if now < self.stall_until {
+            return;
+        }
+        if self.config.stall_chance > 0.0 && self.unit() < self.config.stall_chance {
+            self.stall_until = now + 200 + self.next() % 1800;
+            return;
+        }
+        self.budget += self.config.bytes_per_ms;
+        let collide = self.config.half_duplex && self.wire[0].len > 0 && self.wire[1].len > 0;
+        while self.budget >= 1.0 {
+            self.budget -= 1.0;
+            for d in 0..2 {
+                if let Some(b) = self.wire[d].pop() {
+                    let garble = if collide { (self.next() as u8) | 1 } else { 0 };
+                    self.inbox[1 - d].push(b ^ garble);
+                }
+            }
+        }
+        if collide {
+            self.collisions += 1;
+        }
+    }
+
+    fn send(&mut self, side: usize, b: u8) {
+        if self.unit() < self.config.error_rate {
+            match self.next() % 3 {
+                0 => {
+                    let flip = (self.next() as u8) | 1;
+                    self.wire[side].push(b ^ flip);
+                }
+                1 => {}
+                _ => {
+                    self.wire[side].push(b);
+                    self.wire[side].push(b);
+                }
+            }
+        } else {
+            self.wire[side].push(b);
+        }
+    }
+
+    /// The two ends: side 0 and side 1.
+    pub fn ports(line: &RefCell<Self>) -> (SimPort<'_, N>, SimPort<'_, N>) {
+        (SimPort { line, side: 0 }, SimPort { line, side: 1 })
+    }
+}
+
+/// One end of a [`SimLine`].
+pub struct SimPort<'a, const N: usize> {
+    line: &'a RefCell<SimLine<N>>,
+    side: usize,
+}
+
+impl<const N: usize> embedded_io::ErrorType for SimPort<'_, N> {
+    type Error = Infallible;
+}
+
+impl<const N: usize> embedded_io::Read for SimPort<'_, N> {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        let mut line = self.line.borrow_mut();
+        let mut n = 0;
+        for slot in buf.iter_mut() {
+            match line.inbox[self.side].pop() {
+                Some(b) => {
+                    *slot = b;
+                    n += 1;
+                }
+                None => break,
+            }
+        }
+        Ok(n)
+    }
+}
+
+impl<const N: usize> embedded_io::ReadReady for SimPort<'_, N> {
+    fn read_ready(&mut self) -> Result<bool, Infallible> {
+        Ok(self.line.borrow().inbox[self.side].len > 0)
+    }
+}
+
+impl<const N: usize> embedded_io::Write for SimPort<'_, N> {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        let mut line = self.line.borrow_mut();
+        for &b in buf {
+            line.send(self.side, b);
+        }
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
