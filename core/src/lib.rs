@@ -54,3 +54,6 @@ pub mod link;
 pub mod map;
 pub mod matching;
 pub mod wire;
+
+#[cfg(test)]
+mod test_util;

@@ -2,33 +2,11 @@
 
 use super::*;
 use crate::classes::Class;
-use crate::map::{LocalMap, MapConfig, SemanticVoxel, VoxelStorage};
+use crate::map::{LocalMap, VoxelStorage};
+use crate::test_util::{map, Heap};
 use crate::wire::codec::MapEncoder;
 use core::cell::RefCell;
 use std::vec;
-use std::vec::Vec;
-
-struct Heap {
-    voxels: Vec<SemanticVoxel>,
-    slots: Vec<u32>,
-}
-
-impl VoxelStorage for Heap {
-    fn voxels(&self) -> &[SemanticVoxel] {
-        &self.voxels
-    }
-    fn slots(&self) -> &[u32] {
-        &self.slots
-    }
-    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
-        (&mut self.voxels, &mut self.slots)
-    }
-}
-
-fn map(capacity: usize) -> LocalMap<Heap> {
-    let n = capacity.max(1);
-    LocalMap::new(Heap { voxels: vec![SemanticVoxel::EMPTY; n], slots: vec![0; 2 * n] }, MapConfig::default()).unwrap()
-}
 
 /// A few hundred voxels: a road patch, a wall, a pole.
 fn small_map(seed: u32) -> LocalMap<Heap> {
@@ -61,6 +39,32 @@ fn line(seed: u64, error_rate: f64, stall_chance: f64) -> std::boxed::Box<RefCel
     })))
 }
 
+type Port<'a> = sim::SimPort<'a, 65536>;
+
+/// Steps both endpoints once per simulated millisecond until both are over
+/// (or `limit` ms): what each ended with.
+fn drive<A: VoxelStorage, B: VoxelStorage, C: VoxelStorage, D: VoxelStorage>(
+    wire: &RefCell<Line>,
+    (e0, p0): (&mut Endpoint<'_, A, B>, &mut Port<'_>),
+    (e1, p1): (&mut Endpoint<'_, C, D>, &mut Port<'_>),
+    limit: u64,
+) -> (Result<Progress, LinkError>, Result<Progress, LinkError>) {
+    let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
+    for now in 0..limit {
+        wire.borrow_mut().tick(now);
+        if r0 == Ok(Progress::Busy) {
+            r0 = e0.step(p0, now);
+        }
+        if r1 == Ok(Progress::Busy) {
+            r1 = e1.step(p1, now);
+        }
+        if r0 != Ok(Progress::Busy) && r1 != Ok(Progress::Busy) {
+            break;
+        }
+    }
+    (r0, r1)
+}
+
 #[derive(Debug, PartialEq)]
 enum Outcome {
     Delivered,
@@ -82,21 +86,7 @@ fn transfer(seed: u64, error_rate: f64, stall_chance: f64) -> (Outcome, u32, u64
     let config = LinkConfig::default();
     let mut a = Endpoint::<Heap, Heap>::new(config, 0, seed as u32, 0, Some((&sent, &mut scratch)), None).unwrap();
     let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut staging)).unwrap();
-    let (mut ra, mut rb) = (Ok(Progress::Busy), Ok(Progress::Busy));
-    for now in 0..2_000_000u64 {
-        wire.borrow_mut().tick(now);
-        if ra == Ok(Progress::Busy) {
-            ra = a.step(&mut pa, now);
-        }
-        if rb == Ok(Progress::Busy) {
-            rb = b.step(&mut pb, now);
-        }
-        let a_over = ra != Ok(Progress::Busy);
-        let b_over = rb != Ok(Progress::Busy);
-        if a_over && b_over {
-            break;
-        }
-    }
+    let (_, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 2_000_000);
     let retrans = a.stats().retransmissions;
     let received = b.received();
     let bytes = a.stats().bytes_sent + b.stats().bytes_sent;
@@ -191,16 +181,7 @@ fn a_map_too_large_is_refused_and_the_sender_told() {
     let config = LinkConfig::default();
     let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None).unwrap();
     let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut tiny)).unwrap();
-    let (mut ra, mut rb) = (Ok(Progress::Busy), Ok(Progress::Busy));
-    for now in 0..10_000 {
-        wire.borrow_mut().tick(now);
-        if ra == Ok(Progress::Busy) {
-            ra = a.step(&mut pa, now);
-        }
-        if rb == Ok(Progress::Busy) {
-            rb = b.step(&mut pb, now);
-        }
-    }
+    let (ra, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 10_000);
     assert!(matches!(rb, Err(LinkError::TooLarge { .. })), "{rb:?}");
     assert_eq!(ra, Err(LinkError::PeerAborted(crate::wire::AbortReason::TooLarge)));
     assert!(!b.received());
@@ -216,19 +197,7 @@ fn both_ways_at_once() {
     let config = LinkConfig::default();
     let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0)).unwrap();
     let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1)).unwrap();
-    let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
-    for now in 0..100_000 {
-        wire.borrow_mut().tick(now);
-        if r0 == Ok(Progress::Busy) {
-            r0 = e0.step(&mut p0, now);
-        }
-        if r1 == Ok(Progress::Busy) {
-            r1 = e1.step(&mut p1, now);
-        }
-        if r0 != Ok(Progress::Busy) && r1 != Ok(Progress::Busy) {
-            break;
-        }
-    }
+    let (r0, r1) = drive(&wire, (&mut e0, &mut p0), (&mut e1, &mut p1), 100_000);
     assert_eq!((r0, r1), (Ok(Progress::Done), Ok(Progress::Done)));
     assert_eq!(st0.len(), m1.len());
     assert_eq!(st1.len(), m0.len());
@@ -250,19 +219,7 @@ fn half_duplex_line_takes_turns_without_collisions() {
     let config = LinkConfig { half_duplex: true, ..LinkConfig::default() };
     let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0)).unwrap();
     let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1)).unwrap();
-    let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
-    for now in 0..200_000 {
-        wire.borrow_mut().tick(now);
-        if r0 == Ok(Progress::Busy) {
-            r0 = e0.step(&mut p0, now);
-        }
-        if r1 == Ok(Progress::Busy) {
-            r1 = e1.step(&mut p1, now);
-        }
-        if r0 != Ok(Progress::Busy) && r1 != Ok(Progress::Busy) {
-            break;
-        }
-    }
+    let (r0, r1) = drive(&wire, (&mut e0, &mut p0), (&mut e1, &mut p1), 200_000);
     assert_eq!((r0, r1), (Ok(Progress::Done), Ok(Progress::Done)));
     assert_eq!((st0.len(), st1.len()), (m1.len(), m0.len()));
     // Only the opening hellos and a rare ack crossing a resend may overlap.

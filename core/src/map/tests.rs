@@ -2,32 +2,10 @@
 
 use super::*;
 use crate::classes::Class;
+use crate::test_util::{heap_map, Heap};
 use proptest::prelude::*;
 use std::vec;
 use std::vec::Vec;
-
-/// A map over heap buffers, as a host would build one.
-struct Heap {
-    voxels: Vec<SemanticVoxel>,
-    slots: Vec<u32>,
-}
-
-impl VoxelStorage for Heap {
-    fn voxels(&self) -> &[SemanticVoxel] {
-        &self.voxels
-    }
-    fn slots(&self) -> &[u32] {
-        &self.slots
-    }
-    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
-        (&mut self.voxels, &mut self.slots)
-    }
-}
-
-fn heap_map(capacity: usize, config: MapConfig) -> LocalMap<Heap> {
-    let storage = Heap { voxels: vec![SemanticVoxel::EMPTY; capacity], slots: vec![0; 2 * capacity] };
-    LocalMap::new(storage, config).unwrap()
-}
 
 #[test]
 fn stored_voxel_fits_the_budget() {

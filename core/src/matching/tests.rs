@@ -25,31 +25,10 @@ impl PyramidStorage for Heap {
     }
 }
 
-/// Map storage on the heap (an inline 40k-voxel map would not fit a test
-/// thread's stack).
-struct HeapMap {
-    voxels: Vec<SemanticVoxel>,
-    slots: Vec<u32>,
-}
-
-impl crate::map::VoxelStorage for HeapMap {
-    fn voxels(&self) -> &[SemanticVoxel] {
-        &self.voxels
-    }
-    fn slots(&self) -> &[u32] {
-        &self.slots
-    }
-    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
-        (&mut self.voxels, &mut self.slots)
-    }
-}
-
-type Map = LocalMap<HeapMap>;
+type Map = LocalMap<crate::test_util::Heap>;
 
 fn new_map() -> Map {
-    let n = 40_000;
-    LocalMap::new(HeapMap { voxels: vec![SemanticVoxel::EMPTY; n], slots: vec![0; 2 * n] }, MapConfig::default())
-        .unwrap()
+    crate::test_util::map(40_000)
 }
 
 fn pyramid<S: crate::map::VoxelStorage>(map: &LocalMap<S>) -> Pyramid<Heap> {

@@ -4,32 +4,11 @@ use super::codec::*;
 use super::frame::*;
 use super::message::*;
 use crate::classes::Class;
-use crate::map::{LocalMap, MapConfig, SemanticVoxel, VoxelKey, VoxelStorage};
+use crate::map::{LocalMap, VoxelKey};
+use crate::test_util::{map, Heap};
 use proptest::prelude::*;
 use std::vec;
 use std::vec::Vec;
-
-struct Heap {
-    voxels: Vec<SemanticVoxel>,
-    slots: Vec<u32>,
-}
-
-impl VoxelStorage for Heap {
-    fn voxels(&self) -> &[SemanticVoxel] {
-        &self.voxels
-    }
-    fn slots(&self) -> &[u32] {
-        &self.slots
-    }
-    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
-        (&mut self.voxels, &mut self.slots)
-    }
-}
-
-fn map(capacity: usize) -> LocalMap<Heap> {
-    let n = capacity.max(1);
-    LocalMap::new(Heap { voxels: vec![SemanticVoxel::EMPTY; n], slots: vec![0; 2 * n] }, MapConfig::default()).unwrap()
-}
 
 /// Encodes a whole map into chunks of at most `chunk` bytes.
 fn encode_all(m: &LocalMap<Heap>, chunk: usize) -> Vec<Vec<u8>> {

@@ -36,15 +36,10 @@ pub struct Args {
     /// Our robot id (default 0 when listening, 1 when connecting).
     #[arg(long)]
     robot_id: Option<u8>,
-    /// Start of our match, `T_ours_peers` as x,y,z,roll,pitch,yaw.
-    #[arg(long, allow_hyphen_values = true)]
-    init: Option<String>,
-    /// Association: cosem, cosem-hard, geometric.
-    #[arg(long, default_value = "cosem")]
-    method: String,
-    /// Degrees of freedom: 6 or 4.
-    #[arg(long, default_value_t = 6)]
-    dof: u8,
+    /// Our match: our map is the model, the peer's the scene (`--init` is
+    /// `T_ours_peers`).
+    #[command(flatten)]
+    opts: super::matching::MatchOpts,
     /// The line carries one direction at a time: robot 0 sends its map
     /// first, the other after receiving it (both sides must say so).
     #[arg(long)]
@@ -58,11 +53,7 @@ pub struct Args {
 const STAGING_VOXELS: usize = 2 << 20;
 
 pub fn run(a: Args) -> Result<(), Error> {
-    let settings = super::matching::settings(&a.method, a.dof)?;
-    let init = match &a.init {
-        Some(s) => pose::to_isometry(&pose::parse(s)?),
-        None => nalgebra::Isometry3::identity(),
-    };
+    let (settings, init) = a.opts.resolve()?;
     let (header, ours) = cosem_host::cmap::read(&a.map)?;
     let robot_id = a.robot_id.unwrap_or(if a.listen.is_some() { 0 } else { 1 });
     let mut staging: HostMap = new_map(STAGING_VOXELS, *ours.config())?;

@@ -15,21 +15,39 @@ pub struct Args {
     model: PathBuf,
     /// Scene map (moved into the model frame).
     scene: PathBuf,
-    /// Start `T_model_scene` as x,y,z,roll,pitch,yaw (m, degrees); default identity.
-    #[arg(long, allow_hyphen_values = true)]
-    init: Option<String>,
-    /// Association: cosem (soft semantic), cosem-hard, geometric.
-    #[arg(long, default_value = "cosem")]
-    method: String,
-    /// Degrees of freedom: 6, or 4 (x, y, z, yaw).
-    #[arg(long, default_value_t = 6)]
-    dof: u8,
+    #[command(flatten)]
+    opts: MatchOpts,
     /// Print JSON.
     #[arg(long)]
     json: bool,
     /// Write both maps in the model frame, coloured by robot, to this PLY.
     #[arg(long)]
     merged: Option<PathBuf>,
+}
+
+/// How to match: shared by `cosem match` and `cosem link`.
+#[derive(clap::Args, Debug)]
+pub struct MatchOpts {
+    /// Start `T_model_scene` as x,y,z,roll,pitch,yaw (m, degrees); default identity.
+    #[arg(long, allow_hyphen_values = true)]
+    pub init: Option<String>,
+    /// Association: cosem (soft semantic), cosem-hard, geometric.
+    #[arg(long, default_value = "cosem")]
+    pub method: String,
+    /// Degrees of freedom: 6, or 4 (x, y, z, yaw).
+    #[arg(long, default_value_t = 6)]
+    pub dof: u8,
+}
+
+impl MatchOpts {
+    /// The settings and the start.
+    pub fn resolve(&self) -> Result<(MatchSettings, nalgebra::Isometry3<f32>), Error> {
+        let init = match &self.init {
+            Some(s) => pose::to_isometry(&pose::parse(s)?),
+            None => nalgebra::Isometry3::identity(),
+        };
+        Ok((settings(&self.method, self.dof)?, init))
+    }
 }
 
 /// Settings from the command-line names.
@@ -65,7 +83,7 @@ pub fn result_json(r: &MatchResult, time_ms: f64) -> serde_json::Value {
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
-    let settings = settings(&a.method, a.dof)?;
+    let (settings, init) = a.opts.resolve()?;
     let (_, model) = cosem_host::cmap::read(&a.model)?;
     let (_, scene) = cosem_host::cmap::read(&a.scene)?;
     if (model.resolution() - scene.resolution()).abs() > 1e-6 {
@@ -78,10 +96,6 @@ pub fn run(a: Args) -> Result<(), Error> {
         )
         .into());
     }
-    let init = match &a.init {
-        Some(s) => pose::to_isometry(&pose::parse(s)?),
-        None => nalgebra::Isometry3::identity(),
-    };
     let t_prep = Instant::now();
     let pm = prepare(&model, DEFAULT_LEVELS).map_err(|e| format!("{}: {e}", a.model.display()))?;
     let ps = prepare(&scene, DEFAULT_LEVELS).map_err(|e| format!("{}: {e}", a.scene.display()))?;
