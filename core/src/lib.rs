@@ -22,6 +22,9 @@
 //!    information matrix.
 //! 4. [`wire`]: checksums (and, later, the compact encoding maps travel in).
 //!
+//! [`selftest`] runs a fixed mapping, wire and matching case whose figures
+//! must agree to the bit on the chip and on a host.
+//!
 //! Capacities are set by the storage: [`map::ArrayStorage`] fixes them at
 //! compile time (`FixedMap<N>`), [`map::SliceStorage`] borrows buffers the
 //! caller owns. A full map is a typed error or a documented eviction
@@ -53,6 +56,7 @@ pub mod geometry;
 pub mod link;
 pub mod map;
 pub mod matching;
+pub mod selftest;
 pub mod wire;
 
 #[cfg(test)]

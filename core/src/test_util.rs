@@ -35,3 +35,54 @@ pub fn heap_map(capacity: usize, config: MapConfig) -> LocalMap<Heap> {
 pub fn map(capacity: usize) -> LocalMap<Heap> {
     heap_map(capacity, MapConfig::default())
 }
+
+/// Pyramid storage on the heap.
+pub struct HeapPyramid {
+    /// Entries.
+    pub entries: Vec<crate::matching::Entry>,
+    /// Index slots.
+    pub slots: Vec<u32>,
+    /// Footprint words.
+    pub words: Vec<u32>,
+}
+
+impl HeapPyramid {
+    /// Storage for `entries` entries and `words` footprint words.
+    pub fn new(entries: usize, words: usize) -> Self {
+        HeapPyramid {
+            entries: vec![crate::matching::Entry::default(); entries],
+            slots: vec![0; 2 * entries],
+            words: vec![0; words],
+        }
+    }
+}
+
+impl crate::matching::PyramidStorage for HeapPyramid {
+    fn parts(&self) -> (&[crate::matching::Entry], &[u32], &[u32]) {
+        (&self.entries, &self.slots, &self.words)
+    }
+    fn parts_mut(&mut self) -> (&mut [crate::matching::Entry], &mut [u32], &mut [u32]) {
+        (&mut self.entries, &mut self.slots, &mut self.words)
+    }
+}
+
+#[test]
+fn selftest_converges_and_encodes_consistently() {
+    use crate::selftest::*;
+    let config = MapConfig::with_resolution(RESOLUTION);
+    let (mut a, mut b, mut r) =
+        (heap_map(MAP_VOXELS, config), heap_map(MAP_VOXELS, config), heap_map(MAP_VOXELS, config));
+    let mut scratch = vec![0u32; MAP_VOXELS];
+    let mut chunk = [0u8; 240];
+    let pa = HeapPyramid::new(PYRAMID_ENTRIES, FOOTPRINT_WORDS);
+    let pb = HeapPyramid::new(PYRAMID_ENTRIES, FOOTPRINT_WORDS);
+    let mut calls = 0;
+    let report = run(&mut a, &mut b, &mut r, &mut scratch, &mut chunk, pa, pb, |_| calls += 1).unwrap();
+    assert_eq!(calls, 2);
+    std::println!("{report:?}");
+    assert!(report.wire_ok);
+    assert!(report.voxels[0] > 800 && report.voxels[1] > 800, "{:?}", report.voxels);
+    assert_eq!(report.result.status, crate::matching::MatchStatus::Converged);
+    let d = report.result.transform * report.truth.inverse();
+    assert!(d.translation.vector.norm() < 0.05 && d.rotation.angle().to_degrees() < 0.2, "{d:?}");
+}

@@ -61,6 +61,19 @@ impl<const N: usize> VoxelStorage for ArrayStorage<N> {
     }
 }
 
+/// A map may borrow its storage, e.g. a `static` on a microcontroller.
+impl<T: VoxelStorage + ?Sized> VoxelStorage for &mut T {
+    fn voxels(&self) -> &[SemanticVoxel] {
+        (**self).voxels()
+    }
+    fn slots(&self) -> &[u32] {
+        (**self).slots()
+    }
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
+        (**self).parts_mut()
+    }
+}
+
 /// Storage in buffers the caller owns.
 pub struct SliceStorage<'a> {
     /// Voxel buffer (its length is the capacity).

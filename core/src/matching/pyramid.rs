@@ -55,6 +55,16 @@ pub trait PyramidStorage {
     fn parts_mut(&mut self) -> (&mut [Entry], &mut [u32], &mut [u32]);
 }
 
+/// A pyramid may borrow its storage, e.g. a `static` on a microcontroller.
+impl<T: PyramidStorage + ?Sized> PyramidStorage for &mut T {
+    fn parts(&self) -> (&[Entry], &[u32], &[u32]) {
+        (**self).parts()
+    }
+    fn parts_mut(&mut self) -> (&mut [Entry], &mut [u32], &mut [u32]) {
+        (**self).parts_mut()
+    }
+}
+
 /// Pyramid storage of compile-time size: `E` entries, `2 * E` index slots,
 /// `W` footprint words.
 pub struct ArrayPyramidStorage<const E: usize, const W: usize> {
