@@ -16,6 +16,12 @@ use cortex_m_rt::{entry, exception};
 use cortex_m_semihosting::{debug, hprintln};
 use panic_halt as _;
 
+mod uart;
+
+#[cfg(feature = "defmt")]
+use defmt_semihosting as _;
+
+use core::fmt::Write as _;
 use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
 use cosem_core::matching::ArrayPyramidStorage;
 use cosem_core::selftest::{self, FOOTPRINT_WORDS, MAP_VOXELS, PYRAMID_ENTRIES, RESOLUTION};
@@ -154,5 +160,20 @@ fn run() -> Result<bool, ()> {
         total * INSTRUCTIONS_PER_TICK
     );
     hprintln!("selftest peak_stack_bytes={}", peak_stack());
+    #[cfg(feature = "defmt")]
+    defmt::info!(
+        "selftest {} after {} iterations, {} instructions",
+        report.result.status,
+        report.result.iterations,
+        spent * INSTRUCTIONS_PER_TICK
+    );
+    // The same verdict on UART0 through the embedded-io driver (the link's
+    // path to the other robot).
+    // SAFETY: UART0 is a CMSDK UART of this board and nothing else uses it.
+    let mut uart0 = unsafe { uart::Uart::new(uart::UART0, 25_000_000, 115_200) };
+    let mut line: heapless::String<96> = heapless::String::new();
+    let _ = write!(line, "cosem selftest {} {:08x}\n", report.result.status.as_str(), report.digests[1]);
+    embedded_io::Write::write_all(&mut uart0, line.as_bytes()).map_err(|_| ())?;
+    embedded_io::Write::flush(&mut uart0).map_err(|_| ())?;
     Ok(report.wire_ok)
 }

@@ -53,20 +53,34 @@ fn firmware_matches_the_host_bit_for_bit() {
     }
     let firmware = cosem_tests::workspace_root().join("firmware");
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let out = Command::new(cargo)
-        .args(["run", "--release", "--locked"])
+    let build = Command::new(cargo)
+        .args(["build", "--release", "--locked"])
         .current_dir(&firmware)
         .env_remove("CARGO_TARGET_DIR")
         .env_remove("RUSTFLAGS")
         .output()
-        .expect("cargo run in firmware/");
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
+        .expect("cargo build in firmware/");
+    let stderr = String::from_utf8_lossy(&build.stderr);
     if stderr.contains("target may not be installed") {
         eprintln!("skipping: thumbv7em-none-eabihf not installed (tests/run installs it)");
         return;
     }
-    assert!(out.status.success(), "firmware failed:\n{stdout}\n{stderr}");
+    assert!(build.status.success(), "firmware build failed:\n{stderr}");
+    // Run it as firmware/.cargo/config.toml's runner does, with UART0 to a file.
+    let tmp = tempfile::tempdir().unwrap();
+    let uart0 = tmp.path().join("uart0.txt");
+    let elf = firmware.join("target/thumbv7em-none-eabihf/release/cosem-firmware");
+    let out = Command::new("qemu-system-arm")
+        .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-icount", "shift=0"])
+        .args(["-semihosting-config", "enable=on,target=native"])
+        .arg("-serial")
+        .arg(format!("file:{}", uart0.display()))
+        .arg("-kernel")
+        .arg(&elf)
+        .output()
+        .expect("run qemu-system-arm");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "firmware failed:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
     let target: Vec<&str> = stdout.lines().filter(|l| l.starts_with("selftest ")).collect();
     let host = host_lines();
     for line in &host {
@@ -76,4 +90,9 @@ fn firmware_matches_the_host_bit_for_bit() {
     // The onboard work is measured (and printed for the closing note).
     let work = target.iter().find(|l| l.contains("match_instructions=")).expect("instruction count");
     eprintln!("{work}");
+    // The UART driver carried the verdict out of UART0.
+    let uart = std::fs::read_to_string(&uart0).unwrap();
+    let digest_b =
+        host.iter().find_map(|l| l.strip_prefix("selftest digests=")).and_then(|d| d.split(',').nth(1)).unwrap();
+    assert_eq!(uart, format!("cosem selftest Converged {digest_b}\n"));
 }

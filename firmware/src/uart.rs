@@ -1,0 +1,111 @@
+//! The CMSDK APB UART of the mps2 boards, behind the `embedded-io` traits
+//! the core's link speaks, so a real board's HAL UART drops in instead.
+//!
+//! Registers (ARM CMSDK): DATA +0x0, STATE +0x4 (bit 0 TX full, bit 1 RX
+//! full), CTRL +0x8 (bit 0 TX enable, bit 1 RX enable), BAUDDIV +0x10.
+
+use core::convert::Infallible;
+use core::ptr::{read_volatile, write_volatile};
+
+/// Base addresses of the UARTs (`-serial` options 0 to 4 in QEMU).
+pub const UART0: usize = 0x4000_4000;
+
+const DATA: usize = 0x0;
+const STATE: usize = 0x4;
+const CTRL: usize = 0x8;
+const BAUDDIV: usize = 0x10;
+const TX_FULL: u32 = 1 << 0;
+const RX_FULL: u32 = 1 << 1;
+
+/// One UART.
+pub struct Uart {
+    base: usize,
+}
+
+impl Uart {
+    /// Takes the UART at `base`, enables transmitter and receiver, and sets
+    /// the baud divider for `baud` from a `clock_hz` peripheral clock.
+    ///
+    /// # Safety
+    /// `base` must be the address of a CMSDK UART not in use elsewhere.
+    pub unsafe fn new(base: usize, clock_hz: u32, baud: u32) -> Self {
+        let uart = Uart { base };
+        // SAFETY: the caller guarantees `base` is a CMSDK UART we own.
+        unsafe {
+            uart.write_reg(BAUDDIV, (clock_hz / baud.max(1)).max(16));
+            uart.write_reg(CTRL, 0b11);
+        }
+        uart
+    }
+
+    /// # Safety
+    /// `offset` must be a register of this UART.
+    unsafe fn reg(&self, offset: usize) -> u32 {
+        // SAFETY: a register of the UART this value owns.
+        unsafe { read_volatile((self.base + offset) as *const u32) }
+    }
+
+    /// # Safety
+    /// `offset` must be a register of this UART.
+    unsafe fn write_reg(&self, offset: usize, value: u32) {
+        // SAFETY: a register of the UART this value owns.
+        unsafe { write_volatile((self.base + offset) as *mut u32, value) }
+    }
+
+    fn state(&self) -> u32 {
+        // SAFETY: STATE is a register of this UART.
+        unsafe { self.reg(STATE) }
+    }
+}
+
+impl embedded_io::ErrorType for Uart {
+    type Error = Infallible;
+}
+
+impl embedded_io::Write for Uart {
+    /// Blocks until the first byte fits, then sends what fits without waiting.
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        let mut n = 0;
+        for &b in buf {
+            if n > 0 && self.state() & TX_FULL != 0 {
+                break;
+            }
+            while self.state() & TX_FULL != 0 {}
+            // SAFETY: DATA is a register of this UART.
+            unsafe { self.write_reg(DATA, u32::from(b)) };
+            n += 1;
+        }
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> Result<(), Infallible> {
+        while self.state() & TX_FULL != 0 {}
+        Ok(())
+    }
+}
+
+impl embedded_io::ReadReady for Uart {
+    fn read_ready(&mut self) -> Result<bool, Infallible> {
+        Ok(self.state() & RX_FULL != 0)
+    }
+}
+
+impl embedded_io::Read for Uart {
+    /// Blocks until a byte arrives, then returns what is there.
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        if buf.is_empty() {
+            return Ok(0);
+        }
+        while self.state() & RX_FULL == 0 {}
+        let mut n = 0;
+        for slot in buf.iter_mut() {
+            if self.state() & RX_FULL == 0 {
+                break;
+            }
+            // SAFETY: DATA is a register of this UART.
+            *slot = unsafe { self.reg(DATA) } as u8;
+            n += 1;
+        }
+        Ok(n)
+    }
+}
