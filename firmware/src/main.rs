@@ -172,7 +172,7 @@ fn run() -> Result<bool, ()> {
     // SAFETY: UART0 is a CMSDK UART of this board and nothing else uses it.
     let mut uart0 = unsafe { uart::Uart::new(uart::UART0, 25_000_000, 115_200) };
     let mut line: heapless::String<96> = heapless::String::new();
-    let _ = write!(line, "cosem selftest {} {:08x}\n", report.result.status.as_str(), report.digests[1]);
+    let _ = writeln!(line, "cosem selftest {} {:08x}", report.result.status.as_str(), report.digests[1]);
     embedded_io::Write::write_all(&mut uart0, line.as_bytes()).map_err(|_| ())?;
     embedded_io::Write::flush(&mut uart0).map_err(|_| ())?;
     Ok(report.wire_ok)
