@@ -96,3 +96,36 @@ fn firmware_matches_the_host_bit_for_bit() {
         host.iter().find_map(|l| l.strip_prefix("selftest digests=")).and_then(|d| d.split(',').nth(1)).unwrap();
     assert_eq!(uart, format!("cosem selftest Converged {digest_b}\n"));
 }
+
+/// The core's allocation-free map-file reader (used on the chip) reads what
+/// the host writes: the same voxels.
+#[test]
+fn core_reads_the_hosts_map_files() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    cosem_tests::synth(&seq, 2, 21);
+    let file = tmp.path().join("m.cmap");
+    cosem_tests::cosem_ok(&[
+        "map",
+        "--data",
+        &seq.display().to_string(),
+        "--frames",
+        "0:2",
+        "--voxel",
+        "0.5",
+        "-o",
+        &file.display().to_string(),
+    ]);
+    let bytes = std::fs::read(&file).unwrap();
+    let (header, host_map) = cosem_host::cmap::read(&file).unwrap();
+    let mut core_map = new_map(header.voxel_count as usize, MapConfig::with_resolution(0.5)).unwrap();
+    let info = cosem_core::wire::mapfile::read_into(&bytes, &mut core_map).unwrap();
+    assert_eq!(info.voxel_count as usize, host_map.len());
+    assert_eq!(core_map.voxels(), host_map.voxels());
+    let mut bad = bytes.clone();
+    bad[bytes.len() / 2] ^= 1;
+    assert_eq!(
+        cosem_core::wire::mapfile::read_into(&bad, &mut core_map),
+        Err(cosem_core::wire::mapfile::MapFileError::Checksum)
+    );
+}

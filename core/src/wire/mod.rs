@@ -5,12 +5,14 @@
 //! - [`codec`]: the compact, chunked voxel encoding (Morton order, adaptive
 //!   Golomb-Rice gaps, quantised labels, occupancy and position);
 //! - [`frame`]: COBS framing with a CRC-32 per frame;
-//! - [`message`]: the versioned messages (postcard).
+//! - [`message`]: the versioned messages (postcard);
+//! - [`mapfile`]: reading `.cmap` map files without an allocator.
 
 pub mod bits;
 pub mod codec;
 pub mod crc;
 pub mod frame;
+pub mod mapfile;
 pub mod message;
 
 pub use codec::{DecodeError, EncodeError, MapDecoder, MapEncoder};

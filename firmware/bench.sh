@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Onboard work of one match: matches MODEL.cmap against SCENE.cmap on the
+# emulated Cortex-M4F (QEMU -icount shift=0: one instruction per virtual
+# nanosecond) and prints the instructions, read from SysTick.
+#   bash firmware/bench.sh MODEL.cmap SCENE.cmap
+# e.g. maps from: cosem map --data ../shared/data/kitti00 --frames 0:5 --voxel 0.5 --max-range 25 -o a.cmap
+set -euo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
+model="$(realpath "$1")"; scene="$(realpath "$2")"
+(cd "$here" && cargo build --release --locked --features bench --target-dir target/bench >&2)
+work="$(mktemp -d)"; trap 'rm -rf "$work"' EXIT
+cp "$model" "$work/bench-a.cmap"; cp "$scene" "$work/bench-b.cmap"
+cd "$work"
+qemu-system-arm -machine mps2-an386 -cpu cortex-m4 -display none -icount shift=0 \
+  -semihosting-config enable=on,target=native \
+  -kernel "$here/target/bench/thumbv7em-none-eabihf/release/cosem-firmware"

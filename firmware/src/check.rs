@@ -1,0 +1,101 @@
+//! The budget build's job for now: the core's self-test on the target,
+//! every figure printed for the host to compare bit for bit.
+
+use crate::{peak_stack, ticks, uart, INSTRUCTIONS_PER_TICK};
+use core::fmt::Write as _;
+use core::ptr::addr_of_mut;
+use cortex_m_semihosting::hprintln;
+use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
+use cosem_core::matching::ArrayPyramidStorage;
+use cosem_core::selftest::{self, FOOTPRINT_WORDS, MAP_VOXELS, PYRAMID_ENTRIES, RESOLUTION};
+
+type MapStorage = ArrayStorage<MAP_VOXELS>;
+type PyrStorage = ArrayPyramidStorage<PYRAMID_ENTRIES, FOOTPRINT_WORDS>;
+
+static mut MAP_A: MapStorage = MapStorage::new();
+static mut MAP_B: MapStorage = MapStorage::new();
+static mut RECEIVED: MapStorage = MapStorage::new();
+static mut PYR_A: PyrStorage = PyrStorage::new();
+static mut PYR_B: PyrStorage = PyrStorage::new();
+static mut SCRATCH: [u32; MAP_VOXELS] = [0; MAP_VOXELS];
+
+/// Runs the self-test and prints its figures.
+pub fn run() -> Result<bool, ()> {
+    // SAFETY: `run` is called once, from `main`, before anything else could
+    // touch these statics; each is borrowed exactly once here.
+    let (a, b, r, pa, pb, scratch) = unsafe {
+        (
+            &mut *addr_of_mut!(MAP_A),
+            &mut *addr_of_mut!(MAP_B),
+            &mut *addr_of_mut!(RECEIVED),
+            &mut *addr_of_mut!(PYR_A),
+            &mut *addr_of_mut!(PYR_B),
+            &mut *addr_of_mut!(SCRATCH),
+        )
+    };
+    let config = MapConfig::with_resolution(RESOLUTION);
+    let mut map_a = LocalMap::new(a, config).map_err(|_| ())?;
+    let mut map_b = LocalMap::new(b, config).map_err(|_| ())?;
+    let mut received = LocalMap::new(r, config).map_err(|_| ())?;
+    let mut chunk = [0u8; 240];
+    let (mut start, mut spent) = (0u64, 0u64);
+    let t0 = ticks();
+    let report = selftest::run(&mut map_a, &mut map_b, &mut received, scratch, &mut chunk, pa, pb, |before| {
+        if before {
+            start = ticks();
+        } else {
+            spent = ticks() - start;
+        }
+    });
+    let total = ticks() - t0;
+    let report = match report {
+        Ok(r) => r,
+        Err(e) => {
+            hprintln!("selftest error={:?}", e);
+            return Ok(false);
+        }
+    };
+    let bits = report.transform_bits();
+    hprintln!("selftest voxels={},{}", report.voxels[0], report.voxels[1]);
+    hprintln!("selftest digests={:08x},{:08x}", report.digests[0], report.digests[1]);
+    hprintln!("selftest wire_bytes={} wire_ok={}", report.wire_bytes, report.wire_ok);
+    hprintln!(
+        "selftest transform={:08x},{:08x},{:08x},{:08x},{:08x},{:08x},{:08x}",
+        bits[0],
+        bits[1],
+        bits[2],
+        bits[3],
+        bits[4],
+        bits[5],
+        bits[6]
+    );
+    hprintln!(
+        "selftest status={} iterations={} inliers={} overlap={:08x}",
+        report.result.status.as_str(),
+        report.result.iterations,
+        report.result.inliers,
+        report.result.overlap.to_bits()
+    );
+    hprintln!(
+        "selftest match_instructions={} total_instructions={}",
+        spent * INSTRUCTIONS_PER_TICK,
+        total * INSTRUCTIONS_PER_TICK
+    );
+    hprintln!("selftest peak_stack_bytes={}", peak_stack());
+    #[cfg(feature = "defmt")]
+    defmt::info!(
+        "selftest {} after {} iterations, {} instructions",
+        report.result.status,
+        report.result.iterations,
+        spent * INSTRUCTIONS_PER_TICK
+    );
+    // The same verdict on UART0 through the embedded-io driver (the link's
+    // path to the other robot).
+    // SAFETY: UART0 is a CMSDK UART of this board and nothing else uses it.
+    let mut uart0 = unsafe { uart::Uart::new(uart::UART0, 25_000_000, 115_200) };
+    let mut line: heapless::String<96> = heapless::String::new();
+    let _ = writeln!(line, "cosem selftest {} {:08x}", report.result.status.as_str(), report.digests[1]);
+    embedded_io::Write::write_all(&mut uart0, line.as_bytes()).map_err(|_| ())?;
+    embedded_io::Write::flush(&mut uart0).map_err(|_| ())?;
+    Ok(report.wire_ok)
+}
