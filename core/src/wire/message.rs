@@ -208,3 +208,63 @@ impl<'a> Message<'a> {
         }
     }
 }
+
+/// Every message type with its exact bytes: the wire format, frozen. The
+/// unit tests and the on-target self-test both check it, so a host and a
+/// robot that pass agree on every byte.
+pub const GOLDEN: [(Message<'static>, &[u8]); 8] = [
+    (
+        Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: 0.2, max_payload: 512 }),
+        &[1, 0, 1, 1, 205, 204, 76, 62, 128, 4],
+    ),
+    (
+        Message::MapHeader(MapHeader {
+            map_id: 7,
+            robot_id: 1,
+            class_table: 1,
+            anchor_time_us: 1_000_000,
+            voxel_count: 300,
+            resolution: 0.5,
+            bounds: [-1.0, -2.0, -3.0, 1.0, 2.0, 3.0],
+            digest: 0xDEAD_BEEF,
+        }),
+        &[
+            1, 1, 7, 1, 1, 192, 132, 61, 172, 2, 0, 0, 0, 63, 0, 0, 128, 191, 0, 0, 0, 192, 0, 0, 64, 192, 0, 0, 128,
+            63, 0, 0, 0, 64, 0, 0, 64, 64, 239, 253, 182, 245, 13,
+        ],
+    ),
+    (Message::Chunk { map_id: 7, seq: 1, data: &[1, 2, 0, 255] }, &[1, 2, 7, 1, 4, 1, 2, 0, 255]),
+    (Message::End { map_id: 7, seq: 9 }, &[1, 3, 7, 9]),
+    (Message::Ack { map_id: 7, seq: 300 }, &[1, 4, 7, 172, 2]),
+    (Message::Nack { map_id: 7, seq: 3 }, &[1, 5, 7, 3]),
+    (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[1, 6, 7, 2]),
+    (
+        Message::Report(MatchReport {
+            robot_id: 0,
+            status: 0,
+            transform: [1.0, 0.0, 0.0, 2.5, 0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.0],
+            iterations: 17,
+            inliers: 1234,
+            overlap: 0.75,
+            rmse: 0.125,
+        }),
+        &[
+            1, 7, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0,
+            0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 17, 210, 9, 0, 0, 64, 63, 0, 0, 0, 62,
+        ],
+    ),
+];
+
+/// Encodes and decodes every [`GOLDEN`] message; `Err(i)` names the first
+/// that differs.
+pub fn check_golden() -> Result<(), usize> {
+    for (i, (msg, bytes)) in GOLDEN.iter().enumerate() {
+        let mut buf = [0u8; 96];
+        let ok = msg.encode(&mut buf).ok().and_then(|n| buf.get(..n)) == Some(*bytes)
+            && Message::decode(bytes).as_ref() == Ok(msg);
+        if !ok {
+            return Err(i);
+        }
+    }
+    Ok(())
+}
