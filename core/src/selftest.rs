@@ -55,6 +55,30 @@ impl Report {
     }
 }
 
+/// The report as `selftest key=value` lines, every number exact (floats as
+/// bits): what the firmware prints and a host compares.
+impl core::fmt::Display for Report {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let t = self.transform_bits();
+        writeln!(f, "selftest voxels={},{}", self.voxels[0], self.voxels[1])?;
+        writeln!(f, "selftest digests={:08x},{:08x}", self.digests[0], self.digests[1])?;
+        writeln!(f, "selftest wire_bytes={} wire_ok={}", self.wire_bytes, self.wire_ok)?;
+        writeln!(
+            f,
+            "selftest transform={:08x},{:08x},{:08x},{:08x},{:08x},{:08x},{:08x}",
+            t[0], t[1], t[2], t[3], t[4], t[5], t[6]
+        )?;
+        write!(
+            f,
+            "selftest status={} iterations={} inliers={} overlap={:08x}",
+            self.result.status.as_str(),
+            self.result.iterations,
+            self.result.inliers,
+            self.result.overlap.to_bits()
+        )
+    }
+}
+
 /// Why the self-test could not run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -55,27 +55,7 @@ pub fn run() -> Result<bool, ()> {
             return Ok(false);
         }
     };
-    let bits = report.transform_bits();
-    hprintln!("selftest voxels={},{}", report.voxels[0], report.voxels[1]);
-    hprintln!("selftest digests={:08x},{:08x}", report.digests[0], report.digests[1]);
-    hprintln!("selftest wire_bytes={} wire_ok={}", report.wire_bytes, report.wire_ok);
-    hprintln!(
-        "selftest transform={:08x},{:08x},{:08x},{:08x},{:08x},{:08x},{:08x}",
-        bits[0],
-        bits[1],
-        bits[2],
-        bits[3],
-        bits[4],
-        bits[5],
-        bits[6]
-    );
-    hprintln!(
-        "selftest status={} iterations={} inliers={} overlap={:08x}",
-        report.result.status.as_str(),
-        report.result.iterations,
-        report.result.inliers,
-        report.result.overlap.to_bits()
-    );
+    hprintln!("{}", report);
     hprintln!(
         "selftest match_instructions={} total_instructions={}",
         spent * INSTRUCTIONS_PER_TICK,

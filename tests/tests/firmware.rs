@@ -26,23 +26,7 @@ fn host_lines() -> Vec<String> {
     let pa = HeapPyramidStorage::with_capacity(PYRAMID_ENTRIES, FOOTPRINT_WORDS);
     let pb = HeapPyramidStorage::with_capacity(PYRAMID_ENTRIES, FOOTPRINT_WORDS);
     let report = selftest::run(&mut a, &mut b, &mut r, &mut scratch, &mut chunk, pa, pb, |_| {}).unwrap();
-    let t = report.transform_bits();
-    vec![
-        format!("selftest voxels={},{}", report.voxels[0], report.voxels[1]),
-        format!("selftest digests={:08x},{:08x}", report.digests[0], report.digests[1]),
-        format!("selftest wire_bytes={} wire_ok={}", report.wire_bytes, report.wire_ok),
-        format!(
-            "selftest transform={:08x},{:08x},{:08x},{:08x},{:08x},{:08x},{:08x}",
-            t[0], t[1], t[2], t[3], t[4], t[5], t[6]
-        ),
-        format!(
-            "selftest status={} iterations={} inliers={} overlap={:08x}",
-            report.result.status.as_str(),
-            report.result.iterations,
-            report.result.inliers,
-            report.result.overlap.to_bits()
-        ),
-    ]
+    report.to_string().lines().map(str::to_string).collect()
 }
 
 #[test]
