@@ -18,7 +18,8 @@
 use crate::mapping::{new_map, HostMap};
 use cosem_core::classes::CLASS_TABLE_VERSION;
 use cosem_core::map::{MapConfig, SensorModel};
-use cosem_core::wire::{crc32, MapDecoder, MapEncoder};
+use cosem_core::wire::mapfile::{decode_chunks, MapFileError};
+use cosem_core::wire::{crc32, MapEncoder};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -216,41 +217,12 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(CmapHeader, HostMap), CmapEr
         ..MapConfig::default()
     };
     let mut map = new_map(count, config).map_err(|e| invalid(PREAMBLE, format!("header: {e}")))?;
-    let mut decoder = MapDecoder::new(count);
-    let mut at = header_end;
-    let mut index = 0usize;
-    while at < body_end {
-        let start = at;
-        let mut len = 0usize;
-        let mut shift = 0;
-        loop {
-            let byte = *bytes.get(at).filter(|_| at < body_end).ok_or(CmapError::Truncated {
-                path: p(),
-                offset: at,
-                what: "chunk length",
-            })?;
-            at += 1;
-            len |= usize::from(byte & 0x7F) << shift;
-            shift += 7;
-            if byte & 0x80 == 0 {
-                break;
-            }
-            if shift > 21 {
-                return Err(invalid(start, format!("chunk {index}: length varint too long")));
-            }
-        }
-        let end = at.checked_add(len).filter(|&e| e <= body_end).ok_or(CmapError::Truncated {
-            path: p(),
-            offset: body_end,
-            what: "chunk",
-        })?;
-        decoder.decode_chunk(&bytes[at..end], &mut map).map_err(|e| invalid(start, format!("chunk {index}: {e}")))?;
-        at = end;
-        index += 1;
-    }
-    if !decoder.is_complete() {
-        return Err(invalid(body_end, format!("{} of {count} voxels present", decoder.decoded())));
-    }
+    decode_chunks(&bytes[header_end..body_end], header.voxel_count, &mut map).map_err(|e| match e {
+        MapFileError::Truncated(o) => CmapError::Truncated { path: p(), offset: header_end + o, what: "chunk" },
+        MapFileError::Chunk(o, e) => invalid(header_end + o, format!("chunk: {e}")),
+        MapFileError::Incomplete => invalid(body_end, format!("{} of {count} voxels present", map.len())),
+        e => invalid(header_end, format!("{e:?}")),
+    })?;
     Ok((header, map))
 }
 

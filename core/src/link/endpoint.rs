@@ -152,6 +152,8 @@ struct Tx<'a, S: VoxelStorage> {
     seq: u32,
     /// One past the last voxel of the chunk in flight.
     end: u32,
+    /// Bytes of voxel encoding in the frame in flight (0 for other frames).
+    chunk_len: usize,
     frame: [u8; MAX_FRAME],
     frame_len: usize,
     deadline: u64,
@@ -242,8 +244,9 @@ fn write_frame<IO: Write>(io: &mut IO, frame: &[u8], stats: &mut LinkStats) -> R
 
 impl<'a, M: VoxelStorage> Tx<'a, M> {
     /// Builds the frame of the current sequence number.
-    fn build(&mut self, stats: &mut LinkStats) -> Result<(), LinkError> {
+    fn build(&mut self) -> Result<(), LinkError> {
         let mut payload = [0u8; MAX_PAYLOAD];
+        self.chunk_len = 0;
         let n = match self.phase {
             TxPhase::Header => Message::MapHeader(self.header).encode(&mut payload),
             TxPhase::Chunks => {
@@ -251,7 +254,7 @@ impl<'a, M: VoxelStorage> Tx<'a, M> {
                 self.encoder.seek(self.seq as usize);
                 let len = self.encoder.next_chunk(&mut data[..self.chunk]).map_err(|_| LinkError::Setup)?;
                 self.end = self.encoder.position() as u32;
-                stats.chunk_bytes_sent += len as u64;
+                self.chunk_len = len;
                 Message::Chunk { map_id: self.header.map_id, seq: self.seq, data: &data[..len] }.encode(&mut payload)
             }
             TxPhase::End | TxPhase::Done => {
@@ -303,7 +306,8 @@ impl<'a, M: VoxelStorage> Tx<'a, M> {
                 self.seq = held;
             }
         }
-        self.build(stats)?;
+        self.build()?;
+        stats.chunk_bytes_sent += self.chunk_len as u64;
         self.transmit(io, now, stats)
     }
 
@@ -312,9 +316,7 @@ impl<'a, M: VoxelStorage> Tx<'a, M> {
     /// still lets short ones through.
     fn resend<IO: Write>(&mut self, io: &mut IO, now: u64, stats: &mut LinkStats) -> Result<(), LinkError> {
         if self.phase == TxPhase::Chunks {
-            let before = stats.chunk_bytes_sent;
-            self.build(stats)?;
-            stats.chunk_bytes_sent = before;
+            self.build()?;
         }
         self.transmit(io, now, stats)
     }
@@ -394,6 +396,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                     phase: TxPhase::Header,
                     seq: 0,
                     end: 0,
+                    chunk_len: 0,
                     frame: [0; MAX_FRAME],
                     frame_len: 0,
                     deadline: 0,
@@ -509,7 +512,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         let may_send = !self.config.half_duplex || self.robot_id == 0 || self.rx.done;
         if let Some(tx) = self.tx.as_mut() {
             if tx.frame_len == 0 && may_send {
-                tx.build(&mut self.stats)?;
+                tx.build()?;
+                self.stats.chunk_bytes_sent += tx.chunk_len as u64;
                 tx.transmit(io, now, &mut self.stats)?;
             }
         }

@@ -70,15 +70,39 @@ pub fn read_into<S: VoxelStorage>(bytes: &[u8], map: &mut LocalMap<S>) -> Result
     if !(info.resolution.is_finite() && (map.resolution() - info.resolution).abs() <= 1e-6 * info.resolution) {
         return Err(MapFileError::Resolution);
     }
+    decode_chunks(bytes.get(header_end..body_end).unwrap_or(&[]), info.voxel_count, map)
+        .map_err(|e| e.shifted(header_end))?;
+    Ok(info)
+}
+
+impl MapFileError {
+    /// The same error with its byte offset moved by `by`.
+    fn shifted(self, by: usize) -> Self {
+        match self {
+            MapFileError::Truncated(o) => MapFileError::Truncated(o + by),
+            MapFileError::Chunk(o, e) => MapFileError::Chunk(o + by, e),
+            e => e,
+        }
+    }
+}
+
+/// Decodes a file's chunk stream (each chunk a LEB128 length, then the
+/// chunk) holding `voxel_count` voxels into `map` (cleared first). Offsets in
+/// errors count from the start of `body`.
+pub fn decode_chunks<S: VoxelStorage>(
+    body: &[u8],
+    voxel_count: u32,
+    map: &mut LocalMap<S>,
+) -> Result<(), MapFileError> {
     map.clear();
-    let mut decoder = MapDecoder::new(info.voxel_count as usize);
-    let mut at = header_end;
-    while at < body_end {
+    let mut decoder = MapDecoder::new(voxel_count as usize);
+    let mut at = 0;
+    while at < body.len() {
         let start = at;
         let mut len = 0usize;
         let mut shift = 0;
         loop {
-            let b = *bytes.get(at).filter(|_| at < body_end).ok_or(MapFileError::Truncated(at))?;
+            let b = *body.get(at).ok_or(MapFileError::Truncated(at))?;
             at += 1;
             len |= usize::from(b & 0x7F) << shift;
             shift += 7;
@@ -89,13 +113,14 @@ pub fn read_into<S: VoxelStorage>(bytes: &[u8], map: &mut LocalMap<S>) -> Result
                 return Err(MapFileError::Truncated(start));
             }
         }
-        let end = at.checked_add(len).filter(|&e| e <= body_end).ok_or(MapFileError::Truncated(body_end))?;
-        let chunk = bytes.get(at..end).ok_or(MapFileError::Truncated(at))?;
+        let end = at.checked_add(len).filter(|&e| e <= body.len()).ok_or(MapFileError::Truncated(body.len()))?;
+        let chunk = body.get(at..end).ok_or(MapFileError::Truncated(at))?;
         decoder.decode_chunk(chunk, map).map_err(|e| MapFileError::Chunk(start, e))?;
         at = end;
     }
-    if !decoder.is_complete() {
-        return Err(MapFileError::Incomplete);
+    if decoder.is_complete() {
+        Ok(())
+    } else {
+        Err(MapFileError::Incomplete)
     }
-    Ok(info)
 }

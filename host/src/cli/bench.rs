@@ -212,21 +212,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 fn bench_map(a: MapArgs) -> Result<(), Error> {
-    let (dir, _tmp) = match a.data {
-        Some(d) => (d, None),
-        None => {
-            let kitti = data_root().join("kitti00");
-            if kitti.join("poses.txt").exists() {
-                (kitti, None)
-            } else {
-                let tmp = std::env::temp_dir().join(format!("cosem-bench-{}", std::process::id()));
-                let cfg = cosem_host::synth::SynthConfig { frames: a.frames.end, ..Default::default() };
-                cosem_host::synth::write_sequence(&tmp, &cfg)?;
-                println!("(no kitti00 under {}: using a synthetic sequence)", data_root().display());
-                (tmp.clone(), Some(TempDir(tmp)))
-            }
-        }
-    };
+    let (dir, _tmp) = data_dir(a.data, a.frames.end)?;
     let seq = Sequence::open(&dir)?;
     let frames = seq.load_range(a.frames)?;
     let filter = PointFilter { max_range: None, moving: MovingObjects::Skip };
