@@ -7,10 +7,10 @@
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 model="$(realpath "$1")"; scene="$(realpath "$2")"
-(cd "$here" && cargo build --release --locked --features bench --target-dir target/bench >&2)
+(cd "$here" && cargo build --release --locked --bin bench >&2)
 work="$(mktemp -d)"; trap 'rm -rf "$work"' EXIT
 cp "$model" "$work/bench-a.cmap"; cp "$scene" "$work/bench-b.cmap"
 cd "$work"
 qemu-system-arm -machine mps2-an386 -cpu cortex-m4 -display none -icount shift=0 \
   -semihosting-config enable=on,target=native \
-  -kernel "$here/target/bench/thumbv7em-none-eabihf/release/cosem-firmware"
+  -kernel "$here/target/thumbv7em-none-eabihf/release/bench"

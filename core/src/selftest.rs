@@ -12,7 +12,7 @@
 use crate::classes::Class;
 use crate::geometry::{from_xyz_rpy, transform_point, Isometry3};
 use crate::map::{InsertError, LocalMap, VoxelStorage};
-use crate::matching::{MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, PyramidStorage};
+use crate::matching::{MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, PyramidStorage, Role};
 use crate::wire::codec::{MapDecoder, MapEncoder, MIN_CHUNK};
 use crate::wire::message::check_golden;
 
@@ -22,10 +22,11 @@ pub const RESOLUTION: f32 = 0.5;
 pub const LEVELS: usize = 3;
 /// Map capacity the self-test needs (voxels per map).
 pub const MAP_VOXELS: usize = 2048;
-/// Pyramid entries the self-test needs per map.
-pub const PYRAMID_ENTRIES: usize = 5120;
-/// Footprint words the self-test needs per map.
-pub const FOOTPRINT_WORDS: usize = 24_000;
+/// Coarse pyramid entries the self-test needs per map (it uses about 620).
+pub const PYRAMID_ENTRIES: usize = 1024;
+/// Footprint words the self-test needs per map (the model's footprint
+/// takes about 13,700; the received map, prepared as scene only, 700).
+pub const FOOTPRINT_WORDS: usize = 16_384;
 
 /// What the self-test computed.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -174,7 +175,7 @@ pub fn build_map<S: VoxelStorage>(robot: u8, map: &mut LocalMap<S>) -> Result<()
 /// Runs the whole case. `a` and `b` are maps of at least [`MAP_VOXELS`]
 /// voxels at [`RESOLUTION`]; `received` receives B's map through the wire;
 /// `scratch` holds one `u32` per voxel; `chunk` is the encoding buffer; the
-/// pyramid storages hold [`PYRAMID_ENTRIES`] entries and
+/// pyramid storages hold extras for [`MAP_VOXELS`] voxels, [`PYRAMID_ENTRIES`] coarse entries and
 /// [`FOOTPRINT_WORDS`] words. `on_match` runs right before and after the
 /// match (e.g. to read an instruction counter).
 #[allow(clippy::too_many_arguments)]
@@ -214,7 +215,7 @@ pub fn run<S: VoxelStorage, P: PyramidStorage>(
     wire_ok &= check_golden().is_ok();
     // Match B (as received) against A.
     let pa = Pyramid::build(a, LEVELS, 1.0, storage_a).map_err(SelfTestError::Pyramid)?;
-    let pb = Pyramid::build(received, LEVELS, 1.0, storage_b).map_err(SelfTestError::Pyramid)?;
+    let pb = Pyramid::build_as(received, LEVELS, 1.0, Role::Scene, storage_b).map_err(SelfTestError::Pyramid)?;
     let prior = from_xyz_rpy(2.0, -1.5, 0.0, 0.0, 0.0, 10.0f32.to_radians()) * truth();
     on_match(true);
     let result = Matcher::new(MatchSettings::default()).align(&pa, &pb, &prior);

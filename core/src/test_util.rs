@@ -38,19 +38,19 @@ pub fn map(capacity: usize) -> LocalMap<Heap> {
 
 /// Pyramid storage on the heap.
 pub struct HeapPyramid {
-    /// Entries.
-    pub entries: Vec<crate::matching::Entry>,
-    /// Index slots.
-    pub slots: Vec<u32>,
-    /// Footprint words.
-    pub words: Vec<u32>,
+    extras: Vec<crate::matching::VoxelExtra>,
+    entries: Vec<crate::matching::CoarseEntry>,
+    slots: Vec<u32>,
+    words: Vec<u32>,
 }
 
 impl HeapPyramid {
-    /// Storage for `entries` entries and `words` footprint words.
-    pub fn new(entries: usize, words: usize) -> Self {
+    /// Storage for maps of up to `voxels` voxels, `entries` coarse entries
+    /// and `words` footprint words.
+    pub fn new(voxels: usize, entries: usize, words: usize) -> Self {
         HeapPyramid {
-            entries: vec![crate::matching::Entry::default(); entries],
+            extras: vec![crate::matching::VoxelExtra::EMPTY; voxels],
+            entries: vec![crate::matching::CoarseEntry::EMPTY; entries],
             slots: vec![0; 2 * entries],
             words: vec![0; words],
         }
@@ -58,11 +58,21 @@ impl HeapPyramid {
 }
 
 impl crate::matching::PyramidStorage for HeapPyramid {
-    fn parts(&self) -> (&[crate::matching::Entry], &[u32], &[u32]) {
-        (&self.entries, &self.slots, &self.words)
+    fn parts(&self) -> crate::matching::PyramidParts<'_> {
+        crate::matching::PyramidParts {
+            extras: &self.extras,
+            entries: &self.entries,
+            slots: &self.slots,
+            words: &self.words,
+        }
     }
-    fn parts_mut(&mut self) -> (&mut [crate::matching::Entry], &mut [u32], &mut [u32]) {
-        (&mut self.entries, &mut self.slots, &mut self.words)
+    fn parts_mut(&mut self) -> crate::matching::PyramidPartsMut<'_> {
+        crate::matching::PyramidPartsMut {
+            extras: &mut self.extras,
+            entries: &mut self.entries,
+            slots: &mut self.slots,
+            words: &mut self.words,
+        }
     }
 }
 
@@ -74,8 +84,8 @@ fn selftest_converges_and_encodes_consistently() {
         (heap_map(MAP_VOXELS, config), heap_map(MAP_VOXELS, config), heap_map(MAP_VOXELS, config));
     let mut scratch = vec![0u32; MAP_VOXELS];
     let mut chunk = [0u8; 240];
-    let pa = HeapPyramid::new(PYRAMID_ENTRIES, FOOTPRINT_WORDS);
-    let pb = HeapPyramid::new(PYRAMID_ENTRIES, FOOTPRINT_WORDS);
+    let pa = HeapPyramid::new(MAP_VOXELS, PYRAMID_ENTRIES, FOOTPRINT_WORDS);
+    let pb = HeapPyramid::new(MAP_VOXELS, PYRAMID_ENTRIES, FOOTPRINT_WORDS);
     let mut calls = 0;
     let report = run(&mut a, &mut b, &mut r, &mut scratch, &mut chunk, pa, pb, |_| calls += 1).unwrap();
     assert_eq!(calls, 2);

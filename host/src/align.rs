@@ -2,22 +2,26 @@
 //! measures and the paper's grid of starts.
 
 use crate::mapping::HostMap;
-use cosem_core::matching::{Entry, Pyramid, PyramidError, PyramidStorage};
+use cosem_core::matching::{
+    CoarseEntry, Pyramid, PyramidError, PyramidParts, PyramidPartsMut, PyramidStorage, VoxelExtra,
+};
 use nalgebra::{Isometry3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 /// Pyramid storage on the heap.
 pub struct HeapPyramidStorage {
-    entries: Vec<Entry>,
+    extras: Vec<VoxelExtra>,
+    entries: Vec<CoarseEntry>,
     slots: Vec<u32>,
     words: Vec<u32>,
 }
 
 impl HeapPyramidStorage {
-    /// Room for `entries` entries over all levels (and their index) and
-    /// `words` footprint words.
-    pub fn with_capacity(entries: usize, words: usize) -> Self {
+    /// Room for a map of `voxels` voxels, `entries` coarse entries (and
+    /// their index) and `words` footprint words.
+    pub fn with_capacity(voxels: usize, entries: usize, words: usize) -> Self {
         HeapPyramidStorage {
-            entries: vec![Entry::default(); entries],
+            extras: vec![VoxelExtra::EMPTY; voxels],
+            entries: vec![CoarseEntry::EMPTY; entries],
             slots: vec![0; 2 * entries],
             words: vec![0; words],
         }
@@ -25,16 +29,21 @@ impl HeapPyramidStorage {
 }
 
 impl PyramidStorage for HeapPyramidStorage {
-    fn parts(&self) -> (&[Entry], &[u32], &[u32]) {
-        (&self.entries, &self.slots, &self.words)
+    fn parts(&self) -> PyramidParts<'_> {
+        PyramidParts { extras: &self.extras, entries: &self.entries, slots: &self.slots, words: &self.words }
     }
-    fn parts_mut(&mut self) -> (&mut [Entry], &mut [u32], &mut [u32]) {
-        (&mut self.entries, &mut self.slots, &mut self.words)
+    fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
+        PyramidPartsMut {
+            extras: &mut self.extras,
+            entries: &mut self.entries,
+            slots: &mut self.slots,
+            words: &mut self.words,
+        }
     }
 }
 
-/// A map prepared for matching on the host.
-pub type HostPyramid = Pyramid<HeapPyramidStorage>;
+/// A map prepared for matching on the host (it borrows the map).
+pub type HostPyramid<'m> = Pyramid<'m, HeapPyramidStorage>;
 
 /// Default number of pyramid levels: 0.2 m maps get cells up to 3.2 m.
 pub const DEFAULT_LEVELS: usize = 5;
@@ -44,9 +53,10 @@ pub const FOOTPRINT_CELL: f32 = 1.0;
 
 /// Prepares a map for matching (room for the worst case: no merging at all;
 /// a footprint of up to 250 m x 250 m at 1 m).
-pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid, PyramidError> {
+pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, PyramidError> {
     let words = cosem_core::matching::footprint::POOL_LEVELS * 62_500 + 3 * 62_500;
-    Pyramid::build(map, levels, FOOTPRINT_CELL, HeapPyramidStorage::with_capacity(map.len() * (levels + 1), words))
+    let coarse = map.len() * levels.saturating_sub(1);
+    Pyramid::build(map, levels, FOOTPRINT_CELL, HeapPyramidStorage::with_capacity(map.len(), coarse, words))
 }
 
 /// `T_a_b` as an f64 4x4 matrix from the core's isometry.

@@ -83,3 +83,52 @@ pub fn synth(dir: &Path, frames: usize, seed: u64) {
         &seed.to_string(),
     ]);
 }
+
+/// Builds the firmware (all its binaries, release) once per test process and
+/// returns the folder of its ELF files, or `None` after printing why the
+/// test is skipped (no `qemu-system-arm` or no ARM target; `tests/run`
+/// installs both).
+pub fn firmware_elves() -> Option<PathBuf> {
+    let have_qemu = Command::new("qemu-system-arm").arg("--version").output().map(|o| o.status.success());
+    if !have_qemu.unwrap_or(false) {
+        eprintln!("skipping: qemu-system-arm not found (tests/run installs it)");
+        return None;
+    }
+    let firmware = workspace_root().join("firmware");
+    static BUILD: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    let built = BUILD.get_or_init(|| {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let out = Command::new(cargo)
+            .args(["build", "--release", "--locked", "--bins"])
+            .current_dir(&firmware)
+            .env_remove("CARGO_TARGET_DIR")
+            .env_remove("RUSTFLAGS")
+            .output()
+            .map_err(|e| format!("cargo build in firmware/: {e}"))?;
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        if out.status.success() {
+            Ok(())
+        } else {
+            Err(stderr)
+        }
+    });
+    match built {
+        Ok(()) => Some(firmware.join("target/thumbv7em-none-eabihf/release")),
+        Err(e) if e.contains("target may not be installed") => {
+            eprintln!("skipping: thumbv7em-none-eabihf not installed (tests/run installs it)");
+            None
+        }
+        Err(e) => panic!("firmware build failed:\n{e}"),
+    }
+}
+
+/// The QEMU command line of the firmware's runner (firmware/.cargo/config.toml)
+/// for `elf`, without `-serial` options.
+pub fn qemu(elf: &Path) -> Command {
+    let mut cmd = Command::new("qemu-system-arm");
+    cmd.args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-icount", "shift=0"])
+        .args(["-semihosting-config", "enable=on,target=native"])
+        .arg("-kernel")
+        .arg(elf);
+    cmd
+}

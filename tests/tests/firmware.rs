@@ -7,11 +7,6 @@ use cosem_core::map::MapConfig;
 use cosem_core::selftest::{self, FOOTPRINT_WORDS, MAP_VOXELS, PYRAMID_ENTRIES, RESOLUTION};
 use cosem_host::align::HeapPyramidStorage;
 use cosem_host::mapping::new_map;
-use std::process::Command;
-
-fn have(cmd: &str, arg: &str) -> bool {
-    Command::new(cmd).arg(arg).output().map(|o| o.status.success()).unwrap_or(false)
-}
 
 /// The self-test's report lines as the firmware prints them, computed here.
 fn host_lines() -> Vec<String> {
@@ -23,44 +18,21 @@ fn host_lines() -> Vec<String> {
     );
     let mut scratch = vec![0u32; MAP_VOXELS];
     let mut chunk = [0u8; 240];
-    let pa = HeapPyramidStorage::with_capacity(PYRAMID_ENTRIES, FOOTPRINT_WORDS);
-    let pb = HeapPyramidStorage::with_capacity(PYRAMID_ENTRIES, FOOTPRINT_WORDS);
+    let pa = HeapPyramidStorage::with_capacity(MAP_VOXELS, PYRAMID_ENTRIES, FOOTPRINT_WORDS);
+    let pb = HeapPyramidStorage::with_capacity(MAP_VOXELS, PYRAMID_ENTRIES, FOOTPRINT_WORDS);
     let report = selftest::run(&mut a, &mut b, &mut r, &mut scratch, &mut chunk, pa, pb, |_| {}).unwrap();
     report.to_string().lines().map(str::to_string).collect()
 }
 
 #[test]
 fn firmware_matches_the_host_bit_for_bit() {
-    if !have("qemu-system-arm", "--version") {
-        eprintln!("skipping: qemu-system-arm not found (tests/run installs it)");
-        return;
-    }
-    let firmware = cosem_tests::workspace_root().join("firmware");
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let build = Command::new(cargo)
-        .args(["build", "--release", "--locked"])
-        .current_dir(&firmware)
-        .env_remove("CARGO_TARGET_DIR")
-        .env_remove("RUSTFLAGS")
-        .output()
-        .expect("cargo build in firmware/");
-    let stderr = String::from_utf8_lossy(&build.stderr);
-    if stderr.contains("target may not be installed") {
-        eprintln!("skipping: thumbv7em-none-eabihf not installed (tests/run installs it)");
-        return;
-    }
-    assert!(build.status.success(), "firmware build failed:\n{stderr}");
+    let Some(elves) = cosem_tests::firmware_elves() else { return };
     // Run it as firmware/.cargo/config.toml's runner does, with UART0 to a file.
     let tmp = tempfile::tempdir().unwrap();
     let uart0 = tmp.path().join("uart0.txt");
-    let elf = firmware.join("target/thumbv7em-none-eabihf/release/cosem-firmware");
-    let out = Command::new("qemu-system-arm")
-        .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-icount", "shift=0"])
-        .args(["-semihosting-config", "enable=on,target=native"])
+    let out = cosem_tests::qemu(&elves.join("selftest"))
         .arg("-serial")
         .arg(format!("file:{}", uart0.display()))
-        .arg("-kernel")
-        .arg(&elf)
         .output()
         .expect("run qemu-system-arm");
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -112,4 +84,46 @@ fn core_reads_the_hosts_map_files() {
         cosem_core::wire::mapfile::read_into(&bad, &mut core_map),
         Err(cosem_core::wire::mapfile::MapFileError::Checksum)
     );
+}
+
+/// The benchmark binary matches two real 0.5 m maps (kitti00 0:5 and 5:10
+/// within 25 m, about 7,500 voxels each) on board, inside the 1 MiB budget,
+/// and lands on the ground truth.
+#[test]
+fn firmware_matches_real_maps_in_the_budget() {
+    let Some(data) = cosem_tests::real_data("kitti00") else { return };
+    let Some(elves) = cosem_tests::firmware_elves() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    for (frames, name) in [("0:5", "bench-a.cmap"), ("5:10", "bench-b.cmap")] {
+        let out = tmp.path().join(name).display().to_string();
+        let d = data.display().to_string();
+        cosem_tests::cosem_ok(&[
+            "map",
+            "--data",
+            &d,
+            "--frames",
+            frames,
+            "--voxel",
+            "0.5",
+            "--max-range",
+            "25",
+            "-o",
+            &out,
+        ]);
+    }
+    let out = cosem_tests::qemu(&elves.join("bench")).current_dir(tmp.path()).output().expect("run qemu-system-arm");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "bench failed:\n{stdout}");
+    eprintln!("{stdout}");
+    let line = stdout.lines().find(|l| l.starts_with("bench status=")).expect("status line");
+    assert!(line.contains("status=Converged"), "{line}");
+    let field = |key: &str| line.split_whitespace().find_map(|w| w.strip_prefix(key)).unwrap().to_string();
+    let t: Vec<f64> = field("translation=").split(',').map(|v| v.parse().unwrap()).collect();
+    let yaw: f64 = field("yaw_deg=").parse().unwrap();
+    // Ground truth T_A_B of kitti00 0 -> 5: about (3.57, 0.05, 0.02) m, 1.29 degrees.
+    let gt = cosem_host::kitti::Sequence::open(&data).unwrap().relative_pose(0, 5).unwrap();
+    let (gx, gy, gz) = (gt[(0, 3)], gt[(1, 3)], gt[(2, 3)]);
+    let gyaw = gt[(1, 0)].atan2(gt[(0, 0)]).to_degrees();
+    let e_t = ((t[0] - gx).powi(2) + (t[1] - gy).powi(2) + (t[2] - gz).powi(2)).sqrt();
+    assert!(e_t < 0.2 && (yaw - gyaw).abs() < 0.5, "on board {t:?} {yaw} vs truth {gx} {gy} {gz} {gyaw}");
 }

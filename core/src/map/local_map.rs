@@ -305,6 +305,11 @@ impl<S: VoxelStorage> LocalMap<S> {
         self.storage.voxels().get(..self.len).unwrap_or(&[])
     }
 
+    /// The hash index over [`LocalMap::voxels`] (read by the matcher's level 0).
+    pub(crate) fn index_slots(&self) -> &[u32] {
+        self.storage.slots()
+    }
+
     /// Iterates over the voxels in insertion order.
     pub fn iter(&self) -> core::slice::Iter<'_, SemanticVoxel> {
         self.voxels().iter()

@@ -71,11 +71,13 @@ fn sampling_slot(class: u8) -> usize {
 }
 
 impl Sampling {
-    /// About `budget` entries of `entries`, shared equally among classes.
-    pub fn balanced(entries: &[Entry], budget: usize) -> Self {
+    /// About `budget` entries of `level`, shared equally among classes.
+    pub fn balanced(level: &Level<'_>, budget: usize) -> Self {
         let mut count = [0usize; SAMPLING_SLOTS];
-        for e in entries {
-            count[sampling_slot(e.class)] += 1;
+        for i in 0..level.len() {
+            if let Some(class) = level.class_at(i) {
+                count[sampling_slot(class)] += 1;
+            }
         }
         let mut order = [0usize; SAMPLING_SLOTS];
         for (i, o) in order.iter_mut().enumerate() {
@@ -168,21 +170,21 @@ impl Normal {
 /// its cell, which holds every model entry within half a cell of `q` (and
 /// some farther ones, up to `radius`).
 #[inline]
-fn best_match<'a>(
-    model: &Level<'a>,
+fn best_match(
+    model: &Level<'_>,
     s: &Entry,
     q: &Point3<f32>,
     sigma: f32,
     radius: f32,
     method: Method,
-) -> Option<(&'a Entry, f32, f32)> {
+) -> Option<(Entry, f32, f32)> {
     let cell = model.locate_with_fraction([q.x, q.y, q.z])?;
     let (key, f) = (cell.key, cell.fraction);
     let step = |v: f32| if v < 0.5 { -1 } else { 1 };
     let (sx, sy, sz) = (step(f[0]), step(f[1]), step(f[2]));
     let inv_two_sigma_sq = 0.5 / (sigma * sigma);
     let radius_sq = radius * radius;
-    let mut best: Option<(&Entry, f32, f32)> = None;
+    let mut best: Option<(Entry, f32, f32)> = None;
     for (dx, dy, dz) in
         [(0, 0, 0), (sx, 0, 0), (0, sy, 0), (0, 0, sz), (sx, sy, 0), (sx, 0, sz), (0, sy, sz), (sx, sy, sz)]
     {
@@ -193,7 +195,7 @@ fn best_match<'a>(
             if d2 > radius_sq {
                 continue;
             }
-            let c = compatibility(method, s, m);
+            let c = compatibility(method, s, &m);
             if c <= 0.0 {
                 continue;
             }
@@ -230,17 +232,19 @@ pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32
     let mut n = Normal::new();
     // Countdown per class: an entry is used when its class's reaches zero.
     let mut skip = [0u32; SAMPLING_SLOTS];
-    for s in scene.entries() {
-        let k = sampling_slot(s.class);
+    for i in 0..scene.len() {
+        let Some(class) = scene.class_at(i) else { continue };
+        let k = sampling_slot(class);
         if skip[k] > 0 {
             skip[k] -= 1;
             continue;
         }
         let stride = sampling.stride[k];
         skip[k] = stride - 1;
+        let Some(s) = scene.entry(i) else { continue };
         let scale = information.then_some(stride as f32);
         let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
-        let Some((m, w, _)) = best_match(model, s, &q, sigma, radius, method) else { continue };
+        let Some((m, w, _)) = best_match(model, &s, &q, sigma, radius, method) else { continue };
         if w.is_nan() || w <= 0.0 {
             continue;
         }
@@ -249,8 +253,9 @@ pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32
         n.sum_wq2 += w * q.coords.norm_squared();
         let mp = Vector3::new(m.position[0], m.position[1], m.position[2]);
         let diff = q.coords - mp;
-        if cost == Cost::PointToPlane && m.is_planar() {
-            let nv = Vector3::new(m.normal[0], m.normal[1], m.normal[2]);
+        let normal = if cost == Cost::PointToPlane { m.normal.unpack() } else { None };
+        if let Some(nm) = normal {
+            let nv = Vector3::new(nm[0], nm[1], nm[2]);
             let r = nv.dot(&diff);
             let qxn = q.coords.cross(&nv);
             let j = Vector6::new(nv.x, nv.y, nv.z, qxn.x, qxn.y, qxn.z);
@@ -291,7 +296,7 @@ pub(crate) fn agreement(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>
     let res_sq = res * res;
     let stride = stride.max(1);
     let (mut inliers, mut same, mut sum_d2, mut seen) = (0u32, 0u32, 0.0f32, 0u32);
-    for s in scene.entries().iter().step_by(stride) {
+    for s in (0..scene.len()).step_by(stride).filter_map(|i| scene.entry(i)) {
         seen += 1;
         let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
         let Some(cell) = model.locate_with_fraction([q.x, q.y, q.z]) else { continue };

@@ -76,8 +76,8 @@ impl Matcher {
     /// Deterministic: the same inputs give bit-identical results.
     pub fn align<A: PyramidStorage, B: PyramidStorage>(
         &self,
-        model: &Pyramid<A>,
-        scene: &Pyramid<B>,
+        model: &Pyramid<'_, A>,
+        scene: &Pyramid<'_, B>,
         init: &Isometry3<f32>,
     ) -> Result<MatchResult, MatchError> {
         self.check()?;
@@ -119,7 +119,7 @@ impl Matcher {
             let floor = s.sigma_end * cell;
             let mut sigma = s.sigma_start * cell;
             let remaining = s.max_iterations.saturating_sub(used);
-            let sampling = Sampling::balanced(c.entries(), s.max_scene_entries as usize);
+            let sampling = Sampling::balanced(&c, s.max_scene_entries as usize);
             let budget = if l == 0 { remaining } else { s.max_iterations_per_level.min(remaining / 2) };
             for _ in 0..budget {
                 let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, sampling, information: l == 0 };
@@ -159,14 +159,14 @@ impl Matcher {
             return Err(MatchError::ResolutionMismatch);
         };
         let cell = m0.resolution();
-        let agree = agreement(&m0, &c0, &t, c0.entries().len().div_ceil(s.max_agreement_entries.max(1) as usize));
+        let agree = agreement(&m0, &c0, &t, c0.len().div_ceil(s.max_agreement_entries.max(1) as usize));
         // The information at the solution: the last finest-level iteration's
         // normal equations (its update was below the tolerance, so they were
         // taken at the solution to within it), else a fresh pass.
         let n = match last {
             Some(found) if converged => found,
             _ => {
-                let sampling = Sampling::balanced(c0.entries(), s.max_scene_entries as usize);
+                let sampling = Sampling::balanced(&c0, s.max_scene_entries as usize);
                 let pass = Pass {
                     sigma: s.sigma_end * cell,
                     radius: cell,

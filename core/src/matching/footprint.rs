@@ -4,7 +4,7 @@
 //! the scene. Both anchor frames are level (z against gravity), so a column
 //! mask is a rotation-invariant description of what stands there.
 
-use super::pyramid::Entry;
+use super::pyramid::Level;
 use crate::map::key::floor_f32;
 
 /// Levels of max-pooling (windows of 1, 2, 4, ... 2^(POOL_LEVELS-1) cells).
@@ -25,12 +25,15 @@ pub(crate) struct FootprintInfo {
     pub height: usize,
     /// Occupied cells listed (after the grids).
     pub occupied: usize,
+    /// Grids kept: [`POOL_LEVELS`] for a model, 2 for a scene-only map
+    /// (which needs its cells and their 2x2 pooling for the occupied list).
+    pub grids: usize,
 }
 
 impl FootprintInfo {
     /// u32 words the grids and list take.
     pub fn words(&self) -> usize {
-        POOL_LEVELS * self.width * self.height + 3 * self.occupied
+        self.grids * self.width * self.height + 3 * self.occupied
     }
 }
 
@@ -47,10 +50,19 @@ impl<'a> Footprint<'a> {
         self.info.cell
     }
 
+    /// Whether the max-pooled grids a search bounds with are there (a
+    /// model's footprint).
+    pub fn has_pooled_grids(&self) -> bool {
+        self.info.grids == POOL_LEVELS
+    }
+
     /// The class mask of pooled grid `h` at cell (i, j); 0 outside.
     #[inline]
     pub fn mask(&self, h: usize, i: i32, j: i32) -> u32 {
         let (w, ht) = (self.info.width, self.info.height);
+        if h >= self.info.grids {
+            return 0;
+        }
         // Negative values wrap to huge ones and fail the same test.
         let (iu, ju) = (i as usize, j as usize);
         if iu >= w || ju >= ht {
@@ -68,7 +80,7 @@ impl<'a> Footprint<'a> {
 
     /// Occupied cells: (centre x, centre y, mean z, mask).
     pub fn occupied(&self) -> impl Iterator<Item = ([f32; 3], u32)> + 'a {
-        let base = POOL_LEVELS * self.info.width * self.info.height;
+        let base = self.info.grids * self.info.width * self.info.height;
         let list = self.words.get(base..base + 3 * self.info.occupied).unwrap_or(&[]);
         list.chunks_exact(3).map(|c| ([f32::from_bits(c[0]), f32::from_bits(c[1]), 0.0], c[2]))
     }
@@ -79,12 +91,14 @@ impl<'a> Footprint<'a> {
     }
 }
 
-/// Builds a footprint of `entries` into `words`; the cell size starts at
-/// `cell` and doubles until the grids fit. `None` if nothing fits.
-pub(crate) fn build(entries: &[Entry], cell: f32, words: &mut [u32]) -> Option<FootprintInfo> {
-    let first = entries.first()?;
+/// Builds a footprint of `level`'s entries into `words`, with the pooled
+/// grids when `pooled` (a model's); the cell size starts at `cell` and
+/// doubles until the grids fit. `None` if nothing fits.
+pub(crate) fn build(level: &Level<'_>, cell: f32, pooled: bool, words: &mut [u32]) -> Option<FootprintInfo> {
+    let first = level.entry(0)?;
+    let grids = if pooled { POOL_LEVELS } else { 2 };
     let (mut lo, mut hi) = ([first.position[0], first.position[1]], [first.position[0], first.position[1]]);
-    for e in entries {
+    for e in level.iter() {
         for a in 0..2 {
             lo[a] = lo[a].min(e.position[a]);
             hi[a] = hi[a].max(e.position[a]);
@@ -95,14 +109,16 @@ pub(crate) fn build(entries: &[Entry], cell: f32, words: &mut [u32]) -> Option<F
         // A margin of one top-level block below the data in x and y: a search
         // block may start there and still reach into the data, and its bound
         // must see that.
-        let origin = [lo[0] - MARGIN as f32 * cell, lo[1] - MARGIN as f32 * cell];
+        // (A scene-only footprint is never searched over: no margin.)
+        let margin = if pooled { MARGIN as f32 } else { 0.0 };
+        let origin = [lo[0] - margin * cell, lo[1] - margin * cell];
         let width = (libm::floorf((hi[0] - origin[0]) / cell) as usize) + 1;
         let height = (libm::floorf((hi[1] - origin[1]) / cell) as usize) + 1;
         let grid = width * height;
         // Occupied cells are at most the grid's size.
-        if POOL_LEVELS * grid + 3 * grid.min(entries.len()) <= words.len() {
-            let mut info = FootprintInfo { cell, origin, width, height, occupied: 0 };
-            fill(entries, &mut info, words);
+        if grids * grid + 3 * grid.min(level.len()) <= words.len() {
+            let mut info = FootprintInfo { cell, origin, width, height, occupied: 0, grids };
+            fill(level, &mut info, words);
             return Some(info);
         }
         cell *= 2.0;
@@ -110,12 +126,12 @@ pub(crate) fn build(entries: &[Entry], cell: f32, words: &mut [u32]) -> Option<F
     None
 }
 
-fn fill(entries: &[Entry], info: &mut FootprintInfo, words: &mut [u32]) {
+fn fill(level: &Level<'_>, info: &mut FootprintInfo, words: &mut [u32]) {
     let (w, h) = (info.width, info.height);
     let grid = w * h;
-    words.iter_mut().take(POOL_LEVELS * grid).for_each(|v| *v = 0);
+    words.iter_mut().take(info.grids * grid).for_each(|v| *v = 0);
     let inv = 1.0 / info.cell;
-    for e in entries {
+    for e in level.iter() {
         if e.class >= 32 {
             continue;
         }
@@ -127,7 +143,7 @@ fn fill(entries: &[Entry], info: &mut FootprintInfo, words: &mut [u32]) {
     }
     // Max-pooling: level k ORs the 2x2 block of level k-1 at offset 2^(k-1),
     // so cell (i, j) of level k covers [i, i + 2^k) x [j, j + 2^k).
-    for k in 1..POOL_LEVELS {
+    for k in 1..info.grids {
         let step = 1usize << (k - 1);
         for j in 0..h {
             for i in 0..w {
@@ -150,7 +166,7 @@ fn fill(entries: &[Entry], info: &mut FootprintInfo, words: &mut [u32]) {
     // than the model's grid, they keep the search fast; the error they add
     // stays within a cell, which EM removes.
     let mut n = 0;
-    let base = POOL_LEVELS * grid;
+    let base = info.grids * grid;
     for j in (0..h).step_by(2) {
         for i in (0..w).step_by(2) {
             let m = words.get(grid + j * w + i).copied().unwrap_or(0);

@@ -27,8 +27,8 @@
 //!         map.insert_point([0.0, a, b + 0.2], Class::Fence).unwrap();
 //!     }
 //! }
-//! let model = Pyramid::build(&map, 3, 1.0, ArrayPyramidStorage::<4096, 4096>::new()).unwrap();
-//! let scene = Pyramid::build(&map, 3, 1.0, ArrayPyramidStorage::<4096, 4096>::new()).unwrap();
+//! let model = Pyramid::build(&map, 3, 1.0, ArrayPyramidStorage::<2048, 2048, 4096>::new()).unwrap();
+//! let scene = Pyramid::build(&map, 3, 1.0, ArrayPyramidStorage::<2048, 2048, 4096>::new()).unwrap();
 //! let start = from_xyz_rpy(0.3, -0.2, 0.0, 0.0, 0.0, 0.05);
 //! let result = Matcher::new(MatchSettings::default()).align(&model, &scene, &start).unwrap();
 //! assert!(result.transform.translation.vector.norm() < 0.02);
@@ -45,7 +45,10 @@ pub mod solve;
 
 pub use em::{MatchError, Matcher};
 pub use footprint::Footprint;
-pub use pyramid::{ArrayPyramidStorage, Entry, Level, Pyramid, PyramidError, PyramidStorage, MAX_LEVELS};
+pub use pyramid::{
+    ArrayPyramidStorage, CoarseEntry, Entry, Level, PackedNormal, Pyramid, PyramidError, PyramidParts, PyramidPartsMut,
+    PyramidStorage, Role, VoxelExtra, MAX_LEVELS,
+};
 pub use result::{MatchResult, MatchStatus};
 pub use search::{SearchOutcome, SearchWindow};
 pub use settings::{Cost, Dof, MatchSettings, Method};

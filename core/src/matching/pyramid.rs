@@ -1,36 +1,97 @@
 //! The matcher's search structure: a semantic resolution pyramid.
 //!
-//! Level 0 holds one [`Entry`] per voxel of the map. Level `l` groups the
-//! entries of level `l - 1` by (cell twice as large, class): a pole stays a
-//! pole at 3.2 m instead of dissolving into the building next to it, which is
-//! what lets the coarse levels associate semantically. Entries of one cell are
-//! contiguous and an open-addressing index finds a cell's run; each entry
-//! carries a surface normal fitted to its neighbourhood at its own level.
+//! Level 0 is the map itself: its voxels and hash index, plus a 6-byte
+//! [`VoxelExtra`] per voxel (packed normal, class, confidence), so preparing
+//! a map does not copy it. Level `l >= 1` groups the entries of level `l - 1`
+//! by (cell twice as large, class) into 20-byte [`CoarseEntry`]s: a pole
+//! stays a pole at 3.2 m instead of dissolving into the building next to it,
+//! which is what lets the coarse levels associate semantically. Entries of
+//! one coarse cell are contiguous and an open-addressing index finds a
+//! cell's run; each entry carries a surface normal fitted to its
+//! neighbourhood at its own level. The matcher reads every level through
+//! [`Level`], which decodes entries into the plain [`Entry`] form.
 //!
 //! Building a pyramid is the one-off per-map preparation; matching only reads
-//! it. Nothing allocates: entries and index slots live in a
-//! [`PyramidStorage`] the caller provides.
+//! it. Nothing allocates: the extras, coarse entries, index slots and
+//! footprint words live in a [`PyramidStorage`] the caller provides. A map's
+//! coarse levels take about 0.4 entries per voxel (0.5 m maps, 3 levels), so
+//! a pyramid costs about 6 + 0.4 * 28 = 17 bytes per voxel besides the map.
 
 use super::footprint::{self, Footprint, FootprintInfo};
 use crate::classes::NUM_CLASSES;
-use crate::map::{CellPoint, LocalMap, VoxelKey, VoxelStorage};
+use crate::map::table::{probe, Probe};
+use crate::map::voxel::{dequantise_fraction, quantise_fraction};
+use crate::map::{CellPoint, LocalMap, SemanticVoxel, VoxelKey, VoxelStorage};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
 /// Most levels a pyramid has.
 pub const MAX_LEVELS: usize = 8;
 
-/// One point of a pyramid level: the mean of the voxels of one class in one cell.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// A unit surface normal in 32 bits (octahedral mapping, 16 bits per
+/// coordinate: about 0.003 degrees), or none where the neighbourhood is not
+/// planar.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct PackedNormal([i16; 2]);
+
+fn sign(v: f32) -> f32 {
+    if v >= 0.0 {
+        1.0
+    } else {
+        -1.0
+    }
+}
+
+impl PackedNormal {
+    /// No normal.
+    pub const NONE: PackedNormal = PackedNormal([i16::MIN, i16::MIN]);
+
+    /// Packs a direction (normalised here); `NONE` for a zero or non-finite one.
+    pub fn pack(n: [f32; 3]) -> Self {
+        let s = n[0].abs() + n[1].abs() + n[2].abs();
+        if !(s.is_finite() && s > 0.0) {
+            return Self::NONE;
+        }
+        let (mut x, mut y) = (n[0] / s, n[1] / s);
+        if n[2] < 0.0 {
+            let (ax, ay) = (x.abs(), y.abs());
+            x = (1.0 - ay) * sign(x);
+            y = (1.0 - ax) * sign(y);
+        }
+        let q = |v: f32| libm::roundf(v.clamp(-1.0, 1.0) * 32767.0) as i16;
+        PackedNormal([q(x), q(y)])
+    }
+
+    /// The unit normal, if any.
+    #[inline]
+    pub fn unpack(self) -> Option<[f32; 3]> {
+        if self == Self::NONE {
+            return None;
+        }
+        let (mut x, mut y) = (f32::from(self.0[0]) / 32767.0, f32::from(self.0[1]) / 32767.0);
+        let z = 1.0 - x.abs() - y.abs();
+        if z < 0.0 {
+            let (ax, ay) = (x.abs(), y.abs());
+            x = (1.0 - ay) * sign(x);
+            y = (1.0 - ax) * sign(y);
+        }
+        let norm = libm::sqrtf(x * x + y * y + z * z);
+        Some([x / norm, y / norm, z / norm])
+    }
+}
+
+/// One point of a pyramid level as the matcher sees it: a voxel at level 0,
+/// the mean of the voxels of one class in one cell above.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Entry {
     /// Mean position (m, map frame).
     pub position: [f32; 3],
-    /// Unit surface normal of the neighbourhood; zero where it is not planar.
-    pub normal: [f32; 3],
+    /// Surface normal of the neighbourhood.
+    pub normal: PackedNormal,
     /// Number of level-0 voxels merged into the entry.
     pub weight: f32,
     /// Cell at this level.
     pub key: VoxelKey,
-    /// Class index (0..19).
+    /// Class index (0..19; `u8::MAX` without one).
     pub class: u8,
     /// Probability of that class, in 1/255.
     pub confidence: u8,
@@ -39,67 +100,164 @@ pub struct Entry {
 impl Entry {
     /// Whether the entry has a planar neighbourhood (a usable normal).
     pub fn is_planar(&self) -> bool {
-        self.normal != [0.0; 3]
+        self.normal != PackedNormal::NONE
     }
+}
+
+/// What level 0 adds to each voxel of the map: 6 bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct VoxelExtra {
+    normal: PackedNormal,
+    class: u8,
+    confidence: u8,
+}
+
+impl VoxelExtra {
+    /// Zeroed (a `static` of them lands in `.bss`).
+    pub const EMPTY: VoxelExtra = VoxelExtra { normal: PackedNormal([0, 0]), class: 0, confidence: 0 };
+}
+
+impl Default for VoxelExtra {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+/// A stored entry of a coarse level: 20 bytes. The position is kept as a
+/// 16-bit fraction of the cell, like a voxel's mean.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CoarseEntry {
+    key: VoxelKey,
+    fraction: [u16; 3],
+    normal: PackedNormal,
+    weight: u16,
+    class: u8,
+    confidence: u8,
+}
+
+impl CoarseEntry {
+    /// Zeroed (a `static` of them lands in `.bss`).
+    pub const EMPTY: CoarseEntry = CoarseEntry {
+        key: VoxelKey::new(0, 0, 0),
+        fraction: [0; 3],
+        normal: PackedNormal([0, 0]),
+        weight: 0,
+        class: 0,
+        confidence: 0,
+    };
 
     fn order(&self) -> (u64, u8) {
         (self.key.packed(), self.class)
     }
+
+    #[inline]
+    fn position(&self, resolution: f32) -> [f32; 3] {
+        let c = self.key.corner(resolution);
+        let f = self.fraction.map(dequantise_fraction);
+        [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
+    }
+
+    fn set_position(&mut self, p: [f32; 3], resolution: f32) {
+        let c = self.key.corner(resolution);
+        let inv = 1.0 / resolution;
+        for a in 0..3 {
+            self.fraction[a] = quantise_fraction((p[a] - c[a]) * inv);
+        }
+    }
 }
 
-/// Where a pyramid keeps its entries, index and footprint.
+impl Default for CoarseEntry {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+/// A pyramid's buffers, read-only.
+pub struct PyramidParts<'a> {
+    /// One per voxel of the map (at least the map's length).
+    pub extras: &'a [VoxelExtra],
+    /// Entries of all coarse levels.
+    pub entries: &'a [CoarseEntry],
+    /// Index slots of the coarse levels: at least two per entry.
+    pub slots: &'a [u32],
+    /// Footprint words.
+    pub words: &'a [u32],
+}
+
+/// A pyramid's buffers, mutable.
+pub struct PyramidPartsMut<'a> {
+    /// One per voxel of the map (at least the map's length).
+    pub extras: &'a mut [VoxelExtra],
+    /// Entries of all coarse levels.
+    pub entries: &'a mut [CoarseEntry],
+    /// Index slots of the coarse levels: at least two per entry.
+    pub slots: &'a mut [u32],
+    /// Footprint words.
+    pub words: &'a mut [u32],
+}
+
+/// Where a pyramid keeps its buffers.
 pub trait PyramidStorage {
-    /// Entry buffer, index slot buffer, footprint words.
-    fn parts(&self) -> (&[Entry], &[u32], &[u32]);
-    /// All three, mutably.
-    fn parts_mut(&mut self) -> (&mut [Entry], &mut [u32], &mut [u32]);
+    /// The buffers.
+    fn parts(&self) -> PyramidParts<'_>;
+    /// The buffers, mutably.
+    fn parts_mut(&mut self) -> PyramidPartsMut<'_>;
 }
 
 /// A pyramid may borrow its storage, e.g. a `static` on a microcontroller.
 impl<T: PyramidStorage + ?Sized> PyramidStorage for &mut T {
-    fn parts(&self) -> (&[Entry], &[u32], &[u32]) {
+    fn parts(&self) -> PyramidParts<'_> {
         (**self).parts()
     }
-    fn parts_mut(&mut self) -> (&mut [Entry], &mut [u32], &mut [u32]) {
+    fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
         (**self).parts_mut()
     }
 }
 
-/// Pyramid storage of compile-time size: `E` entries, `2 * E` index slots,
-/// `W` footprint words.
-pub struct ArrayPyramidStorage<const E: usize, const W: usize> {
-    entries: [Entry; E],
+/// Pyramid storage of compile-time size: extras for `V` voxels, `E` coarse
+/// entries with `2 * E` index slots, `W` footprint words. Bytes:
+/// `6 V + 28 E + 4 W`.
+pub struct ArrayPyramidStorage<const V: usize, const E: usize, const W: usize> {
+    extras: [VoxelExtra; V],
+    entries: [CoarseEntry; E],
     slots: [[u32; 2]; E],
     words: [u32; W],
 }
 
-impl<const E: usize, const W: usize> ArrayPyramidStorage<E, W> {
+impl<const V: usize, const E: usize, const W: usize> ArrayPyramidStorage<V, E, W> {
     /// Empty storage.
     pub const fn new() -> Self {
-        const ZERO: Entry = Entry {
-            position: [0.0; 3],
-            normal: [0.0; 3],
-            weight: 0.0,
-            key: VoxelKey::new(0, 0, 0),
-            class: 0,
-            confidence: 0,
-        };
-        ArrayPyramidStorage { entries: [ZERO; E], slots: [[0; 2]; E], words: [0; W] }
+        ArrayPyramidStorage {
+            extras: [VoxelExtra::EMPTY; V],
+            entries: [CoarseEntry::EMPTY; E],
+            slots: [[0; 2]; E],
+            words: [0; W],
+        }
     }
 }
 
-impl<const E: usize, const W: usize> Default for ArrayPyramidStorage<E, W> {
+impl<const V: usize, const E: usize, const W: usize> Default for ArrayPyramidStorage<V, E, W> {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl<const E: usize, const W: usize> PyramidStorage for ArrayPyramidStorage<E, W> {
-    fn parts(&self) -> (&[Entry], &[u32], &[u32]) {
-        (&self.entries, self.slots.as_flattened(), &self.words)
+impl<const V: usize, const E: usize, const W: usize> PyramidStorage for ArrayPyramidStorage<V, E, W> {
+    fn parts(&self) -> PyramidParts<'_> {
+        PyramidParts {
+            extras: &self.extras,
+            entries: &self.entries,
+            slots: self.slots.as_flattened(),
+            words: &self.words,
+        }
     }
-    fn parts_mut(&mut self) -> (&mut [Entry], &mut [u32], &mut [u32]) {
-        (&mut self.entries, self.slots.as_flattened_mut(), &mut self.words)
+    fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
+        PyramidPartsMut {
+            extras: &mut self.extras,
+            entries: &mut self.entries,
+            slots: self.slots.as_flattened_mut(),
+            words: &mut self.words,
+        }
     }
 }
 
@@ -111,8 +269,8 @@ pub enum PyramidError {
     EmptyMap,
     /// Zero levels, or more than [`MAX_LEVELS`].
     Levels,
-    /// The storage is too small for the entries (or has fewer than two index
-    /// slots per entry).
+    /// The storage is too small: fewer extras than voxels, too few coarse
+    /// entries, or fewer than two index slots per entry.
     Full,
 }
 
@@ -128,6 +286,18 @@ impl core::fmt::Display for PyramidError {
 
 impl core::error::Error for PyramidError {}
 
+/// How a pyramid will be matched, which decides its footprint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Role {
+    /// As model or scene: the max-pooled footprint grids the coarse search
+    /// bounds with, and the list of occupied cells.
+    Model,
+    /// Only as scene: the occupied cells alone (a third of the footprint
+    /// words). Matched as a model, such a pyramid gets no coarse search.
+    Scene,
+}
+
 #[derive(Clone, Copy, Debug, Default)]
 struct LevelInfo {
     start: usize,
@@ -137,19 +307,28 @@ struct LevelInfo {
     resolution: f32,
 }
 
-/// A map prepared for matching.
-pub struct Pyramid<S: PyramidStorage> {
+/// A map prepared for matching. It borrows the map: level 0 is the map.
+pub struct Pyramid<'m, S: PyramidStorage> {
+    voxels: &'m [SemanticVoxel],
+    index: &'m [u32],
     storage: S,
     levels: [LevelInfo; MAX_LEVELS],
     count: usize,
     footprint: Option<FootprintInfo>,
 }
 
+#[derive(Clone, Copy)]
+enum LevelData<'a> {
+    /// Level 0: the map's voxels and index, and the extras.
+    Voxels { voxels: &'a [SemanticVoxel], index: &'a [u32], extras: &'a [VoxelExtra] },
+    /// A coarse level: sorted entries and their index.
+    Coarse { entries: &'a [CoarseEntry], slots: &'a [u32] },
+}
+
 /// One level of a pyramid, read-only.
 #[derive(Clone, Copy)]
 pub struct Level<'a> {
-    entries: &'a [Entry],
-    slots: &'a [u32],
+    data: LevelData<'a>,
     resolution: f32,
     inv_resolution: f32,
 }
@@ -158,44 +337,105 @@ fn home(hash: u32, n: usize) -> usize {
     ((u64::from(hash) * n as u64) >> 32) as usize
 }
 
+/// The entries of one cell of a level (one per class present; at most one
+/// at level 0).
+pub struct Cell<'a> {
+    level: Level<'a>,
+    next: usize,
+    end: usize,
+}
+
+impl Iterator for Cell<'_> {
+    type Item = Entry;
+    #[inline]
+    fn next(&mut self) -> Option<Entry> {
+        if self.next >= self.end {
+            return None;
+        }
+        self.next += 1;
+        self.level.entry(self.next - 1)
+    }
+}
+
 impl<'a> Level<'a> {
+    fn new(data: LevelData<'a>, resolution: f32) -> Self {
+        Level { data, resolution, inv_resolution: 1.0 / resolution }
+    }
+
     /// Cell size (m).
     pub fn resolution(&self) -> f32 {
         self.resolution
     }
 
-    /// The entries, sorted by cell.
-    pub fn entries(&self) -> &'a [Entry] {
-        self.entries
+    /// Number of entries.
+    pub fn len(&self) -> usize {
+        match self.data {
+            LevelData::Voxels { voxels, .. } => voxels.len(),
+            LevelData::Coarse { entries, .. } => entries.len(),
+        }
+    }
+
+    /// Whether the level has no entry.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Entry `i`, decoded (`0..len()`; level 0 in the map's order, coarse
+    /// levels sorted by cell).
+    #[inline]
+    pub fn entry(&self, i: usize) -> Option<Entry> {
+        match self.data {
+            LevelData::Voxels { voxels, extras, .. } => {
+                let (v, x) = (voxels.get(i)?, extras.get(i)?);
+                Some(Entry {
+                    position: v.position(self.resolution),
+                    normal: x.normal,
+                    weight: 1.0,
+                    key: v.key,
+                    class: x.class,
+                    confidence: x.confidence,
+                })
+            }
+            LevelData::Coarse { entries, .. } => {
+                let c = entries.get(i)?;
+                Some(Entry {
+                    position: c.position(self.resolution),
+                    normal: c.normal,
+                    weight: f32::from(c.weight),
+                    key: c.key,
+                    class: c.class,
+                    confidence: c.confidence,
+                })
+            }
+        }
+    }
+
+    /// Class of entry `i` (cheaper than decoding it).
+    #[inline]
+    pub fn class_at(&self, i: usize) -> Option<u8> {
+        match self.data {
+            LevelData::Voxels { extras, .. } => extras.get(i).map(|x| x.class),
+            LevelData::Coarse { entries, .. } => entries.get(i).map(|c| c.class),
+        }
+    }
+
+    /// All entries, decoded, in order.
+    pub fn iter(&self) -> impl Iterator<Item = Entry> + 'a {
+        let level = *self;
+        (0..self.len()).filter_map(move |i| level.entry(i))
     }
 
     /// The entries of one cell (one per class present).
     #[inline]
-    pub fn cell(&self, key: VoxelKey) -> &'a [Entry] {
-        let n = self.slots.len();
-        if n == 0 {
-            return &[];
-        }
-        let mut i = home(key.hash32(), n);
-        for _ in 0..n {
-            let s = self.slots.get(i).copied().unwrap_or(0);
-            if s == 0 {
-                return &[];
-            }
-            // A slot holds (first entry + 1) << 5 | entries in the cell.
-            let first = ((s >> RUN_BITS) - 1) as usize;
-            let len = (s & RUN_MASK) as usize;
-            if let Some(run) = self.entries.get(first..first + len) {
-                if run.first().map(|e| e.key) == Some(key) {
-                    return run;
-                }
-            }
-            i += 1;
-            if i == n {
-                i = 0;
-            }
-        }
-        &[]
+    pub fn cell(&self, key: VoxelKey) -> Cell<'a> {
+        let (next, end) = match self.data {
+            LevelData::Voxels { voxels, index, .. } => match probe(voxels, index, key) {
+                Probe::Found(i) => (i, i + 1),
+                Probe::Vacant(_) => (0, 0),
+            },
+            LevelData::Coarse { entries, slots } => coarse_run(entries, slots, key),
+        };
+        Cell { level: *self, next, end }
     }
 
     /// The cell holding point `p`.
@@ -213,8 +453,35 @@ impl<'a> Level<'a> {
 const RUN_BITS: u32 = 5;
 const RUN_MASK: u32 = (1 << RUN_BITS) - 1;
 
-/// Builds the index of one level over its (sorted) entries.
-fn index_level(entries: &[Entry], slots: &mut [u32]) {
+/// The range of a coarse level's entries in cell `key`.
+#[inline]
+fn coarse_run(entries: &[CoarseEntry], slots: &[u32], key: VoxelKey) -> (usize, usize) {
+    let n = slots.len();
+    if n == 0 {
+        return (0, 0);
+    }
+    let mut i = home(key.hash32(), n);
+    for _ in 0..n {
+        let s = slots.get(i).copied().unwrap_or(0);
+        if s == 0 {
+            return (0, 0);
+        }
+        // A slot holds (first entry + 1) << 5 | entries in the cell.
+        let first = ((s >> RUN_BITS) - 1) as usize;
+        let len = (s & RUN_MASK) as usize;
+        if entries.get(first).map(|e| e.key) == Some(key) {
+            return (first, first + len);
+        }
+        i += 1;
+        if i == n {
+            i = 0;
+        }
+    }
+    (0, 0)
+}
+
+/// Builds the index of one coarse level over its (sorted) entries.
+fn index_level(entries: &[CoarseEntry], slots: &mut [u32]) {
     slots.fill(0);
     let n = slots.len();
     if n == 0 {
@@ -244,69 +511,137 @@ fn index_level(entries: &[Entry], slots: &mut [u32]) {
     }
 }
 
-/// Fits normals for `entries`: the weighted covariance of the entries of all
+/// Merges the entries of `src` by (cell twice as large, class) into `dst`,
+/// with `table` (zeroed here) as a scratch hash index; returns the count.
+fn merge_level(src: &Level<'_>, dst: &mut [CoarseEntry], table: &mut [u32]) -> Result<usize, PyramidError> {
+    let n = table.len().min(2 * dst.len());
+    let table = table.get_mut(..n).ok_or(PyramidError::Full)?;
+    table.fill(0);
+    let resolution = 2.0 * src.resolution();
+    let mut out = 0usize;
+    for i in 0..src.len() {
+        let Some(e) = src.entry(i) else { continue };
+        let key = e.key.coarsen(2);
+        let hash = key.hash32() ^ u32::from(e.class).wrapping_mul(0x9E37_79B9);
+        let mut s = home(hash, n);
+        let mut placed = false;
+        for _ in 0..n {
+            let Some(slot) = table.get_mut(s) else { break };
+            if *slot == 0 {
+                let fresh = dst.get_mut(out).ok_or(PyramidError::Full)?;
+                *fresh = CoarseEntry {
+                    key,
+                    fraction: [0; 3],
+                    normal: PackedNormal::NONE,
+                    weight: libm::roundf(e.weight.min(65535.0)) as u16,
+                    class: e.class,
+                    confidence: e.confidence,
+                };
+                fresh.set_position(e.position, resolution);
+                out += 1;
+                *slot = out as u32;
+                placed = true;
+                break;
+            }
+            let acc = dst.get_mut((*slot - 1) as usize).ok_or(PyramidError::Full)?;
+            if acc.key == key && acc.class == e.class {
+                // Running weighted mean (weights saturate at 65535 voxels).
+                let wa = f32::from(acc.weight);
+                let w = wa + e.weight;
+                let mut p = acc.position(resolution);
+                for (a, q) in p.iter_mut().zip(e.position) {
+                    *a += (q - *a) * (e.weight / w);
+                }
+                acc.set_position(p, resolution);
+                let conf = (f32::from(acc.confidence) * wa + f32::from(e.confidence) * e.weight) / w;
+                acc.confidence = (conf + 0.5) as u8;
+                acc.weight = libm::roundf(w.min(65535.0)) as u16;
+                placed = true;
+                break;
+            }
+            s += 1;
+            if s == n {
+                s = 0;
+            }
+        }
+        if !placed {
+            return Err(PyramidError::Full);
+        }
+    }
+    let merged = dst.get_mut(..out).ok_or(PyramidError::Full)?;
+    merged.sort_unstable_by_key(CoarseEntry::order);
+    Ok(out)
+}
+
+/// Fits the normal of `e`: the weighted covariance of the entries of all
 /// classes of `level` within 1.5 cells; planar when the smallest eigenvalue
 /// is under a tenth of the middle one.
-fn fit_normals(level: &Level<'_>, entries: &[Entry], out: &mut [[f32; 3]]) {
+fn fit_normal(level: &Level<'_>, e: &Entry) -> PackedNormal {
     let r = level.resolution;
     let radius_sq = (1.5 * r) * (1.5 * r);
-    for (e, n) in entries.iter().zip(out.iter_mut()) {
-        *n = [0.0; 3];
-        let mut sum_w = 0.0f32;
-        let mut mean = Vector3::zeros();
-        let mut second = Matrix3::zeros();
-        let mut count = 0;
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let Some(k) = e.key.offset(dx, dy, dz) else { continue };
-                    for o in level.cell(k) {
-                        let d = [
-                            o.position[0] - e.position[0],
-                            o.position[1] - e.position[1],
-                            o.position[2] - e.position[2],
-                        ];
-                        if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > radius_sq {
-                            continue;
-                        }
-                        let p = Vector3::new(o.position[0], o.position[1], o.position[2]);
-                        sum_w += o.weight;
-                        mean += p * o.weight;
-                        second += p * p.transpose() * o.weight;
-                        count += 1;
+    let mut sum_w = 0.0f32;
+    let mut mean = Vector3::zeros();
+    let mut second = Matrix3::zeros();
+    let mut count = 0;
+    for dx in -1..=1 {
+        for dy in -1..=1 {
+            for dz in -1..=1 {
+                let Some(k) = e.key.offset(dx, dy, dz) else { continue };
+                for o in level.cell(k) {
+                    let d =
+                        [o.position[0] - e.position[0], o.position[1] - e.position[1], o.position[2] - e.position[2]];
+                    if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > radius_sq {
+                        continue;
                     }
+                    let p = Vector3::new(o.position[0], o.position[1], o.position[2]);
+                    sum_w += o.weight;
+                    mean += p * o.weight;
+                    second += p * p.transpose() * o.weight;
+                    count += 1;
                 }
             }
         }
-        if count < 4 || sum_w <= 0.0 {
-            continue;
-        }
-        mean /= sum_w;
-        let cov = second / sum_w - mean * mean.transpose();
-        let eig = SymmetricEigen::new(cov);
-        let mut order = [0usize, 1, 2];
-        order.sort_unstable_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-        let (l0, l1) = (eig.eigenvalues[order[0]], eig.eigenvalues[order[1]]);
-        if !(l0.is_finite() && l1.is_finite()) || l1 <= 0.0 || l0 > 0.1 * l1 {
-            continue;
-        }
-        let v = eig.eigenvectors.column(order[0]);
-        let norm = v.norm();
-        if norm > 0.0 && norm.is_finite() {
-            *n = [v[0] / norm, v[1] / norm, v[2] / norm];
-        }
     }
+    if count < 4 || sum_w <= 0.0 {
+        return PackedNormal::NONE;
+    }
+    mean /= sum_w;
+    let cov = second / sum_w - mean * mean.transpose();
+    let eig = SymmetricEigen::new(cov);
+    let mut order = [0usize, 1, 2];
+    order.sort_unstable_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let (l0, l1) = (eig.eigenvalues[order[0]], eig.eigenvalues[order[1]]);
+    if !(l0.is_finite() && l1.is_finite()) || l1 <= 0.0 || l0 > 0.1 * l1 {
+        return PackedNormal::NONE;
+    }
+    let v = eig.eigenvectors.column(order[0]);
+    PackedNormal::pack([v[0], v[1], v[2]])
 }
 
-impl<S: PyramidStorage> Pyramid<S> {
-    /// Prepares `map` for matching with `levels` levels (level `l` has cells
-    /// `2^l` times the map's resolution) and a footprint of cells of
-    /// `footprint_cell` metres (doubled until it fits the storage's words; no
-    /// footprint, and so no coarse search, when the storage has none).
+/// Normals fitted per chunk, so no buffer of the level's size is needed.
+const NORMAL_CHUNK: usize = 256;
+
+impl<'m, S: PyramidStorage> Pyramid<'m, S> {
+    /// Prepares `map` for matching as model or scene ([`Role::Model`]) with
+    /// `levels` levels (level `l` has cells `2^l` times the map's
+    /// resolution) and a footprint of cells of `footprint_cell` metres
+    /// (doubled until it fits the storage's words; no footprint, and so no
+    /// coarse search, when the storage has none).
     pub fn build<V: VoxelStorage>(
-        map: &LocalMap<V>,
+        map: &'m LocalMap<V>,
         levels: usize,
         footprint_cell: f32,
+        storage: S,
+    ) -> Result<Self, PyramidError> {
+        Self::build_as(map, levels, footprint_cell, Role::Model, storage)
+    }
+
+    /// As [`Pyramid::build`], for the given [`Role`].
+    pub fn build_as<V: VoxelStorage>(
+        map: &'m LocalMap<V>,
+        levels: usize,
+        footprint_cell: f32,
+        role: Role,
         mut storage: S,
     ) -> Result<Self, PyramidError> {
         if map.is_empty() {
@@ -315,102 +650,78 @@ impl<S: PyramidStorage> Pyramid<S> {
         if levels == 0 || levels > MAX_LEVELS {
             return Err(PyramidError::Levels);
         }
-        let (entries, slots, _) = storage.parts_mut();
-        // Slots address entries with 27 bits.
-        if entries.len() < map.len() || entries.len() >= (1 << (32 - RUN_BITS)) - 1 {
-            return Err(PyramidError::Full);
-        }
-        // Level 0: one entry per voxel.
-        for (e, v) in entries.iter_mut().zip(map.iter()) {
-            let class = v.class();
-            let p = class.map(|c| v.labels.probability(c)).unwrap_or(1.0 / NUM_CLASSES as f32);
-            *e = Entry {
-                position: v.position(map.resolution()),
-                normal: [0.0; 3],
-                weight: 1.0,
-                key: v.key,
-                class: class.map(|c| c.index()).unwrap_or(u8::MAX),
-                confidence: (p * 255.0 + 0.5) as u8,
-            };
-        }
+        let (voxels, index, resolution) = (map.voxels(), map.index_slots(), map.resolution());
         let mut info = [LevelInfo::default(); MAX_LEVELS];
-        let n0 = map.len();
-        entries.get_mut(..n0).ok_or(PyramidError::Full)?.sort_unstable_by_key(Entry::order);
-        info[0] = LevelInfo { start: 0, len: n0, resolution: map.resolution(), ..LevelInfo::default() };
-        for l in 1..levels {
-            let prev = info[l - 1];
-            let start = prev.start + prev.len;
-            // Copy the finer level with coarsened keys, sort, merge runs in place.
-            let end = start.checked_add(prev.len).ok_or(PyramidError::Full)?;
-            if end > entries.len() {
+        info[0] = LevelInfo { start: 0, len: voxels.len(), slot_start: 0, slot_len: 0, resolution };
+        {
+            let PyramidPartsMut { extras, entries, slots, .. } = storage.parts_mut();
+            // Slots address entries with 27 bits.
+            if entries.len() >= (1 << (32 - RUN_BITS)) - 1 || (levels > 1 && slots.len() < 2 * entries.len()) {
                 return Err(PyramidError::Full);
             }
-            let (done, rest) = entries.split_at_mut(start);
-            let src = done.get(prev.start..prev.start + prev.len).ok_or(PyramidError::Full)?;
-            let work = rest.get_mut(..prev.len).ok_or(PyramidError::Full)?;
-            for (w, s) in work.iter_mut().zip(src) {
-                *w = Entry { key: s.key.coarsen(2), ..*s };
+            let extras = extras.get_mut(..voxels.len()).ok_or(PyramidError::Full)?;
+            for (x, v) in extras.iter_mut().zip(voxels) {
+                let class = v.class();
+                let p = class.map(|c| v.labels.probability(c)).unwrap_or(1.0 / NUM_CLASSES as f32);
+                *x = VoxelExtra {
+                    normal: PackedNormal::NONE,
+                    class: class.map(|c| c.index()).unwrap_or(u8::MAX),
+                    confidence: (p * 255.0 + 0.5) as u8,
+                };
             }
-            work.sort_unstable_by_key(Entry::order);
-            let mut out = 0usize;
-            for i in 0..work.len() {
-                let e = work[i];
-                if out > 0 && work[out - 1].order() == e.order() {
-                    let acc = &mut work[out - 1];
-                    let w = acc.weight + e.weight;
-                    for a in 0..3 {
-                        acc.position[a] += (e.position[a] - acc.position[a]) * (e.weight / w);
-                    }
-                    let conf = (f32::from(acc.confidence) * acc.weight + f32::from(e.confidence) * e.weight) / w;
-                    acc.confidence = (conf + 0.5) as u8;
-                    acc.weight = w;
+            // Coarse levels: each merged from the one below, then indexed.
+            let (mut start, mut slot_start) = (0usize, 0usize);
+            for l in 1..levels {
+                let prev = info[l - 1];
+                let (done, rest) = entries.split_at_mut(start);
+                let src = if l == 1 {
+                    Level::new(LevelData::Voxels { voxels, index, extras: &*extras }, resolution)
                 } else {
-                    work[out] = e;
-                    out += 1;
-                }
+                    let e = done.get(prev.start..prev.start + prev.len).ok_or(PyramidError::Full)?;
+                    Level::new(LevelData::Coarse { entries: e, slots: &[] }, prev.resolution)
+                };
+                let table = slots.get_mut(slot_start..).ok_or(PyramidError::Full)?;
+                let len = merge_level(&src, rest, table)?;
+                let level_slots = table.get_mut(..2 * len).ok_or(PyramidError::Full)?;
+                index_level(rest.get(..len).ok_or(PyramidError::Full)?, level_slots);
+                info[l] = LevelInfo { start, len, slot_start, slot_len: 2 * len, resolution: prev.resolution * 2.0 };
+                start += len;
+                slot_start += 2 * len;
             }
-            info[l] = LevelInfo { start, len: out, resolution: prev.resolution * 2.0, ..LevelInfo::default() };
         }
-        // Index slots: twice the entries of each level.
-        let total_slots: usize = info[..levels].iter().map(|i| 2 * i.len).sum();
-        if slots.len() < total_slots {
-            return Err(PyramidError::Full);
-        }
-        let mut slot_start = 0;
-        for li in info[..levels].iter_mut() {
-            li.slot_start = slot_start;
-            li.slot_len = 2 * li.len;
-            slot_start += li.slot_len;
-            let e = entries.get(li.start..li.start + li.len).ok_or(PyramidError::Full)?;
-            let s = slots.get_mut(li.slot_start..li.slot_start + li.slot_len).ok_or(PyramidError::Full)?;
-            index_level(e, s);
-        }
-        let mut pyramid = Pyramid { storage, levels: info, count: levels, footprint: None };
-        // Normals, level by level: computed against the read-only level, then written.
+        let mut pyramid = Pyramid { voxels, index, storage, levels: info, count: levels, footprint: None };
+        // Normals, level by level: fitted against the read-only level, then written.
         for l in 0..levels {
             let li = pyramid.levels[l];
-            for chunk_start in (0..li.len).step_by(256) {
-                let mut normals = [[0.0f32; 3]; 256];
-                let n = (li.len - chunk_start).min(256);
+            for chunk_start in (0..li.len).step_by(NORMAL_CHUNK) {
+                let mut normals = [PackedNormal::NONE; NORMAL_CHUNK];
+                let n = (li.len - chunk_start).min(NORMAL_CHUNK);
                 {
-                    // Neighbours are looked up in the whole level; the entries
-                    // are fitted in chunks so the normals need no big buffer.
                     let level = pyramid.level(l).ok_or(PyramidError::Levels)?;
-                    let chunk = level.entries.get(chunk_start..chunk_start + n).unwrap_or(&[]);
-                    fit_normals(&level, chunk, &mut normals[..n]);
+                    for (k, nm) in normals.iter_mut().enumerate().take(n) {
+                        if let Some(e) = level.entry(chunk_start + k) {
+                            *nm = fit_normal(&level, &e);
+                        }
+                    }
                 }
-                let (entries, _, _) = pyramid.storage.parts_mut();
-                if let Some(dst) = entries.get_mut(li.start + chunk_start..li.start + chunk_start + n) {
-                    for (e, nm) in dst.iter_mut().zip(normals.iter()) {
-                        e.normal = *nm;
+                let parts = pyramid.storage.parts_mut();
+                if l == 0 {
+                    if let Some(dst) = parts.extras.get_mut(chunk_start..chunk_start + n) {
+                        for (x, nm) in dst.iter_mut().zip(normals.iter()) {
+                            x.normal = *nm;
+                        }
+                    }
+                } else if let Some(dst) = parts.entries.get_mut(li.start + chunk_start..li.start + chunk_start + n) {
+                    for (x, nm) in dst.iter_mut().zip(normals.iter()) {
+                        x.normal = *nm;
                     }
                 }
             }
         }
         if footprint_cell.is_finite() && footprint_cell > 0.0 {
-            let (entries, _, words) = pyramid.storage.parts_mut();
-            let n0 = pyramid.levels[0].len;
-            pyramid.footprint = footprint::build(entries.get(..n0).unwrap_or(&[]), footprint_cell, words);
+            let PyramidPartsMut { extras, words, .. } = pyramid.storage.parts_mut();
+            let level0 = Level::new(LevelData::Voxels { voxels, index, extras: &*extras }, resolution);
+            pyramid.footprint = footprint::build(&level0, footprint_cell, role == Role::Model, words);
         }
         Ok(pyramid)
     }
@@ -418,7 +729,7 @@ impl<S: PyramidStorage> Pyramid<S> {
     /// The footprint, if the storage had room for one.
     pub fn footprint(&self) -> Option<Footprint<'_>> {
         let info = self.footprint?;
-        let (_, _, words) = self.storage.parts();
+        let words = self.storage.parts().words;
         Some(Footprint { info, words: words.get(..info.words())? })
     }
 
@@ -430,17 +741,20 @@ impl<S: PyramidStorage> Pyramid<S> {
     /// Level `l` (0 is the finest).
     pub fn level(&self, l: usize) -> Option<Level<'_>> {
         let li = self.levels.get(..self.count)?.get(l)?;
-        let (entries, slots, _) = self.storage.parts();
-        Some(Level {
-            entries: entries.get(li.start..li.start + li.len)?,
-            slots: slots.get(li.slot_start..li.slot_start + li.slot_len)?,
-            resolution: li.resolution,
-            inv_resolution: 1.0 / li.resolution,
-        })
+        let parts = self.storage.parts();
+        let data = if l == 0 {
+            LevelData::Voxels { voxels: self.voxels, index: self.index, extras: parts.extras.get(..li.len)? }
+        } else {
+            LevelData::Coarse {
+                entries: parts.entries.get(li.start..li.start + li.len)?,
+                slots: parts.slots.get(li.slot_start..li.slot_start + li.slot_len)?,
+            }
+        };
+        Some(Level::new(data, li.resolution))
     }
 
-    /// Entries used in the storage, all levels together.
-    pub fn entry_count(&self) -> usize {
-        self.levels[..self.count].iter().map(|l| l.len).sum()
+    /// Entries of the coarse levels, all together (what the storage must hold).
+    pub fn coarse_entries(&self) -> usize {
+        self.levels[1..self.count].iter().map(|l| l.len).sum()
     }
 }

@@ -116,7 +116,10 @@ pub fn search(
 ) -> Option<SearchOutcome> {
     let cell = model.cell();
     let usable = |v: f32| v.is_finite() && v >= 0.0;
-    if !(usable(cell) && cell > 0.0 && usable(window.translation) && usable(window.yaw)) || scene.occupied_len() == 0 {
+    if !(usable(cell) && cell > 0.0 && usable(window.translation) && usable(window.yaw))
+        || scene.occupied_len() == 0
+        || !model.has_pooled_grids()
+    {
         return None;
     }
     let r = prior.rotation.to_rotation_matrix();

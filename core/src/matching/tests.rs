@@ -9,21 +9,7 @@ use proptest::prelude::*;
 use std::vec;
 use std::vec::Vec;
 
-/// Heap pyramid storage for tests.
-struct Heap {
-    entries: Vec<Entry>,
-    slots: Vec<u32>,
-    words: Vec<u32>,
-}
-
-impl PyramidStorage for Heap {
-    fn parts(&self) -> (&[Entry], &[u32], &[u32]) {
-        (&self.entries, &self.slots, &self.words)
-    }
-    fn parts_mut(&mut self) -> (&mut [Entry], &mut [u32], &mut [u32]) {
-        (&mut self.entries, &mut self.slots, &mut self.words)
-    }
-}
+use crate::test_util::HeapPyramid as Heap;
 
 type Map = LocalMap<crate::test_util::Heap>;
 
@@ -31,15 +17,9 @@ fn new_map() -> Map {
     crate::test_util::map(40_000)
 }
 
-fn pyramid<S: crate::map::VoxelStorage>(map: &LocalMap<S>) -> Pyramid<Heap> {
-    let n = map.len() * 5;
-    Pyramid::build(
-        map,
-        4,
-        1.0,
-        Heap { entries: vec![Entry::default(); n], slots: vec![0; 2 * n], words: vec![0; 400_000] },
-    )
-    .unwrap()
+fn pyramid<S: crate::map::VoxelStorage>(map: &LocalMap<S>) -> Pyramid<'_, Heap> {
+    let n = map.len();
+    Pyramid::build(map, 4, 1.0, Heap::new(n, 3 * n, 400_000)).unwrap()
 }
 
 /// An L-shaped street corner: floor, two walls, poles and a tree.
@@ -173,7 +153,7 @@ fn invalid_inputs_are_errors() {
     let pc = pyramid(&coarse);
     assert_eq!(Matcher::default().align(&p, &pc, &Isometry3::identity()), Err(MatchError::ResolutionMismatch));
     // Too little storage is a typed error.
-    let tiny = Heap { entries: vec![Entry::default(); 10], slots: vec![0; 20], words: vec![] };
+    let tiny = Heap::new(m.len(), 10, 0);
     assert!(matches!(Pyramid::build(&m, 4, 1.0, tiny), Err(PyramidError::Full)));
 }
 
@@ -213,4 +193,53 @@ proptest! {
         prop_assert!(r.overlap.is_finite() && r.rmse.is_finite() && r.degeneracy.is_finite());
         prop_assert!(r.iterations <= settings.max_iterations);
     }
+}
+
+#[test]
+fn packed_normals_round_trip() {
+    let mut seed = 7u32;
+    let mut next = || {
+        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (seed >> 8) as f32 / (1 << 24) as f32 * 2.0 - 1.0
+    };
+    for _ in 0..10_000 {
+        let v = [next(), next(), next()];
+        let n = libm::sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        if n < 1e-3 {
+            continue;
+        }
+        let u = [v[0] / n, v[1] / n, v[2] / n];
+        let back = PackedNormal::pack(v).unpack().unwrap();
+        let d = [u[0] - back[0], u[1] - back[1], u[2] - back[2]];
+        // Within 0.01 degrees (1.7e-4 rad).
+        assert!(libm::sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) < 1.7e-4, "{u:?} -> {back:?}");
+    }
+    for axis in [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]] {
+        assert_eq!(PackedNormal::pack(axis).unpack(), Some(axis));
+    }
+    assert_eq!(PackedNormal::pack([0.0; 3]), PackedNormal::NONE);
+    assert_eq!(PackedNormal::pack([f32::NAN, 0.0, 1.0]), PackedNormal::NONE);
+    assert_eq!(PackedNormal::NONE.unpack(), None);
+}
+
+#[test]
+fn storage_sizes() {
+    assert_eq!(core::mem::size_of::<VoxelExtra>(), 6);
+    assert_eq!(core::mem::size_of::<CoarseEntry>(), 20);
+}
+
+#[test]
+fn scene_role_pyramid_matches_like_a_model() {
+    // A scene prepared as scene only gives the same answer as one prepared
+    // for both roles; as a model it has no pooled grids, so no coarse search.
+    let mut m = new_map();
+    corner(&mut m, &Isometry3::identity());
+    let full = pyramid(&m);
+    let scene = Pyramid::build_as(&m, 4, 1.0, Role::Scene, Heap::new(m.len(), 3 * m.len(), 400_000)).unwrap();
+    assert!(full.footprint().unwrap().has_pooled_grids());
+    assert!(!scene.footprint().unwrap().has_pooled_grids());
+    let start = from_xyz_rpy(0.4, -0.3, 0.0, 0.0, 0.0, 0.08);
+    let a = Matcher::default().align(&full, &full, &start).unwrap();
+    let b = Matcher::default().align(&full, &scene, &start).unwrap();
+    assert_eq!(a.transform, b.transform);
 }

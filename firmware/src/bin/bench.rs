@@ -1,46 +1,46 @@
-//! The benchmark build: reads two map files through semihosting, matches
-//! them on board and prints the instructions the match took.
+//! The benchmark: reads two map files through semihosting (bench-a.cmap,
+//! the model, and bench-b.cmap, the scene, from QEMU's working directory),
+//! matches them on board within the 1 MiB budget and prints the
+//! instructions the preparation and the match took (bench.sh).
+#![no_std]
+#![no_main]
 
-use crate::{ticks, INSTRUCTIONS_PER_TICK};
 use core::ptr::addr_of_mut;
-use cortex_m_semihosting::{hprintln, nr, syscall};
+use cortex_m_rt::entry;
+use cortex_m_semihosting::hprintln;
 use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
-use cosem_core::matching::{ArrayPyramidStorage, MatchSettings, Matcher, Pyramid};
+use cosem_core::matching::{ArrayPyramidStorage, MatchSettings, Matcher, Pyramid, Role};
 use cosem_core::wire::mapfile;
+use cosem_firmware::hostfs::read_file;
+use cosem_firmware::{exit, peak_stack, start_clock, ticks, INSTRUCTIONS_PER_TICK};
 
+/// Voxels per map.
 const VOXELS: usize = 8192;
-const FILE_BYTES: usize = 64 * 1024;
+/// Coarse pyramid entries per map (0.5 m maps with 3 levels take about 0.42
+/// per voxel).
+const COARSE: usize = 3840;
+/// Footprint words: the model's pooled grids (2 m cells for 50 m x 50 m),
+/// the scene's occupied cells.
+const MODEL_WORDS: usize = 20_480;
+const SCENE_WORDS: usize = 8192;
+const FILE_BYTES: usize = 32 * 1024;
 type MapStorage = ArrayStorage<VOXELS>;
-type PyrStorage = ArrayPyramidStorage<{ 3 * VOXELS }, 65_536>;
+type ModelStorage = ArrayPyramidStorage<VOXELS, COARSE, MODEL_WORDS>;
+type SceneStorage = ArrayPyramidStorage<VOXELS, COARSE, SCENE_WORDS>;
 
 static mut FILE: [u8; FILE_BYTES] = [0; FILE_BYTES];
 static mut MAP_A: MapStorage = MapStorage::new();
 static mut MAP_B: MapStorage = MapStorage::new();
-static mut PYR_A: PyrStorage = PyrStorage::new();
-static mut PYR_B: PyrStorage = PyrStorage::new();
+static mut PYR_A: ModelStorage = ModelStorage::new();
+static mut PYR_B: SceneStorage = SceneStorage::new();
 
-/// Reads a whole host file (path NUL-terminated) into `buf`.
-fn read_file<'a>(path: &[u8], buf: &'a mut [u8]) -> Option<&'a [u8]> {
-    // SAFETY: semihosting calls with a NUL-terminated path and a buffer we own.
-    unsafe {
-        let fd = syscall!(OPEN, path.as_ptr(), 1usize, path.len() - 1) as isize;
-        if fd < 0 {
-            return None;
-        }
-        let len = syscall!(FLEN, fd) as usize;
-        let ok = len <= buf.len() && syscall!(READ, fd, buf.as_mut_ptr(), len) == 0;
-        syscall!(CLOSE, fd);
-        let _ = nr::CLOSE;
-        if ok {
-            buf.get(..len)
-        } else {
-            None
-        }
-    }
+#[entry]
+fn main() -> ! {
+    exit(start_clock().is_some() && run())
 }
 
 /// Runs the benchmark; `true` when it ran.
-pub fn run() -> bool {
+fn run() -> bool {
     // SAFETY: called once from `main`; each static is borrowed once.
     let (file, a, b, pa, pb) = unsafe {
         (
@@ -64,9 +64,12 @@ pub fn run() -> bool {
         }
     }
     let t0 = ticks();
-    let (Ok(pya), Ok(pyb)) = (Pyramid::build(&ma, 3, 1.0, pa), Pyramid::build(&mb, 3, 1.0, pb)) else {
-        hprintln!("bench error=pyramid");
-        return false;
+    let (pya, pyb) = match (Pyramid::build(&ma, 3, 1.0, pa), Pyramid::build_as(&mb, 3, 1.0, Role::Scene, pb)) {
+        (Ok(a), Ok(b)) => (a, b),
+        (Err(e), _) | (_, Err(e)) => {
+            hprintln!("bench error=pyramid: {}", e);
+            return false;
+        }
     };
     let prep = ticks() - t0;
     let t1 = ticks();
@@ -77,7 +80,13 @@ pub fn run() -> bool {
         return false;
     };
     let t = r.transform.translation.vector;
-    hprintln!("bench voxels={},{}", ma.len(), mb.len());
+    hprintln!(
+        "bench voxels={},{} coarse_entries={},{}",
+        ma.len(),
+        mb.len(),
+        pya.coarse_entries(),
+        pyb.coarse_entries()
+    );
     hprintln!(
         "bench status={} iterations={} translation={:.4},{:.4},{:.4} yaw_deg={:.4}",
         r.status.as_str(),
@@ -92,5 +101,6 @@ pub fn run() -> bool {
         spent * INSTRUCTIONS_PER_TICK,
         prep * INSTRUCTIONS_PER_TICK
     );
+    hprintln!("bench peak_stack_bytes={}", peak_stack());
     true
 }

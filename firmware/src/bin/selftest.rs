@@ -1,16 +1,20 @@
-//! The budget build's job for now: the core's self-test on the target,
-//! every figure printed for the host to compare bit for bit.
+//! The core's self-test on the target (mapping, wire, matching), every
+//! figure printed for the host to compare bit for bit; the verdict also goes
+//! out of UART0 through the embedded-io driver.
+#![no_std]
+#![no_main]
 
-use crate::{peak_stack, ticks, uart, INSTRUCTIONS_PER_TICK};
 use core::fmt::Write as _;
 use core::ptr::addr_of_mut;
+use cortex_m_rt::entry;
 use cortex_m_semihosting::hprintln;
 use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
 use cosem_core::matching::ArrayPyramidStorage;
 use cosem_core::selftest::{self, FOOTPRINT_WORDS, MAP_VOXELS, PYRAMID_ENTRIES, RESOLUTION};
+use cosem_firmware::{exit, peak_stack, start_clock, ticks, uart, CLOCK_HZ, INSTRUCTIONS_PER_TICK};
 
 type MapStorage = ArrayStorage<MAP_VOXELS>;
-type PyrStorage = ArrayPyramidStorage<PYRAMID_ENTRIES, FOOTPRINT_WORDS>;
+type PyrStorage = ArrayPyramidStorage<MAP_VOXELS, PYRAMID_ENTRIES, FOOTPRINT_WORDS>;
 
 static mut MAP_A: MapStorage = MapStorage::new();
 static mut MAP_B: MapStorage = MapStorage::new();
@@ -19,8 +23,13 @@ static mut PYR_A: PyrStorage = PyrStorage::new();
 static mut PYR_B: PyrStorage = PyrStorage::new();
 static mut SCRATCH: [u32; MAP_VOXELS] = [0; MAP_VOXELS];
 
+#[entry]
+fn main() -> ! {
+    exit(start_clock().is_some() && run() == Ok(true))
+}
+
 /// Runs the self-test and prints its figures.
-pub fn run() -> Result<bool, ()> {
+fn run() -> Result<bool, ()> {
     // SAFETY: `run` is called once, from `main`, before anything else could
     // touch these statics; each is borrowed exactly once here.
     let (a, b, r, pa, pb, scratch) = unsafe {
@@ -72,7 +81,7 @@ pub fn run() -> Result<bool, ()> {
     // The same verdict on UART0 through the embedded-io driver (the link's
     // path to the other robot).
     // SAFETY: UART0 is a CMSDK UART of this board and nothing else uses it.
-    let mut uart0 = unsafe { uart::Uart::new(uart::UART0, 25_000_000, 115_200) };
+    let mut uart0 = unsafe { uart::Uart::new(uart::UART0, CLOCK_HZ, 115_200) };
     let mut line: heapless::String<96> = heapless::String::new();
     let _ = writeln!(line, "cosem selftest {} {:08x}", report.result.status.as_str(), report.digests[1]);
     embedded_io::Write::write_all(&mut uart0, line.as_bytes()).map_err(|_| ())?;

@@ -1,0 +1,102 @@
+//! cosem firmware: a robot's computer (Cortex-M4F, QEMU mps2-an386).
+//!
+//! This library is the platform the binaries share: the instruction clock
+//! (SysTick), the peak-stack gauge, the CMSDK UART driver behind the
+//! `embedded-io` traits, and semihosting file reads. Every binary keeps its
+//! buffers in statics sized at compile time, in a RAM budget of 1 MiB that
+//! the linker enforces (memory-budget.x).
+//!
+//! - `selftest` (the default `cargo run`): the core's self-test on the
+//!   target, every figure printed for the host to compare bit for bit;
+//! - `bench`: two map files matched on board (bench.sh);
+//! - `robot`: one robot of a pair (`cosem robots`).
+#![no_std]
+
+use core::sync::atomic::{AtomicU32, Ordering};
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m_rt::exception;
+use cortex_m_semihosting::debug;
+use panic_halt as _;
+
+pub mod hostfs;
+pub mod uart;
+
+#[cfg(feature = "defmt")]
+use defmt_semihosting as _;
+
+/// SysTick wraps (24-bit counter): with QEMU's `-icount shift=0` one
+/// instruction is one nanosecond of virtual time and SysTick counts the
+/// 25 MHz system clock, so a tick is 40 instructions.
+static WRAPS: AtomicU32 = AtomicU32::new(0);
+const RELOAD: u32 = 0x00FF_FFFF;
+/// Instructions per SysTick tick under `-icount shift=0`.
+pub const INSTRUCTIONS_PER_TICK: u64 = 40;
+/// System (and peripheral) clock of the board (Hz).
+pub const CLOCK_HZ: u32 = 25_000_000;
+
+#[exception]
+fn SysTick() {
+    WRAPS.fetch_add(1, Ordering::Relaxed);
+}
+
+/// Starts the SysTick instruction clock. `None` if the core peripherals
+/// were taken already.
+pub fn start_clock() -> Option<()> {
+    let mut cp = cortex_m::Peripherals::take()?;
+    cp.SYST.set_clock_source(SystClkSource::Core);
+    cp.SYST.set_reload(RELOAD);
+    cp.SYST.clear_current();
+    cp.SYST.enable_interrupt();
+    cp.SYST.enable_counter();
+    Some(())
+}
+
+/// Ticks since [`start_clock`] (wraps included).
+pub fn ticks() -> u64 {
+    loop {
+        let w = WRAPS.load(Ordering::Relaxed);
+        let v = cortex_m::peripheral::SYST::get_current();
+        if WRAPS.load(Ordering::Relaxed) == w {
+            return u64::from(w) * u64::from(RELOAD + 1) + u64::from(RELOAD - v);
+        }
+    }
+}
+
+/// Instructions executed since [`start_clock`].
+pub fn instructions() -> u64 {
+    ticks() * INSTRUCTIONS_PER_TICK
+}
+
+/// Milliseconds of virtual time since [`start_clock`].
+pub fn millis() -> u64 {
+    ticks() / u64::from(CLOCK_HZ / 1000)
+}
+
+/// Peak stack use (bytes): the start-up code paints the stack with
+/// `STACK_PAINT_VALUE`; the lowest word no longer painted marks the peak.
+pub fn peak_stack() -> u32 {
+    extern "C" {
+        static _stack_start: u32;
+        static _stack_end: u32;
+    }
+    // SAFETY: the linker script defines both symbols as the bounds of the
+    // stack region; only their addresses are taken, and the words between
+    // them are plain RAM, read with volatile reads.
+    unsafe {
+        let top = core::ptr::addr_of!(_stack_start) as usize;
+        let mut p = core::ptr::addr_of!(_stack_end) as usize;
+        while p < top && core::ptr::read_volatile(p as *const u32) == cortex_m_rt::STACK_PAINT_VALUE {
+            p += 4;
+        }
+        (top - p) as u32
+    }
+}
+
+/// Ends the program with an exit code QEMU passes on (semihosting).
+pub fn exit(ok: bool) -> ! {
+    debug::exit(if ok { debug::EXIT_SUCCESS } else { debug::EXIT_FAILURE });
+    // Not reached under QEMU; on a board without a debugger, sleep.
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
