@@ -22,6 +22,9 @@
 //!    information matrix.
 //! 4. [`wire`]: checksums (and, later, the compact encoding maps travel in).
 //!
+//! 5. [`robot`]: one robot of a pair end to end (fed points, map, link,
+//!    alignment, report), shared by the firmware and the host.
+//!
 //! [`selftest`] runs a fixed mapping, wire and matching case whose figures
 //! must agree to the bit on the chip and on a host.
 //!
@@ -56,6 +59,7 @@ pub mod geometry;
 pub mod link;
 pub mod map;
 pub mod matching;
+pub mod robot;
 pub mod selftest;
 pub mod wire;
 

@@ -9,6 +9,8 @@ use core::ptr::{read_volatile, write_volatile};
 
 /// Base addresses of the UARTs (`-serial` options 0 to 4 in QEMU).
 pub const UART0: usize = 0x4000_4000;
+/// UART1 (the second `-serial` option).
+pub const UART1: usize = 0x4000_5000;
 
 const DATA: usize = 0x0;
 const STATE: usize = 0x4;

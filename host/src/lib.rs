@@ -10,5 +10,6 @@ pub mod mapping;
 pub mod ply;
 pub mod pose;
 pub mod rng;
+pub mod robots;
 pub mod synth;
 pub mod transport;

@@ -10,9 +10,6 @@ use crate::map::key::floor_f32;
 /// Levels of max-pooling (windows of 1, 2, 4, ... 2^(POOL_LEVELS-1) cells).
 pub const POOL_LEVELS: usize = 6;
 
-/// Cells of padding below the data: the largest pooled window.
-const MARGIN: usize = 1 << (POOL_LEVELS - 1);
-
 /// Where a footprint lives inside the pyramid storage.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct FootprintInfo {
@@ -63,6 +60,12 @@ impl<'a> Footprint<'a> {
         if h >= self.info.grids {
             return 0;
         }
+        // A window that starts below the grid but reaches into it lies within
+        // the window starting at 0, whose mask is then an upper bound: what
+        // branch and bound needs, without storing a margin below the data.
+        let span = 1i32 << h;
+        let clamp = |v: i32| if v < 0 && v + span > 0 { 0 } else { v };
+        let (i, j) = (clamp(i), clamp(j));
         // Negative values wrap to huge ones and fail the same test.
         let (iu, ju) = (i as usize, j as usize);
         if iu >= w || ju >= ht {
@@ -106,17 +109,13 @@ pub(crate) fn build(level: &Level<'_>, cell: f32, pooled: bool, words: &mut [u32
     }
     let mut cell = cell;
     for _ in 0..12 {
-        // A margin of one top-level block below the data in x and y: a search
-        // block may start there and still reach into the data, and its bound
-        // must see that.
-        // (A scene-only footprint is never searched over: no margin.)
-        let margin = if pooled { MARGIN as f32 } else { 0.0 };
-        let origin = [lo[0] - margin * cell, lo[1] - margin * cell];
+        let origin = lo;
         let width = (libm::floorf((hi[0] - origin[0]) / cell) as usize) + 1;
         let height = (libm::floorf((hi[1] - origin[1]) / cell) as usize) + 1;
         let grid = width * height;
-        // Occupied cells are at most the grid's size.
-        if grids * grid + 3 * grid.min(level.len()) <= words.len() {
+        // Occupied cells are listed at every other cell on each axis.
+        let listed = width.div_ceil(2) * height.div_ceil(2);
+        if grids * grid + 3 * listed.min(level.len()) <= words.len() {
             let mut info = FootprintInfo { cell, origin, width, height, occupied: 0, grids };
             fill(level, &mut info, words);
             return Some(info);

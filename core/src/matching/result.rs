@@ -28,6 +28,19 @@ impl MatchStatus {
             MatchStatus::NoOverlap => "NoOverlap",
         }
     }
+
+    /// The status as one byte on the wire: 0 Converged, 1 NotConverged,
+    /// 2 Degenerate, 3 NoOverlap.
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// The status of a wire byte, if valid.
+    pub fn from_code(code: u8) -> Option<Self> {
+        [MatchStatus::Converged, MatchStatus::NotConverged, MatchStatus::Degenerate, MatchStatus::NoOverlap]
+            .get(usize::from(code))
+            .copied()
+    }
 }
 
 /// The estimate `T_model_scene` and what backs it.

@@ -35,6 +35,19 @@ pub enum DeframeError {
     Checksum,
 }
 
+impl core::fmt::Display for DeframeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            DeframeError::Oversized => "frame longer than the largest allowed",
+            DeframeError::Cobs => "broken COBS framing",
+            DeframeError::Short => "frame shorter than its checksum",
+            DeframeError::Checksum => "frame checksum mismatch",
+        })
+    }
+}
+
+impl core::error::Error for DeframeError {}
+
 /// COBS-encodes `input` into `out`; returns the length (no delimiter).
 pub fn cobs_encode(input: &[u8], out: &mut [u8]) -> Result<usize, FrameError> {
     let mut code_at = 0;

@@ -8,6 +8,7 @@ mod info;
 mod link;
 mod map;
 mod matching;
+mod robots;
 mod synth;
 
 use clap::{Parser, Subcommand};
@@ -34,6 +35,9 @@ enum Command {
     Eval(eval::Args),
     /// Exchange maps with a peer over TCP or a serial line, then match.
     Link(link::Args),
+    /// Two robots on emulated Cortex-M4F boards: onboard mapping, map
+    /// exchange over UART0, onboard matching.
+    Robots(robots::Args),
     /// Describe a map file.
     Info(info::Args),
     /// Export a map to another format.
@@ -59,6 +63,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Match(a) => matching::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Link(a) => link::run(a),
+        Command::Robots(a) => robots::run(a),
         Command::Info(a) => info::run(a),
         Command::Export { format } => export::run(format),
         Command::Synth(a) => synth::run(a),

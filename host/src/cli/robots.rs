@@ -1,0 +1,243 @@
+//! `cosem robots`: two robots on emulated Cortex-M4F boards map, exchange
+//! maps over their UART0s and match on board; printed beside the host's own
+//! run of the same pipeline on the same fed data and the ground truth.
+
+use super::Error;
+use cosem_core::geometry::Isometry3;
+use cosem_core::robot::{self, Setup};
+use cosem_host::align::{errors, to_matrix};
+use cosem_host::kitti::{FrameRange, Sequence};
+use cosem_host::mapping::PointFilter;
+use cosem_host::pose;
+use cosem_host::robots::{host_align, run_pair, thin_scan, Feed, LineFault, Outcome};
+use nalgebra::Matrix4;
+use serde_json::json;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Where `cargo build --release` in firmware/ puts the robot binary.
+const DEFAULT_FIRMWARE: &str = "firmware/target/thumbv7em-none-eabihf/release/robot";
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// SemanticKITTI-layout folder.
+    #[arg(long)]
+    data: PathBuf,
+    /// Robot A's frames.
+    #[arg(long)]
+    a: FrameRange,
+    /// Robot B's frames.
+    #[arg(long)]
+    b: FrameRange,
+    /// Voxel size on board (m); each scan is fed as one point per voxel.
+    #[arg(long, default_value_t = 0.5)]
+    voxel: f32,
+    /// Points farther than this from their sensor are not fed (m).
+    #[arg(long, default_value_t = 25.0)]
+    crop: f32,
+    /// Robot A's prior `T_A_B` as x,y,z,roll,pitch,yaw (m, degrees); robot B
+    /// gets its inverse. Default: the ground truth moved by 2 m and turned
+    /// by 10 degrees.
+    #[arg(long, allow_hyphen_values = true)]
+    prior: Option<String>,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+    /// The firmware's robot binary (at the default path, built or brought
+    /// up to date first).
+    #[arg(long, default_value = DEFAULT_FIRMWARE)]
+    firmware: PathBuf,
+    /// What the line between the UART0s does: none, silent, or corrupt=P
+    /// (each byte flipped with probability P).
+    #[arg(long, default_value = "none")]
+    line: String,
+    /// A robot gives up on the link after this long without a valid frame (s).
+    #[arg(long, default_value_t = 30.0)]
+    silence: f64,
+    /// Kill both emulators after this long (s).
+    #[arg(long, default_value_t = 900.0)]
+    timeout: f64,
+}
+
+fn parse_line(s: &str) -> Result<LineFault, String> {
+    match s {
+        "none" => Ok(LineFault::None),
+        "silent" => Ok(LineFault::Silent),
+        _ => match s.strip_prefix("corrupt=").map(str::parse::<f64>) {
+            Some(Ok(p)) if (0.0..=1.0).contains(&p) => Ok(LineFault::Corrupt(p)),
+            _ => Err(format!("--line `{s}`: expected none, silent or corrupt=P with P in [0, 1]")),
+        },
+    }
+}
+
+/// At the default path, brings the robot firmware up to date (a no-op when
+/// it is), so a run never uses a stale build; elsewhere it must exist.
+fn ensure_firmware(path: &std::path::Path) -> Result<(), Error> {
+    let dir = PathBuf::from("firmware");
+    let default = path == std::path::Path::new(DEFAULT_FIRMWARE);
+    if !default || !dir.join("Cargo.toml").exists() {
+        return if path.exists() {
+            Ok(())
+        } else {
+            Err(format!("{}: no such firmware (build it with `cargo build --release` in firmware/)", path.display())
+                .into())
+        };
+    }
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = std::process::Command::new(cargo)
+        .args(["build", "--release", "--bin", "robot"])
+        .current_dir(&dir)
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("RUSTFLAGS")
+        .output()?;
+    if !out.status.success() || !path.exists() {
+        return Err(format!("building the firmware failed:\n{}", String::from_utf8_lossy(&out.stderr)).into());
+    }
+    Ok(())
+}
+
+fn iso_matrix(t: &Isometry3<f32>) -> Matrix4<f64> {
+    to_matrix(t)
+}
+
+pub fn run(a: Args) -> Result<(), Error> {
+    let line = parse_line(&a.line)?;
+    let positive = |v: f32| v.is_finite() && v > 0.0;
+    if !(positive(a.voxel) && positive(a.crop)) {
+        return Err("--voxel and --crop must be positive".into());
+    }
+    if !(a.silence.is_finite() && a.silence > 0.0 && a.timeout.is_finite() && a.timeout > 0.0) {
+        return Err("--silence and --timeout must be positive".into());
+    }
+    let seq = Sequence::open(&a.data)?;
+    let gt = seq.relative_pose(a.a.start, a.b.start)?;
+    let prior_ab = match &a.prior {
+        Some(p) => pose::parse(p)?,
+        None => pose::from_xyz_rpy_deg(2.0, 0.0, 0.0, 0.0, 0.0, 10.0) * gt,
+    };
+    let prior_ab = pose::to_isometry(&prior_ab);
+    let filter = PointFilter::default();
+    let mut feeds = Vec::new();
+    for (id, range, prior) in [(0u8, a.a, prior_ab), (1u8, a.b, prior_ab.inverse())] {
+        let frames = seq.load_range(range)?;
+        let scans = frames.iter().map(|f| thin_scan(f, a.voxel, a.crop, &filter)).collect();
+        let setup = Setup {
+            robot_id: id,
+            resolution: a.voxel,
+            prior: robot::rows(&prior),
+            silence_ms: (a.silence * 1000.0) as u32,
+        };
+        feeds.push(Feed { setup, scans });
+    }
+    let (map_a, map_b) = (feeds[0].map()?, feeds[1].map()?);
+    // The host runs each robot's alignment too: A's is the reference the
+    // conventions name (`host`), B's the check of robot B.
+    // Each from the prior exactly as its robot decodes it.
+    let host = host_align(&map_a, &map_b, &robot::from_rows(&feeds[0].setup.prior))?;
+    let host_b = host_align(&map_b, &map_a, &robot::from_rows(&feeds[1].setup.prior))?;
+    ensure_firmware(&a.firmware)?;
+    let run = run_pair(&a.firmware, [&feeds[0], &feeds[1]], line, Duration::from_secs_f64(a.timeout))?;
+    // 8N1 at 115200 baud: 11,520 bytes per second each way.
+    let line_s = |bytes: u64| bytes as f64 * 10.0 / 115_200.0;
+    let truth = [gt, cosem_host::kitti::rigid_inverse(&gt)];
+    let mut all_reported = true;
+    let mut robots_json = Vec::new();
+    let mut lines = Vec::new();
+    for (i, r) in run.robots.iter().enumerate() {
+        let name = if i == 0 { "A" } else { "B" };
+        let feed_points = feeds[i].points();
+        match &r.outcome {
+            Outcome::Report(rep) => {
+                let t = robot::from_rows(&rep.transform);
+                let m = iso_matrix(&t);
+                let status =
+                    cosem_core::matching::MatchStatus::from_code(rep.status).map(|s| s.as_str()).unwrap_or("?");
+                let (e_t, e_r) = errors(&m, &truth[i]);
+                robots_json.push(json!({
+                    "id": i, "status": status, "transform": pose::to_row_major(&m),
+                    "instructions": rep.match_instructions, "map_voxels": rep.map_voxels,
+                    "bytes_sent": rep.bytes_sent, "bytes_received": rep.bytes_received,
+                    "map_instructions": rep.map_instructions, "prepare_instructions": rep.prepare_instructions,
+                    "match_instructions": rep.match_instructions, "points": rep.points,
+                    "received_voxels": rep.received_voxels, "retransmissions": rep.retransmissions,
+                    "link_ms_onboard": rep.link_ms, "link_time_115200_s": line_s(rep.bytes_sent.max(rep.bytes_received)),
+                    "iterations": rep.iterations, "inliers": rep.inliers, "overlap": rep.overlap,
+                    "peak_stack_bytes": rep.peak_stack, "exit_code": r.exit_code,
+                    "e_t": e_t, "e_r": e_r,
+                }));
+                let x = pose::to_xyz_rpy_deg(&m);
+                lines.push(format!(
+                    "robot {name} (id {i}): {status}, T_{name}_{} = {:.4},{:.4},{:.4},{:.3},{:.3},{:.3} (e_t {e_t:.3} m, e_r {e_r:.3} deg)\n  \
+                     map {} voxels from {} fed points; sent {} B, received {} B ({} retransmissions; {:.1} s at 115200 baud)\n  \
+                     instructions: mapping {:.1} M, preparation {:.1} M, match {:.1} M; peak stack {} B; exit {:?}",
+                    if i == 0 { "B" } else { "A" },
+                    x[0], x[1], x[2], x[3], x[4], x[5],
+                    rep.map_voxels, feed_points, rep.bytes_sent, rep.bytes_received, rep.retransmissions,
+                    line_s(rep.bytes_sent.max(rep.bytes_received)),
+                    rep.map_instructions as f64 / 1e6, rep.prepare_instructions as f64 / 1e6,
+                    rep.match_instructions as f64 / 1e6, rep.peak_stack, r.exit_code,
+                ));
+            }
+            Outcome::Failed { stage, message } => {
+                all_reported = false;
+                robots_json.push(json!({"id": i, "status": null, "error": {"stage": stage, "message": message}, "exit_code": r.exit_code}));
+                lines.push(format!("robot {name} (id {i}): failed at {stage}: {message}; exit {:?}", r.exit_code));
+            }
+            Outcome::Lost(why) => {
+                all_reported = false;
+                robots_json.push(json!({"id": i, "status": null, "error": {"stage": "host", "message": why}, "exit_code": r.exit_code}));
+                lines.push(format!("robot {name} (id {i}): no report: {why}; exit {:?}", r.exit_code));
+            }
+        }
+    }
+    let host_m = iso_matrix(&host.transform);
+    let (he_t, he_r) = errors(&host_m, &gt);
+    let host_bm = iso_matrix(&host_b.transform);
+    if a.json {
+        let out = json!({
+            "robots": robots_json,
+            "host": {"transform": pose::to_row_major(&host_m), "status": host.status.as_str(), "e_t": he_t, "e_r": he_r},
+            "host_b": {"transform": pose::to_row_major(&host_bm), "status": host_b.status.as_str()},
+            "ground_truth": pose::to_row_major(&gt),
+            "line_bytes": run.line_bytes,
+            "wall_time_s": run.wall_s,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        for l in &lines {
+            println!("{l}");
+        }
+        let x = pose::to_xyz_rpy_deg(&host_m);
+        println!(
+            "host (same fed data): {}, T_A_B = {:.4},{:.4},{:.4},{:.3},{:.3},{:.3} (e_t {he_t:.3} m, e_r {he_r:.3} deg)",
+            host.status.as_str(),
+            x[0],
+            x[1],
+            x[2],
+            x[3],
+            x[4],
+            x[5]
+        );
+        let x = pose::to_xyz_rpy_deg(&host_bm);
+        println!(
+            "host, robot B's match: {}, T_B_A = {:.4},{:.4},{:.4},{:.3},{:.3},{:.3}",
+            host_b.status.as_str(),
+            x[0],
+            x[1],
+            x[2],
+            x[3],
+            x[4],
+            x[5]
+        );
+        let g = pose::to_xyz_rpy_deg(&gt);
+        println!(
+            "ground truth: T_A_B = {:.4},{:.4},{:.4},{:.3},{:.3},{:.3}; wall time {:.1} s",
+            g[0], g[1], g[2], g[3], g[4], g[5], run.wall_s
+        );
+    }
+    if all_reported {
+        Ok(())
+    } else {
+        Err("a robot did not report a match".into())
+    }
+}

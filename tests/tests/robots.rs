@@ -1,0 +1,103 @@
+//! Two robots on emulated Cortex-M4F boards (`cosem robots`): each builds
+//! its map on board from the fed scans, the maps cross the UART0 line, each
+//! robot matches on board and must agree with the ground truth and, to
+//! rounding, with the host's run of the same pipeline. A silent or
+//! corrupting line must end in a typed link error, not a hang. Skipped where
+//! QEMU or the ARM target is missing (`tests/run` installs both).
+
+use serde_json::Value;
+
+/// Runs `cosem robots` with `args`; returns its JSON and whether it succeeded.
+fn robots(args: &[&str]) -> (Value, bool) {
+    let mut all = vec!["robots", "--json"];
+    all.extend_from_slice(args);
+    let out = cosem_tests::cosem(&all);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let json: Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("cosem robots {args:?}: {e}\n{stderr}\n{}", String::from_utf8_lossy(&out.stdout)));
+    (json, out.status.success())
+}
+
+fn matrix(v: &Value) -> nalgebra::Matrix4<f64> {
+    let n: Vec<f64> = v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    nalgebra::Matrix4::from_row_slice(&n)
+}
+
+/// Checks both robots converged near the truth and equal the host's runs.
+fn check_pair(json: &Value) {
+    let gt = matrix(&json["ground_truth"]);
+    let truths = [gt, cosem_host::kitti::rigid_inverse(&gt)];
+    let hosts = [matrix(&json["host"]["transform"]), matrix(&json["host_b"]["transform"])];
+    for (i, r) in json["robots"].as_array().unwrap().iter().enumerate() {
+        assert_eq!(r["id"], i);
+        assert_eq!(r["status"], "Converged", "robot {i}: {r}");
+        assert_eq!(r["exit_code"], 0, "robot {i}: {r}");
+        let t = matrix(&r["transform"]);
+        let (e_t, e_r) = cosem_host::align::errors(&t, &truths[i]);
+        assert!(e_t < 0.2 && e_r < 0.5, "robot {i} off the truth: {e_t} m, {e_r} deg");
+        let (d_t, d_r) = cosem_host::align::errors(&t, &hosts[i]);
+        assert!(d_t < 1e-4 && d_r < 1e-3, "robot {i} differs from the host: {d_t} m, {d_r} deg");
+        for key in ["instructions", "map_voxels", "bytes_sent", "bytes_received"] {
+            assert!(r[key].as_u64().unwrap() > 0, "robot {i}: {key}");
+        }
+        eprintln!(
+            "robot {i}: e_t {e_t:.3} m e_r {e_r:.3} deg; {} voxels; {} B out; match {} instructions",
+            r["map_voxels"], r["bytes_sent"], r["instructions"]
+        );
+    }
+    // Each robot received exactly what the other sent.
+    let r = json["robots"].as_array().unwrap();
+    assert_eq!(r[0]["bytes_sent"], r[1]["bytes_received"]);
+    assert_eq!(r[0]["received_voxels"], r[1]["map_voxels"]);
+}
+
+#[test]
+fn two_robots_match_kitti00_on_board() {
+    let Some(data) = cosem_tests::real_data("kitti00") else { return };
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let (json, ok) = robots(&["--data", &data.display().to_string(), "--a", "0:5", "--b", "5:10"]);
+    assert!(ok, "{json}");
+    check_pair(&json);
+}
+
+fn synthetic(frames: usize) -> tempfile::TempDir {
+    let tmp = tempfile::tempdir().unwrap();
+    cosem_tests::synth(&tmp.path().join("seq"), frames, 5);
+    tmp
+}
+
+#[test]
+fn two_robots_match_a_synthetic_street_on_board() {
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let tmp = synthetic(10);
+    let seq = tmp.path().join("seq").display().to_string();
+    let (json, ok) = robots(&["--data", &seq, "--a", "0:5", "--b", "5:10"]);
+    assert!(ok, "{json}");
+    check_pair(&json);
+}
+
+#[test]
+fn a_silent_or_corrupting_line_is_a_typed_link_error() {
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let tmp = synthetic(4);
+    let seq = tmp.path().join("seq").display().to_string();
+    for line in ["silent", "corrupt=0.3"] {
+        let (json, ok) =
+            robots(&["--data", &seq, "--a", "0:2", "--b", "2:4", "--line", line, "--silence", "3", "--timeout", "300"]);
+        assert!(!ok, "{line}: {json}");
+        for r in json["robots"].as_array().unwrap() {
+            assert_eq!(r["error"]["stage"], "link", "{line}: {r}");
+            let message = r["error"]["message"].as_str().unwrap();
+            assert!(message == "peer silent" || message.starts_with("gave up"), "{line}: {message}");
+            // It exited on its own, non-zero (not killed at the deadline).
+            assert_eq!(r["exit_code"], 1, "{line}: {r}");
+        }
+    }
+}
