@@ -92,6 +92,29 @@ pub fn peak_stack() -> u32 {
     }
 }
 
+/// Prints one line to the host over semihosting: plain text, or in a build
+/// with the `defmt` feature a defmt frame (so the whole output decodes with
+/// `defmt-print`, as qemu-run.sh does).
+pub fn say(args: core::fmt::Arguments<'_>) {
+    #[cfg(feature = "defmt")]
+    {
+        use core::fmt::Write as _;
+        let mut line: heapless::String<256> = heapless::String::new();
+        let _ = line.write_fmt(args);
+        defmt::println!("{=str}", line.as_str());
+    }
+    #[cfg(not(feature = "defmt"))]
+    cortex_m_semihosting::hprintln!("{}", args);
+}
+
+/// `say!("...", args)`: [`say`] with `format_args!`.
+#[macro_export]
+macro_rules! say {
+    ($($t:tt)*) => {
+        $crate::say(format_args!($($t)*))
+    };
+}
+
 /// Ends the program with an exit code QEMU passes on (semihosting).
 pub fn exit(ok: bool) -> ! {
     debug::exit(if ok { debug::EXIT_SUCCESS } else { debug::EXIT_FAILURE });

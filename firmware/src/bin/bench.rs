@@ -7,12 +7,11 @@
 
 use core::ptr::addr_of_mut;
 use cortex_m_rt::entry;
-use cortex_m_semihosting::hprintln;
 use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
 use cosem_core::matching::{ArrayPyramidStorage, MatchSettings, Matcher, Pyramid, Role};
 use cosem_core::wire::mapfile;
 use cosem_firmware::hostfs::read_file;
-use cosem_firmware::{exit, peak_stack, start_clock, ticks, INSTRUCTIONS_PER_TICK};
+use cosem_firmware::{exit, peak_stack, say, start_clock, ticks, INSTRUCTIONS_PER_TICK};
 
 /// Voxels per map.
 const VOXELS: usize = 8192;
@@ -55,11 +54,11 @@ fn run() -> bool {
     let (Ok(mut ma), Ok(mut mb)) = (LocalMap::new(a, config), LocalMap::new(b, config)) else { return false };
     for (name, map) in [(&b"bench-a.cmap\0"[..], &mut ma), (&b"bench-b.cmap\0"[..], &mut mb)] {
         let Some(bytes) = read_file(name, file) else {
-            hprintln!("bench error=cannot read a map file");
+            say!("bench error=cannot read a map file");
             return false;
         };
         if let Err(e) = mapfile::read_into(bytes, map) {
-            hprintln!("bench error={:?}", e);
+            say!("bench error={:?}", e);
             return false;
         }
     }
@@ -67,7 +66,7 @@ fn run() -> bool {
     let (pya, pyb) = match (Pyramid::build(&ma, 3, 1.0, pa), Pyramid::build_as(&mb, 3, 1.0, Role::Scene, pb)) {
         (Ok(a), Ok(b)) => (a, b),
         (Err(e), _) | (_, Err(e)) => {
-            hprintln!("bench error=pyramid: {}", e);
+            say!("bench error=pyramid: {}", e);
             return false;
         }
     };
@@ -76,18 +75,12 @@ fn run() -> bool {
     let r = Matcher::new(MatchSettings::default()).align(&pya, &pyb, &nalgebra::Isometry3::identity());
     let spent = ticks() - t1;
     let Ok(r) = r else {
-        hprintln!("bench error=match");
+        say!("bench error=match");
         return false;
     };
     let t = r.transform.translation.vector;
-    hprintln!(
-        "bench voxels={},{} coarse_entries={},{}",
-        ma.len(),
-        mb.len(),
-        pya.coarse_entries(),
-        pyb.coarse_entries()
-    );
-    hprintln!(
+    say!("bench voxels={},{} coarse_entries={},{}", ma.len(), mb.len(), pya.coarse_entries(), pyb.coarse_entries());
+    say!(
         "bench status={} iterations={} translation={:.4},{:.4},{:.4} yaw_deg={:.4}",
         r.status.as_str(),
         r.iterations,
@@ -96,11 +89,11 @@ fn run() -> bool {
         t.z,
         r.transform.rotation.euler_angles().2.to_degrees()
     );
-    hprintln!(
+    say!(
         "bench match_instructions={} preparation_instructions={}",
         spent * INSTRUCTIONS_PER_TICK,
         prep * INSTRUCTIONS_PER_TICK
     );
-    hprintln!("bench peak_stack_bytes={}", peak_stack());
+    say!("bench peak_stack_bytes={}", peak_stack());
     true
 }

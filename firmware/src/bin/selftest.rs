@@ -7,11 +7,10 @@
 use core::fmt::Write as _;
 use core::ptr::addr_of_mut;
 use cortex_m_rt::entry;
-use cortex_m_semihosting::hprintln;
 use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
 use cosem_core::matching::ArrayPyramidStorage;
 use cosem_core::selftest::{self, FOOTPRINT_WORDS, MAP_VOXELS, PYRAMID_ENTRIES, RESOLUTION};
-use cosem_firmware::{exit, peak_stack, start_clock, ticks, uart, CLOCK_HZ, INSTRUCTIONS_PER_TICK};
+use cosem_firmware::{exit, peak_stack, say, start_clock, ticks, uart, CLOCK_HZ, INSTRUCTIONS_PER_TICK};
 
 type MapStorage = ArrayStorage<MAP_VOXELS>;
 type PyrStorage = ArrayPyramidStorage<MAP_VOXELS, PYRAMID_ENTRIES, FOOTPRINT_WORDS>;
@@ -60,24 +59,17 @@ fn run() -> Result<bool, ()> {
     let report = match report {
         Ok(r) => r,
         Err(e) => {
-            hprintln!("selftest error={:?}", e);
+            say!("selftest error={:?}", e);
             return Ok(false);
         }
     };
-    hprintln!("{}", report);
-    hprintln!(
+    say!("{}", report);
+    say!(
         "selftest match_instructions={} total_instructions={}",
         spent * INSTRUCTIONS_PER_TICK,
         total * INSTRUCTIONS_PER_TICK
     );
-    hprintln!("selftest peak_stack_bytes={}", peak_stack());
-    #[cfg(feature = "defmt")]
-    defmt::info!(
-        "selftest {} after {} iterations, {} instructions",
-        report.result.status,
-        report.result.iterations,
-        spent * INSTRUCTIONS_PER_TICK
-    );
+    say!("selftest peak_stack_bytes={}", peak_stack());
     // The same verdict on UART0 through the embedded-io driver (the link's
     // path to the other robot).
     // SAFETY: UART0 is a CMSDK UART of this board and nothing else uses it.
