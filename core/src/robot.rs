@@ -21,6 +21,7 @@ use crate::map::{ArrayStorage, FullPolicy, InsertError, LocalMap, MapConfig, Vox
 use crate::matching::{
     ArrayPyramidStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, PyramidStorage, Role,
 };
+use crate::wire::message::MatchReport;
 use serde::{Deserialize, Serialize};
 
 /// Voxels a robot's map holds (and the received map): 256 KiB each. When a
@@ -100,18 +101,8 @@ pub enum FeedMessage<'a> {
 /// What a robot did, for the host.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RobotReport {
-    /// The robot.
-    pub robot_id: u8,
-    /// Match status: 0 Converged, 1 NotConverged, 2 Degenerate, 3 NoOverlap.
-    pub status: u8,
-    /// `T_own_peer`, top three rows of the 4x4 matrix, row by row.
-    pub transform: [f32; 12],
-    /// EM iterations.
-    pub iterations: u16,
-    /// Inlier voxels.
-    pub inliers: u32,
-    /// Overlap (0..1).
-    pub overlap: f32,
+    /// The match (`T_own_peer`: own map the model, the peer's the scene).
+    pub result: MatchReport,
     /// Points fed.
     pub points: u32,
     /// Voxels of the robot's own map.
@@ -285,12 +276,16 @@ impl<'a> FeedMessage<'a> {
     }
 }
 
+fn check_report(r: &RobotReport) -> Result<(), FeedError> {
+    finite(&r.result.transform)?;
+    finite(&[r.result.overlap, r.result.rmse])
+}
+
 impl<'a> RobotMessage<'a> {
     /// Encodes the message (version byte first) into `out`; returns its length.
     pub fn encode(&self, out: &mut [u8]) -> Result<usize, FeedError> {
         if let RobotMessage::Report(r) = self {
-            finite(&r.transform)?;
-            finite(&[r.overlap])?;
+            check_report(r)?;
         }
         encode_versioned(self, out)
     }
@@ -299,8 +294,7 @@ impl<'a> RobotMessage<'a> {
     pub fn decode(payload: &'a [u8]) -> Result<Self, FeedError> {
         let msg: Self = decode_versioned(payload)?;
         if let RobotMessage::Report(r) = &msg {
-            finite(&r.transform)?;
-            finite(&[r.overlap])?;
+            check_report(r)?;
         }
         Ok(msg)
     }
@@ -396,26 +390,6 @@ pub fn align<A: VoxelStorage, B: VoxelStorage, P: PyramidStorage, Q: PyramidStor
     r
 }
 
-/// The top three rows of `t`'s 4x4 matrix, row by row.
-pub fn rows(t: &Isometry3<f32>) -> [f32; 12] {
-    let m = t.to_homogeneous();
-    let mut out = [0.0; 12];
-    for r in 0..3 {
-        for c in 0..4 {
-            out[4 * r + c] = m[(r, c)];
-        }
-    }
-    out
-}
-
-/// The isometry of a matrix's top three rows (the rotation re-orthonormalised).
-pub fn from_rows(r: &[f32; 12]) -> Isometry3<f32> {
-    use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion};
-    let m = Matrix3::new(r[0], r[1], r[2], r[4], r[5], r[6], r[8], r[9], r[10]);
-    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(m));
-    Isometry3::from_parts(Translation3::new(r[3], r[7], r[11]), rot)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -426,7 +400,7 @@ mod tests {
         let setup = Setup {
             robot_id: 1,
             resolution: 0.5,
-            prior: rows(&from_xyz_rpy(1.0, 2.0, 0.0, 0.0, 0.0, 0.3)),
+            prior: crate::geometry::rows(&from_xyz_rpy(1.0, 2.0, 0.0, 0.0, 0.0, 0.3)),
             silence_ms: 5000,
         };
         let pts = [pack_point([1.0, -2.5, 0.25], Class::Pole), pack_point([300.0, 0.0, -1.0], Class::Road)];
@@ -470,13 +444,5 @@ mod tests {
             insert_points(&mut map, &data[..5]),
             Err(PointsError::Feed(FeedError::PointBytes { len: 5 }))
         ));
-    }
-
-    #[test]
-    fn rows_round_trip() {
-        let t = from_xyz_rpy(3.5, -1.0, 0.2, 0.01, -0.02, 2.5);
-        let back = from_rows(&rows(&t));
-        assert!((back.translation.vector - t.translation.vector).norm() < 1e-6);
-        assert!(back.rotation.angle_to(&t.rotation) < 1e-5);
     }
 }

@@ -62,6 +62,31 @@ pub struct MatchReport {
     pub rmse: f32,
 }
 
+impl MatchReport {
+    /// The report of `result` by robot `robot_id`.
+    pub fn new(robot_id: u8, result: &crate::matching::MatchResult) -> Self {
+        MatchReport {
+            robot_id,
+            status: result.status.code(),
+            transform: crate::geometry::rows(&result.transform),
+            iterations: result.iterations.min(u32::from(u16::MAX)) as u16,
+            inliers: result.inliers,
+            overlap: result.overlap,
+            rmse: result.rmse,
+        }
+    }
+
+    /// The status, if the byte is a valid one.
+    pub fn status(&self) -> Option<crate::matching::MatchStatus> {
+        crate::matching::MatchStatus::from_code(self.status)
+    }
+
+    /// `T_model_scene`.
+    pub fn transform(&self) -> crate::geometry::Isometry3<f32> {
+        crate::geometry::from_rows(&self.transform)
+    }
+}
+
 /// Why a transfer was abandoned.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -9,6 +9,7 @@
 use core::fmt::Write as _;
 use core::ptr::addr_of_mut;
 use cortex_m_rt::entry;
+use cosem_core::geometry::from_rows;
 use cosem_core::link::{Clock, Endpoint, LinkConfig};
 use cosem_core::map::LocalMap;
 use cosem_core::matching::MatchStatus;
@@ -16,6 +17,7 @@ use cosem_core::robot::{
     self, FeedMessage, MapStorage, ModelStorage, RobotMessage, RobotReport, SceneStorage, Setup, Stage, VOXELS,
 };
 use cosem_core::wire::frame::{encode_frame, Deframer, MAX_FRAME, MAX_PAYLOAD};
+use cosem_core::wire::message::MatchReport;
 use cosem_firmware::uart::{Uart, UART0, UART1};
 use cosem_firmware::{exit, instructions, millis, peak_stack, start_clock, CLOCK_HZ};
 use embedded_io::{Read, ReadReady, Write};
@@ -72,7 +74,7 @@ fn main() -> ! {
     match run(&mut host, &mut link) {
         Ok(report) => {
             send(&mut host, &RobotMessage::Report(report));
-            exit(report.status == MatchStatus::Converged.code())
+            exit(report.result.status() == Some(MatchStatus::Converged))
         }
         Err(f) => {
             send(&mut host, &RobotMessage::Failed { stage: f.stage, message: &f.message });
@@ -166,17 +168,12 @@ fn run(host: &mut Uart, link: &mut Uart) -> Result<RobotReport, Failure> {
     };
     let link_ms = (millis() - t_link) as u32;
     // Align the received map (scene) to ours (model).
-    let prior = robot::from_rows(&setup.prior);
+    let prior = from_rows(&setup.prior);
     let mut marks = [0u64; 3];
     let result = robot::align(&own, &received, &prior, model, scene, |k| marks[usize::from(k)] = instructions())
         .map_err(|e| fail(Stage::Match, e))?;
     Ok(RobotReport {
-        robot_id: setup.robot_id,
-        status: result.status.code(),
-        transform: robot::rows(&result.transform),
-        iterations: result.iterations as u16,
-        inliers: result.inliers,
-        overlap: result.overlap,
+        result: MatchReport::new(setup.robot_id, &result),
         points,
         map_voxels: own.len() as u32,
         received_voxels: received.len() as u32,

@@ -3,8 +3,8 @@
 //! run of the same pipeline on the same fed data and the ground truth.
 
 use super::Error;
-use cosem_core::geometry::Isometry3;
-use cosem_core::robot::{self, Setup};
+use cosem_core::geometry::{from_rows, rows, Isometry3};
+use cosem_core::robot::Setup;
 use cosem_host::align::{errors, to_matrix};
 use cosem_host::kitti::{FrameRange, Sequence};
 use cosem_host::mapping::PointFilter;
@@ -96,6 +96,12 @@ fn ensure_firmware(path: &std::path::Path) -> Result<(), Error> {
     Ok(())
 }
 
+/// `x,y,z,roll,pitch,yaw` (m, degrees) of a transform, for printing.
+fn pose_text(m: &Matrix4<f64>) -> String {
+    let x = pose::to_xyz_rpy_deg(m);
+    format!("{:.4},{:.4},{:.4},{:.3},{:.3},{:.3}", x[0], x[1], x[2], x[3], x[4], x[5])
+}
+
 fn iso_matrix(t: &Isometry3<f32>) -> Matrix4<f64> {
     to_matrix(t)
 }
@@ -121,20 +127,16 @@ pub fn run(a: Args) -> Result<(), Error> {
     for (id, range, prior) in [(0u8, a.a, prior_ab), (1u8, a.b, prior_ab.inverse())] {
         let frames = seq.load_range(range)?;
         let scans = frames.iter().map(|f| thin_scan(f, a.voxel, a.crop, &filter)).collect();
-        let setup = Setup {
-            robot_id: id,
-            resolution: a.voxel,
-            prior: robot::rows(&prior),
-            silence_ms: (a.silence * 1000.0) as u32,
-        };
+        let setup =
+            Setup { robot_id: id, resolution: a.voxel, prior: rows(&prior), silence_ms: (a.silence * 1000.0) as u32 };
         feeds.push(Feed { setup, scans });
     }
     let (map_a, map_b) = (feeds[0].map()?, feeds[1].map()?);
     // The host runs each robot's alignment too: A's is the reference the
     // conventions name (`host`), B's the check of robot B.
     // Each from the prior exactly as its robot decodes it.
-    let host = host_align(&map_a, &map_b, &robot::from_rows(&feeds[0].setup.prior))?;
-    let host_b = host_align(&map_b, &map_a, &robot::from_rows(&feeds[1].setup.prior))?;
+    let host = host_align(&map_a, &map_b, &from_rows(&feeds[0].setup.prior))?;
+    let host_b = host_align(&map_b, &map_a, &from_rows(&feeds[1].setup.prior))?;
     ensure_firmware(&a.firmware)?;
     let run = run_pair(&a.firmware, [&feeds[0], &feeds[1]], line, Duration::from_secs_f64(a.timeout))?;
     // 8N1 at 115200 baud: 11,520 bytes per second each way.
@@ -148,10 +150,8 @@ pub fn run(a: Args) -> Result<(), Error> {
         let feed_points = feeds[i].points();
         match &r.outcome {
             Outcome::Report(rep) => {
-                let t = robot::from_rows(&rep.transform);
-                let m = iso_matrix(&t);
-                let status =
-                    cosem_core::matching::MatchStatus::from_code(rep.status).map(|s| s.as_str()).unwrap_or("?");
+                let m = iso_matrix(&rep.result.transform());
+                let status = rep.result.status().map(|s| s.as_str()).unwrap_or("?");
                 let (e_t, e_r) = errors(&m, &truth[i]);
                 robots_json.push(json!({
                     "id": i, "status": status, "transform": pose::to_row_major(&m),
@@ -161,17 +161,16 @@ pub fn run(a: Args) -> Result<(), Error> {
                     "match_instructions": rep.match_instructions, "points": rep.points,
                     "received_voxels": rep.received_voxels, "retransmissions": rep.retransmissions,
                     "link_ms_onboard": rep.link_ms, "link_time_115200_s": line_s(rep.bytes_sent.max(rep.bytes_received)),
-                    "iterations": rep.iterations, "inliers": rep.inliers, "overlap": rep.overlap,
+                    "iterations": rep.result.iterations, "inliers": rep.result.inliers, "overlap": rep.result.overlap,
                     "peak_stack_bytes": rep.peak_stack, "exit_code": r.exit_code,
                     "e_t": e_t, "e_r": e_r,
                 }));
-                let x = pose::to_xyz_rpy_deg(&m);
                 lines.push(format!(
-                    "robot {name} (id {i}): {status}, T_{name}_{} = {:.4},{:.4},{:.4},{:.3},{:.3},{:.3} (e_t {e_t:.3} m, e_r {e_r:.3} deg)\n  \
+                    "robot {name} (id {i}): {status}, T_{name}_{} = {} (e_t {e_t:.3} m, e_r {e_r:.3} deg)\n  \
                      map {} voxels from {} fed points; sent {} B, received {} B ({} retransmissions; {:.1} s at 115200 baud)\n  \
                      instructions: mapping {:.1} M, preparation {:.1} M, match {:.1} M; peak stack {} B; exit {:?}",
                     if i == 0 { "B" } else { "A" },
-                    x[0], x[1], x[2], x[3], x[4], x[5],
+                    pose_text(&m),
                     rep.map_voxels, feed_points, rep.bytes_sent, rep.bytes_received, rep.retransmissions,
                     line_s(rep.bytes_sent.max(rep.bytes_received)),
                     rep.map_instructions as f64 / 1e6, rep.prepare_instructions as f64 / 1e6,
@@ -207,33 +206,13 @@ pub fn run(a: Args) -> Result<(), Error> {
         for l in &lines {
             println!("{l}");
         }
-        let x = pose::to_xyz_rpy_deg(&host_m);
         println!(
-            "host (same fed data): {}, T_A_B = {:.4},{:.4},{:.4},{:.3},{:.3},{:.3} (e_t {he_t:.3} m, e_r {he_r:.3} deg)",
+            "host (same fed data): {}, T_A_B = {} (e_t {he_t:.3} m, e_r {he_r:.3} deg)",
             host.status.as_str(),
-            x[0],
-            x[1],
-            x[2],
-            x[3],
-            x[4],
-            x[5]
+            pose_text(&host_m)
         );
-        let x = pose::to_xyz_rpy_deg(&host_bm);
-        println!(
-            "host, robot B's match: {}, T_B_A = {:.4},{:.4},{:.4},{:.3},{:.3},{:.3}",
-            host_b.status.as_str(),
-            x[0],
-            x[1],
-            x[2],
-            x[3],
-            x[4],
-            x[5]
-        );
-        let g = pose::to_xyz_rpy_deg(&gt);
-        println!(
-            "ground truth: T_A_B = {:.4},{:.4},{:.4},{:.3},{:.3},{:.3}; wall time {:.1} s",
-            g[0], g[1], g[2], g[3], g[4], g[5], run.wall_s
-        );
+        println!("host, robot B's match: {}, T_B_A = {}", host_b.status.as_str(), pose_text(&host_bm));
+        println!("ground truth: T_A_B = {}; wall time {:.1} s", pose_text(&gt), run.wall_s);
     }
     if all_reported {
         Ok(())
