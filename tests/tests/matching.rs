@@ -122,3 +122,27 @@ fn match_rejects_bad_arguments_cleanly() {
     let e = cosem_tests::cosem_err(&["match", &ms, "/nonexistent.cmap"]);
     assert!(e.contains("/nonexistent.cmap"), "{e}");
 }
+
+/// Without `--init`, `cosem match` aligns from semantic landmarks first:
+/// the two loop pairs (one driven in opposite directions, relative yaw about
+/// -148 degrees) converge with no prior; the far-apart pair does not.
+#[test]
+fn loop_pairs_align_with_no_prior() {
+    for (name, a, b) in [("kitti08-loop", "720:721", "1500:1501"), ("kitti00-loop", "52:53", "4501:4502")] {
+        let Some(dir) = real_data(name) else { return };
+        let tmp = tempfile::tempdir().unwrap();
+        let (ma, mb) = (tmp.path().join("a.cmap"), tmp.path().join("b.cmap"));
+        map(&dir, a, &ma);
+        map(&dir, b, &mb);
+        let v = match_json(&ma, &mb, &[]);
+        assert_eq!(v["status"], "Converged", "{name}: {v}");
+        assert_eq!(v["global"]["unique"], true, "{name}: {v}");
+        let seq = cosem_host::kitti::Sequence::open(&dir).unwrap();
+        let start = |r: &str| r.split(':').next().unwrap().parse::<usize>().unwrap();
+        let gt = seq.relative_pose(start(a), start(b)).unwrap();
+        let n: Vec<f64> = v["transform"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+        let (e_t, e_r) = cosem_host::align::errors(&nalgebra::Matrix4::from_row_slice(&n), &gt);
+        assert!(e_t < 0.3 && e_r < 1.0, "{name}: e_t {e_t} m, e_r {e_r} deg");
+        eprintln!("{name}: no prior, {} landmarks agree: e_t {e_t:.3} m, e_r {e_r:.3} deg", v["global"]["agreeing"]);
+    }
+}

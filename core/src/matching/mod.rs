@@ -40,6 +40,8 @@
 pub mod associate;
 pub mod em;
 pub mod footprint;
+pub mod global;
+pub mod landmarks;
 pub mod pyramid;
 pub mod result;
 pub mod search;

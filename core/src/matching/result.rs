@@ -72,3 +72,22 @@ pub struct MatchResult {
     /// unit lever arm (dimensionless, 0 = unconstrained direction).
     pub degeneracy: f32,
 }
+
+impl MatchResult {
+    /// `NoOverlap` at the identity with nothing behind it: what a match
+    /// that found no basis for an answer reports.
+    pub fn no_overlap() -> Self {
+        MatchResult {
+            transform: Isometry3::identity(),
+            status: MatchStatus::NoOverlap,
+            iterations: 0,
+            iterations_per_level: [0; MAX_LEVELS],
+            inliers: 0,
+            overlap: 0.0,
+            rmse: 0.0,
+            information: Matrix6::zeros(),
+            min_eigenvalue: 0.0,
+            degeneracy: 0.0,
+        }
+    }
+}

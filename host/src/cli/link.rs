@@ -2,7 +2,6 @@
 
 use super::Error;
 use cosem_core::link::{Endpoint, LinkConfig, LinkStats};
-use cosem_core::matching::Matcher;
 use cosem_host::align::{prepare, DEFAULT_LEVELS};
 use cosem_host::mapping::{new_map, HostMap};
 use cosem_host::pose;
@@ -92,12 +91,15 @@ pub fn run(a: Args) -> Result<(), Error> {
     let ps = prepare(&theirs, DEFAULT_LEVELS)?;
     let prep_ms = t0.elapsed().as_secs_f64() * 1e3;
     let t1 = Instant::now();
-    let r = Matcher::new(settings).align(&pm, &ps, &init)?;
+    let (r, global) = super::matching::align_maps(&a.opts, settings, &init, (&ours, &theirs), (&pm, &ps))?;
     let match_ms = t1.elapsed().as_secs_f64() * 1e3;
     let wire_per_voxel = stats.chunk_bytes_sent as f64 / ours.len().max(1) as f64;
     if a.json {
         let mut m = super::matching::result_json(&r, match_ms);
         m["prepare_ms"] = json!(prep_ms);
+        if let Some(g) = &global {
+            m["global"] = super::matching::global_json(g);
+        }
         let out = json!({
             "robot_id": robot_id,
             "bytes_sent": stats.bytes_sent,

@@ -1,6 +1,8 @@
 //! `cosem match`: align a scene map to a model map.
 
 use super::Error;
+use cosem_core::matching::global::{align_without_prior, GlobalOutcome, GlobalSettings};
+use cosem_core::matching::landmarks::{extract, Landmark, MAX_LANDMARKS};
 use cosem_core::matching::{Dof, MatchResult, MatchSettings, Matcher, Method};
 use cosem_host::align::{prepare, to_matrix, DEFAULT_LEVELS};
 use cosem_host::ply::{self, PlyPoint};
@@ -82,6 +84,46 @@ pub fn result_json(r: &MatchResult, time_ms: f64) -> serde_json::Value {
     })
 }
 
+/// A map's semantic landmarks.
+pub fn landmarks(map: &cosem_host::mapping::HostMap) -> Result<heapless::Vec<Landmark, MAX_LANDMARKS>, Error> {
+    let mut out = heapless::Vec::new();
+    extract(map, &mut vec![0u32; map.len()], &mut out)?;
+    Ok(out)
+}
+
+/// What a global alignment found: its outcome and both maps' landmark counts.
+pub type GlobalFigures = (Option<GlobalOutcome>, usize, usize);
+
+/// Aligns two prepared maps: from `init` when `--init` was given, else by
+/// global alignment from semantic landmarks first (the conventions).
+pub fn align_maps(
+    opts: &MatchOpts,
+    settings: MatchSettings,
+    init: &nalgebra::Isometry3<f32>,
+    maps: (&cosem_host::mapping::HostMap, &cosem_host::mapping::HostMap),
+    pyramids: (&cosem_host::align::HostPyramid<'_>, &cosem_host::align::HostPyramid<'_>),
+) -> Result<(MatchResult, Option<GlobalFigures>), Error> {
+    let matcher = Matcher::new(settings);
+    if opts.init.is_some() {
+        return Ok((matcher.align(pyramids.0, pyramids.1, init)?, None));
+    }
+    let (lm, ls) = (landmarks(maps.0)?, landmarks(maps.1)?);
+    let (r, outcome) = align_without_prior(&matcher, pyramids.0, pyramids.1, (&lm, &ls), &GlobalSettings::default())?;
+    Ok((r, Some((outcome, lm.len(), ls.len()))))
+}
+
+/// The landmark alignment's figures as JSON.
+pub fn global_json(g: &GlobalFigures) -> serde_json::Value {
+    let (o, nm, ns) = g;
+    json!({
+        "landmarks": [nm, ns],
+        "agreeing": o.map(|o| o.agreeing),
+        "runner_up": o.map(|o| o.runner_up),
+        "unique": o.map(|o| o.unique),
+        "start": o.map(|o| pose::to_row_major(&to_matrix(&o.transform))),
+    })
+}
+
 pub fn run(a: Args) -> Result<(), Error> {
     let (settings, init) = a.opts.resolve()?;
     let (_, model) = cosem_host::cmap::read(&a.model)?;
@@ -101,7 +143,7 @@ pub fn run(a: Args) -> Result<(), Error> {
     let ps = prepare(&scene, DEFAULT_LEVELS).map_err(|e| format!("{}: {e}", a.scene.display()))?;
     let prep_ms = t_prep.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
-    let r = Matcher::new(settings).align(&pm, &ps, &init)?;
+    let (r, global) = align_maps(&a.opts, settings, &init, (&model, &scene), (&pm, &ps))?;
     let time_ms = t.elapsed().as_secs_f64() * 1e3;
     if let Some(path) = &a.merged {
         let mut pts: Vec<PlyPoint> = Vec::with_capacity(model.len() + scene.len());
@@ -129,11 +171,25 @@ pub fn run(a: Args) -> Result<(), Error> {
         let mut j = result_json(&r, time_ms);
         j["prepare_ms"] = json!(prep_ms);
         j["method"] = json!(settings.method.name());
+        if let Some(g) = &global {
+            j["global"] = global_json(g);
+        }
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
         let m = to_matrix(&r.transform);
         let x = pose::to_xyz_rpy_deg(&m);
         println!("status      {}", r.status.as_str());
+        if let Some((o, nm, ns)) = &global {
+            match o {
+                Some(o) => println!(
+                    "global      {nm} / {ns} landmarks, {} agree (runner-up {}): {}",
+                    o.agreeing,
+                    o.runner_up,
+                    if o.unique { "unique" } else { "not unique, no answer" }
+                ),
+                None => println!("global      {nm} / {ns} landmarks, too few agree: no answer"),
+            }
+        }
         println!("T_model_scene");
         for i in 0..4 {
             println!("  {:>12.6} {:>12.6} {:>12.6} {:>12.6}", m[(i, 0)], m[(i, 1)], m[(i, 2)], m[(i, 3)]);
