@@ -90,3 +90,31 @@ fn eval_4dof_and_bad_arguments() {
     let e = cosem_tests::cosem_err(&["eval", "--data", &d, "--a", "0:4", "--b", "4:8", "--grid", "dense"]);
     assert!(e.contains("--grid dense"), "{e}");
 }
+
+/// `cosem eval --global`: the scene map moved by headings all round the
+/// circle and offsets up to 50 m, matched with no prior.
+#[test]
+fn prior_free_eval_goes_round_the_circle() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    cosem_tests::synth(&seq, 10, 5);
+    let json = tmp.path().join("g.json");
+    let (s, j) = (seq.display().to_string(), json.display().to_string());
+    cosem_tests::cosem_ok(&[
+        "eval", "--data", &s, "--a", "0:5", "--b", "5:10", "--global", "--limit", "12", "--json", &j,
+    ]);
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["starts"], 12);
+    let headings: std::collections::BTreeSet<i64> =
+        v["results"].as_array().unwrap().iter().map(|r| r["heading_deg"].as_f64().unwrap() as i64).collect();
+    assert!(headings.len() >= 10, "{headings:?}");
+    assert!(v["success_strict"].as_f64().unwrap() >= 0.95, "{v}");
+    if let Some(dir) = cosem_tests::real_data("kitti00") {
+        let d = dir.display().to_string();
+        cosem_tests::cosem_ok(&[
+            "eval", "--data", &d, "--a", "0:5", "--b", "5:10", "--global", "--limit", "12", "--json", &j,
+        ]);
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert!(v["success_strict"].as_f64().unwrap() >= 0.95, "{v}");
+    }
+}

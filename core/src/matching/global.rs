@@ -45,7 +45,6 @@ impl Default for GlobalSettings {
 
 /// The landmark alignment's answer.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct GlobalOutcome {
     /// `T_model_scene` (4-DoF).
     pub transform: Isometry3<f32>,

@@ -59,6 +59,11 @@ pub struct Args {
     /// Print every start.
     #[arg(long)]
     verbose: bool,
+    /// Prior-free protocol instead of the grid: the scene map is moved by a
+    /// known heading (36 around the circle) and offset (10 seeded, up to
+    /// 50 m) and matched with no prior.
+    #[arg(long)]
+    global: bool,
 }
 
 /// One start's outcome.
@@ -88,6 +93,9 @@ fn sorted(v: impl Iterator<Item = f64>) -> Vec<f64> {
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
+    if a.global {
+        return run_global(&a);
+    }
     let methods: Vec<(String, cosem_core::matching::MatchSettings)> = a
         .method
         .split(',')
@@ -283,6 +291,128 @@ pub fn run(a: Args) -> Result<(), Error> {
             &caption,
         );
         std::fs::write(path, svg).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// One prior-free start: the scene map moved by `D` (a heading and an
+/// offset), then matched with no prior.
+struct GlobalStart {
+    heading_deg: f64,
+    offset: [f64; 2],
+}
+
+/// `--global`: 36 headings x 10 seeded offsets up to 50 m; each start
+/// rebuilds robot B's map in a frame moved by `D = Translation(ox, oy, 0) *
+/// Rz(heading)`, so the ground truth becomes `T_A_B * inv(D)`, and matches it
+/// with no prior (landmarks, then EM).
+fn run_global(a: &Args) -> Result<(), Error> {
+    let settings = super::matching::settings(a.method.split(',').next().unwrap_or("cosem").trim(), a.dof)?;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
+    let seq = Sequence::open(&a.data)?;
+    let config = MapConfig::with_resolution(a.voxel);
+    let filter = PointFilter::default();
+    let (map_a, _) = build_map(&seq.load_range(a.a)?, config, &filter)?;
+    let frames_b = seq.load_range(a.b)?;
+    let gt = seq.relative_pose(a.a.start, a.b.start)?;
+    let pa = prepare(&map_a, DEFAULT_LEVELS)?;
+    let la = super::matching::landmarks(&map_a)?;
+    let mut starts = Vec::new();
+    let mut rng = cosem_host::rng::Rng::new(0xC05E);
+    for h in 0..36 {
+        for _ in 0..10 {
+            let (r, th) = (50.0 * rng.unit().sqrt(), rng.range(0.0, std::f64::consts::TAU));
+            starts.push(GlobalStart { heading_deg: f64::from(h) * 10.0, offset: [r * th.cos(), r * th.sin()] });
+        }
+    }
+    if let Some(k) = a.limit {
+        // Every n-th start, so a few still go round the circle.
+        let step = starts.len().div_ceil(k.max(1));
+        starts = starts.into_iter().step_by(step).collect();
+    }
+    println!(
+        "prior-free: {} starts (of 36 headings x 10 offsets up to 50 m), map A {} voxels, {} landmarks, on {} thread(s)",
+        starts.len(),
+        map_a.len(),
+        la.len(),
+        pool.current_num_threads()
+    );
+    let bar = ProgressBar::new(starts.len() as u64);
+    let matcher = Matcher::new(settings);
+    // (status, e_t, e_r, ms, agreeing landmarks) per start.
+    type Row = (MatchStatus, f64, f64, f64, u32);
+    let outcomes: Vec<Result<Row, Error>> = pool.install(|| {
+        starts
+            .par_iter()
+            .map(|s| {
+                let d = pose::from_xyz_rpy_deg(s.offset[0], s.offset[1], 0.0, 0.0, 0.0, s.heading_deg);
+                let moved: Vec<_> = frames_b
+                    .iter()
+                    .map(|f| {
+                        let mut f = f.clone();
+                        for p in &mut f.points {
+                            let q = d * nalgebra::Vector4::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]), 1.0);
+                            *p = [q.x as f32, q.y as f32, q.z as f32];
+                        }
+                        f
+                    })
+                    .collect();
+                let (map_b, _) = build_map(&moved, config, &filter)?;
+                let pb = prepare(&map_b, DEFAULT_LEVELS)?;
+                let t = Instant::now();
+                let lb = super::matching::landmarks(&map_b)?;
+                let (r, outcome) = cosem_core::matching::global::align_without_prior(
+                    &matcher,
+                    &pa,
+                    &pb,
+                    (&la, &lb),
+                    &cosem_core::matching::global::GlobalSettings::default(),
+                )?;
+                let ms = t.elapsed().as_secs_f64() * 1e3;
+                let truth = gt * cosem_host::kitti::rigid_inverse(&d);
+                let (et, er) = errors(&to_matrix(&r.transform), &truth);
+                bar.inc(1);
+                Ok((r.status, et, er, ms, outcome.map(|o| o.agreeing).unwrap_or(0)))
+            })
+            .collect()
+    });
+    bar.finish_and_clear();
+    let outcomes: Vec<_> = outcomes.into_iter().collect::<Result<_, _>>()?;
+    let n = outcomes.len().max(1) as f64;
+    let conv = |s: &MatchStatus| *s == MatchStatus::Converged;
+    let strict = outcomes.iter().filter(|o| conv(&o.0) && o.1 < 0.5 && o.2 < 1.0).count() as f64 / n;
+    let loose = outcomes.iter().filter(|o| conv(&o.0) && o.1 < 2.0 && o.2 < 5.0).count() as f64 / n;
+    let (et, er) = (sorted(outcomes.iter().map(|o| o.1)), sorted(outcomes.iter().map(|o| o.2)));
+    let times = sorted(outcomes.iter().map(|o| o.3));
+    let agreeing = sorted(outcomes.iter().map(|o| f64::from(o.4)));
+    println!(
+        "prior-free {}: strict {:.1}%, loose {:.1}% of {} starts",
+        settings.method.name(),
+        100.0 * strict,
+        100.0 * loose,
+        outcomes.len()
+    );
+    println!(
+        "  e_t median {:.3} p95 {:.3} m; e_r median {:.3} p95 {:.3} deg",
+        percentile(&et, 0.5),
+        percentile(&et, 0.95),
+        percentile(&er, 0.5),
+        percentile(&er, 0.95)
+    );
+    println!(
+        "  time per alignment (scene landmarks, correspondences, EM) median {:.1} ms; agreeing landmarks median {}",
+        percentile(&times, 0.5),
+        percentile(&agreeing, 0.5)
+    );
+    if let Some(path) = &a.json {
+        let results: Vec<_> = starts
+            .iter()
+            .zip(&outcomes)
+            .map(|(s, o)| json!({"heading_deg": s.heading_deg, "offset": s.offset, "status": o.0.as_str(), "e_t": o.1, "e_r": o.2, "time_ms": o.3, "agreeing": o.4}))
+            .collect();
+        let out = json!({"mode": "global", "starts": outcomes.len(), "success_strict": strict, "success_loose": loose,
+            "e_t_median": percentile(&et, 0.5), "e_r_median": percentile(&er, 0.5), "time_ms_median": percentile(&times, 0.5), "results": results});
+        std::fs::write(path, serde_json::to_string_pretty(&out)?).map_err(|e| format!("{}: {e}", path.display()))?;
     }
     Ok(())
 }
