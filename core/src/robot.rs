@@ -21,7 +21,7 @@ use crate::map::{ArrayStorage, FullPolicy, InsertError, LocalMap, MapConfig, Vox
 use crate::matching::{
     ArrayPyramidStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, PyramidStorage, Role,
 };
-use crate::wire::message::MatchReport;
+use crate::wire::message::{self, MatchReport, MessageError};
 use serde::{Deserialize, Serialize};
 
 /// Voxels a robot's map holds (and the received map): 256 KiB each. When a
@@ -215,23 +215,24 @@ impl core::fmt::Display for FeedError {
 
 impl core::error::Error for FeedError {}
 
+impl From<MessageError> for FeedError {
+    fn from(e: MessageError) -> Self {
+        match e {
+            MessageError::Empty => FeedError::Empty,
+            MessageError::Version(v) => FeedError::Version(v),
+            MessageError::Buffer => FeedError::Buffer,
+            MessageError::NonFinite => FeedError::NonFinite,
+            MessageError::Malformed | MessageError::Trailing => FeedError::Malformed,
+        }
+    }
+}
+
 fn encode_versioned<T: Serialize>(msg: &T, out: &mut [u8]) -> Result<usize, FeedError> {
-    let (first, rest) = out.split_first_mut().ok_or(FeedError::Buffer)?;
-    *first = FEED_VERSION;
-    let used = postcard::to_slice(msg, rest).map_err(|_| FeedError::Buffer)?;
-    Ok(1 + used.len())
+    Ok(message::encode_versioned(FEED_VERSION, msg, out)?)
 }
 
 fn decode_versioned<'a, T: Deserialize<'a>>(payload: &'a [u8]) -> Result<T, FeedError> {
-    let (&version, rest) = payload.split_first().ok_or(FeedError::Empty)?;
-    if version != FEED_VERSION {
-        return Err(FeedError::Version(version));
-    }
-    let (msg, tail): (T, &[u8]) = postcard::take_from_bytes(rest).map_err(|_| FeedError::Malformed)?;
-    if !tail.is_empty() {
-        return Err(FeedError::Malformed);
-    }
-    Ok(msg)
+    Ok(message::decode_versioned(FEED_VERSION, payload)?)
 }
 
 fn finite(values: &[f32]) -> Result<(), FeedError> {

@@ -17,7 +17,7 @@ use cosem_core::robot::{
     self, FeedMessage, RobotMessage, RobotReport, Setup, COARSE, MAX_POINTS_PER_MESSAGE, MODEL_WORDS, POINT_BYTES,
     SCENE_WORDS, VOXELS,
 };
-use cosem_core::wire::codec::{MapDecoder, MapEncoder};
+use cosem_core::wire::codec::MapDecoder;
 use cosem_core::wire::frame::{encode_frame, Deframer, MAX_FRAME, MAX_PAYLOAD};
 use std::collections::BTreeMap;
 use std::io::{Read, Write};
@@ -116,17 +116,13 @@ impl Feed {
 
 /// `map` as the peer holds it after the link: through the wire encoding.
 pub fn through_wire(map: &HostMap) -> Result<HostMap, String> {
-    let mut scratch = vec![0u32; map.len()];
-    let mut encoder = MapEncoder::new(map, &mut scratch).map_err(|e| format!("{e:?}"))?;
     let mut out = new_map(VOXELS, *map.config()).map_err(|e| e.to_string())?;
     let mut decoder = MapDecoder::new(map.len());
-    let mut chunk = [0u8; 240];
-    loop {
-        let n = encoder.next_chunk(&mut chunk).map_err(|e| format!("{e:?}"))?;
-        if n == 0 {
-            break;
-        }
-        decoder.decode_chunk(&chunk[..n], &mut out).map_err(|e| e.to_string())?;
+    for chunk in crate::cmap::encode_chunks(map, 240) {
+        decoder.decode_chunk(&chunk, &mut out).map_err(|e| e.to_string())?;
+    }
+    if !decoder.is_complete() {
+        return Err("the map did not pass through the encoding whole".into());
     }
     Ok(out)
 }

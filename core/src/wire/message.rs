@@ -186,6 +186,29 @@ impl core::fmt::Display for MessageError {
 
 impl core::error::Error for MessageError {}
 
+/// Encodes `msg` as a version byte and postcard into `out`; returns the
+/// length. Shared by every protocol that travels in frames.
+pub(crate) fn encode_versioned<T: Serialize>(version: u8, msg: &T, out: &mut [u8]) -> Result<usize, MessageError> {
+    let (first, rest) = out.split_first_mut().ok_or(MessageError::Buffer)?;
+    *first = version;
+    let used = postcard::to_slice(msg, rest).map_err(|_| MessageError::Buffer)?;
+    Ok(1 + used.len())
+}
+
+/// Decodes a version byte and postcard, refusing another version and
+/// trailing bytes.
+pub(crate) fn decode_versioned<'a, T: Deserialize<'a>>(version: u8, payload: &'a [u8]) -> Result<T, MessageError> {
+    let (&v, rest) = payload.split_first().ok_or(MessageError::Empty)?;
+    if v != version {
+        return Err(MessageError::Version(v));
+    }
+    let (msg, tail): (T, &[u8]) = postcard::take_from_bytes(rest).map_err(|_| MessageError::Malformed)?;
+    if !tail.is_empty() {
+        return Err(MessageError::Trailing);
+    }
+    Ok(msg)
+}
+
 fn finite(values: &[f32]) -> Result<(), MessageError> {
     if values.iter().all(|v| v.is_finite()) {
         Ok(())
@@ -198,22 +221,12 @@ impl<'a> Message<'a> {
     /// Encodes the message (version byte first) into `out`; returns its length.
     pub fn encode(&self, out: &mut [u8]) -> Result<usize, MessageError> {
         self.check()?;
-        let (first, rest) = out.split_first_mut().ok_or(MessageError::Buffer)?;
-        *first = PROTOCOL_VERSION;
-        let used = postcard::to_slice(self, rest).map_err(|_| MessageError::Buffer)?;
-        Ok(1 + used.len())
+        encode_versioned(PROTOCOL_VERSION, self, out)
     }
 
     /// Decodes a payload; borrows chunk data from it.
     pub fn decode(payload: &'a [u8]) -> Result<Self, MessageError> {
-        let (&version, rest) = payload.split_first().ok_or(MessageError::Empty)?;
-        if version != PROTOCOL_VERSION {
-            return Err(MessageError::Version(version));
-        }
-        let (msg, tail): (Message<'a>, &[u8]) = postcard::take_from_bytes(rest).map_err(|_| MessageError::Malformed)?;
-        if !tail.is_empty() {
-            return Err(MessageError::Trailing);
-        }
+        let msg: Message<'a> = decode_versioned(PROTOCOL_VERSION, payload)?;
         msg.check()?;
         Ok(msg)
     }

@@ -3,7 +3,7 @@
 //! run of the same pipeline on the same fed data and the ground truth.
 
 use super::Error;
-use cosem_core::geometry::{from_rows, rows, Isometry3};
+use cosem_core::geometry::{from_rows, rows};
 use cosem_core::robot::Setup;
 use cosem_host::align::{errors, to_matrix};
 use cosem_host::kitti::{FrameRange, Sequence};
@@ -102,10 +102,6 @@ fn pose_text(m: &Matrix4<f64>) -> String {
     format!("{:.4},{:.4},{:.4},{:.3},{:.3},{:.3}", x[0], x[1], x[2], x[3], x[4], x[5])
 }
 
-fn iso_matrix(t: &Isometry3<f32>) -> Matrix4<f64> {
-    to_matrix(t)
-}
-
 pub fn run(a: Args) -> Result<(), Error> {
     let line = parse_line(&a.line)?;
     let positive = |v: f32| v.is_finite() && v > 0.0;
@@ -150,7 +146,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         let feed_points = feeds[i].points();
         match &r.outcome {
             Outcome::Report(rep) => {
-                let m = iso_matrix(&rep.result.transform());
+                let m = to_matrix(&rep.result.transform());
                 let status = rep.result.status().map(|s| s.as_str()).unwrap_or("?");
                 let (e_t, e_r) = errors(&m, &truth[i]);
                 robots_json.push(json!({
@@ -189,9 +185,9 @@ pub fn run(a: Args) -> Result<(), Error> {
             }
         }
     }
-    let host_m = iso_matrix(&host.transform);
+    let host_m = to_matrix(&host.transform);
     let (he_t, he_r) = errors(&host_m, &gt);
-    let host_bm = iso_matrix(&host_b.transform);
+    let host_bm = to_matrix(&host_b.transform);
     if a.json {
         let out = json!({
             "robots": robots_json,
