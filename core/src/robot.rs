@@ -9,7 +9,8 @@
 //! then [`FeedMessage::EndOfFeed`]. It builds its map on board
 //! ([`insert_points`]), exchanges maps with the other robot over the link
 //! ([`crate::link`]), aligns the received map (scene) to its own (model)
-//! from the prior ([`align`]) and sends a [`RobotReport`] back to the host
+//! from the prior, or with none from their semantic landmarks ([`align`]),
+//! and sends a [`RobotReport`] back to the host
 //! (or [`RobotMessage::Failed`]).
 //!
 //! Messages travel in the link's frames ([`crate::wire::frame`]: COBS and
@@ -18,6 +19,8 @@
 use crate::classes::{Class, NUM_CLASSES};
 use crate::geometry::Isometry3;
 use crate::map::{ArrayStorage, FullPolicy, InsertError, LocalMap, MapConfig, VoxelStorage};
+use crate::matching::global::{locate, refine, GlobalSettings, Located};
+use crate::matching::landmarks::LandmarkError;
 use crate::matching::{
     ArrayPyramidStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, PyramidStorage, Role,
 };
@@ -54,7 +57,7 @@ pub type ModelStorage = ArrayPyramidStorage<VOXELS, COARSE, MODEL_WORDS>;
 pub type SceneStorage = ArrayPyramidStorage<VOXELS, COARSE, SCENE_WORDS>;
 
 /// Version byte of the feed protocol.
-pub const FEED_VERSION: u8 = 1;
+pub const FEED_VERSION: u8 = 2;
 
 /// The map configuration of a robot at `resolution`: full maps evict the
 /// voxels farthest from the anchor.
@@ -70,8 +73,9 @@ pub struct Setup {
     /// Voxel size (m).
     pub resolution: f32,
     /// The prior `T_own_peer` (model = own map, scene = the peer's), top
-    /// three rows of the 4x4 matrix, row by row.
-    pub prior: [f32; 12],
+    /// three rows of the 4x4 matrix, row by row; `None`: no prior, align
+    /// from semantic landmarks ([`crate::matching::global`]).
+    pub prior: Option<[f32; 12]>,
     /// Give up on the link when nothing valid arrived for this long (ms).
     pub silence_ms: u32,
 }
@@ -121,10 +125,39 @@ pub struct RobotReport {
     pub map_instructions: u64,
     /// Instructions spent preparing both maps for matching.
     pub prepare_instructions: u64,
+    /// Instructions of the prior-free landmark alignment (0 with a prior).
+    pub locate_instructions: u64,
     /// Instructions of the match.
     pub match_instructions: u64,
+    /// What the landmark alignment found (`None` with a prior).
+    pub global: Option<GlobalReport>,
     /// Peak stack (bytes).
     pub peak_stack: u32,
+}
+
+/// The landmark alignment's figures, for the host.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GlobalReport {
+    /// Landmarks of the robot's own map and of the received map.
+    pub landmarks: [u32; 2],
+    /// Correspondences in the largest consistent set (0: too few candidates).
+    pub agreeing: u32,
+    /// The largest consistent set the answer does not explain.
+    pub runner_up: u32,
+    /// Whether the answer was unique enough to refine (else `NoOverlap`).
+    pub unique: bool,
+}
+
+impl From<&Located> for GlobalReport {
+    fn from(l: &Located) -> Self {
+        GlobalReport {
+            landmarks: l.landmarks,
+            agreeing: l.outcome.map(|o| o.agreeing).unwrap_or(0),
+            runner_up: l.outcome.map(|o| o.runner_up).unwrap_or(0),
+            unique: l.outcome.is_some_and(|o| o.unique),
+        }
+    }
 }
 
 /// Where a robot failed.
@@ -260,7 +293,9 @@ impl<'a> FeedMessage<'a> {
     fn check(&self) -> Result<(), FeedError> {
         match self {
             FeedMessage::Setup(s) => {
-                finite(&s.prior)?;
+                if let Some(prior) = &s.prior {
+                    finite(prior)?;
+                }
                 if !(s.resolution.is_finite() && (0.01..=10.0).contains(&s.resolution)) {
                     return Err(FeedError::NonFinite);
                 }
@@ -356,6 +391,8 @@ pub enum AlignError {
     Pyramid(PyramidError),
     /// The matcher refused its input.
     Match(MatchError),
+    /// Extracting landmarks failed.
+    Landmarks(LandmarkError),
 }
 
 impl core::fmt::Display for AlignError {
@@ -363,32 +400,47 @@ impl core::fmt::Display for AlignError {
         match self {
             AlignError::Pyramid(e) => write!(f, "preparing a map: {e}"),
             AlignError::Match(e) => write!(f, "matching: {e:?}"),
+            AlignError::Landmarks(e) => write!(f, "landmarks: {e}"),
         }
     }
 }
 
 impl core::error::Error for AlignError {}
 
-/// Prepares both maps (own as model, received as scene) and aligns them from
-/// `prior` (`T_own_peer`). `on_phase(k)` runs before preparation (0), before
-/// the match (1) and after it (2), e.g. to read an instruction counter.
+/// Prepares both maps (own as model, received as scene) and aligns them:
+/// from `prior` (`T_own_peer`) when there is one, else from the maps'
+/// semantic landmarks ([`locate`], with `scratch` of one `u32` per voxel,
+/// then [`refine`]; `NoOverlap` when they do not agree uniquely).
+/// `on_phase(k)` runs before preparation (0), before the landmark alignment
+/// (1), before the match (2) and after it (3), e.g. to read an instruction
+/// counter. Returns the match and, without a prior, what the landmarks found.
 pub fn align<A: VoxelStorage, B: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>(
     own: &LocalMap<A>,
     received: &LocalMap<B>,
-    prior: &Isometry3<f32>,
+    prior: Option<&Isometry3<f32>>,
+    scratch: &mut [u32],
     model_storage: P,
     scene_storage: Q,
     mut on_phase: impl FnMut(u8),
-) -> Result<MatchResult, AlignError> {
+) -> Result<(MatchResult, Option<Located>), AlignError> {
     on_phase(0);
     let model =
         Pyramid::build_as(own, LEVELS, FOOTPRINT_CELL, Role::Model, model_storage).map_err(AlignError::Pyramid)?;
     let scene =
         Pyramid::build_as(received, LEVELS, FOOTPRINT_CELL, Role::Scene, scene_storage).map_err(AlignError::Pyramid)?;
     on_phase(1);
-    let r = Matcher::new(MatchSettings::default()).align(&model, &scene, prior).map_err(AlignError::Match);
+    let located = match prior {
+        Some(_) => None,
+        None => Some(locate(own, received, scratch, &GlobalSettings::default()).map_err(AlignError::Landmarks)?),
+    };
     on_phase(2);
-    r
+    let matcher = Matcher::new(MatchSettings::default());
+    let r = match (prior, &located) {
+        (Some(p), _) => matcher.align(&model, &scene, p),
+        (None, l) => refine(&matcher, &model, &scene, l.as_ref().and_then(|l| l.outcome.as_ref())),
+    };
+    on_phase(3);
+    Ok((r.map_err(AlignError::Match)?, located))
 }
 
 #[cfg(test)]
@@ -401,7 +453,7 @@ mod tests {
         let setup = Setup {
             robot_id: 1,
             resolution: 0.5,
-            prior: crate::geometry::rows(&from_xyz_rpy(1.0, 2.0, 0.0, 0.0, 0.0, 0.3)),
+            prior: Some(crate::geometry::rows(&from_xyz_rpy(1.0, 2.0, 0.0, 0.0, 0.0, 0.3))),
             silence_ms: 5000,
         };
         let pts = [pack_point([1.0, -2.5, 0.25], Class::Pole), pack_point([300.0, 0.0, -1.0], Class::Road)];
@@ -409,6 +461,7 @@ mod tests {
         let mut buf = [0u8; 512];
         for msg in [
             FeedMessage::Setup(setup),
+            FeedMessage::Setup(Setup { prior: None, ..setup }),
             FeedMessage::Points { scan: 3, data: &flat },
             FeedMessage::EndOfFeed { scans: 5, points: 2 },
         ] {
@@ -421,7 +474,7 @@ mod tests {
         }
         let bad = FeedMessage::Points { scan: 0, data: &flat[..8] };
         assert_eq!(bad.encode(&mut buf), Err(FeedError::PointBytes { len: 8 }));
-        let nan = Setup { prior: [f32::NAN; 12], ..setup };
+        let nan = Setup { prior: Some([f32::NAN; 12]), ..setup };
         assert_eq!(FeedMessage::Setup(nan).encode(&mut buf), Err(FeedError::NonFinite));
         let failed = RobotMessage::Failed { stage: Stage::Link, message: "peer silent" };
         let n = failed.encode(&mut buf).unwrap();

@@ -12,6 +12,7 @@ use crate::kitti::Frame;
 use crate::mapping::{new_map, HostMap, PointFilter};
 use cosem_core::classes::{Class, NUM_CLASSES};
 use cosem_core::geometry::Isometry3;
+use cosem_core::matching::global::Located;
 use cosem_core::matching::MatchResult;
 use cosem_core::robot::{
     self, FeedMessage, RobotMessage, RobotReport, Setup, COARSE, MAX_POINTS_PER_MESSAGE, MODEL_WORDS, POINT_BYTES,
@@ -128,12 +129,18 @@ pub fn through_wire(map: &HostMap) -> Result<HostMap, String> {
 }
 
 /// The robot's alignment computed on this host: its own map against the
-/// peer's (through the wire), with the firmware's capacities.
-pub fn host_align(own: &HostMap, peer: &HostMap, prior: &Isometry3<f32>) -> Result<MatchResult, String> {
+/// peer's (through the wire), with the firmware's capacities; from `prior`,
+/// or with none from the maps' landmarks (then what they found comes back).
+pub fn host_align(
+    own: &HostMap,
+    peer: &HostMap,
+    prior: Option<&Isometry3<f32>>,
+) -> Result<(MatchResult, Option<Located>), String> {
     let received = through_wire(peer)?;
     let model = crate::align::HeapPyramidStorage::with_capacity(VOXELS, COARSE, MODEL_WORDS);
     let scene = crate::align::HeapPyramidStorage::with_capacity(VOXELS, COARSE, SCENE_WORDS);
-    robot::align(own, &received, prior, model, scene, |_| {}).map_err(|e| e.to_string())
+    let mut scratch = vec![0u32; VOXELS];
+    robot::align(own, &received, prior, &mut scratch, model, scene, |_| {}).map_err(|e| e.to_string())
 }
 
 /// What the line between the robots' UART0s does to bytes.

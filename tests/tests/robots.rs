@@ -81,6 +81,44 @@ fn two_robots_match_a_synthetic_street_on_board() {
     check_pair(&json);
 }
 
+/// Checks both robots found a unique landmark alignment (no prior given).
+fn check_no_prior(json: &Value) {
+    assert!(json["prior"].is_null(), "{json}");
+    for r in json["robots"].as_array().unwrap() {
+        let g = &r["global"];
+        assert_eq!(g["unique"], true, "{r}");
+        assert!(g["agreeing"].as_u64().unwrap() >= 4, "{r}");
+        assert!(r["locate_instructions"].as_u64().unwrap() > 0, "{r}");
+    }
+}
+
+#[test]
+fn two_robots_align_the_opposite_direction_loop_with_no_prior_on_board() {
+    // kitti08-loop: the same place driven in opposite directions (yaw about -148 degrees).
+    let Some(data) = cosem_tests::real_data("kitti08-loop") else { return };
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let data = data.display().to_string();
+    let (json, ok) = robots(&["--data", &data, "--a", "720:721", "--b", "1500:1501", "--no-prior"]);
+    assert!(ok, "{json}");
+    check_pair(&json);
+    check_no_prior(&json);
+}
+
+#[test]
+fn two_robots_match_a_synthetic_street_with_no_prior_on_board() {
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let tmp = synthetic(10);
+    let seq = tmp.path().join("seq").display().to_string();
+    let (json, ok) = robots(&["--data", &seq, "--a", "0:5", "--b", "5:10", "--no-prior"]);
+    assert!(ok, "{json}");
+    check_pair(&json);
+    check_no_prior(&json);
+}
+
 #[test]
 fn a_silent_or_corrupting_line_is_a_typed_link_error() {
     if cosem_tests::firmware_elves().is_none() {

@@ -13,9 +13,10 @@
 //! is unique when no clique of the candidates it does not explain comes
 //! close to it in size.
 
-use super::landmarks::Landmark;
+use super::landmarks::{extract, Landmark, LandmarkError};
 use super::{MatchError, MatchResult, Matcher, Pyramid, PyramidStorage};
 use crate::geometry::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use crate::map::{LocalMap, VoxelStorage};
 
 /// Most candidate correspondences considered.
 pub const MAX_CANDIDATES: usize = 256;
@@ -240,10 +241,51 @@ pub fn align_landmarks(model: &[Landmark], scene: &[Landmark], settings: &Global
     })
 }
 
-/// Aligns two prepared maps with no prior: the landmark alignment gives the
-/// start and the matcher refines it. Without a unique landmark answer the
-/// result is `NoOverlap` at the identity, never a guess; the landmark
-/// outcome, if any, comes back too.
+/// What the landmark stage found in two maps.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Located {
+    /// Landmarks of the model map and of the scene map.
+    pub landmarks: [u32; 2],
+    /// The landmark alignment, if enough landmarks agreed.
+    pub outcome: Option<GlobalOutcome>,
+}
+
+/// Extracts both maps' landmarks and aligns them with no prior. `scratch`
+/// holds one `u32` per voxel of the larger map (see [`extract`]); the
+/// landmarks live only in this call's frame (about 8 KiB, plus about 12 KiB
+/// for the correspondence graph), so a caller on a small stack gets that
+/// memory back before it matches.
+#[inline(never)]
+pub fn locate<A: VoxelStorage, B: VoxelStorage>(
+    model: &LocalMap<A>,
+    scene: &LocalMap<B>,
+    scratch: &mut [u32],
+    settings: &GlobalSettings,
+) -> Result<Located, LandmarkError> {
+    let mut lm = heapless::Vec::new();
+    let mut ls = heapless::Vec::new();
+    extract(model, scratch, &mut lm)?;
+    extract(scene, scratch, &mut ls)?;
+    Ok(Located { landmarks: [lm.len() as u32, ls.len() as u32], outcome: align_landmarks(&lm, &ls, settings) })
+}
+
+/// Refines a landmark alignment with the matcher: from its transform when
+/// it is unique, else `NoOverlap` at the identity, never a guess.
+pub fn refine<A: PyramidStorage, B: PyramidStorage>(
+    matcher: &Matcher,
+    model: &Pyramid<'_, A>,
+    scene: &Pyramid<'_, B>,
+    outcome: Option<&GlobalOutcome>,
+) -> Result<MatchResult, MatchError> {
+    match outcome {
+        Some(o) if o.unique => matcher.align(model, scene, &o.transform),
+        _ => Ok(MatchResult::no_overlap()),
+    }
+}
+
+/// Aligns two prepared maps with no prior from their landmarks (already
+/// extracted): [`align_landmarks`], then [`refine`]. The landmark outcome,
+/// if any, comes back too.
 pub fn align_without_prior<A: PyramidStorage, B: PyramidStorage>(
     matcher: &Matcher,
     model: &Pyramid<'_, A>,
@@ -252,10 +294,7 @@ pub fn align_without_prior<A: PyramidStorage, B: PyramidStorage>(
     settings: &GlobalSettings,
 ) -> Result<(MatchResult, Option<GlobalOutcome>), MatchError> {
     let outcome = align_landmarks(landmarks.0, landmarks.1, settings);
-    match outcome {
-        Some(o) if o.unique => Ok((matcher.align(model, scene, &o.transform)?, outcome)),
-        _ => Ok((MatchResult::no_overlap(), outcome)),
-    }
+    Ok((refine(matcher, model, scene, outcome.as_ref())?, outcome))
 }
 
 #[cfg(test)]

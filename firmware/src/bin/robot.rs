@@ -1,7 +1,8 @@
 //! One robot of a pair (`cosem robots`): fed its scans by a host over UART1,
 //! it builds its map on board, exchanges maps with the other robot over
-//! UART0 with the link protocol, aligns the received map to its own from
-//! the prior the host gave, and reports over UART1. Exit code 0 when the
+//! UART0 with the link protocol, aligns the received map to its own (from
+//! the prior the host gave, or with none from both maps' semantic
+//! landmarks, reusing the link's scratch), and reports over UART1. Exit code 0 when the
 //! match converged, 1 otherwise (the report or failure says why).
 #![no_std]
 #![no_main]
@@ -14,7 +15,8 @@ use cosem_core::link::{Clock, Endpoint, LinkConfig};
 use cosem_core::map::LocalMap;
 use cosem_core::matching::MatchStatus;
 use cosem_core::robot::{
-    self, FeedMessage, MapStorage, ModelStorage, RobotMessage, RobotReport, SceneStorage, Setup, Stage, VOXELS,
+    self, FeedMessage, GlobalReport, MapStorage, ModelStorage, RobotMessage, RobotReport, SceneStorage, Setup, Stage,
+    VOXELS,
 };
 use cosem_core::wire::frame::{encode_frame, Deframer, MAX_FRAME, MAX_PAYLOAD};
 use cosem_core::wire::message::MatchReport;
@@ -167,11 +169,14 @@ fn run(host: &mut Uart, link: &mut Uart) -> Result<RobotReport, Failure> {
         endpoint.run(link, &SysClock, || {}).map_err(|e| fail(Stage::Link, e))?
     };
     let link_ms = (millis() - t_link) as u32;
-    // Align the received map (scene) to ours (model).
-    let prior = from_rows(&setup.prior);
-    let mut marks = [0u64; 3];
-    let result = robot::align(&own, &received, &prior, model, scene, |k| marks[usize::from(k)] = instructions())
-        .map_err(|e| fail(Stage::Match, e))?;
+    // Align the received map (scene) to ours (model); the link is done
+    // with the scratch, the landmark search reuses it.
+    let prior = setup.prior.as_ref().map(from_rows);
+    let mut marks = [0u64; 4];
+    let (result, located) = robot::align(&own, &received, prior.as_ref(), scratch, model, scene, |k| {
+        marks[usize::from(k)] = instructions()
+    })
+    .map_err(|e| fail(Stage::Match, e))?;
     Ok(RobotReport {
         result: MatchReport::new(setup.robot_id, &result),
         points,
@@ -183,7 +188,9 @@ fn run(host: &mut Uart, link: &mut Uart) -> Result<RobotReport, Failure> {
         link_ms,
         map_instructions,
         prepare_instructions: marks[1] - marks[0],
-        match_instructions: marks[2] - marks[1],
+        locate_instructions: marks[2] - marks[1],
+        match_instructions: marks[3] - marks[2],
+        global: located.as_ref().map(GlobalReport::from),
         peak_stack: peak_stack(),
     })
 }

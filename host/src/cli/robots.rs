@@ -4,7 +4,7 @@
 
 use super::Error;
 use cosem_core::geometry::{from_rows, rows};
-use cosem_core::robot::Setup;
+use cosem_core::robot::{GlobalReport, Setup};
 use cosem_host::align::{errors, to_matrix};
 use cosem_host::kitti::{FrameRange, Sequence};
 use cosem_host::mapping::PointFilter;
@@ -38,8 +38,12 @@ pub struct Args {
     /// Robot A's prior `T_A_B` as x,y,z,roll,pitch,yaw (m, degrees); robot B
     /// gets its inverse. Default: the ground truth moved by 2 m and turned
     /// by 10 degrees.
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, allow_hyphen_values = true, conflicts_with = "no_prior")]
     prior: Option<String>,
+    /// Give the robots no prior: each aligns from both maps' semantic
+    /// landmarks first (prior-free global alignment), on board.
+    #[arg(long)]
+    no_prior: bool,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -96,6 +100,26 @@ fn ensure_firmware(path: &std::path::Path) -> Result<(), Error> {
     Ok(())
 }
 
+/// The landmark alignment's figures as JSON.
+fn global_json(g: GlobalReport) -> serde_json::Value {
+    json!({"landmarks": g.landmarks, "agreeing": g.agreeing, "runner_up": g.runner_up, "unique": g.unique})
+}
+
+/// The landmark alignment's figures in words.
+fn global_text(g: &GlobalReport) -> String {
+    if g.agreeing == 0 {
+        return format!("{} / {} landmarks, too few agree: no answer", g.landmarks[0], g.landmarks[1]);
+    }
+    format!(
+        "{} / {} landmarks, {} agree (runner-up {}): {}",
+        g.landmarks[0],
+        g.landmarks[1],
+        g.agreeing,
+        g.runner_up,
+        if g.unique { "unique" } else { "no unique answer" }
+    )
+}
+
 /// `x,y,z,roll,pitch,yaw` (m, degrees) of a transform, for printing.
 fn pose_text(m: &Matrix4<f64>) -> String {
     let x = pose::to_xyz_rpy_deg(m);
@@ -117,22 +141,29 @@ pub fn run(a: Args) -> Result<(), Error> {
         Some(p) => pose::parse(p)?,
         None => pose::from_xyz_rpy_deg(2.0, 0.0, 0.0, 0.0, 0.0, 10.0) * gt,
     };
-    let prior_ab = pose::to_isometry(&prior_ab);
+    let prior_ab = (!a.no_prior).then(|| pose::to_isometry(&prior_ab));
     let filter = PointFilter::default();
     let mut feeds = Vec::new();
-    for (id, range, prior) in [(0u8, a.a, prior_ab), (1u8, a.b, prior_ab.inverse())] {
+    for (id, range, prior) in [(0u8, a.a, prior_ab), (1u8, a.b, prior_ab.map(|p| p.inverse()))] {
         let frames = seq.load_range(range)?;
         let scans = frames.iter().map(|f| thin_scan(f, a.voxel, a.crop, &filter)).collect();
-        let setup =
-            Setup { robot_id: id, resolution: a.voxel, prior: rows(&prior), silence_ms: (a.silence * 1000.0) as u32 };
+        let setup = Setup {
+            robot_id: id,
+            resolution: a.voxel,
+            prior: prior.map(|p| rows(&p)),
+            silence_ms: (a.silence * 1000.0) as u32,
+        };
         feeds.push(Feed { setup, scans });
     }
     let (map_a, map_b) = (feeds[0].map()?, feeds[1].map()?);
     // The host runs each robot's alignment too: A's is the reference the
     // conventions name (`host`), B's the check of robot B.
     // Each from the prior exactly as its robot decodes it.
-    let host = host_align(&map_a, &map_b, &from_rows(&feeds[0].setup.prior))?;
-    let host_b = host_align(&map_b, &map_a, &from_rows(&feeds[1].setup.prior))?;
+    let prior_of = |f: &Feed| f.setup.prior.as_ref().map(from_rows);
+    let t = std::time::Instant::now();
+    let (host, host_global) = host_align(&map_a, &map_b, prior_of(&feeds[0]).as_ref())?;
+    let host_ms = t.elapsed().as_secs_f64() * 1e3;
+    let (host_b, _) = host_align(&map_b, &map_a, prior_of(&feeds[1]).as_ref())?;
     ensure_firmware(&a.firmware)?;
     let run = run_pair(&a.firmware, [&feeds[0], &feeds[1]], line, Duration::from_secs_f64(a.timeout))?;
     // 8N1 at 115200 baud: 11,520 bytes per second each way.
@@ -151,7 +182,7 @@ pub fn run(a: Args) -> Result<(), Error> {
                 let (e_t, e_r) = errors(&m, &truth[i]);
                 robots_json.push(json!({
                     "id": i, "status": status, "transform": pose::to_row_major(&m),
-                    "instructions": rep.match_instructions, "map_voxels": rep.map_voxels,
+                    "instructions": rep.locate_instructions + rep.match_instructions, "map_voxels": rep.map_voxels,
                     "bytes_sent": rep.bytes_sent, "bytes_received": rep.bytes_received,
                     "map_instructions": rep.map_instructions, "prepare_instructions": rep.prepare_instructions,
                     "match_instructions": rep.match_instructions, "points": rep.points,
@@ -159,8 +190,16 @@ pub fn run(a: Args) -> Result<(), Error> {
                     "link_ms_onboard": rep.link_ms, "link_time_115200_s": line_s(rep.bytes_sent.max(rep.bytes_received)),
                     "iterations": rep.result.iterations, "inliers": rep.result.inliers, "overlap": rep.result.overlap,
                     "peak_stack_bytes": rep.peak_stack, "exit_code": r.exit_code,
+                    "locate_instructions": rep.locate_instructions, "global": rep.global.map(global_json),
                     "e_t": e_t, "e_r": e_r,
                 }));
+                if let Some(g) = &rep.global {
+                    lines.push(format!(
+                        "robot {name} (id {i}): no prior; {}; landmark alignment {:.1} M instructions",
+                        global_text(g),
+                        rep.locate_instructions as f64 / 1e6
+                    ));
+                }
                 lines.push(format!(
                     "robot {name} (id {i}): {status}, T_{name}_{} = {} (e_t {e_t:.3} m, e_r {e_r:.3} deg)\n  \
                      map {} voxels from {} fed points; sent {} B, received {} B ({} retransmissions; {:.1} s at 115200 baud)\n  \
@@ -191,7 +230,11 @@ pub fn run(a: Args) -> Result<(), Error> {
     if a.json {
         let out = json!({
             "robots": robots_json,
-            "host": {"transform": pose::to_row_major(&host_m), "status": host.status.as_str(), "e_t": he_t, "e_r": he_r},
+            "host": {
+                "transform": pose::to_row_major(&host_m), "status": host.status.as_str(), "e_t": he_t, "e_r": he_r,
+                "global": host_global.as_ref().map(|l| global_json(GlobalReport::from(l))), "time_ms": host_ms,
+            },
+            "prior": feeds[0].setup.prior.as_ref().map(|p| pose::to_row_major(&to_matrix(&from_rows(p)))),
             "host_b": {"transform": pose::to_row_major(&host_bm), "status": host_b.status.as_str()},
             "ground_truth": pose::to_row_major(&gt),
             "line_bytes": run.line_bytes,
@@ -203,10 +246,13 @@ pub fn run(a: Args) -> Result<(), Error> {
             println!("{l}");
         }
         println!(
-            "host (same fed data): {}, T_A_B = {} (e_t {he_t:.3} m, e_r {he_r:.3} deg)",
+            "host (same fed data): {}, T_A_B = {} (e_t {he_t:.3} m, e_r {he_r:.3} deg); {host_ms:.1} ms",
             host.status.as_str(),
             pose_text(&host_m)
         );
+        if let Some(l) = &host_global {
+            println!("host, no prior: {}", global_text(&GlobalReport::from(l)));
+        }
         println!("host, robot B's match: {}, T_B_A = {}", host_b.status.as_str(), pose_text(&host_bm));
         println!("ground truth: T_A_B = {}; wall time {:.1} s", pose_text(&gt), run.wall_s);
     }
