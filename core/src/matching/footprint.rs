@@ -10,6 +10,14 @@ use crate::map::key::floor_f32;
 /// Levels of max-pooling (windows of 1, 2, 4, ... 2^(POOL_LEVELS-1) cells).
 pub const POOL_LEVELS: usize = 6;
 
+/// Class bits left out of the masks: the ground classes (road, parking,
+/// sidewalk, other-ground, terrain). Ground covers almost every column a
+/// sensor saw, so its bits would score the overlap of the two maps' seen
+/// areas, which peaks with the two sensors on top of each other whatever
+/// the truth: on a straight street that pulls the search towards the
+/// identity. What stands on the ground is not tied to the sensor.
+const GROUND: u32 = (1 << 8) | (1 << 9) | (1 << 10) | (1 << 11) | (1 << 16);
+
 /// Where a footprint lives inside the pyramid storage.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct FootprintInfo {
@@ -137,7 +145,7 @@ fn fill(level: &Level<'_>, info: &mut FootprintInfo, words: &mut [u32]) {
         let i = libm::floorf((e.position[0] - info.origin[0]) * inv) as usize;
         let j = libm::floorf((e.position[1] - info.origin[1]) * inv) as usize;
         if let Some(v) = words.get_mut(j.min(h - 1) * w + i.min(w - 1)) {
-            *v |= 1u32 << e.class;
+            *v |= (1u32 << e.class) & !GROUND;
         }
     }
     // Max-pooling: level k ORs the 2x2 block of level k-1 at offset 2^(k-1),
