@@ -9,6 +9,9 @@
 //! 0. [`geometry`]: rigid transforms and the conventions' pose syntax.
 //! 1. [`classes`]: the class table (SemanticKITTI's 19 classes) and the
 //!    mapping from raw dataset ids.
+//!    [`camera`] gives LiDAR points their labels from a camera's semantic
+//!    segmentation when the LiDAR has none (projection, Cityscapes ids,
+//!    per-pixel class probabilities).
 //! 2. [`map`]: labelled points are fused into a [`map::LocalMap`], a
 //!    fixed-capacity voxel hash map holding per voxel a sub-voxel mean
 //!    position, an occupancy log-odds, a hit count and a Bayes-fused label
@@ -54,6 +57,7 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod camera;
 pub mod classes;
 pub mod geometry;
 pub mod link;

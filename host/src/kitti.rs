@@ -67,6 +67,14 @@ pub enum KittiError {
         /// calib.txt.
         path: PathBuf,
     },
+    /// The calibration has no `P<camera>:` line.
+    #[error("{path}: no `P{camera}:` line (projection matrix of camera {camera})")]
+    MissingProjection {
+        /// calib.txt.
+        path: PathBuf,
+        /// The camera asked for.
+        camera: u8,
+    },
     /// A frame's scan file does not exist.
     #[error("{path}: frame {frame} is missing")]
     MissingFrame {
@@ -83,6 +91,14 @@ pub enum KittiError {
         /// 1-based line number.
         line: usize,
         /// What is wrong.
+        what: String,
+    },
+    /// A binary file whose content is wrong.
+    #[error("{path}: {what}")]
+    Malformed {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, and where.
         what: String,
     },
     /// A frame range that does not parse or is empty.
@@ -163,6 +179,10 @@ pub struct Frame {
     pub ranges: Vec<f32>,
     /// Raw label words.
     pub labels: Vec<u32>,
+    /// Per-point label evidence from a camera network's probabilities
+    /// (`evidence/NNNNNN.bin`, written by `cosem label --probabilities`),
+    /// fused instead of the hard label where present.
+    pub evidence: Option<Vec<Option<cosem_core::map::LabelDistribution>>>,
 }
 
 /// A SemanticKITTI sequence folder.
@@ -172,6 +192,8 @@ pub struct Sequence {
     pub dir: PathBuf,
     /// Velodyne-to-camera transform `Tr`.
     pub tr: Matrix4<f64>,
+    /// The cameras' 3x4 projections `P0`..`P3` (as 4x4, last row 0 0 0 1), where given.
+    pub projections: [Option<Matrix4<f64>>; 4],
     /// Camera-frame poses, one per line of poses.txt.
     pub camera_poses: Vec<Matrix4<f64>>,
     /// Timestamps, when times.txt is present.
@@ -230,9 +252,16 @@ impl Sequence {
         let calib_path = dir.join("calib.txt");
         let calib = read_text(&calib_path)?;
         let mut tr = None;
+        let mut projections = [None; 4];
         for (i, line) in calib.lines().enumerate() {
-            if let Some(rest) = line.trim_start().strip_prefix("Tr:") {
+            let line = line.trim_start();
+            if let Some(rest) = line.strip_prefix("Tr:") {
                 tr = Some(parse_3x4(&calib_path, i + 1, rest)?);
+            }
+            for (k, p) in projections.iter_mut().enumerate() {
+                if let Some(rest) = line.strip_prefix(&format!("P{k}:")) {
+                    *p = Some(parse_3x4(&calib_path, i + 1, rest)?);
+                }
             }
         }
         let tr = tr.ok_or(KittiError::MissingTr { path: calib_path })?;
@@ -263,7 +292,7 @@ impl Sequence {
         } else {
             None
         };
-        Ok(Sequence { dir, tr, camera_poses, times })
+        Ok(Sequence { dir, tr, projections, camera_poses, times })
     }
 
     /// Path of a frame's scan.
@@ -291,8 +320,34 @@ impl Sequence {
         Ok(rigid_inverse(&self.velodyne_pose(a)?) * self.velodyne_pose(b)?)
     }
 
-    /// Reads one scan and its labels, checking sizes, counts and values.
-    pub fn read_scan(&self, frame: usize) -> Result<Scan, KittiError> {
+    /// Camera `camera`'s projection matrix (`P<camera>` of calib.txt).
+    pub fn projection(&self, camera: u8) -> Result<Matrix4<f64>, KittiError> {
+        self.projections
+            .get(usize::from(camera))
+            .copied()
+            .flatten()
+            .ok_or(KittiError::MissingProjection { path: self.dir.join("calib.txt"), camera })
+    }
+
+    /// Frames with a scan file in `velodyne/`, in order.
+    pub fn scan_frames(&self) -> Result<Vec<usize>, KittiError> {
+        let dir = self.dir.join("velodyne");
+        let entries = std::fs::read_dir(&dir).map_err(|source| KittiError::Io { path: dir.clone(), source })?;
+        let mut frames = Vec::new();
+        for e in entries {
+            let e = e.map_err(|source| KittiError::Io { path: dir.clone(), source })?;
+            let name = e.file_name();
+            let name = name.to_string_lossy();
+            if let Some(Ok(n)) = name.strip_suffix(".bin").map(str::parse::<usize>) {
+                frames.push(n);
+            }
+        }
+        frames.sort_unstable();
+        Ok(frames)
+    }
+
+    /// Reads one scan's points (x, y, z, intensity), checking size and values.
+    pub fn read_points(&self, frame: usize) -> Result<Vec<[f32; 4]>, KittiError> {
         let scan_path = self.scan_path(frame);
         if !scan_path.exists() {
             return Err(KittiError::MissingFrame { path: scan_path, frame });
@@ -310,6 +365,12 @@ impl Sequence {
             }
             points.push(p);
         }
+        Ok(points)
+    }
+
+    /// Reads one scan and its labels, checking sizes, counts and values.
+    pub fn read_scan(&self, frame: usize) -> Result<Scan, KittiError> {
+        let points = self.read_points(frame)?;
         let label_path = self.label_path(frame);
         if !label_path.exists() {
             return Err(KittiError::MissingFrame { path: label_path, frame });
@@ -347,7 +408,8 @@ impl Sequence {
                     ]);
                 }
                 let time = self.times.as_ref().and_then(|t| t.get(i).copied());
-                Ok(Frame { index: i, time, pose, points, ranges, labels: scan.labels })
+                let evidence = crate::label::read_evidence(&self.dir, i, points.len())?;
+                Ok(Frame { index: i, time, pose, points, ranges, labels: scan.labels, evidence })
             })
             .collect()
     }

@@ -6,6 +6,7 @@ pub mod align;
 pub mod boxplot;
 pub mod cmap;
 pub mod kitti;
+pub mod label;
 pub mod mapping;
 pub mod ply;
 pub mod pose;

@@ -113,7 +113,12 @@ pub fn fuse_frames(map: &mut HostMap, frames: &[Frame], filter: &PointFilter) ->
             stats.points += 1;
             let Some(class) = filter.keep(r, l) else { continue };
             stats.kept += 1;
-            match map.insert_point(*p, class) {
+            // A network's probabilities, where given, instead of its argmax.
+            let inserted = match f.evidence.as_ref().and_then(|e| e.get(point)).copied().flatten() {
+                Some(e) => map.insert_point_evidence(*p, &e),
+                None => map.insert_point(*p, class),
+            };
+            match inserted {
                 Ok(Insertion::Dropped) => stats.dropped += 1,
                 Ok(_) => {}
                 Err(InsertError::Full) => return Err(BuildError::Full { capacity: map.capacity(), frame: f.index }),

@@ -7,7 +7,9 @@
 //! streets. Everything is seeded: the same seed gives the same bytes. This is
 //! the project's built-in data: demos and tests run on it without any dataset.
 
+use crate::label::{ProbabilityMap, SegImage};
 use crate::rng::Rng;
+use cosem_core::camera::SegClasses;
 use cosem_core::classes::Class;
 use nalgebra::{Matrix4, Rotation3, Vector3};
 use std::io::Write;
@@ -30,7 +32,34 @@ pub struct SynthConfig {
     pub azimuth_step_deg: f64,
     /// Farthest return (m).
     pub max_range: f64,
+    /// Segmentation images to render for camera 2 (`None`: none).
+    pub seg: Option<SegRender>,
 }
+
+/// Segmentation images of camera 2, as a network would give them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SegRender {
+    /// The ids written.
+    pub classes: SegClasses,
+    /// Corrupt the perfect image realistically: class borders displaced by a
+    /// smooth random field of up to [`BORDER_JITTER_PX`] pixels plus one
+    /// pixel of noise, and [`WRONG_BLOBS`] elliptic blobs of a confusable
+    /// wrong class.
+    pub corrupt: bool,
+    /// Also write per-pixel class probabilities (`.npy`): each pixel's
+    /// class shares in a 5x5 window, so borders are uncertain.
+    pub probabilities: bool,
+}
+
+/// Folder of the rendered segmentation images in a synthetic sequence.
+pub const SEG_DIR: &str = "seg_2";
+
+/// Size of the rendered segmentation images (KITTI sequence 00's camera 2).
+pub const IMAGE_SIZE: (u32, u32) = (1241, 376);
+/// Largest border displacement of a corrupted image (pixels).
+pub const BORDER_JITTER_PX: f64 = 4.0;
+/// Wrong-class blobs per corrupted image.
+pub const WRONG_BLOBS: usize = 12;
 
 impl Default for SynthConfig {
     fn default() -> Self {
@@ -42,6 +71,7 @@ impl Default for SynthConfig {
             step: 0.8,
             azimuth_step_deg: 0.2,
             max_range: 80.0,
+            seg: None,
         }
     }
 }
@@ -352,35 +382,77 @@ pub struct SynthScan {
     pub labels: Vec<u32>,
 }
 
+/// The scene's objects binned by azimuth around one viewpoint, so that each
+/// ray tests few of them.
+struct Sectors {
+    origin: [f64; 3],
+    lists: Vec<Vec<u32>>,
+    width: f64,
+}
+
+impl Sectors {
+    const COUNT: usize = 720;
+
+    fn new(scene: &Scene, origin: [f64; 3], max_range: f64) -> Sectors {
+        let width = std::f64::consts::TAU / Self::COUNT as f64;
+        let mut lists: Vec<Vec<u32>> = vec![Vec::new(); Self::COUNT];
+        for (i, ob) in scene.objects.iter().enumerate() {
+            let (c, r) = ob.bound;
+            let (dx, dy) = (c[0] - origin[0], c[1] - origin[1]);
+            let d = dx.hypot(dy);
+            if d - r > max_range {
+                continue;
+            }
+            if d <= r + 0.5 {
+                for s in lists.iter_mut() {
+                    s.push(i as u32);
+                }
+                continue;
+            }
+            let az = dy.atan2(dx);
+            let half = (r / d).asin() + width;
+            let first = ((az - half) / width).floor() as i64;
+            let last = ((az + half) / width).ceil() as i64;
+            for s in first..=last {
+                lists[s.rem_euclid(Self::COUNT as i64) as usize].push(i as u32);
+            }
+        }
+        Sectors { origin, lists, width }
+    }
+
+    /// The first surface along unit direction `d` (world frame) from the
+    /// origin: distance and class.
+    fn cast(&self, scene: &Scene, d: [f64; 3]) -> Option<(f64, Class)> {
+        let o = self.origin;
+        let az = d[1].atan2(d[0]);
+        let sector = ((az / self.width).floor() as i64).rem_euclid(Self::COUNT as i64) as usize;
+        let mut best = f64::INFINITY;
+        let mut class = None;
+        if d[2] < -1e-9 {
+            let t = -o[2] / d[2];
+            if t < best {
+                best = t;
+                class = Some(scene.ground_class(o[0] + t * d[0], o[1] + t * d[1]));
+            }
+        }
+        for &i in &self.lists[sector] {
+            let ob = &scene.objects[i as usize];
+            if let Some(t) = ob.hit(&o, &d) {
+                if t < best {
+                    best = t;
+                    class = Some(ob.class);
+                }
+            }
+        }
+        class.map(|c| (best, c))
+    }
+}
+
 /// Casts every beam of one revolution from `pose` through the scene.
 fn scan(scene: &Scene, pose: &Matrix4<f64>, cfg: &SynthConfig, rng: &mut Rng) -> SynthScan {
     let o = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
     let rot = pose.fixed_view::<3, 3>(0, 0).into_owned();
-    // Bin objects into azimuth sectors (world frame) so each ray tests few.
-    const SECTORS: usize = 720;
-    let sector_width = std::f64::consts::TAU / SECTORS as f64;
-    let mut sectors: Vec<Vec<u32>> = vec![Vec::new(); SECTORS];
-    for (i, ob) in scene.objects.iter().enumerate() {
-        let (c, r) = ob.bound;
-        let (dx, dy) = (c[0] - o[0], c[1] - o[1]);
-        let d = dx.hypot(dy);
-        if d - r > cfg.max_range {
-            continue;
-        }
-        if d <= r + 0.5 {
-            for s in sectors.iter_mut() {
-                s.push(i as u32);
-            }
-            continue;
-        }
-        let az = dy.atan2(dx);
-        let half = (r / d).asin() + sector_width;
-        let first = ((az - half) / sector_width).floor() as i64;
-        let last = ((az + half) / sector_width).ceil() as i64;
-        for s in first..=last {
-            sectors[s.rem_euclid(SECTORS as i64) as usize].push(i as u32);
-        }
-    }
+    let sectors = Sectors::new(scene, o, cfg.max_range);
     let elevations = beam_elevations();
     let columns = (360.0 / cfg.azimuth_step_deg).round() as usize;
     let mut points = Vec::with_capacity(columns * elevations.len());
@@ -391,28 +463,7 @@ fn scan(scene: &Scene, pose: &Matrix4<f64>, cfg: &SynthConfig, rng: &mut Rng) ->
             let el = el.to_radians();
             let local = Vector3::new(el.cos() * az_local.cos(), el.cos() * az_local.sin(), el.sin());
             let w = rot * local;
-            let d = [w[0], w[1], w[2]];
-            let az_world = d[1].atan2(d[0]);
-            let sector = ((az_world / sector_width).floor() as i64).rem_euclid(SECTORS as i64) as usize;
-            let mut best = f64::INFINITY;
-            let mut class = None;
-            if d[2] < -1e-9 {
-                let t = -o[2] / d[2];
-                if t < best {
-                    best = t;
-                    class = Some(scene.ground_class(o[0] + t * d[0], o[1] + t * d[1]));
-                }
-            }
-            for &i in &sectors[sector] {
-                let ob = &scene.objects[i as usize];
-                if let Some(t) = ob.hit(&o, &d) {
-                    if t < best {
-                        best = t;
-                        class = Some(ob.class);
-                    }
-                }
-            }
-            let Some(mut class) = class else { continue };
+            let Some((best, mut class)) = sectors.cast(scene, [w[0], w[1], w[2]]) else { continue };
             if best > cfg.max_range || best < 2.0 {
                 continue;
             }
@@ -429,12 +480,140 @@ fn scan(scene: &Scene, pose: &Matrix4<f64>, cfg: &SynthConfig, rng: &mut Rng) ->
     SynthScan { points, labels }
 }
 
+/// Camera `k`'s 3x4 projection from [`CALIB_P`].
+fn projection(k: usize) -> nalgebra::Matrix3x4<f64> {
+    let line = CALIB_P.lines().nth(k).unwrap_or_default();
+    let v: Vec<f64> = line.split_whitespace().skip(1).filter_map(|t| t.parse().ok()).collect();
+    nalgebra::Matrix3x4::from_row_slice(&v)
+}
+
+/// Renders what a perfect segmentation network gives for camera 2 on the
+/// vehicle at LiDAR pose `velodyne` (world frame): the class of the first
+/// surface along each pixel's ray; the sky where there is none.
+fn render(scene: &Scene, velodyne: &Matrix4<f64>, classes: SegClasses) -> SegImage {
+    let p2 = projection(2);
+    let k = p2.fixed_view::<3, 3>(0, 0).into_owned();
+    let kinv = k.try_inverse().unwrap_or_else(nalgebra::Matrix3::identity);
+    let centre = -(kinv * p2.column(3));
+    let cam_to_world = velodyne * crate::kitti::rigid_inverse(&synthetic_tr());
+    let o = cam_to_world * nalgebra::Vector4::new(centre.x, centre.y, centre.z, 1.0);
+    let rot = cam_to_world.fixed_view::<3, 3>(0, 0).into_owned();
+    let sectors = Sectors::new(scene, [o.x, o.y, o.z], 500.0);
+    let (w, h) = IMAGE_SIZE;
+    let mut ids = Vec::with_capacity(w as usize * h as usize);
+    for v in 0..h {
+        for u in 0..w {
+            let d = (rot * (kinv * Vector3::new(f64::from(u), f64::from(v), 1.0))).normalize();
+            let class = sectors.cast(scene, [d.x, d.y, d.z]).filter(|(t, _)| *t <= 500.0).map(|(_, c)| c);
+            ids.push(classes.id(class));
+        }
+    }
+    SegImage { width: w, height: h, ids }
+}
+
+/// The class a segmentation network confuses `c` with.
+fn confusable(c: Class) -> Class {
+    match c {
+        Class::Road | Class::Parking => Class::Sidewalk,
+        Class::Sidewalk | Class::OtherGround => Class::Road,
+        Class::Terrain => Class::Vegetation,
+        Class::Vegetation => Class::Terrain,
+        Class::Building => Class::Fence,
+        Class::Fence => Class::Building,
+        Class::Pole | Class::Trunk => Class::TrafficSign,
+        Class::TrafficSign => Class::Pole,
+        Class::Car => Class::Truck,
+        Class::Truck | Class::OtherVehicle => Class::Car,
+        Class::Person => Class::Bicyclist,
+        Class::Bicyclist | Class::Motorcyclist | Class::Bicycle | Class::Motorcycle => Class::Person,
+    }
+}
+
+/// A realistic network's errors on a perfect image: borders displaced by a
+/// smooth random field (bilinear over a 24-pixel grid, up to
+/// [`BORDER_JITTER_PX`]) plus a pixel of noise, then [`WRONG_BLOBS`] blobs
+/// of a confusable wrong class on surfaces.
+fn corrupt(image: &SegImage, classes: SegClasses, rng: &mut Rng) -> SegImage {
+    let (w, h) = (image.width as usize, image.height as usize);
+    const STEP: usize = 24;
+    let (gw, gh) = (w / STEP + 2, h / STEP + 2);
+    let field: Vec<[f64; 2]> = (0..gw * gh)
+        .map(|_| [rng.range(-BORDER_JITTER_PX, BORDER_JITTER_PX), rng.range(-BORDER_JITTER_PX, BORDER_JITTER_PX)])
+        .collect();
+    let mut out = vec![0u8; w * h];
+    for v in 0..h {
+        for u in 0..w {
+            let (fx, fy) = (u as f64 / STEP as f64, v as f64 / STEP as f64);
+            let (gx, gy) = (fx.floor() as usize, fy.floor() as usize);
+            let (ax, ay) = (fx - gx as f64, fy - gy as f64);
+            let at = |x: usize, y: usize, k: usize| field[(y.min(gh - 1)) * gw + x.min(gw - 1)][k];
+            let lerp = |k: usize| {
+                (1.0 - ay) * ((1.0 - ax) * at(gx, gy, k) + ax * at(gx + 1, gy, k))
+                    + ay * ((1.0 - ax) * at(gx, gy + 1, k) + ax * at(gx + 1, gy + 1, k))
+            };
+            let du = lerp(0) + rng.below(3) as f64 - 1.0;
+            let dv = lerp(1) + rng.below(3) as f64 - 1.0;
+            let su = (u as f64 + du).round().clamp(0.0, (w - 1) as f64) as usize;
+            let sv = (v as f64 + dv).round().clamp(0.0, (h - 1) as f64) as usize;
+            out[v * w + u] = image.ids[sv * w + su];
+        }
+    }
+    for _ in 0..WRONG_BLOBS {
+        let (cu, cv) = (rng.below(w as u64) as usize, rng.below(h as u64) as usize);
+        let (rx, ry) = (rng.range(6.0, 40.0), rng.range(4.0, 25.0));
+        let Ok(Some(c)) = classes.class(out[cv * w + cu]) else { continue };
+        let wrong = classes.id(Some(confusable(c)));
+        let (u0, u1) = ((cu as f64 - rx).max(0.0) as usize, ((cu as f64 + rx) as usize).min(w - 1));
+        let (v0, v1) = ((cv as f64 - ry).max(0.0) as usize, ((cv as f64 + ry) as usize).min(h - 1));
+        for v in v0..=v1 {
+            for u in u0..=u1 {
+                let (x, y) = ((u as f64 - cu as f64) / rx, (v as f64 - cv as f64) / ry);
+                let px = &mut out[v * w + u];
+                if x * x + y * y <= 1.0 && matches!(classes.class(*px), Ok(Some(_))) {
+                    *px = wrong;
+                }
+            }
+        }
+    }
+    SegImage { width: image.width, height: image.height, ids: out }
+}
+
+/// Per-pixel class probabilities from an image: each id's share of a 5x5
+/// window (plus a little mass on every id), so borders are uncertain.
+pub fn probabilities_of(image: &SegImage, classes: SegClasses) -> ProbabilityMap {
+    let (w, h) = (image.width as usize, image.height as usize);
+    let channels = classes.channels();
+    let floor = 0.05f32;
+    let mut values = vec![0.0f32; w * h * channels];
+    for v in 0..h {
+        for u in 0..w {
+            let px = &mut values[(v * w + u) * channels..(v * w + u + 1) * channels];
+            let mut n = 0.0f32;
+            for y in v.saturating_sub(2)..=(v + 2).min(h - 1) {
+                for x in u.saturating_sub(2)..=(u + 2).min(w - 1) {
+                    if let Some(p) = px.get_mut(usize::from(image.ids[y * w + x])) {
+                        *p += 1.0;
+                        n += 1.0;
+                    }
+                }
+            }
+            let total = n + floor * channels as f32;
+            for p in px.iter_mut() {
+                *p = (*p + floor) / total;
+            }
+        }
+    }
+    ProbabilityMap { width: image.width, height: image.height, channels, values }
+}
+
 /// A synthesised sequence held in memory.
 pub struct Synthesised {
     /// LiDAR poses relative to the first scan's.
     pub poses: Vec<Matrix4<f64>>,
     /// The scans.
     pub scans: Vec<SynthScan>,
+    /// Camera 2's segmentation image per scan, when asked for.
+    pub seg: Vec<SegImage>,
 }
 
 /// Synthesises a sequence in memory.
@@ -449,7 +628,23 @@ pub fn synthesise(cfg: &SynthConfig) -> Synthesised {
     for pose in &world {
         scans.push(scan(&scene, pose, cfg, &mut rng));
     }
-    Synthesised { poses: world.iter().map(|p| first_inv * p).collect(), scans }
+    // Images draw from their own seeded stream: the scans stay the same bytes.
+    let mut seg_rng = Rng::new(cfg.seed ^ 0x005E_C011_A6E5);
+    let seg = match cfg.seg {
+        Some(r) => world
+            .iter()
+            .map(|pose| {
+                let perfect = render(&scene, pose, r.classes);
+                if r.corrupt {
+                    corrupt(&perfect, r.classes, &mut seg_rng)
+                } else {
+                    perfect
+                }
+            })
+            .collect(),
+        None => Vec::new(),
+    };
+    Synthesised { poses: world.iter().map(|p| first_inv * p).collect(), scans, seg }
 }
 
 fn write_3x4(out: &mut impl Write, m: &Matrix4<f64>) -> std::io::Result<()> {
@@ -494,6 +689,29 @@ pub fn write_sequence(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesi
          SemanticKITTI ids (before label noise). Generated data, no third-party content.",
         cfg.frames, cfg.seed, cfg.range_noise, cfg.label_noise, cfg.step
     )?;
+    if let Some(r) = cfg.seg {
+        writeln!(
+            prov,
+            "\n{SEG_DIR}/: camera 2's segmentation per scan ({}x{} PNG of {} ids{}{}), rendered by ray casting \
+             through P2 and Tr.",
+            IMAGE_SIZE.0,
+            IMAGE_SIZE.1,
+            r.classes.name(),
+            if r.corrupt { ", corrupted: displaced borders and wrong-class blobs" } else { ", as a perfect network" },
+            if r.probabilities { "; NNNNNN.npy: per-pixel class probabilities" } else { "" }
+        )?;
+    }
     std::fs::write(dir.join("PROVENANCE.md"), prov)?;
+    if let Some(r) = cfg.seg {
+        let seg_dir = dir.join(SEG_DIR);
+        std::fs::create_dir_all(&seg_dir)?;
+        for (i, im) in seq.seg.iter().enumerate() {
+            crate::label::write_seg_png(&seg_dir.join(format!("{i:06}.png")), im)?;
+            if r.probabilities {
+                let p = probabilities_of(im, r.classes);
+                crate::label::write_probabilities(&seg_dir.join(format!("{i:06}.npy")), &p)?;
+            }
+        }
+    }
     Ok(seq)
 }

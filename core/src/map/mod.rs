@@ -16,7 +16,7 @@ pub mod table;
 pub mod voxel;
 
 pub use key::{CellPoint, KeyError, VoxelKey};
-pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS};
+pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS, SCORE_UNITS_PER_NAT};
 pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertion, LocalMap, MapConfig, Neighbours};
 pub use overlap::overlap;
 pub use table::{ArrayStorage, SliceStorage, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};

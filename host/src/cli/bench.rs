@@ -19,6 +19,23 @@ pub enum What {
     /// Prior-free global alignment of two maps: landmark extraction,
     /// correspondence search, refinement (single thread).
     Global(GlobalArgs),
+    /// Camera labels on a synthetic street: points labelled per second,
+    /// agreement with the ground truth (perfect, corrupted, probabilities),
+    /// and matching success with camera labels against ground-truth labels.
+    Label(LabelArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct LabelArgs {
+    /// Frames of the synthetic sequence (robot A the first half, B the rest).
+    #[arg(long, default_value_t = 10)]
+    frames: usize,
+    /// Seeds of the synthetic sequences.
+    #[arg(long, default_value = "5", value_delimiter = ',')]
+    seeds: Vec<u64>,
+    /// Keep every K-th value of the paper's grid of starts on each axis.
+    #[arg(long, default_value_t = 2)]
+    grid_stride: usize,
 }
 
 #[derive(clap::Args, Debug)]
@@ -84,6 +101,7 @@ pub fn run(w: What) -> Result<(), Error> {
         What::Wire(a) => bench_wire(a),
         What::Link(a) => bench_link(a),
         What::Global(a) => bench_global(a),
+        What::Label(a) => bench_label(a),
     }
 }
 
@@ -291,6 +309,117 @@ fn bench_global(a: GlobalArgs) -> Result<(), Error> {
     println!("  global alignment     {:.2} ms in all", (te + ts + tr) * 1e3);
     println!("  (median of {} runs, single thread; maps prepared beforehand)", a.repeat.max(1));
     Ok(())
+}
+
+/// Strict success of matching `seq`'s two halves over the grid of starts.
+fn strict_success(dir: &std::path::Path, frames: usize, stride: usize) -> Result<(f64, usize), Error> {
+    use cosem_core::matching::{MatchSettings, MatchStatus, Matcher};
+    use cosem_host::align::{errors, grid, prepare, to_matrix, DEFAULT_LEVELS};
+    let seq = Sequence::open(dir)?;
+    let half = frames / 2;
+    let (ra, rb) = (FrameRange { start: 0, end: half, stride: 1 }, FrameRange { start: half, end: frames, stride: 1 });
+    let filter = PointFilter::default();
+    let (ma, _) = cosem_host::mapping::build_map(&seq.load_range(ra)?, MapConfig::default(), &filter)?;
+    let (mb, _) = cosem_host::mapping::build_map(&seq.load_range(rb)?, MapConfig::default(), &filter)?;
+    let gt = seq.relative_pose(0, half)?;
+    let (pa, pb) = (prepare(&ma, DEFAULT_LEVELS)?, prepare(&mb, DEFAULT_LEVELS)?);
+    let matcher = Matcher::new(MatchSettings::default());
+    let starts = grid(stride);
+    let mut ok = 0;
+    for s in &starts {
+        let r = matcher.align(&pa, &pb, &cosem_host::pose::to_isometry(&s.apply(&gt)))?;
+        let (et, er) = errors(&to_matrix(&r.transform), &gt);
+        ok += usize::from(r.status == MatchStatus::Converged && et < 0.5 && er < 1.0);
+    }
+    Ok((ok as f64 / starts.len().max(1) as f64, ma.len()))
+}
+
+fn bench_label(a: LabelArgs) -> Result<(), Error> {
+    use cosem_core::camera::SegClasses;
+    use cosem_host::label::{label_sequence, LabelOptions};
+    use cosem_host::synth::{write_sequence, SegRender, SynthConfig, SEG_DIR};
+    if a.frames < 4 {
+        return Err("--frames must be at least 4".into());
+    }
+    let tmp = TempDir(std::env::temp_dir().join(format!("cosem-bench-label-{}", std::process::id())));
+    println!(
+        "bench label: synthetic streets of {} frames (A = 0:{}, B = {}:{}), camera 2, Cityscapes ids; \
+         strict success over {} starts of the paper's grid",
+        a.frames,
+        a.frames / 2,
+        a.frames / 2,
+        a.frames,
+        grid_len(a.grid_stride)
+    );
+    println!(
+        "  {:<5} {:<24} {:>10} {:>11} {:>9} {:>12} {:>8}",
+        "seed", "labels", "M pts/s", "agreement", "in set", "map voxels", "strict"
+    );
+    for &seed in &a.seeds {
+        let variants: [(&str, Option<SegRender>, bool); 4] = [
+            ("ground truth (LiDAR)", None, false),
+            (
+                "camera, perfect",
+                Some(SegRender { classes: SegClasses::Cityscapes, corrupt: false, probabilities: false }),
+                false,
+            ),
+            (
+                "camera, corrupted",
+                Some(SegRender { classes: SegClasses::Cityscapes, corrupt: true, probabilities: false }),
+                false,
+            ),
+            (
+                "camera, corrupted, probs",
+                Some(SegRender { classes: SegClasses::Cityscapes, corrupt: true, probabilities: true }),
+                true,
+            ),
+        ];
+        for (name, seg, probabilities) in variants {
+            let src = tmp.0.join(format!("s{seed}-{}", name.len()));
+            let cfg = SynthConfig { frames: a.frames, seed, seg, ..SynthConfig::default() };
+            write_sequence(&src, &cfg)?;
+            let (dir, figures) = match seg {
+                None => (src.clone(), None),
+                Some(r) => {
+                    let out = tmp.0.join(format!("l{seed}-{}", name.len()));
+                    let s = label_sequence(&LabelOptions {
+                        data: src.clone(),
+                        seg: src.join(SEG_DIR),
+                        camera: 2,
+                        classes: r.classes,
+                        probabilities,
+                        occlusion: true,
+                        image_size: None,
+                        frames: None,
+                        out: out.clone(),
+                    })?;
+                    (out, Some(s))
+                }
+            };
+            let (rate, voxels) = strict_success(&dir, a.frames, a.grid_stride)?;
+            let pct = |v: Option<f64>| v.map(|v| format!("{:.2}%", 100.0 * v)).unwrap_or_else(|| "-".into());
+            println!(
+                "  {:<5} {:<24} {:>10} {:>11} {:>9} {:>12} {:>7.1}%",
+                seed,
+                name,
+                figures
+                    .as_ref()
+                    .map(|s| format!("{:.1}", s.points as f64 / s.label_seconds.max(1e-9) / 1e6))
+                    .unwrap_or("-".into()),
+                pct(figures.as_ref().and_then(|s| s.agreement())),
+                pct(figures.as_ref().and_then(|s| s.agreement_in_set())),
+                voxels,
+                100.0 * rate
+            );
+        }
+    }
+    println!("  (labelling rate: projection and lookup only, single thread; agreement over in-view points;");
+    println!("   'in set': as Cityscapes ids can say it, trunks being vegetation there)");
+    Ok(())
+}
+
+fn grid_len(stride: usize) -> usize {
+    cosem_host::align::grid(stride).len()
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

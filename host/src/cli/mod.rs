@@ -5,6 +5,7 @@ mod demo;
 mod eval;
 mod export;
 mod info;
+mod label;
 mod link;
 mod map;
 mod matching;
@@ -45,6 +46,8 @@ enum Command {
         #[command(subcommand)]
         format: export::Format,
     },
+    /// Label LiDAR scans from camera segmentation images (SemanticKITTI layout out).
+    Label(label::Args),
     /// Synthesise a SemanticKITTI-layout sequence (street scene + simulated LiDAR).
     Synth(synth::Args),
     /// Benchmarks that print numbers.
@@ -66,6 +69,7 @@ pub fn run(cli: Cli) -> Result<(), Error> {
         Command::Robots(a) => robots::run(a),
         Command::Info(a) => info::run(a),
         Command::Export { format } => export::run(format),
+        Command::Label(a) => label::run(a),
         Command::Synth(a) => synth::run(a),
         Command::Bench { what } => bench::run(what),
         Command::Demo(a) => demo::run(a),

@@ -1,7 +1,8 @@
 //! `cosem synth`: a synthetic sequence in SemanticKITTI layout.
 
 use super::Error;
-use cosem_host::synth::{write_sequence, SynthConfig};
+use cosem_core::camera::SegClasses;
+use cosem_host::synth::{write_sequence, SegRender, SynthConfig};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -24,6 +25,27 @@ pub struct Args {
     /// Distance driven per frame (m).
     #[arg(long, default_value_t = SynthConfig::default().step)]
     step: f64,
+    /// Render camera 2's segmentation image per frame into seg_2/, with
+    /// these ids: cityscapes (a Cityscapes-trained network's 19 training
+    /// ids), semantickitti (learning-map ids, 0 unlabeled), or none.
+    #[arg(long, default_value = "cityscapes")]
+    seg: String,
+    /// Corrupt the images as a real network would: displaced class
+    /// borders, blobs of a confusable wrong class.
+    #[arg(long)]
+    seg_corrupt: bool,
+    /// Also write per-pixel class probabilities (seg_2/NNNNNN.npy).
+    #[arg(long)]
+    seg_probabilities: bool,
+}
+
+/// Parses a class-set name (`cityscapes` or `semantickitti`).
+pub fn parse_classes(s: &str) -> Result<SegClasses, String> {
+    match s {
+        "cityscapes" => Ok(SegClasses::Cityscapes),
+        "semantickitti" => Ok(SegClasses::SemanticKitti),
+        _ => Err(format!("class set `{s}`: expected cityscapes or semantickitti")),
+    }
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
@@ -33,7 +55,17 @@ pub fn run(a: Args) -> Result<(), Error> {
     if !((0.0..=1.0).contains(&a.label_noise) && a.range_noise >= 0.0 && a.range_noise.is_finite()) {
         return Err("--label-noise must be in [0, 1] and --range-noise a finite number >= 0".into());
     }
+    let seg = match a.seg.as_str() {
+        "none" => {
+            if a.seg_corrupt || a.seg_probabilities {
+                return Err("--seg-corrupt and --seg-probabilities need --seg cityscapes|semantickitti".into());
+            }
+            None
+        }
+        s => Some(SegRender { classes: parse_classes(s)?, corrupt: a.seg_corrupt, probabilities: a.seg_probabilities }),
+    };
     let cfg = SynthConfig {
+        seg,
         frames: a.frames,
         seed: a.seed,
         range_noise: a.range_noise,

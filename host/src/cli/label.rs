@@ -1,0 +1,117 @@
+//! `cosem label`: LiDAR labels from camera segmentation images.
+
+use super::synth::parse_classes;
+use super::Error;
+use cosem_host::kitti::FrameRange;
+use cosem_host::label::{label_sequence, LabelOptions};
+use serde_json::json;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// SemanticKITTI-layout folder (velodyne/, poses.txt, calib.txt; labels/
+    /// optional: when present, the new labels are compared with them).
+    #[arg(long)]
+    data: PathBuf,
+    /// Segmentation images: 8-bit PNGs of class ids named like the scans
+    /// (000042.png), or with --probabilities NumPy maps (000042.npy).
+    #[arg(long)]
+    seg: PathBuf,
+    /// Camera whose projection `P<camera>` in calib.txt the images are from.
+    #[arg(long, default_value_t = 2)]
+    camera: u8,
+    /// What the image ids mean: cityscapes (19 training ids, 255 ignored) or
+    /// semantickitti (learning-map ids, 0 unlabeled).
+    #[arg(long, default_value = "cityscapes")]
+    classes: String,
+    /// Read per-pixel class probabilities (.npy, <f4 or |u1, HxWxC or CxHxW)
+    /// and write their evidence beside the labels (evidence/), which mapping
+    /// fuses instead of the hard labels.
+    #[arg(long)]
+    probabilities: bool,
+    /// Label points the camera cannot see (behind nearer points of the scan,
+    /// seen by the LiDAR from its other viewpoint) too; by default they stay
+    /// unlabelled.
+    #[arg(long)]
+    keep_occluded: bool,
+    /// Expected image size WIDTHxHEIGHT; default: the first image's.
+    #[arg(long)]
+    image_size: Option<String>,
+    /// Frames START:END[:STRIDE]; default: every scan in velodyne/.
+    #[arg(long)]
+    frames: Option<FrameRange>,
+    /// Output folder (SemanticKITTI layout: links to the scans, copies of
+    /// calib, poses and times, the new labels).
+    #[arg(long)]
+    out: PathBuf,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("--image-size `{s}`: expected WIDTHxHEIGHT, e.g. 1241x376");
+    let (w, h) = s.split_once('x').ok_or_else(bad)?;
+    let (w, h) = (w.parse::<u32>().map_err(|_| bad())?, h.parse::<u32>().map_err(|_| bad())?);
+    if w == 0 || h == 0 {
+        return Err(bad());
+    }
+    Ok((w, h))
+}
+
+pub fn run(a: Args) -> Result<(), Error> {
+    if a.out == a.data {
+        return Err("--out must differ from --data (the labels would overwrite the input's)".into());
+    }
+    let opts = LabelOptions {
+        data: a.data.clone(),
+        seg: a.seg.clone(),
+        camera: a.camera,
+        classes: parse_classes(&a.classes)?,
+        probabilities: a.probabilities,
+        occlusion: !a.keep_occluded,
+        image_size: a.image_size.as_deref().map(parse_size).transpose()?,
+        frames: a.frames.map(|r| r.frames().collect()),
+        out: a.out.clone(),
+    };
+    let t = std::time::Instant::now();
+    let s = label_sequence(&opts)?;
+    let wall = t.elapsed().as_secs_f64();
+    let rate = s.points as f64 / s.label_seconds.max(1e-9);
+    let pct = |n: usize, d: usize| 100.0 * n as f64 / d.max(1) as f64;
+    if a.json {
+        let j = json!({
+            "frames": s.frames, "points": s.points, "in_view": s.in_view, "occluded": s.occluded, "labelled": s.labelled,
+            "compared": s.compared, "agreeing": s.agreeing, "agreement": s.agreement(),
+            "agreement_in_class_set": s.agreement_in_set(),
+            "points_per_second": rate, "label_seconds": s.label_seconds, "wall_seconds": wall,
+            "classes": opts.classes.name(), "probabilities": a.probabilities, "out": a.out.display().to_string(),
+        });
+        println!("{}", serde_json::to_string_pretty(&j)?);
+    } else {
+        println!(
+            "{}: {} frames, {} points; {} in camera {}'s view ({:.1}%; {} more hidden behind nearer points), {} labelled ({:.1}% of those)",
+            a.out.display(),
+            s.frames,
+            s.points,
+            s.in_view,
+            a.camera,
+            pct(s.in_view, s.points),
+            s.occluded,
+            s.labelled,
+            pct(s.labelled, s.in_view)
+        );
+        match s.agreement() {
+            Some(g) => println!(
+                "agreement with the input's labels: {:.2}% of {} in-view labelled points ({:.2}% as {} ids can say them)",
+                100.0 * g,
+                s.compared,
+                100.0 * s.agreement_in_set().unwrap_or(0.0),
+                opts.classes.name()
+            ),
+            None => println!("(the input has no labels to compare with)"),
+        }
+        println!("{:.1} M points labelled per second ({:.2} s in all with reading and writing)", rate / 1e6, wall);
+    }
+    Ok(())
+}

@@ -1,0 +1,598 @@
+//! LiDAR labels from camera segmentation (`cosem label`): each scan's points
+//! are projected into the segmentation image of one camera and take the
+//! class of their pixel (core: [`cosem_core::camera`]). The result is a
+//! SemanticKITTI-layout folder, so the rest of the tool chain is unchanged.
+//!
+//! Segmentation images are 8-bit single-channel PNGs (grayscale or palette:
+//! the stored value is the class id), one per scan and named like it
+//! (`000042.png`). With probabilities, `000042.npy` holds the network's
+//! per-pixel class probabilities (NumPy `.npy`, `<f4` or `|u1` scaled to
+//! 255, shape `(H, W, C)` or `(C, H, W)`); each point's probabilities are
+//! then turned into label evidence, written beside the labels as
+//! `evidence/000042.bin` (four `u16` label slots per point, see
+//! [`cosem_core::map::LabelDistribution::raw`]), which mapping fuses
+//! instead of a hard label.
+
+use crate::kitti::{KittiError, Sequence};
+use cosem_core::camera::{evidence_from_probabilities, Camera, DepthGrid, Projection, SegClasses};
+use cosem_core::classes::{Class, MovingObjects};
+use cosem_core::map::{LabelDistribution, SensorModel, LABEL_SLOTS};
+use std::path::{Path, PathBuf};
+
+/// Anything wrong with labelling a sequence.
+#[derive(Debug, thiserror::Error)]
+pub enum LabelError {
+    /// Reading the LiDAR sequence.
+    #[error(transparent)]
+    Kitti(#[from] KittiError),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A scan has no segmentation image.
+    #[error("{path}: missing segmentation image for frame {frame}")]
+    MissingImage {
+        /// The expected image.
+        path: PathBuf,
+        /// The frame.
+        frame: usize,
+    },
+    /// Not a PNG we can read as class ids.
+    #[error("{path}: {what}")]
+    Format {
+        /// The image.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+    /// An image of another size than the others (or than asked for).
+    #[error("{path}: image is {got_w}x{got_h}, expected {want_w}x{want_h}")]
+    ImageSize {
+        /// The image.
+        path: PathBuf,
+        /// Its width.
+        got_w: u32,
+        /// Its height.
+        got_h: u32,
+        /// The expected width.
+        want_w: u32,
+        /// The expected height.
+        want_h: u32,
+    },
+    /// A pixel value with no class in the class set.
+    #[error("{path}: pixel ({u}, {v}) has class id {id}, not a {classes} id")]
+    UnknownClass {
+        /// The image.
+        path: PathBuf,
+        /// Column.
+        u: u32,
+        /// Row.
+        v: u32,
+        /// The value.
+        id: u8,
+        /// The class set's name.
+        classes: &'static str,
+    },
+    /// A bad probability vector.
+    #[error("{path}: pixel ({u}, {v}): {what}")]
+    Probability {
+        /// The probability file.
+        path: PathBuf,
+        /// Column.
+        u: u32,
+        /// Row.
+        v: u32,
+        /// What is wrong.
+        what: String,
+    },
+    /// The calibration cannot make a camera.
+    #[error("{path}: camera {camera}: {what}")]
+    Camera {
+        /// calib.txt.
+        path: PathBuf,
+        /// The camera.
+        camera: u8,
+        /// What is wrong.
+        what: String,
+    },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> LabelError + '_ {
+    move |source| LabelError::Io { path: path.to_path_buf(), source }
+}
+
+/// A segmentation image: one class id per pixel, row by row.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SegImage {
+    /// Width (pixels).
+    pub width: u32,
+    /// Height (pixels).
+    pub height: u32,
+    /// Class ids, `width * height`, row by row.
+    pub ids: Vec<u8>,
+}
+
+impl SegImage {
+    /// The id at column `u`, row `v`.
+    pub fn at(&self, u: u32, v: u32) -> Option<u8> {
+        self.ids.get(v as usize * self.width as usize + u as usize).copied()
+    }
+}
+
+/// Reads an 8-bit single-channel PNG (grayscale or palette) of class ids.
+pub fn read_seg_png(path: &Path) -> Result<SegImage, LabelError> {
+    let format = |what: String| LabelError::Format { path: path.to_path_buf(), what };
+    let file = std::fs::File::open(path).map_err(io(path))?;
+    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+    // Palette indices are the ids: no expansion to RGB.
+    decoder.set_transformations(png::Transformations::IDENTITY);
+    let mut reader = decoder.read_info().map_err(|e| format(format!("not a readable PNG ({e})")))?;
+    let (color, depth) = reader.output_color_type();
+    if !matches!(color, png::ColorType::Grayscale | png::ColorType::Indexed) || depth != png::BitDepth::Eight {
+        return Err(format(format!(
+            "expected an 8-bit single-channel (grayscale or palette) PNG of class ids, found {color:?} {depth:?}"
+        )));
+    }
+    let size = reader.output_buffer_size().ok_or_else(|| format("image too large".into()))?;
+    let mut buf = vec![0u8; size];
+    let info = reader.next_frame(&mut buf).map_err(|e| format(format!("corrupt PNG data ({e})")))?;
+    let (w, h) = (info.width, info.height);
+    let mut ids = Vec::with_capacity(w as usize * h as usize);
+    for row in buf.chunks(info.line_size).take(h as usize) {
+        ids.extend_from_slice(row.get(..w as usize).ok_or_else(|| format("short image row".into()))?);
+    }
+    if ids.len() != w as usize * h as usize {
+        return Err(format("truncated image".into()));
+    }
+    Ok(SegImage { width: w, height: h, ids })
+}
+
+/// Writes an 8-bit grayscale PNG of class ids.
+pub fn write_seg_png(path: &Path, image: &SegImage) -> std::io::Result<()> {
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let mut enc = png::Encoder::new(file, image.width, image.height);
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::Fast);
+    let mut w = enc.write_header().map_err(std::io::Error::other)?;
+    w.write_image_data(&image.ids).map_err(std::io::Error::other)?;
+    w.finish().map_err(std::io::Error::other)
+}
+
+/// Per-pixel class probabilities: `channels` values per pixel, row by row.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProbabilityMap {
+    /// Width (pixels).
+    pub width: u32,
+    /// Height (pixels).
+    pub height: u32,
+    /// Values per pixel.
+    pub channels: usize,
+    /// `width * height * channels` values, pixel-major (HWC).
+    pub values: Vec<f32>,
+}
+
+impl ProbabilityMap {
+    /// The probabilities of pixel (`u`, `v`).
+    pub fn at(&self, u: u32, v: u32) -> Option<&[f32]> {
+        let i = (v as usize * self.width as usize + u as usize) * self.channels;
+        self.values.get(i..i + self.channels)
+    }
+}
+
+/// Reads a NumPy `.npy` probability map (`<f4`, or `|u1` read as value/255)
+/// of shape `(H, W, C)` or `(C, H, W)` with `C = channels`.
+pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap, LabelError> {
+    let format = |what: String| LabelError::Format { path: path.to_path_buf(), what };
+    let bytes = std::fs::read(path).map_err(io(path))?;
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err(format("not a NumPy .npy file (bad magic at byte 0)".into()));
+    }
+    let (header_len, start) = match bytes[6] {
+        1 => (usize::from(u16::from_le_bytes([bytes[8], bytes[9]])), 10),
+        2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
+        v => return Err(format(format!("unsupported .npy version {v} at byte 6"))),
+    };
+    let header = bytes
+        .get(start..start + header_len)
+        .and_then(|h| std::str::from_utf8(h).ok())
+        .ok_or_else(|| format(format!("header of {header_len} bytes at byte {start} is truncated or not text")))?;
+    let field = |name: &str| -> Option<&str> {
+        let at = header.find(&format!("'{name}':"))? + name.len() + 3;
+        Some(header[at..].trim_start())
+    };
+    let descr = field("descr")
+        .and_then(|s| s.strip_prefix('\'')?.split('\'').next())
+        .ok_or_else(|| format("header has no 'descr'".into()))?;
+    if field("fortran_order").is_some_and(|s| s.starts_with("True")) {
+        return Err(format("Fortran-ordered arrays are not supported".into()));
+    }
+    let shape: Vec<usize> = field("shape")
+        .and_then(|s| s.strip_prefix('(')?.split(')').next())
+        .map(|s| s.split(',').map(str::trim).filter(|t| !t.is_empty()).map(str::parse).collect::<Result<_, _>>())
+        .and_then(Result::ok)
+        .ok_or_else(|| format("header has no readable 'shape'".into()))?;
+    let [a, b, c] = shape[..] else {
+        return Err(format(format!("shape {shape:?}: expected three dimensions (H, W, C) or (C, H, W)")));
+    };
+    let (height, width, chw) = if c == channels {
+        (a, b, false)
+    } else if a == channels {
+        (b, c, true)
+    } else {
+        return Err(format(format!("shape {shape:?}: no dimension of {channels} class channels")));
+    };
+    let data = &bytes[start + header_len..];
+    let n = height * width * channels;
+    let raw: Vec<f32> = match descr {
+        "<f4" => {
+            if data.len() != 4 * n {
+                return Err(format(format!(
+                    "{} data bytes for shape {shape:?} of <f4, expected {}",
+                    data.len(),
+                    4 * n
+                )));
+            }
+            data.chunks_exact(4).map(|q| f32::from_le_bytes([q[0], q[1], q[2], q[3]])).collect()
+        }
+        "|u1" => {
+            if data.len() != n {
+                return Err(format(format!("{} data bytes for shape {shape:?} of |u1, expected {n}", data.len())));
+            }
+            data.iter().map(|&v| f32::from(v) / 255.0).collect()
+        }
+        d => return Err(format(format!("dtype {d}: expected <f4 or |u1"))),
+    };
+    let values = if chw {
+        let mut out = vec![0.0f32; n];
+        for k in 0..channels {
+            for p in 0..height * width {
+                out[p * channels + k] = raw[k * height * width + p];
+            }
+        }
+        out
+    } else {
+        raw
+    };
+    Ok(ProbabilityMap { width: width as u32, height: height as u32, channels, values })
+}
+
+/// Writes a `|u1` `(H, W, C)` `.npy` probability map (values scaled to 255).
+pub fn write_probabilities(path: &Path, map: &ProbabilityMap) -> std::io::Result<()> {
+    let mut header = format!(
+        "{{'descr': '|u1', 'fortran_order': False, 'shape': ({}, {}, {}), }}",
+        map.height, map.width, map.channels
+    );
+    // Magic (6) + version (2) + length (2) + header + newline, a multiple of 64.
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + map.values.len());
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    out.extend(map.values.iter().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8));
+    std::fs::write(path, out)
+}
+
+/// What `cosem label` does.
+#[derive(Clone, Debug)]
+pub struct LabelOptions {
+    /// The LiDAR sequence (SemanticKITTI layout; labels not needed).
+    pub data: PathBuf,
+    /// Segmentation images (and probability maps), named like the scans.
+    pub seg: PathBuf,
+    /// Camera index in calib.txt (`P<camera>`).
+    pub camera: u8,
+    /// What the images' ids mean.
+    pub classes: SegClasses,
+    /// Use the `.npy` probability maps instead of the PNGs' hard ids.
+    pub probabilities: bool,
+    /// Expected image size; default: the first image's.
+    pub image_size: Option<(u32, u32)>,
+    /// Leave points hidden from the camera by nearer points unlabelled
+    /// ([`DepthGrid`]).
+    pub occlusion: bool,
+    /// Frames to label; default: every scan in `velodyne/`.
+    pub frames: Option<Vec<usize>>,
+    /// The output folder.
+    pub out: PathBuf,
+}
+
+/// Counts of one labelling run.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LabelStats {
+    /// Frames labelled.
+    pub frames: usize,
+    /// Points read.
+    pub points: usize,
+    /// Points projecting into the image and seen by the camera.
+    pub in_view: usize,
+    /// Points projecting into the image but hidden from the camera behind
+    /// nearer points of the scan (left unlabelled).
+    pub occluded: usize,
+    /// In-view points given a class of the table.
+    pub labelled: usize,
+    /// In-view points whose existing (ground-truth) label has a class, when
+    /// the input had labels.
+    pub compared: usize,
+    /// Of those, points whose new class equals the existing one.
+    pub agreeing: usize,
+    /// Of those, points whose new class equals the existing one as the
+    /// class set can say it (Cityscapes has no trunk: a trunk seen as
+    /// vegetation agrees here).
+    pub agreeing_in_set: usize,
+    /// Seconds spent projecting and labelling (reading and writing excluded).
+    pub label_seconds: f64,
+}
+
+impl LabelStats {
+    /// Agreement with the existing labels over in-view points, if compared.
+    pub fn agreement(&self) -> Option<f64> {
+        (self.compared > 0).then(|| self.agreeing as f64 / self.compared as f64)
+    }
+
+    /// Agreement within what the class set can say, if compared.
+    pub fn agreement_in_set(&self) -> Option<f64> {
+        (self.compared > 0).then(|| self.agreeing_in_set as f64 / self.compared as f64)
+    }
+}
+
+/// Checks every pixel of an image holds an id of the class set.
+fn check_ids(path: &Path, image: &SegImage, classes: SegClasses) -> Result<(), LabelError> {
+    for (i, &id) in image.ids.iter().enumerate() {
+        if classes.class(id).is_err() {
+            let w = image.width.max(1) as usize;
+            return Err(LabelError::UnknownClass {
+                path: path.to_path_buf(),
+                u: (i % w) as u32,
+                v: (i / w) as u32,
+                id,
+                classes: classes.name(),
+            });
+        }
+    }
+    Ok(())
+}
+
+fn check_size(path: &Path, got: (u32, u32), want: (u32, u32)) -> Result<(), LabelError> {
+    if got != want {
+        return Err(LabelError::ImageSize {
+            path: path.to_path_buf(),
+            got_w: got.0,
+            got_h: got.1,
+            want_w: want.0,
+            want_h: want.1,
+        });
+    }
+    Ok(())
+}
+
+/// The camera of `seq` for images of `size`: `P<camera>` after `Tr`. The
+/// principal point must lie in the image (else the image is not this
+/// camera's, or the size is wrong).
+pub fn camera_of(seq: &Sequence, camera: u8, size: (u32, u32), image: &Path) -> Result<Camera, LabelError> {
+    let p = seq.projection(camera)?;
+    let rows = |m: &nalgebra::Matrix4<f64>| -> [f32; 12] {
+        let mut out = [0.0f32; 12];
+        for r in 0..3 {
+            for c in 0..4 {
+                out[r * 4 + c] = m[(r, c)] as f32;
+            }
+        }
+        out
+    };
+    let calib = seq.dir.join("calib.txt");
+    let cam = Camera::new(&rows(&p), &rows(&seq.tr), size.0, size.1).map_err(|e| LabelError::Camera {
+        path: calib.clone(),
+        camera,
+        what: e.to_string(),
+    })?;
+    let (cx, cy) = (p[(0, 2)], p[(1, 2)]);
+    if !(cx >= 0.0 && cy >= 0.0 && cx < f64::from(size.0) && cy < f64::from(size.1)) {
+        return Err(LabelError::Format {
+            path: image.to_path_buf(),
+            what: format!(
+                "image size {}x{} does not contain camera {camera}'s principal point ({cx:.1}, {cy:.1}) from {}",
+                size.0,
+                size.1,
+                calib.display()
+            ),
+        });
+    }
+    Ok(cam)
+}
+
+fn copy_or_link(from: &Path, to: &Path) -> Result<(), LabelError> {
+    let _ = std::fs::remove_file(to);
+    let abs = std::fs::canonicalize(from).map_err(io(from))?;
+    #[cfg(unix)]
+    if std::os::unix::fs::symlink(&abs, to).is_ok() {
+        return Ok(());
+    }
+    std::fs::copy(&abs, to).map(|_| ()).map_err(io(to))
+}
+
+/// Labels a sequence from its segmentation images and writes a
+/// SemanticKITTI-layout folder at `out`: links to the scans, copies of
+/// calib.txt, poses.txt and times.txt, the new labels (and, with
+/// probabilities, the evidence).
+pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, LabelError> {
+    let seq = Sequence::open(&o.data)?;
+    let frames = match &o.frames {
+        Some(f) => f.clone(),
+        None => seq.scan_frames()?,
+    };
+    for d in ["velodyne", "labels"] {
+        let p = o.out.join(d);
+        std::fs::create_dir_all(&p).map_err(io(&p))?;
+    }
+    if o.probabilities {
+        let p = o.out.join("evidence");
+        std::fs::create_dir_all(&p).map_err(io(&p))?;
+    }
+    for f in ["calib.txt", "poses.txt", "times.txt"] {
+        let from = o.data.join(f);
+        if from.exists() {
+            std::fs::copy(&from, o.out.join(f)).map_err(io(&from))?;
+        }
+    }
+    let prov = format!(
+        "# Labels from camera segmentation (`cosem label`)\n\nscans, poses, calibration: {}\nsegmentation: {} (camera {}, {} ids{})\n\n\
+         Each LiDAR point takes the class of the pixel it projects to (P{} after Tr); points behind the camera or \
+         outside the image are unlabeled (0). See the source folder's PROVENANCE.md for the data's origin and licence.\n",
+        o.data.display(),
+        o.seg.display(),
+        o.camera,
+        o.classes.name(),
+        if o.probabilities { ", per-pixel probabilities" } else { "" },
+        o.camera
+    );
+    std::fs::write(o.out.join("PROVENANCE.md"), prov).map_err(io(&o.out))?;
+    let model = SensorModel::default();
+    let mut stats = LabelStats::default();
+    let mut camera: Option<(Camera, (u32, u32))> = None;
+    let mut depth_buffer: Vec<f32> = Vec::new();
+    for &frame in &frames {
+        let points = seq.read_points(frame)?;
+        let truth = if seq.label_path(frame).exists() { Some(seq.read_scan(frame)?.labels) } else { None };
+        let png_path = o.seg.join(format!("{frame:06}.png"));
+        let npy_path = o.seg.join(format!("{frame:06}.npy"));
+        let image_path = if o.probabilities { &npy_path } else { &png_path };
+        if !image_path.exists() {
+            return Err(LabelError::MissingImage { path: image_path.clone(), frame });
+        }
+        // Either hard ids or probabilities, each checked whole.
+        let (image, probs) = if o.probabilities {
+            let p = read_probabilities(&npy_path, o.classes.channels())?;
+            ((p.width, p.height), Some(p))
+        } else {
+            let im = read_seg_png(&png_path)?;
+            check_ids(&png_path, &im, o.classes)?;
+            ((im.width, im.height), None)
+        };
+        let size = image;
+        if camera.is_none() {
+            let want = o.image_size.unwrap_or(size);
+            camera = Some((camera_of(&seq, o.camera, want, image_path)?, want));
+        }
+        let Some((cam, want)) = &camera else { continue };
+        check_size(image_path, size, *want)?;
+        let hard = if probs.is_none() { Some(read_seg_png(&png_path)?) } else { None };
+        let t = std::time::Instant::now();
+        let projected: Vec<Projection> = points.iter().map(|p| cam.project([p[0], p[1], p[2]])).collect();
+        let grid = if o.occlusion {
+            depth_buffer.resize(DepthGrid::cells(cam), 0.0);
+            let mut g = DepthGrid::new(cam, &mut depth_buffer);
+            for pr in &projected {
+                if let (Some(g), Projection::Pixel { u, v, depth }) = (g.as_mut(), pr) {
+                    g.insert(*u, *v, *depth);
+                }
+            }
+            g
+        } else {
+            None
+        };
+        let mut labels = vec![0u32; points.len()];
+        let mut evidence: Vec<u8> = Vec::new();
+        for (i, pr) in projected.iter().enumerate() {
+            let mut slots = [0u16; LABEL_SLOTS];
+            let class = match *pr {
+                Projection::Pixel { u, v, depth } if grid.as_ref().is_some_and(|g| g.occluded(u, v, depth)) => {
+                    stats.occluded += 1;
+                    None
+                }
+                Projection::Pixel { u, v, .. } => {
+                    stats.in_view += 1;
+                    let c = match (&hard, &probs) {
+                        (Some(im), _) => im.at(u, v).and_then(|id| o.classes.class(id).ok().flatten()),
+                        (None, Some(pm)) => {
+                            let pv = pm.at(u, v).unwrap_or(&[]);
+                            let d = evidence_from_probabilities(o.classes, pv, &model).map_err(|e| {
+                                LabelError::Probability { path: npy_path.clone(), u, v, what: e.to_string() }
+                            })?;
+                            if let Some(d) = d {
+                                slots = d.raw();
+                            }
+                            d.and_then(|d| d.argmax())
+                        }
+                        (None, None) => None,
+                    };
+                    stats.labelled += usize::from(c.is_some());
+                    let gt = truth
+                        .as_ref()
+                        .and_then(|t| t.get(i))
+                        .and_then(|l| Class::from_semantic_kitti(*l, MovingObjects::AsStatic));
+                    if let Some(gt) = gt {
+                        stats.compared += 1;
+                        stats.agreeing += usize::from(c == Some(gt));
+                        let said = o.classes.class(o.classes.id(Some(gt))).ok().flatten();
+                        stats.agreeing_in_set += usize::from(c.is_some() && c == said);
+                    }
+                    c
+                }
+                _ => None,
+            };
+            if let Some(c) = class {
+                labels[i] = u32::from(c.semantic_kitti_id());
+            }
+            if o.probabilities {
+                for s in slots {
+                    evidence.extend_from_slice(&s.to_le_bytes());
+                }
+            }
+        }
+        stats.label_seconds += t.elapsed().as_secs_f64();
+        stats.points += points.len();
+        stats.frames += 1;
+        let name = format!("{frame:06}");
+        copy_or_link(&seq.scan_path(frame), &o.out.join("velodyne").join(format!("{name}.bin")))?;
+        let lpath = o.out.join("labels").join(format!("{name}.label"));
+        let bytes: Vec<u8> = labels.iter().flat_map(|l| l.to_le_bytes()).collect();
+        std::fs::write(&lpath, bytes).map_err(io(&lpath))?;
+        if o.probabilities {
+            let epath = o.out.join("evidence").join(format!("{name}.bin"));
+            std::fs::write(&epath, evidence).map_err(io(&epath))?;
+        }
+    }
+    Ok(stats)
+}
+
+/// Reads a frame's label evidence (`evidence/NNNNNN.bin`), if the folder has
+/// one: one label distribution per point (`None` for empty slots).
+pub fn read_evidence(
+    dir: &Path,
+    frame: usize,
+    points: usize,
+) -> Result<Option<Vec<Option<LabelDistribution>>>, KittiError> {
+    let path = dir.join("evidence").join(format!("{frame:06}.bin"));
+    if !path.exists() {
+        return Ok(None);
+    }
+    let bytes = std::fs::read(&path).map_err(|source| KittiError::Io { path: path.clone(), source })?;
+    let per = 2 * LABEL_SLOTS;
+    if bytes.len() != points * per {
+        return Err(KittiError::Malformed {
+            path,
+            what: format!("{} bytes of evidence for {points} points ({per} bytes each)", bytes.len()),
+        });
+    }
+    let mut out = Vec::with_capacity(points);
+    for (i, c) in bytes.chunks_exact(per).enumerate() {
+        let mut slots = [0u16; LABEL_SLOTS];
+        for (k, s) in slots.iter_mut().enumerate() {
+            *s = u16::from_le_bytes([c[2 * k], c[2 * k + 1]]);
+        }
+        let d = LabelDistribution::from_raw(slots).map_err(|e| KittiError::Malformed {
+            path: path.clone(),
+            what: format!("point {i} (byte offset {}): {e}", i * per),
+        })?;
+        out.push((!d.is_empty()).then_some(d));
+    }
+    Ok(Some(out))
+}

@@ -1,0 +1,146 @@
+//! `cosem label`: LiDAR labels from camera segmentation images, on the
+//! project's synthetic streets (whose `cosem synth` renders camera 2's
+//! segmentation). Two robots split the sequence (frames 0:N/2 and N/2:N).
+
+use cosem_tests::{cosem_err, cosem_ok};
+use serde_json::Value;
+use std::path::Path;
+
+const FRAMES: &str = "10";
+
+fn synth(dir: &Path, seed: &str, extra: &[&str]) {
+    let d = dir.display().to_string();
+    let mut args = vec!["synth", "--out", d.as_str(), "--frames", FRAMES, "--seed", seed];
+    args.extend_from_slice(extra);
+    cosem_ok(&args);
+}
+
+fn label(data: &Path, out: &Path, extra: &[&str]) -> Value {
+    let (d, s, o) = (data.display().to_string(), data.join("seg_2").display().to_string(), out.display().to_string());
+    let mut args = vec!["label", "--data", d.as_str(), "--seg", s.as_str(), "--out", o.as_str(), "--json"];
+    args.extend_from_slice(extra);
+    serde_json::from_str(&cosem_ok(&args)).unwrap()
+}
+
+fn strict_rate(data: &Path) -> f64 {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("eval.json").display().to_string();
+    let d = data.display().to_string();
+    cosem_ok(&["eval", "--data", &d, "--a", "0:5", "--b", "5:10", "--grid-stride", "2", "--json", &json]);
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    v["methods"]["cosem"]["success_strict"].as_f64().unwrap()
+}
+
+#[test]
+fn perfect_images_label_the_lidar_like_the_ground_truth() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Learning-map ids: the class set says every class.
+    let seq = tmp.path().join("seq");
+    synth(&seq, "5", &["--seg", "semantickitti"]);
+    let v = label(&seq, &tmp.path().join("out"), &["--classes", "semantickitti"]);
+    let agreement = v["agreement"].as_f64().unwrap();
+    eprintln!("semantickitti ids: agreement {agreement:.4} over {} in-view points", v["compared"]);
+    assert!(agreement >= 0.97, "{v}");
+    assert!(v["in_view"].as_u64().unwrap() > 50_000, "{v}");
+    // Points hidden from the camera (seen by the LiDAR past an object's
+    // edge) are left out by default; labelling them too costs agreement.
+    let all = label(&seq, &tmp.path().join("all"), &["--classes", "semantickitti", "--keep-occluded"]);
+    eprintln!("with occluded points: agreement {} over {} points", all["agreement"], all["compared"]);
+    assert_eq!(all["occluded"], 0);
+    assert!(all["in_view"].as_u64() > v["in_view"].as_u64() && v["occluded"].as_u64().unwrap() > 0, "{all}\n{v}");
+    assert!(all["agreement"].as_f64().unwrap() < agreement, "{all}\n{v}");
+    assert!(all["agreement"].as_f64().unwrap() >= 0.97, "{all}");
+    // Out-of-view points stay unlabelled; in-view ones carry SemanticKITTI ids.
+    let out = tmp.path().join("out");
+    let labels = std::fs::read(out.join("labels/000003.label")).unwrap();
+    let ids: Vec<u32> = labels.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    let zero = ids.iter().filter(|&&l| l == 0).count();
+    assert!(zero > ids.len() / 2 && zero < ids.len(), "{zero} of {}", ids.len());
+    for f in ["calib.txt", "poses.txt", "times.txt", "velodyne/000003.bin", "PROVENANCE.md"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    // Cityscapes ids (the paper's network): trunks become vegetation.
+    let seq = tmp.path().join("cs");
+    synth(&seq, "5", &[]);
+    let v = label(&seq, &tmp.path().join("cs_out"), &[]);
+    let in_set = v["agreement_in_class_set"].as_f64().unwrap();
+    eprintln!("cityscapes ids: agreement {} ({in_set:.4} as Cityscapes can say it)", v["agreement"]);
+    assert!(in_set >= 0.97, "{v}");
+    assert!(v["points_per_second"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn corrupted_camera_labels_still_match() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, "5", &["--seg-corrupt"]);
+    let out = tmp.path().join("out");
+    let v = label(&seq, &out, &[]);
+    let agreement = v["agreement"].as_f64().unwrap();
+    // The corruption is real: a tenth or less of the points change class.
+    assert!((0.85..0.96).contains(&agreement), "{v}");
+    let rate = strict_rate(&out);
+    eprintln!("corrupted camera labels: agreement {agreement:.3}, strict success {rate:.3}");
+    assert!(rate >= 0.99, "strict success {rate}");
+}
+
+#[test]
+fn probability_maps_become_label_evidence() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, "7", &["--seg-corrupt", "--seg-probabilities"]);
+    let (hard, soft) = (tmp.path().join("hard"), tmp.path().join("soft"));
+    let h = label(&seq, &hard, &[]);
+    let s = label(&seq, &soft, &["--probabilities"]);
+    eprintln!("agreement: hard {} probabilities {}", h["agreement"], s["agreement"]);
+    assert!(s["agreement"].as_f64().unwrap() >= h["agreement"].as_f64().unwrap() - 0.01, "{h}\n{s}");
+    let ev = std::fs::metadata(soft.join("evidence/000002.bin")).unwrap().len();
+    let pts = std::fs::metadata(soft.join("velodyne/000002.bin")).unwrap().len() / 16;
+    assert_eq!(ev, pts * 8);
+    // Maps fuse the evidence and still match.
+    let rate = strict_rate(&soft);
+    assert!(rate >= 0.99, "strict success with probabilities {rate}");
+}
+
+#[test]
+fn malformed_inputs_name_the_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    cosem_ok(&["synth", "--out", &seq.display().to_string(), "--frames", "3", "--seed", "2"]);
+    let seg = seq.join("seg_2");
+    let run = |out: &str, extra: &[&str]| {
+        let (d, s, o) = (seq.display().to_string(), seg.display().to_string(), tmp.path().join(out));
+        let o = o.display().to_string();
+        let mut args = vec!["label", "--data", d.as_str(), "--seg", s.as_str(), "--out", o.as_str()];
+        args.extend_from_slice(extra);
+        cosem_err(&args)
+    };
+    // A missing image.
+    let f1 = seg.join("000001.png");
+    let kept = std::fs::read(&f1).unwrap();
+    std::fs::remove_file(&f1).unwrap();
+    let e = run("o1", &[]);
+    assert!(e.contains("000001.png") && e.contains("missing"), "{e}");
+    // A wrong size.
+    let small = cosem_host::label::SegImage { width: 20, height: 10, ids: vec![0; 200] };
+    cosem_host::label::write_seg_png(&f1, &small).unwrap();
+    let e = run("o2", &[]);
+    assert!(e.contains("000001.png") && e.contains("20x10") && e.contains("1241x376"), "{e}");
+    // An unknown class id (40 is no Cityscapes training id) at a named pixel.
+    std::fs::write(&f1, kept).unwrap();
+    let mut im = cosem_host::label::read_seg_png(&seg.join("000002.png")).unwrap();
+    im.ids[3 * 1241 + 7] = 40;
+    cosem_host::label::write_seg_png(&seg.join("000002.png"), &im).unwrap();
+    let e = run("o3", &[]);
+    assert!(e.contains("000002.png") && e.contains("(7, 3)") && e.contains("class id 40"), "{e}");
+    // Not a PNG; a missing probability map; a camera calib.txt lacks; an unknown class set.
+    std::fs::write(seg.join("000002.png"), b"not an image").unwrap();
+    let e = run("o4", &[]);
+    assert!(e.contains("000002.png") && e.contains("PNG"), "{e}");
+    let e = run("o5", &["--probabilities"]);
+    assert!(e.contains("000000.npy") && e.contains("missing"), "{e}");
+    let e = run("o7", &["--camera", "7", "--frames", "0:1"]);
+    assert!(e.contains("calib.txt") && e.contains("P7"), "{e}");
+    let e = run("o8", &["--classes", "ade20k"]);
+    assert!(e.contains("ade20k"), "{e}");
+}
