@@ -227,7 +227,11 @@ pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap
         return Err(format(format!("shape {shape:?}: no dimension of {channels} class channels")));
     };
     let data = &bytes[start + header_len..];
-    let n = height * width * channels;
+    let n = height
+        .checked_mul(width)
+        .and_then(|v| v.checked_mul(channels))
+        .filter(|n| n.checked_mul(4).is_some())
+        .ok_or_else(|| format(format!("shape {shape:?} is too large")))?;
     let raw: Vec<f32> = match descr {
         "<f4" => {
             if data.len() != 4 * n {
@@ -595,4 +599,72 @@ pub fn read_evidence(
         out.push((!d.is_empty()).then_some(d));
     }
     Ok(Some(out))
+}
+
+/// A stand-in for a segmentation image where no camera images exist (real
+/// LiDAR-only data): the labelled points of a scan splatted into the image
+/// through `camera`, nearest first, each over a block of pixels about the
+/// beams' spacing (5 x 3), the rest `classes`' "no class" id. Only for
+/// benchmarks and tests of the labelling path on real calibration and
+/// geometry; it is no network.
+pub fn splat_segmentation(camera: &Camera, points: &[[f32; 4]], labels: &[u32], classes: SegClasses) -> SegImage {
+    let (w, h) = (camera.width(), camera.height());
+    let none = match classes {
+        SegClasses::Cityscapes => cosem_core::camera::CITYSCAPES_IGNORE,
+        SegClasses::SemanticKitti => 0,
+    };
+    let mut ids = vec![none; w as usize * h as usize];
+    let mut depth = vec![f32::INFINITY; ids.len()];
+    for (p, l) in points.iter().zip(labels) {
+        let Some(class) = Class::from_semantic_kitti(*l, MovingObjects::AsStatic) else { continue };
+        let Projection::Pixel { u, v, depth: d } = camera.project([p[0], p[1], p[2]]) else { continue };
+        let id = classes.id(Some(class));
+        for y in v.saturating_sub(2)..=(v + 2).min(h - 1) {
+            for x in u.saturating_sub(1)..=(u + 1).min(w - 1) {
+                let i = y as usize * w as usize + x as usize;
+                if d < depth[i] {
+                    depth[i] = d;
+                    ids[i] = id;
+                }
+            }
+        }
+    }
+    SegImage { width: w, height: h, ids }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn probability_maps_round_trip_and_bad_files_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("p.npy");
+        let map = ProbabilityMap {
+            width: 3,
+            height: 2,
+            channels: 19,
+            values: (0..3 * 2 * 19).map(|i| (i % 19) as f32 / 18.0).collect(),
+        };
+        write_probabilities(&path, &map).unwrap();
+        let back = read_probabilities(&path, 19).unwrap();
+        assert_eq!((back.width, back.height, back.channels), (3, 2, 19));
+        for (a, b) in back.values.iter().zip(&map.values) {
+            assert!((a - b).abs() <= 0.5 / 255.0 + 1e-6);
+        }
+        assert!(read_probabilities(&path, 20).is_err());
+        // Every truncation, and a few corruptions, are errors naming the file.
+        let bytes = std::fs::read(&path).unwrap();
+        for k in 0..bytes.len() {
+            std::fs::write(&path, &bytes[..k]).unwrap();
+            let e = read_probabilities(&path, 19).unwrap_err().to_string();
+            assert!(e.contains("p.npy"), "{e}");
+        }
+        let text = String::from_utf8_lossy(&bytes).into_owned();
+        for (from, to) in [("(2, 3, 19)", "(99999999999, 99999999999, 19)"), ("|u1", "<i8"), ("False", "True ")] {
+            let bad = text.replacen(from, to, 1);
+            std::fs::write(&path, bad.as_bytes()).unwrap();
+            assert!(read_probabilities(&path, 19).is_err(), "{from} -> {to}");
+        }
+    }
 }

@@ -533,7 +533,7 @@ fn confusable(c: Class) -> Class {
 /// smooth random field (bilinear over a 24-pixel grid, up to
 /// [`BORDER_JITTER_PX`]) plus a pixel of noise, then [`WRONG_BLOBS`] blobs
 /// of a confusable wrong class on surfaces.
-fn corrupt(image: &SegImage, classes: SegClasses, rng: &mut Rng) -> SegImage {
+pub fn corrupt(image: &SegImage, classes: SegClasses, rng: &mut Rng) -> SegImage {
     let (w, h) = (image.width as usize, image.height as usize);
     const STEP: usize = 24;
     let (gw, gh) = (w / STEP + 2, h / STEP + 2);

@@ -36,10 +36,21 @@ pub struct LabelArgs {
     /// Keep every K-th value of the paper's grid of starts on each axis.
     #[arg(long, default_value_t = 2)]
     grid_stride: usize,
+    /// Also a real SemanticKITTI-layout sequence, whose labelled scans are
+    /// splatted into camera 2 as stand-in segmentation images.
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// Robot A's frames of --data.
+    #[arg(long, default_value = "0:5")]
+    a: FrameRange,
+    /// Robot B's frames of --data.
+    #[arg(long, default_value = "5:10")]
+    b: FrameRange,
 }
 
+/// Two robots' frames of one sequence.
 #[derive(clap::Args, Debug)]
-pub struct GlobalArgs {
+pub struct PairArgs {
     /// SemanticKITTI-layout folder; default `$COSEM_DATA/kitti00`, else a
     /// synthetic sequence.
     #[arg(long)]
@@ -50,6 +61,12 @@ pub struct GlobalArgs {
     /// Robot B's frames (the scene).
     #[arg(long, default_value = "5:10")]
     b: FrameRange,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct GlobalArgs {
+    #[command(flatten)]
+    pair: PairArgs,
     /// Voxel size (m).
     #[arg(long, default_value_t = 0.2)]
     voxel: f32,
@@ -60,16 +77,8 @@ pub struct GlobalArgs {
 
 #[derive(clap::Args, Debug)]
 pub struct LinkArgs {
-    /// SemanticKITTI-layout folder; default `$COSEM_DATA/kitti00`, else a
-    /// synthetic sequence.
-    #[arg(long)]
-    data: Option<PathBuf>,
-    /// Robot A's frames.
-    #[arg(long, default_value = "0:5")]
-    a: FrameRange,
-    /// Robot B's frames.
-    #[arg(long, default_value = "5:10")]
-    b: FrameRange,
+    #[command(flatten)]
+    pair: PairArgs,
     /// Byte error rates to simulate (each byte flipped, dropped or duplicated).
     #[arg(long, default_value = "0,0.001,0.01", value_delimiter = ',')]
     error_rates: Vec<f64>,
@@ -178,19 +187,20 @@ fn bench_wire(a: MapArgs) -> Result<(), Error> {
 }
 
 fn bench_link(a: LinkArgs) -> Result<(), Error> {
+    let p = &a.pair;
     use cosem_core::link::sim::{SimConfig, SimLine};
     use cosem_core::link::{Endpoint, LinkConfig, Progress};
-    let (dir, _tmp) = data_dir(a.data, a.b.end)?;
+    let (dir, _tmp) = data_dir(p.data.clone(), p.b.end)?;
     let seq = Sequence::open(&dir)?;
     let config = MapConfig::default();
-    let (ma, _) = cosem_host::mapping::build_map(&seq.load_range(a.a)?, config, &PointFilter::default())?;
-    let (mb, _) = cosem_host::mapping::build_map(&seq.load_range(a.b)?, config, &PointFilter::default())?;
+    let (ma, _) = cosem_host::mapping::build_map(&seq.load_range(p.a)?, config, &PointFilter::default())?;
+    let (mb, _) = cosem_host::mapping::build_map(&seq.load_range(p.b)?, config, &PointFilter::default())?;
     println!(
         "bench link: A {} voxels ({}), B {} voxels ({}) of {}, both ways at once, {} baud (8N1), simulated time",
         ma.len(),
-        a.a,
+        p.a,
         mb.len(),
-        a.b,
+        p.b,
         dir.display(),
         a.baud
     );
@@ -249,16 +259,17 @@ fn bench_link(a: LinkArgs) -> Result<(), Error> {
 }
 
 fn bench_global(a: GlobalArgs) -> Result<(), Error> {
+    let p = &a.pair;
     use cosem_core::matching::global::{align_landmarks, refine, GlobalSettings};
     use cosem_core::matching::{MatchSettings, Matcher};
     use cosem_host::align::{errors, prepare, to_matrix, DEFAULT_LEVELS};
-    let (dir, _tmp) = data_dir(a.data, a.b.end)?;
+    let (dir, _tmp) = data_dir(p.data.clone(), p.b.end)?;
     let seq = Sequence::open(&dir)?;
     let config = MapConfig::with_resolution(a.voxel);
     let filter = PointFilter::default();
-    let (ma, _) = cosem_host::mapping::build_map(&seq.load_range(a.a)?, config, &filter)?;
-    let (mb, _) = cosem_host::mapping::build_map(&seq.load_range(a.b)?, config, &filter)?;
-    let gt = seq.relative_pose(a.a.start, a.b.start)?;
+    let (ma, _) = cosem_host::mapping::build_map(&seq.load_range(p.a)?, config, &filter)?;
+    let (mb, _) = cosem_host::mapping::build_map(&seq.load_range(p.b)?, config, &filter)?;
+    let gt = seq.relative_pose(p.a.start, p.b.start)?;
     let (pa, pb) = (prepare(&ma, DEFAULT_LEVELS)?, prepare(&mb, DEFAULT_LEVELS)?);
     let matcher = Matcher::new(MatchSettings::default());
     let settings = GlobalSettings::default();
@@ -284,9 +295,9 @@ fn bench_global(a: GlobalArgs) -> Result<(), Error> {
     println!(
         "bench global: A {} voxels ({}), B {} voxels ({}) at {} m of {}",
         ma.len(),
-        a.a,
+        p.a,
         mb.len(),
-        a.b,
+        p.b,
         a.voxel,
         dir.display()
     );
@@ -311,17 +322,16 @@ fn bench_global(a: GlobalArgs) -> Result<(), Error> {
     Ok(())
 }
 
-/// Strict success of matching `seq`'s two halves over the grid of starts.
-fn strict_success(dir: &std::path::Path, frames: usize, stride: usize) -> Result<(f64, usize), Error> {
+/// Strict success of matching ranges `a` and `b` of `dir` over the grid of
+/// starts, and robot A's map size.
+fn strict_success(dir: &std::path::Path, a: FrameRange, b: FrameRange, stride: usize) -> Result<(f64, usize), Error> {
     use cosem_core::matching::{MatchSettings, MatchStatus, Matcher};
     use cosem_host::align::{errors, grid, prepare, to_matrix, DEFAULT_LEVELS};
     let seq = Sequence::open(dir)?;
-    let half = frames / 2;
-    let (ra, rb) = (FrameRange { start: 0, end: half, stride: 1 }, FrameRange { start: half, end: frames, stride: 1 });
     let filter = PointFilter::default();
-    let (ma, _) = cosem_host::mapping::build_map(&seq.load_range(ra)?, MapConfig::default(), &filter)?;
-    let (mb, _) = cosem_host::mapping::build_map(&seq.load_range(rb)?, MapConfig::default(), &filter)?;
-    let gt = seq.relative_pose(0, half)?;
+    let (ma, _) = cosem_host::mapping::build_map(&seq.load_range(a)?, MapConfig::default(), &filter)?;
+    let (mb, _) = cosem_host::mapping::build_map(&seq.load_range(b)?, MapConfig::default(), &filter)?;
+    let gt = seq.relative_pose(a.start, b.start)?;
     let (pa, pb) = (prepare(&ma, DEFAULT_LEVELS)?, prepare(&mb, DEFAULT_LEVELS)?);
     let matcher = Matcher::new(MatchSettings::default());
     let starts = grid(stride);
@@ -334,92 +344,115 @@ fn strict_success(dir: &std::path::Path, frames: usize, stride: usize) -> Result
     Ok((ok as f64 / starts.len().max(1) as f64, ma.len()))
 }
 
+/// One row of `cosem bench label`.
+fn label_row(seed: &str, name: &str, figures: Option<&cosem_host::label::LabelStats>, rate: f64, voxels: usize) {
+    let pct = |v: Option<f64>| v.map(|v| format!("{:.2}%", 100.0 * v)).unwrap_or_else(|| "-".into());
+    println!(
+        "  {:<8} {:<26} {:>8} {:>10} {:>8} {:>11} {:>7.1}%",
+        seed,
+        name,
+        figures.map(|s| format!("{:.1}", s.points as f64 / s.label_seconds.max(1e-9) / 1e6)).unwrap_or("-".into()),
+        pct(figures.and_then(|s| s.agreement())),
+        pct(figures.and_then(|s| s.agreement_in_set())),
+        voxels,
+        100.0 * rate
+    );
+}
+
+fn label_options(
+    data: PathBuf,
+    seg: PathBuf,
+    probabilities: bool,
+    frames: Option<Vec<usize>>,
+    out: PathBuf,
+) -> cosem_host::label::LabelOptions {
+    cosem_host::label::LabelOptions {
+        data,
+        seg,
+        camera: 2,
+        classes: cosem_core::camera::SegClasses::Cityscapes,
+        probabilities,
+        occlusion: true,
+        image_size: None,
+        frames,
+        out,
+    }
+}
+
 fn bench_label(a: LabelArgs) -> Result<(), Error> {
     use cosem_core::camera::SegClasses;
-    use cosem_host::label::{label_sequence, LabelOptions};
+    use cosem_host::label::label_sequence;
     use cosem_host::synth::{write_sequence, SegRender, SynthConfig, SEG_DIR};
     if a.frames < 4 {
         return Err("--frames must be at least 4".into());
     }
     let tmp = TempDir(std::env::temp_dir().join(format!("cosem-bench-label-{}", std::process::id())));
+    let half = a.frames / 2;
+    let (ra, rb) =
+        (FrameRange { start: 0, end: half, stride: 1 }, FrameRange { start: half, end: a.frames, stride: 1 });
     println!(
-        "bench label: synthetic streets of {} frames (A = 0:{}, B = {}:{}), camera 2, Cityscapes ids; \
-         strict success over {} starts of the paper's grid",
-        a.frames,
-        a.frames / 2,
-        a.frames / 2,
-        a.frames,
-        grid_len(a.grid_stride)
+        "bench label: camera 2, Cityscapes ids; strict success over {} starts of the paper's grid",
+        cosem_host::align::grid(a.grid_stride).len()
     );
     println!(
-        "  {:<5} {:<24} {:>10} {:>11} {:>9} {:>12} {:>8}",
-        "seed", "labels", "M pts/s", "agreement", "in set", "map voxels", "strict"
+        "  {:<8} {:<26} {:>8} {:>10} {:>8} {:>11} {:>8}",
+        "seq", "labels", "M pts/s", "agreement", "in set", "A voxels", "strict"
     );
     for &seed in &a.seeds {
-        let variants: [(&str, Option<SegRender>, bool); 4] = [
-            ("ground truth (LiDAR)", None, false),
-            (
-                "camera, perfect",
-                Some(SegRender { classes: SegClasses::Cityscapes, corrupt: false, probabilities: false }),
-                false,
-            ),
-            (
-                "camera, corrupted",
-                Some(SegRender { classes: SegClasses::Cityscapes, corrupt: true, probabilities: false }),
-                false,
-            ),
-            (
-                "camera, corrupted, probs",
-                Some(SegRender { classes: SegClasses::Cityscapes, corrupt: true, probabilities: true }),
-                true,
-            ),
+        let cs = SegClasses::Cityscapes;
+        let variants: [(&str, Option<SegRender>); 4] = [
+            ("ground truth (LiDAR)", None),
+            ("camera, perfect", Some(SegRender { classes: cs, corrupt: false, probabilities: false })),
+            ("camera, corrupted", Some(SegRender { classes: cs, corrupt: true, probabilities: false })),
+            ("camera, corrupted, probs", Some(SegRender { classes: cs, corrupt: true, probabilities: true })),
         ];
-        for (name, seg, probabilities) in variants {
-            let src = tmp.0.join(format!("s{seed}-{}", name.len()));
+        for (k, (name, seg)) in variants.into_iter().enumerate() {
+            let src = tmp.0.join(format!("s{seed}-{k}"));
             let cfg = SynthConfig { frames: a.frames, seed, seg, ..SynthConfig::default() };
             write_sequence(&src, &cfg)?;
             let (dir, figures) = match seg {
                 None => (src.clone(), None),
                 Some(r) => {
-                    let out = tmp.0.join(format!("l{seed}-{}", name.len()));
-                    let s = label_sequence(&LabelOptions {
-                        data: src.clone(),
-                        seg: src.join(SEG_DIR),
-                        camera: 2,
-                        classes: r.classes,
-                        probabilities,
-                        occlusion: true,
-                        image_size: None,
-                        frames: None,
-                        out: out.clone(),
-                    })?;
-                    (out, Some(s))
+                    let out = tmp.0.join(format!("l{seed}-{k}"));
+                    let opts = label_options(src.clone(), src.join(SEG_DIR), r.probabilities, None, out.clone());
+                    (out, Some(label_sequence(&opts)?))
                 }
             };
-            let (rate, voxels) = strict_success(&dir, a.frames, a.grid_stride)?;
-            let pct = |v: Option<f64>| v.map(|v| format!("{:.2}%", 100.0 * v)).unwrap_or_else(|| "-".into());
-            println!(
-                "  {:<5} {:<24} {:>10} {:>11} {:>9} {:>12} {:>7.1}%",
-                seed,
-                name,
-                figures
-                    .as_ref()
-                    .map(|s| format!("{:.1}", s.points as f64 / s.label_seconds.max(1e-9) / 1e6))
-                    .unwrap_or("-".into()),
-                pct(figures.as_ref().and_then(|s| s.agreement())),
-                pct(figures.as_ref().and_then(|s| s.agreement_in_set())),
-                voxels,
-                100.0 * rate
-            );
+            let (rate, voxels) = strict_success(&dir, ra, rb, a.grid_stride)?;
+            label_row(&format!("synth {seed}"), name, figures.as_ref(), rate, voxels);
         }
     }
-    println!("  (labelling rate: projection and lookup only, single thread; agreement over in-view points;");
-    println!("   'in set': as Cityscapes ids can say it, trunks being vegetation there)");
+    if let Some(data) = &a.data {
+        // Real scans have no camera images here: splat their labelled points
+        // into camera 2 as a stand-in for a network's output.
+        let seq = Sequence::open(data)?;
+        let frames: Vec<usize> = a.a.frames().chain(a.b.frames()).collect();
+        let name = data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let (rate, voxels) = strict_success(data, a.a, a.b, a.grid_stride)?;
+        label_row(&name, "ground truth (LiDAR)", None, rate, voxels);
+        let mut rng = cosem_host::rng::Rng::new(1);
+        for (k, corrupt) in [false, true].into_iter().enumerate() {
+            let seg = tmp.0.join(format!("real-seg-{k}"));
+            std::fs::create_dir_all(&seg)?;
+            for &f in &frames {
+                let scan = seq.read_scan(f)?;
+                let path = seg.join(format!("{f:06}.png"));
+                let cam = cosem_host::label::camera_of(&seq, 2, cosem_host::synth::IMAGE_SIZE, &path)?;
+                let im =
+                    cosem_host::label::splat_segmentation(&cam, &scan.points, &scan.labels, SegClasses::Cityscapes);
+                let im = if corrupt { cosem_host::synth::corrupt(&im, SegClasses::Cityscapes, &mut rng) } else { im };
+                cosem_host::label::write_seg_png(&path, &im)?;
+            }
+            let out = tmp.0.join(format!("real-out-{k}"));
+            let s = label_sequence(&label_options(data.clone(), seg, false, Some(frames.clone()), out.clone()))?;
+            let (rate, voxels) = strict_success(&out, a.a, a.b, a.grid_stride)?;
+            let label = if corrupt { "splatted camera, corrupted" } else { "splatted camera" };
+            label_row(&name, label, Some(&s), rate, voxels);
+        }
+    }
+    println!("  (M pts/s: projection and lookup of every point of a scan, single thread; agreement over the");
+    println!("   points camera 2 sees; 'in set': as Cityscapes ids can say it, trunks being vegetation there)");
     Ok(())
-}
-
-fn grid_len(stride: usize) -> usize {
-    cosem_host::align::grid(stride).len()
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
