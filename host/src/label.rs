@@ -432,6 +432,12 @@ pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, LabelError> {
         Some(f) => f.clone(),
         None => seq.scan_frames()?,
     };
+    if frames.is_empty() {
+        return Err(LabelError::Format {
+            path: o.data.join("velodyne"),
+            what: "no scans (NNNNNN.bin) to label".into(),
+        });
+    }
     for d in ["velodyne", "labels"] {
         let p = o.out.join(d);
         std::fs::create_dir_all(&p).map_err(io(&p))?;
@@ -463,8 +469,13 @@ pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, LabelError> {
     let mut camera: Option<(Camera, (u32, u32))> = None;
     let mut depth_buffer: Vec<f32> = Vec::new();
     for &frame in &frames {
-        let points = seq.read_points(frame)?;
-        let truth = if seq.label_path(frame).exists() { Some(seq.read_scan(frame)?.labels) } else { None };
+        // Existing labels, if any, are compared with the new ones.
+        let (points, truth) = if seq.label_path(frame).exists() {
+            let scan = seq.read_scan(frame)?;
+            (scan.points, Some(scan.labels))
+        } else {
+            (seq.read_points(frame)?, None)
+        };
         let png_path = o.seg.join(format!("{frame:06}.png"));
         let npy_path = o.seg.join(format!("{frame:06}.npy"));
         let image_path = if o.probabilities { &npy_path } else { &png_path };
@@ -472,22 +483,20 @@ pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, LabelError> {
             return Err(LabelError::MissingImage { path: image_path.clone(), frame });
         }
         // Either hard ids or probabilities, each checked whole.
-        let (image, probs) = if o.probabilities {
+        let (size, hard, probs) = if o.probabilities {
             let p = read_probabilities(&npy_path, o.classes.channels())?;
-            ((p.width, p.height), Some(p))
+            ((p.width, p.height), None, Some(p))
         } else {
             let im = read_seg_png(&png_path)?;
             check_ids(&png_path, &im, o.classes)?;
-            ((im.width, im.height), None)
+            ((im.width, im.height), Some(im), None)
         };
-        let size = image;
         if camera.is_none() {
             let want = o.image_size.unwrap_or(size);
             camera = Some((camera_of(&seq, o.camera, want, image_path)?, want));
         }
         let Some((cam, want)) = &camera else { continue };
         check_size(image_path, size, *want)?;
-        let hard = if probs.is_none() { Some(read_seg_png(&png_path)?) } else { None };
         let t = std::time::Instant::now();
         let projected: Vec<Projection> = points.iter().map(|p| cam.project([p[0], p[1], p[2]])).collect();
         let grid = if o.occlusion {

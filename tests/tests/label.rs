@@ -143,4 +143,14 @@ fn malformed_inputs_name_the_file() {
     assert!(e.contains("calib.txt") && e.contains("P7"), "{e}");
     let e = run("o8", &["--classes", "ade20k"]);
     assert!(e.contains("ade20k"), "{e}");
+    // A folder with no scans.
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir_all(empty.join("velodyne")).unwrap();
+    for f in ["calib.txt", "poses.txt"] {
+        std::fs::copy(seq.join(f), empty.join(f)).unwrap();
+    }
+    let (d, s, o) =
+        (empty.display().to_string(), seg.display().to_string(), tmp.path().join("o9").display().to_string());
+    let e = cosem_err(&["label", "--data", &d, "--seg", &s, "--out", &o]);
+    assert!(e.contains("velodyne") && e.contains("no scans"), "{e}");
 }
