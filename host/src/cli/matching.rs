@@ -1,7 +1,7 @@
 //! `cosem match`: align a scene map to a model map.
 
 use super::Error;
-use cosem_core::matching::global::{align_without_prior, GlobalOutcome, GlobalSettings};
+use cosem_core::matching::global::{locate, refine, GlobalSettings, Located};
 use cosem_core::matching::landmarks::{extract, Landmark, MAX_LANDMARKS};
 use cosem_core::matching::{Dof, MatchResult, MatchSettings, Matcher, Method};
 use cosem_host::align::{prepare, to_matrix, DEFAULT_LEVELS};
@@ -91,32 +91,31 @@ pub fn landmarks(map: &cosem_host::mapping::HostMap) -> Result<heapless::Vec<Lan
     Ok(out)
 }
 
-/// What a global alignment found: its outcome and both maps' landmark counts.
-pub type GlobalFigures = (Option<GlobalOutcome>, usize, usize);
-
 /// Aligns two prepared maps: from `init` when `--init` was given, else by
-/// global alignment from semantic landmarks first (the conventions).
+/// global alignment from semantic landmarks first (the conventions), with
+/// the core's [`locate`] and [`refine`], as the robots do.
 pub fn align_maps(
     opts: &MatchOpts,
     settings: MatchSettings,
     init: &nalgebra::Isometry3<f32>,
     maps: (&cosem_host::mapping::HostMap, &cosem_host::mapping::HostMap),
     pyramids: (&cosem_host::align::HostPyramid<'_>, &cosem_host::align::HostPyramid<'_>),
-) -> Result<(MatchResult, Option<GlobalFigures>), Error> {
+) -> Result<(MatchResult, Option<Located>), Error> {
     let matcher = Matcher::new(settings);
     if opts.init.is_some() {
         return Ok((matcher.align(pyramids.0, pyramids.1, init)?, None));
     }
-    let (lm, ls) = (landmarks(maps.0)?, landmarks(maps.1)?);
-    let (r, outcome) = align_without_prior(&matcher, pyramids.0, pyramids.1, (&lm, &ls), &GlobalSettings::default())?;
-    Ok((r, Some((outcome, lm.len(), ls.len()))))
+    let mut scratch = vec![0u32; maps.0.len().max(maps.1.len())];
+    let located = locate(maps.0, maps.1, &mut scratch, &GlobalSettings::default())?;
+    let r = refine(&matcher, pyramids.0, pyramids.1, located.outcome.as_ref())?;
+    Ok((r, Some(located)))
 }
 
 /// The landmark alignment's figures as JSON.
-pub fn global_json(g: &GlobalFigures) -> serde_json::Value {
-    let (o, nm, ns) = g;
+pub fn global_json(g: &Located) -> serde_json::Value {
+    let o = g.outcome;
     json!({
-        "landmarks": [nm, ns],
+        "landmarks": g.landmarks,
         "agreeing": o.map(|o| o.agreeing),
         "runner_up": o.map(|o| o.runner_up),
         "unique": o.map(|o| o.unique),
@@ -179,8 +178,8 @@ pub fn run(a: Args) -> Result<(), Error> {
         let m = to_matrix(&r.transform);
         let x = pose::to_xyz_rpy_deg(&m);
         println!("status      {}", r.status.as_str());
-        if let Some((o, nm, ns)) = &global {
-            match o {
+        if let Some(Located { landmarks: [nm, ns], outcome }) = &global {
+            match outcome {
                 Some(o) => println!(
                     "global      {nm} / {ns} landmarks, {} agree (runner-up {}): {}",
                     o.agreeing,
