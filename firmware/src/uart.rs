@@ -19,6 +19,18 @@ const BAUDDIV: usize = 0x10;
 const TX_FULL: u32 = 1 << 0;
 const RX_FULL: u32 = 1 << 1;
 
+/// Cycles to wait between two polls of an idle UART. At 115200 baud a byte
+/// takes about 2,000 cycles of the 25 MHz clock, so this costs no latency;
+/// it spares the bus. Under QEMU every register read takes the emulator's
+/// global lock, and a guest reading STATE back to back can keep the
+/// emulator's I/O thread from delivering the bytes it waits for (seen as a
+/// feed that stalled mid-way while the host machine was loaded).
+const POLL_BACKOFF_CYCLES: u32 = 500;
+
+fn backoff() {
+    cortex_m::asm::delay(POLL_BACKOFF_CYCLES);
+}
+
 /// One UART.
 pub struct Uart {
     base: usize,
@@ -72,7 +84,9 @@ impl embedded_io::Write for Uart {
             if n > 0 && self.state() & TX_FULL != 0 {
                 break;
             }
-            while self.state() & TX_FULL != 0 {}
+            while self.state() & TX_FULL != 0 {
+                backoff();
+            }
             // SAFETY: DATA is a register of this UART.
             unsafe { self.write_reg(DATA, u32::from(b)) };
             n += 1;
@@ -81,14 +95,22 @@ impl embedded_io::Write for Uart {
     }
 
     fn flush(&mut self) -> Result<(), Infallible> {
-        while self.state() & TX_FULL != 0 {}
+        while self.state() & TX_FULL != 0 {
+            backoff();
+        }
         Ok(())
     }
 }
 
 impl embedded_io::ReadReady for Uart {
+    /// Whether a byte is there; when not, waits [`POLL_BACKOFF_CYCLES`]
+    /// first, so a loop over `read_ready` does not hammer the UART.
     fn read_ready(&mut self) -> Result<bool, Infallible> {
-        Ok(self.state() & RX_FULL != 0)
+        let ready = self.state() & RX_FULL != 0;
+        if !ready {
+            backoff();
+        }
+        Ok(ready)
     }
 }
 
@@ -98,7 +120,9 @@ impl embedded_io::Read for Uart {
         if buf.is_empty() {
             return Ok(0);
         }
-        while self.state() & RX_FULL == 0 {}
+        while self.state() & RX_FULL == 0 {
+            backoff();
+        }
         let mut n = 0;
         for slot in buf.iter_mut() {
             if self.state() & RX_FULL == 0 {
