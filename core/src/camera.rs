@@ -1,4 +1,5 @@
-//! Labels for LiDAR points from a camera's semantic segmentation (the
+//! Stage 1 (with [`crate::classes`]): labels for LiDAR points from a
+//! camera's semantic segmentation (the
 //! paper's section IV-A): a segmentation network labels each image, and each
 //! LiDAR point takes the class of the pixel it projects to through the
 //! camera-LiDAR calibration.

@@ -1,4 +1,5 @@
-//! The class table: SemanticKITTI's standard learning map (19 classes).
+//! Stage 1: the class table, SemanticKITTI's standard learning map (19
+//! classes).
 //!
 //! Raw SemanticKITTI ids are mapped with [`Class::from_semantic_kitti`]. Ids the
 //! standard map sends to "unlabeled" (0 unlabeled, 1 outlier, 52 other-structure,

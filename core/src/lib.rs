@@ -4,32 +4,36 @@
 //! allocator: the same code builds a robot's local semantic voxel map on a
 //! microcontroller and on a laptop, bit for bit.
 //!
-//! Data flows one way, and the modules follow it:
+//! Data flows one way, and the modules follow it (the same stage numbers
+//! appear in each module's documentation and in the README):
 //!
-//! 0. [`geometry`]: rigid transforms and the conventions' pose syntax.
-//! 1. [`classes`]: the class table (SemanticKITTI's 19 classes) and the
-//!    mapping from raw dataset ids.
-//!    [`camera`] gives LiDAR points their labels from a camera's semantic
-//!    segmentation when the LiDAR has none (projection, Cityscapes ids,
-//!    per-pixel class probabilities).
+//! 1. [`classes`], [`camera`]: points get classes: SemanticKITTI's 19-class
+//!    table and raw ids, or labels from a camera's semantic segmentation
+//!    (projection, Cityscapes ids, per-pixel probabilities as evidence).
 //! 2. [`map`]: labelled points are fused into a [`map::LocalMap`], a
 //!    fixed-capacity voxel hash map holding per voxel a sub-voxel mean
 //!    position, an occupancy log-odds, a hit count and a Bayes-fused label
-//!    distribution, in 24 bytes (32 with its index). Coarser levels of a
-//!    resolution pyramid are built from it without allocation.
-//! 3. [`matching`]: EM map matching. A [`matching::Pyramid`] prepares each
-//!    map once (per-class coarse levels, hash index, normals); a
-//!    [`matching::Matcher`] aligns a scene to a model coarse to fine with an
-//!    annealed Gaussian weight and semantic compatibility, and returns a
+//!    distribution, in 24 bytes (32 with its index).
+//! 3. [`wire`]: every byte format, importing nothing from the stages after
+//!    it: the compact chunked voxel encoding, COBS frames with a CRC-32,
+//!    the link's and the feed's versioned messages, a match result as plain
+//!    numbers, the `.cmap` map file. Golden bytes freeze each format.
+//! 4. [`link`]: an [`link::Endpoint`] sends its map and receives the peer's
+//!    over any `embedded-io` byte stream (acks, retries, timeouts, a
+//!    staging map accepted only whole).
+//! 5. [`matching`]: a [`matching::Pyramid`] prepares each map once
+//!    (per-class coarse levels, hash index, normals, footprint); a
+//!    [`matching::Matcher`] aligns a scene to a model (coarse correlative
+//!    search, then coarse-to-fine EM) and returns a
 //!    [`matching::MatchResult`] with a status, inliers, overlap and the
-//!    information matrix.
-//! 4. [`wire`]: checksums (and, later, the compact encoding maps travel in).
+//!    information matrix; [`matching::global`] aligns without a prior.
+//! 6. [`robot`]: one robot's sequence (feed, map, link, align, report) as a
+//!    poll-driven step machine that the firmware and a host both drive.
 //!
-//! 5. [`robot`]: one robot of a pair end to end (fed points, map, link,
-//!    alignment, report), shared by the firmware and the host.
-//!
-//! [`selftest`] runs a fixed mapping, wire and matching case whose figures
-//! must agree to the bit on the chip and on a host.
+//! [`geometry`] (rigid transforms, the conventions' pose syntax and error
+//! measures) underlies them all. [`selftest`] runs a fixed mapping, wire and
+//! matching case whose figures must agree to the bit on the chip and on a
+//! host.
 //!
 //! Capacities are set by the storage: [`map::ArrayStorage`] fixes them at
 //! compile time (`FixedMap<N>`), [`map::SliceStorage`] borrows buffers the
@@ -38,6 +42,10 @@
 //!
 //! ## Features
 //! - `defmt`: derives `defmt::Format` for the public types, for firmware logs.
+//! - `alloc`: heap-backed storages sized at run time (`map::VecStorage`,
+//!   `matching::VecPyramidStorage`, sized by
+//!   [`matching::PyramidCapacity::for_map`]) for hosts; off by default, and
+//!   off in every firmware build.
 //!
 //! ## Example
 //! ```
@@ -56,6 +64,9 @@
 
 #[cfg(test)]
 extern crate std;
+
+#[cfg(any(test, feature = "alloc"))]
+extern crate alloc;
 
 pub mod camera;
 pub mod classes;

@@ -1,31 +1,34 @@
-//! Stage 4: one robot of a pair, as the firmware runs it and as a host
-//! recomputes it. Both call the same functions with the same capacities, so
-//! the host's answer on the same data is the robot's, to the bit.
+//! Stage 6: one robot of a team, end to end, as a poll-driven step machine
+//! ([`Robot::poll`], like smoltcp's interface poll): the firmware drives it
+//! with its UARTs and SysTick, a host drives the same machine with byte
+//! buffers and a simulated line, so the host's answer on the same data is
+//! the robot's, to the bit.
 //!
-//! A robot is fed over a serial line by a host (a feeder standing in for
-//! its LiDAR, segmentation and odometry): a [`Setup`], then its scans as
-//! labelled points already in the robot's anchor frame, thinned to about one
-//! point per voxel and quantised to centimetres ([`POINT_BYTES`] bytes each),
-//! then [`FeedMessage::EndOfFeed`]. It builds its map on board
-//! ([`insert_points`]), exchanges maps with the other robot over the link
-//! ([`crate::link`]), aligns the received map (scene) to its own (model)
-//! from the prior, or with none from their semantic landmarks ([`align`]),
-//! and sends a [`RobotReport`] back to the host
-//! (or [`RobotMessage::Failed`]).
+//! The sequence: the feed ([`crate::wire::feed`]: a set-up, then labelled
+//! points already in the robot's anchor frame) is fused into the robot's
+//! map ([`insert_points`]); at the end of the feed the robot exchanges maps
+//! with its peer over the link ([`crate::link`]); then it aligns the
+//! received map (scene) to its own (model) from the prior, or with none
+//! from the maps alone ([`align`]), and reports a
+//! [`RobotReport`] over its feed line (or where and why it stopped).
 //!
-//! Messages travel in the link's frames ([`crate::wire::frame`]: COBS and
-//! CRC-32), as a version byte and postcard.
+//! Every buffer belongs to the caller: two maps, a scratch of one `u32` per
+//! voxel (the link's Morton order, then the landmark search) and two
+//! pyramid storages. The capacities a robot's firmware uses are the
+//! constants below.
 
-use crate::classes::{Class, NUM_CLASSES};
-use crate::geometry::Isometry3;
-use crate::map::{ArrayStorage, FullPolicy, InsertError, LocalMap, MapConfig, VoxelStorage};
+use crate::geometry::{from_rows, Isometry3};
+use crate::link::sim::{ScriptPort, SimLine};
+use crate::link::{Endpoint, LinkConfig, LinkError, LinkStats, Progress};
+use crate::map::{ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, VoxelStorage};
 use crate::matching::global::{locate, refine, GlobalSettings, Located};
 use crate::matching::landmarks::LandmarkError;
 use crate::matching::{
     ArrayPyramidStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, PyramidStorage, Role,
 };
-use crate::wire::message::{self, MatchReport, MessageError};
-use serde::{Deserialize, Serialize};
+use crate::wire::feed::{self, FeedError, FeedMessage, GlobalReport, RobotMessage, RobotReport, Setup, Stage};
+use crate::wire::frame::{DeframeError, Deframer, MAX_FRAME};
+use embedded_io::{Read, ReadReady, Write};
 
 /// Voxels a robot's map holds (and the received map): 256 KiB each. When a
 /// map is full the voxels farthest from the anchor are evicted
@@ -43,11 +46,6 @@ pub const SCENE_WORDS: usize = 8192;
 pub const LEVELS: usize = 3;
 /// First footprint cell tried (m); doubled until the grids fit.
 pub const FOOTPRINT_CELL: f32 = 1.0;
-/// Bytes of one fed point: x, y, z in centimetres (i16, little endian) and
-/// the class index.
-pub const POINT_BYTES: usize = 7;
-/// Most points in one [`FeedMessage::Points`] (fits a link frame).
-pub const MAX_POINTS_PER_MESSAGE: usize = 64;
 
 /// A robot's map storage.
 pub type MapStorage = ArrayStorage<VOXELS>;
@@ -56,307 +54,19 @@ pub type ModelStorage = ArrayPyramidStorage<VOXELS, COARSE, MODEL_WORDS>;
 /// Pyramid storage of the received map (the scene).
 pub type SceneStorage = ArrayPyramidStorage<VOXELS, COARSE, SCENE_WORDS>;
 
-/// Version byte of the feed protocol.
-pub const FEED_VERSION: u8 = 2;
-
 /// The map configuration of a robot at `resolution`: full maps evict the
 /// voxels farthest from the anchor.
 pub fn map_config(resolution: f32) -> MapConfig {
     MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] }, ..MapConfig::with_resolution(resolution) }
 }
 
-/// What a host tells a robot before its scans.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Setup {
-    /// 0 for robot A (which sends first on a half-duplex line), 1 for B.
-    pub robot_id: u8,
-    /// Voxel size (m).
-    pub resolution: f32,
-    /// The prior `T_own_peer` (model = own map, scene = the peer's), top
-    /// three rows of the 4x4 matrix, row by row; `None`: no prior, align
-    /// from semantic landmarks ([`crate::matching::global`]).
-    pub prior: Option<[f32; 12]>,
-    /// Give up on the link when nothing valid arrived for this long (ms).
-    pub silence_ms: u32,
-}
-
-/// Host to robot.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub enum FeedMessage<'a> {
-    /// Configuration; first.
-    Setup(Setup),
-    /// Points of one scan, [`POINT_BYTES`] each.
-    Points {
-        /// Scan index within the robot's range.
-        scan: u16,
-        /// The points.
-        #[serde(borrow)]
-        data: &'a [u8],
-    },
-    /// All scans were sent.
-    EndOfFeed {
-        /// Scans sent.
-        scans: u16,
-        /// Points sent.
-        points: u32,
-    },
-}
-
-/// What a robot did, for the host.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct RobotReport {
-    /// The match (`T_own_peer`: own map the model, the peer's the scene).
-    pub result: MatchReport,
-    /// Points fed.
-    pub points: u32,
-    /// Voxels of the robot's own map.
-    pub map_voxels: u32,
-    /// Voxels of the received map.
-    pub received_voxels: u32,
-    /// Bytes the robot wrote to the link.
-    pub bytes_sent: u64,
-    /// Bytes the robot read from the link.
-    pub bytes_received: u64,
-    /// Frames resent on the link.
-    pub retransmissions: u32,
-    /// Duration of the map exchange (ms of the robot's clock).
-    pub link_ms: u32,
-    /// Instructions spent inserting the fed points into the map.
-    pub map_instructions: u64,
-    /// Instructions spent preparing both maps for matching.
-    pub prepare_instructions: u64,
-    /// Instructions of the prior-free landmark alignment (0 with a prior).
-    pub locate_instructions: u64,
-    /// Instructions of the match.
-    pub match_instructions: u64,
-    /// What the landmark alignment found (`None` with a prior).
-    pub global: Option<GlobalReport>,
-    /// Peak stack (bytes).
-    pub peak_stack: u32,
-}
-
-/// The landmark alignment's figures, for the host.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct GlobalReport {
-    /// Landmarks of the robot's own map and of the received map.
-    pub landmarks: [u32; 2],
-    /// Correspondences in the largest consistent set (0: too few candidates).
-    pub agreeing: u32,
-    /// The largest consistent set the answer does not explain.
-    pub runner_up: u32,
-    /// Whether the answer was unique enough to refine (else `NoOverlap`).
-    pub unique: bool,
-}
-
-impl From<&Located> for GlobalReport {
-    fn from(l: &Located) -> Self {
-        GlobalReport {
-            landmarks: l.landmarks,
-            agreeing: l.outcome.map(|o| o.agreeing).unwrap_or(0),
-            runner_up: l.outcome.map(|o| o.runner_up).unwrap_or(0),
-            unique: l.outcome.is_some_and(|o| o.unique),
-        }
-    }
-}
-
-/// Where a robot failed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Stage {
-    /// Receiving the feed.
-    Feed,
-    /// Building the map.
-    Map,
-    /// Exchanging maps.
-    Link,
-    /// Preparing or matching.
-    Match,
-}
-
-impl Stage {
-    /// Lower-case name.
-    pub fn as_str(&self) -> &'static str {
-        match self {
-            Stage::Feed => "feed",
-            Stage::Map => "map",
-            Stage::Link => "link",
-            Stage::Match => "match",
-        }
-    }
-}
-
-/// Robot to host.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub enum RobotMessage<'a> {
-    /// The result.
-    Report(RobotReport),
-    /// The robot stopped.
-    Failed {
-        /// Where.
-        stage: Stage,
-        /// What, in words.
-        #[serde(borrow)]
-        message: &'a str,
-    },
-}
-
-/// Why a feed message is not one.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum FeedError {
-    /// Empty payload.
-    Empty,
-    /// Another protocol version.
-    Version(u8),
-    /// Not a well-formed message.
-    Malformed,
-    /// A float is NaN or infinite (or a resolution out of range).
-    NonFinite,
-    /// The output buffer is too small.
-    Buffer,
-    /// Point data not a whole number of points.
-    PointBytes {
-        /// Bytes received.
-        len: u32,
-    },
-    /// A point's class is not in the class table.
-    Class {
-        /// Byte offset of the point in the message's data.
-        offset: u32,
-        /// The class byte.
-        class: u8,
-    },
-    /// A message out of order (points before the set-up, a second set-up).
-    Order,
-}
-
-impl core::fmt::Display for FeedError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            FeedError::Empty => f.write_str("empty payload"),
-            FeedError::Version(v) => write!(f, "feed protocol version {v}, expected {FEED_VERSION}"),
-            FeedError::Malformed => f.write_str("malformed feed message"),
-            FeedError::NonFinite => f.write_str("non-finite or out-of-range number"),
-            FeedError::Buffer => f.write_str("buffer too small"),
-            FeedError::PointBytes { len } => write!(f, "{len} bytes of points is not a multiple of {POINT_BYTES}"),
-            FeedError::Class { offset, class } => write!(f, "point at byte {offset}: class {class} not in the table"),
-            FeedError::Order => f.write_str("feed message out of order"),
-        }
-    }
-}
-
-impl core::error::Error for FeedError {}
-
-impl From<MessageError> for FeedError {
-    fn from(e: MessageError) -> Self {
-        match e {
-            MessageError::Empty => FeedError::Empty,
-            MessageError::Version(v) => FeedError::Version(v),
-            MessageError::Buffer => FeedError::Buffer,
-            MessageError::NonFinite => FeedError::NonFinite,
-            MessageError::Malformed | MessageError::Trailing => FeedError::Malformed,
-        }
-    }
-}
-
-fn encode_versioned<T: Serialize>(msg: &T, out: &mut [u8]) -> Result<usize, FeedError> {
-    Ok(message::encode_versioned(FEED_VERSION, msg, out)?)
-}
-
-fn decode_versioned<'a, T: Deserialize<'a>>(payload: &'a [u8]) -> Result<T, FeedError> {
-    Ok(message::decode_versioned(FEED_VERSION, payload)?)
-}
-
-fn finite(values: &[f32]) -> Result<(), FeedError> {
-    if values.iter().all(|v| v.is_finite()) {
-        Ok(())
-    } else {
-        Err(FeedError::NonFinite)
-    }
-}
-
-impl<'a> FeedMessage<'a> {
-    /// Encodes the message (version byte first) into `out`; returns its length.
-    pub fn encode(&self, out: &mut [u8]) -> Result<usize, FeedError> {
-        self.check()?;
-        encode_versioned(self, out)
-    }
-
-    /// Decodes and checks a payload; borrows point data from it.
-    pub fn decode(payload: &'a [u8]) -> Result<Self, FeedError> {
-        let msg: Self = decode_versioned(payload)?;
-        msg.check()?;
-        Ok(msg)
-    }
-
-    fn check(&self) -> Result<(), FeedError> {
-        match self {
-            FeedMessage::Setup(s) => {
-                if let Some(prior) = &s.prior {
-                    finite(prior)?;
-                }
-                if !(s.resolution.is_finite() && (0.01..=10.0).contains(&s.resolution)) {
-                    return Err(FeedError::NonFinite);
-                }
-                Ok(())
-            }
-            FeedMessage::Points { data, .. } => {
-                if data.len() % POINT_BYTES != 0 {
-                    return Err(FeedError::PointBytes { len: data.len() as u32 });
-                }
-                Ok(())
-            }
-            FeedMessage::EndOfFeed { .. } => Ok(()),
-        }
-    }
-}
-
-fn check_report(r: &RobotReport) -> Result<(), FeedError> {
-    finite(&r.result.transform)?;
-    finite(&[r.result.overlap, r.result.rmse])
-}
-
-impl<'a> RobotMessage<'a> {
-    /// Encodes the message (version byte first) into `out`; returns its length.
-    pub fn encode(&self, out: &mut [u8]) -> Result<usize, FeedError> {
-        if let RobotMessage::Report(r) = self {
-            check_report(r)?;
-        }
-        encode_versioned(self, out)
-    }
-
-    /// Decodes a payload; borrows the failure message from it.
-    pub fn decode(payload: &'a [u8]) -> Result<Self, FeedError> {
-        let msg: Self = decode_versioned(payload)?;
-        if let RobotMessage::Report(r) = &msg {
-            check_report(r)?;
-        }
-        Ok(msg)
-    }
-}
-
-/// Packs one point (map frame, metres) for the feed: centimetres, clamped
-/// to the i16 range (about +-327 m).
-pub fn pack_point(p: [f32; 3], class: Class) -> [u8; POINT_BYTES] {
-    let cm = |v: f32| libm::roundf(v * 100.0).clamp(f32::from(i16::MIN), f32::from(i16::MAX)) as i16;
-    let (x, y, z) = (cm(p[0]).to_le_bytes(), cm(p[1]).to_le_bytes(), cm(p[2]).to_le_bytes());
-    [x[0], x[1], y[0], y[1], z[0], z[1], class.index()]
-}
-
 /// Inserts fed points into `map`; returns how many. Stops at the first bad
 /// point (its byte offset in the error) or insertion error.
 pub fn insert_points<S: VoxelStorage>(map: &mut LocalMap<S>, data: &[u8]) -> Result<u32, PointsError> {
-    if data.len() % POINT_BYTES != 0 {
-        return Err(PointsError::Feed(FeedError::PointBytes { len: data.len() as u32 }));
-    }
     let mut n = 0u32;
-    for (i, p) in data.chunks_exact(POINT_BYTES).enumerate() {
-        let v = |a: usize| f32::from(i16::from_le_bytes([p[a], p[a + 1]])) * 0.01;
-        let class = Class::from_index(p[6])
-            .filter(|c| usize::from(c.index()) < NUM_CLASSES)
-            .ok_or(PointsError::Feed(FeedError::Class { offset: (i * POINT_BYTES) as u32, class: p[6] }))?;
-        map.insert_point([v(0), v(2), v(4)], class).map_err(PointsError::Insert)?;
+    for point in feed::points(data) {
+        let (p, class) = point.map_err(PointsError::Feed)?;
+        map.insert_point(p, class).map_err(PointsError::Insert)?;
         n += 1;
     }
     Ok(n)
@@ -399,7 +109,7 @@ impl core::fmt::Display for AlignError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             AlignError::Pyramid(e) => write!(f, "preparing a map: {e}"),
-            AlignError::Match(e) => write!(f, "matching: {e:?}"),
+            AlignError::Match(e) => write!(f, "matching: {e}"),
             AlignError::Landmarks(e) => write!(f, "landmarks: {e}"),
         }
     }
@@ -411,9 +121,10 @@ impl core::error::Error for AlignError {}
 /// from `prior` (`T_own_peer`) when there is one, else from the maps'
 /// semantic landmarks ([`locate`], with `scratch` of one `u32` per voxel,
 /// then [`refine`]; `NoOverlap` when they do not agree uniquely).
-/// `on_phase(k)` runs before preparation (0), before the landmark alignment
-/// (1), before the match (2) and after it (3), e.g. to read an instruction
-/// counter. Returns the match and, without a prior, what the landmarks found.
+/// `on_phase(k)` runs before preparation (0), before the prior-free
+/// alignment (1), before the match (2) and after it (3), e.g. to read an
+/// instruction counter. Returns the match and, without a prior, what the
+/// landmarks found.
 pub fn align<A: VoxelStorage, B: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>(
     own: &LocalMap<A>,
     received: &LocalMap<B>,
@@ -443,60 +154,383 @@ pub fn align<A: VoxelStorage, B: VoxelStorage, P: PyramidStorage, Q: PyramidStor
     Ok((r.map_err(AlignError::Match)?, located))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::geometry::from_xyz_rpy;
-
-    #[test]
-    fn messages_round_trip() {
-        let setup = Setup {
-            robot_id: 1,
-            resolution: 0.5,
-            prior: Some(crate::geometry::rows(&from_xyz_rpy(1.0, 2.0, 0.0, 0.0, 0.0, 0.3))),
-            silence_ms: 5000,
-        };
-        let pts = [pack_point([1.0, -2.5, 0.25], Class::Pole), pack_point([300.0, 0.0, -1.0], Class::Road)];
-        let flat: std::vec::Vec<u8> = pts.iter().flatten().copied().collect();
-        let mut buf = [0u8; 512];
-        for msg in [
-            FeedMessage::Setup(setup),
-            FeedMessage::Setup(Setup { prior: None, ..setup }),
-            FeedMessage::Points { scan: 3, data: &flat },
-            FeedMessage::EndOfFeed { scans: 5, points: 2 },
-        ] {
-            let n = msg.encode(&mut buf).unwrap();
-            assert_eq!(FeedMessage::decode(&buf[..n]).unwrap(), msg);
-            // Every truncation is an error, never a panic.
-            for k in 0..n {
-                assert!(FeedMessage::decode(&buf[..k]).is_err());
-            }
-        }
-        let bad = FeedMessage::Points { scan: 0, data: &flat[..8] };
-        assert_eq!(bad.encode(&mut buf), Err(FeedError::PointBytes { len: 8 }));
-        let nan = Setup { prior: Some([f32::NAN; 12]), ..setup };
-        assert_eq!(FeedMessage::Setup(nan).encode(&mut buf), Err(FeedError::NonFinite));
-        let failed = RobotMessage::Failed { stage: Stage::Link, message: "peer silent" };
-        let n = failed.encode(&mut buf).unwrap();
-        assert_eq!(RobotMessage::decode(&buf[..n]).unwrap(), failed);
-        buf[0] = 9;
-        assert_eq!(RobotMessage::decode(&buf[..n]), Err(FeedError::Version(9)));
+/// What a platform measures for a robot's report. The defaults measure
+/// nothing (a host); a board counts instructions and watches its stack.
+pub trait Meter {
+    /// Instructions executed so far (any origin).
+    fn instructions(&self) -> u64 {
+        0
     }
-
-    #[test]
-    fn points_insert_and_bad_classes_are_named() {
-        let mut map = crate::test_util::heap_map(64, map_config(0.5));
-        let mut data = std::vec::Vec::new();
-        data.extend_from_slice(&pack_point([1.02, 2.0, 0.3], Class::Trunk));
-        data.extend_from_slice(&pack_point([1.04, 2.1, 0.3], Class::Trunk));
-        assert_eq!(insert_points(&mut map, &data), Ok(2));
-        assert_eq!(map.len(), 1);
-        assert_eq!(map.voxels()[0].class(), Some(Class::Trunk));
-        data[13] = 19;
-        assert_eq!(insert_points(&mut map, &data), Err(PointsError::Feed(FeedError::Class { offset: 7, class: 19 })));
-        assert!(matches!(
-            insert_points(&mut map, &data[..5]),
-            Err(PointsError::Feed(FeedError::PointBytes { len: 5 }))
-        ));
+    /// Peak stack use so far (bytes).
+    fn peak_stack(&self) -> u32 {
+        0
     }
 }
+
+/// Measures nothing.
+impl Meter for () {}
+
+/// Why a robot stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RobotError {
+    /// The feed line reported an error.
+    FeedIo,
+    /// A broken frame on the feed line (the feed has no retransmission).
+    Frame(DeframeError),
+    /// A feed message that is not one, or out of order.
+    Feed(FeedError),
+    /// The feeder sent nothing for [`RobotConfig::feed_silence_ms`].
+    FeederSilent {
+        /// Points received until then.
+        points: u32,
+    },
+    /// The feeder's point count differs from the points received.
+    PointCount {
+        /// What the feeder says it sent.
+        sent: u32,
+        /// What arrived.
+        received: u32,
+    },
+    /// The set-up's map configuration is invalid.
+    Config(ConfigError),
+    /// Fed points could not be inserted.
+    Points(PointsError),
+    /// The map exchange failed.
+    Link(LinkError),
+    /// Preparing or matching failed.
+    Align(AlignError),
+    /// `poll` was called after the robot finished.
+    Finished,
+}
+
+impl RobotError {
+    /// Where the robot was when it stopped.
+    pub fn stage(&self) -> Stage {
+        match self {
+            RobotError::FeedIo
+            | RobotError::Frame(_)
+            | RobotError::Feed(_)
+            | RobotError::FeederSilent { .. }
+            | RobotError::PointCount { .. } => Stage::Feed,
+            RobotError::Config(_) | RobotError::Points(_) => Stage::Map,
+            RobotError::Link(_) => Stage::Link,
+            RobotError::Align(_) | RobotError::Finished => Stage::Match,
+        }
+    }
+}
+
+impl core::fmt::Display for RobotError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            RobotError::FeedIo => f.write_str("I/O error on the feed line"),
+            RobotError::Frame(e) => write!(f, "feed line: {e}"),
+            RobotError::Feed(e) => write!(f, "{e}"),
+            RobotError::FeederSilent { points } => write!(f, "feeder silent after {points} points"),
+            RobotError::PointCount { sent, received } => {
+                write!(f, "the feeder sent {sent} points, {received} arrived")
+            }
+            RobotError::Config(e) => write!(f, "set-up: {e}"),
+            RobotError::Points(e) => write!(f, "{e}"),
+            RobotError::Link(e) => write!(f, "{e}"),
+            RobotError::Align(e) => write!(f, "{e}"),
+            RobotError::Finished => f.write_str("the robot has finished"),
+        }
+    }
+}
+
+impl core::error::Error for RobotError {}
+
+/// How a robot waits for its feeder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RobotConfig {
+    /// Give up when the feeder sends nothing for this long (ms of the
+    /// robot's clock; default 300 s: under an emulator's instruction clock a
+    /// busy host can leave long gaps of virtual time between fed bytes).
+    pub feed_silence_ms: u64,
+}
+
+impl Default for RobotConfig {
+    fn default() -> Self {
+        RobotConfig { feed_silence_ms: 300_000 }
+    }
+}
+
+/// Where a robot stands after a poll.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Poll {
+    /// Still working: poll again.
+    Busy,
+    /// Finished; the report went out over the feed line too.
+    Done(RobotReport),
+}
+
+// The link's state (its frame buffer) is the large variant; without an
+// allocator there is nothing to box it in, and a robot holds one state.
+#[allow(clippy::large_enum_variant)]
+enum State<'a, M: VoxelStorage, R: VoxelStorage> {
+    Feed { own: &'a mut LocalMap<M>, received: &'a mut LocalMap<R>, scratch: &'a mut [u32] },
+    Link { own: &'a LocalMap<M>, endpoint: Endpoint<'a, M, R> },
+    Align { own: &'a LocalMap<M>, received: &'a LocalMap<R>, scratch: &'a mut [u32], stats: LinkStats },
+    Done,
+}
+
+/// One robot: its maps, its link, its alignment, driven by [`Robot::poll`].
+pub struct Robot<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage> {
+    config: RobotConfig,
+    state: State<'a, M, R>,
+    pyramids: Option<(P, Q)>,
+    deframer: Deframer,
+    setup: Option<Setup>,
+    points: u32,
+    map_instructions: u64,
+    last_fed_ms: Option<u64>,
+    link_started_ms: u64,
+    link_ms: u32,
+}
+
+impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage> Robot<'a, M, R, P, Q> {
+    /// A robot over the caller's buffers: its own map and the received map
+    /// (reconfigured by the set-up), a scratch of one `u32` per voxel of the
+    /// larger map, and the model's and scene's pyramid storages.
+    pub fn new(
+        config: RobotConfig,
+        own: &'a mut LocalMap<M>,
+        received: &'a mut LocalMap<R>,
+        scratch: &'a mut [u32],
+        model: P,
+        scene: Q,
+    ) -> Self {
+        Robot {
+            config,
+            state: State::Feed { own, received, scratch },
+            pyramids: Some((model, scene)),
+            deframer: Deframer::new(),
+            setup: None,
+            points: 0,
+            map_instructions: 0,
+            last_fed_ms: None,
+            link_started_ms: 0,
+            link_ms: 0,
+        }
+    }
+
+    /// The set-up, once it arrived.
+    pub fn setup(&self) -> Option<&Setup> {
+        self.setup.as_ref()
+    }
+
+    /// Does what can be done now: reads the feed, exchanges maps, aligns
+    /// (one long step), reports. On an error the robot tells its feeder
+    /// where and why, best effort, and stops.
+    pub fn poll<F, L, T>(&mut self, feed: &mut F, link: &mut L, now_ms: u64, meter: &T) -> Result<Poll, RobotError>
+    where
+        F: Read + Write + ReadReady,
+        L: Read + Write + ReadReady,
+        T: Meter,
+    {
+        let r = self.step(feed, link, now_ms, meter);
+        match &r {
+            Ok(Poll::Done(report)) => send(feed, &RobotMessage::Report(*report)),
+            Err(RobotError::Finished) | Ok(Poll::Busy) => {}
+            Err(e) => {
+                self.state = State::Done;
+                let mut message: heapless::String<96> = heapless::String::new();
+                let _ = core::fmt::write(&mut message, format_args!("{e}"));
+                send(feed, &RobotMessage::Failed { stage: e.stage(), message: &message });
+            }
+        }
+        r
+    }
+
+    fn step<F, L, T>(&mut self, feed: &mut F, link: &mut L, now_ms: u64, meter: &T) -> Result<Poll, RobotError>
+    where
+        F: Read + Write + ReadReady,
+        L: Read + Write + ReadReady,
+        T: Meter,
+    {
+        match core::mem::replace(&mut self.state, State::Done) {
+            State::Feed { own, received, scratch } => {
+                self.state = State::Feed { own, received, scratch };
+                if self.read_feed(feed, now_ms, meter)? {
+                    self.start_link(now_ms)?;
+                }
+                Ok(Poll::Busy)
+            }
+            State::Link { own, mut endpoint } => match endpoint.step(link, now_ms).map_err(RobotError::Link)? {
+                Progress::Busy => {
+                    self.state = State::Link { own, endpoint };
+                    Ok(Poll::Busy)
+                }
+                Progress::Done => {
+                    self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
+                    let stats = endpoint.stats();
+                    let (scratch, received) = endpoint.into_parts();
+                    let (Some(scratch), Some(received)) = (scratch, received) else {
+                        return Err(RobotError::Link(LinkError::Setup));
+                    };
+                    self.state = State::Align { own, received, scratch, stats };
+                    Ok(Poll::Busy)
+                }
+            },
+            State::Align { own, received, scratch, stats } => {
+                let report = self.align(own, received, scratch, &stats, meter)?;
+                Ok(Poll::Done(report))
+            }
+            State::Done => Err(RobotError::Finished),
+        }
+    }
+
+    /// Reads what the feed line holds; `true` at the end of the feed.
+    fn read_feed<F: Read + ReadReady, T: Meter>(
+        &mut self,
+        feed: &mut F,
+        now_ms: u64,
+        meter: &T,
+    ) -> Result<bool, RobotError> {
+        let last = *self.last_fed_ms.get_or_insert(now_ms);
+        let mut buf = [0u8; 64];
+        while feed.read_ready().map_err(|_| RobotError::FeedIo)? {
+            let n = feed.read(&mut buf).map_err(|_| RobotError::FeedIo)?;
+            if n == 0 {
+                break;
+            }
+            self.last_fed_ms = Some(now_ms);
+            for &b in buf.get(..n).unwrap_or(&[]) {
+                let Robot { deframer, state, setup, points, map_instructions, .. } = self;
+                let Some(payload) = deframer.push(b).map_err(RobotError::Frame)? else { continue };
+                let State::Feed { own, received, .. } = state else { return Err(RobotError::Feed(FeedError::Order)) };
+                match FeedMessage::decode(payload).map_err(RobotError::Feed)? {
+                    FeedMessage::Setup(s) if setup.is_none() => {
+                        let config = map_config(s.resolution);
+                        own.reset(config).map_err(RobotError::Config)?;
+                        received.reset(config).map_err(RobotError::Config)?;
+                        *setup = Some(s);
+                    }
+                    FeedMessage::Points { data, .. } if setup.is_some() => {
+                        let t0 = meter.instructions();
+                        *points += insert_points(&mut **own, data).map_err(RobotError::Points)?;
+                        *map_instructions += meter.instructions().saturating_sub(t0);
+                    }
+                    FeedMessage::EndOfFeed { points: sent, .. } if setup.is_some() => {
+                        if sent != *points {
+                            return Err(RobotError::PointCount { sent, received: *points });
+                        }
+                        return Ok(true);
+                    }
+                    _ => return Err(RobotError::Feed(FeedError::Order)),
+                }
+            }
+        }
+        if now_ms.saturating_sub(self.last_fed_ms.unwrap_or(last)) > self.config.feed_silence_ms {
+            return Err(RobotError::FeederSilent { points: self.points });
+        }
+        Ok(false)
+    }
+
+    fn start_link(&mut self, now_ms: u64) -> Result<(), RobotError> {
+        let setup = self.setup.ok_or(RobotError::Feed(FeedError::Order))?;
+        let State::Feed { own, received, scratch } = core::mem::replace(&mut self.state, State::Done) else {
+            return Err(RobotError::Feed(FeedError::Order));
+        };
+        let own: &'a LocalMap<M> = own;
+        let config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
+        let id = setup.robot_id;
+        let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), Some(received))
+            .map_err(RobotError::Link)?;
+        self.link_started_ms = now_ms;
+        self.state = State::Link { own, endpoint };
+        Ok(())
+    }
+
+    fn align<T: Meter>(
+        &mut self,
+        own: &LocalMap<M>,
+        received: &LocalMap<R>,
+        scratch: &mut [u32],
+        stats: &LinkStats,
+        meter: &T,
+    ) -> Result<RobotReport, RobotError> {
+        let setup = self.setup.ok_or(RobotError::Feed(FeedError::Order))?;
+        let (model, scene) = self.pyramids.take().ok_or(RobotError::Finished)?;
+        let prior = setup.prior.as_ref().map(from_rows);
+        let mut marks = [0u64; 4];
+        let (result, located) = align(own, received, prior.as_ref(), scratch, model, scene, |k| {
+            if let Some(m) = marks.get_mut(usize::from(k)) {
+                *m = meter.instructions();
+            }
+        })
+        .map_err(RobotError::Align)?;
+        Ok(RobotReport {
+            result: result.report(setup.robot_id),
+            points: self.points,
+            map_voxels: own.len() as u32,
+            received_voxels: received.len() as u32,
+            bytes_sent: stats.bytes_sent,
+            bytes_received: stats.bytes_received,
+            retransmissions: stats.retransmissions,
+            link_ms: self.link_ms,
+            map_instructions: self.map_instructions,
+            prepare_instructions: marks[1].saturating_sub(marks[0]),
+            locate_instructions: marks[2].saturating_sub(marks[1]),
+            match_instructions: marks[3].saturating_sub(marks[2]),
+            global: located.as_ref().map(GlobalReport::from),
+            peak_stack: meter.peak_stack(),
+        })
+    }
+}
+
+/// Runs two robots to their end on one simulated line (the robots' UARTs
+/// joined through `line`), each fed `feeds[i]` (framed feed messages) from
+/// a [`ScriptPort`], in virtual time: one millisecond per round, the line
+/// ticked, each robot polled. This is how a host computes, on its own
+/// data, exactly what two boards compute. Stops after `limit_ms`.
+pub fn simulate_pair<M, R, P, Q, const N: usize>(
+    robots: [&mut Robot<'_, M, R, P, Q>; 2],
+    feeds: [&[u8]; 2],
+    line: &core::cell::RefCell<SimLine<N>>,
+    limit_ms: u64,
+) -> [Result<RobotReport, RobotError>; 2]
+where
+    M: VoxelStorage,
+    R: VoxelStorage,
+    P: PyramidStorage,
+    Q: PyramidStorage,
+{
+    let [a, b] = robots;
+    let (mut la, mut lb) = SimLine::ports(line);
+    let mut fa = ScriptPort::<256>::new(feeds[0], 64);
+    let mut fb = ScriptPort::<256>::new(feeds[1], 64);
+    let mut out: [Option<Result<RobotReport, RobotError>>; 2] = [None, None];
+    let mut now = 0u64;
+    while out.iter().any(Option::is_none) && now <= limit_ms {
+        line.borrow_mut().tick(now);
+        for (i, (robot, feed, port)) in
+            [(&mut *a, &mut fa, &mut la), (&mut *b, &mut fb, &mut lb)].into_iter().enumerate()
+        {
+            if let Some(slot) = out.get_mut(i).filter(|o| o.is_none()) {
+                match robot.poll(feed, port, now, &()) {
+                    Ok(Poll::Busy) => {}
+                    Ok(Poll::Done(r)) => *slot = Some(Ok(r)),
+                    Err(e) => *slot = Some(Err(e)),
+                }
+            }
+        }
+        now += 1;
+    }
+    out.map(|o| o.unwrap_or(Err(RobotError::Link(LinkError::Silent))))
+}
+
+/// Sends one message to the feeder, best effort (a robot that cannot talk
+/// to its feeder has no one else to tell).
+fn send<F: Write>(feed: &mut F, msg: &RobotMessage<'_>) {
+    let mut frame = [0u8; MAX_FRAME];
+    if let Ok(len) = msg.to_frame(&mut frame) {
+        let _ = feed.write_all(frame.get(..len).unwrap_or(&[]));
+        let _ = feed.flush();
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -37,8 +37,8 @@ pub struct Report {
     pub digests: [u32; 2],
     /// Bytes of B's map on the wire.
     pub wire_bytes: u32,
-    /// Whether B's map decoded to the same digest and every message type's
-    /// golden bytes matched.
+    /// Whether B's map decoded to the same digest and the golden bytes of
+    /// every link and feed message and of a map file matched.
     pub wire_ok: bool,
     /// The match.
     pub result: MatchResult,
@@ -212,7 +212,7 @@ pub fn run<S: VoxelStorage, P: PyramidStorage>(
     }
     let mut wire_ok = decoder.is_complete() && decoder.digest() == digest_b;
     // Every message type's golden bytes, as in the wire tests.
-    wire_ok &= check_golden().is_ok();
+    wire_ok &= check_golden().is_ok() && crate::wire::feed::check_golden().is_ok();
     // Match B (as received) against A.
     let pa = Pyramid::build(a, LEVELS, 1.0, storage_a).map_err(SelfTestError::Pyramid)?;
     let pb = Pyramid::build_as(received, LEVELS, 1.0, Role::Scene, storage_b).map_err(SelfTestError::Pyramid)?;
@@ -221,12 +221,9 @@ pub fn run<S: VoxelStorage, P: PyramidStorage>(
     let result = Matcher::new(MatchSettings::default()).align(&pa, &pb, &prior);
     on_match(false);
     let result = result.map_err(SelfTestError::Match)?;
-    Ok(Report {
-        voxels: [a.len() as u32, b.len() as u32],
-        digests: [digest_a, digest_b],
-        wire_bytes,
-        wire_ok,
-        result,
-        truth: truth(),
-    })
+    let voxels = [a.len() as u32, b.len() as u32];
+    // The map file's golden bytes, written and read with the now free maps.
+    drop((pa, pb));
+    wire_ok &= crate::wire::mapfile::check_golden(a, b).is_ok();
+    Ok(Report { voxels, digests: [digest_a, digest_b], wire_bytes, wire_ok, result, truth: truth() })
 }

@@ -26,22 +26,13 @@ struct Stats {
     high: f64,
 }
 
-fn quantile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let pos = (sorted.len() - 1) as f64 * q;
-    let (i, f) = (pos.floor() as usize, pos - pos.floor());
-    let next = sorted.get(i + 1).copied().unwrap_or(sorted[i]);
-    sorted[i] + f * (next - sorted[i])
-}
-
 fn stats(sorted: &[f64]) -> Stats {
-    let (q1, median, q3) = (quantile(sorted, 0.25), quantile(sorted, 0.5), quantile(sorted, 0.75));
+    let at = |q: f64| crate::stats::quantile_sorted(sorted, q).unwrap_or(f64::NAN);
+    let (q1, median, q3) = (at(0.25), at(0.5), at(0.75));
     let iqr = q3 - q1;
     let low = sorted.iter().copied().find(|v| *v >= q1 - 1.5 * iqr).unwrap_or(q1);
     let high = sorted.iter().rev().copied().find(|v| *v <= q3 + 1.5 * iqr).unwrap_or(q3);
-    let mean = sorted.iter().sum::<f64>() / sorted.len().max(1) as f64;
+    let mean = crate::stats::mean(sorted).unwrap_or(f64::NAN);
     Stats { q1, median, q3, mean, low, high }
 }
 

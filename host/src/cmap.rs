@@ -1,55 +1,20 @@
-//! The `.cmap` map file: versioned, checksummed, in the link's compact
-//! voxel encoding ([`cosem_core::wire::codec`]), so a map read from a file
-//! and the same map received over the link are identical.
-//!
-//! Layout (format 2):
-//!
-//! | bytes | content |
-//! |---|---|
-//! | 4 | magic `CMAP` |
-//! | 2 | format version, u16 little endian |
-//! | 4 | header length, u32 little endian |
-//! | n | header ([`CmapHeader`], postcard) |
-//! | … | chunks, each a LEB128 length then the chunk |
-//! | 4 | CRC-32 of everything before it, little endian |
-//!
-//! Files of another version are refused by name, never misread.
+//! `.cmap` map files on the host: the core's format
+//! ([`cosem_core::wire::mapfile`]) read into and written from heap maps,
+//! every error naming its file.
 
-use crate::mapping::{new_map, HostMap};
-use cosem_core::classes::CLASS_TABLE_VERSION;
-use cosem_core::map::{MapConfig, SensorModel};
-use cosem_core::wire::mapfile::{decode_chunks, MapFileError};
-use cosem_core::wire::{crc32, MapEncoder};
-use serde::{Deserialize, Serialize};
+use crate::mapping::{new_map, BuildError, HostMap};
+use cosem_core::map::MapConfig;
+use cosem_core::map::SensorModel;
+use cosem_core::wire::mapfile::{self, MapFileError, MapFileHeader, FILE_CHUNK};
+use cosem_core::wire::MapEncoder;
 use std::path::{Path, PathBuf};
 
-/// File magic.
-pub const MAGIC: [u8; 4] = *b"CMAP";
-/// Current format version.
-pub const FORMAT_VERSION: u16 = 2;
-const PREAMBLE: usize = 10;
-/// Chunk size in files (the link uses smaller ones).
-pub const FILE_CHUNK: usize = 4096;
-/// Fewest bits a voxel takes in the encoding (flag, confidence, occupancy,
-/// position, a one-bit gap): bounds the voxel count a file can claim.
-const MIN_VOXEL_BITS: usize = 19;
+/// A map file's header with its source text owned.
+pub type CmapHeader = MapFileHeader<String>;
 
-/// What a map file says about its map.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct CmapHeader {
-    /// Class table the labels refer to.
-    pub class_table_version: u16,
-    /// Voxel edge length (m).
-    pub resolution: f32,
-    /// Label sensor model's accuracy used to fuse the map.
-    pub label_accuracy: f32,
-    /// Number of voxel records.
-    pub voxel_count: u32,
-    /// Timestamp of the anchor scan (s), if known.
-    pub anchor_time: Option<f64>,
-    /// Where the map came from, e.g. `kitti00 0:5`.
-    pub source: Option<String>,
-}
+/// Largest map file read (bytes): a map of 32 M voxels. A bound, so that
+/// a device or a wrong path cannot make a read run without end.
+pub const MAX_FILE_BYTES: u64 = 128 << 20;
 
 /// Why a map file could not be read or written.
 #[derive(Debug, thiserror::Error)]
@@ -62,49 +27,29 @@ pub enum CmapError {
         /// The OS error.
         source: std::io::Error,
     },
-    /// Not a map file.
-    #[error("{path}: not a cosem map file (bad magic)")]
-    BadMagic {
+    /// The bytes are not a valid map file.
+    #[error("{path}: {error}")]
+    Format {
         /// The file.
         path: PathBuf,
+        /// What is wrong, and where.
+        error: MapFileError,
     },
-    /// A format this build does not read.
-    #[error("{path}: map format version {found}, this build reads version {FORMAT_VERSION}")]
-    Version {
+    /// The file is larger than any map file.
+    #[error("{path}: {len} bytes, larger than any map file ({MAX_FILE_BYTES} bytes): not a map file")]
+    TooLarge {
         /// The file.
         path: PathBuf,
-        /// Version in the file.
-        found: u16,
+        /// Its size.
+        len: u64,
     },
-    /// The file ends early.
-    #[error("{path}: truncated at byte offset {offset} ({what})")]
-    Truncated {
+    /// The map the header describes cannot be allocated.
+    #[error("{path}: {source}")]
+    Map {
         /// The file.
         path: PathBuf,
-        /// Where it ended.
-        offset: usize,
-        /// What was being read.
-        what: &'static str,
-    },
-    /// The checksum does not match.
-    #[error("{path}: checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is corrupted")]
-    Checksum {
-        /// The file.
-        path: PathBuf,
-        /// Stored CRC.
-        stored: u32,
-        /// Computed CRC.
-        computed: u32,
-    },
-    /// A header or record that does not decode or is invalid.
-    #[error("{path}: byte offset {offset}: {what}")]
-    Invalid {
-        /// The file.
-        path: PathBuf,
-        /// Where.
-        offset: usize,
-        /// What is wrong.
-        what: String,
+        /// Why.
+        source: BuildError,
     },
 }
 
@@ -126,40 +71,6 @@ pub fn encode_chunks(map: &HostMap, chunk: usize) -> Vec<Vec<u8>> {
     out
 }
 
-/// Encodes a map into the file format.
-pub fn encode(map: &HostMap, anchor_time: Option<f64>, source: Option<String>) -> Vec<u8> {
-    let header = CmapHeader {
-        class_table_version: CLASS_TABLE_VERSION,
-        resolution: map.resolution(),
-        label_accuracy: map.config().sensor.accuracy,
-        voxel_count: map.len() as u32,
-        anchor_time,
-        source,
-    };
-    let header_bytes = postcard::to_stdvec(&header).unwrap_or_default();
-    let chunks = encode_chunks(map, FILE_CHUNK);
-    let mut out = Vec::with_capacity(PREAMBLE + header_bytes.len() + map.len() * 4 + 4);
-    out.extend_from_slice(&MAGIC);
-    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    out.extend_from_slice(&(header_bytes.len() as u32).to_le_bytes());
-    out.extend_from_slice(&header_bytes);
-    for c in &chunks {
-        let mut n = c.len();
-        loop {
-            let byte = (n & 0x7F) as u8;
-            n >>= 7;
-            out.push(if n == 0 { byte } else { byte | 0x80 });
-            if n == 0 {
-                break;
-            }
-        }
-        out.extend_from_slice(c);
-    }
-    let crc = crc32(&out);
-    out.extend_from_slice(&crc.to_le_bytes());
-    out
-}
-
 /// Bytes of voxel encoding per voxel (what the link carries, chunk headers
 /// included, file framing excluded).
 pub fn wire_bytes_per_voxel(map: &HostMap, chunk: usize) -> f64 {
@@ -167,75 +78,67 @@ pub fn wire_bytes_per_voxel(map: &HostMap, chunk: usize) -> f64 {
     bytes as f64 / map.len().max(1) as f64
 }
 
-/// Decodes a map file's bytes; `path` names the file in errors.
-pub fn decode(bytes: &[u8], path: &Path) -> Result<(CmapHeader, HostMap), CmapError> {
-    let p = || path.to_path_buf();
-    if bytes.len() < 4 || bytes[..4] != MAGIC {
-        return Err(CmapError::BadMagic { path: p() });
-    }
-    if bytes.len() < PREAMBLE + 4 {
-        return Err(CmapError::Truncated { path: p(), offset: bytes.len(), what: "preamble" });
-    }
-    let version = u16::from_le_bytes([bytes[4], bytes[5]]);
-    if version != FORMAT_VERSION {
-        return Err(CmapError::Version { path: p(), found: version });
-    }
-    let body_end = bytes.len() - 4;
-    let stored = u32::from_le_bytes([bytes[body_end], bytes[body_end + 1], bytes[body_end + 2], bytes[body_end + 3]]);
-    let computed = crc32(&bytes[..body_end]);
-    if stored != computed {
-        return Err(CmapError::Checksum { path: p(), stored, computed });
-    }
-    let header_len = u32::from_le_bytes([bytes[6], bytes[7], bytes[8], bytes[9]]) as usize;
-    let header_end = PREAMBLE.checked_add(header_len).filter(|&e| e <= body_end).ok_or(CmapError::Truncated {
-        path: p(),
-        offset: body_end,
-        what: "header",
-    })?;
-    let header: CmapHeader = postcard::from_bytes(&bytes[PREAMBLE..header_end]).map_err(|e| CmapError::Invalid {
-        path: p(),
-        offset: PREAMBLE,
-        what: format!("header: {e}"),
-    })?;
-    let invalid = |offset: usize, what: String| CmapError::Invalid { path: p(), offset, what };
-    if header.class_table_version != CLASS_TABLE_VERSION {
-        return Err(invalid(
-            PREAMBLE,
-            format!("class table version {} (this build: {CLASS_TABLE_VERSION})", header.class_table_version),
-        ));
-    }
-    let count = header.voxel_count as usize;
-    if count.saturating_mul(MIN_VOXEL_BITS) > (body_end - header_end) * 8 {
-        return Err(invalid(
-            PREAMBLE,
-            format!("header claims {count} voxels, more than the {} bytes of chunks can hold", body_end - header_end),
-        ));
-    }
-    let config = MapConfig {
-        resolution: header.resolution,
-        sensor: SensorModel { accuracy: header.label_accuracy },
-        ..MapConfig::default()
-    };
-    let mut map = new_map(count, config).map_err(|e| invalid(PREAMBLE, format!("header: {e}")))?;
-    decode_chunks(&bytes[header_end..body_end], header.voxel_count, &mut map).map_err(|e| match e {
-        MapFileError::Truncated(o) => CmapError::Truncated { path: p(), offset: header_end + o, what: "chunk" },
-        MapFileError::Chunk(o, e) => invalid(header_end + o, format!("chunk: {e}")),
-        MapFileError::Incomplete => invalid(body_end, format!("{} of {count} voxels present", map.len())),
-        e => invalid(header_end, format!("{e:?}")),
-    })?;
-    Ok((header, map))
+/// Encodes a map into the file format.
+pub fn encode(map: &HostMap, anchor_time: Option<f64>, source: Option<&str>) -> Vec<u8> {
+    let header = mapfile::header_of(map, anchor_time, source);
+    let mut out = Vec::with_capacity(64 + map.len() * 4);
+    let (mut scratch, mut chunk) = (vec![0u32; map.len()], vec![0u8; FILE_CHUNK]);
+    // Every buffer is sized for the map and the sink takes everything: the
+    // core's writer cannot fail here.
+    let _ = mapfile::write(map, &header, &mut scratch, &mut chunk, |b| {
+        out.extend_from_slice(b);
+        true
+    });
+    out
 }
 
-/// Writes a map file.
-pub fn write(path: &Path, map: &HostMap, anchor_time: Option<f64>, source: Option<String>) -> Result<usize, CmapError> {
+/// Decodes a map file's bytes; `path` names the file in errors.
+pub fn decode(bytes: &[u8], path: &Path) -> Result<(CmapHeader, HostMap), CmapError> {
+    let format = |error| CmapError::Format { path: path.to_path_buf(), error };
+    let file = mapfile::parse(bytes).map_err(format)?;
+    let h = file.header;
+    let config = MapConfig {
+        resolution: h.resolution,
+        sensor: SensorModel { accuracy: h.label_accuracy },
+        ..MapConfig::default()
+    };
+    let mut map = new_map(h.voxel_count as usize, config)
+        .map_err(|source| CmapError::Map { path: path.to_path_buf(), source })?;
+    file.decode_into(&mut map).map_err(format)?;
+    Ok((h.map_source(String::from), map))
+}
+
+/// A map's file bytes and the map read back from them, checked to encode
+/// to the same bytes again (the encoding is lossy but idempotent): what a
+/// peer receives.
+pub fn round_trip(map: &HostMap, source: &str) -> Result<(Vec<u8>, HostMap), CmapError> {
+    let path = Path::new("(in memory)");
+    let bytes = encode(map, None, Some(source));
+    let (_, received) = decode(&bytes, path)?;
+    if received.len() != map.len() || encode(&received, None, Some(source)) != bytes {
+        let error = MapFileError::Incomplete { present: received.len() as u32, announced: map.len() as u32 };
+        return Err(CmapError::Format { path: path.to_path_buf(), error });
+    }
+    Ok((bytes, received))
+}
+
+/// Writes a map file; returns its length.
+pub fn write(path: &Path, map: &HostMap, anchor_time: Option<f64>, source: Option<&str>) -> Result<usize, CmapError> {
     let bytes = encode(map, anchor_time, source);
     std::fs::write(path, &bytes).map_err(|source| CmapError::Io { path: path.to_path_buf(), source })?;
     Ok(bytes.len())
 }
 
-/// Reads a map file.
+/// Reads a map file (at most [`MAX_FILE_BYTES`]).
 pub fn read(path: &Path) -> Result<(CmapHeader, HostMap), CmapError> {
-    let bytes = std::fs::read(path).map_err(|source| CmapError::Io { path: path.to_path_buf(), source })?;
+    use std::io::Read;
+    let io = |source| CmapError::Io { path: path.to_path_buf(), source };
+    let file = std::fs::File::open(path).map_err(io)?;
+    let mut bytes = Vec::new();
+    let len = file.take(MAX_FILE_BYTES + 1).read_to_end(&mut bytes).map_err(io)? as u64;
+    if len > MAX_FILE_BYTES {
+        return Err(CmapError::TooLarge { path: path.to_path_buf(), len });
+    }
     decode(&bytes, path)
 }
 
@@ -257,27 +160,29 @@ mod tests {
     #[test]
     fn round_trip_keeps_the_map_and_is_idempotent() {
         let m = sample();
-        let bytes = encode(&m, Some(1.5), Some("test".into()));
+        let bytes = encode(&m, Some(1.5), Some("test"));
         let (h, back) = decode(&bytes, Path::new("x.cmap")).unwrap();
         assert_eq!(h.voxel_count as usize, m.len());
-        assert_eq!(h.anchor_time, Some(1.5));
+        assert_eq!((h.anchor_time, h.source.as_deref()), (Some(1.5), Some("test")));
         assert_eq!(back.len(), m.len());
         assert_eq!(back.resolution(), m.resolution());
         for v in m.iter() {
             assert_eq!(back.get(v.key).and_then(|w| w.class()), v.class());
         }
         // What was read writes back byte for byte.
-        assert_eq!(encode(&back, Some(1.5), Some("test".into())), bytes);
+        assert_eq!(encode(&back, Some(1.5), Some("test")), bytes);
     }
 
     #[test]
     fn every_corruption_is_an_error_naming_the_file() {
         let bytes = encode(&sample(), None, None);
         let path = Path::new("robot.cmap");
-        // Every truncation and every single-byte flip is caught.
         for cut in 0..bytes.len() {
             let e = decode(&bytes[..cut], path).err().expect("truncated file accepted");
             assert!(e.to_string().contains("robot.cmap"), "{e}");
+            if cut > 0 {
+                assert!(e.to_string().contains("truncated"), "cut at {cut}: {e}");
+            }
         }
         for i in 0..bytes.len() {
             let mut b = bytes.clone();
@@ -285,15 +190,5 @@ mod tests {
             let e = decode(&b, path).err().expect("corrupted file accepted");
             assert!(e.to_string().contains("robot.cmap"), "{e}");
         }
-    }
-
-    #[test]
-    fn a_valid_checksum_over_bad_records_is_still_rejected() {
-        let mut bytes = encode(&sample(), None, None);
-        bytes.truncate(bytes.len() - 4);
-        bytes.extend_from_slice(&[0x05, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]);
-        let crc = crc32(&bytes);
-        bytes.extend_from_slice(&crc.to_le_bytes());
-        assert!(matches!(decode(&bytes, Path::new("a")), Err(CmapError::Invalid { .. })));
     }
 }

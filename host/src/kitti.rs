@@ -3,6 +3,7 @@
 //! Every malformed input is an error naming the file (and frame, line or
 //! byte offset) and what is wrong with it.
 
+use cosem_core::geometry::{rigid_from_matrix, Isometry3};
 use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
 
@@ -172,7 +173,7 @@ pub struct Frame {
     /// Timestamp (s), when `times.txt` is present.
     pub time: Option<f64>,
     /// Pose of this scan's LiDAR in the anchor frame.
-    pub pose: Matrix4<f64>,
+    pub pose: Isometry3<f64>,
     /// Points in the anchor frame.
     pub points: Vec<[f32; 3]>,
     /// Range of each point from its own sensor (m).
@@ -190,12 +191,16 @@ pub struct Frame {
 pub struct Sequence {
     /// The folder.
     pub dir: PathBuf,
-    /// Velodyne-to-camera transform `Tr`.
-    pub tr: Matrix4<f64>,
-    /// The cameras' 3x4 projections `P0`..`P3` (as 4x4, last row 0 0 0 1), where given.
+    /// Velodyne-to-camera transform `Tr` as calib.txt gives it (checked to
+    /// be rigid to [`cosem_core::geometry::RIGID_TOLERANCE`]); points are
+    /// moved with the file's exact numbers, transforms handed out as
+    /// isometries ([`Sequence::tr`]).
+    tr: Matrix4<f64>,
+    /// The cameras' 3x4 projections `P0`..`P3` (as 4x4, last row 0 0 0 1),
+    /// where given: projections, not rigid transforms.
     pub projections: [Option<Matrix4<f64>>; 4],
-    /// Camera-frame poses, one per line of poses.txt.
-    pub camera_poses: Vec<Matrix4<f64>>,
+    /// Camera-frame poses, one per line of poses.txt (checked rigid).
+    camera_poses: Vec<Matrix4<f64>>,
     /// Timestamps, when times.txt is present.
     pub times: Option<Vec<f64>>,
 }
@@ -235,14 +240,32 @@ fn parse_3x4(path: &Path, line: usize, text: &str) -> Result<Matrix4<f64>, Kitti
     Ok(m)
 }
 
-/// Inverse of a rigid 4x4 transform.
-pub fn rigid_inverse(m: &Matrix4<f64>) -> Matrix4<f64> {
+/// Parses a 3x4 matrix that must be a rigid transform (a pose, `Tr`).
+fn parse_rigid(path: &Path, line: usize, text: &str) -> Result<Matrix4<f64>, KittiError> {
+    let m = parse_3x4(path, line, text)?;
+    match rigid_from_matrix(&m) {
+        Some(_) => Ok(m),
+        None => Err(KittiError::Parse {
+            path: path.to_path_buf(),
+            line,
+            what: "not a rigid transform (its 3x3 part must be a rotation)".into(),
+        }),
+    }
+}
+
+/// Inverse of a rigid 4x4 matrix (transpose of the rotation).
+fn rigid_inverse(m: &Matrix4<f64>) -> Matrix4<f64> {
     let r = m.fixed_view::<3, 3>(0, 0).transpose();
     let t = -(r * m.fixed_view::<3, 1>(0, 3));
     let mut out = Matrix4::identity();
     out.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
     out.fixed_view_mut::<3, 1>(0, 3).copy_from(&t);
     out
+}
+
+/// The isometry of a matrix already checked rigid.
+fn isometry(m: &Matrix4<f64>) -> Isometry3<f64> {
+    rigid_from_matrix(m).unwrap_or_else(Isometry3::identity)
 }
 
 impl Sequence {
@@ -256,7 +279,7 @@ impl Sequence {
         for (i, line) in calib.lines().enumerate() {
             let line = line.trim_start();
             if let Some(rest) = line.strip_prefix("Tr:") {
-                tr = Some(parse_3x4(&calib_path, i + 1, rest)?);
+                tr = Some(parse_rigid(&calib_path, i + 1, rest)?);
             }
             for (k, p) in projections.iter_mut().enumerate() {
                 if let Some(rest) = line.strip_prefix(&format!("P{k}:")) {
@@ -267,11 +290,20 @@ impl Sequence {
         let tr = tr.ok_or(KittiError::MissingTr { path: calib_path })?;
         let poses_path = dir.join("poses.txt");
         let mut camera_poses = Vec::new();
-        for (i, line) in read_text(&poses_path)?.lines().enumerate() {
+        let text = read_text(&poses_path)?;
+        // Line i is frame i: a blank line would shift every later pose by
+        // one frame. Only trailing blank lines are allowed.
+        let lines: Vec<&str> = text.lines().collect();
+        let used = lines.iter().rposition(|l| !l.trim().is_empty()).map_or(0, |i| i + 1);
+        for (i, line) in lines[..used].iter().enumerate() {
             if line.trim().is_empty() {
-                continue;
+                return Err(KittiError::Parse {
+                    path: poses_path,
+                    line: i + 1,
+                    what: "blank line before the last pose (line N is frame N-1)".into(),
+                });
             }
-            camera_poses.push(parse_3x4(&poses_path, i + 1, line)?);
+            camera_poses.push(parse_rigid(&poses_path, i + 1, line)?);
         }
         let times_path = dir.join("times.txt");
         let times = if times_path.exists() {
@@ -305,8 +337,23 @@ impl Sequence {
         self.dir.join("labels").join(format!("{frame:06}.label"))
     }
 
-    /// LiDAR pose of a scan in the world: `inv(Tr) * P_i * Tr`.
-    pub fn velodyne_pose(&self, frame: usize) -> Result<Matrix4<f64>, KittiError> {
+    /// `Tr`, velodyne to camera.
+    pub fn tr(&self) -> Isometry3<f64> {
+        isometry(&self.tr)
+    }
+
+    /// `Tr` as calib.txt writes it (a 4x4 matrix).
+    pub fn tr_matrix(&self) -> &Matrix4<f64> {
+        &self.tr
+    }
+
+    /// Number of poses in poses.txt.
+    pub fn pose_count(&self) -> usize {
+        self.camera_poses.len()
+    }
+
+    /// `inv(Tr) * P_i * Tr` with the file's numbers.
+    fn velodyne_matrix(&self, frame: usize) -> Result<Matrix4<f64>, KittiError> {
         let p = self.camera_poses.get(frame).ok_or_else(|| KittiError::MissingPose {
             path: self.dir.join("poses.txt"),
             frame,
@@ -315,9 +362,14 @@ impl Sequence {
         Ok(rigid_inverse(&self.tr) * p * self.tr)
     }
 
+    /// LiDAR pose of a scan in the world: `inv(Tr) * P_i * Tr`.
+    pub fn velodyne_pose(&self, frame: usize) -> Result<Isometry3<f64>, KittiError> {
+        Ok(isometry(&self.velodyne_matrix(frame)?))
+    }
+
     /// `T_a_b = inv(V_a) * V_b`: frame b's LiDAR pose in frame a's LiDAR frame.
-    pub fn relative_pose(&self, a: usize, b: usize) -> Result<Matrix4<f64>, KittiError> {
-        Ok(rigid_inverse(&self.velodyne_pose(a)?) * self.velodyne_pose(b)?)
+    pub fn relative_pose(&self, a: usize, b: usize) -> Result<Isometry3<f64>, KittiError> {
+        Ok(isometry(&(rigid_inverse(&self.velodyne_matrix(a)?) * self.velodyne_matrix(b)?)))
     }
 
     /// Camera `camera`'s projection matrix (`P<camera>` of calib.txt).
@@ -389,13 +441,14 @@ impl Sequence {
     /// Reads the frames of a range and puts them into the anchor frame (the
     /// LiDAR frame of the range's first scan).
     pub fn load_range(&self, range: FrameRange) -> Result<Vec<Frame>, KittiError> {
-        let anchor_inv = rigid_inverse(&self.velodyne_pose(range.start)?);
+        // Points move with the file's own numbers (as KITTI's tools do).
+        let anchor_inv = rigid_inverse(&self.velodyne_matrix(range.start)?);
         range
             .frames()
             .map(|i| {
-                let pose = anchor_inv * self.velodyne_pose(i)?;
+                let m = anchor_inv * self.velodyne_matrix(i)?;
+                let pose = isometry(&m);
                 let scan = self.read_scan(i)?;
-                let m = pose.cast::<f64>();
                 let mut points = Vec::with_capacity(scan.points.len());
                 let mut ranges = Vec::with_capacity(scan.points.len());
                 for p in &scan.points {

@@ -124,6 +124,7 @@ impl SegImage {
 }
 
 /// Reads an 8-bit single-channel PNG (grayscale or palette) of class ids.
+#[cfg(feature = "png")]
 pub fn read_seg_png(path: &Path) -> Result<SegImage, LabelError> {
     let format = |what: String| LabelError::Format { path: path.to_path_buf(), what };
     let file = std::fs::File::open(path).map_err(io(path))?;
@@ -151,7 +152,20 @@ pub fn read_seg_png(path: &Path) -> Result<SegImage, LabelError> {
     Ok(SegImage { width: w, height: h, ids })
 }
 
+/// Without the `png` feature: segmentation images cannot be read.
+#[cfg(not(feature = "png"))]
+pub fn read_seg_png(path: &Path) -> Result<SegImage, LabelError> {
+    Err(LabelError::Format { path: path.to_path_buf(), what: "PNG support is off (cosem-host's `png` feature)".into() })
+}
+
+/// Without the `png` feature: segmentation images cannot be written.
+#[cfg(not(feature = "png"))]
+pub fn write_seg_png(_path: &Path, _image: &SegImage) -> std::io::Result<()> {
+    Err(std::io::Error::other("PNG support is off (cosem-host's `png` feature)"))
+}
+
 /// Writes an 8-bit grayscale PNG of class ids.
+#[cfg(feature = "png")]
 pub fn write_seg_png(path: &Path, image: &SegImage) -> std::io::Result<()> {
     let file = std::io::BufWriter::new(std::fs::File::create(path)?);
     let mut enc = png::Encoder::new(file, image.width, image.height);
@@ -336,6 +350,36 @@ pub struct LabelStats {
 }
 
 impl LabelStats {
+    /// The figures in words, as `cosem label` prints them (`wall`: seconds
+    /// in all, reading and writing included).
+    pub fn text(&self, opts: &LabelOptions, wall: f64) -> String {
+        let rate = self.points as f64 / self.label_seconds.max(1e-9);
+        let pct = |n: usize, d: usize| 100.0 * n as f64 / d.max(1) as f64;
+        let mut out = format!(
+            "{}: {} frames, {} points; {} in camera {}'s view ({:.1}%; {} more hidden behind nearer points), {} labelled ({:.1}% of those)\n",
+            opts.out.display(),
+            self.frames,
+            self.points,
+            self.in_view,
+            opts.camera,
+            pct(self.in_view, self.points),
+            self.occluded,
+            self.labelled,
+            pct(self.labelled, self.in_view)
+        );
+        out += &match self.agreement() {
+            Some(g) => format!(
+                "agreement with the input's labels: {:.2}% of {} in-view labelled points ({:.2}% as {} ids can say them)\n",
+                100.0 * g,
+                self.compared,
+                100.0 * self.agreement_in_set().unwrap_or(0.0),
+                opts.classes.name()
+            ),
+            None => "(the input has no labels to compare with)\n".into(),
+        };
+        out + &format!("{:.1} M points labelled per second ({wall:.2} s in all with reading and writing)\n", rate / 1e6)
+    }
+
     /// Agreement with the existing labels over in-view points, if compared.
     pub fn agreement(&self) -> Option<f64> {
         (self.compared > 0).then(|| self.agreeing as f64 / self.compared as f64)
@@ -392,7 +436,7 @@ pub fn camera_of(seq: &Sequence, camera: u8, size: (u32, u32), image: &Path) -> 
         out
     };
     let calib = seq.dir.join("calib.txt");
-    let cam = Camera::new(&rows(&p), &rows(&seq.tr), size.0, size.1).map_err(|e| LabelError::Camera {
+    let cam = Camera::new(&rows(&p), &rows(seq.tr_matrix()), size.0, size.1).map_err(|e| LabelError::Camera {
         path: calib.clone(),
         camera,
         what: e.to_string(),

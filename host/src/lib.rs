@@ -1,16 +1,41 @@
-//! cosem-host: the std side of cosem. Reads SemanticKITTI-layout data, makes
-//! synthetic sequences, builds maps with `cosem-core`, and reads and writes
-//! map files. The `cosem` binary is a thin CLI over these modules.
+//! cosem-host: the std side of cosem, as a library. The `cosem` binary
+//! (feature `cli`, on by default) is a thin command line over it; with
+//! `default-features = false` the library alone builds (no clap, rayon,
+//! serial ports, PNG or JSON printing).
+//!
+//! - Data in: [`kitti`] (SemanticKITTI layout; every error names its file),
+//!   [`synth`] (procedural streets, a simulated 64-beam LiDAR, camera
+//!   segmentation), [`label`] (LiDAR labels from camera segmentation).
+//! - Maps: [`mapping`] (frames to a map on the heap), [`cmap`] (the core's
+//!   map file with path context), [`ply`] (export).
+//! - Matching: [`align`] (heap pyramids, alignment with or without a
+//!   prior), [`pair`] (two robots' maps and their truth), [`eval`] (starts,
+//!   thresholds, outcomes, summaries), [`stats`] (one quantile).
+//! - Robots: [`link`] (one robot's end of the map exchange), [`robots`]
+//!   (feeds, the host's run of the robots' pipeline, two QEMU boards),
+//!   [`transport`] (TCP and serial ports behind embedded-io).
+//! - Output: [`report`] (the JSON of the commands), [`boxplot`] (SVG).
+//!
+//! Transforms are nalgebra `Isometry3` throughout, with the conventions'
+//! pose syntax and error measures from [`cosem_core::geometry`].
 
 pub mod align;
+pub mod bench;
 pub mod boxplot;
 pub mod cmap;
+pub mod error;
+pub mod eval;
 pub mod kitti;
 pub mod label;
+pub mod link;
 pub mod mapping;
+pub mod pair;
 pub mod ply;
-pub mod pose;
+pub mod report;
 pub mod rng;
 pub mod robots;
+pub mod stats;
 pub mod synth;
 pub mod transport;
+
+pub use error::Error;

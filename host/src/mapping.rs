@@ -3,9 +3,7 @@
 
 use crate::kitti::Frame;
 use cosem_core::classes::{Class, MovingObjects};
-use cosem_core::map::{
-    ConfigError, InsertError, Insertion, LocalMap, MapConfig, SemanticVoxel, VoxelStorage, SLOTS_PER_VOXEL,
-};
+use cosem_core::map::{ConfigError, InsertError, Insertion, MapConfig};
 
 /// Why a map could not be built.
 #[derive(Debug, thiserror::Error)]
@@ -33,38 +31,13 @@ pub enum BuildError {
     },
 }
 
-/// Map storage on the heap, with a capacity chosen at run time.
-pub struct HeapStorage {
-    voxels: Vec<SemanticVoxel>,
-    slots: Vec<u32>,
-}
-
-impl HeapStorage {
-    /// Storage for `capacity` voxels (at least one).
-    pub fn with_capacity(capacity: usize) -> Self {
-        let capacity = capacity.max(1);
-        HeapStorage { voxels: vec![SemanticVoxel::EMPTY; capacity], slots: vec![0; SLOTS_PER_VOXEL * capacity] }
-    }
-}
-
-impl VoxelStorage for HeapStorage {
-    fn voxels(&self) -> &[SemanticVoxel] {
-        &self.voxels
-    }
-    fn slots(&self) -> &[u32] {
-        &self.slots
-    }
-    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
-        (&mut self.voxels, &mut self.slots)
-    }
-}
-
-/// A local map on the host.
-pub type HostMap = LocalMap<HeapStorage>;
+/// A local map on the host: the core's map on heap storage sized at run
+/// time.
+pub type HostMap = cosem_core::map::VecMap;
 
 /// An empty host map.
 pub fn new_map(capacity: usize, config: MapConfig) -> Result<HostMap, BuildError> {
-    LocalMap::new(HeapStorage::with_capacity(capacity), config).map_err(BuildError::Config)
+    cosem_core::map::vec_map(capacity, config).map_err(BuildError::Config)
 }
 
 /// Which points go into a map.
@@ -140,4 +113,20 @@ pub fn build_map(
     let mut map = new_map(upper, config)?;
     let stats = fuse_frames(&mut map, frames, filter)?;
     Ok((map, stats))
+}
+
+/// A class histogram of a map, largest first (ties by class index).
+pub fn class_histogram(map: &HostMap) -> Vec<(Class, usize)> {
+    let mut counts = [0usize; cosem_core::classes::NUM_CLASSES];
+    for v in map.iter() {
+        if let Some(c) = v.class() {
+            if let Some(n) = counts.get_mut(usize::from(c.index())) {
+                *n += 1;
+            }
+        }
+    }
+    let mut h: Vec<_> = Class::ALL.iter().map(|c| (*c, counts[usize::from(c.index())])).collect();
+    h.retain(|(_, n)| *n > 0);
+    h.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    h
 }

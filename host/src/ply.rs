@@ -17,6 +17,24 @@ pub struct PlyPoint {
     pub label: u16,
 }
 
+impl PlyPoint {
+    /// A voxel of a map at `resolution`, moved by `t`, in `color`.
+    pub fn of(
+        v: &cosem_core::map::SemanticVoxel,
+        resolution: f32,
+        t: &cosem_core::geometry::Isometry3<f32>,
+        color: [u8; 3],
+    ) -> Self {
+        let c = v.class();
+        PlyPoint {
+            position: cosem_core::geometry::transform_point(t, v.position(resolution)),
+            color,
+            class: c.map(|c| c.index()).unwrap_or(255),
+            label: c.map(|c| c.semantic_kitti_id()).unwrap_or(0),
+        }
+    }
+}
+
 /// Writes points to a PLY file.
 pub fn write(path: &Path, points: &[PlyPoint]) -> std::io::Result<()> {
     let mut out = Vec::with_capacity(256 + points.len() * 18);

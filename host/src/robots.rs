@@ -8,22 +8,23 @@
 //! joins the two robots' UART0s, byte for byte in both directions (and can
 //! drop or corrupt bytes, to test the firmware against a bad peer).
 
-use crate::kitti::Frame;
-use crate::mapping::{new_map, HostMap, PointFilter};
+use crate::error::Error;
+use crate::kitti::{Frame, FrameRange, Sequence};
+use crate::mapping::{new_map, PointFilter};
 use cosem_core::classes::{Class, NUM_CLASSES};
-use cosem_core::geometry::Isometry3;
-use cosem_core::matching::global::Located;
-use cosem_core::matching::MatchResult;
-use cosem_core::robot::{
-    self, FeedMessage, RobotMessage, RobotReport, Setup, COARSE, MAX_POINTS_PER_MESSAGE, MODEL_WORDS, POINT_BYTES,
-    SCENE_WORDS, VOXELS,
+use cosem_core::geometry::{errors_of, from_rows, pose_deg, row_major, rows, Isometry3};
+use cosem_core::link::sim::{SimConfig, SimLine};
+use cosem_core::matching::{MatchStatus, PyramidCapacity, VecPyramidStorage};
+use cosem_core::robot::{self, simulate_pair, Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
+use cosem_core::wire::feed::{
+    self, FeedMessage, RobotMessage, RobotReport, Setup, MAX_POINTS_PER_MESSAGE, POINT_BYTES,
 };
-use cosem_core::wire::codec::MapDecoder;
-use cosem_core::wire::frame::{encode_frame, Deframer, MAX_FRAME, MAX_PAYLOAD};
+use cosem_core::wire::frame::{Deframer, MAX_FRAME};
+use serde::Serialize;
 use std::collections::BTreeMap;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
@@ -61,7 +62,7 @@ pub fn thin_scan(frame: &Frame, resolution: f32, crop: f32, filter: &PointFilter
             let class = Class::from_index(best as u8)?;
             let mean =
                 [(sum[0] / f64::from(*n)) as f32, (sum[1] / f64::from(*n)) as f32, (sum[2] / f64::from(*n)) as f32];
-            Some(robot::pack_point(mean, class))
+            Some(feed::pack_point(mean, class))
         })
         .collect()
 }
@@ -83,14 +84,12 @@ impl Feed {
 
     /// The feed as framed bytes: the set-up, the points in messages of up
     /// to [`MAX_POINTS_PER_MESSAGE`], the end.
-    pub fn bytes(&self) -> Result<Vec<u8>, String> {
+    pub fn bytes(&self) -> Result<Vec<u8>, Error> {
         let mut out = Vec::new();
-        let mut push = |msg: FeedMessage<'_>| -> Result<(), String> {
-            let mut payload = [0u8; MAX_PAYLOAD];
-            let mut frame = [0u8; MAX_FRAME];
-            let n = msg.encode(&mut payload).map_err(|e| e.to_string())?;
-            let len = encode_frame(&payload[..n], &mut frame).map_err(|e| format!("{e:?}"))?;
-            out.extend_from_slice(&frame[..len]);
+        let mut frame = [0u8; MAX_FRAME];
+        let mut push = |msg: FeedMessage<'_>| -> Result<(), Error> {
+            let n = msg.to_frame(&mut frame).map_err(|e| Error::Invalid(format!("feed message: {e}")))?;
+            out.extend_from_slice(&frame[..n]);
             Ok(())
         };
         push(FeedMessage::Setup(self.setup))?;
@@ -103,47 +102,96 @@ impl Feed {
         push(FeedMessage::EndOfFeed { scans: self.scans.len() as u16, points: self.points() as u32 })?;
         Ok(out)
     }
-
-    /// The robot's map, built here as the robot builds it.
-    pub fn map(&self) -> Result<HostMap, String> {
-        let mut map = new_map(VOXELS, robot::map_config(self.setup.resolution)).map_err(|e| e.to_string())?;
-        for scan in &self.scans {
-            let data: Vec<u8> = scan.iter().flatten().copied().collect();
-            robot::insert_points(&mut map, &data).map_err(|e| e.to_string())?;
-        }
-        Ok(map)
-    }
 }
 
-/// `map` as the peer holds it after the link: through the wire encoding.
-pub fn through_wire(map: &HostMap) -> Result<HostMap, String> {
-    let mut out = new_map(VOXELS, *map.config()).map_err(|e| e.to_string())?;
-    let mut decoder = MapDecoder::new(map.len());
-    for chunk in crate::cmap::encode_chunks(map, 240) {
-        decoder.decode_chunk(&chunk, &mut out).map_err(|e| e.to_string())?;
+/// Both robots' feeds from one sequence: robot A (id 0) maps `a`, robot B
+/// (id 1) `b`; each scan thinned to one point per `voxel` within `crop` m.
+/// A gets the prior `T_A_B`, B its inverse (none: both without).
+pub fn feeds(
+    seq: &Sequence,
+    ranges: [FrameRange; 2],
+    voxel: f32,
+    crop: f32,
+    prior_ab: Option<&Isometry3<f64>>,
+    silence_ms: u32,
+) -> Result<[Feed; 2], Error> {
+    let filter = PointFilter::default();
+    let priors = [prior_ab.copied(), prior_ab.map(Isometry3::inverse)];
+    let mut out = Vec::new();
+    for (id, (range, prior)) in ranges.into_iter().zip(priors).enumerate() {
+        let frames = seq.load_range(range)?;
+        let scans = frames.iter().map(|f| thin_scan(f, voxel, crop, &filter)).collect();
+        let prior = prior.map(|p| rows(&p.cast::<f32>()));
+        let setup = Setup { robot_id: id as u8, resolution: voxel, prior, silence_ms };
+        out.push(Feed { setup, scans });
     }
-    if !decoder.is_complete() {
-        return Err("the map did not pass through the encoding whole".into());
-    }
-    Ok(out)
+    let [a, b]: [Feed; 2] = out.try_into().map_err(|_| Error::Invalid("two feeds expected".into()))?;
+    Ok([a, b])
 }
 
-/// The robot's alignment computed on this host: its own map against the
-/// peer's (through the wire), with the firmware's capacities; from `prior`,
-/// or with none from the maps' landmarks (then what they found comes back).
-pub fn host_align(
-    own: &HostMap,
-    peer: &HostMap,
-    prior: Option<&Isometry3<f32>>,
-) -> Result<(MatchResult, Option<Located>), String> {
-    let received = through_wire(peer)?;
-    let model = crate::align::HeapPyramidStorage::with_capacity(VOXELS, COARSE, MODEL_WORDS);
-    let scene = crate::align::HeapPyramidStorage::with_capacity(VOXELS, COARSE, SCENE_WORDS);
-    let mut scratch = vec![0u32; VOXELS];
-    robot::align(own, &received, prior, &mut scratch, model, scene, |_| {}).map_err(|e| e.to_string())
+/// The two robots' pipeline run on this host, exactly as on the boards:
+/// the core's robot step machine, the firmware's capacities, the maps
+/// exchanged over a clean simulated 115200-baud line. Returns each robot's
+/// report (`T_own_peer`).
+pub fn host_run(feeds: [&Feed; 2]) -> Result<[RobotReport; 2], Error> {
+    let bytes = [feeds[0].bytes()?, feeds[1].bytes()?];
+    let config = robot::map_config(feeds[0].setup.resolution);
+    let map = || new_map(VOXELS, config);
+    let (mut own_a, mut rec_a, mut own_b, mut rec_b) = (map()?, map()?, map()?, map()?);
+    let (mut sa, mut sb) = (vec![0u32; VOXELS], vec![0u32; VOXELS]);
+    let storage = |words| VecPyramidStorage::new(PyramidCapacity { voxels: VOXELS, entries: COARSE, words });
+    let robot_config = RobotConfig::default();
+    let mut a = Robot::new(robot_config, &mut own_a, &mut rec_a, &mut sa, storage(MODEL_WORDS), storage(SCENE_WORDS));
+    let mut b = Robot::new(robot_config, &mut own_b, &mut rec_b, &mut sb, storage(MODEL_WORDS), storage(SCENE_WORDS));
+    let line = Box::new(std::cell::RefCell::new(SimLine::<65536>::new(SimConfig {
+        seed: 1,
+        error_rate: 0.0,
+        stall_chance: 0.0,
+        bytes_per_ms: 11.52,
+        half_duplex: false,
+    })));
+    let [ra, rb] = simulate_pair([&mut a, &mut b], [&bytes[0], &bytes[1]], &line, 3_600_000);
+    let named = |i: usize, r: Result<RobotReport, robot::RobotError>| {
+        r.map_err(|e| Error::Invalid(format!("host run of robot {i}: {} stage: {e}", e.stage().as_str())))
+    };
+    Ok([named(0, ra)?, named(1, rb)?])
 }
 
-/// What the line between the robots' UART0s does to bytes.
+/// Where `cargo build --release` in firmware/ puts the robot binary.
+pub const DEFAULT_FIRMWARE: &str = "firmware/target/thumbv7em-none-eabihf/release/robot";
+
+/// The robot firmware to run: at the default path (from the repository
+/// root) it is built, or brought up to date, first (a no-op when it is),
+/// so a run never uses a stale build; any other path must exist.
+pub fn firmware(path: &Path) -> Result<PathBuf, Error> {
+    let dir = PathBuf::from("firmware");
+    let default = path == Path::new(DEFAULT_FIRMWARE);
+    if !default || !dir.join("Cargo.toml").exists() {
+        return if path.exists() {
+            Ok(path.to_path_buf())
+        } else {
+            Err(Error::Invalid(format!(
+                "{}: no such firmware (build it with `cargo build --release` in firmware/)",
+                path.display()
+            )))
+        };
+    }
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = Command::new(&cargo)
+        .args(["build", "--release", "--bin", "robot"])
+        .current_dir(&dir)
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("RUSTFLAGS")
+        .output()
+        .map_err(|source| Error::Io { path: PathBuf::from(cargo), source })?;
+    if !out.status.success() || !path.exists() {
+        return Err(Error::Invalid(format!("building the firmware failed:\n{}", String::from_utf8_lossy(&out.stderr))));
+    }
+    Ok(path.to_path_buf())
+}
+
+/// What the line between the robots' UART0s does to bytes: `none`,
+/// `silent` or `corrupt=P` on the command line.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum LineFault {
     /// Passes every byte.
@@ -152,6 +200,20 @@ pub enum LineFault {
     Silent,
     /// Flips each byte with this probability (seeded).
     Corrupt(f64),
+}
+
+impl std::str::FromStr for LineFault {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "none" => Ok(LineFault::None),
+            "silent" => Ok(LineFault::Silent),
+            _ => match s.strip_prefix("corrupt=").map(str::parse::<f64>) {
+                Some(Ok(p)) if (0.0..=1.0).contains(&p) => Ok(LineFault::Corrupt(p)),
+                _ => Err(format!("`{s}`: expected none, silent or corrupt=P with P in [0, 1]")),
+            },
+        }
+    }
 }
 
 /// How a robot ended.
@@ -299,14 +361,18 @@ fn feed_and_listen(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant) -> Out
 
 /// Runs both robots: `elf` is the firmware's `robot` binary; `feeds[0]` is
 /// robot A's, `feeds[1]` robot B's. Each QEMU is killed at `timeout`.
-pub fn run_pair(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Duration) -> Result<PairRun, String> {
+pub fn run_pair(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Duration) -> Result<PairRun, Error> {
+    run_pair_inner(elf, feeds, fault, timeout).map_err(Error::Invalid)
+}
+
+fn run_pair_inner(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Duration) -> Result<PairRun, String> {
     let started = Instant::now();
     let deadline = started + timeout;
     let bind = || TcpListener::bind("127.0.0.1:0").map_err(|e| format!("listen on 127.0.0.1: {e}"));
     let port = |l: &TcpListener| l.local_addr().map(|a| a.port()).map_err(|e| e.to_string());
     let link = bind()?;
     let feeders = [bind()?, bind()?];
-    let bytes = [feeds[0].bytes()?, feeds[1].bytes()?];
+    let bytes = [feeds[0].bytes().map_err(|e| e.to_string())?, feeds[1].bytes().map_err(|e| e.to_string())?];
     let mut children = Vec::new();
     for f in &feeders {
         let child = qemu(elf, port(&link)?, port(f)?).map_err(|e| format!("qemu-system-arm: {e}"))?;
@@ -351,4 +417,279 @@ pub fn run_pair(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Durati
     let mut runs = outcomes.into_iter().zip(codes).map(|(outcome, exit_code)| RobotRun { outcome, exit_code });
     let (Some(a), Some(b)) = (runs.next(), runs.next()) else { return Err("two robots expected".into()) };
     Ok(PairRun { robots: [a, b], line_bytes, wall_s: started.elapsed().as_secs_f64() })
+}
+
+/// 8N1 at `baud`: seconds a number of bytes takes on the line.
+pub fn line_seconds(bytes: u64, baud: u32) -> f64 {
+    bytes as f64 * 10.0 / f64::from(baud.max(1))
+}
+
+/// One robot in `cosem robots --json`: its report, or where it stopped.
+#[derive(Clone, Debug, Serialize)]
+#[serde(untagged)]
+pub enum RobotJson {
+    /// It reported a match.
+    Report(Box<ReportJson>),
+    /// It stopped, or said nothing.
+    Failed {
+        /// Robot id.
+        id: usize,
+        /// Always null.
+        status: Option<&'static str>,
+        /// `{stage, message}`.
+        error: BTreeMap<&'static str, String>,
+        /// QEMU's exit code.
+        exit_code: Option<i32>,
+    },
+}
+
+/// A robot's report as JSON (field names kept for scripts).
+#[derive(Clone, Debug, Serialize)]
+pub struct ReportJson {
+    /// Robot id (0: A, 1: B).
+    pub id: usize,
+    /// Status string.
+    pub status: &'static str,
+    /// `T_own_peer`, row by row.
+    pub transform: [f64; 16],
+    /// Instructions of the prior-free alignment and the match.
+    pub instructions: u64,
+    /// Voxels of its own map.
+    pub map_voxels: u32,
+    /// Bytes it wrote to the link.
+    pub bytes_sent: u64,
+    /// Bytes it read from the link.
+    pub bytes_received: u64,
+    /// Instructions inserting points.
+    pub map_instructions: u64,
+    /// Instructions preparing both maps.
+    pub prepare_instructions: u64,
+    /// Instructions of the match.
+    pub match_instructions: u64,
+    /// Points fed.
+    pub points: u32,
+    /// Voxels received.
+    pub received_voxels: u32,
+    /// Frames resent on the link.
+    pub retransmissions: u32,
+    /// Link time on the robot's clock (ms).
+    pub link_ms_onboard: u32,
+    /// Link time at 115200 baud from the bytes (s).
+    pub link_time_115200_s: f64,
+    /// EM iterations.
+    pub iterations: u16,
+    /// Inlier voxels.
+    pub inliers: u32,
+    /// Overlap.
+    pub overlap: f32,
+    /// Peak stack (bytes).
+    pub peak_stack_bytes: u32,
+    /// QEMU's exit code.
+    pub exit_code: Option<i32>,
+    /// Instructions of the prior-free alignment.
+    pub locate_instructions: u64,
+    /// What the prior-free alignment found.
+    pub global: Option<crate::report::GlobalJson>,
+    /// Translation error against the truth (m).
+    pub e_t: f64,
+    /// Rotation error against the truth (degrees).
+    pub e_r: f64,
+}
+
+/// The host's own run of robot A's match.
+#[derive(Clone, Debug, Serialize)]
+pub struct HostJson {
+    /// `T_A_B`, row by row.
+    pub transform: [f64; 16],
+    /// Status string.
+    pub status: &'static str,
+    /// Translation error (m).
+    pub e_t: f64,
+    /// Rotation error (degrees).
+    pub e_r: f64,
+    /// What the prior-free alignment found.
+    pub global: Option<crate::report::GlobalJson>,
+    /// Wall time of the host's run of both robots (ms).
+    pub time_ms: f64,
+}
+
+/// `cosem robots --json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct RobotsJson {
+    /// Robot A then B.
+    pub robots: Vec<RobotJson>,
+    /// The host's run of robot A.
+    pub host: HostJson,
+    /// Robot A's prior `T_A_B`, row by row (null: none).
+    pub prior: Option<[f64; 16]>,
+    /// The host's run of robot B.
+    pub host_b: HostBJson,
+    /// `T_A_B`, row by row.
+    pub ground_truth: [f64; 16],
+    /// Bytes the line carried from each robot.
+    pub line_bytes: [u64; 2],
+    /// Wall time of the emulated run (s).
+    pub wall_time_s: f64,
+}
+
+/// The host's run of robot B's match.
+#[derive(Clone, Debug, Serialize)]
+pub struct HostBJson {
+    /// `T_B_A`, row by row.
+    pub transform: [f64; 16],
+    /// Status string.
+    pub status: &'static str,
+}
+
+fn status_str(code: u8) -> &'static str {
+    MatchStatus::from_code(code).map(MatchStatus::as_str).unwrap_or("?")
+}
+
+fn robot_json(i: usize, run: &RobotRun, truth: &Isometry3<f64>) -> RobotJson {
+    let failed = |stage: &str, message: &str| RobotJson::Failed {
+        id: i,
+        status: None,
+        error: BTreeMap::from([("stage", stage.to_string()), ("message", message.to_string())]),
+        exit_code: run.exit_code,
+    };
+    let rep = match &run.outcome {
+        Outcome::Report(r) => r,
+        Outcome::Failed { stage, message } => return failed(stage, message),
+        Outcome::Lost(why) => return failed("host", why),
+    };
+    let t = rep.result.transform();
+    let (e_t, e_r) = errors_of(&t, truth);
+    RobotJson::Report(Box::new(ReportJson {
+        id: i,
+        status: status_str(rep.result.status),
+        transform: row_major(&t.cast::<f64>()),
+        instructions: rep.locate_instructions + rep.match_instructions,
+        map_voxels: rep.map_voxels,
+        bytes_sent: rep.bytes_sent,
+        bytes_received: rep.bytes_received,
+        map_instructions: rep.map_instructions,
+        prepare_instructions: rep.prepare_instructions,
+        match_instructions: rep.match_instructions,
+        points: rep.points,
+        received_voxels: rep.received_voxels,
+        retransmissions: rep.retransmissions,
+        link_ms_onboard: rep.link_ms,
+        link_time_115200_s: line_seconds(rep.bytes_sent.max(rep.bytes_received), 115_200),
+        iterations: rep.result.iterations,
+        inliers: rep.result.inliers,
+        overlap: rep.result.overlap,
+        peak_stack_bytes: rep.peak_stack,
+        exit_code: run.exit_code,
+        locate_instructions: rep.locate_instructions,
+        global: rep.global.map(Into::into),
+        e_t,
+        e_r,
+    }))
+}
+
+/// Everything `cosem robots` reports: the boards' runs beside the host's
+/// run (`host[i]`: robot i's report computed here) and the truth `T_A_B`.
+pub fn summarise(
+    run: &PairRun,
+    prior: Option<&[f32; 12]>,
+    host: &[RobotReport; 2],
+    host_ms: f64,
+    gt: &Isometry3<f64>,
+) -> RobotsJson {
+    let truths = [*gt, gt.inverse()];
+    let robots = run.robots.iter().zip(&truths).enumerate().map(|(i, (r, t))| robot_json(i, r, t)).collect();
+    let (ha, hb) = (host[0].result.transform(), host[1].result.transform());
+    let (e_t, e_r) = errors_of(&ha, gt);
+    RobotsJson {
+        robots,
+        host: HostJson {
+            transform: row_major(&ha.cast::<f64>()),
+            status: status_str(host[0].result.status),
+            e_t,
+            e_r,
+            global: host[0].global.map(Into::into),
+            time_ms: host_ms,
+        },
+        prior: prior.map(|p| row_major(&from_rows(p).cast::<f64>())),
+        host_b: HostBJson { transform: row_major(&hb.cast::<f64>()), status: status_str(host[1].result.status) },
+        ground_truth: row_major(gt),
+        line_bytes: run.line_bytes,
+        wall_time_s: run.wall_s,
+    }
+}
+
+/// The default prior of `cosem robots`: the truth moved by 2 m and turned
+/// by 10 degrees.
+pub fn default_prior(gt: &Isometry3<f64>) -> Isometry3<f64> {
+    pose_deg(2.0, 0.0, 0.0, 0.0, 0.0, 10.0) * gt
+}
+
+impl std::fmt::Display for ReportJson {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (name, peer, i) = if self.id == 0 { ("A", "B", 0) } else { ("B", "A", 1) };
+        if let Some(g) = &self.global {
+            let m = self.locate_instructions as f64 / 1e6;
+            writeln!(f, "robot {name} (id {i}): no prior; {}; landmark alignment {m:.1} M instructions", g.text())?;
+        }
+        let t = crate::report::pose_text(&crate::report::from_row_major(&self.transform));
+        writeln!(
+            f,
+            "robot {name} (id {i}): {}, T_{name}_{peer} = {t} (e_t {:.3} m, e_r {:.3} deg)",
+            self.status, self.e_t, self.e_r
+        )?;
+        let line_s = line_seconds(self.bytes_sent.max(self.bytes_received), 115_200);
+        writeln!(
+            f,
+            "  map {} voxels from {} fed points; sent {} B, received {} B ({} retransmissions; {line_s:.1} s at 115200 baud)",
+            self.map_voxels, self.points, self.bytes_sent, self.bytes_received, self.retransmissions
+        )?;
+        let m = |v: u64| v as f64 / 1e6;
+        writeln!(
+            f,
+            "  instructions: mapping {:.1} M, preparation {:.1} M, match {:.1} M; peak stack {} B; exit {:?}",
+            m(self.map_instructions),
+            m(self.prepare_instructions),
+            m(self.match_instructions),
+            self.peak_stack_bytes,
+            self.exit_code
+        )
+    }
+}
+
+impl std::fmt::Display for RobotsJson {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        use crate::report::{from_row_major, pose_text};
+        for robot in &self.robots {
+            match robot {
+                RobotJson::Report(rep) => write!(f, "{rep}")?,
+                RobotJson::Failed { id, error, exit_code, .. } => {
+                    let get = |k| error.get(k).map(String::as_str).unwrap_or("");
+                    writeln!(f, "robot {id}: failed at {}: {}; exit {exit_code:?}", get("stage"), get("message"))?;
+                }
+            }
+        }
+        let h = &self.host;
+        let t = pose_text(&from_row_major(&h.transform));
+        let (e_t, e_r, ms) = (h.e_t, h.e_r, h.time_ms);
+        writeln!(
+            f,
+            "host (same fed data): {}, T_A_B = {t} (e_t {e_t:.3} m, e_r {e_r:.3} deg); {ms:.1} ms for both robots",
+            h.status
+        )?;
+        if let Some(g) = &h.global {
+            writeln!(f, "host, no prior: {}", g.text())?;
+        }
+        writeln!(
+            f,
+            "host, robot B's match: {}, T_B_A = {}",
+            self.host_b.status,
+            pose_text(&from_row_major(&self.host_b.transform))
+        )?;
+        writeln!(
+            f,
+            "ground truth: T_A_B = {}; wall time {:.1} s",
+            pose_text(&from_row_major(&self.ground_truth)),
+            self.wall_time_s
+        )
+    }
 }

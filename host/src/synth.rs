@@ -11,7 +11,7 @@ use crate::label::{ProbabilityMap, SegImage};
 use crate::rng::Rng;
 use cosem_core::camera::SegClasses;
 use cosem_core::classes::Class;
-use nalgebra::{Matrix4, Rotation3, Vector3};
+use cosem_core::geometry::{Isometry3, Matrix4, Translation3, UnitQuaternion, Vector3};
 use std::io::Write;
 use std::path::Path;
 
@@ -342,17 +342,12 @@ pub fn beam_elevations() -> Vec<f64> {
 }
 
 /// The vehicle's LiDAR pose at frame `i` (world frame).
-fn sensor_pose(i: usize, step: f64, wobble: f64) -> Matrix4<f64> {
+fn sensor_pose(i: usize, step: f64, wobble: f64) -> Isometry3<f64> {
     let x = i as f64 * step;
     let y = -1.6 + 0.35 * (x / 14.0 + wobble).sin();
     let dy = 0.35 / 14.0 * (x / 14.0 + wobble).cos();
     let yaw = dy.atan();
-    let mut m = Matrix4::identity();
-    m.fixed_view_mut::<3, 3>(0, 0).copy_from(Rotation3::from_euler_angles(0.0, 0.0, yaw).matrix());
-    m[(0, 3)] = x;
-    m[(1, 3)] = y;
-    m[(2, 3)] = SENSOR_HEIGHT;
-    m
+    Isometry3::from_parts(Translation3::new(x, y, SENSOR_HEIGHT), UnitQuaternion::from_euler_angles(0.0, 0.0, yaw))
 }
 
 /// KITTI sequence 00's camera projections, and an exactly orthonormal
@@ -365,13 +360,14 @@ P3: 7.188560000000e+02 0.000000000000e+00 6.071928000000e+02 -3.372877000000e+02
 
 /// The synthetic velodyne-to-camera transform: camera x = -velodyne y,
 /// camera y = -velodyne z, camera z = velodyne x, plus KITTI's offset.
-pub fn synthetic_tr() -> Matrix4<f64> {
-    Matrix4::new(
+pub fn synthetic_tr() -> Isometry3<f64> {
+    let m = Matrix4::new(
         0.0, -1.0, 0.0, -0.012, //
         0.0, 0.0, -1.0, -0.054, //
         1.0, 0.0, 0.0, -0.292, //
         0.0, 0.0, 0.0, 1.0,
-    )
+    );
+    cosem_core::geometry::rigid_from_matrix(&m).unwrap_or_else(Isometry3::identity)
 }
 
 /// One simulated scan: points in the sensor frame and raw SemanticKITTI labels.
@@ -449,9 +445,10 @@ impl Sectors {
 }
 
 /// Casts every beam of one revolution from `pose` through the scene.
-fn scan(scene: &Scene, pose: &Matrix4<f64>, cfg: &SynthConfig, rng: &mut Rng) -> SynthScan {
-    let o = [pose[(0, 3)], pose[(1, 3)], pose[(2, 3)]];
-    let rot = pose.fixed_view::<3, 3>(0, 0).into_owned();
+fn scan(scene: &Scene, pose: &Isometry3<f64>, cfg: &SynthConfig, rng: &mut Rng) -> SynthScan {
+    let t = pose.translation.vector;
+    let o = [t.x, t.y, t.z];
+    let rot = pose.rotation.to_rotation_matrix().into_inner();
     let sectors = Sectors::new(scene, o, cfg.max_range);
     let elevations = beam_elevations();
     let columns = (360.0 / cfg.azimuth_step_deg).round() as usize;
@@ -490,14 +487,14 @@ fn projection(k: usize) -> nalgebra::Matrix3x4<f64> {
 /// Renders what a perfect segmentation network gives for camera 2 on the
 /// vehicle at LiDAR pose `velodyne` (world frame): the class of the first
 /// surface along each pixel's ray; the sky where there is none.
-fn render(scene: &Scene, velodyne: &Matrix4<f64>, classes: SegClasses) -> SegImage {
+fn render(scene: &Scene, velodyne: &Isometry3<f64>, classes: SegClasses) -> SegImage {
     let p2 = projection(2);
     let k = p2.fixed_view::<3, 3>(0, 0).into_owned();
     let kinv = k.try_inverse().unwrap_or_else(nalgebra::Matrix3::identity);
     let centre = -(kinv * p2.column(3));
-    let cam_to_world = velodyne * crate::kitti::rigid_inverse(&synthetic_tr());
-    let o = cam_to_world * nalgebra::Vector4::new(centre.x, centre.y, centre.z, 1.0);
-    let rot = cam_to_world.fixed_view::<3, 3>(0, 0).into_owned();
+    let cam_to_world = velodyne * synthetic_tr().inverse();
+    let o = cam_to_world * nalgebra::Point3::new(centre.x, centre.y, centre.z);
+    let rot = cam_to_world.rotation.to_rotation_matrix().into_inner();
     let sectors = Sectors::new(scene, [o.x, o.y, o.z], 500.0);
     let (w, h) = IMAGE_SIZE;
     let mut ids = Vec::with_capacity(w as usize * h as usize);
@@ -609,7 +606,7 @@ pub fn probabilities_of(image: &SegImage, classes: SegClasses) -> ProbabilityMap
 /// A synthesised sequence held in memory.
 pub struct Synthesised {
     /// LiDAR poses relative to the first scan's.
-    pub poses: Vec<Matrix4<f64>>,
+    pub poses: Vec<Isometry3<f64>>,
     /// The scans.
     pub scans: Vec<SynthScan>,
     /// Camera 2's segmentation image per scan, when asked for.
@@ -622,8 +619,8 @@ pub fn synthesise(cfg: &SynthConfig) -> Synthesised {
     let length = cfg.frames as f64 * cfg.step;
     let scene = Scene::generate(&mut rng, -cfg.max_range - 10.0, length + cfg.max_range + 10.0);
     let wobble = rng.range(0.0, std::f64::consts::TAU);
-    let world: Vec<Matrix4<f64>> = (0..cfg.frames).map(|i| sensor_pose(i, cfg.step, wobble)).collect();
-    let first_inv = world.first().map(crate::kitti::rigid_inverse).unwrap_or_else(Matrix4::identity);
+    let world: Vec<Isometry3<f64>> = (0..cfg.frames).map(|i| sensor_pose(i, cfg.step, wobble)).collect();
+    let first_inv = world.first().map(Isometry3::inverse).unwrap_or_else(Isometry3::identity);
     let mut scans = Vec::with_capacity(cfg.frames);
     for pose in &world {
         scans.push(scan(&scene, pose, cfg, &mut rng));
@@ -647,7 +644,8 @@ pub fn synthesise(cfg: &SynthConfig) -> Synthesised {
     Synthesised { poses: world.iter().map(|p| first_inv * p).collect(), scans, seg }
 }
 
-fn write_3x4(out: &mut impl Write, m: &Matrix4<f64>) -> std::io::Result<()> {
+fn write_3x4(out: &mut impl Write, t: &Isometry3<f64>) -> std::io::Result<()> {
+    let m = t.to_homogeneous();
     let v: Vec<String> =
         (0..3).flat_map(|r| (0..4).map(move |c| (r, c))).map(|(r, c)| format!("{:.9e}", m[(r, c)])).collect();
     writeln!(out, "{}", v.join(" "))
@@ -659,7 +657,7 @@ pub fn write_sequence(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesi
     std::fs::create_dir_all(dir.join("velodyne"))?;
     std::fs::create_dir_all(dir.join("labels"))?;
     let tr = synthetic_tr();
-    let tr_inv = crate::kitti::rigid_inverse(&tr);
+    let tr_inv = tr.inverse();
     let mut poses = Vec::new();
     let mut times = Vec::new();
     for (i, (pose, s)) in seq.poses.iter().zip(&seq.scans).enumerate() {

@@ -117,45 +117,55 @@ impl embedded_io::Write for Tcp {
     }
 }
 
-/// A serial port (8N1).
-pub struct Serial {
-    port: Box<dyn serialport::SerialPort>,
-}
+#[cfg(feature = "serial")]
+pub use serial::Serial;
 
-impl Serial {
-    /// Opens `device` at `baud`.
-    pub fn open(device: &str, baud: u32) -> Result<Self, serialport::Error> {
-        let port = serialport::new(device, baud).timeout(Duration::from_millis(10)).open()?;
-        Ok(Serial { port })
+#[cfg(feature = "serial")]
+mod serial {
+    use super::TransportError;
+    use std::io::{Read as _, Write as _};
+    use std::time::Duration;
+
+    /// A serial port (8N1).
+    pub struct Serial {
+        port: Box<dyn serialport::SerialPort>,
     }
-}
 
-impl embedded_io::ErrorType for Serial {
-    type Error = TransportError;
-}
-
-impl embedded_io::ReadReady for Serial {
-    fn read_ready(&mut self) -> Result<bool, TransportError> {
-        self.port.bytes_to_read().map(|n| n > 0).map_err(|e| TransportError(e.into()))
-    }
-}
-
-impl embedded_io::Read for Serial {
-    fn read(&mut self, buf: &mut [u8]) -> Result<usize, TransportError> {
-        match self.port.read(buf) {
-            Ok(n) => Ok(n),
-            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => Ok(0),
-            Err(e) => Err(TransportError(e)),
+    impl Serial {
+        /// Opens `device` at `baud`.
+        pub fn open(device: &str, baud: u32) -> Result<Self, serialport::Error> {
+            let port = serialport::new(device, baud).timeout(Duration::from_millis(10)).open()?;
+            Ok(Serial { port })
         }
     }
-}
 
-impl embedded_io::Write for Serial {
-    fn write(&mut self, buf: &[u8]) -> Result<usize, TransportError> {
-        self.port.write(buf).map_err(TransportError)
+    impl embedded_io::ErrorType for Serial {
+        type Error = TransportError;
     }
-    fn flush(&mut self) -> Result<(), TransportError> {
-        self.port.flush().map_err(TransportError)
+
+    impl embedded_io::ReadReady for Serial {
+        fn read_ready(&mut self) -> Result<bool, TransportError> {
+            self.port.bytes_to_read().map(|n| n > 0).map_err(|e| TransportError(e.into()))
+        }
+    }
+
+    impl embedded_io::Read for Serial {
+        fn read(&mut self, buf: &mut [u8]) -> Result<usize, TransportError> {
+            match self.port.read(buf) {
+                Ok(n) => Ok(n),
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => Ok(0),
+                Err(e) => Err(TransportError(e)),
+            }
+        }
+    }
+
+    impl embedded_io::Write for Serial {
+        fn write(&mut self, buf: &[u8]) -> Result<usize, TransportError> {
+            self.port.write(buf).map_err(TransportError)
+        }
+        fn flush(&mut self) -> Result<(), TransportError> {
+            self.port.flush().map_err(TransportError)
+        }
     }
 }
 

@@ -55,6 +55,16 @@ pub fn cosem_err(args: &[&str]) -> String {
     stderr
 }
 
+/// Runs `cosem` with arguments it must refuse as a usage error (exit 2,
+/// no panic); returns stderr.
+pub fn cosem_usage_err(args: &[&str]) -> String {
+    let out = cosem(args);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(2), "cosem {args:?}: exit status {:?}\n{stderr}", out.status);
+    assert!(!stderr.contains("panicked"), "cosem {args:?} panicked:\n{stderr}");
+    stderr
+}
+
 /// A real-data folder (`$COSEM_DATA/NAME`, default `../shared/data/NAME`),
 /// or `None` after printing why the test is skipped.
 pub fn real_data(name: &str) -> Option<PathBuf> {

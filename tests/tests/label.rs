@@ -141,7 +141,9 @@ fn malformed_inputs_name_the_file() {
     assert!(e.contains("000000.npy") && e.contains("missing"), "{e}");
     let e = run("o7", &["--camera", "7", "--frames", "0:1"]);
     assert!(e.contains("calib.txt") && e.contains("P7"), "{e}");
-    let e = run("o8", &["--classes", "ade20k"]);
+    let (d, s8) = (seq.display().to_string(), seg.display().to_string());
+    let o8 = tmp.path().join("o8").display().to_string();
+    let e = cosem_tests::cosem_usage_err(&["label", "--data", &d, "--seg", &s8, "--out", &o8, "--classes", "ade20k"]);
     assert!(e.contains("ade20k"), "{e}");
     // A folder with no scans.
     let empty = tmp.path().join("empty");

@@ -128,7 +128,11 @@ fn corrupted_map_file() {
     assert!(e.contains("robot.cmap") && e.contains("checksum"), "{e}");
     fs::write(&map, &b[..20]).unwrap();
     let e = cosem_err(&["info", &map.display().to_string()]);
-    assert!(e.contains("robot.cmap"), "{e}");
+    assert!(e.contains("robot.cmap") && e.contains("truncated"), "{e}");
+    // Cut anywhere in the chunks: truncated, with where.
+    fs::write(&map, &b[..mid]).unwrap();
+    let e = cosem_err(&["info", &map.display().to_string()]);
+    assert!(e.contains("robot.cmap") && e.contains("truncated") && e.contains("byte offset"), "{e}");
     fs::write(&map, b"not a map").unwrap();
     let e = cosem_err(&["info", &map.display().to_string()]);
     assert!(e.contains("robot.cmap") && e.contains("magic"), "{e}");

@@ -115,10 +115,10 @@ fn match_rejects_bad_arguments_cleanly() {
     let m = tmp.path().join("a.cmap");
     map(&seq, "0:2", &m);
     let ms = m.display().to_string();
-    let e = cosem_tests::cosem_err(&["match", &ms, &ms, "--init", "1,2,3"]);
+    let e = cosem_tests::cosem_usage_err(&["match", &ms, &ms, "--init", "1,2,3"]);
     assert!(e.contains("6 numbers"), "{e}");
-    let e = cosem_tests::cosem_err(&["match", &ms, &ms, "--method", "icp"]);
-    assert!(e.contains("unknown method"), "{e}");
+    let e = cosem_tests::cosem_usage_err(&["match", &ms, &ms, "--method", "icp"]);
+    assert!(e.contains("'icp'"), "{e}");
     let e = cosem_tests::cosem_err(&["match", &ms, "/nonexistent.cmap"]);
     assert!(e.contains("/nonexistent.cmap"), "{e}");
 }
@@ -141,7 +141,8 @@ fn loop_pairs_align_with_no_prior() {
         let start = |r: &str| r.split(':').next().unwrap().parse::<usize>().unwrap();
         let gt = seq.relative_pose(start(a), start(b)).unwrap();
         let n: Vec<f64> = v["transform"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
-        let (e_t, e_r) = cosem_host::align::errors(&nalgebra::Matrix4::from_row_slice(&n), &gt);
+        let est = cosem_host::report::from_row_major(&n.try_into().unwrap());
+        let (e_t, e_r) = cosem_core::geometry::pose_errors(&est, &gt);
         assert!(e_t < 0.3 && e_r < 1.0, "{name}: e_t {e_t} m, e_r {e_r} deg");
         eprintln!("{name}: no prior, {} landmarks agree: e_t {e_t:.3} m, e_r {e_r:.3} deg", v["global"]["agreeing"]);
     }

@@ -24,24 +24,24 @@ fn robots(args: &[&str]) -> (Value, bool) {
     (json, out.status.success())
 }
 
-fn matrix(v: &Value) -> nalgebra::Matrix4<f64> {
+fn matrix(v: &Value) -> cosem_core::geometry::Isometry3<f64> {
     let n: Vec<f64> = v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
-    nalgebra::Matrix4::from_row_slice(&n)
+    cosem_core::geometry::rigid_from_matrix(&nalgebra::Matrix4::from_row_slice(&n)).expect("a rigid transform")
 }
 
 /// Checks both robots converged near the truth and equal the host's runs.
 fn check_pair(json: &Value) {
     let gt = matrix(&json["ground_truth"]);
-    let truths = [gt, cosem_host::kitti::rigid_inverse(&gt)];
+    let truths = [gt, gt.inverse()];
     let hosts = [matrix(&json["host"]["transform"]), matrix(&json["host_b"]["transform"])];
     for (i, r) in json["robots"].as_array().unwrap().iter().enumerate() {
         assert_eq!(r["id"], i);
         assert_eq!(r["status"], "Converged", "robot {i}: {r}");
         assert_eq!(r["exit_code"], 0, "robot {i}: {r}");
         let t = matrix(&r["transform"]);
-        let (e_t, e_r) = cosem_host::align::errors(&t, &truths[i]);
+        let (e_t, e_r) = cosem_core::geometry::pose_errors(&t, &truths[i]);
         assert!(e_t < 0.2 && e_r < 0.5, "robot {i} off the truth: {e_t} m, {e_r} deg");
-        let (d_t, d_r) = cosem_host::align::errors(&t, &hosts[i]);
+        let (d_t, d_r) = cosem_core::geometry::pose_errors(&t, &hosts[i]);
         assert!(d_t < 1e-4 && d_r < 1e-3, "robot {i} differs from the host: {d_t} m, {d_r} deg");
         for key in ["instructions", "map_voxels", "bytes_sent", "bytes_received"] {
             assert!(r[key].as_u64().unwrap() > 0, "robot {i}: {key}");

@@ -4,7 +4,7 @@ use super::Clock;
 use crate::classes::CLASS_TABLE_VERSION;
 use crate::map::{LocalMap, VoxelStorage};
 use crate::wire::codec::{DecodeError, MapDecoder, MapEncoder, MIN_CHUNK};
-use crate::wire::frame::{encode_frame, Deframer, MAX_FRAME, MAX_PAYLOAD};
+use crate::wire::frame::{Deframer, MAX_FRAME, MAX_PAYLOAD};
 use crate::wire::message::{AbortReason, Hello, MapHeader, Message};
 use embedded_io::{Read, ReadReady, Write};
 
@@ -227,11 +227,9 @@ pub struct Endpoint<'a, M: VoxelStorage, R: VoxelStorage> {
 }
 
 fn send_msg<IO: Write>(io: &mut IO, msg: &Message<'_>, stats: &mut LinkStats) -> Result<(), LinkError> {
-    let mut payload = [0u8; MAX_PAYLOAD];
-    let n = msg.encode(&mut payload).map_err(|_| LinkError::Setup)?;
     let mut frame = [0u8; MAX_FRAME];
-    let f = encode_frame(&payload[..n], &mut frame).map_err(|_| LinkError::Setup)?;
-    write_frame(io, &frame[..f], stats)
+    let f = msg.to_frame(&mut frame).map_err(|_| LinkError::Setup)?;
+    write_frame(io, frame.get(..f).unwrap_or(&[]), stats)
 }
 
 fn write_frame<IO: Write>(io: &mut IO, frame: &[u8], stats: &mut LinkStats) -> Result<(), LinkError> {
@@ -245,24 +243,23 @@ fn write_frame<IO: Write>(io: &mut IO, frame: &[u8], stats: &mut LinkStats) -> R
 impl<'a, M: VoxelStorage> Tx<'a, M> {
     /// Builds the frame of the current sequence number.
     fn build(&mut self) -> Result<(), LinkError> {
-        let mut payload = [0u8; MAX_PAYLOAD];
         self.chunk_len = 0;
-        let n = match self.phase {
-            TxPhase::Header => Message::MapHeader(self.header).encode(&mut payload),
+        let map_id = self.header.map_id;
+        let msg_frame = match self.phase {
+            TxPhase::Header => Message::MapHeader(self.header).to_frame(&mut self.frame),
             TxPhase::Chunks => {
                 let mut data = [0u8; MAX_PAYLOAD];
                 self.encoder.seek(self.seq as usize);
-                let len = self.encoder.next_chunk(&mut data[..self.chunk]).map_err(|_| LinkError::Setup)?;
+                let chunk = data.get_mut(..self.chunk).ok_or(LinkError::Setup)?;
+                let len = self.encoder.next_chunk(chunk).map_err(|_| LinkError::Setup)?;
                 self.end = self.encoder.position() as u32;
                 self.chunk_len = len;
-                Message::Chunk { map_id: self.header.map_id, seq: self.seq, data: &data[..len] }.encode(&mut payload)
+                let data = data.get(..len).ok_or(LinkError::Setup)?;
+                Message::Chunk { map_id, seq: self.seq, data }.to_frame(&mut self.frame)
             }
-            TxPhase::End | TxPhase::Done => {
-                Message::End { map_id: self.header.map_id, seq: self.seq }.encode(&mut payload)
-            }
-        }
-        .map_err(|_| LinkError::Setup)?;
-        self.frame_len = encode_frame(&payload[..n], &mut self.frame).map_err(|_| LinkError::Setup)?;
+            TxPhase::End | TxPhase::Done => Message::End { map_id, seq: self.seq }.to_frame(&mut self.frame),
+        };
+        self.frame_len = msg_frame.map_err(|_| LinkError::Setup)?;
         Ok(())
     }
 
@@ -449,6 +446,13 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
     /// Whether our map was acknowledged to the end.
     pub fn sent(&self) -> bool {
         self.tx.as_ref().is_none_or(|t| t.phase == TxPhase::Done)
+    }
+
+    /// Ends the endpoint and gives back what it borrowed mutably: the
+    /// scratch its map was ordered in and the staging map (which holds the
+    /// peer's map when [`Endpoint::received`] is true).
+    pub fn into_parts(self) -> (Option<&'a mut [u32]>, Option<&'a mut LocalMap<R>>) {
+        (self.tx.map(|t| t.encoder.into_scratch()), self.rx.map)
     }
 
     /// Runs the link until done or failed, calling `idle` between steps
@@ -665,7 +669,6 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                 }
                 send_msg(io, &Message::Ack { map_id, seq }, stats)?;
             }
-            Message::Report(_) => {}
         }
         Ok(())
     }

@@ -188,3 +188,69 @@ impl<const N: usize> embedded_io::Write for SimPort<'_, N> {
         Ok(())
     }
 }
+
+/// A byte stream for a robot's feed line in tests and host runs: reads
+/// yield `input` (at most `per_read` bytes per call, as a UART delivers a
+/// few at a time), writes are kept in `output` (up to `OUT` bytes; more is
+/// an error, as on a line whose peer stopped listening).
+pub struct ScriptPort<'a, const OUT: usize> {
+    input: &'a [u8],
+    at: usize,
+    per_read: usize,
+    /// What was written.
+    pub output: heapless::Vec<u8, OUT>,
+}
+
+impl<'a, const OUT: usize> ScriptPort<'a, OUT> {
+    /// A port that reads `input`, `per_read` bytes at a time (at least one).
+    pub fn new(input: &'a [u8], per_read: usize) -> Self {
+        ScriptPort { input, at: 0, per_read: per_read.max(1), output: heapless::Vec::new() }
+    }
+
+    /// Bytes of the input not read yet.
+    pub fn unread(&self) -> usize {
+        self.input.len().saturating_sub(self.at)
+    }
+}
+
+/// A [`ScriptPort`]'s output is full.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OutputFull;
+
+impl embedded_io::Error for OutputFull {
+    fn kind(&self) -> embedded_io::ErrorKind {
+        embedded_io::ErrorKind::OutOfMemory
+    }
+}
+
+impl<const OUT: usize> embedded_io::ErrorType for ScriptPort<'_, OUT> {
+    type Error = OutputFull;
+}
+
+impl<const OUT: usize> embedded_io::Read for ScriptPort<'_, OUT> {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, OutputFull> {
+        let rest = self.input.get(self.at..).unwrap_or(&[]);
+        let n = rest.len().min(buf.len()).min(self.per_read);
+        if let (Some(dst), Some(src)) = (buf.get_mut(..n), rest.get(..n)) {
+            dst.copy_from_slice(src);
+        }
+        self.at += n;
+        Ok(n)
+    }
+}
+
+impl<const OUT: usize> embedded_io::ReadReady for ScriptPort<'_, OUT> {
+    fn read_ready(&mut self) -> Result<bool, OutputFull> {
+        Ok(self.unread() > 0)
+    }
+}
+
+impl<const OUT: usize> embedded_io::Write for ScriptPort<'_, OUT> {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, OutputFull> {
+        self.output.extend_from_slice(buf).map_err(|_| OutputFull)?;
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> Result<(), OutputFull> {
+        Ok(())
+    }
+}

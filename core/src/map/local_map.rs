@@ -228,6 +228,15 @@ impl<S: VoxelStorage> LocalMap<S> {
         Ok(map)
     }
 
+    /// Empties the map and gives it another configuration (e.g. a robot's
+    /// map, whose storage is a static, once its set-up names the voxel
+    /// size). On an invalid configuration the map is left as it was.
+    pub fn reset(&mut self, config: MapConfig) -> Result<(), ConfigError> {
+        self.set_config(config)?;
+        self.clear();
+        Ok(())
+    }
+
     fn set_config(&mut self, config: MapConfig) -> Result<(), ConfigError> {
         let r = config.resolution;
         if !(r.is_finite() && (1e-3..=1e3).contains(&r)) {

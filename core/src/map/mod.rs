@@ -1,4 +1,4 @@
-//! Stage 1: building a robot's local semantic map.
+//! Stage 2: building a robot's local semantic map.
 //!
 //! - [`key`]: voxel keys and hashing;
 //! - [`labels`]: compact label distributions and the Bayes sensor model;
@@ -21,6 +21,19 @@ pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertio
 pub use overlap::overlap;
 pub use table::{ArrayStorage, SliceStorage, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};
 pub use voxel::SemanticVoxel;
+
+#[cfg(any(test, feature = "alloc"))]
+pub use table::VecStorage;
+
+/// A map on the heap, its capacity chosen at run time (feature `alloc`).
+#[cfg(any(test, feature = "alloc"))]
+pub type VecMap = LocalMap<VecStorage>;
+
+/// An empty heap map of `capacity` voxels (at least one) (feature `alloc`).
+#[cfg(any(test, feature = "alloc"))]
+pub fn vec_map(capacity: usize, config: MapConfig) -> Result<VecMap, ConfigError> {
+    LocalMap::new(VecStorage::with_capacity(capacity), config)
+}
 
 /// A map whose capacity is fixed at compile time: `N` voxels, `32 * N` bytes.
 pub type FixedMap<const N: usize> = LocalMap<ArrayStorage<N>>;

@@ -94,6 +94,89 @@ impl VoxelStorage for SliceStorage<'_> {
     }
 }
 
+/// Storage on the heap, sized at run time (feature `alloc`): what a host
+/// gives a map whose size it learns from its data.
+#[cfg(any(test, feature = "alloc"))]
+pub struct VecStorage {
+    voxels: alloc::vec::Vec<SemanticVoxel>,
+    slots: alloc::vec::Vec<u32>,
+}
+
+#[cfg(any(test, feature = "alloc"))]
+impl VecStorage {
+    /// Storage for `capacity` voxels (at least one).
+    pub fn with_capacity(capacity: usize) -> Self {
+        let capacity = capacity.max(1);
+        VecStorage {
+            voxels: alloc::vec![SemanticVoxel::EMPTY; capacity],
+            slots: alloc::vec![0; SLOTS_PER_VOXEL * capacity],
+        }
+    }
+}
+
+#[cfg(any(test, feature = "alloc"))]
+impl VoxelStorage for VecStorage {
+    fn voxels(&self) -> &[SemanticVoxel] {
+        &self.voxels
+    }
+    fn slots(&self) -> &[u32] {
+        &self.slots
+    }
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
+        (&mut self.voxels, &mut self.slots)
+    }
+}
+
+/// Where a walk of an open-addressing index ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Slot {
+    /// A slot whose value the caller recognised.
+    Found {
+        /// Slot position.
+        slot: usize,
+        /// Its value (never 0).
+        value: u32,
+    },
+    /// The first empty slot on the walk: where the key would go.
+    Vacant(usize),
+    /// Every slot is taken and none matched (or there are no slots).
+    Full,
+}
+
+/// First slot to probe for a hash (multiply-shift: no power-of-two size needed).
+#[inline]
+fn home(hash: u32, slots: usize) -> usize {
+    ((u64::from(hash) * slots as u64) >> 32) as usize
+}
+
+/// The one linear-probing walk of every open-addressing index of the crate
+/// (a map's voxels, a pyramid's coarse cells and its merge table): slots hold
+/// 0 for empty or a caller-defined nonzero value; from `hash`'s home slot the
+/// walk visits slots in order (wrapping) until `is_match(value)` or an empty
+/// slot. Bounded by the slot count, so a full table cannot loop.
+#[inline]
+pub(crate) fn walk(slots: &[u32], hash: u32, mut is_match: impl FnMut(u32) -> bool) -> Slot {
+    let n = slots.len();
+    if n == 0 {
+        return Slot::Full;
+    }
+    let mut i = home(hash, n);
+    for _ in 0..n {
+        let value = slots.get(i).copied().unwrap_or(0);
+        if value == 0 {
+            return Slot::Vacant(i);
+        }
+        if is_match(value) {
+            return Slot::Found { slot: i, value };
+        }
+        i += 1;
+        if i == n {
+            i = 0;
+        }
+    }
+    Slot::Full
+}
+
 /// Result of a probe: the voxel's dense position, or the empty slot where
 /// its key would go.
 pub(crate) enum Probe {
@@ -101,33 +184,17 @@ pub(crate) enum Probe {
     Vacant(usize),
 }
 
-/// First slot to probe for a hash (multiply-shift: no power-of-two size needed).
-fn home(hash: u32, slots: usize) -> usize {
-    ((u64::from(hash) * slots as u64) >> 32) as usize
-}
-
-/// Finds `key`. `voxels` is the filled prefix. The index always has an empty
-/// slot (load factor at most 0.5), so the walk ends; it is bounded anyway.
+/// Finds `key`. `voxels` is the filled prefix; slots hold the dense
+/// position plus one. The index always has an empty slot (load factor at
+/// most 0.5); a full one answers `Vacant(slots.len())`, a slot no write
+/// reaches.
 pub(crate) fn probe(voxels: &[SemanticVoxel], slots: &[u32], key: VoxelKey) -> Probe {
-    let n = slots.len();
-    if n == 0 {
-        return Probe::Vacant(0);
+    let at_key = |s: u32| voxels.get((s - 1) as usize).map(|v| v.key) == Some(key);
+    match walk(slots, key.hash32(), at_key) {
+        Slot::Found { value, .. } => Probe::Found((value - 1) as usize),
+        Slot::Vacant(i) => Probe::Vacant(i),
+        Slot::Full => Probe::Vacant(slots.len()),
     }
-    let mut i = home(key.hash32(), n);
-    for _ in 0..n {
-        let s = slots.get(i).copied().unwrap_or(0);
-        if s == 0 {
-            return Probe::Vacant(i);
-        }
-        if voxels.get((s - 1) as usize).map(|v| v.key) == Some(key) {
-            return Probe::Found((s - 1) as usize);
-        }
-        i += 1;
-        if i == n {
-            i = 0;
-        }
-    }
-    Probe::Vacant(n)
 }
 
 /// Rebuilds the index for the filled prefix `voxels`.

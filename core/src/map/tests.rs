@@ -4,7 +4,6 @@ use super::*;
 use crate::classes::Class;
 use crate::test_util::{heap_map, Heap};
 use proptest::prelude::*;
-use std::vec;
 use std::vec::Vec;
 
 #[test]
@@ -67,7 +66,8 @@ fn bad_configs_are_rejected() {
         bad(MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [f32::NAN; 3] }, ..MapConfig::default() }),
         Some(ConfigError::Anchor)
     );
-    let short = Heap { voxels: vec![SemanticVoxel::EMPTY; 8], slots: vec![0; 15] };
+    let (mut voxels, mut slots) = ([SemanticVoxel::EMPTY; 8], [0u32; 15]);
+    let short = SliceStorage { voxels: &mut voxels, slots: &mut slots };
     assert!(matches!(LocalMap::new(short, MapConfig::default()), Err(ConfigError::Storage)));
 }
 

@@ -250,6 +250,17 @@ pub struct Located {
     pub outcome: Option<GlobalOutcome>,
 }
 
+impl From<&Located> for crate::wire::feed::GlobalReport {
+    fn from(l: &Located) -> Self {
+        crate::wire::feed::GlobalReport {
+            landmarks: l.landmarks,
+            agreeing: l.outcome.map(|o| o.agreeing).unwrap_or(0),
+            runner_up: l.outcome.map(|o| o.runner_up).unwrap_or(0),
+            unique: l.outcome.is_some_and(|o| o.unique),
+        }
+    }
+}
+
 /// Extracts both maps' landmarks and aligns them with no prior. `scratch`
 /// holds one `u32` per voxel of the larger map (see [`extract`]); the
 /// landmarks live only in this call's frame (about 8 KiB, plus about 12 KiB

@@ -1,4 +1,4 @@
-//! Stage 3: EM map matching.
+//! Stage 5: EM map matching.
 //!
 //! - [`pyramid`]: the search structure, a semantic resolution pyramid with
 //!   a hash index per level and per-entry normals (one-off preparation);
@@ -51,9 +51,11 @@ pub mod solve;
 pub use em::{MatchError, Matcher};
 pub use footprint::Footprint;
 pub use pyramid::{
-    ArrayPyramidStorage, CoarseEntry, Entry, Level, PackedNormal, Pyramid, PyramidError, PyramidParts, PyramidPartsMut,
-    PyramidStorage, Role, VoxelExtra, MAX_LEVELS,
+    ArrayPyramidStorage, CoarseEntry, Entry, Level, PackedNormal, Pyramid, PyramidCapacity, PyramidError, PyramidParts,
+    PyramidPartsMut, PyramidStorage, Role, VoxelExtra, MAX_FOOTPRINT_CELLS, MAX_LEVELS,
 };
+#[cfg(any(test, feature = "alloc"))]
+pub use pyramid::{VecPyramid, VecPyramidStorage};
 pub use result::{MatchResult, MatchStatus};
 pub use search::{SearchOutcome, SearchWindow};
 pub use settings::{Cost, Dof, MatchSettings, Method};

@@ -19,7 +19,7 @@
 
 use super::footprint::{self, Footprint, FootprintInfo};
 use crate::classes::NUM_CLASSES;
-use crate::map::table::{probe, Probe};
+use crate::map::table::{probe, walk, Probe, Slot};
 use crate::map::voxel::{dequantise_fraction, quantise_fraction};
 use crate::map::{CellPoint, LocalMap, SemanticVoxel, VoxelKey, VoxelStorage};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
@@ -261,6 +261,112 @@ impl<const V: usize, const E: usize, const W: usize> PyramidStorage for ArrayPyr
     }
 }
 
+/// Most footprint cells a [`PyramidCapacity`] plans for: a 250 m square at
+/// 1 m. A larger map's footprint gets coarser cells instead of more memory.
+pub const MAX_FOOTPRINT_CELLS: usize = 62_500;
+
+/// The buffer sizes a pyramid of one map needs: what a storage sized at run
+/// time allocates (and what compile-time capacities must cover).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PyramidCapacity {
+    /// [`VoxelExtra`]s: one per voxel.
+    pub voxels: usize,
+    /// Coarse entries (each with two index slots).
+    pub entries: usize,
+    /// Footprint words.
+    pub words: usize,
+}
+
+impl PyramidCapacity {
+    /// Room to prepare `map` with `levels` levels and a footprint of
+    /// `footprint_cell` metres for `role`, whatever the map holds: coarse
+    /// levels as large as the map (no merging at all), a footprint grid over
+    /// the map's bounds (at most [`MAX_FOOTPRINT_CELLS`] cells; beyond that
+    /// the build doubles the cell until it fits).
+    pub fn for_map<V: VoxelStorage>(map: &LocalMap<V>, levels: usize, footprint_cell: f32, role: Role) -> Self {
+        let grids = match role {
+            Role::Model => footprint::POOL_LEVELS,
+            Role::Scene => 2,
+        };
+        let cells = match map.bounds() {
+            Some((lo, hi)) if footprint_cell.is_finite() && footprint_cell > 0.0 => {
+                // One cell of margin per axis: the grid spans the voxels' means.
+                let side = |a: usize| (libm::floorf((hi[a] - lo[a]) / footprint_cell) as usize).saturating_add(2);
+                side(0).saturating_mul(side(1)).min(MAX_FOOTPRINT_CELLS)
+            }
+            _ => 0,
+        };
+        let listed = cells.min(map.len());
+        PyramidCapacity {
+            voxels: map.len(),
+            entries: map.len().saturating_mul(levels.saturating_sub(1)),
+            words: grids * cells + 3 * listed,
+        }
+    }
+
+    /// Bytes of storage this takes.
+    pub fn bytes(&self) -> usize {
+        self.voxels * core::mem::size_of::<VoxelExtra>()
+            + self.entries * (core::mem::size_of::<CoarseEntry>() + 2 * core::mem::size_of::<u32>())
+            + self.words * core::mem::size_of::<u32>()
+    }
+}
+
+/// Pyramid storage on the heap, sized at run time (feature `alloc`).
+#[cfg(any(test, feature = "alloc"))]
+pub struct VecPyramidStorage {
+    extras: alloc::vec::Vec<VoxelExtra>,
+    entries: alloc::vec::Vec<CoarseEntry>,
+    slots: alloc::vec::Vec<u32>,
+    words: alloc::vec::Vec<u32>,
+}
+
+#[cfg(any(test, feature = "alloc"))]
+impl VecPyramidStorage {
+    /// Storage of the given capacity.
+    pub fn new(capacity: PyramidCapacity) -> Self {
+        VecPyramidStorage {
+            extras: alloc::vec![VoxelExtra::EMPTY; capacity.voxels],
+            entries: alloc::vec![CoarseEntry::EMPTY; capacity.entries],
+            slots: alloc::vec![0; 2 * capacity.entries],
+            words: alloc::vec![0; capacity.words],
+        }
+    }
+}
+
+#[cfg(any(test, feature = "alloc"))]
+impl PyramidStorage for VecPyramidStorage {
+    fn parts(&self) -> PyramidParts<'_> {
+        PyramidParts { extras: &self.extras, entries: &self.entries, slots: &self.slots, words: &self.words }
+    }
+    fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
+        PyramidPartsMut {
+            extras: &mut self.extras,
+            entries: &mut self.entries,
+            slots: &mut self.slots,
+            words: &mut self.words,
+        }
+    }
+}
+
+/// A pyramid on the heap over a map of any storage (feature `alloc`).
+#[cfg(any(test, feature = "alloc"))]
+pub type VecPyramid<'m> = Pyramid<'m, VecPyramidStorage>;
+
+#[cfg(any(test, feature = "alloc"))]
+impl<'m> Pyramid<'m, VecPyramidStorage> {
+    /// Prepares `map` in storage sized for it ([`PyramidCapacity::for_map`]).
+    pub fn build_vec<V: VoxelStorage>(
+        map: &'m LocalMap<V>,
+        levels: usize,
+        footprint_cell: f32,
+        role: Role,
+    ) -> Result<Self, PyramidError> {
+        let storage = VecPyramidStorage::new(PyramidCapacity::for_map(map, levels, footprint_cell, role));
+        Self::build_as(map, levels, footprint_cell, role, storage)
+    }
+}
+
 /// Why a pyramid could not be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -331,10 +437,6 @@ pub struct Level<'a> {
     data: LevelData<'a>,
     resolution: f32,
     inv_resolution: f32,
-}
-
-fn home(hash: u32, n: usize) -> usize {
-    ((u64::from(hash) * n as u64) >> 32) as usize
 }
 
 /// The entries of one cell of a level (one per class present; at most one
@@ -456,28 +558,12 @@ const RUN_MASK: u32 = (1 << RUN_BITS) - 1;
 /// The range of a coarse level's entries in cell `key`.
 #[inline]
 fn coarse_run(entries: &[CoarseEntry], slots: &[u32], key: VoxelKey) -> (usize, usize) {
-    let n = slots.len();
-    if n == 0 {
-        return (0, 0);
+    // A slot holds (first entry + 1) << 5 | entries in the cell.
+    let first = |s: u32| ((s >> RUN_BITS) - 1) as usize;
+    match walk(slots, key.hash32(), |s| entries.get(first(s)).map(|e| e.key) == Some(key)) {
+        Slot::Found { value, .. } => (first(value), first(value) + (value & RUN_MASK) as usize),
+        Slot::Vacant(_) | Slot::Full => (0, 0),
     }
-    let mut i = home(key.hash32(), n);
-    for _ in 0..n {
-        let s = slots.get(i).copied().unwrap_or(0);
-        if s == 0 {
-            return (0, 0);
-        }
-        // A slot holds (first entry + 1) << 5 | entries in the cell.
-        let first = ((s >> RUN_BITS) - 1) as usize;
-        let len = (s & RUN_MASK) as usize;
-        if entries.get(first).map(|e| e.key) == Some(key) {
-            return (first, first + len);
-        }
-        i += 1;
-        if i == n {
-            i = 0;
-        }
-    }
-    (0, 0)
 }
 
 /// Builds the index of one coarse level over its (sorted) entries.
@@ -492,20 +578,10 @@ fn index_level(entries: &[CoarseEntry], slots: &mut [u32]) {
         let run = entries.get(i..).unwrap_or(&[]).iter().take_while(|o| o.key == e.key).count().max(1);
         // One entry per class: a run never exceeds the class count (< 32).
         let value = ((i as u32 + 1) << RUN_BITS) | (run as u32 & RUN_MASK);
-        let mut s = home(e.key.hash32(), n);
         i += run;
-        for _ in 0..n {
-            match slots.get_mut(s) {
-                Some(slot) if *slot == 0 => {
-                    *slot = value;
-                    break;
-                }
-                _ => {
-                    s += 1;
-                    if s == n {
-                        s = 0;
-                    }
-                }
+        if let Slot::Vacant(s) = walk(slots, e.key.hash32(), |_| false) {
+            if let Some(slot) = slots.get_mut(s) {
+                *slot = value;
             }
         }
     }
@@ -523,11 +599,9 @@ fn merge_level(src: &Level<'_>, dst: &mut [CoarseEntry], table: &mut [u32]) -> R
         let Some(e) = src.entry(i) else { continue };
         let key = e.key.coarsen(2);
         let hash = key.hash32() ^ u32::from(e.class).wrapping_mul(0x9E37_79B9);
-        let mut s = home(hash, n);
-        let mut placed = false;
-        for _ in 0..n {
-            let Some(slot) = table.get_mut(s) else { break };
-            if *slot == 0 {
+        let same = |v: u32| dst.get((v - 1) as usize).is_some_and(|a| a.key == key && a.class == e.class);
+        match walk(table, hash, same) {
+            Slot::Vacant(s) => {
                 let fresh = dst.get_mut(out).ok_or(PyramidError::Full)?;
                 *fresh = CoarseEntry {
                     key,
@@ -539,12 +613,10 @@ fn merge_level(src: &Level<'_>, dst: &mut [CoarseEntry], table: &mut [u32]) -> R
                 };
                 fresh.set_position(e.position, resolution);
                 out += 1;
-                *slot = out as u32;
-                placed = true;
-                break;
+                *table.get_mut(s).ok_or(PyramidError::Full)? = out as u32;
             }
-            let acc = dst.get_mut((*slot - 1) as usize).ok_or(PyramidError::Full)?;
-            if acc.key == key && acc.class == e.class {
+            Slot::Found { value, .. } => {
+                let acc = dst.get_mut((value - 1) as usize).ok_or(PyramidError::Full)?;
                 // Running weighted mean (weights saturate at 65535 voxels).
                 let wa = f32::from(acc.weight);
                 let w = wa + e.weight;
@@ -556,16 +628,8 @@ fn merge_level(src: &Level<'_>, dst: &mut [CoarseEntry], table: &mut [u32]) -> R
                 let conf = (f32::from(acc.confidence) * wa + f32::from(e.confidence) * e.weight) / w;
                 acc.confidence = (conf + 0.5) as u8;
                 acc.weight = libm::roundf(w.min(65535.0)) as u16;
-                placed = true;
-                break;
             }
-            s += 1;
-            if s == n {
-                s = 0;
-            }
-        }
-        if !placed {
-            return Err(PyramidError::Full);
+            Slot::Full => return Err(PyramidError::Full),
         }
     }
     let merged = dst.get_mut(..out).ok_or(PyramidError::Full)?;

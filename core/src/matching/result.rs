@@ -1,6 +1,7 @@
 //! What a match returns.
 
 use super::pyramid::MAX_LEVELS;
+use crate::wire::report::MatchReport;
 use nalgebra::{Isometry3, Matrix6};
 
 /// Verdict of a match, as the conventions spell it.
@@ -74,6 +75,20 @@ pub struct MatchResult {
 }
 
 impl MatchResult {
+    /// The result as robot `robot_id` reports it over a line: plain numbers
+    /// ([`MatchReport`]).
+    pub fn report(&self, robot_id: u8) -> MatchReport {
+        MatchReport {
+            robot_id,
+            status: self.status.code(),
+            transform: crate::geometry::rows(&self.transform),
+            iterations: self.iterations.min(u32::from(u16::MAX)) as u16,
+            inliers: self.inliers,
+            overlap: self.overlap,
+            rmse: self.rmse,
+        }
+    }
+
     /// `NoOverlap` at the identity with nothing behind it: what a match
     /// that found no basis for an answer reports.
     pub fn no_overlap() -> Self {
@@ -89,5 +104,29 @@ impl MatchResult {
             min_eigenvalue: 0.0,
             degeneracy: 0.0,
         }
+    }
+}
+
+#[cfg(feature = "defmt")]
+impl defmt::Format for MatchResult {
+    fn format(&self, f: defmt::Formatter<'_>) {
+        let t = self.transform.translation.vector;
+        let (roll, pitch, yaw) = self.transform.rotation.euler_angles();
+        defmt::write!(
+            f,
+            "{} t=({=f32},{=f32},{=f32}) m rpy=({=f32},{=f32},{=f32}) deg, {=u32} iterations, {=u32} inliers, overlap {=f32}, rmse {=f32} m, degeneracy {=f32}",
+            self.status,
+            t.x,
+            t.y,
+            t.z,
+            roll.to_degrees(),
+            pitch.to_degrees(),
+            yaw.to_degrees(),
+            self.iterations,
+            self.inliers,
+            self.overlap,
+            self.rmse,
+            self.degeneracy
+        )
     }
 }

@@ -9,7 +9,8 @@ use proptest::prelude::*;
 use std::vec;
 use std::vec::Vec;
 
-use crate::test_util::HeapPyramid as Heap;
+use crate::matching::VecPyramidStorage as Heap;
+use crate::test_util::heap_pyramid;
 
 type Map = LocalMap<crate::test_util::Heap>;
 
@@ -19,7 +20,7 @@ fn new_map() -> Map {
 
 fn pyramid<S: crate::map::VoxelStorage>(map: &LocalMap<S>) -> Pyramid<'_, Heap> {
     let n = map.len();
-    Pyramid::build(map, 4, 1.0, Heap::new(n, 3 * n, 400_000)).unwrap()
+    Pyramid::build(map, 4, 1.0, heap_pyramid(n, 3 * n, 400_000)).unwrap()
 }
 
 /// An L-shaped street corner: floor, two walls, poles and a tree.
@@ -153,7 +154,7 @@ fn invalid_inputs_are_errors() {
     let pc = pyramid(&coarse);
     assert_eq!(Matcher::default().align(&p, &pc, &Isometry3::identity()), Err(MatchError::ResolutionMismatch));
     // Too little storage is a typed error.
-    let tiny = Heap::new(m.len(), 10, 0);
+    let tiny = heap_pyramid(m.len(), 10, 0);
     assert!(matches!(Pyramid::build(&m, 4, 1.0, tiny), Err(PyramidError::Full)));
 }
 
@@ -235,7 +236,7 @@ fn scene_role_pyramid_matches_like_a_model() {
     let mut m = new_map();
     corner(&mut m, &Isometry3::identity());
     let full = pyramid(&m);
-    let scene = Pyramid::build_as(&m, 4, 1.0, Role::Scene, Heap::new(m.len(), 3 * m.len(), 400_000)).unwrap();
+    let scene = Pyramid::build_as(&m, 4, 1.0, Role::Scene, heap_pyramid(m.len(), 3 * m.len(), 400_000)).unwrap();
     assert!(full.footprint().unwrap().has_pooled_grids());
     assert!(!scene.footprint().unwrap().has_pooled_grids());
     let start = from_xyz_rpy(0.4, -0.3, 0.0, 0.0, 0.0, 0.08);

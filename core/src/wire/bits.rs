@@ -41,7 +41,7 @@ impl<'a> BitWriter<'a> {
             let bit = (value >> i) & 1;
             let byte = self.bits / 8;
             let slot = self.buf.get_mut(byte).ok_or(Overflow)?;
-            if self.bits % 8 == 0 {
+            if self.bits.is_multiple_of(8) {
                 *slot = 0;
             }
             *slot |= (bit as u8) << (7 - self.bits % 8);

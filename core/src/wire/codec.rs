@@ -291,6 +291,11 @@ fn varint_len(v: u64) -> usize {
     bits.div_ceil(7)
 }
 
+/// The voxel count a chunk announces (its first varint), without decoding it.
+pub fn chunk_voxel_count(chunk: &[u8]) -> Option<u64> {
+    read_varint(chunk, &mut 0, 5).ok()
+}
+
 fn read_varint(input: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, DecodeError> {
     let mut v = 0u64;
     for i in 0..max_bytes {
@@ -311,7 +316,8 @@ fn read_varint(input: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, De
 /// Streams a map out as chunks.
 pub struct MapEncoder<'a, S: VoxelStorage> {
     map: &'a LocalMap<S>,
-    order: &'a [u32],
+    /// The caller's scratch; its first `map.len()` entries hold the order.
+    scratch: &'a mut [u32],
     next: usize,
 }
 
@@ -325,14 +331,25 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
         }
         let voxels = map.voxels();
         order.sort_unstable_by_key(|&i| voxels.get(i as usize).map(|v| morton(v.key)).unwrap_or(u64::MAX));
-        Ok(MapEncoder { map, order, next: 0 })
+        Ok(MapEncoder { map, scratch, next: 0 })
+    }
+
+    /// The voxel indices in stream (Morton) order.
+    fn order(&self) -> &[u32] {
+        self.scratch.get(..self.map.len()).unwrap_or(&[])
+    }
+
+    /// Gives the scratch back (its contents are the stream order), e.g. for
+    /// the next stage of a robot that reuses it.
+    pub fn into_scratch(self) -> &'a mut [u32] {
+        self.scratch
     }
 
     /// Digest of the whole map's encoded content (all voxels, in stream
     /// order): what [`MapDecoder::digest`] gives after the last chunk.
     pub fn digest(&self) -> u32 {
         let mut crc = Crc32::new();
-        for v in self.order.iter().filter_map(|&i| self.map.voxel(i as usize)) {
+        for v in self.order().iter().filter_map(|&i| self.map.voxel(i as usize)) {
             digest_voxel(&mut crc, morton(v.key), &quantise(v));
         }
         crc.finish()
@@ -346,17 +363,17 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
     /// Moves to voxel `index` of the stream (e.g. to encode a chunk again,
     /// smaller). Beyond the end means done.
     pub fn seek(&mut self, index: usize) {
-        self.next = index.min(self.order.len());
+        self.next = index.min(self.map.len());
     }
 
     /// Voxels not yet encoded.
     pub fn remaining(&self) -> usize {
-        self.order.len() - self.next
+        self.map.len() - self.next
     }
 
     /// Whether every voxel went out.
     pub fn is_done(&self) -> bool {
-        self.next >= self.order.len()
+        self.next >= self.map.len()
     }
 
     /// Writes the next chunk (as many voxels as fit in `out`) and returns its
@@ -368,7 +385,7 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
         if out.len() < MIN_CHUNK {
             return Err(EncodeError::Buffer);
         }
-        let voxel = |i: usize| self.order.get(i).and_then(|&v| self.map.voxel(v as usize));
+        let voxel = |i: usize| self.order().get(i).and_then(|&v| self.map.voxel(v as usize));
         let first = voxel(self.next).ok_or(EncodeError::Buffer)?;
         // The first code as a gap from the previous chunk's last one.
         let lead = match self.next.checked_sub(1).and_then(voxel) {

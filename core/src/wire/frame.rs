@@ -104,6 +104,18 @@ pub fn cobs_decode_in_place(buf: &mut [u8]) -> Result<usize, DeframeError> {
     Ok(write)
 }
 
+/// Encodes a message with `encode` (which writes its payload into a buffer
+/// of [`MAX_PAYLOAD`] bytes and returns the length), then frames it into
+/// `out`: the one place where "encode, then frame" is written.
+pub fn frame_with<E: From<FrameError>>(
+    out: &mut [u8],
+    encode: impl FnOnce(&mut [u8]) -> Result<usize, E>,
+) -> Result<usize, E> {
+    let mut payload = [0u8; MAX_PAYLOAD];
+    let n = encode(&mut payload)?;
+    Ok(encode_frame(payload.get(..n).ok_or(FrameError::TooLong)?, out)?)
+}
+
 /// Encodes one frame of `payload` into `out` (delimiter included).
 pub fn encode_frame(payload: &[u8], out: &mut [u8]) -> Result<usize, FrameError> {
     if payload.len() > MAX_PAYLOAD {

@@ -4,6 +4,7 @@
 //! another version is told apart at the first frame. Floats from the wire
 //! are checked: a NaN or infinity is a typed error, never a value.
 
+use super::frame::{frame_with, FrameError};
 use serde::{Deserialize, Serialize};
 
 /// Version of the link protocol (first byte of every payload).
@@ -41,50 +42,6 @@ pub struct MapHeader {
     pub bounds: [f32; 6],
     /// Digest of the whole map's encoded content (see `codec::MapDigest`).
     pub digest: u32,
-}
-
-/// A match result a robot reports.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct MatchReport {
-    /// Reporting robot.
-    pub robot_id: u8,
-    /// Status: 0 Converged, 1 NotConverged, 2 Degenerate, 3 NoOverlap.
-    pub status: u8,
-    /// `T_model_scene`, the top three rows of the 4x4 matrix, row by row.
-    pub transform: [f32; 12],
-    /// EM iterations.
-    pub iterations: u16,
-    /// Inlier voxels.
-    pub inliers: u32,
-    /// Overlap (0..1).
-    pub overlap: f32,
-    /// RMSE (m).
-    pub rmse: f32,
-}
-
-impl MatchReport {
-    /// The report of `result` by robot `robot_id`.
-    pub fn new(robot_id: u8, result: &crate::matching::MatchResult) -> Self {
-        MatchReport {
-            robot_id,
-            status: result.status.code(),
-            transform: crate::geometry::rows(&result.transform),
-            iterations: result.iterations.min(u32::from(u16::MAX)) as u16,
-            inliers: result.inliers,
-            overlap: result.overlap,
-            rmse: result.rmse,
-        }
-    }
-
-    /// The status, if the byte is a valid one.
-    pub fn status(&self) -> Option<crate::matching::MatchStatus> {
-        crate::matching::MatchStatus::from_code(self.status)
-    }
-
-    /// `T_model_scene`.
-    pub fn transform(&self) -> crate::geometry::Isometry3<f32> {
-        crate::geometry::from_rows(&self.transform)
-    }
 }
 
 /// Why a transfer was abandoned.
@@ -149,8 +106,6 @@ pub enum Message<'a> {
         /// Why.
         reason: AbortReason,
     },
-    /// A match result.
-    Report(MatchReport),
 }
 
 /// Why a payload is not a message.
@@ -186,8 +141,15 @@ impl core::fmt::Display for MessageError {
 
 impl core::error::Error for MessageError {}
 
+impl From<FrameError> for MessageError {
+    fn from(_: FrameError) -> Self {
+        MessageError::Buffer
+    }
+}
+
 /// Encodes `msg` as a version byte and postcard into `out`; returns the
-/// length. Shared by every protocol that travels in frames.
+/// length. Shared by every protocol that travels in frames (this one and
+/// [`super::feed`]).
 pub(crate) fn encode_versioned<T: Serialize>(version: u8, msg: &T, out: &mut [u8]) -> Result<usize, MessageError> {
     let (first, rest) = out.split_first_mut().ok_or(MessageError::Buffer)?;
     *first = version;
@@ -224,6 +186,11 @@ impl<'a> Message<'a> {
         encode_versioned(PROTOCOL_VERSION, self, out)
     }
 
+    /// Encodes the message as one frame (delimiter included) into `out`.
+    pub fn to_frame(&self, out: &mut [u8]) -> Result<usize, MessageError> {
+        frame_with(out, |payload| self.encode(payload))
+    }
+
     /// Decodes a payload; borrows chunk data from it.
     pub fn decode(payload: &'a [u8]) -> Result<Self, MessageError> {
         let msg: Message<'a> = decode_versioned(PROTOCOL_VERSION, payload)?;
@@ -238,10 +205,6 @@ impl<'a> Message<'a> {
                 finite(&[h.resolution])?;
                 finite(&h.bounds)
             }
-            Message::Report(r) => {
-                finite(&r.transform)?;
-                finite(&[r.overlap, r.rmse])
-            }
             _ => Ok(()),
         }
     }
@@ -250,7 +213,7 @@ impl<'a> Message<'a> {
 /// Every message type with its exact bytes: the wire format, frozen. The
 /// unit tests and the on-target self-test both check it, so a host and a
 /// robot that pass agree on every byte.
-pub const GOLDEN: [(Message<'static>, &[u8]); 8] = [
+pub const GOLDEN: [(Message<'static>, &[u8]); 7] = [
     (
         Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: 0.2, max_payload: 512 }),
         &[1, 0, 1, 1, 205, 204, 76, 62, 128, 4],
@@ -276,21 +239,6 @@ pub const GOLDEN: [(Message<'static>, &[u8]); 8] = [
     (Message::Ack { map_id: 7, seq: 300 }, &[1, 4, 7, 172, 2]),
     (Message::Nack { map_id: 7, seq: 3 }, &[1, 5, 7, 3]),
     (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[1, 6, 7, 2]),
-    (
-        Message::Report(MatchReport {
-            robot_id: 0,
-            status: 0,
-            transform: [1.0, 0.0, 0.0, 2.5, 0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.0],
-            iterations: 17,
-            inliers: 1234,
-            overlap: 0.75,
-            rmse: 0.125,
-        }),
-        &[
-            1, 7, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0,
-            0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 17, 210, 9, 0, 0, 64, 63, 0, 0, 0, 62,
-        ],
-    ),
 ];
 
 /// Encodes and decodes every [`GOLDEN`] message; `Err(i)` names the first

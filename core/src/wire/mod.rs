@@ -1,24 +1,38 @@
-//! Stage 2: the bytes between robots (and in map files).
+//! Stage 3: every byte format of cosem, and nothing above it: this module
+//! imports no type from the map's users (matching, link, robot), so a
+//! format can be read, tested and fuzzed on its own.
 //!
-//! - [`crc`]: CRC-32 of frames and maps;
+//! - [`crc`]: CRC-32 of frames and map files;
 //! - [`bits`]: bit-level writer and reader;
 //! - [`codec`]: the compact, chunked voxel encoding (Morton order, adaptive
 //!   Golomb-Rice gaps, quantised labels, occupancy and position);
-//! - [`frame`]: COBS framing with a CRC-32 per frame;
-//! - [`message`]: the versioned messages (postcard);
-//! - [`mapfile`]: reading `.cmap` map files without an allocator.
+//! - [`frame`]: COBS framing with a CRC-32 per frame, and
+//!   [`frame::frame_with`], the one "encode a message, then frame it";
+//! - [`message`]: the link's versioned messages (postcard);
+//! - [`report`]: a match result as plain numbers;
+//! - [`feed`]: the feed protocol between a host and a robot;
+//! - [`mapfile`]: the `.cmap` map file, read and written without an
+//!   allocator.
+//!
+//! Each format has golden bytes (`GOLDEN*`) that the unit tests and the
+//! on-target self-test check, and a fuzz target in `core/fuzz`.
 
 pub mod bits;
 pub mod codec;
 pub mod crc;
+pub mod feed;
 pub mod frame;
 pub mod mapfile;
 pub mod message;
+pub mod report;
 
 pub use codec::{DecodeError, EncodeError, MapDecoder, MapEncoder};
 pub use crc::{crc32, Crc32};
-pub use frame::{encode_frame, DeframeError, Deframer, FrameError, MAX_FRAME, MAX_PAYLOAD};
-pub use message::{AbortReason, Hello, MapHeader, MatchReport, Message, MessageError, PROTOCOL_VERSION};
+pub use feed::{FeedError, FeedMessage, RobotMessage, RobotReport, Setup};
+pub use frame::{encode_frame, frame_with, DeframeError, Deframer, FrameError, MAX_FRAME, MAX_PAYLOAD};
+pub use mapfile::{MapFileError, MapFileHeader};
+pub use message::{AbortReason, Hello, MapHeader, Message, MessageError, PROTOCOL_VERSION};
+pub use report::MatchReport;
 
 #[cfg(test)]
 mod tests;

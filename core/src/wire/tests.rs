@@ -147,7 +147,7 @@ fn digest_is_independent_of_chunking() {
 #[test]
 fn golden_messages() {
     assert_eq!(super::message::check_golden(), Ok(()));
-    assert_eq!(super::message::GOLDEN.len(), 8, "one per message type");
+    assert_eq!(super::message::GOLDEN.len(), 7, "one per message type");
     // A framed message: golden too.
     let mut payload = [0u8; 16];
     let n = Message::Ack { map_id: 7, seq: 300 }.encode(&mut payload).unwrap();
@@ -279,5 +279,97 @@ proptest! {
         if dec.decode_chunk(&c, &mut m).is_ok() {
             prop_assert_eq!(m.len(), dec.decoded());
         }
+    }
+}
+
+/// Golden bytes of every feed and robot message.
+#[test]
+fn golden_feed_messages() {
+    assert_eq!(super::feed::check_golden(), Ok(()));
+    // One framed: the feeder and the robot put exactly this on the line.
+    let mut frame = [0u8; MAX_FRAME];
+    let n = super::feed::FeedMessage::EndOfFeed { scans: 5, points: 26_309 }.to_frame(&mut frame).unwrap();
+    let (msg, bytes) = &super::feed::GOLDEN_FEED[3];
+    assert_eq!(msg, &super::feed::FeedMessage::EndOfFeed { scans: 5, points: 26_309 });
+    let mut plain = [0u8; MAX_FRAME];
+    let m = encode_frame(bytes, &mut plain).unwrap();
+    assert_eq!(&frame[..n], &plain[..m]);
+}
+
+/// Golden bytes of a codec chunk and of a whole `.cmap` file.
+#[test]
+fn golden_chunk_and_map_file() {
+    use super::mapfile::*;
+    let (mut a, mut b) = (crate::test_util::map(8), crate::test_util::map(8));
+    assert_eq!(check_golden(&mut a, &mut b), Ok(()));
+    assert_eq!(encode_all(&a, 64), vec![GOLDEN_CHUNK.to_vec()]);
+    let mut c = crate::test_util::heap_map(8, crate::map::MapConfig::with_resolution(0.5));
+    let mut dec = MapDecoder::new(3);
+    assert_eq!(dec.decode_chunk(GOLDEN_CHUNK, &mut c), Ok(3));
+    for v in a.iter() {
+        let w = c.get(v.key).unwrap();
+        assert_eq!(w.class(), v.class());
+    }
+}
+
+/// Every truncation and every single-byte change of a map file is a typed
+/// error; truncations say so, with the offset of the part cut.
+#[test]
+fn map_file_corruptions_are_named() {
+    use super::mapfile::*;
+    let m = street(60);
+    let header = header_of(&m, None, Some("street"));
+    let mut bytes = Vec::new();
+    let (mut scratch, mut chunk) = (vec![0u32; m.len()], vec![0u8; 256]);
+    write(&m, &header, &mut scratch, &mut chunk, |b| {
+        bytes.extend_from_slice(b);
+        true
+    })
+    .unwrap();
+    let mut back = map(m.len());
+    assert_eq!(read_into(&bytes, &mut back).unwrap(), header);
+    assert_eq!(back.len(), m.len());
+    for cut in 0..bytes.len() {
+        match read_into(&bytes[..cut], &mut back) {
+            Err(MapFileError::Truncated { .. }) => {}
+            Err(MapFileError::Magic) if cut == 0 => {}
+            other => panic!("cut at {cut} of {}: {other:?}", bytes.len()),
+        }
+    }
+    for i in 0..bytes.len() {
+        let mut b = bytes.clone();
+        b[i] ^= 0x5A;
+        assert!(read_into(&b, &mut back).is_err(), "flip at {i} accepted");
+    }
+    // A valid checksum over bad records is still rejected.
+    let mut forged = bytes[..bytes.len() - 4].to_vec();
+    forged.extend_from_slice(&[0x05, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]);
+    let crc = super::crc32(&forged);
+    forged.extend_from_slice(&crc.to_le_bytes());
+    assert!(matches!(read_into(&forged, &mut back), Err(MapFileError::Chunk { .. })));
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+    /// Random bytes through the feed decoders and the map-file reader:
+    /// typed errors, never a panic (the fuzz targets' property, in the
+    /// normal test command).
+    #[test]
+    fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..400), prefix in 0usize..3) {
+        use super::feed::{FeedMessage, RobotMessage};
+        let _ = FeedMessage::decode(&bytes);
+        let _ = RobotMessage::decode(&bytes);
+        let mut with_version = vec![super::feed::FEED_VERSION];
+        with_version.extend_from_slice(&bytes);
+        let _ = FeedMessage::decode(&with_version);
+        let _ = RobotMessage::decode(&with_version);
+        // Map files: random, and random after a valid preamble.
+        let mut m = map(64);
+        let _ = super::mapfile::read_into(&bytes, &mut m);
+        let mut file = super::mapfile::GOLDEN_FILE[..10 + 11 * prefix].to_vec();
+        file.extend_from_slice(&bytes);
+        let _ = super::mapfile::read_into(&file, &mut m);
+        prop_assert!(m.len() <= 64);
     }
 }

@@ -7,25 +7,15 @@
 
 use core::ptr::addr_of_mut;
 use cortex_m_rt::entry;
-use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
-use cosem_core::matching::{ArrayPyramidStorage, MatchSettings, Matcher, Pyramid, Role};
+use cosem_core::map::{LocalMap, MapConfig};
+use cosem_core::matching::{MatchSettings, Matcher, Pyramid, Role};
+// A robot's capacities: the bench matches what a robot can hold.
+use cosem_core::robot::{MapStorage, ModelStorage, SceneStorage, FOOTPRINT_CELL, LEVELS};
 use cosem_core::wire::mapfile;
 use cosem_firmware::hostfs::read_file;
 use cosem_firmware::{exit, peak_stack, say, start_clock, ticks, INSTRUCTIONS_PER_TICK};
 
-/// Voxels per map.
-const VOXELS: usize = 8192;
-/// Coarse pyramid entries per map (0.5 m maps with 3 levels take about 0.42
-/// per voxel).
-const COARSE: usize = 3840;
-/// Footprint words: the model's pooled grids (2 m cells for 50 m x 50 m),
-/// the scene's occupied cells.
-const MODEL_WORDS: usize = 20_480;
-const SCENE_WORDS: usize = 8192;
 const FILE_BYTES: usize = 32 * 1024;
-type MapStorage = ArrayStorage<VOXELS>;
-type ModelStorage = ArrayPyramidStorage<VOXELS, COARSE, MODEL_WORDS>;
-type SceneStorage = ArrayPyramidStorage<VOXELS, COARSE, SCENE_WORDS>;
 
 static mut FILE: [u8; FILE_BYTES] = [0; FILE_BYTES];
 static mut MAP_A: MapStorage = MapStorage::new();
@@ -58,12 +48,15 @@ fn run() -> bool {
             return false;
         };
         if let Err(e) = mapfile::read_into(bytes, map) {
-            say!("bench error={:?}", e);
+            say!("bench error={}", e);
             return false;
         }
     }
     let t0 = ticks();
-    let (pya, pyb) = match (Pyramid::build(&ma, 3, 1.0, pa), Pyramid::build_as(&mb, 3, 1.0, Role::Scene, pb)) {
+    let (pya, pyb) = match (
+        Pyramid::build(&ma, LEVELS, FOOTPRINT_CELL, pa),
+        Pyramid::build_as(&mb, LEVELS, FOOTPRINT_CELL, Role::Scene, pb),
+    ) {
         (Ok(a), Ok(b)) => (a, b),
         (Err(e), _) | (_, Err(e)) => {
             say!("bench error=pyramid: {}", e);
@@ -74,10 +67,17 @@ fn run() -> bool {
     let t1 = ticks();
     let r = Matcher::new(MatchSettings::default()).align(&pya, &pyb, &nalgebra::Isometry3::identity());
     let spent = ticks() - t1;
-    let Ok(r) = r else {
-        say!("bench error=match");
-        return false;
+    let r = match r {
+        Ok(r) => r,
+        Err(_e) => {
+            #[cfg(feature = "defmt")]
+            defmt::error!("bench match failed: {}", _e);
+            say!("bench error=match");
+            return false;
+        }
     };
+    #[cfg(feature = "defmt")]
+    defmt::info!("bench match: {}", r);
     let t = r.transform.translation.vector;
     say!("bench voxels={},{} coarse_entries={},{}", ma.len(), mb.len(), pya.coarse_entries(), pyb.coarse_entries());
     say!(

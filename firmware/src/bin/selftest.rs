@@ -59,10 +59,17 @@ fn run() -> Result<bool, ()> {
     let report = match report {
         Ok(r) => r,
         Err(e) => {
+            #[cfg(feature = "defmt")]
+            defmt::error!("selftest failed: {}", e);
             say!("selftest error={:?}", e);
             return Ok(false);
         }
     };
+    // In a defmt build the core's own types go out with deferred formatting
+    // (only their fields cross the line); the key=value lines below are for
+    // the host's bit-for-bit comparison.
+    #[cfg(feature = "defmt")]
+    defmt::info!("selftest match: {}", report.result);
     say!("{}", report);
     say!(
         "selftest match_instructions={} total_instructions={}",

@@ -20,18 +20,9 @@ pub fn run(f: Format) -> Result<(), Error> {
     match f {
         Format::Ply { file, output } => {
             let (_, map) = cosem_host::cmap::read(&file)?;
-            let points: Vec<PlyPoint> = map
-                .iter()
-                .map(|v| {
-                    let c = v.class();
-                    PlyPoint {
-                        position: v.position(map.resolution()),
-                        color: c.map(|c| c.color()).unwrap_or([128; 3]),
-                        class: c.map(|c| c.index()).unwrap_or(255),
-                        label: c.map(|c| c.semantic_kitti_id()).unwrap_or(0),
-                    }
-                })
-                .collect();
+            let id = cosem_core::geometry::Isometry3::identity();
+            let colour = |v: &cosem_core::map::SemanticVoxel| v.class().map(|c| c.color()).unwrap_or([128; 3]);
+            let points: Vec<PlyPoint> = map.iter().map(|v| PlyPoint::of(v, map.resolution(), &id, colour(v))).collect();
             ply::write(&output, &points).map_err(|e| format!("{}: {e}", output.display()))?;
             println!("{}: {} points", output.display(), points.len());
             Ok(())

@@ -1,6 +1,6 @@
 //! `cosem label`: LiDAR labels from camera segmentation images.
 
-use super::synth::parse_classes;
+use super::args::ClassesArg;
 use super::Error;
 use cosem_host::kitti::FrameRange;
 use cosem_host::label::{label_sequence, LabelOptions};
@@ -22,8 +22,8 @@ pub struct Args {
     camera: u8,
     /// What the image ids mean: cityscapes (19 training ids, 255 ignored) or
     /// semantickitti (learning-map ids, 0 unlabeled).
-    #[arg(long, default_value = "cityscapes")]
-    classes: String,
+    #[arg(long, value_enum, default_value = "cityscapes")]
+    classes: ClassesArg,
     /// Read per-pixel class probabilities (.npy, <f4 or |u1, HxWxC or CxHxW)
     /// and write their evidence beside the labels (evidence/), which mapping
     /// fuses instead of the hard labels.
@@ -67,7 +67,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         data: a.data.clone(),
         seg: a.seg.clone(),
         camera: a.camera,
-        classes: parse_classes(&a.classes)?,
+        classes: a.classes.classes(),
         probabilities: a.probabilities,
         occlusion: !a.keep_occluded,
         image_size: a.image_size.as_deref().map(parse_size).transpose()?,
@@ -78,7 +78,6 @@ pub fn run(a: Args) -> Result<(), Error> {
     let s = label_sequence(&opts)?;
     let wall = t.elapsed().as_secs_f64();
     let rate = s.points as f64 / s.label_seconds.max(1e-9);
-    let pct = |n: usize, d: usize| 100.0 * n as f64 / d.max(1) as f64;
     if a.json {
         let j = json!({
             "frames": s.frames, "points": s.points, "in_view": s.in_view, "occluded": s.occluded, "labelled": s.labelled,
@@ -88,30 +87,8 @@ pub fn run(a: Args) -> Result<(), Error> {
             "classes": opts.classes.name(), "probabilities": a.probabilities, "out": a.out.display().to_string(),
         });
         println!("{}", serde_json::to_string_pretty(&j)?);
-    } else {
-        println!(
-            "{}: {} frames, {} points; {} in camera {}'s view ({:.1}%; {} more hidden behind nearer points), {} labelled ({:.1}% of those)",
-            a.out.display(),
-            s.frames,
-            s.points,
-            s.in_view,
-            a.camera,
-            pct(s.in_view, s.points),
-            s.occluded,
-            s.labelled,
-            pct(s.labelled, s.in_view)
-        );
-        match s.agreement() {
-            Some(g) => println!(
-                "agreement with the input's labels: {:.2}% of {} in-view labelled points ({:.2}% as {} ids can say them)",
-                100.0 * g,
-                s.compared,
-                100.0 * s.agreement_in_set().unwrap_or(0.0),
-                opts.classes.name()
-            ),
-            None => println!("(the input has no labels to compare with)"),
-        }
-        println!("{:.1} M points labelled per second ({:.2} s in all with reading and writing)", rate / 1e6, wall);
+        return Ok(());
     }
+    print!("{}", s.text(&opts, wall));
     Ok(())
 }

@@ -46,7 +46,8 @@ pub fn run(a: Args) -> Result<(), Error> {
     let (map, stats) = build_map(&frames, config, &filter)?;
     let anchor_time = frames.first().and_then(|f| f.time);
     let name = a.data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let bytes = cosem_host::cmap::write(&a.output, &map, anchor_time, Some(format!("{name} {}", a.frames)))?;
+    let source = format!("{name} {}", a.frames);
+    let bytes = cosem_host::cmap::write(&a.output, &map, anchor_time, Some(&source))?;
     println!(
         "{}: {} frames, {} points, {} kept, {} voxels at {} m, {} bytes ({:.1} bytes/voxel) in {:.2} s",
         a.output.display(),

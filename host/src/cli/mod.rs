@@ -1,5 +1,7 @@
-//! The subcommands, one module each.
+//! The subcommands, one module each: each parses its arguments (clap) and
+//! prints; the work is in the `cosem_host` library.
 
+mod args;
 mod bench;
 mod demo;
 mod eval;
@@ -55,7 +57,7 @@ enum Command {
         #[command(subcommand)]
         what: bench::What,
     },
-    /// The main job on built-in data: synthesise, map two robots, describe.
+    /// The main job on built-in data: synthesise, map two robots, match.
     Demo(demo::Args),
 }
 
@@ -85,16 +87,10 @@ pub fn data_root() -> PathBuf {
     }
 }
 
-/// A class histogram of a map, largest first (ties by class index).
-pub fn class_histogram(map: &cosem_host::mapping::HostMap) -> Vec<(cosem_core::classes::Class, usize)> {
-    let mut counts = [0usize; cosem_core::classes::NUM_CLASSES];
-    for v in map.iter() {
-        if let Some(c) = v.class() {
-            counts[c.index() as usize] += 1;
-        }
-    }
-    let mut h: Vec<_> = cosem_core::classes::Class::ALL.iter().map(|c| (*c, counts[c.index() as usize])).collect();
-    h.retain(|(_, n)| *n > 0);
-    h.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
-    h
+/// Prints `value` as pretty JSON.
+pub fn print_json(value: &impl serde::Serialize) -> Result<(), Error> {
+    println!("{}", serde_json::to_string_pretty(value)?);
+    Ok(())
 }
+
+pub use cosem_host::bench::TempDir;

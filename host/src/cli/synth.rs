@@ -1,7 +1,7 @@
 //! `cosem synth`: a synthetic sequence in SemanticKITTI layout.
 
+use super::args::{ClassesArg, SegArg};
 use super::Error;
-use cosem_core::camera::SegClasses;
 use cosem_host::synth::{write_sequence, SegRender, SynthConfig};
 use std::path::PathBuf;
 
@@ -28,8 +28,8 @@ pub struct Args {
     /// Render camera 2's segmentation image per frame into seg_2/, with
     /// these ids: cityscapes (a Cityscapes-trained network's 19 training
     /// ids), semantickitti (learning-map ids, 0 unlabeled), or none.
-    #[arg(long, default_value = "cityscapes")]
-    seg: String,
+    #[arg(long, value_enum, default_value = "cityscapes")]
+    seg: SegArg,
     /// Corrupt the images as a real network would: displaced class
     /// borders, blobs of a confusable wrong class.
     #[arg(long)]
@@ -39,15 +39,6 @@ pub struct Args {
     seg_probabilities: bool,
 }
 
-/// Parses a class-set name (`cityscapes` or `semantickitti`).
-pub fn parse_classes(s: &str) -> Result<SegClasses, String> {
-    match s {
-        "cityscapes" => Ok(SegClasses::Cityscapes),
-        "semantickitti" => Ok(SegClasses::SemanticKitti),
-        _ => Err(format!("class set `{s}`: expected cityscapes or semantickitti")),
-    }
-}
-
 pub fn run(a: Args) -> Result<(), Error> {
     if a.frames == 0 {
         return Err("--frames must be at least 1".into());
@@ -55,15 +46,15 @@ pub fn run(a: Args) -> Result<(), Error> {
     if !((0.0..=1.0).contains(&a.label_noise) && a.range_noise >= 0.0 && a.range_noise.is_finite()) {
         return Err("--label-noise must be in [0, 1] and --range-noise a finite number >= 0".into());
     }
-    let seg = match a.seg.as_str() {
-        "none" => {
-            if a.seg_corrupt || a.seg_probabilities {
-                return Err("--seg-corrupt and --seg-probabilities need --seg cityscapes|semantickitti".into());
-            }
-            None
+    let classes = match a.seg {
+        SegArg::None if a.seg_corrupt || a.seg_probabilities => {
+            return Err("--seg-corrupt and --seg-probabilities need --seg cityscapes|semantickitti".into());
         }
-        s => Some(SegRender { classes: parse_classes(s)?, corrupt: a.seg_corrupt, probabilities: a.seg_probabilities }),
+        SegArg::None => None,
+        SegArg::Cityscapes => Some(ClassesArg::Cityscapes.classes()),
+        SegArg::Semantickitti => Some(ClassesArg::Semantickitti.classes()),
     };
+    let seg = classes.map(|classes| SegRender { classes, corrupt: a.seg_corrupt, probabilities: a.seg_probabilities });
     let cfg = SynthConfig {
         seg,
         frames: a.frames,

@@ -1,0 +1,122 @@
+//! The robot step machine: fed, linked and aligned as on a board.
+
+use super::*;
+use crate::classes::Class;
+use crate::link::sim::{SimConfig, SimLine};
+use crate::test_util::{heap_map, heap_pyramid};
+use crate::wire::feed::pack_point;
+use std::vec::Vec;
+
+#[test]
+fn points_insert_and_bad_classes_are_named() {
+    let mut map = heap_map(64, map_config(0.5));
+    let mut data = Vec::new();
+    data.extend_from_slice(&pack_point([1.02, 2.0, 0.3], Class::Trunk));
+    data.extend_from_slice(&pack_point([1.04, 2.1, 0.3], Class::Trunk));
+    assert_eq!(insert_points(&mut map, &data), Ok(2));
+    assert_eq!(map.len(), 1);
+    assert_eq!(map.voxels()[0].class(), Some(Class::Trunk));
+    data[13] = 19;
+    assert_eq!(insert_points(&mut map, &data), Err(PointsError::Feed(FeedError::Class { offset: 7, class: 19 })));
+    assert!(matches!(insert_points(&mut map, &data[..5]), Err(PointsError::Feed(FeedError::PointBytes { len: 5 }))));
+}
+
+/// The feed of robot `id` of the self-test street: every voxel of its map
+/// as one point, in messages of up to 64.
+fn feed_of(id: u8, prior: Option<[f32; 12]>) -> Vec<u8> {
+    let mut m = heap_map(4096, map_config(0.5));
+    crate::selftest::build_map(id, &mut m).unwrap();
+    let points: Vec<u8> = m.iter().flat_map(|v| pack_point(v.position(0.5), v.class().unwrap())).collect();
+    let mut out = Vec::new();
+    let mut frame = [0u8; crate::wire::MAX_FRAME];
+    let mut push = |msg: FeedMessage<'_>| {
+        let n = msg.to_frame(&mut frame).unwrap();
+        out.extend_from_slice(&frame[..n]);
+    };
+    push(FeedMessage::Setup(Setup { robot_id: id, resolution: 0.5, prior, silence_ms: 5000 }));
+    for part in points.chunks(64 * crate::wire::feed::POINT_BYTES) {
+        push(FeedMessage::Points { scan: 0, data: part });
+    }
+    push(FeedMessage::EndOfFeed { scans: 1, points: (points.len() / crate::wire::feed::POINT_BYTES) as u32 });
+    out
+}
+
+/// Two robots, stepped as on boards over a simulated 115200-baud line,
+/// each end to end: both converge on the truth from a prior, in opposite
+/// directions.
+#[test]
+fn two_robots_map_link_and_align() {
+    let truth = crate::selftest::truth();
+    let prior = crate::geometry::from_xyz_rpy(1.5, -1.0, 0.0, 0.0, 0.0, 0.1) * truth;
+    let feeds =
+        [feed_of(0, Some(crate::geometry::rows(&prior))), feed_of(1, Some(crate::geometry::rows(&prior.inverse())))];
+    let (mut own_a, mut rec_a, mut own_b, mut rec_b) = (
+        heap_map(4096, MapConfig::default()),
+        heap_map(4096, MapConfig::default()),
+        heap_map(4096, MapConfig::default()),
+        heap_map(4096, MapConfig::default()),
+    );
+    let (mut sa, mut sb) = (std::vec![0u32; 4096], std::vec![0u32; 4096]);
+    let pyr = || heap_pyramid(4096, 4096, 20_000);
+    let mut a = Robot::new(RobotConfig::default(), &mut own_a, &mut rec_a, &mut sa, pyr(), pyr());
+    let mut b = Robot::new(RobotConfig::default(), &mut own_b, &mut rec_b, &mut sb, pyr(), pyr());
+    let line = std::boxed::Box::new(core::cell::RefCell::new(SimLine::<8192>::new(SimConfig {
+        seed: 3,
+        error_rate: 0.0,
+        stall_chance: 0.0,
+        bytes_per_ms: 11.52,
+        half_duplex: false,
+    })));
+    let [ra, rb] = simulate_pair([&mut a, &mut b], [&feeds[0], &feeds[1]], &line, 600_000);
+    let (ra, rb) = (ra.unwrap(), rb.unwrap());
+    for (r, t) in [(ra, truth), (rb, truth.inverse())] {
+        assert_eq!(r.result.status, crate::matching::MatchStatus::Converged.code());
+        let d = r.result.transform() * t.inverse();
+        assert!(d.translation.vector.norm() < 0.1 && d.rotation.angle().to_degrees() < 0.3, "{d:?}");
+        assert!(r.map_voxels > 800 && r.received_voxels > 800 && r.bytes_sent > 0);
+    }
+    assert_eq!((ra.map_voxels, ra.received_voxels), (rb.received_voxels, rb.map_voxels));
+    // Polled again, a finished robot says so.
+    let mut feed = ScriptPort::<256>::new(&[], 1);
+    let (mut port, _) = SimLine::ports(&line);
+    assert_eq!(a.poll(&mut feed, &mut port, 0, &()), Err(RobotError::Finished));
+}
+
+/// A robot whose feed breaks off, or whose feeder counts wrong, stops with
+/// a typed error and tells its feeder where.
+#[test]
+fn a_bad_feed_is_reported() {
+    let feed = feed_of(0, None);
+    let (mut own, mut rec) = (heap_map(4096, MapConfig::default()), heap_map(4096, MapConfig::default()));
+    let mut scratch = std::vec![0u32; 4096];
+    let mut robot = Robot::new(
+        RobotConfig { feed_silence_ms: 100 },
+        &mut own,
+        &mut rec,
+        &mut scratch,
+        heap_pyramid(1, 1, 1),
+        heap_pyramid(1, 1, 1),
+    );
+    let half = &feed[..feed.len() / 2];
+    let mut port = ScriptPort::<256>::new(half, 64);
+    let line = core::cell::RefCell::new(SimLine::<64>::new(SimConfig {
+        seed: 1,
+        error_rate: 0.0,
+        stall_chance: 0.0,
+        bytes_per_ms: 1.0,
+        half_duplex: false,
+    }));
+    let (mut link, _) = SimLine::ports(&line);
+    let mut now = 0;
+    let err = loop {
+        match robot.poll(&mut port, &mut link, now, &()) {
+            Ok(Poll::Busy) => now += 1,
+            Ok(Poll::Done(_)) => panic!("finished on half a feed"),
+            Err(e) => break e,
+        }
+    };
+    assert!(matches!(err, RobotError::FeederSilent { points } if points > 0), "{err:?}");
+    let mut d = crate::wire::Deframer::new();
+    let msg = port.output.iter().find_map(|&b| d.push(b).ok().flatten().map(|p| p.to_vec())).unwrap();
+    assert!(matches!(RobotMessage::decode(&msg), Ok(RobotMessage::Failed { stage: Stage::Feed, .. })));
+}

@@ -1,0 +1,394 @@
+//! The feed protocol: what a host (standing in for a robot's LiDAR,
+//! segmentation and odometry) sends a robot over its serial line, and what
+//! the robot answers.
+//!
+//! Host to robot ([`FeedMessage`]): a [`Setup`], then the scans as labelled
+//! points already in the robot's anchor frame, thinned to about one point
+//! per voxel and quantised to centimetres ([`POINT_BYTES`] bytes each, at
+//! most [`MAX_POINTS_PER_MESSAGE`] per message), then
+//! [`FeedMessage::EndOfFeed`]. Robot to host ([`RobotMessage`]): a
+//! [`RobotReport`], or where and why it stopped.
+//!
+//! Every message travels in one frame ([`super::frame`]: COBS, CRC-32) as
+//! the version byte [`FEED_VERSION`] and postcard. Floats from the line are
+//! checked: a NaN or an infinity is a typed error, never a value.
+
+use super::frame::{frame_with, FrameError};
+use super::message::{decode_versioned, encode_versioned, MessageError};
+use super::report::MatchReport;
+use crate::classes::{Class, NUM_CLASSES};
+use serde::{Deserialize, Serialize};
+
+/// Version byte of the feed protocol.
+pub const FEED_VERSION: u8 = 2;
+/// Bytes of one fed point: x, y, z in centimetres (i16, little endian) and
+/// the class index.
+pub const POINT_BYTES: usize = 7;
+/// Most points in one [`FeedMessage::Points`] (fits a frame with room).
+pub const MAX_POINTS_PER_MESSAGE: usize = 64;
+
+/// What a host tells a robot before its scans.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Setup {
+    /// 0 for robot A (which sends first on a half-duplex line), 1 for B.
+    pub robot_id: u8,
+    /// Voxel size (m), 0.01 to 10.
+    pub resolution: f32,
+    /// The prior `T_own_peer` (model = own map, scene = the peer's), top
+    /// three rows of the 4x4 matrix, row by row; `None`: no prior, align
+    /// from the maps alone.
+    pub prior: Option<[f32; 12]>,
+    /// Give up on the link when nothing valid arrived for this long (ms).
+    pub silence_ms: u32,
+}
+
+/// Host to robot.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum FeedMessage<'a> {
+    /// Configuration; first.
+    Setup(Setup),
+    /// Points of one scan, [`POINT_BYTES`] each.
+    Points {
+        /// Scan index within the robot's range.
+        scan: u16,
+        /// The points.
+        #[serde(borrow)]
+        data: &'a [u8],
+    },
+    /// All scans were sent.
+    EndOfFeed {
+        /// Scans sent.
+        scans: u16,
+        /// Points sent.
+        points: u32,
+    },
+}
+
+/// What the prior-free alignment found, for the host.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GlobalReport {
+    /// Landmarks of the robot's own map and of the received map.
+    pub landmarks: [u32; 2],
+    /// Correspondences in the largest consistent set (0: too few candidates).
+    pub agreeing: u32,
+    /// The largest consistent set the answer does not explain.
+    pub runner_up: u32,
+    /// Whether the answer was unique enough to refine (else `NoOverlap`).
+    pub unique: bool,
+}
+
+/// What a robot did, for the host.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RobotReport {
+    /// The match (`T_own_peer`: own map the model, the peer's the scene).
+    pub result: MatchReport,
+    /// Points fed.
+    pub points: u32,
+    /// Voxels of the robot's own map.
+    pub map_voxels: u32,
+    /// Voxels of the received map.
+    pub received_voxels: u32,
+    /// Bytes the robot wrote to the link.
+    pub bytes_sent: u64,
+    /// Bytes the robot read from the link.
+    pub bytes_received: u64,
+    /// Frames resent on the link.
+    pub retransmissions: u32,
+    /// Duration of the map exchange (ms of the robot's clock).
+    pub link_ms: u32,
+    /// Instructions spent inserting the fed points into the map.
+    pub map_instructions: u64,
+    /// Instructions spent preparing both maps for matching.
+    pub prepare_instructions: u64,
+    /// Instructions of the prior-free alignment (0 with a prior).
+    pub locate_instructions: u64,
+    /// Instructions of the match.
+    pub match_instructions: u64,
+    /// What the prior-free alignment found (`None` with a prior).
+    pub global: Option<GlobalReport>,
+    /// Peak stack (bytes).
+    pub peak_stack: u32,
+}
+
+/// Where a robot failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Stage {
+    /// Receiving the feed.
+    Feed,
+    /// Building the map.
+    Map,
+    /// Exchanging maps.
+    Link,
+    /// Preparing or matching.
+    Match,
+}
+
+impl Stage {
+    /// Lower-case name.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Stage::Feed => "feed",
+            Stage::Map => "map",
+            Stage::Link => "link",
+            Stage::Match => "match",
+        }
+    }
+}
+
+/// Robot to host.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum RobotMessage<'a> {
+    /// The result.
+    Report(RobotReport),
+    /// The robot stopped.
+    Failed {
+        /// Where.
+        stage: Stage,
+        /// What, in words.
+        #[serde(borrow)]
+        message: &'a str,
+    },
+}
+
+/// Why a feed message is not one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FeedError {
+    /// Empty payload.
+    Empty,
+    /// Another protocol version.
+    Version(u8),
+    /// Not a well-formed message.
+    Malformed,
+    /// A float is NaN or infinite (or a resolution out of range).
+    NonFinite,
+    /// The output buffer is too small.
+    Buffer,
+    /// Point data not a whole number of points.
+    PointBytes {
+        /// Bytes received.
+        len: u32,
+    },
+    /// A point's class is not in the class table.
+    Class {
+        /// Byte offset of the point in the message's data.
+        offset: u32,
+        /// The class byte.
+        class: u8,
+    },
+    /// A message out of order (points before the set-up, a second set-up).
+    Order,
+}
+
+impl core::fmt::Display for FeedError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            FeedError::Empty => f.write_str("empty payload"),
+            FeedError::Version(v) => write!(f, "feed protocol version {v}, expected {FEED_VERSION}"),
+            FeedError::Malformed => f.write_str("malformed feed message"),
+            FeedError::NonFinite => f.write_str("non-finite or out-of-range number"),
+            FeedError::Buffer => f.write_str("buffer too small"),
+            FeedError::PointBytes { len } => write!(f, "{len} bytes of points is not a multiple of {POINT_BYTES}"),
+            FeedError::Class { offset, class } => write!(f, "point at byte {offset}: class {class} not in the table"),
+            FeedError::Order => f.write_str("feed message out of order"),
+        }
+    }
+}
+
+impl core::error::Error for FeedError {}
+
+impl From<MessageError> for FeedError {
+    fn from(e: MessageError) -> Self {
+        match e {
+            MessageError::Empty => FeedError::Empty,
+            MessageError::Version(v) => FeedError::Version(v),
+            MessageError::Buffer => FeedError::Buffer,
+            MessageError::NonFinite => FeedError::NonFinite,
+            MessageError::Malformed | MessageError::Trailing => FeedError::Malformed,
+        }
+    }
+}
+
+impl From<FrameError> for FeedError {
+    fn from(_: FrameError) -> Self {
+        FeedError::Buffer
+    }
+}
+
+fn finite(values: &[f32]) -> Result<(), FeedError> {
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(FeedError::NonFinite)
+    }
+}
+
+/// `encode`, `to_frame` and `decode` of a feed-protocol message type (its
+/// `check` refuses what must not cross the line, in both directions).
+macro_rules! feed_codec {
+    ($ty:ident) => {
+        impl<'a> $ty<'a> {
+            /// Encodes the message (version byte first) into `out`; returns
+            /// its length.
+            pub fn encode(&self, out: &mut [u8]) -> Result<usize, FeedError> {
+                self.check()?;
+                Ok(encode_versioned(FEED_VERSION, self, out)?)
+            }
+
+            /// Encodes the message as one frame (delimiter included) into `out`.
+            pub fn to_frame(&self, out: &mut [u8]) -> Result<usize, FeedError> {
+                frame_with(out, |payload| self.encode(payload))
+            }
+
+            /// Decodes and checks a payload; borrows byte and text fields from it.
+            pub fn decode(payload: &'a [u8]) -> Result<Self, FeedError> {
+                let msg: Self = decode_versioned(FEED_VERSION, payload)?;
+                msg.check()?;
+                Ok(msg)
+            }
+        }
+    };
+}
+
+feed_codec!(FeedMessage);
+feed_codec!(RobotMessage);
+
+impl FeedMessage<'_> {
+    fn check(&self) -> Result<(), FeedError> {
+        match self {
+            FeedMessage::Setup(s) => {
+                if let Some(prior) = &s.prior {
+                    finite(prior)?;
+                }
+                if !(s.resolution.is_finite() && (0.01..=10.0).contains(&s.resolution)) {
+                    return Err(FeedError::NonFinite);
+                }
+                Ok(())
+            }
+            FeedMessage::Points { data, .. } => {
+                if !data.len().is_multiple_of(POINT_BYTES) {
+                    return Err(FeedError::PointBytes { len: data.len() as u32 });
+                }
+                Ok(())
+            }
+            FeedMessage::EndOfFeed { .. } => Ok(()),
+        }
+    }
+}
+
+impl RobotMessage<'_> {
+    fn check(&self) -> Result<(), FeedError> {
+        match self {
+            RobotMessage::Report(r) => r.result.check().map_err(FeedError::from),
+            RobotMessage::Failed { .. } => Ok(()),
+        }
+    }
+}
+
+/// Packs one point (map frame, metres) for the feed: centimetres, clamped
+/// to the i16 range (about +-327 m).
+pub fn pack_point(p: [f32; 3], class: Class) -> [u8; POINT_BYTES] {
+    let cm = |v: f32| libm::roundf(v * 100.0).clamp(f32::from(i16::MIN), f32::from(i16::MAX)) as i16;
+    let (x, y, z) = (cm(p[0]).to_le_bytes(), cm(p[1]).to_le_bytes(), cm(p[2]).to_le_bytes());
+    [x[0], x[1], y[0], y[1], z[0], z[1], class.index()]
+}
+
+/// The points of a [`FeedMessage::Points`] payload, position (m) and class;
+/// a class outside the table is an error naming the point's byte offset.
+/// Data that is not a whole number of points is refused before any point.
+pub fn points(data: &[u8]) -> impl Iterator<Item = Result<([f32; 3], Class), FeedError>> + '_ {
+    let whole = data.len().is_multiple_of(POINT_BYTES);
+    let bad_len = (!whole).then_some(Err(FeedError::PointBytes { len: data.len() as u32 }));
+    let chunks = if whole { data } else { &[] };
+    bad_len.into_iter().chain(chunks.chunks_exact(POINT_BYTES).enumerate().map(|(i, p)| {
+        let at = |a: usize| p.get(a..a + 2).map(|b| i16::from_le_bytes([b[0], b[1]])).unwrap_or(0);
+        let class_byte = p.get(6).copied().unwrap_or(u8::MAX);
+        let class = Class::from_index(class_byte)
+            .filter(|c| usize::from(c.index()) < NUM_CLASSES)
+            .ok_or(FeedError::Class { offset: (i * POINT_BYTES) as u32, class: class_byte })?;
+        Ok(([f32::from(at(0)) * 0.01, f32::from(at(2)) * 0.01, f32::from(at(4)) * 0.01], class))
+    }))
+}
+
+/// The robot report of [`GOLDEN_ROBOT`] (a prior-free run).
+pub const GOLDEN_REPORT: RobotReport = RobotReport {
+    result: super::report::GOLDEN_MATCH,
+    points: 26_309,
+    map_voxels: 7_493,
+    received_voxels: 7_132,
+    bytes_sent: 26_570,
+    bytes_received: 25_508,
+    retransmissions: 2,
+    link_ms: 2_345,
+    map_instructions: 24_000_000,
+    prepare_instructions: 295_000_000,
+    locate_instructions: 4_800_000,
+    match_instructions: 149_000_000,
+    global: Some(GlobalReport { landmarks: [15, 17], agreeing: 14, runner_up: 4, unique: true }),
+    peak_stack: 49_200,
+};
+
+/// Every feed message with its exact bytes: the feed format, frozen.
+pub const GOLDEN_FEED: [(FeedMessage<'static>, &[u8]); 4] = [
+    (
+        FeedMessage::Setup(Setup {
+            robot_id: 1,
+            resolution: 0.5,
+            prior: Some([1.0, 0.0, 0.0, 2.5, 0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.0]),
+            silence_ms: 30_000,
+        }),
+        &[
+            2, 0, 1, 0, 0, 0, 63, 1, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0,
+            0, 0, 0, 0, 0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 176, 234, 1,
+        ],
+    ),
+    (
+        FeedMessage::Setup(Setup { robot_id: 0, resolution: 0.5, prior: None, silence_ms: 30_000 }),
+        &[2, 0, 0, 0, 0, 0, 63, 0, 176, 234, 1],
+    ),
+    (
+        FeedMessage::Points { scan: 3, data: &[100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8] },
+        &[2, 1, 3, 14, 100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8],
+    ),
+    (FeedMessage::EndOfFeed { scans: 5, points: 26_309 }, &[2, 2, 5, 197, 205, 1]),
+];
+
+/// Every robot message with its exact bytes.
+pub const GOLDEN_ROBOT: [(RobotMessage<'static>, &[u8]); 2] = [
+    (
+        RobotMessage::Report(GOLDEN_REPORT),
+        &[
+            2, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0,
+            0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 17, 210, 9, 0, 0, 64, 63, 0, 0, 0, 62, 197,
+            205, 1, 197, 58, 220, 55, 202, 207, 1, 164, 199, 1, 2, 169, 18, 128, 236, 184, 11, 192, 175, 213, 140, 1,
+            128, 252, 164, 2, 192, 158, 134, 71, 1, 15, 17, 14, 4, 1, 176, 128, 3,
+        ],
+    ),
+    (
+        RobotMessage::Failed { stage: Stage::Link, message: "peer silent" },
+        &[2, 1, 2, 11, 112, 101, 101, 114, 32, 115, 105, 108, 101, 110, 116],
+    ),
+];
+
+/// Encodes and decodes every golden feed and robot message; `Err(i)` names
+/// the first that differs (robot messages counted after the feed's).
+pub fn check_golden() -> Result<(), usize> {
+    let mut buf = [0u8; 160];
+    for (i, (msg, bytes)) in GOLDEN_FEED.iter().enumerate() {
+        let ok = msg.encode(&mut buf).ok().and_then(|n| buf.get(..n)) == Some(*bytes)
+            && FeedMessage::decode(bytes).as_ref() == Ok(msg);
+        if !ok {
+            return Err(i);
+        }
+    }
+    for (i, (msg, bytes)) in GOLDEN_ROBOT.iter().enumerate() {
+        let ok = msg.encode(&mut buf).ok().and_then(|n| buf.get(..n)) == Some(*bytes)
+            && RobotMessage::decode(bytes).as_ref() == Ok(msg);
+        if !ok {
+            return Err(GOLDEN_FEED.len() + i);
+        }
+    }
+    Ok(())
+}

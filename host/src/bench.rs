@@ -1,0 +1,474 @@
+//! The measurements behind `cosem bench`: each function runs one benchmark
+//! and returns its figures (the command prints them). Times are medians of
+//! repeated single-threaded runs.
+
+use crate::align::{landmarks, prepare, DEFAULT_LEVELS};
+use crate::error::Error;
+use crate::eval::{grid, STRICT};
+use crate::kitti::{Frame, FrameRange, Sequence};
+use crate::mapping::{new_map, HostMap, PointFilter};
+use crate::pair::{Pair, PairSpec};
+use crate::stats::median;
+use cosem_core::classes::Class;
+use cosem_core::geometry::errors_of;
+use cosem_core::link::sim::{SimConfig, SimLine};
+use cosem_core::link::{Endpoint, LinkConfig, Progress};
+use cosem_core::map::MapConfig;
+use cosem_core::matching::global::{align_landmarks, refine, GlobalOutcome, GlobalSettings};
+use cosem_core::matching::{MatchResult, MatchSettings, Matcher};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// A folder removed when dropped.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    /// A fresh path under the system's temporary folder.
+    pub fn new(prefix: &str) -> Self {
+        TempDir(std::env::temp_dir().join(format!("{prefix}-{}", std::process::id())))
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Seconds of `f`'s median run over `repeat` runs (at least one), and the
+/// last run's value.
+pub fn timed<T>(repeat: usize, mut f: impl FnMut() -> Result<T, Error>) -> Result<(f64, T), Error> {
+    let mut times = Vec::new();
+    let mut last = None;
+    for _ in 0..repeat.max(1) {
+        let t = Instant::now();
+        last = Some(f()?);
+        times.push(t.elapsed().as_secs_f64());
+    }
+    let value = last.ok_or_else(|| Error::Invalid("no run".into()))?;
+    Ok((median(&times).unwrap_or(0.0), value))
+}
+
+/// Figures of `cosem bench map`.
+#[derive(Clone, Debug)]
+pub struct MapFigures {
+    /// Points read.
+    pub points: usize,
+    /// Points with a class, fused.
+    pub fused: usize,
+    /// Voxels of the map.
+    pub voxels: usize,
+    /// Median seconds to insert the labelled points.
+    pub insert_s: f64,
+    /// Median seconds to classify and insert every point read.
+    pub classify_insert_s: f64,
+    /// Seconds to coarsen by 5, and the coarse map's voxels.
+    pub coarsen: (f64, usize),
+    /// Bytes of the map file.
+    pub file_bytes: usize,
+}
+
+/// Insertion throughput and sizes over `frames`.
+pub fn map(frames: &[Frame], voxel: f32, repeat: usize) -> Result<MapFigures, Error> {
+    let filter = PointFilter::default();
+    let labelled: Vec<([f32; 3], Class)> = frames
+        .iter()
+        .flat_map(|f| f.points.iter().zip(&f.ranges).zip(&f.labels).map(|((p, r), l)| (*p, *r, *l)))
+        .filter_map(|(p, r, l)| filter.keep(r, l).map(|c| (p, c)))
+        .collect();
+    let config = MapConfig::with_resolution(voxel);
+    let mut map = new_map(labelled.len(), config)?;
+    let (insert_s, _) = timed(repeat, || {
+        map.clear();
+        for (p, c) in &labelled {
+            map.insert_point(*p, *c).map_err(|e| Error::Invalid(e.to_string()))?;
+        }
+        Ok(())
+    })?;
+    let (classify_insert_s, _) = timed(repeat, || {
+        map.clear();
+        crate::mapping::fuse_frames(&mut map, frames, &filter)?;
+        Ok(())
+    })?;
+    let mut coarse = new_map(map.len(), config)?;
+    let t = Instant::now();
+    map.coarsen_into(5, &mut coarse).map_err(|e| Error::Invalid(format!("{e:?}")))?;
+    let coarsen = (t.elapsed().as_secs_f64(), coarse.len());
+    Ok(MapFigures {
+        points: frames.iter().map(|f| f.points.len()).sum(),
+        fused: labelled.len(),
+        voxels: map.len(),
+        insert_s,
+        classify_insert_s,
+        coarsen,
+        file_bytes: crate::cmap::encode(&map, None, None).len(),
+    })
+}
+
+/// Figures of `cosem bench wire`.
+#[derive(Clone, Debug)]
+pub struct WireFigures {
+    /// Voxels encoded.
+    pub voxels: usize,
+    /// Bytes of encoding, and in how many chunks.
+    pub bytes: (usize, usize),
+    /// Median seconds to encode and to decode.
+    pub encode_s: f64,
+    /// Median seconds to decode.
+    pub decode_s: f64,
+}
+
+/// Encode and decode throughput of the compact encoding in link-sized chunks.
+pub fn wire(map: &HostMap, repeat: usize) -> Result<WireFigures, Error> {
+    let (encode_s, chunks) = timed(repeat, || Ok(crate::cmap::encode_chunks(map, 240)))?;
+    let (decode_s, out) = timed(repeat, || {
+        let mut out = new_map(map.len(), *map.config())?;
+        let mut d = cosem_core::wire::MapDecoder::new(map.len());
+        for c in &chunks {
+            d.decode_chunk(c, &mut out).map_err(|e| Error::Invalid(e.to_string()))?;
+        }
+        Ok(out)
+    })?;
+    if out.len() != map.len() {
+        return Err(Error::Invalid("decoded map lost voxels".into()));
+    }
+    Ok(WireFigures { voxels: map.len(), bytes: (chunks.iter().map(Vec::len).sum(), chunks.len()), encode_s, decode_s })
+}
+
+/// One byte error rate of `cosem bench link`.
+#[derive(Clone, Debug)]
+pub struct LinkFigures {
+    /// Byte error rate.
+    pub rate: f64,
+    /// Simulated seconds until A's map, then B's, was through (`None`: never).
+    pub through_s: [Option<f64>; 2],
+    /// Bytes each side sent.
+    pub bytes: [u64; 2],
+    /// Retransmissions of each side.
+    pub retransmissions: [u32; 2],
+    /// Both maps arrived whole (digest checked).
+    pub delivered: bool,
+}
+
+/// Both maps of `pair` exchanged at once over a simulated line of `baud`
+/// with byte error `rate` (seeded), in simulated time.
+pub fn link(pair: &Pair, rate: f64, baud: u32) -> Result<LinkFigures, Error> {
+    let (ma, mb) = (&pair.map_a, &pair.map_b);
+    let line = Box::new(std::cell::RefCell::new(SimLine::<65536>::new(SimConfig {
+        seed: 1,
+        error_rate: rate,
+        stall_chance: 0.0,
+        bytes_per_ms: f64::from(baud) / 10.0 / 1000.0,
+        half_duplex: false,
+    })));
+    let (mut p0, mut p1) = SimLine::ports(&line);
+    let (mut s0, mut s1) = (vec![0u32; ma.len()], vec![0u32; mb.len()]);
+    let (mut st0, mut st1) = (new_map(mb.len(), *ma.config())?, new_map(ma.len(), *ma.config())?);
+    let lc = LinkConfig::default();
+    let setup = |e| Error::Invalid(format!("link set-up: {e}"));
+    let mut e0 = Endpoint::new(lc, 0, 1, 0, Some((ma, &mut s0)), Some(&mut st0)).map_err(setup)?;
+    let mut e1 = Endpoint::new(lc, 1, 2, 0, Some((mb, &mut s1)), Some(&mut st1)).map_err(setup)?;
+    let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
+    let mut through = [None, None];
+    let mut now = 0u64;
+    while (r0 == Ok(Progress::Busy) || r1 == Ok(Progress::Busy)) && now < 3_600_000 {
+        line.borrow_mut().tick(now);
+        if r0 == Ok(Progress::Busy) {
+            r0 = e0.step(&mut p0, now);
+        }
+        if r1 == Ok(Progress::Busy) {
+            r1 = e1.step(&mut p1, now);
+        }
+        // When each map was through (before the linger).
+        for (slot, done) in through.iter_mut().zip([e1.received(), e0.received()]) {
+            if slot.is_none() && done {
+                *slot = Some(now as f64 / 1e3);
+            }
+        }
+        now += 1;
+    }
+    let (x, y) = (e0.stats(), e1.stats());
+    Ok(LinkFigures {
+        rate,
+        through_s: through,
+        bytes: [x.bytes_sent, y.bytes_sent],
+        retransmissions: [x.retransmissions, y.retransmissions],
+        delivered: r0.is_ok() && r1.is_ok(),
+    })
+}
+
+/// Figures of `cosem bench global`.
+#[derive(Clone, Debug)]
+pub struct GlobalFigures {
+    /// Landmarks of A and B.
+    pub landmarks: [usize; 2],
+    /// What the landmark alignment found.
+    pub outcome: Option<GlobalOutcome>,
+    /// The refined result.
+    pub result: MatchResult,
+    /// Its errors against the truth (m, degrees).
+    pub errors: (f64, f64),
+    /// Median seconds: landmarks of both maps, correspondences, refinement.
+    pub seconds: [f64; 3],
+}
+
+/// Prior-free alignment of `pair`, stage by stage (maps prepared first).
+pub fn global(pair: &Pair, repeat: usize) -> Result<GlobalFigures, Error> {
+    let (pa, pb) = (prepare(&pair.map_a, DEFAULT_LEVELS)?, prepare(&pair.map_b, DEFAULT_LEVELS)?);
+    let matcher = Matcher::new(MatchSettings::default());
+    let lm = |m| landmarks(m).map_err(|e| Error::Invalid(format!("landmarks: {e}")));
+    let (t_extract, (la, lb)) = timed(repeat, || Ok((lm(&pair.map_a)?, lm(&pair.map_b)?)))?;
+    let (t_search, outcome) = timed(repeat, || Ok(align_landmarks(&la, &lb, &GlobalSettings::default())))?;
+    let (t_refine, result) = timed(repeat, || Ok(refine(&matcher, &pa, &pb, outcome.as_ref())?))?;
+    Ok(GlobalFigures {
+        landmarks: [la.len(), lb.len()],
+        outcome,
+        result,
+        errors: errors_of(&result.transform, &pair.gt),
+        seconds: [t_extract, t_search, t_refine],
+    })
+}
+
+/// Strict success of matching ranges `a` and `b` of `dir` (0.2 m maps)
+/// from the paper's grid thinned by `stride`, and robot A's voxels.
+pub fn strict_success(dir: &Path, a: FrameRange, b: FrameRange, stride: usize) -> Result<(f64, usize), Error> {
+    let pair = Pair::load(&PairSpec::new(dir, a, b, 0.2))?;
+    let (pa, pb) = (prepare(&pair.map_a, DEFAULT_LEVELS)?, prepare(&pair.map_b, DEFAULT_LEVELS)?);
+    let matcher = Matcher::new(MatchSettings::default());
+    let starts = grid(stride);
+    let mut ok = 0;
+    for s in &starts {
+        let r = matcher.align(&pa, &pb, &s.apply(&pair.gt).cast::<f32>())?;
+        let (et, er) = errors_of(&r.transform, &pair.gt);
+        ok += usize::from(STRICT.met(r.status, et, er));
+    }
+    Ok((ok as f64 / starts.len().max(1) as f64, pair.map_a.len()))
+}
+
+/// The sequence to benchmark on: `given`, else `$COSEM_DATA/kitti00`
+/// (`root`), else a fresh synthetic one of `frames` frames (removed when
+/// the returned guard drops; `true` says it is synthetic).
+pub fn data_dir(given: Option<PathBuf>, root: &Path, frames: usize) -> Result<(PathBuf, Option<TempDir>), Error> {
+    if let Some(d) = given {
+        return Ok((d, None));
+    }
+    let kitti = root.join("kitti00");
+    if kitti.join("poses.txt").exists() {
+        return Ok((kitti, None));
+    }
+    let tmp = TempDir::new("cosem-bench");
+    let cfg = crate::synth::SynthConfig { frames, ..Default::default() };
+    crate::synth::write_sequence(&tmp.0, &cfg).map_err(|source| Error::Io { path: tmp.0.clone(), source })?;
+    Ok((tmp.0.clone(), Some(tmp)))
+}
+
+/// The frames of a range of a folder.
+pub fn frames(dir: &Path, range: FrameRange) -> Result<Vec<Frame>, Error> {
+    Ok(Sequence::open(dir)?.load_range(range)?)
+}
+
+/// One row of `cosem bench label`.
+#[derive(Clone, Debug)]
+pub struct LabelRow {
+    /// The sequence.
+    pub seq: String,
+    /// Where its labels came from.
+    pub labels: &'static str,
+    /// Labelling figures (camera rows).
+    pub figures: Option<crate::label::LabelStats>,
+    /// Strict success over the grid.
+    pub strict: f64,
+    /// Robot A's voxels.
+    pub voxels: usize,
+}
+
+fn label_options(
+    data: PathBuf,
+    seg: PathBuf,
+    probabilities: bool,
+    frames: Option<Vec<usize>>,
+    out: PathBuf,
+) -> crate::label::LabelOptions {
+    crate::label::LabelOptions {
+        data,
+        seg,
+        camera: 2,
+        classes: cosem_core::camera::SegClasses::Cityscapes,
+        probabilities,
+        occlusion: true,
+        image_size: None,
+        frames,
+        out,
+    }
+}
+
+/// A synthetic street of `frames` frames (A the first half, B the rest)
+/// labelled four ways: LiDAR ground truth, camera 2 perfect, corrupted, and
+/// corrupted with probabilities; each matched over the grid (`stride`).
+pub fn label_synthetic(seed: u64, frames: usize, stride: usize, tmp: &Path) -> Result<Vec<LabelRow>, Error> {
+    use crate::synth::{write_sequence, SegRender, SynthConfig, SEG_DIR};
+    let half = frames / 2;
+    let (ra, rb) = (FrameRange { start: 0, end: half, stride: 1 }, FrameRange { start: half, end: frames, stride: 1 });
+    let cs = cosem_core::camera::SegClasses::Cityscapes;
+    let variants: [(&'static str, Option<SegRender>); 4] = [
+        ("ground truth (LiDAR)", None),
+        ("camera, perfect", Some(SegRender { classes: cs, corrupt: false, probabilities: false })),
+        ("camera, corrupted", Some(SegRender { classes: cs, corrupt: true, probabilities: false })),
+        ("camera, corrupted, probs", Some(SegRender { classes: cs, corrupt: true, probabilities: true })),
+    ];
+    let mut rows = Vec::new();
+    for (k, (name, seg)) in variants.into_iter().enumerate() {
+        let src = tmp.join(format!("s{seed}-{k}"));
+        let cfg = SynthConfig { frames, seed, seg, ..SynthConfig::default() };
+        write_sequence(&src, &cfg).map_err(|source| Error::Io { path: src.clone(), source })?;
+        let (dir, figures) = match seg {
+            None => (src.clone(), None),
+            Some(r) => {
+                let out = tmp.join(format!("l{seed}-{k}"));
+                let opts = label_options(src.clone(), src.join(SEG_DIR), r.probabilities, None, out.clone());
+                (out, Some(crate::label::label_sequence(&opts)?))
+            }
+        };
+        let (strict, voxels) = strict_success(&dir, ra, rb, stride)?;
+        rows.push(LabelRow { seq: format!("synth {seed}"), labels: name, figures, strict, voxels });
+    }
+    Ok(rows)
+}
+
+/// Real scans have no camera images here: each scan's labelled points are
+/// splatted into camera 2 as a stand-in for a network's output (perfect,
+/// then corrupted), labelled back and matched over the grid.
+pub fn label_real(
+    data: &Path,
+    a: FrameRange,
+    b: FrameRange,
+    stride: usize,
+    tmp: &Path,
+) -> Result<Vec<LabelRow>, Error> {
+    use crate::label::{camera_of, label_sequence, splat_segmentation, write_seg_png};
+    let cs = cosem_core::camera::SegClasses::Cityscapes;
+    let seq = Sequence::open(data)?;
+    let frames: Vec<usize> = a.frames().chain(b.frames()).collect();
+    let name = data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let (strict, voxels) = strict_success(data, a, b, stride)?;
+    let mut rows = vec![LabelRow { seq: name.clone(), labels: "ground truth (LiDAR)", figures: None, strict, voxels }];
+    let mut rng = crate::rng::Rng::new(1);
+    for (k, corrupt) in [false, true].into_iter().enumerate() {
+        let seg = tmp.join(format!("real-seg-{k}"));
+        std::fs::create_dir_all(&seg).map_err(|source| Error::Io { path: seg.clone(), source })?;
+        for &f in &frames {
+            let scan = seq.read_scan(f)?;
+            let path = seg.join(format!("{f:06}.png"));
+            let cam = camera_of(&seq, 2, crate::synth::IMAGE_SIZE, &path)?;
+            let im = splat_segmentation(&cam, &scan.points, &scan.labels, cs);
+            let im = if corrupt { crate::synth::corrupt(&im, cs, &mut rng) } else { im };
+            write_seg_png(&path, &im).map_err(|source| Error::Io { path: path.clone(), source })?;
+        }
+        let out = tmp.join(format!("real-out-{k}"));
+        let s = label_sequence(&label_options(data.to_path_buf(), seg, false, Some(frames.clone()), out.clone()))?;
+        let (strict, voxels) = strict_success(&out, a, b, stride)?;
+        let labels = if corrupt { "splatted camera, corrupted" } else { "splatted camera" };
+        rows.push(LabelRow { seq: name.clone(), labels, figures: Some(s), strict, voxels });
+    }
+    Ok(rows)
+}
+
+impl std::fmt::Display for MapFigures {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let per_point = self.insert_s / self.fused.max(1) as f64;
+        let bpv = cosem_core::map::BYTES_PER_VOXEL;
+        writeln!(f, "  points read          {}", self.points)?;
+        writeln!(f, "  points fused         {}", self.fused)?;
+        writeln!(f, "  voxels               {}", self.voxels)?;
+        writeln!(
+            f,
+            "  insert               {:.1} M points/s ({:.1} ns/point, {:.2} ms per 120k-point scan)",
+            1e-6 / per_point,
+            per_point * 1e9,
+            per_point * 120_000.0 * 1e3
+        )?;
+        let all = self.points as f64 / self.classify_insert_s / 1e6;
+        writeln!(f, "  classify + insert    {all:.1} M points/s over all {} points read", self.points)?;
+        writeln!(f, "  coarsen x5           {:.2} ms -> {} voxels", self.coarsen.0 * 1e3, self.coarsen.1)?;
+        writeln!(f, "  memory per voxel     {bpv} bytes (24 voxel + 8 index, load factor <= 0.5)")?;
+        let file = self.file_bytes as f64 / self.voxels.max(1) as f64;
+        writeln!(f, "  file per voxel       {file:.2} bytes ({} bytes)", self.file_bytes)
+    }
+}
+
+impl std::fmt::Display for WireFigures {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (bytes, chunks) = self.bytes;
+        let per_voxel = bytes as f64 / self.voxels.max(1) as f64;
+        writeln!(
+            f,
+            "  encoding             {bytes} bytes in {chunks} chunks of <= 240 bytes: {per_voxel:.2} bytes/voxel"
+        )?;
+        for (name, s, what) in [("encode", self.encode_s, "output"), ("decode", self.decode_s, "input")] {
+            let (v, mb) = (self.voxels as f64 / s / 1e6, bytes as f64 / s / 1e6);
+            writeln!(f, "  {name}               {v:.1} M voxels/s ({mb:.1} MB/s of {what}, {:.2} ms)", s * 1e3)?;
+        }
+        Ok(())
+    }
+}
+
+impl std::fmt::Display for LinkFigures {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let secs = |t: Option<f64>| t.map(|v| format!("{v:.1} s")).unwrap_or_else(|| "never".into());
+        let verdict = if self.delivered { "both maps identical to the sent ones (digest checked)" } else { "failed" };
+        write!(
+            f,
+            "  byte errors {:>5.1}%: A->B {} ({} bytes), B->A {} ({} bytes); {} + {} retransmissions; {verdict}",
+            self.rate * 100.0,
+            secs(self.through_s[0]),
+            self.bytes[0],
+            secs(self.through_s[1]),
+            self.bytes[1],
+            self.retransmissions[0],
+            self.retransmissions[1],
+        )
+    }
+}
+
+impl std::fmt::Display for GlobalFigures {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "  landmarks            {} / {}", self.landmarks[0], self.landmarks[1])?;
+        match &self.outcome {
+            Some(o) => writeln!(
+                f,
+                "  correspondences      {} candidates, {} agree (runner-up {}): {}",
+                o.candidates,
+                o.agreeing,
+                o.runner_up,
+                if o.unique { "unique" } else { "not unique" }
+            )?,
+            None => writeln!(f, "  correspondences      too few agree")?,
+        }
+        let [te, ts, tr] = self.seconds;
+        let (e_t, e_r) = self.errors;
+        writeln!(f, "  result               {} (e_t {e_t:.3} m, e_r {e_r:.3} deg)", self.result.status.as_str())?;
+        writeln!(f, "  extract landmarks    {:.2} ms (both maps)", te * 1e3)?;
+        writeln!(f, "  correspondences      {:.2} ms", ts * 1e3)?;
+        writeln!(f, "  refine (matcher)     {:.2} ms", tr * 1e3)?;
+        writeln!(f, "  global alignment     {:.2} ms in all", (te + ts + tr) * 1e3)
+    }
+}
+
+impl std::fmt::Display for LabelRow {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let pct = |v: Option<f64>| v.map(|v| format!("{:.2}%", 100.0 * v)).unwrap_or_else(|| "-".into());
+        let s = self.figures.as_ref();
+        let rate = s.map(|s| format!("{:.1}", s.points as f64 / s.label_seconds.max(1e-9) / 1e6));
+        write!(
+            f,
+            "  {:<8} {:<26} {:>8} {:>10} {:>8} {:>11} {:>7.1}%",
+            self.seq,
+            self.labels,
+            rate.unwrap_or_else(|| "-".into()),
+            pct(s.and_then(|s| s.agreement())),
+            pct(s.and_then(|s| s.agreement_in_set())),
+            self.voxels,
+            100.0 * self.strict
+        )
+    }
+}

@@ -1,0 +1,148 @@
+//! Argument types shared by the subcommands: parsed by clap into typed
+//! values, never matched as strings later.
+
+use clap::ValueEnum;
+use cosem_core::geometry::{parse_pose, Isometry3};
+use cosem_core::matching::{Dof, MatchSettings, Method};
+
+/// Association method (`--method`).
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MethodArg {
+    /// Soft semantic EM (default).
+    Cosem,
+    /// The paper's hard label rejection.
+    CosemHard,
+    /// Labels ignored.
+    Geometric,
+}
+
+impl MethodArg {
+    /// The core's method.
+    pub fn method(self) -> Method {
+        match self {
+            MethodArg::Cosem => Method::Cosem,
+            MethodArg::CosemHard => Method::CosemHard,
+            MethodArg::Geometric => Method::Geometric,
+        }
+    }
+}
+
+/// Degrees of freedom (`--dof`).
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DofArg {
+    /// x, y, z, roll, pitch, yaw.
+    #[value(name = "6")]
+    Six,
+    /// x, y, z, yaw (both anchor frames level).
+    #[value(name = "4")]
+    Four,
+}
+
+impl DofArg {
+    /// The core's setting.
+    pub fn dof(self) -> Dof {
+        match self {
+            DofArg::Six => Dof::Six,
+            DofArg::Four => Dof::Four,
+        }
+    }
+
+    /// 6 or 4.
+    pub fn count(self) -> u8 {
+        match self {
+            DofArg::Six => 6,
+            DofArg::Four => 4,
+        }
+    }
+}
+
+/// Match settings of a method and degrees of freedom.
+pub fn settings(method: MethodArg, dof: DofArg) -> MatchSettings {
+    MatchSettings { method: method.method(), dof: dof.dof(), ..MatchSettings::default() }
+}
+
+/// Parses the conventions' pose `x,y,z,roll,pitch,yaw` (m, degrees).
+pub fn pose(s: &str) -> Result<Isometry3<f64>, String> {
+    parse_pose(s).map_err(|e| format!("pose `{s}`: {e}"))
+}
+
+/// How to match: shared by `cosem match` and `cosem link`.
+#[derive(clap::Args, Debug)]
+pub struct MatchOpts {
+    /// Start `T_model_scene` as x,y,z,roll,pitch,yaw (m, degrees); default:
+    /// none (prior-free alignment).
+    #[arg(long, allow_hyphen_values = true, value_parser = pose)]
+    pub init: Option<Isometry3<f64>>,
+    /// Association method.
+    #[arg(long, value_enum, default_value = "cosem")]
+    pub method: MethodArg,
+    /// Degrees of freedom.
+    #[arg(long, value_enum, default_value = "6")]
+    pub dof: DofArg,
+}
+
+impl MatchOpts {
+    /// The settings and the prior (in the matcher's precision).
+    pub fn resolve(&self) -> (MatchSettings, Option<Isometry3<f32>>) {
+        (settings(self.method, self.dof), self.init.map(|p| p.cast::<f32>()))
+    }
+}
+
+/// A positive finite number (m, s, ...).
+pub fn positive(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("`{s}`: expected a positive number")),
+    }
+}
+
+/// A positive finite number as `f32`.
+pub fn positive_f32(s: &str) -> Result<f32, String> {
+    positive(s).map(|v| v as f32)
+}
+
+/// The ids a segmentation network outputs (`--classes`).
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ClassesArg {
+    /// A Cityscapes-trained network's 19 training ids (255 ignored).
+    Cityscapes,
+    /// SemanticKITTI learning-map ids (0 unlabeled).
+    Semantickitti,
+}
+
+impl ClassesArg {
+    /// The core's class set.
+    pub fn classes(self) -> cosem_core::camera::SegClasses {
+        match self {
+            ClassesArg::Cityscapes => cosem_core::camera::SegClasses::Cityscapes,
+            ClassesArg::Semantickitti => cosem_core::camera::SegClasses::SemanticKitti,
+        }
+    }
+}
+
+/// Segmentation images to render (`cosem synth --seg`).
+#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SegArg {
+    /// Cityscapes training ids.
+    Cityscapes,
+    /// SemanticKITTI learning-map ids.
+    Semantickitti,
+    /// No images.
+    None,
+}
+
+/// A whole number of at least one.
+pub fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(v) if v >= 1 => Ok(v),
+        _ => Err(format!("`{s}`: expected a whole number of at least 1")),
+    }
+}
+
+/// A whole number of at least four.
+pub fn at_least_four(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(v) if v >= 4 => Ok(v),
+        _ => Err(format!("`{s}`: expected a whole number of at least 4")),
+    }
+}

@@ -1,0 +1,517 @@
+//! Evaluation, as `../shared/docs/conventions.md` counts it: the starts
+//! (the paper's grid, or prior-free headings and offsets), the success
+//! thresholds, one outcome per start and method, and summaries whose JSON
+//! field names are the same in every mode (`schema_version` 2).
+
+use crate::align::{landmarks, prepare, HostPyramid, DEFAULT_LEVELS};
+use crate::error::Error;
+use crate::mapping::{build_map, HostMap, PointFilter};
+use crate::pair::moved_frames;
+use crate::stats::{quantile, Spread};
+use cosem_core::geometry::{errors_of, pose_deg, row_major, Isometry3};
+use cosem_core::map::MapConfig;
+use cosem_core::matching::global::{align_without_prior, GlobalSettings};
+use cosem_core::matching::{MatchResult, MatchSettings, MatchStatus, Matcher, MAX_LEVELS};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+/// Version of the `cosem eval --json` schema.
+pub const SCHEMA_VERSION: u32 = 2;
+
+/// Error bounds of a success.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Thresholds {
+    /// Translation error bound (m).
+    pub e_t: f64,
+    /// Rotation error bound (degrees).
+    pub e_r: f64,
+}
+
+/// Strict success: `Converged`, `e_t < 0.5 m`, `e_r < 1 degree`.
+pub const STRICT: Thresholds = Thresholds { e_t: 0.5, e_r: 1.0 };
+/// Loose success: `Converged`, `e_t < 2 m`, `e_r < 5 degrees`.
+pub const LOOSE: Thresholds = Thresholds { e_t: 2.0, e_r: 5.0 };
+
+impl Thresholds {
+    /// Whether a result counts as a success: `Converged` and both errors
+    /// under the bounds.
+    pub fn met(&self, status: MatchStatus, e_t: f64, e_r: f64) -> bool {
+        status == MatchStatus::Converged && e_t < self.e_t && e_r < self.e_r
+    }
+}
+
+/// A start of the paper's grid: `T_init = D * T_gt` with
+/// `D = Translation(dx, dy, 0) * Rz(dyaw)`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Start {
+    /// Shift along the model's x (m).
+    pub dx: f64,
+    /// Shift along the model's y (m).
+    pub dy: f64,
+    /// Yaw about the model's z (degrees).
+    pub dyaw: f64,
+}
+
+impl Start {
+    /// `T_init = D * T_gt`.
+    pub fn apply(&self, gt: &Isometry3<f64>) -> Isometry3<f64> {
+        pose_deg(self.dx, self.dy, 0.0, 0.0, 0.0, self.dyaw) * gt
+    }
+}
+
+/// Values of one grid axis, `{-max, ..., max}` by `step`, keeping every
+/// `stride`-th counting outward from zero.
+fn axis(max: i32, step: i32, stride: usize) -> Vec<f64> {
+    let n = max / step;
+    (-n..=n).filter(|k| (k.unsigned_abs() as usize).is_multiple_of(stride)).map(|k| f64::from(k * step)).collect()
+}
+
+/// The paper's grid (1331 starts), thinned by `stride` (at least 1) on each axis.
+pub fn grid(stride: usize) -> Vec<Start> {
+    let stride = stride.max(1);
+    let mut out = Vec::new();
+    for dx in axis(10, 2, stride) {
+        for dy in axis(10, 2, stride) {
+            for dyaw in axis(25, 5, stride) {
+                out.push(Start { dx, dy, dyaw });
+            }
+        }
+    }
+    out
+}
+
+/// The 8 corners and the centre of the paper's grid.
+pub fn corners() -> Vec<Start> {
+    let mut out = vec![Start { dx: 0.0, dy: 0.0, dyaw: 0.0 }];
+    for dx in [-10.0, 10.0] {
+        for dy in [-10.0, 10.0] {
+            for dyaw in [-25.0, 25.0] {
+                out.push(Start { dx, dy, dyaw });
+            }
+        }
+    }
+    out
+}
+
+/// `n` starts of the full grid chosen by a fixed seed (without repetition).
+pub fn sample(n: usize, seed: u64) -> Vec<Start> {
+    let mut all = grid(1);
+    let mut rng = crate::rng::Rng::new(seed);
+    for i in (1..all.len()).rev() {
+        all.swap(i, rng.below(i as u64 + 1) as usize);
+    }
+    all.truncate(n.min(all.len()));
+    all
+}
+
+/// A prior-free start: robot B's map rebuilt in a frame moved by
+/// `D = Translation(ox, oy, 0) * Rz(heading)`, then matched with no prior;
+/// the truth becomes `T_A_B * inv(D)`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct GlobalStart {
+    /// Heading of the move (degrees).
+    pub heading_deg: f64,
+    /// Offset of the move (m).
+    pub offset: [f64; 2],
+}
+
+impl GlobalStart {
+    /// `D`.
+    pub fn moved_by(&self) -> Isometry3<f64> {
+        pose_deg(self.offset[0], self.offset[1], 0.0, 0.0, 0.0, self.heading_deg)
+    }
+}
+
+/// 36 headings (every 10 degrees) x 10 seeded offsets up to `radius` m;
+/// with `limit`, every n-th of them so that a few still go round.
+pub fn global_starts(radius: f64, limit: Option<usize>) -> Vec<GlobalStart> {
+    let mut starts = Vec::new();
+    let mut rng = crate::rng::Rng::new(0xC05E);
+    for h in 0..36 {
+        for _ in 0..10 {
+            let (r, th) = (radius * rng.unit().sqrt(), rng.range(0.0, std::f64::consts::TAU));
+            starts.push(GlobalStart { heading_deg: f64::from(h) * 10.0, offset: [r * th.cos(), r * th.sin()] });
+        }
+    }
+    match limit {
+        Some(k) => {
+            let step = starts.len().div_ceil(k.max(1));
+            starts.into_iter().step_by(step).collect()
+        }
+        None => starts,
+    }
+}
+
+/// One start's result for one method.
+#[derive(Clone, Debug, Serialize)]
+pub struct Outcome {
+    /// Method name.
+    pub method: String,
+    /// The grid start, in grid mode.
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub start: Option<Start>,
+    /// The prior-free start, in global mode.
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub global_start: Option<GlobalStart>,
+    /// The conventions' status string.
+    pub status: &'static str,
+    /// Translation error (m).
+    pub e_t: f64,
+    /// Rotation error (degrees).
+    pub e_r: f64,
+    /// EM iterations.
+    pub iterations: u32,
+    /// EM iterations per level, finest first.
+    pub iterations_per_level: Vec<u8>,
+    /// Time of the match (ms, one thread; prior-free: landmarks of the
+    /// scene, correspondences and EM).
+    pub time_ms: f64,
+    /// Overlap under the result.
+    pub overlap: f32,
+    /// `T_model_scene`, row by row.
+    pub transform: [f64; 16],
+    /// Prior-free: correspondences in the largest consistent set.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub agreeing: Option<u32>,
+    #[serde(skip)]
+    matched: MatchStatus,
+}
+
+impl Outcome {
+    fn new(method: &str, r: &MatchResult, truth: &Isometry3<f64>, time_ms: f64, levels: usize) -> Self {
+        let (e_t, e_r) = errors_of(&r.transform, truth);
+        Outcome {
+            method: method.to_string(),
+            start: None,
+            global_start: None,
+            status: r.status.as_str(),
+            e_t,
+            e_r,
+            iterations: r.iterations,
+            iterations_per_level: r.iterations_per_level[..levels.min(MAX_LEVELS)].to_vec(),
+            time_ms,
+            overlap: r.overlap,
+            transform: row_major(&r.transform.cast::<f64>()),
+            agreeing: None,
+            matched: r.status,
+        }
+    }
+
+    /// Whether the outcome meets `t`.
+    pub fn meets(&self, t: &Thresholds) -> bool {
+        t.met(self.matched, self.e_t, self.e_r)
+    }
+}
+
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let at = match (&self.start, &self.global_start) {
+            (Some(s), _) => format!("dx {:>5.1} dy {:>5.1} dyaw {:>5.1}", s.dx, s.dy, s.dyaw),
+            (_, Some(g)) => format!("heading {:>5.1} offset {:>6.1},{:>6.1}", g.heading_deg, g.offset[0], g.offset[1]),
+            _ => String::new(),
+        };
+        write!(
+            f,
+            "  {} {at}: {:<12} e_t {:.3} m, e_r {:.3} deg, {} it, overlap {:.2}, {:.1} ms",
+            self.method, self.status, self.e_t, self.e_r, self.iterations, self.overlap, self.time_ms
+        )
+    }
+}
+
+/// What a method achieved over all starts. Field names are the schema's
+/// (`schema_version` 2): the same in grid and global mode.
+#[derive(Clone, Debug, Serialize)]
+pub struct MethodSummary {
+    /// Starts evaluated.
+    pub starts: usize,
+    /// Fraction (0-1) of starts with strict success.
+    pub success_strict: f64,
+    /// Fraction (0-1) of starts with loose success.
+    pub success_loose: f64,
+    /// Median translation error (m) over all starts.
+    pub et_median_m: Option<f64>,
+    /// Mean translation error (m).
+    pub et_mean_m: Option<f64>,
+    /// 95th percentile of the translation error (m).
+    pub et_p95_m: Option<f64>,
+    /// Largest translation error (m).
+    pub et_max_m: Option<f64>,
+    /// Median rotation error (degrees).
+    pub er_median_deg: Option<f64>,
+    /// Mean rotation error (degrees).
+    pub er_mean_deg: Option<f64>,
+    /// 95th percentile of the rotation error (degrees).
+    pub er_p95_deg: Option<f64>,
+    /// Largest rotation error (degrees).
+    pub er_max_deg: Option<f64>,
+    /// Median time per match (ms, one thread).
+    pub time_ms_median: Option<f64>,
+    /// Median EM iterations.
+    pub iterations_median: Option<f64>,
+    /// Median EM iterations per level, finest first.
+    pub iterations_per_level_median: Vec<Option<f64>>,
+    /// Prior-free: median of the agreeing landmark correspondences.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub agreeing_median: Option<f64>,
+}
+
+impl MethodSummary {
+    /// The summary of one method's outcomes.
+    pub fn of(outcomes: &[&Outcome]) -> Self {
+        let n = outcomes.len().max(1) as f64;
+        let col = |f: &dyn Fn(&Outcome) -> f64| outcomes.iter().map(|o| f(o)).collect::<Vec<f64>>();
+        let (et, er) = (Spread::of(&col(&|o| o.e_t)), Spread::of(&col(&|o| o.e_r)));
+        let levels = outcomes.iter().map(|o| o.iterations_per_level.len()).max().unwrap_or(0);
+        let per_level = (0..levels)
+            .map(|l| quantile(&col(&|o| f64::from(o.iterations_per_level.get(l).copied().unwrap_or(0))), 0.5))
+            .collect();
+        let agreeing: Vec<f64> = outcomes.iter().filter_map(|o| o.agreeing.map(f64::from)).collect();
+        MethodSummary {
+            starts: outcomes.len(),
+            success_strict: outcomes.iter().filter(|o| o.meets(&STRICT)).count() as f64 / n,
+            success_loose: outcomes.iter().filter(|o| o.meets(&LOOSE)).count() as f64 / n,
+            et_median_m: et.median,
+            et_mean_m: et.mean,
+            et_p95_m: et.p95,
+            et_max_m: et.max,
+            er_median_deg: er.median,
+            er_mean_deg: er.mean,
+            er_p95_deg: er.p95,
+            er_max_deg: er.max,
+            time_ms_median: quantile(&col(&|o| o.time_ms), 0.5),
+            iterations_median: quantile(&col(&|o| f64::from(o.iterations)), 0.5),
+            iterations_per_level_median: per_level,
+            agreeing_median: quantile(&agreeing, 0.5),
+        }
+    }
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map(|v| format!("{v:.digits$}")).unwrap_or_else(|| "-".into())
+}
+
+impl MethodSummary {
+    /// The summary in words, as `cosem eval` prints it (`mode` grid or
+    /// global, `voxel` the finest level's cell).
+    pub fn text(&self, name: &str, mode: &str, voxel: f32) -> String {
+        let prefix = if mode == "global" { "prior-free " } else { "" };
+        let levels: Vec<String> = self.iterations_per_level_median.iter().map(|v| opt(*v, 1)).collect();
+        let mut out = format!(
+            "{prefix}{name}: strict {:.1}%, loose {:.1}% of {} starts\n",
+            100.0 * self.success_strict,
+            100.0 * self.success_loose,
+            self.starts
+        );
+        let (et, er) = (
+            [self.et_median_m, self.et_mean_m, self.et_p95_m, self.et_max_m],
+            [self.er_median_deg, self.er_mean_deg, self.er_p95_deg, self.er_max_deg],
+        );
+        for (label, v, unit) in [("e_t", et, "m"), ("e_r", er, "deg")] {
+            let [a, b, c, d] = v.map(|x| opt(x, 3));
+            out += &format!("  {label}  median {a}  mean {b}  p95 {c}  max {d} {unit}\n");
+        }
+        out += &format!(
+            "  time per match median {} ms (single thread), iterations median {} (per level, {voxel} m first: [{}])\n",
+            opt(self.time_ms_median, 1),
+            opt(self.iterations_median, 1),
+            levels.join(", ")
+        );
+        if let Some(g) = self.agreeing_median {
+            out += &format!("  agreeing landmarks median {g}\n");
+        }
+        out
+    }
+}
+
+/// The two maps an evaluation matched.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct MapsInfo {
+    /// Voxels of robot A's map.
+    pub a_voxels: usize,
+    /// Voxels of robot B's map.
+    pub b_voxels: usize,
+    /// Overlap of B in A under the truth.
+    pub overlap: f32,
+}
+
+/// `cosem eval --json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalReport {
+    /// [`SCHEMA_VERSION`].
+    pub schema_version: u32,
+    /// `grid` or `global`.
+    pub mode: &'static str,
+    /// The maps.
+    pub maps: MapsInfo,
+    /// Starts per method.
+    pub starts: usize,
+    /// Voxel size (m).
+    pub voxel: f32,
+    /// Degrees of freedom matched.
+    pub dof: u8,
+    /// Preparation time per map (ms).
+    pub preparation_ms: f64,
+    /// `T_A_B`, row by row.
+    pub ground_truth: [f64; 16],
+    /// Per method.
+    pub methods: BTreeMap<String, MethodSummary>,
+    /// Every start of every method.
+    pub results: Vec<Outcome>,
+}
+
+impl EvalReport {
+    /// The report of `results` (summaries per method, in name order).
+    pub fn new(
+        mode: &'static str,
+        maps: MapsInfo,
+        voxel: f32,
+        dof: u8,
+        prep_ms: f64,
+        gt: &Isometry3<f64>,
+        results: Vec<Outcome>,
+    ) -> Self {
+        let mut by_method: BTreeMap<String, Vec<&Outcome>> = BTreeMap::new();
+        for o in &results {
+            by_method.entry(o.method.clone()).or_default().push(o);
+        }
+        let methods: BTreeMap<String, MethodSummary> =
+            by_method.into_iter().map(|(k, v)| (k, MethodSummary::of(&v))).collect();
+        let starts = methods.values().map(|m| m.starts).max().unwrap_or(0);
+        EvalReport {
+            schema_version: SCHEMA_VERSION,
+            mode,
+            maps,
+            starts,
+            voxel,
+            dof,
+            preparation_ms: prep_ms,
+            ground_truth: row_major(gt),
+            methods,
+            results,
+        }
+    }
+}
+
+impl EvalReport {
+    /// Box plots of e_t and e_r per method (SVG, like the paper's Fig. 5).
+    pub fn plot(&self, caption: &str) -> String {
+        use crate::boxplot::{render, Panel};
+        let series = |f: fn(&Outcome) -> f64| -> Vec<(&str, Vec<f64>)> {
+            let names = self.methods.keys().map(String::as_str);
+            names.map(|n| (n, self.results.iter().filter(|o| o.method == n).map(f).collect())).collect()
+        };
+        render(
+            &[
+                Panel { title: "translation error e_t", unit: "m", series: series(|o| o.e_t) },
+                Panel { title: "rotation error e_r", unit: "deg", series: series(|o| o.e_r) },
+            ],
+            caption,
+        )
+    }
+}
+
+/// Runs `f` over `items`, on the current rayon pool with the `parallel`
+/// feature, else in order; results keep the items' order.
+pub fn for_each_start<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync + Send) -> Vec<R> {
+    #[cfg(feature = "parallel")]
+    {
+        use rayon::prelude::*;
+        items.par_iter().map(f).collect()
+    }
+    #[cfg(not(feature = "parallel"))]
+    {
+        items.iter().map(f).collect()
+    }
+}
+
+/// Matches the prepared maps from every grid start with `settings` (one
+/// untimed warm-up match first, so short runs time the steady state);
+/// `progress` is called after each match.
+pub fn run_grid(
+    method: &str,
+    settings: MatchSettings,
+    pyramids: (&HostPyramid<'_>, &HostPyramid<'_>),
+    gt: &Isometry3<f64>,
+    starts: &[Start],
+    progress: &(dyn Fn() + Sync),
+) -> Result<Vec<Outcome>, Error> {
+    let matcher = Matcher::new(settings);
+    if let Some(first) = starts.first() {
+        matcher.align(pyramids.0, pyramids.1, &first.apply(gt).cast::<f32>())?;
+    }
+    let levels = pyramids.0.levels();
+    let outcomes = for_each_start(starts, |s| {
+        let t = Instant::now();
+        let r = matcher.align(pyramids.0, pyramids.1, &s.apply(gt).cast::<f32>())?;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        progress();
+        Ok(Outcome { start: Some(*s), ..Outcome::new(method, &r, gt, ms, levels) })
+    });
+    outcomes.into_iter().collect()
+}
+
+/// The prior-free protocol: for each start, robot B's frames are moved by
+/// `D`, its map rebuilt and prepared, and matched against robot A's with no
+/// prior (landmarks, then EM); timed from the scene's landmarks on.
+#[allow(clippy::too_many_arguments)]
+pub fn run_global(
+    method: &str,
+    settings: MatchSettings,
+    map_a: &HostMap,
+    frames_b: &[crate::kitti::Frame],
+    map_config: (MapConfig, &PointFilter),
+    gt: &Isometry3<f64>,
+    starts: &[GlobalStart],
+    progress: &(dyn Fn() + Sync),
+) -> Result<Vec<Outcome>, Error> {
+    let pa = prepare(map_a, DEFAULT_LEVELS)?;
+    let la = landmarks(map_a).map_err(crate::align::AlignError::Landmarks)?;
+    let matcher = Matcher::new(settings);
+    let outcomes = for_each_start(starts, |s| -> Result<Outcome, Error> {
+        let d = s.moved_by();
+        let (map_b, _) = build_map(&moved_frames(frames_b, &d), map_config.0, map_config.1)?;
+        let pb = prepare(&map_b, DEFAULT_LEVELS)?;
+        let t = Instant::now();
+        let lb = landmarks(&map_b).map_err(crate::align::AlignError::Landmarks)?;
+        let (r, found) = align_without_prior(&matcher, &pa, &pb, (&la, &lb), &GlobalSettings::default())?;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        progress();
+        let truth = gt * d.inverse();
+        let agreeing = Some(found.map(|o| o.agreeing).unwrap_or(0));
+        Ok(Outcome { global_start: Some(*s), agreeing, ..Outcome::new(method, &r, &truth, ms, DEFAULT_LEVELS) })
+    });
+    outcomes.into_iter().collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_sizes() {
+        assert_eq!(grid(1).len(), 1331);
+        // Stride 5: {-10, 0, 10} x {-10, 0, 10} x {-25, 0, 25}.
+        assert_eq!(grid(5).len(), 27);
+        assert!(grid(5).contains(&Start { dx: 0.0, dy: 0.0, dyaw: 0.0 }));
+        assert_eq!(grid(2).len(), 5 * 5 * 5);
+        assert_eq!(global_starts(50.0, None).len(), 360);
+        assert_eq!(global_starts(50.0, Some(36)).len(), 36);
+    }
+
+    #[test]
+    fn thresholds_need_convergence() {
+        assert!(STRICT.met(MatchStatus::Converged, 0.49, 0.99));
+        assert!(!STRICT.met(MatchStatus::NotConverged, 0.0, 0.0));
+        assert!(!STRICT.met(MatchStatus::Converged, 0.5, 0.0));
+        assert!(LOOSE.met(MatchStatus::Converged, 1.9, 4.9));
+    }
+
+    #[test]
+    fn start_applies_on_the_left() {
+        let gt = pose_deg(1.0, 2.0, 0.5, 1.0, 2.0, 30.0);
+        let est = Start { dx: 3.0, dy: 4.0, dyaw: 10.0 }.apply(&gt);
+        let (et, er) = cosem_core::geometry::pose_errors(&est, &gt);
+        assert!((et - 5.0).abs() < 1e-9 && (er - 10.0).abs() < 1e-9, "{et} {er}");
+    }
+}

@@ -1,0 +1,100 @@
+//! Two robots' maps from one sequence, with the ground truth between them:
+//! what `eval`, `bench` and `robots` start from.
+
+use crate::error::Error;
+use crate::kitti::{Frame, FrameRange, Sequence};
+use crate::mapping::{build_map, HostMap, PointFilter};
+use cosem_core::geometry::Isometry3;
+use cosem_core::map::MapConfig;
+use std::path::{Path, PathBuf};
+
+/// Which frames of which folder make robot A's and robot B's maps.
+#[derive(Clone, Debug)]
+pub struct PairSpec {
+    /// SemanticKITTI-layout folder.
+    pub data: PathBuf,
+    /// Robot A's frames (the model).
+    pub a: FrameRange,
+    /// Robot B's frames (the scene).
+    pub b: FrameRange,
+    /// Map configuration of both robots.
+    pub config: MapConfig,
+    /// Which points enter the maps.
+    pub filter: PointFilter,
+}
+
+impl PairSpec {
+    /// Robots A and B of `data` at `voxel` metres, default filter.
+    pub fn new(data: impl AsRef<Path>, a: FrameRange, b: FrameRange, voxel: f32) -> Self {
+        PairSpec {
+            data: data.as_ref().to_path_buf(),
+            a,
+            b,
+            config: MapConfig::with_resolution(voxel),
+            filter: PointFilter::default(),
+        }
+    }
+
+    /// The folder's last path component, for captions.
+    pub fn name(&self) -> String {
+        self.data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+    }
+}
+
+/// Two robots' maps and the truth `T_A_B`.
+pub struct Pair {
+    /// Robot A's map (the model).
+    pub map_a: HostMap,
+    /// Robot B's map (the scene).
+    pub map_b: HostMap,
+    /// Robot B's frames, in B's anchor frame (to rebuild B's map moved).
+    pub frames_b: Vec<Frame>,
+    /// `T_A_B = inv(V_A0) * V_B0`.
+    pub gt: Isometry3<f64>,
+}
+
+impl Pair {
+    /// Reads both ranges and builds both maps.
+    pub fn load(spec: &PairSpec) -> Result<Pair, Error> {
+        let seq = Sequence::open(&spec.data)?;
+        let (map_a, _) = build_map(&seq.load_range(spec.a)?, spec.config, &spec.filter)?;
+        let frames_b = seq.load_range(spec.b)?;
+        let (map_b, _) = build_map(&frames_b, spec.config, &spec.filter)?;
+        let gt = seq.relative_pose(spec.a.start, spec.b.start)?;
+        Ok(Pair { map_a, map_b, frames_b, gt })
+    }
+
+    /// Both maps passed through the map-file encoding (as received over the
+    /// link): what quantisation costs.
+    pub fn through_encoding(&mut self) -> Result<(), Error> {
+        self.map_a = through_encoding(&self.map_a)?;
+        self.map_b = through_encoding(&self.map_b)?;
+        Ok(())
+    }
+
+    /// The conventions' overlap of B in A under the truth.
+    pub fn overlap(&self) -> f32 {
+        cosem_core::map::overlap(&self.map_a, &self.map_b, &self.gt.cast::<f32>())
+    }
+}
+
+/// A map as it arrives through the compact encoding.
+pub fn through_encoding(map: &HostMap) -> Result<HostMap, Error> {
+    let name = Path::new("(encoded map)");
+    Ok(crate::cmap::decode(&crate::cmap::encode(map, None, None), name)?.1)
+}
+
+/// `frames` moved by `d` (points rebuilt in the frame `d` maps them to).
+pub fn moved_frames(frames: &[Frame], d: &Isometry3<f64>) -> Vec<Frame> {
+    frames
+        .iter()
+        .map(|f| {
+            let mut f = f.clone();
+            for p in &mut f.points {
+                let q = d * nalgebra::Point3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+                *p = [q.x as f32, q.y as f32, q.z as f32];
+            }
+            f
+        })
+        .collect()
+}

@@ -1,0 +1,231 @@
+//! The JSON of `cosem match`, `link`, `robots` and `info`, as serde types:
+//! one place for the field names scripts read (kept stable; a change gets
+//! a schema version).
+
+use cosem_core::geometry::{row_major, xyz_rpy_deg, Isometry3};
+use cosem_core::matching::global::Located;
+use cosem_core::matching::{MatchResult, MAX_LEVELS};
+use cosem_core::wire::feed::GlobalReport;
+use serde::Serialize;
+
+/// A match result (`cosem match --json`, and `match` in `cosem link --json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct MatchJson {
+    /// The conventions' status string.
+    pub status: &'static str,
+    /// `T_model_scene`, row by row.
+    pub transform: [f64; 16],
+    /// x, y, z, roll, pitch, yaw (m, degrees).
+    pub xyz_rpy_deg: [f64; 6],
+    /// EM iterations.
+    pub iterations: u32,
+    /// Iterations per level, finest first.
+    pub iterations_per_level: [u8; MAX_LEVELS],
+    /// Inlier voxels.
+    pub inliers: u32,
+    /// Overlap under the result.
+    pub overlap: f32,
+    /// RMSE of the inliers (m).
+    pub rmse: f32,
+    /// The 6x6 information matrix, row by row.
+    pub information: Vec<f32>,
+    /// Its smallest eigenvalue.
+    pub min_eigenvalue: f32,
+    /// Normalised smallest eigenvalue.
+    pub degeneracy: f32,
+    /// Time of the match (ms).
+    pub time_ms: f64,
+    /// Time preparing both maps (ms).
+    pub prepare_ms: f64,
+    /// Association method.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub method: Option<&'static str>,
+    /// What the prior-free alignment found (no prior given).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub global: Option<GlobalJson>,
+}
+
+impl MatchJson {
+    /// The JSON of `r`.
+    pub fn new(r: &MatchResult, time_ms: f64, prepare_ms: f64) -> Self {
+        let t = r.transform.cast::<f64>();
+        MatchJson {
+            status: r.status.as_str(),
+            transform: row_major(&t),
+            xyz_rpy_deg: xyz_rpy_deg(&t),
+            iterations: r.iterations,
+            iterations_per_level: r.iterations_per_level,
+            inliers: r.inliers,
+            overlap: r.overlap,
+            rmse: r.rmse,
+            information: r.information.transpose().iter().copied().collect(),
+            min_eigenvalue: r.min_eigenvalue,
+            degeneracy: r.degeneracy,
+            time_ms,
+            prepare_ms,
+            method: None,
+            global: None,
+        }
+    }
+}
+
+/// What the prior-free alignment found.
+#[derive(Clone, Debug, Serialize)]
+pub struct GlobalJson {
+    /// Landmarks of the model and of the scene.
+    pub landmarks: [u32; 2],
+    /// Correspondences in the largest consistent set (null: too few).
+    pub agreeing: Option<u32>,
+    /// The largest consistent set the answer does not explain.
+    pub runner_up: Option<u32>,
+    /// Whether the answer was unique enough to refine.
+    pub unique: Option<bool>,
+    /// The 4-DoF start it gave EM, row by row.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub start: Option<Option<[f64; 16]>>,
+}
+
+impl From<&Located> for GlobalJson {
+    fn from(g: &Located) -> Self {
+        let o = g.outcome;
+        GlobalJson {
+            landmarks: g.landmarks,
+            agreeing: o.map(|o| o.agreeing),
+            runner_up: o.map(|o| o.runner_up),
+            unique: o.map(|o| o.unique),
+            start: Some(o.map(|o| row_major(&o.transform.cast::<f64>()))),
+        }
+    }
+}
+
+impl From<GlobalReport> for GlobalJson {
+    fn from(g: GlobalReport) -> Self {
+        GlobalJson {
+            landmarks: g.landmarks,
+            agreeing: Some(g.agreeing),
+            runner_up: Some(g.runner_up),
+            unique: Some(g.unique),
+            start: None,
+        }
+    }
+}
+
+impl GlobalJson {
+    /// The figures in words.
+    pub fn text(&self) -> String {
+        let [m, s] = self.landmarks;
+        match (self.agreeing, self.runner_up) {
+            (Some(a), Some(r)) if a > 0 => format!(
+                "{m} / {s} landmarks, {a} agree (runner-up {r}): {}",
+                if self.unique == Some(true) { "unique" } else { "no unique answer" }
+            ),
+            _ => format!("{m} / {s} landmarks, too few agree: no answer"),
+        }
+    }
+}
+
+/// A transform from its 16 row-major numbers (as the JSON holds it).
+pub fn from_row_major(m: &[f64; 16]) -> Isometry3<f64> {
+    cosem_core::geometry::rigid_from_matrix(&nalgebra::Matrix4::from_row_slice(m)).unwrap_or_else(Isometry3::identity)
+}
+
+/// `x,y,z,roll,pitch,yaw` (m, degrees) of a transform, for printing.
+pub fn pose_text(t: &Isometry3<f64>) -> String {
+    let x = xyz_rpy_deg(t);
+    format!("{:.4},{:.4},{:.4},{:.3},{:.3},{:.3}", x[0], x[1], x[2], x[3], x[4], x[5])
+}
+
+/// `cosem link --json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct LinkJson {
+    /// Our robot id.
+    pub robot_id: u8,
+    /// Bytes written to the line.
+    pub bytes_sent: u64,
+    /// Bytes read from the line.
+    pub bytes_received: u64,
+    /// Frames sent (retransmissions included).
+    pub frames: u32,
+    /// Valid frames received.
+    pub frames_received: u32,
+    /// Frames resent.
+    pub retransmissions: u32,
+    /// Frames rejected.
+    pub bad_frames: u32,
+    /// Voxels of our map.
+    pub voxels_sent: usize,
+    /// Voxels of the peer's map.
+    pub voxels_received: usize,
+    /// Bytes of voxel encoding per voxel sent.
+    pub wire_bytes_per_voxel: f64,
+    /// Wall time of the exchange (s).
+    pub link_time_s: f64,
+    /// Baud rate the line times are given at.
+    pub baud: u32,
+    /// `{sent, received}`: seconds of line time at `baud` (8N1).
+    pub line_time_s: std::collections::BTreeMap<&'static str, f64>,
+    /// Our match (our map the model).
+    #[serde(rename = "match")]
+    pub result: MatchJson,
+}
+
+/// `cosem info --json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct InfoJson {
+    /// The file.
+    pub file: String,
+    /// Voxels.
+    pub voxels: usize,
+    /// Voxel size (m).
+    pub resolution: f32,
+    /// `{min, max}` corners (m).
+    pub bounds: std::collections::BTreeMap<&'static str, [f32; 3]>,
+    /// File size.
+    pub bytes: u64,
+    /// File bytes per voxel.
+    pub bytes_per_voxel: f64,
+    /// Memory per voxel of capacity.
+    pub memory_bytes_per_voxel: usize,
+    /// Encoding bytes per voxel (as on the link).
+    pub wire_bytes_per_voxel: f64,
+    /// Voxels per class name.
+    pub classes: std::collections::BTreeMap<&'static str, usize>,
+    /// Anchor scan time (s).
+    pub anchor_time: Option<f64>,
+    /// Source text, escaped.
+    pub source: Option<String>,
+    /// Sensor model accuracy.
+    pub label_accuracy: f32,
+}
+
+/// A match result in words, as `cosem match` and `cosem link` print it.
+pub fn result_text(r: &MatchResult, global: Option<&Located>) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let _ = writeln!(out, "status      {}", r.status.as_str());
+    if let Some(g) = global {
+        let _ = writeln!(out, "global      {}", GlobalJson::from(g).text());
+    }
+    let t = r.transform.cast::<f64>();
+    let (m, x) = (t.to_homogeneous(), xyz_rpy_deg(&t));
+    let _ = writeln!(out, "T_model_scene");
+    for i in 0..4 {
+        let _ = writeln!(out, "  {:>12.6} {:>12.6} {:>12.6} {:>12.6}", m[(i, 0)], m[(i, 1)], m[(i, 2)], m[(i, 3)]);
+    }
+    let _ =
+        writeln!(out, "x,y,z,roll,pitch,yaw  {:.4},{:.4},{:.4},{:.4},{:.4},{:.4}", x[0], x[1], x[2], x[3], x[4], x[5]);
+    let per_level = &r.iterations_per_level[..crate::align::DEFAULT_LEVELS];
+    let _ = writeln!(out, "iterations  {} (per level, fine to coarse: {per_level:?})", r.iterations);
+    let _ = writeln!(out, "inliers     {}   overlap {:.1}%   rmse {:.4} m", r.inliers, 100.0 * r.overlap, r.rmse);
+    let _ = writeln!(out, "information min eigenvalue {:.4e}, normalised {:.4}", r.min_eigenvalue, r.degeneracy);
+    out
+}
+
+/// `x ... m, ... yaw ... deg` of a transform, in words.
+pub fn pose_words(t: &Isometry3<f64>) -> String {
+    let g = xyz_rpy_deg(t);
+    format!(
+        "x {:.3} m, y {:.3} m, z {:.3} m, roll {:.2}, pitch {:.2}, yaw {:.2} deg",
+        g[0], g[1], g[2], g[3], g[4], g[5]
+    )
+}
