@@ -13,16 +13,15 @@
 //! [`RobotReport`] over its feed line (or where and why it stopped).
 //!
 //! Every buffer belongs to the caller: two maps, a scratch of one `u32` per
-//! voxel (the link's Morton order, then the landmark search) and two
-//! pyramid storages. The capacities a robot's firmware uses are the
+//! voxel (the link's Morton order) and two pyramid storages. The capacities a robot's firmware uses are the
 //! constants below.
 
 use crate::geometry::{from_rows, Isometry3};
 use crate::link::sim::{ScriptPort, SimLine};
 use crate::link::{Endpoint, LinkConfig, LinkError, LinkStats, Progress};
 use crate::map::{ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, VoxelStorage};
-use crate::matching::global::{locate, refine, GlobalSettings, Located};
-use crate::matching::landmarks::LandmarkError;
+use crate::matching::global::{align_searched, Searched};
+use crate::matching::search::GlobalSearch;
 use crate::matching::{
     ArrayPyramidStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, PyramidStorage, Role,
 };
@@ -101,8 +100,6 @@ pub enum AlignError {
     Pyramid(PyramidError),
     /// The matcher refused its input.
     Match(MatchError),
-    /// Extracting landmarks failed.
-    Landmarks(LandmarkError),
 }
 
 impl core::fmt::Display for AlignError {
@@ -110,7 +107,6 @@ impl core::fmt::Display for AlignError {
         match self {
             AlignError::Pyramid(e) => write!(f, "preparing a map: {e}"),
             AlignError::Match(e) => write!(f, "matching: {e}"),
-            AlignError::Landmarks(e) => write!(f, "landmarks: {e}"),
         }
     }
 }
@@ -118,40 +114,36 @@ impl core::fmt::Display for AlignError {
 impl core::error::Error for AlignError {}
 
 /// Prepares both maps (own as model, received as scene) and aligns them:
-/// from `prior` (`T_own_peer`) when there is one, else from the maps'
-/// semantic landmarks ([`locate`], with `scratch` of one `u32` per voxel,
-/// then [`refine`]; `NoOverlap` when they do not agree uniquely).
-/// `on_phase(k)` runs before preparation (0), before the prior-free
-/// alignment (1), before the match (2) and after it (3), e.g. to read an
-/// instruction counter. Returns the match and, without a prior, what the
-/// landmarks found.
+/// from `prior` (`T_own_peer`) when there is one, else with none
+/// ([`align_searched`]: every heading and offset, then the matcher).
+/// `on_phase(k)` runs before preparation (0), before the prior-free search
+/// (1), before the match (2) and after it (3), e.g. to read an instruction
+/// counter. Returns the match and, without a prior, what the search found.
 pub fn align<A: VoxelStorage, B: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>(
     own: &LocalMap<A>,
     received: &LocalMap<B>,
     prior: Option<&Isometry3<f32>>,
-    scratch: &mut [u32],
     model_storage: P,
     scene_storage: Q,
     mut on_phase: impl FnMut(u8),
-) -> Result<(MatchResult, Option<Located>), AlignError> {
+) -> Result<(MatchResult, Option<Searched>), AlignError> {
     on_phase(0);
     let model =
         Pyramid::build_as(own, LEVELS, FOOTPRINT_CELL, Role::Model, model_storage).map_err(AlignError::Pyramid)?;
     let scene =
         Pyramid::build_as(received, LEVELS, FOOTPRINT_CELL, Role::Scene, scene_storage).map_err(AlignError::Pyramid)?;
     on_phase(1);
-    let located = match prior {
-        Some(_) => None,
-        None => Some(locate(own, received, scratch, &GlobalSettings::default()).map_err(AlignError::Landmarks)?),
-    };
-    on_phase(2);
     let matcher = Matcher::new(MatchSettings::default());
-    let r = match (prior, &located) {
-        (Some(p), _) => matcher.align(&model, &scene, p),
-        (None, l) => refine(&matcher, &model, &scene, l.as_ref().and_then(|l| l.outcome.as_ref())),
+    let r = match prior {
+        Some(p) => {
+            on_phase(2);
+            (matcher.align(&model, &scene, p).map_err(AlignError::Match)?, None)
+        }
+        None => align_searched(&matcher, &model, &scene, &GlobalSearch::default(), || on_phase(2))
+            .map_err(AlignError::Match)?,
     };
     on_phase(3);
-    Ok((r.map_err(AlignError::Match)?, located))
+    Ok(r)
 }
 
 /// What a platform measures for a robot's report. The defaults measure
@@ -272,7 +264,7 @@ pub enum Poll {
 enum State<'a, M: VoxelStorage, R: VoxelStorage> {
     Feed { own: &'a mut LocalMap<M>, received: &'a mut LocalMap<R>, scratch: &'a mut [u32] },
     Link { own: &'a LocalMap<M>, endpoint: Endpoint<'a, M, R> },
-    Align { own: &'a LocalMap<M>, received: &'a LocalMap<R>, scratch: &'a mut [u32], stats: LinkStats },
+    Align { own: &'a LocalMap<M>, received: &'a LocalMap<R>, stats: LinkStats },
     Done,
 }
 
@@ -366,16 +358,14 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
                 Progress::Done => {
                     self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
                     let stats = endpoint.stats();
-                    let (scratch, received) = endpoint.into_parts();
-                    let (Some(scratch), Some(received)) = (scratch, received) else {
-                        return Err(RobotError::Link(LinkError::Setup));
-                    };
-                    self.state = State::Align { own, received, scratch, stats };
+                    let (_, received) = endpoint.into_parts();
+                    let Some(received) = received else { return Err(RobotError::Link(LinkError::Setup)) };
+                    self.state = State::Align { own, received, stats };
                     Ok(Poll::Busy)
                 }
             },
-            State::Align { own, received, scratch, stats } => {
-                let report = self.align(own, received, scratch, &stats, meter)?;
+            State::Align { own, received, stats } => {
+                let report = self.align(own, received, &stats, meter)?;
                 Ok(Poll::Done(report))
             }
             State::Done => Err(RobotError::Finished),
@@ -448,7 +438,6 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         &mut self,
         own: &LocalMap<M>,
         received: &LocalMap<R>,
-        scratch: &mut [u32],
         stats: &LinkStats,
         meter: &T,
     ) -> Result<RobotReport, RobotError> {
@@ -456,7 +445,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         let (model, scene) = self.pyramids.take().ok_or(RobotError::Finished)?;
         let prior = setup.prior.as_ref().map(from_rows);
         let mut marks = [0u64; 4];
-        let (result, located) = align(own, received, prior.as_ref(), scratch, model, scene, |k| {
+        let (result, located) = align(own, received, prior.as_ref(), model, scene, |k| {
             if let Some(m) = marks.get_mut(usize::from(k)) {
                 *m = meter.instructions();
             }

@@ -4,8 +4,9 @@
 
 use crate::mapping::HostMap;
 use cosem_core::geometry::Isometry3;
-use cosem_core::matching::global::{locate, refine, GlobalSettings, Located};
+use cosem_core::matching::global::{align_searched, Searched};
 use cosem_core::matching::landmarks::{extract, Landmark, LandmarkError, MAX_LANDMARKS};
+use cosem_core::matching::search::GlobalSearch;
 use cosem_core::matching::{MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, Role, VecPyramid};
 
 /// Default number of pyramid levels: 0.2 m maps get cells up to 3.2 m.
@@ -40,22 +41,20 @@ pub enum AlignError {
     Landmarks(LandmarkError),
 }
 
-/// Aligns two prepared maps (`maps.0` the model): from `prior`
-/// (`T_model_scene`) when given, else with none (the conventions), with the
-/// core's prior-free alignment [`locate`] and [`refine`] as the robots do;
-/// then what it found comes back too.
+/// Aligns two prepared maps (`pyramids.0` the model): from `prior`
+/// (`T_model_scene`) when given, else with none (the conventions) by the
+/// core's prior-free alignment ([`align_searched`]) as the robots do; then
+/// what its search found comes back too.
 pub fn align(
     settings: MatchSettings,
     prior: Option<&Isometry3<f32>>,
-    maps: (&HostMap, &HostMap),
     pyramids: (&HostPyramid<'_>, &HostPyramid<'_>),
-) -> Result<(MatchResult, Option<Located>), AlignError> {
+) -> Result<(MatchResult, Option<Searched>), AlignError> {
     let matcher = Matcher::new(settings);
-    if let Some(p) = prior {
-        return Ok((matcher.align(pyramids.0, pyramids.1, p).map_err(AlignError::Match)?, None));
+    match prior {
+        Some(p) => Ok((matcher.align(pyramids.0, pyramids.1, p).map_err(AlignError::Match)?, None)),
+        None => {
+            align_searched(&matcher, pyramids.0, pyramids.1, &GlobalSearch::default(), || {}).map_err(AlignError::Match)
+        }
     }
-    let mut scratch = vec![0u32; maps.0.len().max(maps.1.len())];
-    let located = locate(maps.0, maps.1, &mut scratch, &GlobalSettings::default()).map_err(AlignError::Landmarks)?;
-    let r = refine(&matcher, pyramids.0, pyramids.1, located.outcome.as_ref()).map_err(AlignError::Match)?;
-    Ok((r, Some(located)))
 }

@@ -2,7 +2,7 @@
 //! and returns its figures (the command prints them). Times are medians of
 //! repeated single-threaded runs.
 
-use crate::align::{landmarks, prepare, DEFAULT_LEVELS};
+use crate::align::{prepare, DEFAULT_LEVELS};
 use crate::error::Error;
 use crate::eval::{grid, STRICT};
 use crate::kitti::{Frame, FrameRange, Sequence};
@@ -14,7 +14,6 @@ use cosem_core::geometry::errors_of;
 use cosem_core::link::sim::{SimConfig, SimLine};
 use cosem_core::link::{Endpoint, LinkConfig, Progress};
 use cosem_core::map::MapConfig;
-use cosem_core::matching::global::{align_landmarks, refine, GlobalOutcome, GlobalSettings};
 use cosem_core::matching::{MatchResult, MatchSettings, Matcher};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -200,33 +199,31 @@ pub fn link(pair: &Pair, rate: f64, baud: u32) -> Result<LinkFigures, Error> {
 /// Figures of `cosem bench global`.
 #[derive(Clone, Debug)]
 pub struct GlobalFigures {
-    /// Landmarks of A and B.
-    pub landmarks: [usize; 2],
-    /// What the landmark alignment found.
-    pub outcome: Option<GlobalOutcome>,
+    /// What the coarse search found (its best candidate only, as the
+    /// prior-free alignment first asks).
+    pub outcome: Option<cosem_core::matching::search::GlobalSearchOutcome>,
     /// The refined result.
     pub result: MatchResult,
     /// Its errors against the truth (m, degrees).
     pub errors: (f64, f64),
-    /// Median seconds: landmarks of both maps, correspondences, refinement.
-    pub seconds: [f64; 3],
+    /// Median seconds: coarse search over every heading and offset, then
+    /// the whole prior-free alignment (search and refinement).
+    pub seconds: [f64; 2],
 }
 
 /// Prior-free alignment of `pair`, stage by stage (maps prepared first).
 pub fn global(pair: &Pair, repeat: usize) -> Result<GlobalFigures, Error> {
+    use cosem_core::matching::global::align_searched;
+    use cosem_core::matching::search::{search_global, GlobalSearch};
     let (pa, pb) = (prepare(&pair.map_a, DEFAULT_LEVELS)?, prepare(&pair.map_b, DEFAULT_LEVELS)?);
     let matcher = Matcher::new(MatchSettings::default());
-    let lm = |m| landmarks(m).map_err(|e| Error::Invalid(format!("landmarks: {e}")));
-    let (t_extract, (la, lb)) = timed(repeat, || Ok((lm(&pair.map_a)?, lm(&pair.map_b)?)))?;
-    let (t_search, outcome) = timed(repeat, || Ok(align_landmarks(&la, &lb, &GlobalSettings::default())))?;
-    let (t_refine, result) = timed(repeat, || Ok(refine(&matcher, &pa, &pb, outcome.as_ref())?))?;
-    Ok(GlobalFigures {
-        landmarks: [la.len(), lb.len()],
-        outcome,
-        result,
-        errors: errors_of(&result.transform, &pair.gt),
-        seconds: [t_extract, t_search, t_refine],
-    })
+    let no_footprint = || Error::Invalid("a map has no footprint".into());
+    let (fa, fb) = (pa.footprint().ok_or_else(no_footprint)?, pb.footprint().ok_or_else(no_footprint)?);
+    let first = GlobalSearch { candidates: 1, ..GlobalSearch::default() };
+    let (t_search, outcome) = timed(repeat, || Ok(search_global(fa, fb, &first, true)))?;
+    let (t_all, (result, _)) =
+        timed(repeat, || Ok(align_searched(&matcher, &pa, &pb, &GlobalSearch::default(), || {})?))?;
+    Ok(GlobalFigures { outcome, result, errors: errors_of(&result.transform, &pair.gt), seconds: [t_search, t_all] })
 }
 
 /// Strict success of matching ranges `a` and `b` of `dir` (0.2 m maps)
@@ -432,25 +429,23 @@ impl std::fmt::Display for LinkFigures {
 
 impl std::fmt::Display for GlobalFigures {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "  landmarks            {} / {}", self.landmarks[0], self.landmarks[1])?;
         match &self.outcome {
-            Some(o) => writeln!(
-                f,
-                "  correspondences      {} candidates, {} agree (runner-up {}): {}",
-                o.candidates,
-                o.agreeing,
-                o.runner_up,
-                if o.unique { "unique" } else { "not unique" }
-            )?,
-            None => writeln!(f, "  correspondences      too few agree")?,
+            Some(o) => {
+                writeln!(f, "  coarse search        best score {}, {} nodes scored", o.scores().0, o.evaluations)?
+            }
+            None => writeln!(f, "  coarse search        no footprint")?,
         }
-        let [te, ts, tr] = self.seconds;
+        let [ts, tall] = self.seconds;
         let (e_t, e_r) = self.errors;
-        writeln!(f, "  result               {} (e_t {e_t:.3} m, e_r {e_r:.3} deg)", self.result.status.as_str())?;
-        writeln!(f, "  extract landmarks    {:.2} ms (both maps)", te * 1e3)?;
-        writeln!(f, "  correspondences      {:.2} ms", ts * 1e3)?;
-        writeln!(f, "  refine (matcher)     {:.2} ms", tr * 1e3)?;
-        writeln!(f, "  global alignment     {:.2} ms in all", (te + ts + tr) * 1e3)
+        let r = &self.result;
+        writeln!(f, "  result               {} (e_t {e_t:.3} m, e_r {e_r:.3} deg)", r.status.as_str())?;
+        writeln!(
+            f,
+            "  agreement            {:.3} (coverage {:.3}, overlap {:.3})",
+            r.agreement, r.coverage, r.overlap
+        )?;
+        writeln!(f, "  coarse search        {:.2} ms", ts * 1e3)?;
+        writeln!(f, "  prior-free in all    {:.2} ms (search and refinement)", tall * 1e3)
     }
 }
 

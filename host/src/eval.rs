@@ -3,14 +3,15 @@
 //! thresholds, one outcome per start and method, and summaries whose JSON
 //! field names are the same in every mode (`schema_version` 2).
 
-use crate::align::{landmarks, prepare, HostPyramid, DEFAULT_LEVELS};
+use crate::align::{prepare, HostPyramid, DEFAULT_LEVELS};
 use crate::error::Error;
 use crate::mapping::{build_map, HostMap, PointFilter};
 use crate::pair::moved_frames;
 use crate::stats::{quantile, Spread};
 use cosem_core::geometry::{errors_of, pose_deg, row_major, Isometry3};
 use cosem_core::map::MapConfig;
-use cosem_core::matching::global::{align_without_prior, GlobalSettings};
+use cosem_core::matching::global::align_searched;
+use cosem_core::matching::search::GlobalSearch;
 use cosem_core::matching::{MatchResult, MatchSettings, MatchStatus, Matcher, MAX_LEVELS};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -171,9 +172,13 @@ pub struct Outcome {
     pub overlap: f32,
     /// `T_model_scene`, row by row.
     pub transform: [f64; 16],
-    /// Prior-free: correspondences in the largest consistent set.
+    /// Prior-free: the coarse search's best score and its runner-up's.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub agreeing: Option<u32>,
+    pub search: Option<[u32; 2]>,
+    /// Agreement of what both maps saw under the answer.
+    pub agreement: f32,
+    /// Coverage of the scene's standing voxels by the model under the answer.
+    pub coverage: f32,
     #[serde(skip)]
     matched: MatchStatus,
 }
@@ -193,7 +198,9 @@ impl Outcome {
             time_ms,
             overlap: r.overlap,
             transform: row_major(&r.transform.cast::<f64>()),
-            agreeing: None,
+            search: None,
+            agreement: r.agreement,
+            coverage: r.coverage,
             matched: r.status,
         }
     }
@@ -251,9 +258,12 @@ pub struct MethodSummary {
     pub iterations_median: Option<f64>,
     /// Median EM iterations per level, finest first.
     pub iterations_per_level_median: Vec<Option<f64>>,
-    /// Prior-free: median of the agreeing landmark correspondences.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub agreeing_median: Option<f64>,
+    /// Median agreement of what both maps saw standing (the verdict's
+    /// statistic), over all starts.
+    pub agreement_median: Option<f64>,
+    /// Smallest agreement among the strict successes (the weakest true
+    /// answer's margin over the verdict's threshold).
+    pub agreement_min_success: Option<f64>,
 }
 
 impl MethodSummary {
@@ -266,7 +276,7 @@ impl MethodSummary {
         let per_level = (0..levels)
             .map(|l| quantile(&col(&|o| f64::from(o.iterations_per_level.get(l).copied().unwrap_or(0))), 0.5))
             .collect();
-        let agreeing: Vec<f64> = outcomes.iter().filter_map(|o| o.agreeing.map(f64::from)).collect();
+        let ok: Vec<f64> = outcomes.iter().filter(|o| o.meets(&STRICT)).map(|o| f64::from(o.agreement)).collect();
         MethodSummary {
             starts: outcomes.len(),
             success_strict: outcomes.iter().filter(|o| o.meets(&STRICT)).count() as f64 / n,
@@ -282,7 +292,8 @@ impl MethodSummary {
             time_ms_median: quantile(&col(&|o| o.time_ms), 0.5),
             iterations_median: quantile(&col(&|o| f64::from(o.iterations)), 0.5),
             iterations_per_level_median: per_level,
-            agreeing_median: quantile(&agreeing, 0.5),
+            agreement_median: quantile(&col(&|o| f64::from(o.agreement)), 0.5),
+            agreement_min_success: quantile(&ok, 0.0),
         }
     }
 }
@@ -317,9 +328,11 @@ impl MethodSummary {
             opt(self.iterations_median, 1),
             levels.join(", ")
         );
-        if let Some(g) = self.agreeing_median {
-            out += &format!("  agreeing landmarks median {g}\n");
-        }
+        out += &format!(
+            "  agreement median {} (weakest success {})\n",
+            opt(self.agreement_median, 3),
+            opt(self.agreement_min_success, 3)
+        );
         out
     }
 }
@@ -466,20 +479,21 @@ pub fn run_global(
     progress: &(dyn Fn() + Sync),
 ) -> Result<Vec<Outcome>, Error> {
     let pa = prepare(map_a, DEFAULT_LEVELS)?;
-    let la = landmarks(map_a).map_err(crate::align::AlignError::Landmarks)?;
     let matcher = Matcher::new(settings);
     let outcomes = for_each_start(starts, |s| -> Result<Outcome, Error> {
         let d = s.moved_by();
         let (map_b, _) = build_map(&moved_frames(frames_b, &d), map_config.0, map_config.1)?;
         let pb = prepare(&map_b, DEFAULT_LEVELS)?;
         let t = Instant::now();
-        let lb = landmarks(&map_b).map_err(crate::align::AlignError::Landmarks)?;
-        let (r, found) = align_without_prior(&matcher, &pa, &pb, (&la, &lb), &GlobalSettings::default())?;
+        let (r, found) = align_searched(&matcher, &pa, &pb, &GlobalSearch::default(), || {})?;
         let ms = t.elapsed().as_secs_f64() * 1e3;
         progress();
         let truth = gt * d.inverse();
-        let agreeing = Some(found.map(|o| o.agreeing).unwrap_or(0));
-        Ok(Outcome { global_start: Some(*s), agreeing, ..Outcome::new(method, &r, &truth, ms, DEFAULT_LEVELS) })
+        let search = found.map(|f| {
+            let (best, runner_up) = f.search.scores();
+            [best, runner_up]
+        });
+        Ok(Outcome { global_start: Some(*s), search, ..Outcome::new(method, &r, &truth, ms, DEFAULT_LEVELS) })
     });
     outcomes.into_iter().collect()
 }
@@ -514,4 +528,197 @@ mod tests {
         let (et, er) = cosem_core::geometry::pose_errors(&est, &gt);
         assert!((et - 5.0).abs() < 1e-9 && (er - 10.0).abs() < 1e-9, "{et} {er}");
     }
+}
+
+/// A map of one place for `cosem eval --negatives`: `DIR[:START:END[:STRIDE]]`
+/// (default: the folder's first scan).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Place {
+    /// SemanticKITTI-layout folder.
+    pub data: std::path::PathBuf,
+    /// Its frames (`None`: the first scan in velodyne/).
+    pub frames: Option<crate::kitti::FrameRange>,
+}
+
+impl std::str::FromStr for Place {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        // The frames follow the first ':' after the last '/'.
+        let name_start = s.rfind('/').map_or(0, |i| i + 1);
+        match s[name_start..].find(':').map(|i| i + name_start) {
+            Some(at) => {
+                let frames = s[at + 1..].parse().map_err(|e: crate::kitti::KittiError| format!("`{s}`: {e}"))?;
+                Ok(Place { data: s[..at].into(), frames: Some(frames) })
+            }
+            None => Ok(Place { data: s.into(), frames: None }),
+        }
+    }
+}
+
+impl std::fmt::Display for Place {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let name = self.data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        match &self.frames {
+            Some(r) => write!(f, "{name}:{r}"),
+            None => write!(f, "{name}"),
+        }
+    }
+}
+
+/// One negative case: two maps of different places matched.
+#[derive(Clone, Debug, Serialize)]
+pub struct NegativeCase {
+    /// The model's place.
+    pub model: String,
+    /// The scene's place.
+    pub scene: String,
+    /// `none`, `identity` or `random`.
+    pub prior: &'static str,
+    /// The status reported.
+    pub status: &'static str,
+    /// Overlap under the answer.
+    pub overlap: f32,
+    /// Agreement of what both saw under the answer.
+    pub agreement: f32,
+    /// Coverage of the scene by the model under the answer.
+    pub coverage: f32,
+    /// Prior-free: the coarse search's best score and its runner-up's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub search: Option<[u32; 2]>,
+    #[serde(skip)]
+    accepted: bool,
+}
+
+/// Counts of one kind of prior.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct NegativeCount {
+    /// Cases.
+    pub cases: usize,
+    /// Reported `Converged` (all wrong: the places differ).
+    pub false_accepts: usize,
+}
+
+/// `cosem eval --negatives --json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct NegativeReport {
+    /// [`SCHEMA_VERSION`].
+    pub schema_version: u32,
+    /// `negatives`.
+    pub mode: &'static str,
+    /// Places, in order.
+    pub places: Vec<String>,
+    /// Ordered pairs matched (model, scene).
+    pub pairs: usize,
+    /// Pairs of one folder left out because their maps overlap (>= 1% under the truth).
+    pub overlapping_pairs: usize,
+    /// All cases.
+    pub cases: usize,
+    /// Cases reported `Converged`.
+    pub false_accepts: usize,
+    /// By kind of prior: `none`, `identity`, `random`.
+    pub by_prior: BTreeMap<&'static str, NegativeCount>,
+    /// Every case.
+    pub results: Vec<NegativeCase>,
+}
+
+/// Matches every ordered pair of maps of different places (of one sequence:
+/// only when they overlap by under 1% under the truth) with no prior, the
+/// identity prior and `random_priors` seeded random priors (+-20 m, any
+/// heading). Every `Converged` is a false accept.
+pub fn run_negatives(
+    places: &[Place],
+    spec: &crate::pair::PairSpec,
+    settings: MatchSettings,
+    random_priors: usize,
+    progress: &(dyn Fn() + Sync),
+) -> Result<NegativeReport, Error> {
+    let mut maps = Vec::new();
+    for p in places {
+        let seq = crate::kitti::Sequence::open(&p.data)?;
+        let range = match p.frames {
+            Some(r) => r,
+            None => {
+                let first = seq
+                    .scan_frames()?
+                    .first()
+                    .copied()
+                    .ok_or_else(|| Error::Invalid(format!("{}: no scans", p.data.display())))?;
+                crate::kitti::FrameRange { start: first, end: first + 1, stride: 1 }
+            }
+        };
+        let (frames, _) = spec.frames(&seq, range)?;
+        let (map, _) = build_map(&frames, spec.config, &spec.filter)?;
+        maps.push((seq, range, map));
+    }
+    let pyramids: Vec<_> = maps.iter().map(|m| prepare(&m.2, DEFAULT_LEVELS)).collect::<Result<_, _>>()?;
+    let mut pairs = Vec::new();
+    let mut overlapping = 0;
+    for (i, a) in maps.iter().enumerate() {
+        for (j, b) in maps.iter().enumerate() {
+            if i == j {
+                continue;
+            }
+            // Folders of one sequence (the same poses) may hold one place.
+            let poses = |p: &Place| std::fs::read(p.data.join("poses.txt")).ok();
+            if places[i].data == places[j].data || poses(&places[i]) == poses(&places[j]) {
+                let t = a.0.velodyne_pose(a.1.start)?.inverse() * b.0.velodyne_pose(b.1.start)?;
+                if cosem_core::map::overlap(&a.2, &b.2, &t.cast::<f32>()) >= 0.01 {
+                    overlapping += 1;
+                    continue;
+                }
+            }
+            pairs.push((i, j));
+        }
+    }
+    let matcher = Matcher::new(settings);
+    let mut rng = crate::rng::Rng::new(0x0E6A_7105);
+    let mut jobs = Vec::new();
+    for &(i, j) in &pairs {
+        jobs.push((i, j, "none", None));
+        jobs.push((i, j, "identity", Some(Isometry3::<f64>::identity())));
+        for _ in 0..random_priors {
+            let (x, y, yaw) = (rng.range(-20.0, 20.0), rng.range(-20.0, 20.0), rng.range(-180.0, 180.0));
+            jobs.push((i, j, "random", Some(pose_deg(x, y, 0.0, 0.0, 0.0, yaw))));
+        }
+    }
+    let cases = for_each_start(&jobs, |&(i, j, kind, prior)| -> Result<NegativeCase, Error> {
+        let (pm, ps) = (&pyramids[i], &pyramids[j]);
+        let (r, search) = match prior {
+            Some(p) => (matcher.align(pm, ps, &p.cast::<f32>())?, None),
+            None => {
+                let (r, found) = align_searched(&matcher, pm, ps, &GlobalSearch::default(), || {})?;
+                (r, found.map(|f| [f.search.scores().0, f.search.scores().1]))
+            }
+        };
+        progress();
+        Ok(NegativeCase {
+            model: places[i].to_string(),
+            scene: places[j].to_string(),
+            prior: kind,
+            status: r.status.as_str(),
+            overlap: r.overlap,
+            agreement: r.agreement,
+            coverage: r.coverage,
+            search,
+            accepted: r.status == MatchStatus::Converged,
+        })
+    });
+    let results: Vec<NegativeCase> = cases.into_iter().collect::<Result<_, _>>()?;
+    let mut by_prior: BTreeMap<&'static str, NegativeCount> = BTreeMap::new();
+    for c in &results {
+        let e = by_prior.entry(c.prior).or_default();
+        e.cases += 1;
+        e.false_accepts += usize::from(c.accepted);
+    }
+    Ok(NegativeReport {
+        schema_version: SCHEMA_VERSION,
+        mode: "negatives",
+        places: places.iter().map(ToString::to_string).collect(),
+        pairs: pairs.len(),
+        overlapping_pairs: overlapping,
+        cases: results.len(),
+        false_accepts: results.iter().filter(|c| c.accepted).count(),
+        by_prior,
+        results,
+    })
 }

@@ -5,7 +5,8 @@
 //!
 //! - Data in: [`kitti`] (SemanticKITTI layout; every error names its file),
 //!   [`synth`] (procedural streets, a simulated 64-beam LiDAR, camera
-//!   segmentation), [`label`] (LiDAR labels from camera segmentation).
+//!   segmentation), [`label`] (LiDAR labels from camera segmentation),
+//!   [`noise`] (a segmentation network's label errors, seeded).
 //! - Maps: [`mapping`] (frames to a map on the heap), [`cmap`] (the core's
 //!   map file with path context), [`ply`] (export).
 //! - Matching: [`align`] (heap pyramids, alignment with or without a
@@ -29,6 +30,7 @@ pub mod kitti;
 pub mod label;
 pub mod link;
 pub mod mapping;
+pub mod noise;
 pub mod pair;
 pub mod ply;
 pub mod report;

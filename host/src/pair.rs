@@ -4,6 +4,7 @@
 use crate::error::Error;
 use crate::kitti::{Frame, FrameRange, Sequence};
 use crate::mapping::{build_map, HostMap, PointFilter};
+use crate::noise::{corrupt_all, LabelNoise, NoiseStats};
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::MapConfig;
 use std::path::{Path, PathBuf};
@@ -21,6 +22,8 @@ pub struct PairSpec {
     pub config: MapConfig,
     /// Which points enter the maps.
     pub filter: PointFilter,
+    /// Label noise put on every scan before mapping, and its seed.
+    pub noise: (LabelNoise, u64),
 }
 
 impl PairSpec {
@@ -32,7 +35,20 @@ impl PairSpec {
             b,
             config: MapConfig::with_resolution(voxel),
             filter: PointFilter::default(),
+            noise: (LabelNoise::None, 0),
         }
+    }
+
+    /// The same pair with `noise` on its labels (seeded).
+    pub fn with_noise(self, noise: LabelNoise, seed: u64) -> Self {
+        PairSpec { noise: (noise, seed), ..self }
+    }
+
+    /// Reads a range's frames with this spec's label noise.
+    pub fn frames(&self, seq: &Sequence, range: FrameRange) -> Result<(Vec<Frame>, NoiseStats), Error> {
+        let mut frames = seq.load_range(range)?;
+        let stats = corrupt_all(&mut frames, self.noise.0, self.noise.1);
+        Ok((frames, stats))
     }
 
     /// The folder's last path component, for captions.
@@ -51,17 +67,21 @@ pub struct Pair {
     pub frames_b: Vec<Frame>,
     /// `T_A_B = inv(V_A0) * V_B0`.
     pub gt: Isometry3<f64>,
+    /// What the label noise changed (both maps' frames).
+    pub noise: NoiseStats,
 }
 
 impl Pair {
     /// Reads both ranges and builds both maps.
     pub fn load(spec: &PairSpec) -> Result<Pair, Error> {
         let seq = Sequence::open(&spec.data)?;
-        let (map_a, _) = build_map(&seq.load_range(spec.a)?, spec.config, &spec.filter)?;
-        let frames_b = seq.load_range(spec.b)?;
+        let (frames_a, na) = spec.frames(&seq, spec.a)?;
+        let (map_a, _) = build_map(&frames_a, spec.config, &spec.filter)?;
+        let (frames_b, nb) = spec.frames(&seq, spec.b)?;
         let (map_b, _) = build_map(&frames_b, spec.config, &spec.filter)?;
         let gt = seq.relative_pose(spec.a.start, spec.b.start)?;
-        Ok(Pair { map_a, map_b, frames_b, gt })
+        let noise = NoiseStats { points: na.points + nb.points, changed: na.changed + nb.changed };
+        Ok(Pair { map_a, map_b, frames_b, gt, noise })
     }
 
     /// Both maps passed through the map-file encoding (as received over the

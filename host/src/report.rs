@@ -3,7 +3,7 @@
 //! a schema version).
 
 use cosem_core::geometry::{row_major, xyz_rpy_deg, Isometry3};
-use cosem_core::matching::global::Located;
+use cosem_core::matching::global::Searched;
 use cosem_core::matching::{MatchResult, MAX_LEVELS};
 use cosem_core::wire::feed::GlobalReport;
 use serde::Serialize;
@@ -33,6 +33,13 @@ pub struct MatchJson {
     pub min_eigenvalue: f32,
     /// Normalised smallest eigenvalue.
     pub degeneracy: f32,
+    /// Agreement of what both maps saw standing (the verdict's statistic).
+    pub agreement: f32,
+    /// Fraction of the scene's standing voxels the model saw around.
+    pub coverage: f32,
+    /// Version of this JSON (2: `agreement`, `coverage` and the prior-free
+    /// search's `global`).
+    pub schema_version: u32,
     /// Time of the match (ms).
     pub time_ms: f64,
     /// Time preparing both maps (ms).
@@ -61,6 +68,9 @@ impl MatchJson {
             information: r.information.transpose().iter().copied().collect(),
             min_eigenvalue: r.min_eigenvalue,
             degeneracy: r.degeneracy,
+            agreement: r.agreement,
+            coverage: r.coverage,
+            schema_version: 2,
             time_ms,
             prepare_ms,
             method: None,
@@ -69,42 +79,42 @@ impl MatchJson {
     }
 }
 
-/// What the prior-free alignment found.
+/// What the prior-free alignment found (`global` in the JSON of `match`,
+/// `link` and `robots`; schema 2: the coarse search over every heading and
+/// offset replaced schema 1's landmark correspondences).
 #[derive(Clone, Debug, Serialize)]
 pub struct GlobalJson {
-    /// Landmarks of the model and of the scene.
-    pub landmarks: [u32; 2],
-    /// Correspondences in the largest consistent set (null: too few).
-    pub agreeing: Option<u32>,
-    /// The largest consistent set the answer does not explain.
-    pub runner_up: Option<u32>,
-    /// Whether the answer was unique enough to refine.
-    pub unique: Option<bool>,
-    /// The 4-DoF start it gave EM, row by row.
+    /// The coarse search's best score (footprint cells agreeing).
+    pub score: u32,
+    /// The best score of a distinct placement (0: not looked for, the best
+    /// one's refinement passed).
+    pub runner_up: u32,
+    /// Candidates refined until one passed the verdict (or all failed).
+    pub refined: u8,
+    /// The candidate the answer comes from (0: the best).
+    pub chosen: u8,
+    /// Nodes the coarse search scored.
+    pub evaluations: u32,
+    /// The chosen candidate's placement, row by row (the start EM refined).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub start: Option<Option<[f64; 16]>>,
+    pub start: Option<[f64; 16]>,
 }
 
-impl From<&Located> for GlobalJson {
-    fn from(g: &Located) -> Self {
-        let o = g.outcome;
-        GlobalJson {
-            landmarks: g.landmarks,
-            agreeing: o.map(|o| o.agreeing),
-            runner_up: o.map(|o| o.runner_up),
-            unique: o.map(|o| o.unique),
-            start: Some(o.map(|o| row_major(&o.transform.cast::<f64>()))),
-        }
+impl From<&Searched> for GlobalJson {
+    fn from(s: &Searched) -> Self {
+        let start = s.search.candidates.get(s.chosen).map(|c| row_major(&c.transform.cast::<f64>()));
+        GlobalJson { start, ..GlobalJson::from(GlobalReport::from(s)) }
     }
 }
 
 impl From<GlobalReport> for GlobalJson {
     fn from(g: GlobalReport) -> Self {
         GlobalJson {
-            landmarks: g.landmarks,
-            agreeing: Some(g.agreeing),
-            runner_up: Some(g.runner_up),
-            unique: Some(g.unique),
+            score: g.score,
+            runner_up: g.runner_up,
+            refined: g.refined,
+            chosen: g.chosen,
+            evaluations: g.evaluations,
             start: None,
         }
     }
@@ -113,14 +123,14 @@ impl From<GlobalReport> for GlobalJson {
 impl GlobalJson {
     /// The figures in words.
     pub fn text(&self) -> String {
-        let [m, s] = self.landmarks;
-        match (self.agreeing, self.runner_up) {
-            (Some(a), Some(r)) if a > 0 => format!(
-                "{m} / {s} landmarks, {a} agree (runner-up {r}): {}",
-                if self.unique == Some(true) { "unique" } else { "no unique answer" }
-            ),
-            _ => format!("{m} / {s} landmarks, too few agree: no answer"),
-        }
+        let runner_up = if self.runner_up > 0 { format!(", runner-up {}", self.runner_up) } else { String::new() };
+        format!(
+            "searched every heading and offset ({} nodes): best score {}{runner_up}; candidate {} of {} refined",
+            self.evaluations,
+            self.score,
+            usize::from(self.chosen) + 1,
+            self.refined
+        )
     }
 }
 
@@ -199,7 +209,7 @@ pub struct InfoJson {
 }
 
 /// A match result in words, as `cosem match` and `cosem link` print it.
-pub fn result_text(r: &MatchResult, global: Option<&Located>) -> String {
+pub fn result_text(r: &MatchResult, global: Option<&Searched>) -> String {
     use std::fmt::Write;
     let mut out = String::new();
     let _ = writeln!(out, "status      {}", r.status.as_str());
@@ -217,6 +227,12 @@ pub fn result_text(r: &MatchResult, global: Option<&Located>) -> String {
     let per_level = &r.iterations_per_level[..crate::align::DEFAULT_LEVELS];
     let _ = writeln!(out, "iterations  {} (per level, fine to coarse: {per_level:?})", r.iterations);
     let _ = writeln!(out, "inliers     {}   overlap {:.1}%   rmse {:.4} m", r.inliers, 100.0 * r.overlap, r.rmse);
+    let _ = writeln!(
+        out,
+        "agreement   {:.1}% of what both saw standing (coverage {:.1}%)",
+        100.0 * r.agreement,
+        100.0 * r.coverage
+    );
     let _ = writeln!(out, "information min eigenvalue {:.4e}, normalised {:.4}", r.min_eigenvalue, r.degeneracy);
     out
 }

@@ -123,7 +123,7 @@ fn match_rejects_bad_arguments_cleanly() {
     assert!(e.contains("/nonexistent.cmap"), "{e}");
 }
 
-/// Without `--init`, `cosem match` aligns from semantic landmarks first:
+/// Without `--init`, `cosem match` searches every heading and offset first:
 /// the two loop pairs (one driven in opposite directions, relative yaw about
 /// -148 degrees) converge with no prior; the far-apart pair does not.
 #[test]
@@ -136,7 +136,8 @@ fn loop_pairs_align_with_no_prior() {
         map(&dir, b, &mb);
         let v = match_json(&ma, &mb, &[]);
         assert_eq!(v["status"], "Converged", "{name}: {v}");
-        assert_eq!(v["global"]["unique"], true, "{name}: {v}");
+        assert!(v["global"]["score"].as_u64().unwrap() > 0, "{name}: {v}");
+        assert!(v["agreement"].as_f64().unwrap() > 0.6, "{name}: {v}");
         let seq = cosem_host::kitti::Sequence::open(&dir).unwrap();
         let start = |r: &str| r.split(':').next().unwrap().parse::<usize>().unwrap();
         let gt = seq.relative_pose(start(a), start(b)).unwrap();
@@ -144,6 +145,6 @@ fn loop_pairs_align_with_no_prior() {
         let est = cosem_host::report::from_row_major(&n.try_into().unwrap());
         let (e_t, e_r) = cosem_core::geometry::pose_errors(&est, &gt);
         assert!(e_t < 0.3 && e_r < 1.0, "{name}: e_t {e_t} m, e_r {e_r} deg");
-        eprintln!("{name}: no prior, {} landmarks agree: e_t {e_t:.3} m, e_r {e_r:.3} deg", v["global"]["agreeing"]);
+        eprintln!("{name}: no prior, agreement {}: e_t {e_t:.3} m, e_r {e_r:.3} deg", v["agreement"]);
     }
 }

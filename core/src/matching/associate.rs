@@ -8,6 +8,7 @@
 //! method. The Gaussian weight is also the Welsch robust kernel of the
 //! least-squares M-step: far pairs fade out instead of pulling.
 
+use super::footprint::GROUP_BITS;
 use super::pyramid::{Entry, Level};
 use super::settings::{Cost, Method};
 use crate::classes::NUM_CLASSES;
@@ -283,6 +284,13 @@ pub(crate) struct Agreement {
     pub overlap: f32,
     /// RMS distance of the inlier pairs.
     pub rmse: f32,
+    /// Of the scene's standing entries (classes with a footprint group: not
+    /// ground) that the model saw around (an entry of `cover` within one of
+    /// its cells), the fraction with a model entry of the same group within
+    /// one cell of the finest level.
+    pub agreement: f32,
+    /// Fraction of the scene's standing entries that the model saw around.
+    pub coverage: f32,
 }
 
 /// The final pass over the scene entries of the finest level (one in
@@ -291,23 +299,36 @@ pub(crate) struct Agreement {
 /// around a moved entry holds every model entry within half a cell; the other
 /// 19 cells of its neighbourhood are read only when that block does not
 /// settle the agreement.
-pub(crate) fn agreement(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>, stride: usize) -> Agreement {
+pub(crate) fn agreement(
+    model: &Level<'_>,
+    cover: Option<&Level<'_>>,
+    scene: &Level<'_>,
+    t: &Isometry3<f32>,
+    stride: usize,
+) -> Agreement {
     let res = model.resolution();
     let res_sq = res * res;
     let stride = stride.max(1);
     let (mut inliers, mut same, mut sum_d2, mut seen) = (0u32, 0u32, 0.0f32, 0u32);
+    let (mut standing, mut covered, mut agreeing) = (0u32, 0u32, 0u32);
+    let group = |c: u8| GROUP_BITS.get(usize::from(c)).copied().unwrap_or(0);
     for s in (0..scene.len()).step_by(stride).filter_map(|i| scene.entry(i)) {
         seen += 1;
         let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
+        let g = group(s.class);
+        let seen_around = g != 0 && cover.is_some_and(|c| near_any(c, [q.x, q.y, q.z]));
+        standing += u32::from(g != 0);
+        covered += u32::from(seen_around);
         let Some(cell) = model.locate_with_fraction([q.x, q.y, q.z]) else { continue };
         let f = cell.fraction;
         let side = |v: f32| if v < 0.5 { -1 } else { 1 };
         let (sx, sy, sz) = (side(f[0]), side(f[1]), side(f[2]));
         let in_block =
             |dx: i32, dy: i32, dz: i32| (dx == 0 || dx == sx) && (dy == 0 || dy == sy) && (dz == 0 || dz == sz);
-        // (nearest squared distance within one cell, a same-class entry there)
-        let mut found = (f32::INFINITY, false);
-        let visit = |found: &mut (f32, bool), dx: i32, dy: i32, dz: i32| {
+        // (nearest squared distance within one cell, a same-class entry
+        // there, a same-group entry there)
+        let mut found = (f32::INFINITY, false, false);
+        let visit = |found: &mut (f32, bool, bool), dx: i32, dy: i32, dz: i32| {
             let Some(k) = cell.key.offset(dx, dy, dz) else { return };
             for m in model.cell(k) {
                 let d = [q.x - m.position[0], q.y - m.position[1], q.z - m.position[2]];
@@ -315,6 +336,7 @@ pub(crate) fn agreement(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>
                 if d2 <= res_sq {
                     found.0 = found.0.min(d2);
                     found.1 |= m.class == s.class;
+                    found.2 |= g != 0 && group(m.class) == g;
                 }
             }
         };
@@ -325,7 +347,7 @@ pub(crate) fn agreement(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>
         }
         // Settled: the nearest is within half a cell (so nothing outside the
         // block is nearer) and a same-class entry was found.
-        if !(found.1 && found.0 <= 0.25 * res_sq) {
+        if !(found.1 && (found.2 || g == 0) && found.0 <= 0.25 * res_sq) {
             for dx in -1..=1 {
                 for dy in -1..=1 {
                     for dz in -1..=1 {
@@ -336,7 +358,7 @@ pub(crate) fn agreement(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>
                 }
             }
         }
-        let (nearest, same_class) = found;
+        let (nearest, same_class, same_group) = found;
         if nearest <= res_sq {
             inliers += 1;
             sum_d2 += nearest;
@@ -344,13 +366,32 @@ pub(crate) fn agreement(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>
                 same += 1;
             }
         }
+        agreeing += u32::from(seen_around && same_group);
     }
     // Inliers are counted for the whole scene: the subset's count times the stride.
     Agreement {
         inliers: inliers.saturating_mul(stride as u32),
         overlap: same as f32 / seen.max(1) as f32,
         rmse: if inliers > 0 { libm::sqrtf(sum_d2 / inliers as f32) } else { 0.0 },
+        agreement: agreeing as f32 / covered.max(1) as f32,
+        coverage: covered as f32 / standing.max(1) as f32,
     }
+}
+
+/// Whether `level` has an entry in the cell of `p` or one of its 26
+/// neighbours.
+fn near_any(level: &Level<'_>, p: [f32; 3]) -> bool {
+    let Some(key) = level.locate(p) else { return false };
+    for dx in -1..=1 {
+        for dy in -1..=1 {
+            for dz in -1..=1 {
+                if key.offset(dx, dy, dz).is_some_and(|k| level.cell(k).next().is_some()) {
+                    return true;
+                }
+            }
+        }
+    }
+    false
 }
 
 #[cfg(test)]

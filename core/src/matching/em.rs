@@ -64,6 +64,7 @@ impl Matcher {
             && pos(s.translation_tolerance)
             && pos(s.rotation_tolerance)
             && s.min_overlap.is_finite()
+            && s.min_agreement.is_finite()
             && s.degeneracy_threshold.is_finite();
         if ok {
             Ok(())
@@ -159,7 +160,11 @@ impl Matcher {
             return Err(MatchError::ResolutionMismatch);
         };
         let cell = m0.resolution();
-        let agree = agreement(&m0, &c0, &t, c0.len().div_ceil(s.max_agreement_entries.max(1) as usize));
+        // The model's level of cells of about 1.5 m says where it saw anything.
+        let cover_level = (0..model.levels()).find(|&l| model.level(l).is_some_and(|lv| lv.resolution() >= 1.5));
+        let cover = cover_level.and_then(|l| model.level(l));
+        let stride = c0.len().div_ceil(s.max_agreement_entries.max(1) as usize);
+        let agree = agreement(&m0, cover.as_ref(), &c0, &t, stride);
         // The information at the solution: the last finest-level iteration's
         // normal equations (its update was below the tolerance, so they were
         // taken at the solution to within it), else a fresh pass.
@@ -183,10 +188,15 @@ impl Matcher {
         let information: Matrix6<f32> = n.h_all / var;
         let lever = if n.sum_w > 0.0 { libm::sqrtf(n.sum_wq2 / n.sum_w) } else { 0.0 };
         let degeneracy = normalised_min_eigenvalue(&n.h, n.sum_w, lever, s.dof);
+        // The geometry decides first whether an answer is possible at all
+        // (a flat road alone is Degenerate, whatever agrees on it); then
+        // what both maps saw standing must agree.
         let status = if agree.inliers < s.min_inliers || agree.overlap < s.min_overlap {
             MatchStatus::NoOverlap
         } else if degeneracy < s.degeneracy_threshold {
             MatchStatus::Degenerate
+        } else if agree.agreement < s.min_agreement {
+            MatchStatus::NoOverlap
         } else if converged {
             MatchStatus::Converged
         } else {
@@ -200,6 +210,8 @@ impl Matcher {
             inliers: agree.inliers,
             overlap: agree.overlap,
             rmse: agree.rmse,
+            agreement: agree.agreement,
+            coverage: agree.coverage,
             information,
             min_eigenvalue: min_eigenvalue(&information),
             degeneracy,

@@ -10,13 +10,17 @@ use crate::map::key::floor_f32;
 /// Levels of max-pooling (windows of 1, 2, 4, ... 2^(POOL_LEVELS-1) cells).
 pub const POOL_LEVELS: usize = 6;
 
-/// Class bits left out of the masks: the ground classes (road, parking,
-/// sidewalk, other-ground, terrain). Ground covers almost every column a
-/// sensor saw, so its bits would score the overlap of the two maps' seen
-/// areas, which peaks with the two sensors on top of each other whatever
-/// the truth: on a straight street that pulls the search towards the
-/// identity. What stands on the ground is not tied to the sensor.
-const GROUND: u32 = (1 << 8) | (1 << 9) | (1 << 10) | (1 << 11) | (1 << 16);
+/// The footprint bit of each class (by class index): classes are merged
+/// into groups a segmentation network seldom confuses across, so a column
+/// mask survives the network's errors (pole/trunk/sign, car/truck, building/
+/// fence): vehicles (1), people (2), structures: building and fence (4),
+/// vegetation and trunks (8: a Cityscapes network calls trunks vegetation),
+/// poles and traffic signs (16). The ground classes (road, parking,
+/// sidewalk, other-ground, terrain) get no bit: ground covers almost every
+/// column a sensor saw, so its bits would score the overlap of the two maps'
+/// seen areas, which peaks with the two sensors on top of each other
+/// whatever the truth. What stands on the ground is not tied to the sensor.
+pub const GROUP_BITS: [u32; 19] = [1, 1, 1, 1, 1, 2, 2, 2, 0, 0, 0, 0, 4, 4, 8, 8, 0, 16, 16];
 
 /// Where a footprint lives inside the pyramid storage.
 #[derive(Clone, Copy, Debug, Default)]
@@ -82,6 +86,17 @@ impl<'a> Footprint<'a> {
         self.words.get(h * w * ht + ju * w + iu).copied().unwrap_or(0)
     }
 
+    /// Pooled grid `h` (windows of `2^h` cells), for many lookups.
+    #[inline]
+    pub fn grid(&self, h: usize) -> Option<Grid<'a>> {
+        if h >= self.info.grids {
+            return None;
+        }
+        let (w, ht) = (self.info.width, self.info.height);
+        let words = self.words.get(h * w * ht..(h + 1) * w * ht)?;
+        Some(Grid { words, width: w as i32, height: ht as i32, span: 1 << h })
+    }
+
     /// Cell index (i, j) of a point, unclamped.
     #[inline]
     pub fn cell_of(&self, x: f32, y: f32) -> (i32, i32) {
@@ -96,9 +111,38 @@ impl<'a> Footprint<'a> {
         list.chunks_exact(3).map(|c| ([f32::from_bits(c[0]), f32::from_bits(c[1]), 0.0], c[2]))
     }
 
+    /// Grid size in cells (width, height).
+    pub fn size(&self) -> (usize, usize) {
+        (self.info.width, self.info.height)
+    }
+
     /// Number of occupied cells.
     pub fn occupied_len(&self) -> usize {
         self.info.occupied
+    }
+}
+
+/// One pooled grid of a footprint: [`Footprint::mask`] without the level
+/// lookup, for the search's inner loop.
+#[derive(Clone, Copy)]
+pub struct Grid<'a> {
+    words: &'a [u32],
+    width: i32,
+    height: i32,
+    span: i32,
+}
+
+impl Grid<'_> {
+    /// The class mask at cell (i, j); 0 outside. A window that starts below
+    /// the grid but reaches into it reads the window at 0 (an upper bound).
+    #[inline]
+    pub fn mask(&self, i: i32, j: i32) -> u32 {
+        let i = if i < 0 && i + self.span > 0 { 0 } else { i };
+        let j = if j < 0 && j + self.span > 0 { 0 } else { j };
+        if i < 0 || j < 0 || i >= self.width || j >= self.height {
+            return 0;
+        }
+        self.words.get((j * self.width + i) as usize).copied().unwrap_or(0)
     }
 }
 
@@ -139,13 +183,11 @@ fn fill(level: &Level<'_>, info: &mut FootprintInfo, words: &mut [u32]) {
     words.iter_mut().take(info.grids * grid).for_each(|v| *v = 0);
     let inv = 1.0 / info.cell;
     for e in level.iter() {
-        if e.class >= 32 {
-            continue;
-        }
+        let Some(&bit) = GROUP_BITS.get(usize::from(e.class)) else { continue };
         let i = libm::floorf((e.position[0] - info.origin[0]) * inv) as usize;
         let j = libm::floorf((e.position[1] - info.origin[1]) * inv) as usize;
         if let Some(v) = words.get_mut(j.min(h - 1) * w + i.min(w - 1)) {
-            *v |= (1u32 << e.class) & !GROUND;
+            *v |= bit;
         }
     }
     // Max-pooling: level k ORs the 2x2 block of level k-1 at offset 2^(k-1),

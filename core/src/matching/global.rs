@@ -14,7 +14,8 @@
 //! close to it in size.
 
 use super::landmarks::{extract, Landmark, LandmarkError};
-use super::{MatchError, MatchResult, Matcher, Pyramid, PyramidStorage};
+use super::search::{search_global, GlobalSearch, GlobalSearchOutcome, SearchWindow};
+use super::{MatchError, MatchResult, MatchSettings, MatchStatus, Matcher, Method, Pyramid, PyramidStorage};
 use crate::geometry::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use crate::map::{LocalMap, VoxelStorage};
 
@@ -250,17 +251,6 @@ pub struct Located {
     pub outcome: Option<GlobalOutcome>,
 }
 
-impl From<&Located> for crate::wire::feed::GlobalReport {
-    fn from(l: &Located) -> Self {
-        crate::wire::feed::GlobalReport {
-            landmarks: l.landmarks,
-            agreeing: l.outcome.map(|o| o.agreeing).unwrap_or(0),
-            runner_up: l.outcome.map(|o| o.runner_up).unwrap_or(0),
-            unique: l.outcome.is_some_and(|o| o.unique),
-        }
-    }
-}
-
 /// Extracts both maps' landmarks and aligns them with no prior. `scratch`
 /// holds one `u32` per voxel of the larger map (see [`extract`]); the
 /// landmarks live only in this call's frame (about 8 KiB, plus about 12 KiB
@@ -306,6 +296,78 @@ pub fn align_without_prior<A: PyramidStorage, B: PyramidStorage>(
 ) -> Result<(MatchResult, Option<GlobalOutcome>), MatchError> {
     let outcome = align_landmarks(landmarks.0, landmarks.1, settings);
     Ok((refine(matcher, model, scene, outcome.as_ref())?, outcome))
+}
+
+/// What the prior-free alignment tried.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Searched {
+    /// The coarse search's candidates and effort.
+    pub search: GlobalSearchOutcome,
+    /// The candidate whose refinement is the answer (the first that passed
+    /// the verdict, else the best).
+    pub chosen: usize,
+    /// Candidates refined.
+    pub refined: usize,
+}
+
+impl From<&Searched> for crate::wire::feed::GlobalReport {
+    fn from(s: &Searched) -> Self {
+        let (score, runner_up) = s.search.scores();
+        crate::wire::feed::GlobalReport {
+            score,
+            runner_up,
+            refined: s.refined.min(255) as u8,
+            chosen: s.chosen.min(255) as u8,
+            evaluations: s.search.evaluations,
+        }
+    }
+}
+
+/// Aligns two prepared maps with no prior: the coarse search over every
+/// heading and offset ([`search_global`]) gives a few distinct candidates,
+/// best first; each is refined by the matcher (a narrow search window
+/// around it, then EM) until one passes the matcher's verdict
+/// (`Converged`). None passing: the best candidate's result, whatever its
+/// status. `None` with `NoOverlap` when a map has no footprint or the scene
+/// no occupied cell. `searched` runs after the first search (e.g. to read
+/// an instruction counter).
+pub fn align_searched<A: PyramidStorage, B: PyramidStorage>(
+    matcher: &Matcher,
+    model: &Pyramid<'_, A>,
+    scene: &Pyramid<'_, B>,
+    settings: &GlobalSearch,
+    mut searched: impl FnMut(),
+) -> Result<(MatchResult, Option<Searched>), MatchError> {
+    let semantic = matcher.settings.method != Method::Geometric;
+    let (Some(fm), Some(fs)) = (model.footprint(), scene.footprint()) else {
+        return Ok((MatchResult::no_overlap(), None));
+    };
+    // Candidates are exact on the search's lattice: a window of a few cells
+    // and degrees around each holds its error.
+    let deg = core::f32::consts::PI / 180.0;
+    let window = SearchWindow { translation: 4.0, yaw: (2.0 * settings.yaw_step).max(6.0 * deg) };
+    let local = Matcher::new(MatchSettings { search: Some(window), ..matcher.settings });
+    // The best placement alone first (the cheap search); only when its
+    // refinement fails, the few best distinct ones.
+    let one = GlobalSearch { candidates: 1, ..*settings };
+    let Some(search) = search_global(fm, fs, &one, semantic) else { return Ok((MatchResult::no_overlap(), None)) };
+    searched();
+    let Some(best) = search.candidates.first() else { return Ok((MatchResult::no_overlap(), None)) };
+    let first = local.align(model, scene, &best.transform)?;
+    if first.status == MatchStatus::Converged || settings.candidates <= 1 {
+        return Ok((first, Some(Searched { search, chosen: 0, refined: 1 })));
+    }
+    let Some(more) = search_global(fm, fs, settings, semantic) else {
+        return Ok((first, Some(Searched { search, chosen: 0, refined: 1 })));
+    };
+    for (k, c) in more.candidates.iter().enumerate().skip(1) {
+        let r = local.align(model, scene, &c.transform)?;
+        if r.status == MatchStatus::Converged {
+            return Ok((r, Some(Searched { search: more.clone(), chosen: k, refined: k + 1 })));
+        }
+    }
+    let refined = more.candidates.len().max(1);
+    Ok((first, Some(Searched { search: more, chosen: 0, refined })))
 }
 
 #[cfg(test)]

@@ -63,6 +63,13 @@ pub struct MatchResult {
     pub overlap: f32,
     /// Root mean square distance of the inlier pairs (m).
     pub rmse: f32,
+    /// Of the scene's standing voxels (not ground) in places the model saw,
+    /// the fraction with a model voxel of the same class group (see
+    /// `footprint::GROUP_BITS`) within one voxel: how well what both maps
+    /// saw agrees, whatever their overlap.
+    pub agreement: f32,
+    /// Fraction of the scene's standing voxels in places the model saw.
+    pub coverage: f32,
     /// 6x6 information matrix, order (tx, ty, tz, rx, ry, rz), for a left
     /// perturbation in the model frame: `sum w J^T J / s^2` at the solution,
     /// with `s^2` the weighted mean squared residual.
@@ -100,6 +107,8 @@ impl MatchResult {
             inliers: 0,
             overlap: 0.0,
             rmse: 0.0,
+            agreement: 0.0,
+            coverage: 0.0,
             information: Matrix6::zeros(),
             min_eigenvalue: 0.0,
             degeneracy: 0.0,

@@ -63,15 +63,15 @@ struct Scorer<'a> {
 }
 
 /// Scene points' model cells at one yaw and zero translation, with masks.
-struct YawCells {
+struct YawCells<const N: usize> {
     yaw: i16,
     len: usize,
-    cells: [(i32, i32, u32); MAX_POINTS],
+    cells: [(i32, i32, u32); N],
 }
 
 impl Scorer<'_> {
     /// Fills `out` with the model cell of every (strided) scene point at `yaw`.
-    fn cells(&self, yaw: i16, out: &mut YawCells) {
+    fn cells<const N: usize>(&self, yaw: i16, out: &mut YawCells<N>) {
         let (s, c) = libm::sincosf(f32::from(yaw) * self.step);
         let p = &self.prior;
         // Rz(theta) * [a b; d e] and Rz(theta) * [tx; ty].
@@ -89,15 +89,17 @@ impl Scorer<'_> {
     }
 
     /// Score of a block of translations at the yaw of `cells`.
-    fn score(&self, cells: &YawCells, i0: i32, j0: i32, h: usize) -> u32 {
+    fn score<const N: usize>(&self, cells: &YawCells<N>, i0: i32, j0: i32, h: usize) -> u32 {
+        let Some(grid) = self.model.grid(h) else { return 0 };
         let mut total = 0u32;
+        let points = cells.cells.get(..cells.len).unwrap_or(&[]);
         if self.semantic {
-            for &(ci, cj, mask) in cells.cells.iter().take(cells.len) {
-                total += (mask & self.model.mask(h, ci + i0, cj + j0)).count_ones();
+            for &(ci, cj, mask) in points {
+                total += (mask & grid.mask(ci + i0, cj + j0)).count_ones();
             }
         } else {
-            for &(ci, cj, _) in cells.cells.iter().take(cells.len) {
-                total += u32::from(self.model.mask(h, ci + i0, cj + j0) != 0);
+            for &(ci, cj, _) in points {
+                total += u32::from(grid.mask(ci + i0, cj + j0) != 0);
             }
         }
         total
@@ -227,4 +229,312 @@ pub fn search(
     let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f32::from(best.yaw) * step);
     let shift = Isometry3::from_parts(Translation3::new(f32::from(best.i) * cell, f32::from(best.j) * cell, 0.0), yaw);
     Some(SearchOutcome { transform: shift * prior, score: best.score, prior_score, evaluations })
+}
+
+/// Settings of the prior-free coarse search ([`search_global`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GlobalSearch {
+    /// Yaw step (radians, default 3 degrees): every heading is tried.
+    pub yaw_step: f32,
+    /// Scene cells scored per candidate at most (default 256, at most
+    /// [`MAX_GLOBAL_POINTS`]; more are
+    /// thinned by a fixed stride, the same at every level of the search so
+    /// that its bounds hold).
+    pub points: usize,
+    /// Candidates kept: the best placements, each away from the others
+    /// ([`GlobalSearch::exclusion`]); default 3, at most
+    /// [`MAX_GLOBAL_CANDIDATES`].
+    pub candidates: usize,
+    /// Placements count as distinct when this far apart in translation (m,
+    /// default 4) or in yaw (radians, default 15 degrees).
+    pub exclusion: (f32, f32),
+}
+
+impl Default for GlobalSearch {
+    fn default() -> Self {
+        let deg = core::f32::consts::PI / 180.0;
+        GlobalSearch { yaw_step: 3.0 * deg, points: 256, candidates: 3, exclusion: (4.0, 15.0 * deg) }
+    }
+}
+
+/// Most scene cells a prior-free search scores per candidate (its cache is
+/// on the stack: 12 bytes each).
+pub const MAX_GLOBAL_POINTS: usize = 512;
+
+/// Most candidates a prior-free search keeps.
+pub const MAX_GLOBAL_CANDIDATES: usize = 4;
+
+/// One placement the prior-free search found.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Candidate {
+    /// `T_model_scene` (x, y, yaw).
+    pub transform: Isometry3<f32>,
+    /// Its score.
+    pub score: u32,
+}
+
+/// What the prior-free coarse search found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GlobalSearchOutcome {
+    /// The best distinct placements, best first.
+    pub candidates: heapless::Vec<Candidate, MAX_GLOBAL_CANDIDATES>,
+    /// Nodes scored.
+    pub evaluations: u32,
+}
+
+impl GlobalSearchOutcome {
+    /// The best score, and the best of the placements away from it.
+    pub fn scores(&self) -> (u32, u32) {
+        let s = |k: usize| self.candidates.get(k).map(|c| c.score).unwrap_or(0);
+        (s(0), s(1))
+    }
+}
+
+/// Translation offsets (cells) a search may try, inclusive.
+#[derive(Clone, Copy, Debug)]
+struct Bounds {
+    i: (i32, i32),
+    j: (i32, i32),
+}
+
+/// How far apart two placements must be to count as distinct.
+#[derive(Clone, Copy, Debug)]
+struct Separation {
+    /// Radius in cells, squared.
+    r2: i64,
+    /// Yaw steps.
+    dyaw: i32,
+    /// Yaw steps in a full turn.
+    turn: i32,
+}
+
+impl Separation {
+    fn yaw_near(&self, a: i16, b: i16) -> bool {
+        let d = (i32::from(a) - i32::from(b)).abs();
+        d.min(self.turn - d) <= self.dyaw
+    }
+
+    /// Whether every translation of `node`'s block is near `c`.
+    fn covers(&self, c: &Node, node: &Node) -> bool {
+        if !self.yaw_near(c.yaw, node.yaw) {
+            return false;
+        }
+        let size = 1i32 << node.h;
+        let far = |a: i16, ca: i16| {
+            let (a, ca) = (i32::from(a), i32::from(ca));
+            i64::from((a - ca).abs().max((a + size - 1 - ca).abs()))
+        };
+        let (di, dj) = (far(node.i, c.i), far(node.j, c.j));
+        di * di + dj * dj <= self.r2
+    }
+
+    fn near(&self, a: &Node, b: &Node) -> bool {
+        let (di, dj) = (i64::from(a.i) - i64::from(b.i), i64::from(a.j) - i64::from(b.j));
+        self.yaw_near(a.yaw, b.yaw) && di * di + dj * dj <= self.r2
+    }
+}
+
+/// The best distinct leaves found so far, best first.
+struct Kept {
+    nodes: heapless::Vec<Node, MAX_GLOBAL_CANDIDATES>,
+    capacity: usize,
+    sep: Separation,
+}
+
+impl Kept {
+    /// A node must beat this to matter.
+    fn threshold(&self) -> u32 {
+        if self.nodes.len() < self.capacity {
+            0
+        } else {
+            self.nodes.last().map(|n| n.score).unwrap_or(0)
+        }
+    }
+
+    /// Whether exploring `node` can change what is kept.
+    fn promising(&self, node: &Node) -> bool {
+        node.score > self.threshold() && !self.nodes.iter().any(|c| c.score >= node.score && self.sep.covers(c, node))
+    }
+
+    /// Keeps a leaf: it replaces the kept ones near it when better, or is
+    /// dropped when one near it is better.
+    fn offer(&mut self, leaf: Node) {
+        if self.nodes.iter().any(|c| c.score >= leaf.score && self.sep.near(c, &leaf)) {
+            return;
+        }
+        let sep = self.sep;
+        self.nodes.retain(|c| !sep.near(c, &leaf));
+        let at = self.nodes.iter().position(|c| c.score < leaf.score).unwrap_or(self.nodes.len());
+        if at < self.capacity {
+            if self.nodes.len() == self.capacity {
+                self.nodes.pop();
+            }
+            let _ = self.nodes.insert(at, leaf);
+        }
+    }
+}
+
+/// Branch and bound from `root` (a block at one yaw), offering every leaf
+/// within `bounds` that may matter to `kept`.
+fn descend<const N: usize>(
+    scorer: &Scorer<'_>,
+    cells: &YawCells<N>,
+    root: Node,
+    bounds: &Bounds,
+    kept: &mut Kept,
+    evaluations: &mut u32,
+) {
+    let mut stack: heapless::Vec<Node, STACK> = heapless::Vec::new();
+    let _ = stack.push(root);
+    while let Some(node) = stack.pop() {
+        if !kept.promising(&node) {
+            continue;
+        }
+        if node.h == 0 {
+            let (i, j) = (i32::from(node.i), i32::from(node.j));
+            if (bounds.i.0..=bounds.i.1).contains(&i) && (bounds.j.0..=bounds.j.1).contains(&j) {
+                kept.offer(node);
+            }
+            continue;
+        }
+        let half = 1i32 << (node.h - 1);
+        let mut children: [Option<Node>; 4] = [None; 4];
+        for (c, (di, dj)) in [(0, 0), (half, 0), (0, half), (half, half)].into_iter().enumerate() {
+            let (i, j) = (i32::from(node.i) + di, i32::from(node.j) + dj);
+            if i > bounds.i.1 || j > bounds.j.1 || i + half <= bounds.i.0 || j + half <= bounds.j.0 {
+                continue;
+            }
+            let score = scorer.score(cells, i, j, usize::from(node.h - 1));
+            *evaluations += 1;
+            children[c] = Some(Node { yaw: node.yaw, i: i as i16, j: j as i16, h: node.h - 1, score });
+        }
+        // Push the lowest first so the highest is explored first.
+        let mut order = [0usize, 1, 2, 3];
+        order.sort_unstable_by_key(|&c| (children[c].map(|n| n.score).unwrap_or(0), core::cmp::Reverse(c)));
+        for &c in &order {
+            if let Some(n) = children[c] {
+                if kept.promising(&n) {
+                    let _ = stack.push(n);
+                }
+            }
+        }
+    }
+}
+
+/// Most headings a prior-free search tries.
+const MAX_YAWS: usize = 720;
+/// Roots of one heading sorted before descending (more go in grid order).
+const MAX_YAW_ROOTS: usize = 256;
+
+/// Searches every heading and every offset at which the scene's footprint
+/// lands on the model's for the placements that agree best (class groups by
+/// cell when `semantic`, bare occupancy otherwise): with no prior, by branch
+/// and bound over the lattice of `settings.yaw_step` by one model cell,
+/// headings in the order of their best bound. The scene turns about the
+/// centre of its footprint, whose place is searched over the model's
+/// footprint and half the scene's radius around it: the frame a map is
+/// written in does not matter. Keeps the best `settings.candidates`
+/// placements that are distinct from each other, best first.
+pub fn search_global(
+    model: Footprint<'_>,
+    scene: Footprint<'_>,
+    settings: &GlobalSearch,
+    semantic: bool,
+) -> Option<GlobalSearchOutcome> {
+    let cell = model.cell();
+    let step = settings.yaw_step;
+    if !(cell.is_finite() && cell > 0.0 && step.is_finite() && step > 0.0)
+        || scene.occupied_len() == 0
+        || !model.has_pooled_grids()
+    {
+        return None;
+    }
+    let n_yaw = (libm::ceilf(2.0 * core::f32::consts::PI / step) as usize).clamp(1, MAX_YAWS);
+    let step = 2.0 * core::f32::consts::PI / n_yaw as f32;
+    let points = settings.points.clamp(1, MAX_GLOBAL_POINTS);
+    let stride = scene.occupied_len().div_ceil(points);
+    // The scene's centre and radius about it (of the cells scored).
+    let (mut c, mut n) = ([0.0f32; 2], 0.0f32);
+    for (q, _) in scene.occupied().step_by(stride) {
+        c = [c[0] + q[0], c[1] + q[1]];
+        n += 1.0;
+    }
+    let c = [c[0] / n.max(1.0), c[1] / n.max(1.0)];
+    let radius = scene
+        .occupied()
+        .step_by(stride)
+        .map(|(q, _)| libm::sqrtf((q[0] - c[0]) * (q[0] - c[0]) + (q[1] - c[1]) * (q[1] - c[1])))
+        .fold(0.0f32, f32::max);
+    let centre = Isometry3::from_parts(Translation3::new(-c[0], -c[1], 0.0), UnitQuaternion::identity());
+    let scorer = Scorer { model, scene, prior: [1.0, 0.0, -c[0], 0.0, 1.0, -c[1]], step, stride, semantic };
+    let margin = libm::ceilf(0.5 * radius / cell) as i32;
+    let (oi, oj) = model.cell_of(0.0, 0.0);
+    let (w, h) = model.size();
+    let bounds =
+        Bounds { i: (-oi - margin, w as i32 - 1 - oi + margin), j: (-oj - margin, h as i32 - 1 - oj + margin) };
+    if bounds.i.1 - bounds.i.0 > i32::from(i16::MAX) / 2 || bounds.j.1 - bounds.j.0 > i32::from(i16::MAX) / 2 {
+        return None;
+    }
+    let top = POOL_LEVELS - 1;
+    let block = 1i32 << top;
+    let roots = |b: (i32, i32)| (b.0..=b.1).step_by(block as usize);
+    let mut cells = YawCells { yaw: 0, len: 0, cells: [(0, 0, 0); MAX_GLOBAL_POINTS] };
+    let mut evaluations = 0u32;
+    // Each heading's best root bound.
+    let mut order: heapless::Vec<(u32, u16), MAX_YAWS> = heapless::Vec::new();
+    for k in 0..n_yaw {
+        scorer.cells(k as i16, &mut cells);
+        let mut best_root = 0;
+        for i in roots(bounds.i) {
+            for j in roots(bounds.j) {
+                best_root = best_root.max(scorer.score(&cells, i, j, top));
+                evaluations += 1;
+            }
+        }
+        let _ = order.push((best_root, k as u16));
+    }
+    order.sort_unstable_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+    let r = settings.exclusion.0 / cell;
+    let sep =
+        Separation { r2: (r * r) as i64, dyaw: libm::floorf(settings.exclusion.1 / step) as i32, turn: n_yaw as i32 };
+    let mut kept =
+        Kept { nodes: heapless::Vec::new(), capacity: settings.candidates.clamp(1, MAX_GLOBAL_CANDIDATES), sep };
+    let mut yaw_roots: heapless::Vec<Node, MAX_YAW_ROOTS> = heapless::Vec::new();
+    for &(bound, k) in order.iter() {
+        if bound <= kept.threshold() || bound == 0 {
+            break;
+        }
+        scorer.cells(k as i16, &mut cells);
+        // This heading's roots, best first (in grid order if too many).
+        yaw_roots.clear();
+        for i in roots(bounds.i) {
+            for j in roots(bounds.j) {
+                let score = scorer.score(&cells, i, j, top);
+                evaluations += 1;
+                let root = Node { yaw: k as i16, i: i as i16, j: j as i16, h: top as u8, score };
+                if yaw_roots.push(root).is_err() {
+                    descend(&scorer, &cells, root, &bounds, &mut kept, &mut evaluations);
+                }
+            }
+        }
+        yaw_roots.sort_unstable_by(|a, b| b.score.cmp(&a.score).then((a.i, a.j).cmp(&(b.i, b.j))));
+        for root in yaw_roots.iter() {
+            if root.score <= kept.threshold() {
+                break;
+            }
+            descend(&scorer, &cells, *root, &bounds, &mut kept, &mut evaluations);
+        }
+    }
+    let candidates = kept
+        .nodes
+        .iter()
+        .map(|n| {
+            let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f32::from(n.yaw) * step);
+            let shift =
+                Isometry3::from_parts(Translation3::new(f32::from(n.i) * cell, f32::from(n.j) * cell, 0.0), yaw);
+            Candidate { transform: shift * centre, score: n.score }
+        })
+        .collect();
+    Some(GlobalSearchOutcome { candidates, evaluations })
 }

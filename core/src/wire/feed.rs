@@ -20,7 +20,7 @@ use crate::classes::{Class, NUM_CLASSES};
 use serde::{Deserialize, Serialize};
 
 /// Version byte of the feed protocol.
-pub const FEED_VERSION: u8 = 2;
+pub const FEED_VERSION: u8 = 3;
 /// Bytes of one fed point: x, y, z in centimetres (i16, little endian) and
 /// the class index.
 pub const POINT_BYTES: usize = 7;
@@ -68,14 +68,17 @@ pub enum FeedMessage<'a> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct GlobalReport {
-    /// Landmarks of the robot's own map and of the received map.
-    pub landmarks: [u32; 2],
-    /// Correspondences in the largest consistent set (0: too few candidates).
-    pub agreeing: u32,
-    /// The largest consistent set the answer does not explain.
+    /// The coarse search's best score (footprint cells agreeing).
+    pub score: u32,
+    /// The best score of a placement away from it (0 when the best one's
+    /// refinement passed and no other was looked for).
     pub runner_up: u32,
-    /// Whether the answer was unique enough to refine (else `NoOverlap`).
-    pub unique: bool,
+    /// Candidates refined until one passed the verdict (or all failed).
+    pub refined: u8,
+    /// The candidate the answer comes from (0: the best).
+    pub chosen: u8,
+    /// Nodes the coarse search scored.
+    pub evaluations: u32,
 }
 
 /// What a robot did, for the host.
@@ -326,7 +329,7 @@ pub const GOLDEN_REPORT: RobotReport = RobotReport {
     prepare_instructions: 295_000_000,
     locate_instructions: 4_800_000,
     match_instructions: 149_000_000,
-    global: Some(GlobalReport { landmarks: [15, 17], agreeing: 14, runner_up: 4, unique: true }),
+    global: Some(GlobalReport { score: 138, runner_up: 83, refined: 2, chosen: 1, evaluations: 51_032 }),
     peak_stack: 49_200,
 };
 
@@ -340,19 +343,19 @@ pub const GOLDEN_FEED: [(FeedMessage<'static>, &[u8]); 4] = [
             silence_ms: 30_000,
         }),
         &[
-            2, 0, 1, 0, 0, 0, 63, 1, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0,
+            3, 0, 1, 0, 0, 0, 63, 1, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0,
             0, 0, 0, 0, 0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 176, 234, 1,
         ],
     ),
     (
         FeedMessage::Setup(Setup { robot_id: 0, resolution: 0.5, prior: None, silence_ms: 30_000 }),
-        &[2, 0, 0, 0, 0, 0, 63, 0, 176, 234, 1],
+        &[3, 0, 0, 0, 0, 0, 63, 0, 176, 234, 1],
     ),
     (
         FeedMessage::Points { scan: 3, data: &[100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8] },
-        &[2, 1, 3, 14, 100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8],
+        &[3, 1, 3, 14, 100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8],
     ),
-    (FeedMessage::EndOfFeed { scans: 5, points: 26_309 }, &[2, 2, 5, 197, 205, 1]),
+    (FeedMessage::EndOfFeed { scans: 5, points: 26_309 }, &[3, 2, 5, 197, 205, 1]),
 ];
 
 /// Every robot message with its exact bytes.
@@ -360,15 +363,15 @@ pub const GOLDEN_ROBOT: [(RobotMessage<'static>, &[u8]); 2] = [
     (
         RobotMessage::Report(GOLDEN_REPORT),
         &[
-            2, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0,
+            3, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0,
             0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 17, 210, 9, 0, 0, 64, 63, 0, 0, 0, 62, 197,
             205, 1, 197, 58, 220, 55, 202, 207, 1, 164, 199, 1, 2, 169, 18, 128, 236, 184, 11, 192, 175, 213, 140, 1,
-            128, 252, 164, 2, 192, 158, 134, 71, 1, 15, 17, 14, 4, 1, 176, 128, 3,
+            128, 252, 164, 2, 192, 158, 134, 71, 1, 138, 1, 83, 2, 1, 216, 142, 3, 176, 128, 3,
         ],
     ),
     (
         RobotMessage::Failed { stage: Stage::Link, message: "peer silent" },
-        &[2, 1, 2, 11, 112, 101, 101, 114, 32, 115, 105, 108, 101, 110, 116],
+        &[3, 1, 2, 11, 112, 101, 101, 114, 32, 115, 105, 108, 101, 110, 116],
     ),
 ];
 

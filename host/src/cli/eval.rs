@@ -3,11 +3,14 @@
 
 use super::args::{settings, DofArg, MethodArg};
 use super::Error;
+use cosem_core::matching::MatchSettings;
 use cosem_host::align::{prepare, DEFAULT_LEVELS};
 use cosem_host::eval::{
-    corners, global_starts, grid, run_global, run_grid, sample, EvalReport, MapsInfo, Outcome, Start,
+    corners, global_starts, grid, run_global, run_grid, run_negatives, sample, EvalReport, MapsInfo, Outcome, Place,
+    Start,
 };
 use cosem_host::kitti::FrameRange;
+use cosem_host::noise::LabelNoise;
 use cosem_host::pair::{Pair, PairSpec};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
@@ -25,14 +28,27 @@ enum GridArg {
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// SemanticKITTI-layout folder.
-    #[arg(long)]
-    data: PathBuf,
+    #[arg(long, required_unless_present = "negatives")]
+    data: Option<PathBuf>,
     /// Robot A's frames (the model).
-    #[arg(long)]
-    a: FrameRange,
+    #[arg(long, required_unless_present = "negatives")]
+    a: Option<FrameRange>,
     /// Robot B's frames (the scene).
+    #[arg(long, required_unless_present = "negatives")]
+    b: Option<FrameRange>,
+    /// Negatives instead: maps of different places, DIR[:START:END] each
+    /// (default the folder's first scan); every ordered pair is matched with
+    /// no prior, the identity prior and --random-priors seeded random priors
+    /// (+-20 m, any heading); each Converged is a false accept.
+    #[arg(long, num_args = 2.., conflicts_with_all = ["data", "global", "grid_stride", "limit"])]
+    negatives: Vec<Place>,
+    /// The verdict's threshold on the agreement of what both maps saw
+    /// (default: the matcher's, 0.45): to measure other operating points.
     #[arg(long)]
-    b: FrameRange,
+    min_agreement: Option<f32>,
+    /// Random priors per negative pair.
+    #[arg(long, default_value_t = 3)]
+    random_priors: usize,
     /// Voxel size (m).
     #[arg(long, default_value = "0.2", value_parser = super::args::positive_f32)]
     voxel: f32,
@@ -68,6 +84,13 @@ pub struct Args {
     /// Print every start.
     #[arg(long)]
     verbose: bool,
+    /// Label noise on every scan: none, network[:SEVERITY] (a segmentation
+    /// network's class-dependent, spatially coherent errors) or iid:P.
+    #[arg(long, default_value = "none")]
+    label_noise: LabelNoise,
+    /// Seed of the label noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
     /// Prior-free protocol instead of the grid: the scene map is moved by a
     /// known heading (36 around the circle) and offset (10 seeded, up to
     /// 50 m) and matched with no prior.
@@ -103,10 +126,63 @@ fn check_outputs(a: &Args) -> Result<(), Error> {
     Ok(())
 }
 
+/// The settings with the verdict's threshold of the arguments.
+fn verdict(a: &Args, s: MatchSettings) -> MatchSettings {
+    MatchSettings { min_agreement: a.min_agreement.unwrap_or(s.min_agreement), ..s }
+}
+
+/// The pair the arguments name (clap requires them without --negatives).
+fn spec(a: &Args) -> Result<PairSpec, Error> {
+    let (Some(data), Some(ra), Some(rb)) = (&a.data, a.a, a.b) else {
+        return Err("--data, --a and --b are required".into());
+    };
+    Ok(PairSpec::new(data, ra, rb, a.voxel).with_noise(a.label_noise, a.seed))
+}
+
+fn negatives(a: &Args, pool: &rayon::ThreadPool) -> Result<(), Error> {
+    let spec = PairSpec::new(
+        ".",
+        FrameRange { start: 0, end: 1, stride: 1 },
+        FrameRange { start: 0, end: 1, stride: 1 },
+        a.voxel,
+    )
+    .with_noise(a.label_noise, a.seed);
+    let s = verdict(a, settings(a.method.first().copied().unwrap_or(MethodArg::Cosem), a.dof));
+    let n = a.negatives.len();
+    let bar = progress_bar(n * (n - 1) * (2 + a.random_priors));
+    let tick = || bar.inc(1);
+    let report = pool.install(|| run_negatives(&a.negatives, &spec, s, a.random_priors, &tick))?;
+    bar.finish_and_clear();
+    println!(
+        "negatives: {} places, {} ordered pairs ({} overlapping left out), {} cases",
+        n, report.pairs, report.overlapping_pairs, report.cases
+    );
+    for (kind, c) in &report.by_prior {
+        println!("  prior {kind:<9} {:>4} cases, {:>3} false accepts", c.cases, c.false_accepts);
+    }
+    println!("  in all           {:>4} cases, {:>3} false accepts", report.cases, report.false_accepts);
+    if let Some(path) = &a.json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)?).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    Ok(())
+}
+
 pub fn run(a: Args) -> Result<(), Error> {
     check_outputs(&a)?;
     let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
-    let mut pair = Pair::load(&PairSpec::new(&a.data, a.a, a.b, a.voxel))?;
+    if !a.negatives.is_empty() {
+        return negatives(&a, &pool);
+    }
+    let spec = spec(&a)?;
+    let mut pair = Pair::load(&spec)?;
+    if a.label_noise != LabelNoise::None {
+        println!(
+            "label noise {:?} (seed {}): {:.1}% of labelled points changed",
+            a.label_noise,
+            a.seed,
+            100.0 * pair.noise.rate()
+        );
+    }
     if a.through_encoding {
         pair.through_encoding()?;
         println!("maps passed through the wire encoding");
@@ -130,7 +206,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         let bar = progress_bar(starts.len() * a.method.len());
         let mut results = Vec::new();
         for m in &a.method {
-            let s = settings(*m, a.dof);
+            let s = verdict(&a, settings(*m, a.dof));
             let tick = || bar.inc(1);
             results.extend(pool.install(|| run_grid(s.method.name(), s, (&pa, &pb), &pair.gt, &starts, &tick))?);
         }
@@ -145,7 +221,7 @@ pub fn run(a: Args) -> Result<(), Error> {
 /// `--global`: 36 headings x 10 seeded offsets up to 50 m, no prior.
 fn global(a: &Args, pair: &Pair) -> Result<Vec<Outcome>, Error> {
     let method = a.method.first().copied().unwrap_or(MethodArg::Cosem);
-    let s = settings(method, a.dof);
+    let s = verdict(a, settings(method, a.dof));
     let starts = global_starts(50.0, a.limit);
     println!(
         "prior-free: {} starts (of 36 headings x 10 offsets up to 50 m) on {} thread(s)",
@@ -153,7 +229,7 @@ fn global(a: &Args, pair: &Pair) -> Result<Vec<Outcome>, Error> {
         rayon::current_num_threads()
     );
     let bar = progress_bar(starts.len());
-    let spec = PairSpec::new(&a.data, a.a, a.b, a.voxel);
+    let spec = spec(a)?;
     let tick = || bar.inc(1);
     let frames = &pair.frames_b;
     let out =
@@ -178,11 +254,9 @@ fn write_outputs(a: &Args, report: &EvalReport) -> Result<(), Error> {
         write(path, serde_json::to_string_pretty(report)?)?;
     }
     if let Some(path) = &a.plot {
-        let name = a.data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        write(
-            path,
-            report.plot(&format!("{name} A={} B={}, {} starts, {} m voxels", a.a, a.b, report.starts, a.voxel)),
-        )?;
+        let spec = spec(a)?;
+        let (name, ra, rb) = (spec.name(), spec.a, spec.b);
+        write(path, report.plot(&format!("{name} A={ra} B={rb}, {} starts, {} m voxels", report.starts, a.voxel)))?;
     }
     Ok(())
 }

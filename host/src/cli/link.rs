@@ -70,7 +70,7 @@ pub fn run(a: Args) -> Result<(), Error> {
     let (pm, ps) = (prepare(&ours, DEFAULT_LEVELS)?, prepare(&theirs, DEFAULT_LEVELS)?);
     let prep_ms = t0.elapsed().as_secs_f64() * 1e3;
     let t1 = Instant::now();
-    let (r, global) = align(settings, prior.as_ref(), (&ours, &theirs), (&pm, &ps))?;
+    let (r, global) = align(settings, prior.as_ref(), (&pm, &ps))?;
     let match_ms = t1.elapsed().as_secs_f64() * 1e3;
     let per_voxel = stats.chunk_bytes_sent as f64 / ours.len().max(1) as f64;
     let (sent_s, received_s) = (line_seconds(stats.bytes_sent, baud), line_seconds(stats.bytes_received, baud));

@@ -5,6 +5,7 @@ use cosem_core::classes::MovingObjects;
 use cosem_core::map::{MapConfig, SensorModel};
 use cosem_host::kitti::{FrameRange, Sequence};
 use cosem_host::mapping::{build_map, PointFilter};
+use cosem_host::noise::LabelNoise;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -28,6 +29,13 @@ pub struct Args {
     /// Probability that a point's label is right (Bayes sensor model).
     #[arg(long, default_value_t = SensorModel::default().accuracy)]
     label_accuracy: f32,
+    /// Label noise on every scan: none, network[:SEVERITY] or iid:P (see
+    /// `cosem eval --help`).
+    #[arg(long, default_value = "none")]
+    label_noise: LabelNoise,
+    /// Seed of the label noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
     /// Output map file.
     #[arg(short, long)]
     output: PathBuf,
@@ -36,7 +44,8 @@ pub struct Args {
 pub fn run(a: Args) -> Result<(), Error> {
     let t0 = Instant::now();
     let seq = Sequence::open(&a.data)?;
-    let frames = seq.load_range(a.frames)?;
+    let mut frames = seq.load_range(a.frames)?;
+    let noise = cosem_host::noise::corrupt_all(&mut frames, a.label_noise, a.seed);
     let filter = PointFilter {
         max_range: a.max_range,
         moving: if a.keep_moving { MovingObjects::AsStatic } else { MovingObjects::Skip },
@@ -46,7 +55,10 @@ pub fn run(a: Args) -> Result<(), Error> {
     let (map, stats) = build_map(&frames, config, &filter)?;
     let anchor_time = frames.first().and_then(|f| f.time);
     let name = a.data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let source = format!("{name} {}", a.frames);
+    let source = match a.label_noise {
+        LabelNoise::None => format!("{name} {}", a.frames),
+        n => format!("{name} {} label noise {n:?} seed {} ({:.1}% changed)", a.frames, a.seed, 100.0 * noise.rate()),
+    };
     let bytes = cosem_host::cmap::write(&a.output, &map, anchor_time, Some(&source))?;
     println!(
         "{}: {} frames, {} points, {} kept, {} voxels at {} m, {} bytes ({:.1} bytes/voxel) in {:.2} s",

@@ -40,7 +40,7 @@ pub fn run(a: Args) -> Result<(), Error> {
     let ps = prepare(&scene, DEFAULT_LEVELS).map_err(|e| format!("{}: {e}", a.scene.display()))?;
     let prep_ms = t_prep.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
-    let (r, global) = align(settings, prior.as_ref(), (&model, &scene), (&pm, &ps))?;
+    let (r, global) = align(settings, prior.as_ref(), (&pm, &ps))?;
     let time_ms = t.elapsed().as_secs_f64() * 1e3;
     if let Some(path) = &a.merged {
         let mut pts: Vec<PlyPoint> = Vec::with_capacity(model.len() + scene.len());
