@@ -329,6 +329,30 @@ impl SegClasses {
     }
 }
 
+impl core::str::FromStr for SegClasses {
+    type Err = UnknownSegClasses;
+    /// `cityscapes` or `semantickitti`.
+    fn from_str(s: &str) -> Result<Self, UnknownSegClasses> {
+        match s {
+            "cityscapes" => Ok(SegClasses::Cityscapes),
+            "semantickitti" => Ok(SegClasses::SemanticKitti),
+            _ => Err(UnknownSegClasses),
+        }
+    }
+}
+
+/// A class-set name that is not one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct UnknownSegClasses;
+
+impl core::fmt::Display for UnknownSegClasses {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("expected cityscapes or semantickitti")
+    }
+}
+
+impl core::error::Error for UnknownSegClasses {}
+
 /// Why a probability vector was rejected.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

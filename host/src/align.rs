@@ -5,7 +5,6 @@
 use crate::mapping::HostMap;
 use cosem_core::geometry::Isometry3;
 use cosem_core::matching::global::{align_searched, Searched};
-use cosem_core::matching::landmarks::{extract, Landmark, LandmarkError, MAX_LANDMARKS};
 use cosem_core::matching::search::GlobalSearch;
 use cosem_core::matching::{MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, Role, VecPyramid};
 
@@ -23,22 +22,12 @@ pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, PyramidE
     Pyramid::build_vec(map, levels, FOOTPRINT_CELL, Role::Model)
 }
 
-/// A map's semantic landmarks.
-pub fn landmarks(map: &HostMap) -> Result<heapless::Vec<Landmark, MAX_LANDMARKS>, LandmarkError> {
-    let mut out = heapless::Vec::new();
-    extract(map, &mut vec![0u32; map.len()], &mut out)?;
-    Ok(out)
-}
-
 /// Why two maps could not be aligned.
 #[derive(Debug, thiserror::Error)]
 pub enum AlignError {
     /// The matcher refused its input.
     #[error("matching: {0}")]
     Match(MatchError),
-    /// Extracting landmarks failed.
-    #[error("landmarks: {0}")]
-    Landmarks(LandmarkError),
 }
 
 /// Aligns two prepared maps (`pyramids.0` the model): from `prior`

@@ -615,10 +615,29 @@ pub struct NegativeReport {
     pub cases: usize,
     /// Cases reported `Converged`.
     pub false_accepts: usize,
+    /// The largest agreement of any case: the worst negative's value of the
+    /// verdict's statistic (to set against the weakest true pair's).
+    pub agreement_max: f32,
     /// By kind of prior: `none`, `identity`, `random`.
     pub by_prior: BTreeMap<&'static str, NegativeCount>,
     /// Every case.
     pub results: Vec<NegativeCase>,
+}
+
+impl std::fmt::Display for NegativeReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (n, pairs, left) = (self.places.len(), self.pairs, self.overlapping_pairs);
+        writeln!(
+            f,
+            "negatives: {n} places, {pairs} ordered pairs ({left} overlapping left out), {} cases",
+            self.cases
+        )?;
+        for (kind, c) in &self.by_prior {
+            writeln!(f, "  prior {kind:<9} {:>4} cases, {:>3} false accepts", c.cases, c.false_accepts)?;
+        }
+        writeln!(f, "  in all           {:>4} cases, {:>3} false accepts", self.cases, self.false_accepts)?;
+        writeln!(f, "  largest agreement of a negative: {:.3}", self.agreement_max)
+    }
 }
 
 /// Matches every ordered pair of maps of different places (of one sequence:
@@ -718,6 +737,7 @@ pub fn run_negatives(
         overlapping_pairs: overlapping,
         cases: results.len(),
         false_accepts: results.iter().filter(|c| c.accepted).count(),
+        agreement_max: results.iter().map(|c| c.agreement).fold(0.0, f32::max),
         by_prior,
         results,
     })

@@ -39,6 +39,13 @@ impl PairSpec {
         }
     }
 
+    /// The map settings alone (voxel size, filter, no noise), for maps of
+    /// places named elsewhere (`eval --negatives`).
+    pub fn places(voxel: f32) -> Self {
+        let one = FrameRange { start: 0, end: 1, stride: 1 };
+        PairSpec::new(".", one, one, voxel)
+    }
+
     /// The same pair with `noise` on its labels (seeded).
     pub fn with_noise(self, noise: LabelNoise, seed: u64) -> Self {
         PairSpec { noise: (noise, seed), ..self }

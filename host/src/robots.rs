@@ -516,6 +516,9 @@ pub struct HostJson {
 /// `cosem robots --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct RobotsJson {
+    /// Version of this JSON (2: `global` holds the prior-free search's
+    /// figures, schema 1 landmark correspondences).
+    pub schema_version: u32,
     /// Robot A then B.
     pub robots: Vec<RobotJson>,
     /// The host's run of robot A.
@@ -601,6 +604,7 @@ pub fn summarise(
     let (ha, hb) = (host[0].result.transform(), host[1].result.transform());
     let (e_t, e_r) = errors_of(&ha, gt);
     RobotsJson {
+        schema_version: 2,
         robots,
         host: HostJson {
             transform: row_major(&ha.cast::<f64>()),
@@ -629,7 +633,7 @@ impl std::fmt::Display for ReportJson {
         let (name, peer, i) = if self.id == 0 { ("A", "B", 0) } else { ("B", "A", 1) };
         if let Some(g) = &self.global {
             let m = self.locate_instructions as f64 / 1e6;
-            writeln!(f, "robot {name} (id {i}): no prior; {}; landmark alignment {m:.1} M instructions", g.text())?;
+            writeln!(f, "robot {name} (id {i}): no prior; {}; prior-free search {m:.1} M instructions", g.text())?;
         }
         let t = crate::report::pose_text(&crate::report::from_row_major(&self.transform));
         writeln!(

@@ -130,3 +130,42 @@ fn prior_free_eval_goes_round_the_circle() {
         assert!(number(&v, &["methods", "cosem", "success_strict"]) >= 0.95, "{v}");
     }
 }
+
+/// `cosem eval --negatives`: maps of different places (synthetic streets of
+/// other seeds, and the shared data's far-apart places where present), every
+/// ordered pair with no prior, the identity and a random prior: none may be
+/// reported Converged.
+#[test]
+fn maps_of_different_places_are_never_accepted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut places = Vec::new();
+    for seed in [31, 32, 33] {
+        let dir = tmp.path().join(format!("s{seed}"));
+        synth(&dir, 3, seed);
+        places.push(format!("{}:0:3", dir.display()));
+    }
+    for (name, frames) in
+        [("kitti00", "0:2"), ("kitti07", "0:2"), ("kitti08-loop", "720:721"), ("kitti00-loop", "850:851")]
+    {
+        if let Some(dir) = real_data(name) {
+            places.push(format!("{}:{frames}", dir.display()));
+        }
+    }
+    let json = tmp.path().join("neg.json").display().to_string();
+    let mut args = vec!["eval", "--negatives"];
+    args.extend(places.iter().map(String::as_str));
+    args.extend_from_slice(&["--random-priors", "1", "--label-noise", "network", "--json", &json]);
+    cosem_ok(&args);
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let n = places.len() as u64;
+    assert_eq!(v["cases"].as_u64(), Some(n * (n - 1) * 3), "{v}");
+    assert_eq!(v["false_accepts"], 0, "{v}");
+    for kind in ["none", "identity", "random"] {
+        assert_eq!(v["by_prior"][kind]["false_accepts"], 0, "{kind}");
+    }
+    // And a true pair under the same label noise, with no prior, still aligns.
+    let pos = tmp.path().join("pos");
+    synth(&pos, 10, 34);
+    let (v, _) = eval(&pos, "0:5", "5:10", &["--global", "--limit", "6", "--label-noise", "network"]);
+    assert!(number(&v, &["methods", "cosem", "success_strict"]) >= 0.99, "{v}");
+}

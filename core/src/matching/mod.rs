@@ -2,9 +2,12 @@
 //!
 //! - [`pyramid`]: the search structure, a semantic resolution pyramid with
 //!   a hash index per level and per-entry normals (one-off preparation);
-//! - [`footprint`], [`search`](mod@search): a bird's-eye class-mask grid per
-//!   map and a branch-and-bound search of the prior's window over it, which
-//!   puts EM in its basin from starts 10 m and 25 degrees off;
+//! - [`footprint`], [`search`](mod@search): a bird's-eye class-group grid
+//!   per map and a branch-and-bound search over it: of the prior's window,
+//!   which puts EM in its basin from starts 10 m and 25 degrees off, or of
+//!   every heading and offset when there is no prior;
+//! - [`global`]: prior-free alignment: the search's few best placements,
+//!   refined until one passes the verdict;
 //! - [`associate`]: the E-step, nearest-voxel association with Gaussian and
 //!   semantic weights;
 //! - [`solve`](mod@solve): the M-step, damped Gauss-Newton on SE(3) or 4-DoF;
@@ -41,7 +44,6 @@ pub mod associate;
 pub mod em;
 pub mod footprint;
 pub mod global;
-pub mod landmarks;
 pub mod pyramid;
 pub mod result;
 pub mod search;

@@ -101,25 +101,6 @@ pub fn positive_f32(s: &str) -> Result<f32, String> {
     positive(s).map(|v| v as f32)
 }
 
-/// The ids a segmentation network outputs (`--classes`).
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ClassesArg {
-    /// A Cityscapes-trained network's 19 training ids (255 ignored).
-    Cityscapes,
-    /// SemanticKITTI learning-map ids (0 unlabeled).
-    Semantickitti,
-}
-
-impl ClassesArg {
-    /// The core's class set.
-    pub fn classes(self) -> cosem_core::camera::SegClasses {
-        match self {
-            ClassesArg::Cityscapes => cosem_core::camera::SegClasses::Cityscapes,
-            ClassesArg::Semantickitti => cosem_core::camera::SegClasses::SemanticKitti,
-        }
-    }
-}
-
 /// Segmentation images to render (`cosem synth --seg`).
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SegArg {
@@ -131,18 +112,10 @@ pub enum SegArg {
     None,
 }
 
-/// A whole number of at least one.
-pub fn at_least_one(s: &str) -> Result<usize, String> {
+/// A whole number of at least `N`.
+pub fn at_least<const N: usize>(s: &str) -> Result<usize, String> {
     match s.parse::<usize>() {
-        Ok(v) if v >= 1 => Ok(v),
-        _ => Err(format!("`{s}`: expected a whole number of at least 1")),
-    }
-}
-
-/// A whole number of at least four.
-pub fn at_least_four(s: &str) -> Result<usize, String> {
-    match s.parse::<usize>() {
-        Ok(v) if v >= 4 => Ok(v),
-        _ => Err(format!("`{s}`: expected a whole number of at least 4")),
+        Ok(v) if v >= N => Ok(v),
+        _ => Err(format!("`{s}`: expected a whole number of at least {N}")),
     }
 }

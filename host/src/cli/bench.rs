@@ -27,13 +27,13 @@ pub enum What {
 #[derive(clap::Args, Debug)]
 pub struct LabelArgs {
     /// Frames of the synthetic sequence (robot A the first half, B the rest; at least 4).
-    #[arg(long, default_value_t = 10, value_parser = super::args::at_least_four)]
+    #[arg(long, default_value_t = 10, value_parser = super::args::at_least::<4>)]
     frames: usize,
     /// Seeds of the synthetic sequences.
     #[arg(long, default_value = "5", value_delimiter = ',')]
     seeds: Vec<u64>,
     /// Keep every K-th value of the paper's grid of starts on each axis.
-    #[arg(long, default_value_t = 2, value_parser = super::args::at_least_one)]
+    #[arg(long, default_value_t = 2, value_parser = super::args::at_least::<1>)]
     grid_stride: usize,
     /// Also a real SemanticKITTI-layout sequence, whose labelled scans are
     /// splatted into camera 2 as stand-in segmentation images.

@@ -56,11 +56,11 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "paper", conflicts_with_all = ["grid_stride", "limit"])]
     grid: GridArg,
     /// Keep every K-th grid value (K >= 1) on each axis, counting outward from zero.
-    #[arg(long, conflicts_with = "limit", value_parser = super::args::at_least_one)]
+    #[arg(long, conflicts_with = "limit", value_parser = super::args::at_least::<1>)]
     grid_stride: Option<usize>,
     /// Keep N (>= 1) starts of the full grid, chosen by a fixed seed (with
     /// --global: every n-th of its starts).
-    #[arg(long, value_parser = super::args::at_least_one)]
+    #[arg(long, value_parser = super::args::at_least::<1>)]
     limit: Option<usize>,
     /// Methods, comma-separated.
     #[arg(long, value_enum, value_delimiter = ',', default_value = "cosem")]
@@ -84,6 +84,9 @@ pub struct Args {
     /// Print every start.
     #[arg(long)]
     verbose: bool,
+    /// With --global: the largest offset (m) the scene map's frame is moved by.
+    #[arg(long, default_value = "50", value_parser = super::args::positive)]
+    radius: f64,
     /// Label noise on every scan: none, network[:SEVERITY] (a segmentation
     /// network's class-dependent, spatially coherent errors) or iid:P.
     #[arg(long, default_value = "none")]
@@ -114,14 +117,19 @@ fn progress_bar(len: usize) -> ProgressBar {
     bar
 }
 
-/// Checks the output paths can be written before the run.
+/// Checks the output paths can be written before the run (leaving no file
+/// behind that was not there).
 fn check_outputs(a: &Args) -> Result<(), Error> {
     for path in [&a.json, &a.plot].into_iter().flatten() {
+        let existed = path.exists();
         std::fs::OpenOptions::new()
             .create(true)
             .append(true)
             .open(path)
             .map_err(|e| format!("{}: {e} (nothing was run)", path.display()))?;
+        if !existed {
+            let _ = std::fs::remove_file(path);
+        }
     }
     Ok(())
 }
@@ -140,27 +148,14 @@ fn spec(a: &Args) -> Result<PairSpec, Error> {
 }
 
 fn negatives(a: &Args, pool: &rayon::ThreadPool) -> Result<(), Error> {
-    let spec = PairSpec::new(
-        ".",
-        FrameRange { start: 0, end: 1, stride: 1 },
-        FrameRange { start: 0, end: 1, stride: 1 },
-        a.voxel,
-    )
-    .with_noise(a.label_noise, a.seed);
+    let spec = PairSpec::places(a.voxel).with_noise(a.label_noise, a.seed);
     let s = verdict(a, settings(a.method.first().copied().unwrap_or(MethodArg::Cosem), a.dof));
     let n = a.negatives.len();
     let bar = progress_bar(n * (n - 1) * (2 + a.random_priors));
     let tick = || bar.inc(1);
     let report = pool.install(|| run_negatives(&a.negatives, &spec, s, a.random_priors, &tick))?;
     bar.finish_and_clear();
-    println!(
-        "negatives: {} places, {} ordered pairs ({} overlapping left out), {} cases",
-        n, report.pairs, report.overlapping_pairs, report.cases
-    );
-    for (kind, c) in &report.by_prior {
-        println!("  prior {kind:<9} {:>4} cases, {:>3} false accepts", c.cases, c.false_accepts);
-    }
-    println!("  in all           {:>4} cases, {:>3} false accepts", report.cases, report.false_accepts);
+    print!("{report}");
     if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&report)?).map_err(|e| format!("{}: {e}", path.display()))?;
     }
@@ -222,10 +217,11 @@ pub fn run(a: Args) -> Result<(), Error> {
 fn global(a: &Args, pair: &Pair) -> Result<Vec<Outcome>, Error> {
     let method = a.method.first().copied().unwrap_or(MethodArg::Cosem);
     let s = verdict(a, settings(method, a.dof));
-    let starts = global_starts(50.0, a.limit);
+    let starts = global_starts(a.radius, a.limit);
     println!(
-        "prior-free: {} starts (of 36 headings x 10 offsets up to 50 m) on {} thread(s)",
+        "prior-free: {} starts (of 36 headings x 10 offsets up to {} m) on {} thread(s)",
         starts.len(),
+        a.radius,
         rayon::current_num_threads()
     );
     let bar = progress_bar(starts.len());

@@ -1,6 +1,5 @@
 //! `cosem label`: LiDAR labels from camera segmentation images.
 
-use super::args::ClassesArg;
 use super::Error;
 use cosem_host::kitti::FrameRange;
 use cosem_host::label::{label_sequence, LabelOptions};
@@ -22,8 +21,8 @@ pub struct Args {
     camera: u8,
     /// What the image ids mean: cityscapes (19 training ids, 255 ignored) or
     /// semantickitti (learning-map ids, 0 unlabeled).
-    #[arg(long, value_enum, default_value = "cityscapes")]
-    classes: ClassesArg,
+    #[arg(long, default_value = "cityscapes")]
+    classes: cosem_core::camera::SegClasses,
     /// Read per-pixel class probabilities (.npy, <f4 or |u1, HxWxC or CxHxW)
     /// and write their evidence beside the labels (evidence/), which mapping
     /// fuses instead of the hard labels.
@@ -67,7 +66,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         data: a.data.clone(),
         seg: a.seg.clone(),
         camera: a.camera,
-        classes: a.classes.classes(),
+        classes: a.classes,
         probabilities: a.probabilities,
         occlusion: !a.keep_occluded,
         image_size: a.image_size.as_deref().map(parse_size).transpose()?,

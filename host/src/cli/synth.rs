@@ -1,6 +1,6 @@
 //! `cosem synth`: a synthetic sequence in SemanticKITTI layout.
 
-use super::args::{ClassesArg, SegArg};
+use super::args::SegArg;
 use super::Error;
 use cosem_host::synth::{write_sequence, SegRender, SynthConfig};
 use std::path::PathBuf;
@@ -51,8 +51,8 @@ pub fn run(a: Args) -> Result<(), Error> {
             return Err("--seg-corrupt and --seg-probabilities need --seg cityscapes|semantickitti".into());
         }
         SegArg::None => None,
-        SegArg::Cityscapes => Some(ClassesArg::Cityscapes.classes()),
-        SegArg::Semantickitti => Some(ClassesArg::Semantickitti.classes()),
+        SegArg::Cityscapes => Some(cosem_core::camera::SegClasses::Cityscapes),
+        SegArg::Semantickitti => Some(cosem_core::camera::SegClasses::SemanticKitti),
     };
     let seg = classes.map(|classes| SegRender { classes, corrupt: a.seg_corrupt, probabilities: a.seg_probabilities });
     let cfg = SynthConfig {
