@@ -43,7 +43,7 @@ pub struct Args {
     #[arg(long, num_args = 2.., conflicts_with_all = ["data", "global", "grid_stride", "limit"])]
     negatives: Vec<Place>,
     /// The verdict's threshold on the agreement of what both maps saw
-    /// (default: the matcher's, 0.45): to measure other operating points.
+    /// (default: the matcher's, 0.40): to measure other operating points.
     #[arg(long)]
     min_agreement: Option<f32>,
     /// Random priors per negative pair.
