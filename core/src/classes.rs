@@ -155,6 +155,41 @@ impl Class {
         RAW_IDS[self as usize]
     }
 
+    /// Whether the low 16 bits of a label word are an id of SemanticKITTI's
+    /// label set (0 unlabeled, 1 outlier, 10-81 static, 99, 252-259 moving):
+    /// anything else is a corrupted or foreign label file.
+    pub fn is_semantic_kitti_id(raw: u32) -> bool {
+        matches!(
+            raw & 0xFFFF,
+            0 | 1
+                | 10
+                | 11
+                | 13
+                | 15
+                | 16
+                | 18
+                | 20
+                | 30
+                | 31
+                | 32
+                | 40
+                | 44
+                | 48
+                | 49
+                | 50
+                | 51
+                | 52
+                | 60
+                | 70
+                | 71
+                | 72
+                | 80
+                | 81
+                | 99
+                | 252..=259
+        )
+    }
+
     /// Maps a raw SemanticKITTI label (the low 16 bits of a `.label` entry; the
     /// instance id in the high bits is ignored) through the standard learning map.
     /// `None`: the point carries no usable class and stays out of the map.

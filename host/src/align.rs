@@ -6,7 +6,7 @@ use crate::mapping::HostMap;
 use cosem_core::geometry::Isometry3;
 use cosem_core::matching::global::{align_searched, Searched};
 use cosem_core::matching::search::GlobalSearch;
-use cosem_core::matching::{MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, Role, VecPyramid};
+use cosem_core::matching::{MatchError, MatchResult, MatchSettings, Matcher, Pyramid, Role, VecPyramid};
 
 /// Default number of pyramid levels: 0.2 m maps get cells up to 3.2 m.
 pub const DEFAULT_LEVELS: usize = 5;
@@ -17,9 +17,34 @@ pub const FOOTPRINT_CELL: f32 = 1.0;
 /// A map prepared for matching on the host (it borrows the map).
 pub type HostPyramid<'m> = VecPyramid<'m>;
 
-/// Prepares a map for matching, as model or scene, in storage sized for it.
-pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, PyramidError> {
-    Pyramid::build_vec(map, levels, FOOTPRINT_CELL, Role::Model)
+/// Finest voxel size the matcher supports (m): its pyramid has at most
+/// [`cosem_core::matching::MAX_LEVELS`] levels, and the coarsest must reach
+/// the footprint's 1 m cells for the coarse search's answer to land in EM's
+/// basin (0.02 m x 2^7 = 2.56 m).
+pub const MIN_VOXEL: f32 = 0.02;
+
+/// Pyramid levels for maps of `resolution`: at least `levels`, and enough
+/// that the coarsest cell reaches 3.2 m (0.2 m maps: 5 levels; 0.04 m: 8).
+pub fn levels_for(resolution: f32, levels: usize) -> usize {
+    let mut n = levels.max(1);
+    while n < cosem_core::matching::MAX_LEVELS && resolution * ((1u32 << (n - 1)) as f32) < 3.2 {
+        n += 1;
+    }
+    n
+}
+
+/// Prepares a map for matching, as model or scene, in storage sized for it,
+/// with at least `levels` levels ([`levels_for`]). Maps finer than
+/// [`MIN_VOXEL`] are refused with the reason.
+pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::Error> {
+    let r = map.resolution();
+    if r < MIN_VOXEL * 0.999 {
+        return Err(crate::Error::Invalid(format!(
+            "{r} m voxels: the matcher supports voxels of {MIN_VOXEL} m and more (its pyramid of at most {} levels must reach the coarse search's 1 m cells)",
+            cosem_core::matching::MAX_LEVELS
+        )));
+    }
+    Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, Role::Model)?)
 }
 
 /// Why two maps could not be aligned.

@@ -133,9 +133,15 @@ pub fn write(path: &Path, map: &HostMap, anchor_time: Option<f64>, source: Optio
 pub fn read(path: &Path) -> Result<(CmapHeader, HostMap), CmapError> {
     use std::io::Read;
     let io = |source| CmapError::Io { path: path.to_path_buf(), source };
-    let file = std::fs::File::open(path).map_err(io)?;
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    // The magic first: a device or another kind of file is refused at once.
     let mut bytes = Vec::new();
-    let len = file.take(MAX_FILE_BYTES + 1).read_to_end(&mut bytes).map_err(io)? as u64;
+    (&mut file).take(4).read_to_end(&mut bytes).map_err(io)?;
+    if bytes.len() == 4 && bytes != mapfile::MAGIC {
+        return Err(CmapError::Format { path: path.to_path_buf(), error: MapFileError::Magic });
+    }
+    file.take(MAX_FILE_BYTES + 1 - 4).read_to_end(&mut bytes).map_err(io)?;
+    let len = bytes.len() as u64;
     if len > MAX_FILE_BYTES {
         return Err(CmapError::TooLarge { path: path.to_path_buf(), len });
     }

@@ -493,7 +493,7 @@ pub fn run_global(
             let (best, runner_up) = f.search.scores();
             [best, runner_up]
         });
-        Ok(Outcome { global_start: Some(*s), search, ..Outcome::new(method, &r, &truth, ms, DEFAULT_LEVELS) })
+        Ok(Outcome { global_start: Some(*s), search, ..Outcome::new(method, &r, &truth, ms, pa.levels()) })
     });
     outcomes.into_iter().collect()
 }

@@ -432,6 +432,16 @@ impl Sequence {
             return Err(KittiError::LabelSize { path: label_path, len: lbytes.len() as u64 });
         }
         let labels: Vec<u32> = lbytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        if let Some(i) = labels.iter().position(|l| !cosem_core::classes::Class::is_semantic_kitti_id(*l)) {
+            return Err(KittiError::Malformed {
+                path: label_path,
+                what: format!(
+                    "point {i} (byte offset {}): label id {} is not a SemanticKITTI id",
+                    4 * i,
+                    labels[i] & 0xFFFF
+                ),
+            });
+        }
         if labels.len() != points.len() {
             return Err(KittiError::LabelCount { path: label_path, labels: labels.len(), points: points.len() });
         }

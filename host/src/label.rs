@@ -466,11 +466,69 @@ fn copy_or_link(from: &Path, to: &Path) -> Result<(), LabelError> {
     std::fs::copy(&abs, to).map(|_| ()).map_err(io(to))
 }
 
+/// First line of the PROVENANCE.md `cosem label` writes: an output folder
+/// with it may be replaced by a new run.
+const PROVENANCE_TITLE: &str = "# Labels from camera segmentation (`cosem label`)";
+
+/// Refuses an output folder that is, or lies inside, an input folder (or
+/// holds one), and an existing folder that is not a `cosem label` output.
+fn check_out(o: &LabelOptions) -> Result<PathBuf, LabelError> {
+    let out = crate::paths::resolved(&o.out);
+    for (name, input) in [("--data", &o.data), ("--seg", &o.seg)] {
+        let input = crate::paths::resolved(input);
+        if out.starts_with(&input) || input.starts_with(&out) {
+            return Err(LabelError::Format {
+                path: o.out.clone(),
+                what: format!(
+                    "is {} or holds it ({name} {}): the input is never written",
+                    input.display(),
+                    input.display()
+                ),
+            });
+        }
+    }
+    let ours = std::fs::read_to_string(out.join("PROVENANCE.md")).is_ok_and(|t| t.starts_with(PROVENANCE_TITLE));
+    let empty = std::fs::read_dir(&out).map(|mut d| d.next().is_none()).unwrap_or(true);
+    if out.exists() && !(ours || empty) {
+        return Err(LabelError::Format {
+            path: o.out.clone(),
+            what: "exists and is not an earlier `cosem label` output: choose another --out".into(),
+        });
+    }
+    Ok(out)
+}
+
 /// Labels a sequence from its segmentation images and writes a
 /// SemanticKITTI-layout folder at `out`: links to the scans, copies of
 /// calib.txt, poses.txt and times.txt, the new labels (and, with
-/// probabilities, the evidence).
+/// probabilities, the evidence). Written into a new folder beside `out`,
+/// then renamed: an input folder is never touched, a failed run leaves
+/// nothing half-written, and `out` may only be a new folder or an earlier
+/// output.
 pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, LabelError> {
+    let out = check_out(o)?;
+    let staging = out.with_file_name(format!(
+        ".{}.cosem-label-{}",
+        out.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&staging);
+    let run = LabelOptions { out: staging.clone(), ..o.clone() };
+    let stats = label_into(&run);
+    let finish = stats.and_then(|s| {
+        if out.exists() {
+            std::fs::remove_dir_all(&out).map_err(io(&out))?;
+        }
+        std::fs::rename(&staging, &out).map_err(io(&out))?;
+        Ok(s)
+    });
+    if finish.is_err() {
+        let _ = std::fs::remove_dir_all(&staging);
+    }
+    finish
+}
+
+fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
     let seq = Sequence::open(&o.data)?;
     let frames = match &o.frames {
         Some(f) => f.clone(),
@@ -497,7 +555,7 @@ pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, LabelError> {
         }
     }
     let prov = format!(
-        "# Labels from camera segmentation (`cosem label`)\n\nscans, poses, calibration: {}\nsegmentation: {} (camera {}, {} ids{})\n\n\
+        "{PROVENANCE_TITLE}\n\nscans, poses, calibration: {}\nsegmentation: {} (camera {}, {} ids{})\n\n\
          Each LiDAR point takes the class of the pixel it projects to (P{} after Tr); points behind the camera or \
          outside the image are unlabeled (0). See the source folder's PROVENANCE.md for the data's origin and licence.\n",
         o.data.display(),

@@ -32,6 +32,7 @@ pub mod link;
 pub mod mapping;
 pub mod noise;
 pub mod pair;
+pub mod paths;
 pub mod ply;
 pub mod report;
 pub mod rng;

@@ -23,13 +23,22 @@ fn main() {
     #[cfg(unix)]
     default_sigpipe();
     let args = cli::Cli::parse();
-    if let Err(e) = cli::run(args) {
-        eprintln!("error: {e}");
-        let mut source = e.source();
-        while let Some(s) = source {
-            eprintln!("  caused by: {s}");
-            source = s.source();
+    match cli::run(args) {
+        Ok(code) => std::process::exit(i32::from(code)),
+        Err(e) => {
+            eprintln!("error: {e}");
+            // Causes the message does not already say.
+            let mut said = e.to_string();
+            let mut source = e.source();
+            while let Some(s) = source {
+                let cause = s.to_string();
+                if !said.contains(&cause) {
+                    eprintln!("  caused by: {cause}");
+                }
+                said = cause;
+                source = s.source();
+            }
+            std::process::exit(1);
         }
-        std::process::exit(1);
     }
 }

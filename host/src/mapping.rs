@@ -76,6 +76,10 @@ pub struct BuildStats {
     pub kept: usize,
     /// Points dropped by the eviction policy.
     pub dropped: usize,
+    /// Points beyond the map's key range (32,768 voxels from the anchor on
+    /// an axis: 6.5 km at 0.2 m), left out: an outlier far away must not
+    /// cost the whole map.
+    pub out_of_range: usize,
 }
 
 /// Fuses frames (already in the anchor frame) into `map`.
@@ -94,6 +98,7 @@ pub fn fuse_frames(map: &mut HostMap, frames: &[Frame], filter: &PointFilter) ->
             match inserted {
                 Ok(Insertion::Dropped) => stats.dropped += 1,
                 Ok(_) => {}
+                Err(InsertError::OutOfRange) => stats.out_of_range += 1,
                 Err(InsertError::Full) => return Err(BuildError::Full { capacity: map.capacity(), frame: f.index }),
                 Err(error) => return Err(BuildError::Point { frame: f.index, point, error }),
             }

@@ -224,7 +224,8 @@ pub fn result_text(r: &MatchResult, global: Option<&Searched>) -> String {
     }
     let _ =
         writeln!(out, "x,y,z,roll,pitch,yaw  {:.4},{:.4},{:.4},{:.4},{:.4},{:.4}", x[0], x[1], x[2], x[3], x[4], x[5]);
-    let per_level = &r.iterations_per_level[..crate::align::DEFAULT_LEVELS];
+    let used = r.iterations_per_level.iter().rposition(|&n| n > 0).map_or(1, |i| i + 1);
+    let per_level = &r.iterations_per_level[..used.max(crate::align::DEFAULT_LEVELS)];
     let _ = writeln!(out, "iterations  {} (per level, fine to coarse: {per_level:?})", r.iterations);
     let _ = writeln!(out, "inliers     {}   overlap {:.1}%   rmse {:.4} m", r.inliers, 100.0 * r.overlap, r.rmse);
     let _ = writeln!(
@@ -244,4 +245,22 @@ pub fn pose_words(t: &Isometry3<f64>) -> String {
         "x {:.3} m, y {:.3} m, z {:.3} m, roll {:.2}, pitch {:.2}, yaw {:.2} deg",
         g[0], g[1], g[2], g[3], g[4], g[5]
     )
+}
+
+/// The exit code of `cosem match`, `link` and `robots` for a status: 0
+/// Converged, 3 NotConverged, 4 Degenerate, 5 NoOverlap (1 is an error, 2
+/// a usage error).
+pub fn exit_code(status: cosem_core::matching::MatchStatus) -> u8 {
+    use cosem_core::matching::MatchStatus::*;
+    match status {
+        Converged => 0,
+        NotConverged => 3,
+        Degenerate => 4,
+        NoOverlap => 5,
+    }
+}
+
+/// [`exit_code`] of a status as a wire code (an unknown code is an error: 1).
+pub fn status_code(code: u8) -> u8 {
+    cosem_core::matching::MatchStatus::from_code(code).map(exit_code).unwrap_or(1)
 }

@@ -13,7 +13,17 @@ pub struct TransportError(pub std::io::Error);
 
 impl embedded_io::Error for TransportError {
     fn kind(&self) -> embedded_io::ErrorKind {
-        embedded_io::ErrorKind::Other
+        use embedded_io::ErrorKind as K;
+        use std::io::ErrorKind as S;
+        match self.0.kind() {
+            S::UnexpectedEof | S::BrokenPipe => K::BrokenPipe,
+            S::ConnectionReset => K::ConnectionReset,
+            S::ConnectionAborted => K::ConnectionAborted,
+            S::NotConnected => K::NotConnected,
+            S::TimedOut => K::TimedOut,
+            S::Interrupted => K::Interrupted,
+            _ => K::Other,
+        }
     }
 }
 

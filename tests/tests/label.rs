@@ -156,3 +156,66 @@ fn malformed_inputs_name_the_file() {
     let e = cosem_err(&["label", "--data", &d, "--seg", &s, "--out", &o]);
     assert!(e.contains("velodyne") && e.contains("no scans"), "{e}");
 }
+
+/// Every byte of every file under `dir` (links followed), by relative path.
+fn snapshot(dir: &std::path::Path) -> std::collections::BTreeMap<std::path::PathBuf, Vec<u8>> {
+    let mut out = std::collections::BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.insert(p.strip_prefix(dir).unwrap().to_path_buf(), std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    out
+}
+
+/// `--out` naming the input folder, by an absolute path, a `..` detour or a
+/// symbolic link, or a folder inside it, is refused and the input is left
+/// byte for byte as it was; an existing folder that is not an earlier
+/// output is refused too; an earlier output is replaced.
+#[test]
+fn label_never_writes_into_its_input() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    cosem_ok(&["synth", "--out", &seq.display().to_string(), "--frames", "2", "--seed", "3"]);
+    let before = snapshot(&seq);
+    let seg = seq.join("seg_2").display().to_string();
+    let link = tmp.path().join("link");
+    #[cfg(unix)]
+    std::os::unix::fs::symlink(&seq, &link).unwrap();
+    let detour = tmp.path().join("seq").join("..").join("seq");
+    let mut outs = vec![std::fs::canonicalize(&seq).unwrap(), detour, seq.join("labels_out"), seq.join("seg_2")];
+    if link.exists() {
+        outs.push(link.clone());
+    }
+    for out in &outs {
+        let o = out.display().to_string();
+        let e = cosem_err(&["label", "--data", &seq.display().to_string(), "--seg", &seg, "--out", &o]);
+        assert!(e.contains("never written"), "{o}: {e}");
+    }
+    assert!(snapshot(&seq) == before, "the input folder changed");
+    let other = tmp.path().join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::write(other.join("keep.txt"), b"mine").unwrap();
+    let e = cosem_err(&[
+        "label",
+        "--data",
+        &seq.display().to_string(),
+        "--seg",
+        &seg,
+        "--out",
+        &other.display().to_string(),
+    ]);
+    assert!(e.contains("not an earlier"), "{e}");
+    assert_eq!(std::fs::read(other.join("keep.txt")).unwrap(), b"mine");
+    let out = tmp.path().join("out").display().to_string();
+    for _ in 0..2 {
+        cosem_ok(&["label", "--data", &seq.display().to_string(), "--seg", &seg, "--out", &out]);
+    }
+    assert!(snapshot(&seq) == before, "the input folder changed");
+}

@@ -25,13 +25,22 @@ fn exchange(a: &Path, b: &Path) {
     let mut line = String::new();
     err.read_line(&mut line).unwrap();
     let addr = line.trim().strip_prefix("listening on ").unwrap_or_else(|| panic!("listener said: {line}")).to_string();
-    let client: Value = serde_json::from_str(&cosem_ok(&["link", "--map", &sb, "--tcp", &addr, "--json"])).unwrap();
+    let client = cosem_tests::cosem(&["link", "--map", &sb, "--tcp", &addr, "--json"]);
+    let client: Value = serde_json::from_slice(&client.stdout).unwrap();
     let out = listener.wait_with_output().unwrap();
-    assert!(out.status.success(), "listener failed");
     let server: Value = serde_json::from_str(&String::from_utf8_lossy(&out.stdout)).unwrap();
+    // The exit code says the match's status (0: Converged, 5: NoOverlap, ...).
+    let code = |v: &Value| match v["match"]["status"].as_str() {
+        Some("Converged") => Some(0),
+        Some("NotConverged") => Some(3),
+        Some("Degenerate") => Some(4),
+        Some("NoOverlap") => Some(5),
+        _ => None,
+    };
+    assert_eq!(out.status.code(), code(&server), "listener: {server}");
     // Robot 0 holds A and matched B against it; robot 1 the other way.
-    let ab: Value = serde_json::from_str(&cosem_ok(&["match", &sa, &sb, "--json"])).unwrap();
-    let ba: Value = serde_json::from_str(&cosem_ok(&["match", &sb, &sa, "--json"])).unwrap();
+    let json = |args: &[&str]| -> Value { serde_json::from_slice(&cosem_tests::cosem(args).stdout).unwrap() };
+    let (ab, ba) = (json(&["match", &sa, &sb, "--json"]), json(&["match", &sb, &sa, "--json"]));
     assert_eq!(transform(&server["match"]), transform(&ab));
     assert_eq!(transform(&client["match"]), transform(&ba));
     assert_eq!(server["match"]["status"], ab["status"]);

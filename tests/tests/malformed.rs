@@ -137,3 +137,51 @@ fn corrupted_map_file() {
     let e = cosem_err(&["info", &map.display().to_string()]);
     assert!(e.contains("robot.cmap") && e.contains("magic"), "{e}");
 }
+
+/// Numbers that make no map or no run are usage errors, not panics or empty
+/// results: a NaN or zero range, a NaN timeout, a huge timeout.
+#[test]
+fn nonsense_numbers_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = fresh(tmp.path());
+    let (d, o) = (seq.display().to_string(), tmp.path().join("m.cmap").display().to_string());
+    for r in ["0", "-5", "NaN", "inf"] {
+        cosem_tests::cosem_usage_err(&["map", "--data", &d, "--frames", "0:1", "--max-range", r, "-o", &o]);
+    }
+    cosem_tests::cosem_usage_err(&["map", "--data", &d, "--frames", "0:1", "--voxel", "0", "-o", &o]);
+    cosem_tests::cosem_usage_err(&["link", "--map", &o, "--tcp", "127.0.0.1:1", "--connect-timeout", "NaN"]);
+    let e = cosem_tests::cosem_usage_err(&["robots", "--data", &d, "--a", "0:1", "--b", "1:2", "--timeout", "NaN"]);
+    assert!(e.contains("positive number"), "{e}");
+    // A map written into its input folder is refused, the folder untouched.
+    let inside = seq.join("m.cmap").display().to_string();
+    let e = cosem_err(&["map", "--data", &d, "--frames", "0:1", "-o", &inside]);
+    assert!(e.contains("never written") && !seq.join("m.cmap").exists(), "{e}");
+}
+
+/// Output over an input is refused: `match --merged` naming a map,
+/// `export ply -o` naming the map it reads.
+#[test]
+fn outputs_never_overwrite_inputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = fresh(tmp.path());
+    let m = tmp.path().join("m.cmap");
+    let (d, ms) = (seq.display().to_string(), m.display().to_string());
+    cosem_tests::cosem_ok(&["map", "--data", &d, "--frames", "0:1", "-o", &ms]);
+    let before = fs::read(&m).unwrap();
+    let detour = tmp.path().join(".").join("m.cmap").display().to_string();
+    let e = cosem_err(&["match", &ms, &ms, "--init", "0,0,0,0,0,0", "--merged", &detour]);
+    assert!(e.contains("never overwritten"), "{e}");
+    let e = cosem_err(&["export", "ply", &ms, "-o", &detour]);
+    assert!(e.contains("never overwritten"), "{e}");
+    assert_eq!(fs::read(&m).unwrap(), before);
+}
+
+/// A device or another kind of file is refused by its first bytes, not read
+/// to its end.
+#[test]
+fn info_refuses_a_device_at_once() {
+    if std::path::Path::new("/dev/zero").exists() {
+        let e = cosem_err(&["info", "/dev/zero"]);
+        assert!(e.contains("bad magic"), "{e}");
+    }
+}

@@ -57,11 +57,25 @@ fn map(dir: &Path, frames: &str, out: &Path) {
     cosem_ok(&["map", "--data", &dir.display().to_string(), "--frames", frames, "-o", &out.display().to_string()]);
 }
 
+/// `cosem match --json`: the JSON, printed whatever the status, and the
+/// exit code saying the status (0 Converged, 3 NotConverged, 4 Degenerate,
+/// 5 NoOverlap).
 fn match_json(model: &Path, scene: &Path, extra: &[&str]) -> Value {
     let (m, s) = (model.display().to_string(), scene.display().to_string());
     let mut args = vec!["match", m.as_str(), s.as_str(), "--json"];
     args.extend_from_slice(extra);
-    serde_json::from_str(&cosem_ok(&args)).unwrap()
+    let out = cosem_tests::cosem(&args);
+    let v: Value =
+        serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stderr)));
+    let code = match v["status"].as_str().unwrap() {
+        "Converged" => 0,
+        "NotConverged" => 3,
+        "Degenerate" => 4,
+        "NoOverlap" => 5,
+        s => panic!("status {s}"),
+    };
+    assert_eq!(out.status.code(), Some(code), "{v}");
+    v
 }
 
 #[test]
@@ -147,4 +161,44 @@ fn loop_pairs_align_with_no_prior() {
         assert!(e_t < 0.3 && e_r < 1.0, "{name}: e_t {e_t} m, e_r {e_r} deg");
         eprintln!("{name}: no prior, agreement {}: e_t {e_t:.3} m, e_r {e_r:.3} deg", v["agreement"]);
     }
+}
+
+/// Fine voxels work down to 0.02 m (the pyramid grows to reach the coarse
+/// search's cells): 0.04 m maps of frames 0:2 and 1:3 align from the grid's
+/// corners (10 m, 25 degrees off); a self-match is the identity. Finer maps
+/// are refused with the reason.
+#[test]
+fn fine_voxels_align_and_too_fine_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 3, 6);
+    let json = tmp.path().join("e.json");
+    let (d, j) = (seq.display().to_string(), json.display().to_string());
+    cosem_ok(&["eval", "--data", &d, "--a", "0:2", "--b", "1:3", "--voxel", "0.04", "--grid", "corners", "--json", &j]);
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["methods"]["cosem"]["success_strict"].as_f64(), Some(1.0), "{}", v["methods"]);
+    let m = tmp.path().join("fine.cmap");
+    map_at(&seq, "0:2", &m, "0.04");
+    let s = match_json(&m, &m, &["--init", "0,0,0,0,0,0"]);
+    assert_eq!(s["status"], "Converged", "{s}");
+    let t: Vec<f64> = s["transform"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    assert!(t[3].abs() < 1e-3 && t[7].abs() < 1e-3 && t[11].abs() < 1e-3, "{t:?}");
+    let too = tmp.path().join("too.cmap");
+    map_at(&seq, "0:1", &too, "0.01");
+    let e = cosem_tests::cosem_err(&["match", &too.display().to_string(), &too.display().to_string()]);
+    assert!(e.contains("0.02 m"), "{e}");
+}
+
+fn map_at(seq: &Path, frames: &str, out: &Path, voxel: &str) {
+    cosem_ok(&[
+        "map",
+        "--data",
+        &seq.display().to_string(),
+        "--frames",
+        frames,
+        "--voxel",
+        voxel,
+        "-o",
+        &out.display().to_string(),
+    ]);
 }

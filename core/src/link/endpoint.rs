@@ -58,8 +58,9 @@ impl Default for LinkConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum LinkError {
-    /// The byte stream reported an error.
-    Io,
+    /// The byte stream reported an error of this kind (`NotConnected`,
+    /// `BrokenPipe`, `ConnectionReset`: the peer closed the line).
+    Io(embedded_io::ErrorKind),
     /// A frame was resent `max_retries` times without an answer.
     GaveUp {
         /// Sequence number of the frame.
@@ -87,7 +88,13 @@ pub enum LinkError {
 impl core::fmt::Display for LinkError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            LinkError::Io => f.write_str("I/O error on the line"),
+            LinkError::Io(
+                embedded_io::ErrorKind::NotConnected
+                | embedded_io::ErrorKind::BrokenPipe
+                | embedded_io::ErrorKind::ConnectionReset
+                | embedded_io::ErrorKind::ConnectionAborted,
+            ) => f.write_str("the peer closed the line"),
+            LinkError::Io(kind) => write!(f, "I/O error on the line ({kind:?})"),
             LinkError::GaveUp { seq } => write!(f, "gave up: frame {seq} unanswered after all retries"),
             LinkError::Silent => f.write_str("peer silent"),
             LinkError::PeerAborted(r) => write!(f, "peer aborted the transfer ({r:?})"),
@@ -232,9 +239,14 @@ fn send_msg<IO: Write>(io: &mut IO, msg: &Message<'_>, stats: &mut LinkStats) ->
     write_frame(io, frame.get(..f).unwrap_or(&[]), stats)
 }
 
+/// A stream error as a link error, keeping its kind.
+fn io_error<E: embedded_io::Error>(e: E) -> LinkError {
+    LinkError::Io(e.kind())
+}
+
 fn write_frame<IO: Write>(io: &mut IO, frame: &[u8], stats: &mut LinkStats) -> Result<(), LinkError> {
-    io.write_all(frame).map_err(|_| LinkError::Io)?;
-    io.flush().map_err(|_| LinkError::Io)?;
+    io.write_all(frame).map_err(io_error)?;
+    io.flush().map_err(io_error)?;
     stats.bytes_sent += frame.len() as u64;
     stats.frames_sent += 1;
     Ok(())
@@ -478,7 +490,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         }
         let r = self.step_inner(io, now);
         // Lingering only serves the peer: if it hung up, we are done.
-        if r == Err(LinkError::Io) && self.linger_until.is_some() {
+        if matches!(r, Err(LinkError::Io(_))) && self.linger_until.is_some() {
             return Ok(Progress::Done);
         }
         if let Err(e) = r {
@@ -491,7 +503,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                 LinkError::Incompatible => AbortReason::Incompatible,
                 _ => AbortReason::GaveUp,
             };
-            if !matches!(e, LinkError::Io | LinkError::PeerAborted(_)) {
+            if !matches!(e, LinkError::Io(_) | LinkError::PeerAborted(_)) {
                 let map_id = self.rx.map_id.or(self.tx.as_ref().map(|t| t.header.map_id)).unwrap_or(0);
                 let _ = send_msg(io, &Message::Abort { map_id, reason }, &mut self.stats);
             }
@@ -523,8 +535,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         }
         // Read everything that is there.
         let mut buf = [0u8; 64];
-        while io.read_ready().map_err(|_| LinkError::Io)? {
-            let n = io.read(&mut buf).map_err(|_| LinkError::Io)?;
+        while io.read_ready().map_err(io_error)? {
+            let n = io.read(&mut buf).map_err(io_error)?;
             if n == 0 {
                 break;
             }

@@ -117,21 +117,12 @@ fn progress_bar(len: usize) -> ProgressBar {
     bar
 }
 
-/// Checks the output paths can be written before the run (leaving no file
-/// behind that was not there).
+/// Checks the output paths can be written before the run.
 fn check_outputs(a: &Args) -> Result<(), Error> {
-    for path in [&a.json, &a.plot].into_iter().flatten() {
-        let existed = path.exists();
-        std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(path)
-            .map_err(|e| format!("{}: {e} (nothing was run)", path.display()))?;
-        if !existed {
-            let _ = std::fs::remove_file(path);
-        }
-    }
-    Ok(())
+    let mut inputs: Vec<&std::path::Path> = a.negatives.iter().map(|p| p.data.as_path()).collect();
+    inputs.extend(a.data.as_deref());
+    let outputs: Vec<&std::path::Path> = [&a.json, &a.plot].into_iter().flatten().map(|p| p.as_path()).collect();
+    Ok(cosem_host::paths::check_outputs(&outputs, &inputs)?)
 }
 
 /// The settings with the verdict's threshold of the arguments.

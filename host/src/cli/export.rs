@@ -19,6 +19,7 @@ pub enum Format {
 pub fn run(f: Format) -> Result<(), Error> {
     match f {
         Format::Ply { file, output } => {
+            cosem_host::paths::refuse_overwrite(&output, &[&file])?;
             let (_, map) = cosem_host::cmap::read(&file)?;
             let id = cosem_core::geometry::Isometry3::identity();
             let colour = |v: &cosem_core::map::SemanticVoxel| v.class().map(|c| c.color()).unwrap_or([128; 3]);

@@ -59,9 +59,6 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
-    if a.out == a.data {
-        return Err("--out must differ from --data (the labels would overwrite the input's)".into());
-    }
     let opts = LabelOptions {
         data: a.data.clone(),
         seg: a.seg.clone(),

@@ -4,7 +4,7 @@ use super::args::MatchOpts;
 use super::{print_json, Error};
 use cosem_host::align::{align, prepare, DEFAULT_LEVELS};
 use cosem_host::link::{exchange, Line};
-use cosem_host::report::{result_text, GlobalJson, LinkJson, MatchJson};
+use cosem_host::report::{exit_code, result_text, GlobalJson, LinkJson, MatchJson};
 use cosem_host::robots::line_seconds;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -56,7 +56,7 @@ fn line(a: &Args) -> Line {
     }
 }
 
-pub fn run(a: Args) -> Result<(), Error> {
+pub fn run(a: Args) -> Result<u8, Error> {
     let (settings, prior) = a.opts.resolve();
     let (header, ours) = cosem_host::cmap::read(&a.map)?;
     let robot_id = a.robot_id.unwrap_or(if a.listen.is_some() { 0 } else { 1 });
@@ -67,7 +67,8 @@ pub fn run(a: Args) -> Result<(), Error> {
     let link_s = started.elapsed().as_secs_f64();
     let baud = a.baud.unwrap_or(115_200);
     let t0 = Instant::now();
-    let (pm, ps) = (prepare(&ours, DEFAULT_LEVELS)?, prepare(&theirs, DEFAULT_LEVELS)?);
+    let pm = prepare(&ours, DEFAULT_LEVELS).map_err(|e| format!("our map {}: {e}", a.map.display()))?;
+    let ps = prepare(&theirs, DEFAULT_LEVELS).map_err(|e| format!("the peer's map: {e}"))?;
     let prep_ms = t0.elapsed().as_secs_f64() * 1e3;
     let t1 = Instant::now();
     let (r, global) = align(settings, prior.as_ref(), (&pm, &ps))?;
@@ -77,7 +78,7 @@ pub fn run(a: Args) -> Result<(), Error> {
     if a.json {
         let mut result = MatchJson::new(&r, match_ms, prep_ms);
         result.global = global.as_ref().map(GlobalJson::from);
-        return print_json(&LinkJson {
+        print_json(&LinkJson {
             robot_id,
             bytes_sent: stats.bytes_sent,
             bytes_received: stats.bytes_received,
@@ -92,7 +93,8 @@ pub fn run(a: Args) -> Result<(), Error> {
             baud,
             line_time_s: BTreeMap::from([("sent", sent_s), ("received", received_s)]),
             result,
-        });
+        })?;
+        return Ok(exit_code(r.status));
     }
     let (n_out, n_in) = (ours.len(), theirs.len());
     println!("robot {robot_id}: sent {n_out} voxels in {} bytes ({per_voxel:.2} bytes/voxel of encoding), received {n_in} voxels in {} bytes", stats.bytes_sent, stats.bytes_received);
@@ -103,5 +105,5 @@ pub fn run(a: Args) -> Result<(), Error> {
     println!("match (ours = model, peer's = scene):");
     print!("{}", result_text(&r, global.as_ref()));
     println!("time        {match_ms:.1} ms (preparation {prep_ms:.1} ms)");
-    Ok(())
+    Ok(exit_code(r.status))
 }

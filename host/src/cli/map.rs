@@ -18,10 +18,10 @@ pub struct Args {
     #[arg(long)]
     frames: FrameRange,
     /// Voxel size (m).
-    #[arg(long, default_value_t = 0.2)]
+    #[arg(long, default_value = "0.2", value_parser = super::args::positive_f32)]
     voxel: f32,
     /// Drop points farther than this from their sensor (m); no limit by default.
-    #[arg(long)]
+    #[arg(long, value_parser = super::args::positive_f32)]
     max_range: Option<f32>,
     /// Keep moving objects, mapped to their static class.
     #[arg(long)]
@@ -42,6 +42,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
+    cosem_host::paths::refuse_inside(&a.output, &[&a.data])?;
     let t0 = Instant::now();
     let seq = Sequence::open(&a.data)?;
     let mut frames = seq.load_range(a.frames)?;
@@ -59,6 +60,14 @@ pub fn run(a: Args) -> Result<(), Error> {
         LabelNoise::None => format!("{name} {}", a.frames),
         n => format!("{name} {} label noise {n:?} seed {} ({:.1}% changed)", a.frames, a.seed, 100.0 * noise.rate()),
     };
+    if stats.out_of_range > 0 {
+        eprintln!(
+            "warning: {} points lie beyond the map's key range ({:.0} m from the anchor at {} m voxels) and were left out; --max-range drops far points by design",
+            stats.out_of_range,
+            32_767.0 * a.voxel,
+            a.voxel
+        );
+    }
     let bytes = cosem_host::cmap::write(&a.output, &map, anchor_time, Some(&source))?;
     println!(
         "{}: {} frames, {} points, {} kept, {} voxels at {} m, {} bytes ({:.1} bytes/voxel) in {:.2} s",

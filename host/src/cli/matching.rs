@@ -5,7 +5,7 @@ use super::{print_json, Error};
 use cosem_core::geometry::Isometry3;
 use cosem_host::align::{align, prepare, DEFAULT_LEVELS};
 use cosem_host::ply::{self, PlyPoint};
-use cosem_host::report::{result_text, GlobalJson, MatchJson};
+use cosem_host::report::{exit_code, result_text, GlobalJson, MatchJson};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -25,8 +25,11 @@ pub struct Args {
     merged: Option<PathBuf>,
 }
 
-pub fn run(a: Args) -> Result<(), Error> {
+pub fn run(a: Args) -> Result<u8, Error> {
     let (settings, prior) = a.opts.resolve();
+    if let Some(out) = &a.merged {
+        cosem_host::paths::refuse_overwrite(out, &[&a.model, &a.scene])?;
+    }
     let (_, model) = cosem_host::cmap::read(&a.model)?;
     let (_, scene) = cosem_host::cmap::read(&a.scene)?;
     if (model.resolution() - scene.resolution()).abs() > 1e-6 {
@@ -52,9 +55,10 @@ pub fn run(a: Args) -> Result<(), Error> {
         let mut j = MatchJson::new(&r, time_ms, prep_ms);
         j.method = Some(settings.method.name());
         j.global = global.as_ref().map(GlobalJson::from);
-        return print_json(&j);
+        print_json(&j)?;
+        return Ok(exit_code(r.status));
     }
     print!("{}", result_text(&r, global.as_ref()));
     println!("time        {time_ms:.1} ms (preparation {prep_ms:.1} ms)");
-    Ok(())
+    Ok(exit_code(r.status))
 }

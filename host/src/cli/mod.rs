@@ -61,20 +61,23 @@ enum Command {
     Demo(demo::Args),
 }
 
-/// Runs a parsed command line.
-pub fn run(cli: Cli) -> Result<(), Error> {
+/// Runs a parsed command line; returns the exit code (README, "Exit
+/// codes": `match`, `link` and `robots` say the match's status, the others
+/// 0 when they did their job).
+pub fn run(cli: Cli) -> Result<u8, Error> {
+    let done = |r: Result<(), Error>| r.map(|()| 0);
     match cli.command {
-        Command::Map(a) => map::run(a),
+        Command::Map(a) => done(map::run(a)),
         Command::Match(a) => matching::run(a),
-        Command::Eval(a) => eval::run(a),
+        Command::Eval(a) => done(eval::run(a)),
         Command::Link(a) => link::run(a),
         Command::Robots(a) => robots::run(a),
-        Command::Info(a) => info::run(a),
-        Command::Export { format } => export::run(format),
-        Command::Label(a) => label::run(a),
-        Command::Synth(a) => synth::run(a),
-        Command::Bench { what } => bench::run(what),
-        Command::Demo(a) => demo::run(a),
+        Command::Info(a) => done(info::run(a)),
+        Command::Export { format } => done(export::run(format)),
+        Command::Label(a) => done(label::run(a)),
+        Command::Synth(a) => done(synth::run(a)),
+        Command::Bench { what } => done(bench::run(what)),
+        Command::Demo(a) => done(demo::run(a)),
     }
 }
 

@@ -6,6 +6,7 @@ use super::args::{pose, positive, positive_f32};
 use super::{print_json, Error};
 use cosem_core::geometry::Isometry3;
 use cosem_host::kitti::{FrameRange, Sequence};
+use cosem_host::report::status_code;
 use cosem_host::robots::{
     default_prior, feeds, firmware, host_run, run_pair, summarise, LineFault, Outcome, DEFAULT_FIRMWARE,
 };
@@ -56,7 +57,7 @@ pub struct Args {
     timeout: f64,
 }
 
-pub fn run(a: Args) -> Result<(), Error> {
+pub fn run(a: Args) -> Result<u8, Error> {
     let seq = Sequence::open(&a.data)?;
     let gt = seq.relative_pose(a.a.start, a.b.start)?;
     let prior = (!a.no_prior).then(|| a.prior.unwrap_or_else(|| default_prior(&gt)));
@@ -75,9 +76,14 @@ pub fn run(a: Args) -> Result<(), Error> {
     } else {
         print!("{report}");
     }
-    if run.robots.iter().all(|r| matches!(r.outcome, Outcome::Report(_))) {
-        Ok(())
-    } else {
-        Err("a robot did not report a match".into())
+    // The worse of the two robots: a robot that did not report is an
+    // error; else the worse status.
+    let mut code = 0;
+    for r in &run.robots {
+        match &r.outcome {
+            Outcome::Report(rep) => code = code.max(status_code(rep.result.status)),
+            _ => return Err("a robot did not report a match".into()),
+        }
     }
+    Ok(code)
 }
