@@ -49,10 +49,28 @@ impl Tcp {
         }
     }
 
-    /// Accepts one connection on `listener`.
-    pub fn accept(listener: &TcpListener) -> std::io::Result<Self> {
-        let (s, _) = listener.accept()?;
-        Self::wrap(s)
+    /// Accepts one connection on `listener`, waiting at most `wait`.
+    pub fn accept(listener: &TcpListener, wait: Duration) -> std::io::Result<Self> {
+        listener.set_nonblocking(true)?;
+        let start = Instant::now();
+        loop {
+            match listener.accept() {
+                Ok((s, _)) => {
+                    s.set_nonblocking(false)?;
+                    return Self::wrap(s);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock && start.elapsed() < wait => {
+                    std::thread::sleep(Duration::from_millis(5))
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    return Err(std::io::Error::new(
+                        std::io::ErrorKind::TimedOut,
+                        format!("no peer connected in {:.1} s", wait.as_secs_f64()),
+                    ))
+                }
+                Err(e) => return Err(e),
+            }
+        }
     }
 
     fn wrap(stream: TcpStream) -> std::io::Result<Self> {
@@ -191,5 +209,60 @@ impl Default for HostClock {
 impl Clock for HostClock {
     fn now_ms(&self) -> u64 {
         self.0.elapsed().as_millis() as u64
+    }
+}
+
+/// A byte stream whose writes are paced to a baud rate (8N1: ten bits a
+/// byte), as a UART sends: over TCP the link's timeouts then mean what they
+/// mean on a serial port.
+pub struct Paced<T> {
+    inner: T,
+    per_byte: f64,
+    started: Instant,
+    sent: u64,
+}
+
+impl<T> Paced<T> {
+    /// `inner` paced to `baud` (0: unpaced).
+    pub fn new(inner: T, baud: u32) -> Self {
+        let per_byte = if baud == 0 { 0.0 } else { 10.0 / f64::from(baud) };
+        Paced { inner, per_byte, started: Instant::now(), sent: 0 }
+    }
+}
+
+impl<T: embedded_io::ErrorType> embedded_io::ErrorType for Paced<T> {
+    type Error = T::Error;
+}
+
+impl<T: embedded_io::Read> embedded_io::Read for Paced<T> {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, T::Error> {
+        self.inner.read(buf)
+    }
+}
+
+impl<T: embedded_io::ReadReady> embedded_io::ReadReady for Paced<T> {
+    fn read_ready(&mut self) -> Result<bool, T::Error> {
+        self.inner.read_ready()
+    }
+}
+
+impl<T: embedded_io::Write> embedded_io::Write for Paced<T> {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, T::Error> {
+        if self.per_byte > 0.0 {
+            let now = self.started.elapsed().as_secs_f64();
+            let due = self.sent as f64 * self.per_byte;
+            if due > now {
+                std::thread::sleep(Duration::from_secs_f64(due - now));
+            } else if now - due > 0.05 {
+                // An idle line does not bank time.
+                self.sent = (now / self.per_byte) as u64;
+            }
+        }
+        let n = self.inner.write(buf)?;
+        self.sent += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> Result<(), T::Error> {
+        self.inner.flush()
     }
 }

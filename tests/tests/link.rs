@@ -100,3 +100,76 @@ fn link_without_a_peer_is_a_clean_error() {
     ]);
     assert!(e.contains(&format!("127.0.0.1:{port}")), "{e}");
 }
+
+/// Two `cosem link` processes through `cosem relay`, which flips, drops or
+/// duplicates 0.3% of the bytes (seeded; unpaced, to keep the test short): both maps arrive whole (the count
+/// each received is what the other sent) and each match equals `cosem
+/// match` on the same files. Checks delivery and results, never times.
+#[test]
+fn two_link_processes_through_a_lossy_relay() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 2, 17);
+    let (a, b) = (tmp.path().join("a.cmap"), tmp.path().join("b.cmap"));
+    for (m, f) in [(&a, "0:1"), (&b, "1:2")] {
+        let (d, o) = (seq.display().to_string(), m.display().to_string());
+        cosem_ok(&["map", "--data", &d, "--frames", f, "--voxel", "1.0", "-o", &o]);
+    }
+    let mut relay = Command::new(cosem_bin())
+        .args(["relay", "--baud", "0", "--error-rate", "0.003", "--seed", "5"])
+        .current_dir(workspace_root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(relay.stderr.take().unwrap());
+    let mut line = String::new();
+    err.read_line(&mut line).unwrap();
+    let addrs: Vec<String> = line.trim().strip_prefix("relay on ").unwrap().split(' ').map(str::to_string).collect();
+    let (sa, sb) = (a.display().to_string(), b.display().to_string());
+    let spawn = |map: &str, addr: &str, id: &str| {
+        Command::new(cosem_bin())
+            .args(["link", "--map", map, "--tcp", addr, "--robot-id", id, "--json", "--deadline", "300"])
+            .current_dir(workspace_root())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let (p0, p1) = (spawn(&sa, &addrs[0], "0"), spawn(&sb, &addrs[1], "1"));
+    let (o0, o1) = (p0.wait_with_output().unwrap(), p1.wait_with_output().unwrap());
+    let parse = |o: &std::process::Output| -> Value {
+        serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&o.stderr)))
+    };
+    let (r0, r1) = (parse(&o0), parse(&o1));
+    let _ = relay.wait();
+    assert_eq!(r0["voxels_received"], r1["voxels_sent"], "{r0}");
+    assert_eq!(r1["voxels_received"], r0["voxels_sent"], "{r1}");
+    let json = |args: &[&str]| -> Value { serde_json::from_slice(&cosem_tests::cosem(args).stdout).unwrap() };
+    assert_eq!(transform(&r0["match"]), transform(&json(&["match", &sa, &sb, "--json"])));
+    assert_eq!(transform(&r1["match"]), transform(&json(&["match", &sb, &sa, "--json"])));
+    assert!(
+        r0["retransmissions"].as_u64().unwrap() + r1["retransmissions"].as_u64().unwrap() > 0,
+        "no error hit the line"
+    );
+}
+
+/// `--listen` gives up when no peer comes, naming the wait.
+#[test]
+fn listen_without_a_peer_gives_up() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 2, 13);
+    let a = tmp.path().join("a.cmap");
+    cosem_ok(&["map", "--data", &seq.display().to_string(), "--frames", "0:2", "-o", &a.display().to_string()]);
+    let e = cosem_tests::cosem_err(&[
+        "link",
+        "--map",
+        &a.display().to_string(),
+        "--listen",
+        "0",
+        "--accept-timeout",
+        "0.5",
+    ]);
+    assert!(e.contains("no peer connected"), "{e}");
+}

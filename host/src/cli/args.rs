@@ -119,3 +119,11 @@ pub fn at_least<const N: usize>(s: &str) -> Result<usize, String> {
         _ => Err(format!("`{s}`: expected a whole number of at least {N}")),
     }
 }
+
+/// A probability in [0, 1].
+pub fn probability(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}`: expected a probability in [0, 1]")),
+    }
+}

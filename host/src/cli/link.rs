@@ -3,7 +3,7 @@
 use super::args::MatchOpts;
 use super::{print_json, Error};
 use cosem_host::align::{align, prepare, DEFAULT_LEVELS};
-use cosem_host::link::{exchange, Line};
+use cosem_host::link::{exchange, Exchange, Line};
 use cosem_host::report::{exit_code, result_text, GlobalJson, LinkJson, MatchJson};
 use cosem_host::robots::line_seconds;
 use std::collections::BTreeMap;
@@ -25,10 +25,17 @@ pub struct Args {
     /// Serial device (e.g. /dev/ttyUSB0).
     #[arg(long, requires = "baud")]
     serial: Option<String>,
-    /// Baud rate: of the serial port; with TCP, the rate the link time is
-    /// also reported at (default 115200).
+    /// Baud rate: of the serial port; with TCP, our writes are paced to it
+    /// as a UART would send (default: unpaced, line times reported at 115200).
     #[arg(long)]
     baud: Option<u32>,
+    /// Give up after this long, whatever the state (s; long enough for a
+    /// robot's map on a 115200-baud line with 5% byte errors).
+    #[arg(long, default_value = "600", value_parser = super::args::positive)]
+    deadline: f64,
+    /// With --listen: give up when no peer connected in this long (s).
+    #[arg(long, default_value = "60", value_parser = super::args::positive)]
+    accept_timeout: f64,
     /// With --tcp: keep trying to connect for this long while the peer starts (s).
     #[arg(long, default_value = "10", value_parser = super::args::positive)]
     connect_timeout: f64,
@@ -50,7 +57,7 @@ pub struct Args {
 
 fn line(a: &Args) -> Line {
     match (&a.listen, &a.tcp, &a.serial) {
-        (Some(port), _, _) => Line::Listen(*port),
+        (Some(port), _, _) => Line::Listen(*port, Duration::from_secs_f64(a.accept_timeout.min(86_400.0))),
         (None, Some(addr), _) => Line::Connect(addr.clone(), Duration::from_secs_f64(a.connect_timeout.min(3600.0))),
         (None, None, dev) => Line::Serial(dev.clone().unwrap_or_default(), a.baud.unwrap_or(115_200)),
     }
@@ -62,8 +69,14 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let robot_id = a.robot_id.unwrap_or(if a.listen.is_some() { 0 } else { 1 });
     let anchor_us = header.anchor_time.map(|t| (t * 1e6) as u64).unwrap_or(0);
     let started = Instant::now();
-    let (theirs, stats) =
-        exchange(&line(&a), robot_id, &ours, anchor_us, a.half_duplex, |at| eprintln!("listening on {at}"))?;
+    let how = Exchange {
+        robot_id,
+        anchor_us,
+        half_duplex: a.half_duplex,
+        baud: if a.serial.is_some() { 0 } else { a.baud.unwrap_or(0) },
+        deadline: Duration::from_secs_f64(a.deadline.min(86_400.0)),
+    };
+    let (theirs, stats) = exchange(&line(&a), &ours, &how, |at| eprintln!("listening on {at}"))?;
     let link_s = started.elapsed().as_secs_f64();
     let baud = a.baud.unwrap_or(115_200);
     let t0 = Instant::now();

@@ -11,6 +11,7 @@ mod label;
 mod link;
 mod map;
 mod matching;
+mod relay;
 mod robots;
 mod synth;
 
@@ -38,6 +39,9 @@ enum Command {
     Eval(eval::Args),
     /// Exchange maps with a peer over TCP or a serial line, then match.
     Link(link::Args),
+    /// A paced, lossy line between two `cosem link` processes (for tests and
+    /// measurements).
+    Relay(relay::Args),
     /// Two robots on emulated Cortex-M4F boards: onboard mapping, map
     /// exchange over UART0, onboard matching.
     Robots(robots::Args),
@@ -72,6 +76,7 @@ pub fn run(cli: Cli) -> Result<u8, Error> {
         Command::Eval(a) => done(eval::run(a)),
         Command::Link(a) => link::run(a),
         Command::Robots(a) => robots::run(a),
+        Command::Relay(a) => done(relay::run_relay(a)),
         Command::Info(a) => done(info::run(a)),
         Command::Export { format } => done(export::run(format)),
         Command::Label(a) => done(label::run(a)),
