@@ -11,19 +11,30 @@ fn transform(v: &Value) -> Vec<f64> {
     v["transform"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
 }
 
-fn exchange(a: &Path, b: &Path) {
-    let (sa, sb) = (a.display().to_string(), b.display().to_string());
-    let mut listener = Command::new(cosem_bin())
-        .args(["link", "--map", &sa, "--listen", "0", "--json"])
+/// Starts `cosem` in the background with its output piped.
+fn spawn(args: &[&str]) -> std::process::Child {
+    Command::new(cosem_bin())
+        .args(args)
         .current_dir(workspace_root())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .unwrap();
-    // The listener says where it listens.
-    let mut err = BufReader::new(listener.stderr.take().unwrap());
+        .unwrap()
+}
+
+/// The first line a background `cosem` writes to stderr.
+fn first_line(child: &mut std::process::Child) -> String {
+    let mut err = BufReader::new(child.stderr.take().unwrap());
     let mut line = String::new();
     err.read_line(&mut line).unwrap();
+    line
+}
+
+fn exchange(a: &Path, b: &Path) {
+    let (sa, sb) = (a.display().to_string(), b.display().to_string());
+    let mut listener = spawn(&["link", "--map", &sa, "--listen", "0", "--json"]);
+    // The listener says where it listens.
+    let line = first_line(&mut listener);
     let addr = line.trim().strip_prefix("listening on ").unwrap_or_else(|| panic!("listener said: {line}")).to_string();
     let client = cosem_tests::cosem(&["link", "--map", &sb, "--tcp", &addr, "--json"]);
     let client: Value = serde_json::from_slice(&client.stdout).unwrap();
@@ -115,28 +126,14 @@ fn two_link_processes_through_a_lossy_relay() {
         let (d, o) = (seq.display().to_string(), m.display().to_string());
         cosem_ok(&["map", "--data", &d, "--frames", f, "--voxel", "1.0", "-o", &o]);
     }
-    let mut relay = Command::new(cosem_bin())
-        .args(["relay", "--baud", "0", "--error-rate", "0.003", "--seed", "5"])
-        .current_dir(workspace_root())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut err = BufReader::new(relay.stderr.take().unwrap());
-    let mut line = String::new();
-    err.read_line(&mut line).unwrap();
+    let mut relay = spawn(&["relay", "--baud", "0", "--error-rate", "0.003", "--seed", "5"]);
+    let line = first_line(&mut relay);
     let addrs: Vec<String> = line.trim().strip_prefix("relay on ").unwrap().split(' ').map(str::to_string).collect();
     let (sa, sb) = (a.display().to_string(), b.display().to_string());
-    let spawn = |map: &str, addr: &str, id: &str| {
-        Command::new(cosem_bin())
-            .args(["link", "--map", map, "--tcp", addr, "--robot-id", id, "--json", "--deadline", "300"])
-            .current_dir(workspace_root())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap()
+    let link = |map: &str, addr: &str, id: &str| {
+        spawn(&["link", "--map", map, "--tcp", addr, "--robot-id", id, "--json", "--deadline", "300"])
     };
-    let (p0, p1) = (spawn(&sa, &addrs[0], "0"), spawn(&sb, &addrs[1], "1"));
+    let (p0, p1) = (link(&sa, &addrs[0], "0"), link(&sb, &addrs[1], "1"));
     let (o0, o1) = (p0.wait_with_output().unwrap(), p1.wait_with_output().unwrap());
     let parse = |o: &std::process::Output| -> Value {
         serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&o.stderr)))
