@@ -489,10 +489,7 @@ pub fn run_global(
         let ms = t.elapsed().as_secs_f64() * 1e3;
         progress();
         let truth = gt * d.inverse();
-        let search = found.map(|f| {
-            let (best, runner_up) = f.search.scores();
-            [best, runner_up]
-        });
+        let search = found.map(|f| f.search.scores().into());
         Ok(Outcome { global_start: Some(*s), search, ..Outcome::new(method, &r, &truth, ms, pa.levels()) })
     });
     outcomes.into_iter().collect()
@@ -678,8 +675,7 @@ pub fn run_negatives(
                 continue;
             }
             // Folders of one sequence (the same poses) may hold one place.
-            let poses = |p: &Place| std::fs::read(p.data.join("poses.txt")).ok();
-            if places[i].data == places[j].data || poses(&places[i]) == poses(&places[j]) {
+            if a.0.same_trajectory(&b.0) {
                 let t = a.0.velodyne_pose(a.1.start)?.inverse() * b.0.velodyne_pose(b.1.start)?;
                 if cosem_core::map::overlap(&a.2, &b.2, &t.cast::<f32>()) >= 0.01 {
                     overlapping += 1;
@@ -706,7 +702,7 @@ pub fn run_negatives(
             Some(p) => (matcher.align(pm, ps, &p.cast::<f32>())?, None),
             None => {
                 let (r, found) = align_searched(&matcher, pm, ps, &GlobalSearch::default(), || {})?;
-                (r, found.map(|f| [f.search.scores().0, f.search.scores().1]))
+                (r, found.map(|f| f.search.scores().into()))
             }
         };
         progress();

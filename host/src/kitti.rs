@@ -347,6 +347,12 @@ impl Sequence {
         &self.tr
     }
 
+    /// Whether `other` holds the same trajectory (the same `Tr` and poses):
+    /// folders of one sequence, whose scans share one world frame.
+    pub fn same_trajectory(&self, other: &Sequence) -> bool {
+        self.tr == other.tr && self.camera_poses == other.camera_poses
+    }
+
     /// Number of poses in poses.txt.
     pub fn pose_count(&self) -> usize {
         self.camera_poses.len()

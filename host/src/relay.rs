@@ -6,6 +6,7 @@
 
 use crate::error::Error;
 use crate::rng::Rng;
+use crate::transport::{accept_within, Pacer};
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -35,8 +36,7 @@ pub struct RelayStats {
 /// Copies `from` to `to` as the line model says, until `from` closes.
 fn pump(mut from: TcpStream, mut to: TcpStream, model: LineModel, seed: u64, counts: [Arc<AtomicU64>; 2]) {
     let mut rng = Rng::new(seed);
-    let started = Instant::now();
-    let mut sent = 0u64;
+    let mut pacer = Pacer::new(model.baud);
     let mut buf = [0u8; 4096];
     let mut out = Vec::with_capacity(8192);
     loop {
@@ -58,23 +58,13 @@ fn pump(mut from: TcpStream, mut to: TcpStream, model: LineModel, seed: u64, cou
                 out.push(b);
             }
         }
-        // Pacing: byte k leaves at k * 10 / baud seconds after the start
-        // (a line idle for a while does not bank time: it restarts the clock).
+        // Paced as the UART would send, a few bytes at a time.
         for chunk in out.chunks(64) {
-            if model.baud > 0 {
-                let per_byte = 10.0 / f64::from(model.baud);
-                let now = started.elapsed().as_secs_f64();
-                let due = sent as f64 * per_byte;
-                if due > now {
-                    std::thread::sleep(Duration::from_secs_f64(due - now));
-                } else if now - due > 0.05 {
-                    sent = (now / per_byte) as u64;
-                }
-            }
+            pacer.wait();
             if to.write_all(chunk).is_err() {
                 return;
             }
-            sent += chunk.len() as u64;
+            pacer.sent(chunk.len());
         }
     }
     let _ = to.shutdown(std::net::Shutdown::Write);
@@ -98,22 +88,7 @@ pub fn run(
     let deadline = Instant::now() + accept_timeout;
     let mut streams = Vec::new();
     for (l, a) in listeners.iter().zip(addrs) {
-        l.set_nonblocking(true).map_err(io("relay"))?;
-        let s = loop {
-            match l.accept() {
-                Ok((s, _)) => break s,
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock && Instant::now() < deadline => {
-                    std::thread::sleep(Duration::from_millis(5))
-                }
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                    return Err(Error::Invalid(format!("relay: nobody connected to {a} in {accept_timeout:?}")))
-                }
-                Err(e) => return Err(Error::Io { path: a.to_string().into(), source: e }),
-            }
-        };
-        s.set_nonblocking(false).map_err(io("relay"))?;
-        s.set_nodelay(true).map_err(io("relay"))?;
-        streams.push(s);
+        streams.push(accept_within(l, deadline).map_err(|source| Error::Io { path: a.to_string().into(), source })?);
     }
     let counts: Vec<Arc<AtomicU64>> = (0..4).map(|_| Arc::new(AtomicU64::new(0))).collect();
     let clone = |s: &TcpStream| s.try_clone().map_err(io("relay"));

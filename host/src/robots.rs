@@ -269,23 +269,8 @@ fn qemu(elf: &Path, link_port: u16, feed_port: u16) -> std::io::Result<Child> {
 }
 
 fn accept(listener: &TcpListener, deadline: Instant) -> Result<TcpStream, String> {
-    listener.set_nonblocking(true).map_err(|e| e.to_string())?;
-    loop {
-        match listener.accept() {
-            Ok((s, _)) => {
-                s.set_nonblocking(false).map_err(|e| e.to_string())?;
-                s.set_nodelay(true).ok();
-                return Ok(s);
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                if Instant::now() > deadline {
-                    return Err("QEMU did not connect its serial port".into());
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            Err(e) => return Err(e.to_string()),
-        }
-    }
+    crate::transport::accept_within(listener, deadline)
+        .map_err(|e| format!("QEMU did not connect its serial port: {e}"))
 }
 
 /// Copies `from` to `to` through `fault` until either side closes; counts bytes.

@@ -27,6 +27,33 @@ impl embedded_io::Error for TransportError {
     }
 }
 
+/// Accepts one connection on `listener` before `deadline` (blocking, no
+/// Nagle delay); a `TimedOut` error saying how long it waited otherwise.
+pub fn accept_within(listener: &TcpListener, deadline: Instant) -> std::io::Result<TcpStream> {
+    listener.set_nonblocking(true)?;
+    let start = Instant::now();
+    loop {
+        match listener.accept() {
+            Ok((s, _)) => {
+                s.set_nonblocking(false)?;
+                s.set_nodelay(true)?;
+                return Ok(s);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock && Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(5))
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                let waited = start.elapsed().as_secs_f64();
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::TimedOut,
+                    format!("no peer connected in {waited:.1} s"),
+                ));
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
 /// A TCP connection, read without blocking.
 pub struct Tcp {
     stream: TcpStream,
@@ -51,26 +78,7 @@ impl Tcp {
 
     /// Accepts one connection on `listener`, waiting at most `wait`.
     pub fn accept(listener: &TcpListener, wait: Duration) -> std::io::Result<Self> {
-        listener.set_nonblocking(true)?;
-        let start = Instant::now();
-        loop {
-            match listener.accept() {
-                Ok((s, _)) => {
-                    s.set_nonblocking(false)?;
-                    return Self::wrap(s);
-                }
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock && start.elapsed() < wait => {
-                    std::thread::sleep(Duration::from_millis(5))
-                }
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                    return Err(std::io::Error::new(
-                        std::io::ErrorKind::TimedOut,
-                        format!("no peer connected in {:.1} s", wait.as_secs_f64()),
-                    ))
-                }
-                Err(e) => return Err(e),
-            }
-        }
+        Self::wrap(accept_within(listener, Instant::now() + wait)?)
     }
 
     fn wrap(stream: TcpStream) -> std::io::Result<Self> {
@@ -212,21 +220,54 @@ impl Clock for HostClock {
     }
 }
 
-/// A byte stream whose writes are paced to a baud rate (8N1: ten bits a
-/// byte), as a UART sends: over TCP the link's timeouts then mean what they
-/// mean on a serial port.
-pub struct Paced<T> {
-    inner: T,
+/// Times bytes as a UART sends them: byte k leaves `k * 10 / baud` seconds
+/// after the start (8N1). An idle line banks no time: it restarts the count.
+#[derive(Clone, Copy, Debug)]
+pub struct Pacer {
     per_byte: f64,
     started: Instant,
     sent: u64,
 }
 
+impl Pacer {
+    /// A pacer for `baud` (0: no pacing).
+    pub fn new(baud: u32) -> Self {
+        let per_byte = if baud == 0 { 0.0 } else { 10.0 / f64::from(baud) };
+        Pacer { per_byte, started: Instant::now(), sent: 0 }
+    }
+
+    /// Waits until the next byte may leave.
+    pub fn wait(&mut self) {
+        if self.per_byte <= 0.0 {
+            return;
+        }
+        let now = self.started.elapsed().as_secs_f64();
+        let due = self.sent as f64 * self.per_byte;
+        if due > now {
+            std::thread::sleep(Duration::from_secs_f64(due - now));
+        } else if now - due > 0.05 {
+            self.sent = (now / self.per_byte) as u64;
+        }
+    }
+
+    /// Counts `n` bytes sent.
+    pub fn sent(&mut self, n: usize) {
+        self.sent += n as u64;
+    }
+}
+
+/// A byte stream whose writes are paced to a baud rate ([`Pacer`]), as a
+/// UART sends: over TCP the link's timeouts then mean what they mean on a
+/// serial port.
+pub struct Paced<T> {
+    inner: T,
+    pacer: Pacer,
+}
+
 impl<T> Paced<T> {
     /// `inner` paced to `baud` (0: unpaced).
     pub fn new(inner: T, baud: u32) -> Self {
-        let per_byte = if baud == 0 { 0.0 } else { 10.0 / f64::from(baud) };
-        Paced { inner, per_byte, started: Instant::now(), sent: 0 }
+        Paced { inner, pacer: Pacer::new(baud) }
     }
 }
 
@@ -248,18 +289,9 @@ impl<T: embedded_io::ReadReady> embedded_io::ReadReady for Paced<T> {
 
 impl<T: embedded_io::Write> embedded_io::Write for Paced<T> {
     fn write(&mut self, buf: &[u8]) -> Result<usize, T::Error> {
-        if self.per_byte > 0.0 {
-            let now = self.started.elapsed().as_secs_f64();
-            let due = self.sent as f64 * self.per_byte;
-            if due > now {
-                std::thread::sleep(Duration::from_secs_f64(due - now));
-            } else if now - due > 0.05 {
-                // An idle line does not bank time.
-                self.sent = (now / self.per_byte) as u64;
-            }
-        }
+        self.pacer.wait();
         let n = self.inner.write(buf)?;
-        self.sent += n as u64;
+        self.pacer.sent(n);
         Ok(n)
     }
     fn flush(&mut self) -> Result<(), T::Error> {

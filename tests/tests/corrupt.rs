@@ -6,22 +6,12 @@
 //! before the last pose, a pose or `Tr` that is no longer a rotation) must
 //! be errors.
 
+use cosem_host::rng::Rng;
 use std::path::{Path, PathBuf};
 
-/// SplitMix64, seeded.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
+/// Uniform in `0..n`.
+fn pick(rng: &mut Rng, n: usize) -> usize {
+    rng.below(n as u64) as usize
 }
 
 fn copy_dir(from: &Path, to: &Path) {
@@ -43,13 +33,13 @@ fn corrupt(dir: &Path, rng: &mut Rng) -> (String, bool) {
         .iter()
         .map(|f| dir.join(f))
         .collect();
-    let file = &files[rng.below(files.len())];
+    let file = &files[pick(rng, files.len())];
     let mut bytes = std::fs::read(file).unwrap();
     let name = file.strip_prefix(dir).unwrap().display().to_string();
     let record = if name.ends_with(".bin") { 16 } else { 4 };
-    match rng.below(4) {
+    match pick(rng, 4) {
         0 => {
-            let cut = rng.below(bytes.len());
+            let cut = pick(rng, bytes.len());
             bytes.truncate(cut);
             std::fs::write(file, &bytes).unwrap();
             // A binary file cut mid-record, or a text file cut before its
@@ -58,24 +48,24 @@ fn corrupt(dir: &Path, rng: &mut Rng) -> (String, bool) {
             (format!("{name}: truncated at {cut}"), binary && !cut.is_multiple_of(record))
         }
         1 => {
-            let at = rng.below(bytes.len());
-            bytes[at] ^= 1 << rng.below(8);
+            let at = pick(rng, bytes.len());
+            bytes[at] ^= 1 << pick(rng, 8);
             std::fs::write(file, &bytes).unwrap();
             (format!("{name}: bit flipped at {at}"), false)
         }
         2 if name.ends_with(".txt") => {
             let text = String::from_utf8(bytes).unwrap();
             let mut lines: Vec<&str> = text.lines().collect();
-            let at = rng.below(lines.len().saturating_sub(1));
+            let at = pick(rng, lines.len().saturating_sub(1));
             lines.insert(at, "");
             std::fs::write(file, lines.join("\n") + "\n").unwrap();
             // A blank line before the last pose shifts every later pose.
             (format!("{name}: blank line at {}", at + 1), name == "poses.txt")
         }
         _ => {
-            let n = 1 + rng.below(9);
-            let junk: Vec<u8> = (0..n).map(|_| rng.next() as u8).collect();
-            let at = rng.below(bytes.len());
+            let n = 1 + pick(rng, 9);
+            let junk: Vec<u8> = (0..n).map(|_| rng.next_u64() as u8).collect();
+            let at = pick(rng, bytes.len());
             bytes.splice(at..at, junk);
             std::fs::write(file, &bytes).unwrap();
             (format!("{name}: {n} garbage bytes at {at}"), false)
@@ -88,7 +78,7 @@ fn corrupted_datasets_are_clear_errors_or_maps_never_panics() {
     let tmp = tempfile::tempdir().unwrap();
     let clean = tmp.path().join("clean");
     cosem_tests::synth(&clean, 3, 9);
-    let mut rng = Rng(0x0C05_EBAD);
+    let mut rng = Rng::new(0x0C05_EBAD);
     let (mut errors, mut maps) = (0, 0);
     for case in 0..200 {
         let dir = tmp.path().join(format!("c{case}"));

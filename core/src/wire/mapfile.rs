@@ -373,53 +373,55 @@ pub fn write<S: VoxelStorage>(
     header: &MapFileHeader<impl Serialize>,
     scratch: &mut [u32],
     chunk: &mut [u8],
-    mut sink: impl FnMut(&[u8]) -> bool,
+    sink: impl FnMut(&[u8]) -> bool,
 ) -> Result<usize, MapFileError> {
-    let crc = core::cell::Cell::new(Crc32::new());
-    let written = core::cell::Cell::new(0usize);
-    let mut put = |bytes: &[u8]| -> Result<(), MapFileError> {
-        let mut c = crc.get();
-        c.update(bytes);
-        crc.set(c);
-        written.set(written.get() + bytes.len());
-        if sink(bytes) {
-            Ok(())
-        } else {
-            Err(MapFileError::Write)
+    /// The file as it goes out: its CRC and length follow every piece.
+    struct Out<F> {
+        crc: Crc32,
+        written: usize,
+        sink: F,
+    }
+    impl<F: FnMut(&[u8]) -> bool> Out<F> {
+        fn put(&mut self, bytes: &[u8]) -> Result<(), MapFileError> {
+            self.crc.update(bytes);
+            self.written += bytes.len();
+            if (self.sink)(bytes) {
+                Ok(())
+            } else {
+                Err(MapFileError::Write)
+            }
         }
-    };
+    }
+    let mut out = Out { crc: Crc32::new(), written: 0, sink };
     let mut head = [0u8; 512];
     let header_bytes = postcard::to_slice(header, &mut head).map_err(|_| MapFileError::Write)?;
-    put(&MAGIC)?;
-    put(&MAP_FILE_VERSION.to_le_bytes())?;
-    put(&(header_bytes.len() as u32).to_le_bytes())?;
-    put(header_bytes)?;
+    out.put(&MAGIC)?;
+    out.put(&MAP_FILE_VERSION.to_le_bytes())?;
+    out.put(&(header_bytes.len() as u32).to_le_bytes())?;
+    out.put(header_bytes)?;
     let mut encoder = MapEncoder::new(map, scratch).map_err(|_: EncodeError| MapFileError::Write)?;
     loop {
         let n = encoder.next_chunk(chunk).map_err(|_| MapFileError::Write)?;
         if n == 0 {
             break;
         }
-        let mut len = [0u8; 4];
-        let mut k = 0;
-        let mut v = n;
-        loop {
+        // The chunk's length, LEB128 (what `leb128` reads).
+        let (mut len, mut k, mut v) = ([0u8; 4], 0, n);
+        while let Some(slot) = len.get_mut(k) {
             let byte = (v & 0x7F) as u8;
             v >>= 7;
-            if let Some(slot) = len.get_mut(k) {
-                *slot = if v == 0 { byte } else { byte | 0x80 };
-            }
+            *slot = if v == 0 { byte } else { byte | 0x80 };
             k += 1;
             if v == 0 {
                 break;
             }
         }
-        put(len.get(..k).ok_or(MapFileError::Write)?)?;
-        put(chunk.get(..n).ok_or(MapFileError::Write)?)?;
+        out.put(len.get(..k).ok_or(MapFileError::Write)?)?;
+        out.put(chunk.get(..n).ok_or(MapFileError::Write)?)?;
     }
-    let total = crc.get().finish();
-    put(&total.to_le_bytes())?;
-    Ok(written.get())
+    let total = out.crc.finish();
+    out.put(&total.to_le_bytes())?;
+    Ok(out.written)
 }
 
 /// A small map file, frozen: the map of [`golden_map_points`] at 0.5 m
