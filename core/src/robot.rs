@@ -18,7 +18,7 @@
 
 use crate::geometry::{from_rows, Isometry3};
 use crate::link::sim::{ScriptPort, SimLine};
-use crate::link::{Endpoint, LinkConfig, LinkError, LinkStats, Progress};
+use crate::link::{Endpoint, LinkBuffers, LinkConfig, LinkError, LinkStats, Progress};
 use crate::map::{ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, VoxelStorage};
 use crate::matching::global::{align_searched, Searched};
 use crate::matching::search::GlobalSearch;
@@ -27,7 +27,7 @@ use crate::matching::{
 };
 use crate::wire::feed::{self, FeedError, FeedMessage, GlobalReport, RobotMessage, RobotReport, Setup, Stage};
 use crate::wire::frame::{DeframeError, Deframer, MAX_FRAME};
-use embedded_io::{Read, ReadReady, Write};
+use embedded_io::{Read, ReadReady, Write, WriteReady};
 
 /// Voxels a robot's map holds (and the received map): 256 KiB each. When a
 /// map is full the voxels farthest from the anchor are evicted
@@ -262,9 +262,21 @@ pub enum Poll {
 // allocator there is nothing to box it in, and a robot holds one state.
 #[allow(clippy::large_enum_variant)]
 enum State<'a, M: VoxelStorage, R: VoxelStorage> {
-    Feed { own: &'a mut LocalMap<M>, received: &'a mut LocalMap<R>, scratch: &'a mut [u32] },
-    Link { own: &'a LocalMap<M>, endpoint: Endpoint<'a, M, R> },
-    Align { own: &'a LocalMap<M>, received: &'a LocalMap<R>, stats: LinkStats },
+    Feed {
+        own: &'a mut LocalMap<M>,
+        received: &'a mut LocalMap<R>,
+        scratch: &'a mut [u32],
+        buffers: &'a mut LinkBuffers,
+    },
+    Link {
+        own: &'a LocalMap<M>,
+        endpoint: Endpoint<'a, M, R>,
+    },
+    Align {
+        own: &'a LocalMap<M>,
+        received: &'a LocalMap<R>,
+        stats: LinkStats,
+    },
     Done,
 }
 
@@ -285,18 +297,20 @@ pub struct Robot<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: Pyr
 impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage> Robot<'a, M, R, P, Q> {
     /// A robot over the caller's buffers: its own map and the received map
     /// (reconfigured by the set-up), a scratch of one `u32` per voxel of the
-    /// larger map, and the model's and scene's pyramid storages.
+    /// larger map, the link's buffers, and the model's and scene's pyramid
+    /// storages.
     pub fn new(
         config: RobotConfig,
         own: &'a mut LocalMap<M>,
         received: &'a mut LocalMap<R>,
         scratch: &'a mut [u32],
+        buffers: &'a mut LinkBuffers,
         model: P,
         scene: Q,
     ) -> Self {
         Robot {
             config,
-            state: State::Feed { own, received, scratch },
+            state: State::Feed { own, received, scratch, buffers },
             pyramids: Some((model, scene)),
             deframer: Deframer::new(),
             setup: None,
@@ -319,7 +333,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
     pub fn poll<F, L, T>(&mut self, feed: &mut F, link: &mut L, now_ms: u64, meter: &T) -> Result<Poll, RobotError>
     where
         F: Read + Write + ReadReady,
-        L: Read + Write + ReadReady,
+        L: Read + Write + ReadReady + WriteReady,
         T: Meter,
     {
         let r = self.step(feed, link, now_ms, meter);
@@ -339,12 +353,12 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
     fn step<F, L, T>(&mut self, feed: &mut F, link: &mut L, now_ms: u64, meter: &T) -> Result<Poll, RobotError>
     where
         F: Read + Write + ReadReady,
-        L: Read + Write + ReadReady,
+        L: Read + Write + ReadReady + WriteReady,
         T: Meter,
     {
         match core::mem::replace(&mut self.state, State::Done) {
-            State::Feed { own, received, scratch } => {
-                self.state = State::Feed { own, received, scratch };
+            State::Feed { own, received, scratch, buffers } => {
+                self.state = State::Feed { own, received, scratch, buffers };
                 if self.read_feed(feed, now_ms, meter)? {
                     self.start_link(now_ms)?;
                 }
@@ -421,13 +435,13 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
 
     fn start_link(&mut self, now_ms: u64) -> Result<(), RobotError> {
         let setup = self.setup.ok_or(RobotError::Feed(FeedError::Order))?;
-        let State::Feed { own, received, scratch } = core::mem::replace(&mut self.state, State::Done) else {
+        let State::Feed { own, received, scratch, buffers } = core::mem::replace(&mut self.state, State::Done) else {
             return Err(RobotError::Feed(FeedError::Order));
         };
         let own: &'a LocalMap<M> = own;
         let config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
         let id = setup.robot_id;
-        let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), Some(received))
+        let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), Some(received), buffers)
             .map_err(RobotError::Link)?;
         self.link_started_ms = now_ms;
         self.state = State::Link { own, endpoint };

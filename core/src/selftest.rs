@@ -13,7 +13,7 @@ use crate::classes::Class;
 use crate::geometry::{from_xyz_rpy, transform_point, Isometry3};
 use crate::map::{InsertError, LocalMap, VoxelStorage};
 use crate::matching::{MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, PyramidStorage, Role};
-use crate::wire::codec::{MapDecoder, MapEncoder, MIN_CHUNK};
+use crate::wire::codec::{map_digest, CodecModel, MapDecoder, MapEncoder, MIN_CHUNK};
 use crate::wire::message::check_golden;
 
 /// Voxel size of the self-test maps (m).
@@ -195,11 +195,12 @@ pub fn run<S: VoxelStorage, P: PyramidStorage>(
         return Err(SelfTestError::Buffer);
     }
     // Wire: encode B chunk by chunk, decode into `received`.
-    let digest_a = MapEncoder::new(a, scratch).map_err(|_| SelfTestError::Buffer)?.digest();
-    let mut encoder = MapEncoder::new(b, scratch).map_err(|_| SelfTestError::Buffer)?;
+    let digest_a = map_digest(a, scratch).map_err(|_| SelfTestError::Buffer)?;
+    let (mut sending, mut receiving) = (CodecModel::new(), CodecModel::new());
+    let mut encoder = MapEncoder::new(b, scratch, &mut sending).map_err(|_| SelfTestError::Buffer)?;
     let digest_b = encoder.digest();
     received.clear();
-    let mut decoder = MapDecoder::new(b.len());
+    let mut decoder = MapDecoder::new(b.len(), &mut receiving);
     let mut wire_bytes = 0u32;
     loop {
         let n = encoder.next_chunk(chunk).map_err(|_| SelfTestError::Buffer)?;

@@ -102,6 +102,13 @@ impl embedded_io::Write for Uart {
     }
 }
 
+impl embedded_io::WriteReady for Uart {
+    /// Whether the transmitter takes a byte now.
+    fn write_ready(&mut self) -> Result<bool, Infallible> {
+        Ok(self.state() & TX_FULL == 0)
+    }
+}
+
 impl embedded_io::ReadReady for Uart {
     /// Whether a byte is there; when not, waits [`POLL_BACKOFF_CYCLES`]
     /// first, so a loop over `read_ready` does not hammer the UART.

@@ -12,7 +12,7 @@ use crate::stats::median;
 use cosem_core::classes::Class;
 use cosem_core::geometry::errors_of;
 use cosem_core::link::sim::{SimConfig, SimLine};
-use cosem_core::link::{Endpoint, LinkConfig, Progress};
+use cosem_core::link::{Endpoint, LinkBuffers, LinkConfig, Progress};
 use cosem_core::map::MapConfig;
 use cosem_core::matching::{MatchResult, MatchSettings, Matcher};
 use std::path::{Path, PathBuf};
@@ -122,7 +122,8 @@ pub fn wire(map: &HostMap, repeat: usize) -> Result<WireFigures, Error> {
     let (encode_s, chunks) = timed(repeat, || Ok(crate::cmap::encode_chunks(map, 240)))?;
     let (decode_s, out) = timed(repeat, || {
         let mut out = new_map(map.len(), *map.config())?;
-        let mut d = cosem_core::wire::MapDecoder::new(map.len());
+        let mut model = Box::new(cosem_core::wire::CodecModel::new());
+        let mut d = cosem_core::wire::MapDecoder::new(map.len(), &mut model);
         for c in &chunks {
             d.decode_chunk(c, &mut out).map_err(|e| Error::Invalid(e.to_string()))?;
         }
@@ -134,27 +135,31 @@ pub fn wire(map: &HostMap, repeat: usize) -> Result<WireFigures, Error> {
     Ok(WireFigures { voxels: map.len(), bytes: (chunks.iter().map(Vec::len).sum(), chunks.len()), encode_s, decode_s })
 }
 
-/// One byte error rate of `cosem bench link`.
+/// Figures of one simulated exchange (`cosem bench link`).
 #[derive(Clone, Debug)]
 pub struct LinkFigures {
     /// Byte error rate.
     pub rate: f64,
     /// Simulated seconds until A's map, then B's, was through (`None`: never).
     pub through_s: [Option<f64>; 2],
+    /// Simulated seconds until both ends were over (closing included).
+    pub over_s: f64,
     /// Bytes each side sent.
     pub bytes: [u64; 2],
+    /// Bytes of each side's map stream (header and encoded voxels).
+    pub stream_bytes: [u64; 2],
     /// Retransmissions of each side.
     pub retransmissions: [u32; 2],
-    /// Both maps arrived whole (digest checked).
+    /// Both maps arrived whole (digest checked) and both ends ended well.
     pub delivered: bool,
 }
 
 /// Both maps of `pair` exchanged at once over a simulated line of `baud`
-/// with byte error `rate` (seeded), in simulated time.
-pub fn link(pair: &Pair, rate: f64, baud: u32) -> Result<LinkFigures, Error> {
+/// with byte error `rate` (seeded by `seed`), in simulated time.
+pub fn link(pair: &Pair, rate: f64, baud: u32, seed: u64) -> Result<LinkFigures, Error> {
     let (ma, mb) = (&pair.map_a, &pair.map_b);
     let line = Box::new(std::cell::RefCell::new(SimLine::<65536>::new(SimConfig {
-        seed: 1,
+        seed,
         error_rate: rate,
         stall_chance: 0.0,
         bytes_per_ms: f64::from(baud) / 10.0 / 1000.0,
@@ -165,8 +170,9 @@ pub fn link(pair: &Pair, rate: f64, baud: u32) -> Result<LinkFigures, Error> {
     let (mut st0, mut st1) = (new_map(mb.len(), *ma.config())?, new_map(ma.len(), *ma.config())?);
     let lc = LinkConfig::default();
     let setup = |e| Error::Invalid(format!("link set-up: {e}"));
-    let mut e0 = Endpoint::new(lc, 0, 1, 0, Some((ma, &mut s0)), Some(&mut st0)).map_err(setup)?;
-    let mut e1 = Endpoint::new(lc, 1, 2, 0, Some((mb, &mut s1)), Some(&mut st1)).map_err(setup)?;
+    let (mut b0, mut b1) = (Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new()));
+    let mut e0 = Endpoint::new(lc, 0, 1, 0, Some((ma, &mut s0)), Some(&mut st0), &mut b0).map_err(setup)?;
+    let mut e1 = Endpoint::new(lc, 1, 2, 0, Some((mb, &mut s1)), Some(&mut st1), &mut b1).map_err(setup)?;
     let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
     let mut through = [None, None];
     let mut now = 0u64;
@@ -178,7 +184,7 @@ pub fn link(pair: &Pair, rate: f64, baud: u32) -> Result<LinkFigures, Error> {
         if r1 == Ok(Progress::Busy) {
             r1 = e1.step(&mut p1, now);
         }
-        // When each map was through (before the linger).
+        // When each map was through (before the closing).
         for (slot, done) in through.iter_mut().zip([e1.received(), e0.received()]) {
             if slot.is_none() && done {
                 *slot = Some(now as f64 / 1e3);
@@ -187,13 +193,94 @@ pub fn link(pair: &Pair, rate: f64, baud: u32) -> Result<LinkFigures, Error> {
         now += 1;
     }
     let (x, y) = (e0.stats(), e1.stats());
+    let whole = st1.len() == ma.len() && st0.len() == mb.len();
     Ok(LinkFigures {
         rate,
         through_s: through,
+        over_s: now as f64 / 1e3,
         bytes: [x.bytes_sent, y.bytes_sent],
+        stream_bytes: [x.chunk_bytes_sent, y.chunk_bytes_sent],
         retransmissions: [x.retransmissions, y.retransmissions],
-        delivered: r0.is_ok() && r1.is_ok(),
+        delivered: r0 == Ok(Progress::Done) && r1 == Ok(Progress::Done) && whole,
     })
+}
+
+/// The most data per byte of line any retransmission scheme without
+/// forward error correction gets, with `overhead` bytes a frame, at byte
+/// error rate `p`: max over frame lengths L of (L - h) / L * (1 - p)^L.
+pub fn goodput_bound(p: f64, overhead: usize) -> f64 {
+    let h = overhead as f64;
+    (overhead + 1..4096).map(|l| (l as f64 - h) / l as f64 * (1.0 - p).powi(l as i32)).fold(0.0, f64::max)
+}
+
+/// Many seeded exchanges at one error rate, summarised.
+#[derive(Clone, Debug)]
+pub struct LinkSummary {
+    /// Byte error rate.
+    pub rate: f64,
+    /// Runs that delivered both maps, and runs.
+    pub delivered: (usize, usize),
+    /// Median seconds until both maps were through, and until both ends
+    /// were over (delivered runs).
+    pub median_s: (f64, f64),
+    /// Slowest delivered run: both maps through (s).
+    pub worst_s: f64,
+    /// Median goodput: map bytes over line bytes in the time each map took.
+    pub goodput: f64,
+    /// [`goodput_bound`] with this protocol's frame overhead.
+    pub bound: f64,
+    /// Median retransmissions per run (both sides).
+    pub retransmissions: f64,
+    /// Stream bytes of A's and B's map.
+    pub stream_bytes: [u64; 2],
+}
+
+impl LinkSummary {
+    /// Summarises `runs` (one error rate) on a line of `baud`.
+    pub fn of(runs: &[LinkFigures], baud: u32) -> Self {
+        let line_bytes_per_s = f64::from(baud) / 10.0;
+        let ok: Vec<&LinkFigures> = runs.iter().filter(|r| r.delivered).collect();
+        let median = |v: Vec<f64>| crate::stats::quantile(&v, 0.5).unwrap_or(f64::NAN);
+        let both = |r: &LinkFigures| r.through_s[0].unwrap_or(f64::NAN).max(r.through_s[1].unwrap_or(f64::NAN));
+        let goodput: Vec<f64> = ok
+            .iter()
+            .flat_map(|r| {
+                (0..2).filter_map(move |d| r.through_s[d].map(|t| r.stream_bytes[d] as f64 / (t * line_bytes_per_s)))
+            })
+            .collect();
+        LinkSummary {
+            rate: runs.first().map(|r| r.rate).unwrap_or(0.0),
+            delivered: (ok.len(), runs.len()),
+            median_s: (median(ok.iter().map(|r| both(r)).collect()), median(ok.iter().map(|r| r.over_s).collect())),
+            worst_s: ok.iter().map(|r| both(r)).fold(0.0, f64::max),
+            goodput: median(goodput),
+            bound: goodput_bound(runs.first().map(|r| r.rate).unwrap_or(0.0), cosem_core::wire::message::DATA_OVERHEAD),
+            retransmissions: median(
+                runs.iter().map(|r| f64::from(r.retransmissions[0] + r.retransmissions[1])).collect(),
+            ),
+            stream_bytes: runs.first().map(|r| r.stream_bytes).unwrap_or([0, 0]),
+        }
+    }
+}
+
+impl std::fmt::Display for LinkSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "  byte errors {:>4.1}%: {}/{} delivered whole; both maps through in {:.2} s median ({:.2} s worst), ends over {:.2} s; goodput {:.0}% of the line (bound {:.0}%); {:.0} retransmissions; {} + {} map bytes",
+            self.rate * 100.0,
+            self.delivered.0,
+            self.delivered.1,
+            self.median_s.0,
+            self.worst_s,
+            self.median_s.1,
+            self.goodput * 100.0,
+            self.bound * 100.0,
+            self.retransmissions,
+            self.stream_bytes[0],
+            self.stream_bytes[1],
+        )
+    }
 }
 
 /// Figures of `cosem bench global`.
@@ -406,24 +493,6 @@ impl std::fmt::Display for WireFigures {
             writeln!(f, "  {name}               {v:.1} M voxels/s ({mb:.1} MB/s of {what}, {:.2} ms)", s * 1e3)?;
         }
         Ok(())
-    }
-}
-
-impl std::fmt::Display for LinkFigures {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let secs = |t: Option<f64>| t.map(|v| format!("{v:.1} s")).unwrap_or_else(|| "never".into());
-        let verdict = if self.delivered { "both maps identical to the sent ones (digest checked)" } else { "failed" };
-        write!(
-            f,
-            "  byte errors {:>5.1}%: A->B {} ({} bytes), B->A {} ({} bytes); {} + {} retransmissions; {verdict}",
-            self.rate * 100.0,
-            secs(self.through_s[0]),
-            self.bytes[0],
-            secs(self.through_s[1]),
-            self.bytes[1],
-            self.retransmissions[0],
-            self.retransmissions[1],
-        )
     }
 }
 

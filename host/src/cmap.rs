@@ -6,7 +6,7 @@ use crate::mapping::{new_map, BuildError, HostMap};
 use cosem_core::map::MapConfig;
 use cosem_core::map::SensorModel;
 use cosem_core::wire::mapfile::{self, MapFileError, MapFileHeader, FILE_CHUNK};
-use cosem_core::wire::MapEncoder;
+use cosem_core::wire::{CodecModel, MapEncoder};
 use std::path::{Path, PathBuf};
 
 /// A map file's header with its source text owned.
@@ -59,7 +59,8 @@ pub fn encode_chunks(map: &HostMap, chunk: usize) -> Vec<Vec<u8>> {
     let mut out = Vec::new();
     // The scratch holds one entry per voxel and the buffer exceeds the
     // minimum chunk, so the encoder cannot fail.
-    if let Ok(mut enc) = MapEncoder::new(map, &mut scratch) {
+    let mut model = Box::new(CodecModel::new());
+    if let Ok(mut enc) = MapEncoder::new(map, &mut scratch, &mut model) {
         let mut buf = vec![0u8; chunk.max(cosem_core::wire::codec::MIN_CHUNK)];
         while let Ok(n) = enc.next_chunk(&mut buf) {
             if n == 0 {

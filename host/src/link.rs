@@ -4,7 +4,7 @@
 use crate::error::Error;
 use crate::mapping::{new_map, HostMap};
 use crate::transport::{HostClock, Paced, Tcp};
-use cosem_core::link::{Endpoint, LinkConfig, LinkStats, Progress};
+use cosem_core::link::{Endpoint, LinkBuffers, LinkConfig, LinkStats, Progress};
 use std::time::Duration;
 
 /// Voxels a received map may have (64 MB of staging).
@@ -52,8 +52,10 @@ pub fn exchange(
     let mut scratch = vec![0u32; ours.len()];
     let map_id = (u32::from(robot_id) << 24) ^ (ours.len() as u32);
     let config = LinkConfig { half_duplex, ..LinkConfig::default() };
-    let endpoint = Endpoint::new(config, robot_id, map_id, anchor_us, Some((ours, &mut scratch)), Some(&mut staging))
-        .map_err(link_err)?;
+    let mut buffers = Box::new(LinkBuffers::new());
+    let mine = Some((ours, &mut scratch[..]));
+    let endpoint =
+        Endpoint::new(config, robot_id, map_id, anchor_us, mine, Some(&mut staging), &mut buffers).map_err(link_err)?;
     let stats = run(line, endpoint, how, on_listen)?;
     Ok((staging, stats))
 }
@@ -95,7 +97,7 @@ fn run(
 }
 
 /// Steps the endpoint until it is done, fails, or the deadline passes.
-fn drive<IO: embedded_io::Read + embedded_io::Write + embedded_io::ReadReady>(
+fn drive<IO: embedded_io::Read + embedded_io::Write + embedded_io::ReadReady + embedded_io::WriteReady>(
     endpoint: &mut Endpoint<'_, cosem_core::map::VecStorage, cosem_core::map::VecStorage>,
     io: &mut IO,
     started: std::time::Instant,

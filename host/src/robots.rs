@@ -14,6 +14,7 @@ use crate::mapping::{new_map, PointFilter};
 use cosem_core::classes::{Class, NUM_CLASSES};
 use cosem_core::geometry::{errors_of, from_rows, pose_deg, row_major, rows, Isometry3};
 use cosem_core::link::sim::{SimConfig, SimLine};
+use cosem_core::link::LinkBuffers;
 use cosem_core::matching::{MatchStatus, PyramidCapacity, VecPyramidStorage};
 use cosem_core::robot::{self, simulate_pair, Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
 use cosem_core::wire::feed::{
@@ -141,8 +142,11 @@ pub fn host_run(feeds: [&Feed; 2]) -> Result<[RobotReport; 2], Error> {
     let (mut sa, mut sb) = (vec![0u32; VOXELS], vec![0u32; VOXELS]);
     let storage = |words| VecPyramidStorage::new(PyramidCapacity { voxels: VOXELS, entries: COARSE, words });
     let robot_config = RobotConfig::default();
-    let mut a = Robot::new(robot_config, &mut own_a, &mut rec_a, &mut sa, storage(MODEL_WORDS), storage(SCENE_WORDS));
-    let mut b = Robot::new(robot_config, &mut own_b, &mut rec_b, &mut sb, storage(MODEL_WORDS), storage(SCENE_WORDS));
+    let (mut la, mut lb) = (Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new()));
+    let (ma, sa_) = (storage(MODEL_WORDS), storage(SCENE_WORDS));
+    let mut a = Robot::new(robot_config, &mut own_a, &mut rec_a, &mut sa, &mut la, ma, sa_);
+    let (mb, sb_) = (storage(MODEL_WORDS), storage(SCENE_WORDS));
+    let mut b = Robot::new(robot_config, &mut own_b, &mut rec_b, &mut sb, &mut lb, mb, sb_);
     let line = Box::new(std::cell::RefCell::new(SimLine::<65536>::new(SimConfig {
         seed: 1,
         error_rate: 0.0,

@@ -132,6 +132,13 @@ impl embedded_io::Read for Tcp {
     }
 }
 
+impl embedded_io::WriteReady for Tcp {
+    /// The kernel takes what is written (pace with [`Paced`] to model a UART).
+    fn write_ready(&mut self) -> Result<bool, TransportError> {
+        Ok(true)
+    }
+}
+
 impl embedded_io::Write for Tcp {
     fn write(&mut self, buf: &[u8]) -> Result<usize, TransportError> {
         loop {
@@ -195,6 +202,14 @@ mod serial {
         }
     }
 
+    impl embedded_io::WriteReady for Serial {
+        /// Whether the driver's transmit queue is nearly empty, so that an
+        /// acknowledgement written next leaves soon.
+        fn write_ready(&mut self) -> Result<bool, TransportError> {
+            self.port.bytes_to_write().map(|n| n < 16).map_err(|e| TransportError(e.into()))
+        }
+    }
+
     impl embedded_io::Write for Serial {
         fn write(&mut self, buf: &[u8]) -> Result<usize, TransportError> {
             self.port.write(buf).map_err(TransportError)
@@ -250,6 +265,11 @@ impl Pacer {
         }
     }
 
+    /// Whether a byte may leave now.
+    pub fn ready(&self) -> bool {
+        self.per_byte <= 0.0 || self.sent as f64 * self.per_byte <= self.started.elapsed().as_secs_f64()
+    }
+
     /// Counts `n` bytes sent.
     pub fn sent(&mut self, n: usize) {
         self.sent += n as u64;
@@ -284,6 +304,12 @@ impl<T: embedded_io::Read> embedded_io::Read for Paced<T> {
 impl<T: embedded_io::ReadReady> embedded_io::ReadReady for Paced<T> {
     fn read_ready(&mut self) -> Result<bool, T::Error> {
         self.inner.read_ready()
+    }
+}
+
+impl<T: embedded_io::WriteReady> embedded_io::WriteReady for Paced<T> {
+    fn write_ready(&mut self) -> Result<bool, T::Error> {
+        Ok(self.pacer.ready() && self.inner.write_ready()?)
     }
 }
 

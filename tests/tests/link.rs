@@ -112,10 +112,11 @@ fn link_without_a_peer_is_a_clean_error() {
     assert!(e.contains(&format!("127.0.0.1:{port}")), "{e}");
 }
 
-/// Two `cosem link` processes through `cosem relay`, which flips, drops or
-/// duplicates 0.3% of the bytes (seeded; unpaced, to keep the test short): both maps arrive whole (the count
-/// each received is what the other sent) and each match equals `cosem
-/// match` on the same files. Checks delivery and results, never times.
+/// Two `cosem link` processes through `cosem relay`, which paces each
+/// direction to 115200 baud and flips, drops or duplicates 1% of the bytes
+/// (seeded), with robot-sized maps (0.5 m voxels): both maps arrive whole
+/// (the count each received is what the other sent) and each match equals
+/// `cosem match` on the same files. Checks delivery and results, never times.
 #[test]
 fn two_link_processes_through_a_lossy_relay() {
     let tmp = tempfile::tempdir().unwrap();
@@ -124,14 +125,27 @@ fn two_link_processes_through_a_lossy_relay() {
     let (a, b) = (tmp.path().join("a.cmap"), tmp.path().join("b.cmap"));
     for (m, f) in [(&a, "0:1"), (&b, "1:2")] {
         let (d, o) = (seq.display().to_string(), m.display().to_string());
-        cosem_ok(&["map", "--data", &d, "--frames", f, "--voxel", "1.0", "-o", &o]);
+        cosem_ok(&["map", "--data", &d, "--frames", f, "--voxel", "0.5", "--max-range", "25", "-o", &o]);
     }
-    let mut relay = spawn(&["relay", "--baud", "0", "--error-rate", "0.003", "--seed", "5"]);
+    let mut relay = spawn(&["relay", "--baud", "115200", "--error-rate", "0.01", "--seed", "5"]);
     let line = first_line(&mut relay);
     let addrs: Vec<String> = line.trim().strip_prefix("relay on ").unwrap().split(' ').map(str::to_string).collect();
     let (sa, sb) = (a.display().to_string(), b.display().to_string());
     let link = |map: &str, addr: &str, id: &str| {
-        spawn(&["link", "--map", map, "--tcp", addr, "--robot-id", id, "--json", "--deadline", "300"])
+        spawn(&[
+            "link",
+            "--map",
+            map,
+            "--tcp",
+            addr,
+            "--robot-id",
+            id,
+            "--baud",
+            "115200",
+            "--json",
+            "--deadline",
+            "300",
+        ])
     };
     let (p0, p1) = (link(&sa, &addrs[0], "0"), link(&sb, &addrs[1], "1"));
     let (o0, o1) = (p0.wait_with_output().unwrap(), p1.wait_with_output().unwrap());

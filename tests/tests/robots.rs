@@ -51,10 +51,14 @@ fn check_pair(json: &Value) {
             r["map_voxels"], r["bytes_sent"], r["instructions"]
         );
     }
-    // Each robot received exactly what the other sent.
+    // Each robot received the other's whole map, and no byte the other did
+    // not send (the last acknowledgements may still be on the line when a
+    // robot that heard its peer is finished stops listening).
     let r = json["robots"].as_array().unwrap();
-    assert_eq!(r[0]["bytes_sent"], r[1]["bytes_received"]);
-    assert_eq!(r[0]["received_voxels"], r[1]["map_voxels"]);
+    for (a, b) in [(0, 1), (1, 0)] {
+        assert_eq!(r[a]["received_voxels"], r[b]["map_voxels"]);
+        assert!(r[a]["bytes_received"].as_u64().unwrap() <= r[b]["bytes_sent"].as_u64().unwrap(), "{}", r[a]);
+    }
 }
 
 #[test]

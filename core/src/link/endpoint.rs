@@ -1,41 +1,68 @@
-//! The endpoint state machine.
+//! The endpoint state machine: one map stream out, one in, by selective
+//! repeat.
 
 use super::Clock;
 use crate::classes::CLASS_TABLE_VERSION;
 use crate::map::{LocalMap, VoxelStorage};
-use crate::wire::codec::{DecodeError, MapDecoder, MapEncoder, MIN_CHUNK};
+use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::frame::{Deframer, MAX_FRAME, MAX_PAYLOAD};
-use crate::wire::message::{AbortReason, Hello, MapHeader, Message};
-use embedded_io::{Read, ReadReady, Write};
+use crate::wire::message::{
+    AbortReason, Ack, Hello, MapHeader, Message, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED, DATA_OVERHEAD,
+    MAX_SACK,
+};
+use embedded_io::{Read, ReadReady, Write, WriteReady};
+
+/// Bytes of map stream each side buffers: the sender what is not yet
+/// acknowledged, the receiver what arrived ahead of a gap.
+pub const STREAM_BUFFER: usize = 2048;
+/// Largest record of the stream: a length byte and up to 255 bytes.
+const MAX_RECORD: usize = 256;
+/// Most stream bytes in flight: the receiver's buffer less one partial
+/// record it may hold before the first gap (at 115200 baud, 0.69 s: on a
+/// line that breaks most small frames, the oldest bytes may need a dozen
+/// round trips, and the window must not close meanwhile).
+const WINDOW: u32 = (STREAM_BUFFER - MAX_RECORD) as u32;
+/// Most frames in flight (a window of the smallest frames a bad line needs).
+const MAX_SEGMENTS: usize = 128;
+/// Segments kept free for cutting lost ones smaller: a frame too long for
+/// the line must always be able to shrink.
+const CUT_RESERVE: usize = 24;
+/// Bytes of voxel encoding per codec chunk in the stream.
+const RECORD_CHUNK: usize = 240;
+/// The receiver acknowledges after this many data frames, or at once when
+/// a frame asks (poll) or the map is complete.
+const ACK_EVERY: u8 = 4;
 
 /// Timing and sizes of a link.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LinkConfig {
-    /// First retransmission timeout (ms); doubles on each retry (default 150).
+    /// Retransmission timeout (ms) until the round trip is measured
+    /// (default 150); then twice the smoothed round trip, doubling on each
+    /// timeout in a row.
     pub timeout_ms: u32,
-    /// Ceiling of the retransmission timeout (ms, default 600).
+    /// Ceiling of the retransmission timeout (ms, default 800).
     pub max_timeout_ms: u32,
-    /// Retries of one frame before giving up (default 100: on a line that
-    /// corrupts one byte in twenty, a small frame and its ack get through
-    /// about one time in ten).
+    /// Probes of a line on which nothing is heard before giving up (default
+    /// 100: with the timeout's ceiling, over a minute).
     pub max_retries: u8,
-    /// Largest chunk of voxel encoding in a frame (bytes, default 240).
+    /// Largest data of a frame (bytes, default 240).
     pub max_chunk: u16,
-    /// Smallest chunk the size adapts down to (bytes, default 20).
+    /// Smallest data of a frame the size adapts down to (bytes, default 8).
     pub min_chunk: u16,
     /// Give up when nothing valid arrived for this long (ms, default 90000:
     /// longer than a sender's whole retry budget, so that on a bad line the
     /// retries decide, and silence only catches a peer that is gone).
     pub silence_ms: u32,
-    /// After both maps are through, keep answering for this long (ms), so a
-    /// peer whose last ack was lost still gets one (default 1500).
+    /// After both maps are through, keep answering for at most this long
+    /// (ms, default 3000) unless the peer says it is finished too: a peer
+    /// whose last acknowledgement was lost still gets one.
     pub linger_ms: u32,
     /// The line carries one direction at a time (a radio modem, RS-485): the
-    /// two maps go one after the other. Robot 0 sends first; any other robot
-    /// starts its own map once it holds the peer's. Within one transfer,
-    /// stop-and-wait already keeps one side talking at a time. Default off
-    /// (both maps at once on full-duplex lines).
+    /// two maps go one after the other, each stop-and-wait (one frame in
+    /// flight). Robot 0 sends first; any other robot starts its own map once
+    /// it holds the peer's. Default off (both maps at once, each with a
+    /// window of frames in flight).
     pub half_duplex: bool,
 }
 
@@ -43,12 +70,12 @@ impl Default for LinkConfig {
     fn default() -> Self {
         LinkConfig {
             timeout_ms: 150,
-            max_timeout_ms: 600,
+            max_timeout_ms: 800,
             max_retries: 100,
             max_chunk: 240,
-            min_chunk: 20,
+            min_chunk: 8,
             silence_ms: 90_000,
-            linger_ms: 1500,
+            linger_ms: 3000,
             half_duplex: false,
         }
     }
@@ -61,9 +88,9 @@ pub enum LinkError {
     /// The byte stream reported an error of this kind (`NotConnected`,
     /// `BrokenPipe`, `ConnectionReset`: the peer closed the line).
     Io(embedded_io::ErrorKind),
-    /// A frame was resent `max_retries` times without an answer.
+    /// `max_retries` probes in a row went unanswered.
     GaveUp {
-        /// Sequence number of the frame.
+        /// Stream offset of the bytes.
         seq: u32,
     },
     /// Nothing valid arrived for `silence_ms`.
@@ -95,7 +122,7 @@ impl core::fmt::Display for LinkError {
                 | embedded_io::ErrorKind::ConnectionAborted,
             ) => f.write_str("the peer closed the line"),
             LinkError::Io(kind) => write!(f, "I/O error on the line ({kind:?})"),
-            LinkError::GaveUp { seq } => write!(f, "gave up: frame {seq} unanswered after all retries"),
+            LinkError::GaveUp { seq } => write!(f, "gave up: stream bytes at {seq} unacknowledged after all retries"),
             LinkError::Silent => f.write_str("peer silent"),
             LinkError::PeerAborted(r) => write!(f, "peer aborted the transfer ({r:?})"),
             LinkError::TooLarge { voxels } => write!(f, "peer map of {voxels} voxels does not fit"),
@@ -141,81 +168,594 @@ pub enum Progress {
     Done,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum TxPhase {
-    Header,
-    Chunks,
-    End,
-    Done,
+/// The memory a link works in: the stream buffers of both directions, the
+/// bookkeeping of frames in flight and the codec's models (about 14 KiB). Apart from the
+/// [`Endpoint`], so that a robot keeps it in a static while the endpoint,
+/// which moves between a robot's stages, stays small.
+pub struct LinkBuffers {
+    tx: [u8; STREAM_BUFFER],
+    rx: [u8; STREAM_BUFFER],
+    have: [u32; STREAM_BUFFER / 32],
+    segs: heapless::Vec<Segment, MAX_SEGMENTS>,
+    tx_model: CodecModel,
+    rx_model: CodecModel,
 }
 
-struct Tx<'a, S: VoxelStorage> {
-    encoder: MapEncoder<'a, S>,
-    /// When the frame in flight was last sent.
-    sent_at: u64,
-    header: MapHeader,
-    phase: TxPhase,
-    /// First voxel of the chunk in flight (`End`: count plus one).
-    seq: u32,
-    /// One past the last voxel of the chunk in flight.
-    end: u32,
-    /// Bytes of voxel encoding in the frame in flight (0 for other frames).
-    chunk_len: usize,
-    frame: [u8; MAX_FRAME],
-    frame_len: usize,
-    deadline: u64,
-    timeout: u32,
-    retries: u8,
-    chunk: usize,
-    /// Bytes of frames sent, and of those how many frames failed (decayed):
-    /// the byte error rate estimate that sizes the chunks.
-    est_bytes: u32,
-    est_fails: u32,
-}
-
-/// Frame bytes around a chunk's data (message fields, chunk header, CRC,
-/// COBS, delimiter) plus its ack: the overhead a chunk pays each attempt.
-const CHUNK_OVERHEAD: usize = 32;
-
-impl<S: VoxelStorage> Tx<'_, S> {
-    /// Records an attempt of the frame in flight and sizes the next chunks.
-    /// A failure halves them, to get through a bad patch at once. A success
-    /// grows them by a quarter, but not past the size the line's estimated
-    /// byte error rate `r` favours: a frame of `L` bytes gets through with
-    /// probability about `(1 - r)^L`, so data per attempt peaks at `L = 1/r`.
-    fn record(&mut self, failed: bool, config: &LinkConfig) {
-        self.est_bytes = self.est_bytes.saturating_add(self.frame_len as u32);
-        if failed {
-            self.est_fails += 1;
-        }
-        if self.est_bytes > 64_000 {
-            self.est_bytes /= 2;
-            self.est_fails /= 2;
-        }
-        let (min, max) = (usize::from(config.min_chunk), usize::from(config.max_chunk));
-        if failed {
-            self.chunk = (self.chunk / 2).max(min);
-        } else {
-            // A prior of one error in 4000 bytes until evidence accumulates.
-            let rate = (self.est_fails as f32 + 0.5) / (self.est_bytes as f32 + 2000.0);
-            let target = ((1.0 / rate) as usize).saturating_sub(CHUNK_OVERHEAD).clamp(min, max);
-            if self.chunk < target {
-                self.chunk = (self.chunk + (self.chunk / 4).max(8)).min(target);
-            }
+impl LinkBuffers {
+    /// Buffers for one endpoint.
+    pub const fn new() -> Self {
+        LinkBuffers {
+            tx: [0; STREAM_BUFFER],
+            rx: [0; STREAM_BUFFER],
+            have: [0; STREAM_BUFFER / 32],
+            segs: heapless::Vec::new(),
+            tx_model: CodecModel::new(),
+            rx_model: CodecModel::new(),
         }
     }
 }
 
+impl Default for LinkBuffers {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// One frame's worth of the stream in flight.
+#[derive(Clone, Copy, Debug)]
+struct Segment {
+    start: u32,
+    len: u16,
+    sends: u8,
+    /// Known lost: waits for retransmission.
+    lost: bool,
+    /// Transmission number of its last send (a later number acknowledged
+    /// while this one is not means this one was lost: the line keeps order).
+    order: u32,
+    /// Milliseconds (wrapping) of its last send.
+    sent_at: u32,
+}
+
+/// The sending half: the map as a stream of records (header, then codec
+/// chunks), kept from the first unacknowledged byte on.
+struct Tx<'a, S: VoxelStorage> {
+    encoder: MapEncoder<'a, S>,
+    header: MapHeader,
+    header_queued: bool,
+    ring: &'a mut [u8; STREAM_BUFFER],
+    /// Stream offsets: everything before `acked` is held by the receiver,
+    /// before `sent_end` was sent at least once, before `produced` encoded.
+    acked: u32,
+    sent_end: u32,
+    produced: u32,
+    segs: &'a mut heapless::Vec<Segment, MAX_SEGMENTS>,
+    order: u32,
+    acked_order: u32,
+    /// The receiver said it holds the whole map.
+    complete: bool,
+    /// Data bytes per frame, from the estimated byte error rate.
+    size: usize,
+    srtt: Option<u32>,
+    /// Shortest round trip seen (ms).
+    min_rtt: u32,
+    /// Timeouts in a row with no progress at all.
+    backoff: u32,
+    /// When an acknowledgement last took bytes off our hands.
+    last_progress: u64,
+    /// When the stalled line was last probed.
+    last_probe: u64,
+    /// Resends while nothing new can go (every fourth asks for an answer).
+    idle_resends: u32,
+}
+
+impl<S: VoxelStorage> Tx<'_, S> {
+    /// Encodes records into the buffer while a whole record fits.
+    fn fill(&mut self) -> Result<(), LinkError> {
+        loop {
+            if STREAM_BUFFER - (self.produced.wrapping_sub(self.acked) as usize) < MAX_RECORD {
+                return Ok(());
+            }
+            let mut rec = [0u8; MAX_RECORD];
+            let body = rec.get_mut(1..).ok_or(LinkError::Setup)?;
+            let n = if !self.header_queued {
+                self.header_queued = true;
+                self.header.encode(body).map_err(|_| LinkError::Setup)?
+            } else if self.encoder.is_done() {
+                return Ok(());
+            } else {
+                let chunk = body.get_mut(..RECORD_CHUNK).ok_or(LinkError::Setup)?;
+                self.encoder.next_chunk(chunk).map_err(|_| LinkError::Setup)?
+            };
+            rec[0] = u8::try_from(n).map_err(|_| LinkError::Setup)?;
+            for &b in rec.get(..=n).ok_or(LinkError::Setup)? {
+                self.ring[self.produced as usize % STREAM_BUFFER] = b;
+                self.produced = self.produced.wrapping_add(1);
+            }
+        }
+    }
+
+    fn exhausted(&self) -> bool {
+        self.header_queued && self.encoder.is_done()
+    }
+
+    /// Bytes allowed in flight: 1 KiB until something came back (frames
+    /// sized before the line was known may all be lost, and must not fill
+    /// the window), then all the receiver can hold.
+    fn window(&self) -> u32 {
+        if self.srtt.is_some() {
+            WINDOW
+        } else {
+            1024
+        }
+    }
+
+    fn can_send_new(&self, config: &LinkConfig) -> bool {
+        self.sent_end != self.produced
+            && self.sent_end.wrapping_sub(self.acked) < self.window()
+            && self.segs.len() + CUT_RESERVE < MAX_SEGMENTS
+            && (!config.half_duplex || self.segs.is_empty())
+    }
+
+    /// How long bytes may go unacknowledged before they are sent again:
+    /// twice the smoothed round trip (before any, `timeout_ms`).
+    fn rto(&self, config: &LinkConfig) -> u32 {
+        let base = match self.srtt {
+            Some(s) => (2 * s + 20).max(30),
+            None => config.timeout_ms,
+        };
+        base.min(config.max_timeout_ms)
+    }
+
+    /// Sizes frames for the most data per byte of line at byte error rate
+    /// `r`: a frame of `L` bytes (`h` of them overhead) gets through with
+    /// probability `(1 - r)^L`, so data per byte sent, `(L - h) / L * (1 -
+    /// r)^L`, peaks at `L = (h + sqrt(h^2 + 4h/a)) / 2` with `a = -ln(1 - r)`.
+    fn resize(&mut self, r: f32, config: &LinkConfig) {
+        let a = -libm::log1pf(-r.clamp(1e-6, 0.5));
+        let h = DATA_OVERHEAD as f32;
+        let l = (h + libm::sqrtf(h * h + 4.0 * h / a)) / 2.0;
+        self.size = ((l - h) as usize).clamp(usize::from(config.min_chunk), usize::from(config.max_chunk));
+    }
+
+    /// Cuts segment `i` to the current frame size; the rest stays lost.
+    fn cut(&mut self, i: usize) {
+        let Some(s) = self.segs.get(i).copied() else { return };
+        if usize::from(s.len) <= self.size || self.segs.is_full() {
+            return;
+        }
+        let keep = self.size as u16;
+        let rest = Segment { start: s.start.wrapping_add(u32::from(keep)), len: s.len - keep, ..s };
+        if self.segs.insert(i + 1, rest).is_ok() {
+            if let Some(first) = self.segs.get_mut(i) {
+                first.len = keep;
+            }
+        }
+    }
+
+    fn transmit<IO: Write>(
+        &mut self,
+        i: usize,
+        poll: bool,
+        io: &mut IO,
+        now: u64,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
+        let seg = self.segs.get_mut(i).ok_or(LinkError::Setup)?;
+        let mut data = [0u8; MAX_PAYLOAD];
+        let len = usize::from(seg.len);
+        for (k, d) in data.iter_mut().take(len).enumerate() {
+            *d = self.ring[seg.start.wrapping_add(k as u32) as usize % STREAM_BUFFER];
+        }
+        self.order += 1;
+        seg.order = self.order;
+        seg.sends = seg.sends.saturating_add(1);
+        seg.sent_at = now as u32;
+        seg.lost = false;
+        let msg = Message::Data { offset: seg.start as u16, poll, data: data.get(..len).unwrap_or(&[]) };
+        send_msg(io, &msg, stats)?;
+        Ok(())
+    }
+
+    /// Sends at most one data frame: a lost one first (cut to the current
+    /// size), else new bytes, else bytes unacknowledged for a while again.
+    /// The last uses a line that would idle: the oldest bytes hold the
+    /// window, so on a bad line they go out again and again until one copy
+    /// gets through. When not a byte came from the peer (`heard`) for four
+    /// timeouts the line may be down: then only the oldest bytes, at a
+    /// timeout that doubles.
+    fn send_next<IO: Write>(
+        &mut self,
+        io: &mut IO,
+        now: u64,
+        heard: u64,
+        r: f32,
+        config: &LinkConfig,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
+        if self.complete {
+            return Ok(());
+        }
+        self.fill()?;
+        // Frames sized for the line as the peer's frames show it (after a
+        // stall, no larger than the probes were).
+        let probe = self.size;
+        self.resize(r, config);
+        if self.backoff > 0 {
+            self.size = self.size.min(probe);
+        }
+        if let Some(i) = self.segs.iter().position(|s| s.lost) {
+            self.cut(i);
+            let more = self.segs.iter().skip(i + 1).any(|s| s.lost);
+            let poll = !more && !self.can_send_new(config);
+            // Bytes lost again and again hold the window on a bad line: one
+            // more copy for every three sends so far (at most three more).
+            let copies = 1 + self.segs.get(i).map_or(0, |s| (s.sends / 3).min(3));
+            for c in 1..=copies {
+                stats.retransmissions += 1;
+                self.transmit(i, poll && c == copies, io, now, stats)?;
+            }
+            return Ok(());
+        }
+        if self.can_send_new(config) {
+            let room = self.window().saturating_sub(self.sent_end.wrapping_sub(self.acked)) as usize;
+            let len = self.size.min(self.produced.wrapping_sub(self.sent_end) as usize).min(room);
+            let seg =
+                Segment { start: self.sent_end, len: len as u16, sends: 0, lost: false, order: 0, sent_at: now as u32 };
+            if self.segs.is_empty() {
+                // The timers start with the first bytes in flight.
+                self.last_progress = now;
+            }
+            self.segs.push(seg).map_err(|_| LinkError::Setup)?;
+            self.sent_end = self.sent_end.wrapping_add(len as u32);
+            self.fill()?;
+            stats.chunk_bytes_sent += len as u64;
+            let poll = !self.can_send_new(config);
+            return self.transmit(self.segs.len() - 1, poll, io, now, stats);
+        }
+        if self.segs.is_empty() {
+            return Ok(());
+        }
+        let rto = self.rto(config);
+        if now >= self.last_progress.max(heard) + 4 * u64::from(rto) {
+            let wait = u64::from(rto.saturating_mul(1 << self.backoff.min(8)).min(config.max_timeout_ms.max(rto)));
+            if now < self.last_probe + wait {
+                return Ok(());
+            }
+            // Nothing heard: the line may have got worse. Size for what the
+            // frames that do arrive say, and at most half the last size.
+            if self.backoff >= u32::from(config.max_retries) {
+                return Err(LinkError::GaveUp { seq: self.acked });
+            }
+            self.backoff += 1;
+            self.last_probe = now;
+            let half = (self.size / 2).max(usize::from(config.min_chunk));
+            self.resize(r, config);
+            self.size = self.size.min(half);
+            self.cut(0);
+            stats.retransmissions += 1;
+            return self.transmit(0, true, io, now, stats);
+        }
+        // On a clean line, bytes not acknowledged in a timeout; on a lossy
+        // one, sooner (a round trip and a half): there the oldest bytes are
+        // likely lost again, and the line would idle meanwhile.
+        let wait = match self.srtt {
+            Some(s) if r > 0.005 => s + s / 2 + 5,
+            _ => rto,
+        };
+        let due = self.segs.iter().take(8).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);
+        if let Some(i) = due {
+            self.idle_resends += 1;
+            self.cut(i);
+            stats.retransmissions += 1;
+            return self.transmit(i, self.idle_resends.is_multiple_of(4), io, now, stats);
+        }
+        Ok(())
+    }
+
+    /// Takes an acknowledgement: drops what it covers, marks lost what was
+    /// sent before something it covers, measures the round trip.
+    fn on_ack(&mut self, ack: &Ack, now: u64, config: &LinkConfig) {
+        let ahead = ack.cum.wrapping_sub(self.acked as u16) as u32;
+        if ahead > self.sent_end.wrapping_sub(self.acked) {
+            return; // stale or foreign
+        }
+        let cum = self.acked.wrapping_add(ahead);
+        let mut ranges = [(0u32, 0u32); MAX_SACK];
+        for (r, b) in ranges.iter_mut().zip(ack.blocks()) {
+            let from = cum.wrapping_add(u32::from(b.start));
+            *r = (from, from.wrapping_add(u32::from(b.len)));
+        }
+        let held = |s: &Segment| {
+            let end = s.start.wrapping_add(u32::from(s.len));
+            end.wrapping_sub(self.acked) <= ahead
+                || ranges
+                    .iter()
+                    .any(|&(a, b)| b != a && s.start.wrapping_sub(a) < 1 << 30 && b.wrapping_sub(end) < 1 << 30)
+        };
+        let mut progress = ahead > 0;
+        // The round trip of the last-sent bytes acknowledged now (sent once:
+        // older ones may have waited behind a gap, or for a lost ack).
+        let mut freshest: Option<Segment> = None;
+        let mut i = 0;
+        while let Some(s) = self.segs.get(i).copied() {
+            if held(&s) {
+                // An ack sooner than any round trip after a resend is for an
+                // earlier copy: its order says nothing.
+                let since = (now as u32).wrapping_sub(s.sent_at);
+                let ambiguous = s.sends > 1 && self.min_rtt != u32::MAX && since < self.min_rtt;
+                if !ambiguous {
+                    if freshest.is_none_or(|f| s.order > f.order) {
+                        freshest = Some(s);
+                    }
+                    self.acked_order = self.acked_order.max(s.order);
+                }
+                self.segs.remove(i);
+                progress = true;
+            } else {
+                i += 1;
+            }
+        }
+        if let Some(s) = freshest {
+            let sample = (now as u32).wrapping_sub(s.sent_at).min(config.max_timeout_ms);
+            self.min_rtt = self.min_rtt.min(sample);
+            self.srtt = Some(self.srtt.map_or(sample, |r| (7 * r + sample) / 8));
+        }
+        self.acked = cum;
+        // With all its blocks, the ack describes the whole stream: what it
+        // does not hold is missing. Otherwise it describes the stream up to
+        // the end of its next-to-last block; beyond, nothing is known.
+        let all = ack.flags & ACK_ALL_BLOCKS != 0;
+        let known = ranges.get(..usize::from(ack.blocks).saturating_sub(1)).unwrap_or(&[]).last().map_or(cum, |r| r.1);
+        // Only bytes out for a round trip: an ack for an earlier copy of
+        // what was resent since says nothing of what followed that copy.
+        let settled = self.srtt.unwrap_or(0);
+        for s in self.segs.iter_mut() {
+            let within = all || known.wrapping_sub(s.start.wrapping_add(u32::from(s.len))) < 1 << 30;
+            let out_long = (now as u32).wrapping_sub(s.sent_at) >= settled;
+            if !s.lost && s.order < self.acked_order && within && out_long {
+                s.lost = true;
+            }
+        }
+        if progress {
+            self.backoff = 0;
+            self.last_progress = now;
+        }
+        if ack.flags & ACK_COMPLETE != 0 && self.exhausted() && self.acked == self.produced {
+            self.complete = true;
+            self.segs.clear();
+        }
+    }
+}
+
+/// The receiving half: stream bytes into a ring until the records before
+/// the first gap are whole, then records into the map.
 struct Rx<'a, S: VoxelStorage> {
-    /// The last nack sent for a broken frame: (voxel index, time).
-    nacked: Option<(u32, u64)>,
     /// `None`: this endpoint receives nothing.
     map: Option<&'a mut LocalMap<S>>,
-    decoder: Option<MapDecoder>,
-    map_id: Option<u32>,
-    digest: u32,
-    expected: u32,
+    ring: &'a mut [u8; STREAM_BUFFER],
+    have: &'a mut [u32; STREAM_BUFFER / 32],
+    /// Everything before `cum` arrived; before `consumed` was decoded;
+    /// `highest` is one past the last byte that arrived.
+    cum: u32,
+    consumed: u32,
+    highest: u32,
+    header: Option<MapHeader>,
+    /// The codec's model, until the header names the map; then the decoder's.
+    model: Option<&'a mut CodecModel>,
+    decoder: Option<MapDecoder<'a>>,
     done: bool,
+    /// Last stream byte that arrived new.
+    latest: u32,
+    /// Data frames since the last acknowledgement.
+    unacked: u8,
+    ack_now: bool,
+}
+
+impl<S: VoxelStorage> Rx<'_, S> {
+    fn bit(&self, pos: u32) -> bool {
+        let p = pos as usize % STREAM_BUFFER;
+        self.have.get(p / 32).is_some_and(|w| w & (1 << (p % 32)) != 0)
+    }
+
+    fn set_bit(&mut self, pos: u32, on: bool) {
+        let p = pos as usize % STREAM_BUFFER;
+        if let Some(w) = self.have.get_mut(p / 32) {
+            if on {
+                *w |= 1 << (p % 32);
+            } else {
+                *w &= !(1 << (p % 32));
+            }
+        }
+    }
+
+    fn on_data(
+        &mut self,
+        offset: u16,
+        poll: bool,
+        data: &[u8],
+        resolution: f32,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
+        if self.map.is_none() {
+            return Ok(());
+        }
+        // The frame's place in the stream, near what we hold.
+        let delta = i64::from(offset.wrapping_sub(self.cum as u16) as i16);
+        let start = i64::from(self.cum) + delta;
+        let limit = i64::from(self.consumed) + STREAM_BUFFER as i64;
+        for (k, &b) in data.iter().enumerate() {
+            let pos = start + k as i64;
+            if pos < i64::from(self.cum) || pos < 0 {
+                continue;
+            }
+            if pos >= limit {
+                break;
+            }
+            let pos = pos as u32;
+            self.ring[pos as usize % STREAM_BUFFER] = b;
+            self.set_bit(pos, true);
+            self.latest = pos;
+        }
+        let end = (start + data.len() as i64).clamp(0, limit) as u32;
+        self.highest = self.highest.max(end);
+        while i64::from(self.cum) < limit && self.bit(self.cum) {
+            self.cum += 1;
+        }
+        self.unacked = self.unacked.saturating_add(1);
+        if poll || self.unacked >= ACK_EVERY {
+            self.ack_now = true;
+        }
+        self.take_records(resolution, stats)
+    }
+
+    /// Decodes every whole record before the first gap.
+    fn take_records(&mut self, resolution: f32, stats: &mut LinkStats) -> Result<(), LinkError> {
+        while self.cum > self.consumed && !self.done {
+            let len = usize::from(self.ring[self.consumed as usize % STREAM_BUFFER]);
+            if len == 0 {
+                return Err(LinkError::Decode(DecodeError::Empty));
+            }
+            if ((self.cum - self.consumed) as usize) < 1 + len {
+                return Ok(());
+            }
+            let mut rec = [0u8; MAX_RECORD];
+            for (k, r) in rec.iter_mut().take(len).enumerate() {
+                *r = self.ring[(self.consumed as usize + 1 + k) % STREAM_BUFFER];
+            }
+            for k in 0..=len as u32 {
+                self.set_bit(self.consumed + k, false);
+            }
+            self.consumed += 1 + len as u32;
+            self.record(rec.get(..len).unwrap_or(&[]), resolution, stats)?;
+        }
+        Ok(())
+    }
+
+    fn record(&mut self, rec: &[u8], resolution: f32, stats: &mut LinkStats) -> Result<(), LinkError> {
+        let Some(map) = self.map.as_mut() else { return Ok(()) };
+        match (self.header, self.decoder.as_mut()) {
+            (None, _) => {
+                let h = MapHeader::decode(rec).map_err(|_| LinkError::Decode(DecodeError::Truncated))?;
+                if h.class_table != CLASS_TABLE_VERSION || (h.resolution - resolution).abs() > 1e-6 * resolution {
+                    return Err(LinkError::Incompatible);
+                }
+                if h.voxel_count as usize > map.capacity() {
+                    return Err(LinkError::TooLarge { voxels: h.voxel_count });
+                }
+                map.clear();
+                self.header = Some(h);
+                let model = self.model.take().ok_or(LinkError::Setup)?;
+                self.decoder = Some(MapDecoder::new(h.voxel_count as usize, model));
+            }
+            (Some(_), Some(dec)) => {
+                let n = dec.decode_chunk(rec, map).map_err(LinkError::Decode)?;
+                stats.voxels_received += n as u32;
+            }
+            (Some(_), None) => return Err(LinkError::Setup),
+        }
+        if let (Some(h), Some(dec)) = (self.header, self.decoder.as_ref()) {
+            if dec.is_complete() {
+                if dec.digest() != h.digest {
+                    return Err(LinkError::Digest);
+                }
+                self.done = true;
+                self.ack_now = true;
+            }
+        }
+        Ok(())
+    }
+
+    /// What we hold, as an acknowledgement.
+    fn ack(&self, finished: bool) -> Ack {
+        let mut ack = Ack { cum: self.cum as u16, ..Ack::default() };
+        if self.done {
+            ack.flags |= ACK_COMPLETE;
+        }
+        if finished {
+            ack.flags |= ACK_FINISHED;
+        }
+        // The runs held after `cum`, first ones first; if there are more
+        // than fit, the last slot goes to the run that grew last.
+        let mut runs = [(0u32, 0u32); MAX_SACK + 1];
+        let mut found = 0;
+        let mut pos = self.cum;
+        while pos < self.highest && found < runs.len() {
+            if !self.bit(pos) {
+                pos += 1;
+                continue;
+            }
+            let from = pos;
+            while pos < self.highest && self.bit(pos) {
+                pos += 1;
+            }
+            runs[found] = (from, pos);
+            found += 1;
+        }
+        if found > MAX_SACK {
+            let latest = self.latest.max(self.cum);
+            let (mut from, mut to) = (latest, latest);
+            while from > self.cum && self.bit(from - 1) {
+                from -= 1;
+            }
+            while to < self.highest && self.bit(to) {
+                to += 1;
+            }
+            if from > runs[MAX_SACK - 2].1 && to > from {
+                runs[MAX_SACK - 1] = (from, to);
+            }
+        } else {
+            ack.flags |= ACK_ALL_BLOCKS;
+        }
+        for &(from, to) in runs.iter().take(found.min(MAX_SACK)) {
+            if let Some(slot) = ack.sack.get_mut(usize::from(ack.blocks)) {
+                *slot = SackBlock { start: (from - self.cum) as u16, len: (to - from) as u16 };
+                ack.blocks += 1;
+            }
+        }
+        ack
+    }
+}
+
+/// The line's byte error rate, judged by the frames that arrive: a frame
+/// of `L` bytes arrives whole with probability `(1 - r)^L`, so from the
+/// fraction `f` of broken frames and their mean length, `r = 1 - (1 -
+/// f)^(1/L)`. Counts halve now and then, to follow a line that changes.
+#[derive(Clone, Copy, Debug, Default)]
+struct LineEstimate {
+    good: u32,
+    bad: u32,
+    bytes: u32,
+    /// Bytes of the frame being received.
+    current: u32,
+}
+
+impl LineEstimate {
+    fn byte(&mut self) {
+        self.current = self.current.saturating_add(1);
+    }
+
+    fn frame(&mut self, whole: bool) {
+        if whole {
+            self.good += 1;
+        } else {
+            self.bad += 1;
+        }
+        self.bytes = self.bytes.saturating_add(core::mem::take(&mut self.current));
+        if self.good + self.bad > 400 {
+            self.good /= 2;
+            self.bad /= 2;
+            self.bytes /= 2;
+        }
+    }
+
+    /// The estimate, with a prior of one error in 2000 bytes worth four
+    /// frames of 100 bytes.
+    fn byte_error_rate(&self) -> f32 {
+        let frames = (self.good + self.bad) as f32 + 4.0;
+        let f = (self.bad as f32 + 4.0 * (1.0 - libm::powf(1.0 - 1.0 / 2000.0, 100.0))) / frames;
+        let mean = (self.bytes as f32 + 400.0) / frames;
+        1.0 - libm::powf(1.0 - f.min(0.99), 1.0 / mean.max(1.0))
+    }
 }
 
 /// One robot's end of the link: sends its map, receives the peer's.
@@ -226,17 +766,27 @@ pub struct Endpoint<'a, M: VoxelStorage, R: VoxelStorage> {
     tx: Option<Tx<'a, M>>,
     rx: Rx<'a, R>,
     deframer: Deframer,
+    line: LineEstimate,
     started: bool,
     last_heard: u64,
-    linger_until: Option<u64>,
+    /// When any byte last arrived, whole frame or not: the line is alive.
+    last_byte: u64,
+    /// We said we are finished (at this time).
+    finished_at: Option<u64>,
+    peer_finished: bool,
     failed: Option<LinkError>,
     stats: LinkStats,
 }
 
-fn send_msg<IO: Write>(io: &mut IO, msg: &Message<'_>, stats: &mut LinkStats) -> Result<(), LinkError> {
+/// Sends one message as a frame; returns the bytes written.
+fn send_msg<IO: Write>(io: &mut IO, msg: &Message<'_>, stats: &mut LinkStats) -> Result<usize, LinkError> {
     let mut frame = [0u8; MAX_FRAME];
     let f = msg.to_frame(&mut frame).map_err(|_| LinkError::Setup)?;
-    write_frame(io, frame.get(..f).unwrap_or(&[]), stats)
+    io.write_all(frame.get(..f).unwrap_or(&[])).map_err(io_error)?;
+    io.flush().map_err(io_error)?;
+    stats.bytes_sent += f as u64;
+    stats.frames_sent += 1;
+    Ok(f)
 }
 
 /// A stream error as a link error, keeping its kind.
@@ -244,121 +794,12 @@ fn io_error<E: embedded_io::Error>(e: E) -> LinkError {
     LinkError::Io(e.kind())
 }
 
-fn write_frame<IO: Write>(io: &mut IO, frame: &[u8], stats: &mut LinkStats) -> Result<(), LinkError> {
-    io.write_all(frame).map_err(io_error)?;
-    io.flush().map_err(io_error)?;
-    stats.bytes_sent += frame.len() as u64;
-    stats.frames_sent += 1;
-    Ok(())
-}
-
-impl<'a, M: VoxelStorage> Tx<'a, M> {
-    /// Builds the frame of the current sequence number.
-    fn build(&mut self) -> Result<(), LinkError> {
-        self.chunk_len = 0;
-        let map_id = self.header.map_id;
-        let msg_frame = match self.phase {
-            TxPhase::Header => Message::MapHeader(self.header).to_frame(&mut self.frame),
-            TxPhase::Chunks => {
-                let mut data = [0u8; MAX_PAYLOAD];
-                self.encoder.seek(self.seq as usize);
-                let chunk = data.get_mut(..self.chunk).ok_or(LinkError::Setup)?;
-                let len = self.encoder.next_chunk(chunk).map_err(|_| LinkError::Setup)?;
-                self.end = self.encoder.position() as u32;
-                self.chunk_len = len;
-                let data = data.get(..len).ok_or(LinkError::Setup)?;
-                Message::Chunk { map_id, seq: self.seq, data }.to_frame(&mut self.frame)
-            }
-            TxPhase::End | TxPhase::Done => Message::End { map_id, seq: self.seq }.to_frame(&mut self.frame),
-        };
-        self.frame_len = msg_frame.map_err(|_| LinkError::Setup)?;
-        Ok(())
-    }
-
-    fn transmit<IO: Write>(&mut self, io: &mut IO, now: u64, stats: &mut LinkStats) -> Result<(), LinkError> {
-        write_frame(io, &self.frame[..self.frame_len], stats)?;
-        self.sent_at = now;
-        self.deadline = now + u64::from(self.timeout);
-        Ok(())
-    }
-
-    fn on_ack<IO: Write>(
-        &mut self,
-        seq: u32,
-        io: &mut IO,
-        now: u64,
-        config: &LinkConfig,
-        stats: &mut LinkStats,
-    ) -> Result<(), LinkError> {
-        let count = self.header.voxel_count;
-        // What the receiver holds moves us on; anything else is stale.
-        let next = match self.phase {
-            TxPhase::Header => Some(seq),
-            TxPhase::Chunks if seq >= self.end && seq <= count => Some(seq),
-            TxPhase::End if seq == count + 1 => None,
-            _ => return Ok(()),
-        };
-        self.record(false, config);
-        self.retries = 0;
-        self.timeout = config.timeout_ms;
-        match next {
-            None => {
-                self.phase = TxPhase::Done;
-                return Ok(());
-            }
-            Some(held) if held >= count => {
-                self.phase = TxPhase::End;
-                self.seq = count + 1;
-            }
-            Some(held) => {
-                self.phase = TxPhase::Chunks;
-                self.seq = held;
-            }
-        }
-        self.build()?;
-        stats.chunk_bytes_sent += self.chunk_len as u64;
-        self.transmit(io, now, stats)
-    }
-
-    /// Sends the frame in flight again; a chunk is re-encoded from the same
-    /// voxel at the (halved) current size, so a line that breaks long frames
-    /// still lets short ones through.
-    fn resend<IO: Write>(&mut self, io: &mut IO, now: u64, stats: &mut LinkStats) -> Result<(), LinkError> {
-        if self.phase == TxPhase::Chunks {
-            self.build()?;
-        }
-        self.transmit(io, now, stats)
-    }
-
-    /// Resends after a timeout (`timed_out`: the line may be stalled, so the
-    /// timeout backs off) or a nack (the line is alive: resend at once, same
-    /// timeout).
-    fn retransmit<IO: Write>(
-        &mut self,
-        io: &mut IO,
-        now: u64,
-        config: &LinkConfig,
-        stats: &mut LinkStats,
-        timed_out: bool,
-    ) -> Result<(), LinkError> {
-        if self.retries >= config.max_retries {
-            return Err(LinkError::GaveUp { seq: self.seq });
-        }
-        self.retries += 1;
-        self.record(true, config);
-        if timed_out {
-            self.timeout = (self.timeout.saturating_mul(2)).min(config.max_timeout_ms);
-        }
-        stats.retransmissions += 1;
-        self.resend(io, now, stats)
-    }
-}
-
 impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
     /// An endpoint that will send `map` (Morton order prepared in `scratch`,
     /// one `u32` per voxel; `None`: send nothing) as transfer `map_id`, and
     /// receive the peer's map into `staging` (cleared first; `None`: receive
-    /// nothing). At least one of the two must be given.
+    /// nothing), working in `buffers`. At least one of the two maps must be
+    /// given.
     pub fn new(
         config: LinkConfig,
         robot_id: u8,
@@ -366,15 +807,18 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         anchor_time_us: u64,
         map: Option<(&'a LocalMap<M>, &'a mut [u32])>,
         mut staging: Option<&'a mut LocalMap<R>>,
+        buffers: &'a mut LinkBuffers,
     ) -> Result<Self, LinkError> {
-        let min = MIN_CHUNK.max(usize::from(config.min_chunk));
-        if usize::from(config.max_chunk) < min
-            || usize::from(config.max_chunk) > MAX_PAYLOAD - 24
+        let LinkBuffers { tx: tx_ring, rx: rx_ring, have, segs, tx_model, rx_model } = buffers;
+        segs.clear();
+        have.fill(0);
+        if config.max_chunk < config.min_chunk.max(1)
+            || usize::from(config.max_chunk) > MAX_PAYLOAD - 4
             || config.max_retries == 0
         {
             return Err(LinkError::Setup);
         }
-        let config = LinkConfig { min_chunk: min as u16, ..config };
+        let config = LinkConfig { min_chunk: config.min_chunk.max(1), ..config };
         let resolution = match (&staging, &map) {
             (Some(s), _) => s.resolution(),
             (None, Some((m, _))) => m.resolution(),
@@ -387,7 +831,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                     return Err(LinkError::Setup);
                 }
                 let bounds = m.bounds().map(|(lo, hi)| [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]).unwrap_or([0.0; 6]);
-                let encoder = MapEncoder::new(m, scratch).map_err(|_| LinkError::Setup)?;
+                let encoder = MapEncoder::new(m, scratch, tx_model).map_err(|_| LinkError::Setup)?;
                 let header = MapHeader {
                     map_id,
                     robot_id,
@@ -398,23 +842,28 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                     bounds,
                     digest: encoder.digest(),
                 };
-                Some(Tx {
+                let mut tx = Tx {
                     encoder,
-                    sent_at: 0,
                     header,
-                    phase: TxPhase::Header,
-                    seq: 0,
-                    end: 0,
-                    chunk_len: 0,
-                    frame: [0; MAX_FRAME],
-                    frame_len: 0,
-                    deadline: 0,
-                    timeout: config.timeout_ms,
-                    retries: 0,
-                    chunk: usize::from(config.max_chunk),
-                    est_bytes: 0,
-                    est_fails: 0,
-                })
+                    header_queued: false,
+                    ring: tx_ring,
+                    acked: 0,
+                    sent_end: 0,
+                    produced: 0,
+                    segs,
+                    order: 0,
+                    acked_order: 0,
+                    complete: false,
+                    size: usize::from(config.max_chunk),
+                    srtt: None,
+                    min_rtt: u32::MAX,
+                    backoff: 0,
+                    last_progress: 0,
+                    last_probe: 0,
+                    idle_resends: 0,
+                };
+                tx.resize(LineEstimate::default().byte_error_rate(), &config);
+                Some(tx)
             }
         };
         if let Some(s) = staging.as_mut() {
@@ -427,18 +876,27 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
             resolution,
             tx,
             rx: Rx {
-                nacked: None,
                 map: staging,
+                ring: rx_ring,
+                have,
+                cum: 0,
+                consumed: 0,
+                highest: 0,
+                header: None,
+                model: Some(rx_model),
                 decoder: None,
-                map_id: None,
-                digest: 0,
-                expected: 0,
                 done: !receiving,
+                latest: 0,
+                unacked: 0,
+                ack_now: false,
             },
             deframer: Deframer::new(),
+            line: LineEstimate::default(),
             started: false,
             last_heard: 0,
-            linger_until: None,
+            last_byte: 0,
+            finished_at: None,
+            peer_finished: false,
             failed: None,
             stats: LinkStats::default(),
         })
@@ -455,9 +913,9 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         self.rx.done
     }
 
-    /// Whether our map was acknowledged to the end.
+    /// Whether the peer said it holds our whole map.
     pub fn sent(&self) -> bool {
-        self.tx.as_ref().is_none_or(|t| t.phase == TxPhase::Done)
+        self.tx.as_ref().is_none_or(|t| t.complete)
     }
 
     /// Ends the endpoint and gives back what it borrowed mutably: the
@@ -469,7 +927,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
 
     /// Runs the link until done or failed, calling `idle` between steps
     /// (e.g. to sleep or wait for an interrupt).
-    pub fn run<IO: Read + Write + ReadReady, C: Clock>(
+    pub fn run<IO: Read + Write + ReadReady + WriteReady, C: Clock>(
         &mut self,
         io: &mut IO,
         clock: &C,
@@ -483,14 +941,19 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         }
     }
 
-    /// One step: read what is there, answer, retransmit what timed out.
-    pub fn step<IO: Read + Write + ReadReady>(&mut self, io: &mut IO, now: u64) -> Result<Progress, LinkError> {
+    /// One step: read what is there, acknowledge, and, if the line is ready
+    /// to take it at once, send one data frame (new, lost, or timed out).
+    pub fn step<IO: Read + Write + ReadReady + WriteReady>(
+        &mut self,
+        io: &mut IO,
+        now: u64,
+    ) -> Result<Progress, LinkError> {
         if let Some(e) = self.failed {
             return Err(e);
         }
         let r = self.step_inner(io, now);
         // Lingering only serves the peer: if it hung up, we are done.
-        if matches!(r, Err(LinkError::Io(_))) && self.linger_until.is_some() {
+        if matches!(r, Err(LinkError::Io(_))) && self.finished_at.is_some() {
             return Ok(Progress::Done);
         }
         if let Err(e) = r {
@@ -504,14 +967,31 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                 _ => AbortReason::GaveUp,
             };
             if !matches!(e, LinkError::Io(_) | LinkError::PeerAborted(_)) {
-                let map_id = self.rx.map_id.or(self.tx.as_ref().map(|t| t.header.map_id)).unwrap_or(0);
-                let _ = send_msg(io, &Message::Abort { map_id, reason }, &mut self.stats);
+                let map_id = self.rx.header.map(|h| h.map_id).or(self.tx.as_ref().map(|t| t.header.map_id));
+                let msg = Message::Abort { map_id: map_id.unwrap_or(0), reason };
+                let _ = send_msg(io, &msg, &mut self.stats);
             }
         }
         r
     }
 
-    fn step_inner<IO: Read + Write + ReadReady>(&mut self, io: &mut IO, now: u64) -> Result<Progress, LinkError> {
+    fn finished(&self) -> bool {
+        self.sent() && self.received()
+    }
+
+    fn send_ack<IO: Write>(&mut self, io: &mut IO) -> Result<(), LinkError> {
+        let ack = self.rx.ack(self.finished());
+        send_msg(io, &Message::Ack(ack), &mut self.stats)?;
+        self.rx.unacked = 0;
+        self.rx.ack_now = false;
+        Ok(())
+    }
+
+    fn step_inner<IO: Read + Write + ReadReady + WriteReady>(
+        &mut self,
+        io: &mut IO,
+        now: u64,
+    ) -> Result<Progress, LinkError> {
         if !self.started {
             self.started = true;
             self.last_heard = now;
@@ -523,16 +1003,6 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
             };
             send_msg(io, &Message::Hello(hello), &mut self.stats)?;
         }
-        // Our map goes out now, or (half duplex, not robot 0) once the peer's
-        // is in.
-        let may_send = !self.config.half_duplex || self.robot_id == 0 || self.rx.done;
-        if let Some(tx) = self.tx.as_mut() {
-            if tx.frame_len == 0 && may_send {
-                tx.build()?;
-                self.stats.chunk_bytes_sent += tx.chunk_len as u64;
-                tx.transmit(io, now, &mut self.stats)?;
-            }
-        }
         // Read everything that is there.
         let mut buf = [0u8; 64];
         while io.read_ready().map_err(io_error)? {
@@ -541,55 +1011,61 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                 break;
             }
             self.stats.bytes_received += n as u64;
+            self.last_byte = now;
             for &b in buf.get(..n).unwrap_or(&[]) {
-                self.on_byte(b, io, now)?;
+                self.on_byte(b, now)?;
             }
         }
-        // Deadlines.
-        if let Some(tx) = self.tx.as_mut() {
-            if tx.frame_len > 0 && tx.phase != TxPhase::Done && now >= tx.deadline {
-                tx.retransmit(io, now, &self.config, &mut self.stats, true)?;
+        if self.rx.ack_now && self.rx.map.is_some() {
+            self.send_ack(io)?;
+        }
+        // Our map goes out now, or (half duplex, not robot 0) once the peer's
+        // is in.
+        // A data frame only when the line takes it at once: acknowledgements
+        // never wait behind a queue of data.
+        let may_send =
+            (!self.config.half_duplex || self.robot_id == 0 || self.rx.done) && io.write_ready().map_err(io_error)?;
+        if let (Some(tx), true) = (self.tx.as_mut(), may_send) {
+            let r = self.line.byte_error_rate();
+            tx.send_next(io, now, self.last_byte.max(self.last_heard), r, &self.config, &mut self.stats)?;
+        }
+        if self.finished() {
+            if self.finished_at.is_none() {
+                // Say so twice: the peer may be waiting for exactly this.
+                self.finished_at = Some(now);
+                self.send_ack(io)?;
+                self.send_ack(io)?;
             }
-        }
-        if now.saturating_sub(self.last_heard) > u64::from(self.config.silence_ms) && self.linger_until.is_none() {
-            return Err(LinkError::Silent);
-        }
-        if self.sent() && self.received() {
-            let until = *self.linger_until.get_or_insert(now + u64::from(self.config.linger_ms));
-            if now >= until {
+            let lingered = self.finished_at.is_some_and(|t| now >= t + u64::from(self.config.linger_ms));
+            if self.peer_finished || lingered {
                 return Ok(Progress::Done);
             }
+        } else if now.saturating_sub(self.last_heard) > u64::from(self.config.silence_ms) {
+            return Err(LinkError::Silent);
         }
         Ok(Progress::Busy)
     }
 
-    fn on_byte<IO: Write>(&mut self, b: u8, io: &mut IO, now: u64) -> Result<(), LinkError> {
-        let Endpoint { deframer, rx, tx, stats, config, resolution, last_heard, .. } = self;
+    fn on_byte(&mut self, b: u8, now: u64) -> Result<(), LinkError> {
+        let Endpoint { deframer, rx, tx, stats, config, resolution, last_heard, peer_finished, line, .. } = self;
+        if b != 0 {
+            line.byte();
+        }
         let payload = match deframer.push(b) {
             Ok(Some(p)) => p,
             Ok(None) => return Ok(()),
             Err(_) => {
                 stats.bad_frames += 1;
-                // Receiving: ask at once for what is missing rather than let
-                // the sender wait for its timeout; once per position and
-                // half-timeout, so broken acks on a shared line do not set
-                // off a storm of resends.
-                if let (Some(map_id), Some(dec), false) = (rx.map_id, rx.decoder.as_ref(), rx.done) {
-                    let held = dec.decoded() as u32;
-                    let recent =
-                        rx.nacked.is_some_and(|(s, t)| s == held && now < t + u64::from(config.timeout_ms / 2));
-                    if !recent {
-                        rx.nacked = Some((held, now));
-                        send_msg(io, &Message::Nack { map_id, seq: held }, stats)?;
-                    }
-                }
+                line.frame(false);
                 return Ok(());
             }
         };
         let Ok(msg) = Message::decode(payload) else {
             stats.bad_frames += 1;
+            line.frame(false);
             return Ok(());
         };
+        line.frame(true);
         stats.frames_received += 1;
         *last_heard = now;
         match msg {
@@ -598,88 +1074,21 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                     return Err(LinkError::Incompatible);
                 }
             }
-            Message::Ack { map_id, seq } => {
-                if let Some(t) = tx.as_mut() {
-                    if map_id == t.header.map_id {
-                        t.on_ack(seq, io, now, config, stats)?;
-                    }
+            Message::Data { offset, poll, data } => rx.on_data(offset, poll, data, *resolution, stats)?,
+            Message::Ack(ack) => {
+                if ack.flags & ACK_FINISHED != 0 {
+                    *peer_finished = true;
                 }
-            }
-            Message::Nack { map_id, seq } => {
                 if let Some(t) = tx.as_mut() {
-                    if map_id == t.header.map_id
-                        && t.phase != TxPhase::Done
-                        && (seq == t.seq || t.phase == TxPhase::End)
-                    {
-                        t.retransmit(io, now, config, stats, false)?;
-                    }
+                    t.on_ack(&ack, now, config);
                 }
             }
             Message::Abort { map_id, reason } => {
                 let ours = tx.as_ref().is_some_and(|t| t.header.map_id == map_id);
-                if ours || rx.map_id == Some(map_id) || rx.map_id.is_none() {
+                let theirs = rx.header.is_none_or(|h| h.map_id == map_id);
+                if ours || theirs {
                     return Err(LinkError::PeerAborted(reason));
                 }
-            }
-            Message::MapHeader(h) => {
-                let Some(map) = rx.map.as_mut() else { return Ok(()) };
-                if rx.map_id == Some(h.map_id) {
-                    let held = rx.decoder.as_ref().map(|d| d.decoded() as u32).unwrap_or(0);
-                    let seq = if rx.done { h.voxel_count + 1 } else { held };
-                    return send_msg(io, &Message::Ack { map_id: h.map_id, seq }, stats);
-                }
-                if rx.map_id.is_some() {
-                    return Ok(()); // one transfer per endpoint
-                }
-                if h.class_table != CLASS_TABLE_VERSION || (h.resolution - *resolution).abs() > 1e-6 * *resolution {
-                    return Err(LinkError::Incompatible);
-                }
-                if h.voxel_count as usize > map.capacity() {
-                    return Err(LinkError::TooLarge { voxels: h.voxel_count });
-                }
-                map.clear();
-                rx.decoder = Some(MapDecoder::new(h.voxel_count as usize));
-                rx.map_id = Some(h.map_id);
-                rx.digest = h.digest;
-                rx.expected = h.voxel_count;
-                send_msg(io, &Message::Ack { map_id: h.map_id, seq: 0 }, stats)?;
-            }
-            Message::Chunk { map_id, seq, data } => {
-                if rx.map_id != Some(map_id) {
-                    return Ok(());
-                }
-                let (Some(dec), Some(map)) = (rx.decoder.as_mut(), rx.map.as_mut()) else { return Ok(()) };
-                let held = dec.decoded() as u32;
-                if seq == held && !rx.done {
-                    let n = dec.decode_chunk(data, map).map_err(LinkError::Decode)?;
-                    stats.voxels_received += n as u32;
-                    send_msg(io, &Message::Ack { map_id, seq: dec.decoded() as u32 }, stats)?;
-                } else if seq < held || rx.done {
-                    // Already have it: say how far we are.
-                    let ack = if rx.done { rx.expected + 1 } else { held };
-                    send_msg(io, &Message::Ack { map_id, seq: ack }, stats)?;
-                } else {
-                    send_msg(io, &Message::Nack { map_id, seq: held }, stats)?;
-                }
-            }
-            Message::End { map_id, seq } => {
-                if rx.map_id != Some(map_id) {
-                    return Ok(());
-                }
-                let Some(dec) = rx.decoder.as_ref() else { return Ok(()) };
-                if seq != rx.expected + 1 {
-                    return Ok(());
-                }
-                if !rx.done {
-                    if !dec.is_complete() {
-                        return send_msg(io, &Message::Nack { map_id, seq: dec.decoded() as u32 }, stats);
-                    }
-                    if dec.digest() != rx.digest {
-                        return Err(LinkError::Digest);
-                    }
-                    rx.done = true;
-                }
-                send_msg(io, &Message::Ack { map_id, seq }, stats)?;
             }
         }
         Ok(())

@@ -1,30 +1,39 @@
 //! Stage 4: moving maps over a narrow, lossy line.
 //!
 //! An [`Endpoint`] sends its own map and receives the peer's, over any
-//! byte stream implementing `embedded_io`'s `Read + Write + ReadReady` (a
+//! byte stream implementing `embedded_io`'s `Read + Write + ReadReady + WriteReady` (a
 //! UART driver, a TCP socket, a simulated line), with time from a
 //! [`Clock`]. It is a non-blocking state machine: call [`Endpoint::step`]
 //! as often as convenient; it reads what is there, answers, retransmits when
 //! a deadline passed, and never blocks on the line.
 //!
-//! The protocol is stop-and-wait ARQ, which suits half-duplex lines: the
-//! sender sends one frame (a `MapHeader`, then numbered `Chunk`s, then
-//! `End`) and waits for its `Ack`. A lost frame or ack is resent after a
-//! timeout that doubles up to a ceiling; a `Nack` asks for it at once;
-//! duplicates are recognised by sequence number and acknowledged again;
-//! after too many retries the sender gives up with a typed error. The
-//! sender estimates the line's byte error rate from its own attempts and
-//! sizes chunks for the most data per attempt (frames of about one over the
-//! rate); a chunk that must be resent is re-encoded at the current size.
-//! The receiver decodes into a staging map the caller provides, checks the
-//! voxel count and the digest of the whole map at `End`, and only then
-//! reports success: an aborted or corrupted transfer leaves the caller's
-//! current map untouched.
+//! The protocol is selective repeat over a byte stream, which suits
+//! full-duplex lines: each side's map is one stream of records (a
+//! `MapHeader`, then codec chunks, each behind a length byte), cut into
+//! `Data` frames wherever the sender likes. Frames are COBS with a CRC-32,
+//! so a receiver resynchronises after any flipped, dropped or duplicated
+//! byte and never takes a corrupted one. The receiver keeps what arrives
+//! ahead of a gap (up to [`STREAM_BUFFER`] bytes), decodes records once the
+//! bytes before them are in, and acknowledges every few frames, or at once
+//! when a frame asks: a cumulative offset plus up to three ranges held
+//! beyond it. A serial line keeps order, so bytes sent before bytes now
+//! acknowledged, and not acknowledged themselves, were lost: they are sent
+//! again at once, cut to the current frame size; a timer (twice the
+//! measured round trip, backing off) catches the rest. The sender
+//! estimates the line's byte error rate from its losses and sizes frames
+//! for the most data per byte of line. On a half-duplex line the same
+//! machinery keeps one frame in flight (stop-and-wait), and the two maps
+//! go one after the other.
+//!
+//! The receiver checks the voxel count and the digest of the whole map and
+//! only then reports success: an aborted or corrupted transfer leaves the
+//! caller's current map untouched. An exchange ends when both sides said
+//! they are finished (an acknowledgement flag), or after a linger time.
 
 mod endpoint;
 pub mod sim;
 
-pub use endpoint::{Endpoint, LinkConfig, LinkError, LinkStats, Progress};
+pub use endpoint::{Endpoint, LinkBuffers, LinkConfig, LinkError, LinkStats, Progress, STREAM_BUFFER};
 
 /// Milliseconds from a monotonic source: a SysTick counter on the chip, a
 /// `std::time::Instant` on the host, a simulated clock in tests.

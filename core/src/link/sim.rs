@@ -176,6 +176,14 @@ impl<const N: usize> embedded_io::ReadReady for SimPort<'_, N> {
     }
 }
 
+impl<const N: usize> embedded_io::WriteReady for SimPort<'_, N> {
+    /// Whether the line's transmitter has room: at most a UART's 16-byte
+    /// FIFO of earlier bytes still waiting to leave.
+    fn write_ready(&mut self) -> Result<bool, Infallible> {
+        Ok(self.line.borrow().wire[self.side].len < 16)
+    }
+}
+
 impl<const N: usize> embedded_io::Write for SimPort<'_, N> {
     fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
         let mut line = self.line.borrow_mut();
@@ -242,6 +250,12 @@ impl<const OUT: usize> embedded_io::Read for ScriptPort<'_, OUT> {
 impl<const OUT: usize> embedded_io::ReadReady for ScriptPort<'_, OUT> {
     fn read_ready(&mut self) -> Result<bool, OutputFull> {
         Ok(self.unread() > 0)
+    }
+}
+
+impl<const OUT: usize> embedded_io::WriteReady for ScriptPort<'_, OUT> {
+    fn write_ready(&mut self) -> Result<bool, OutputFull> {
+        Ok(self.output.len() < OUT)
     }
 }
 

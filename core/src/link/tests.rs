@@ -1,10 +1,16 @@
 //! A seeded lossy-line simulation of the link.
 
 use super::*;
+use crate::link::LinkBuffers;
+
+/// Link buffers for one endpoint of a test (leaked: a test's lifetime).
+fn bufs() -> &'static mut LinkBuffers {
+    std::boxed::Box::leak(std::boxed::Box::new(LinkBuffers::new()))
+}
 use crate::classes::Class;
 use crate::map::{LocalMap, VoxelStorage};
 use crate::test_util::{map, Heap};
-use crate::wire::codec::MapEncoder;
+use crate::wire::codec::map_digest;
 use core::cell::RefCell;
 use std::vec;
 
@@ -78,14 +84,15 @@ fn transfer(seed: u64, error_rate: f64, stall_chance: f64) -> (Outcome, u32, u64
     let sent = small_map(seed as u32);
     // What B should end with: the map as the encoding carries it.
     let mut scratch_ref = vec![0u32; sent.len()];
-    let digest = MapEncoder::new(&sent, &mut scratch_ref).unwrap().digest();
+    let digest = map_digest(&sent, &mut scratch_ref).unwrap();
     let mut scratch = vec![0u32; sent.len()];
     let mut staging = map(1000);
     let wire = line(seed, error_rate, stall_chance);
     let (mut pa, mut pb) = Line::ports(&wire);
     let config = LinkConfig::default();
-    let mut a = Endpoint::<Heap, Heap>::new(config, 0, seed as u32, 0, Some((&sent, &mut scratch)), None).unwrap();
-    let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut staging)).unwrap();
+    let mut a =
+        Endpoint::<Heap, Heap>::new(config, 0, seed as u32, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
+    let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut staging), bufs()).unwrap();
     let (_, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 2_000_000);
     let retrans = a.stats().retransmissions;
     let received = b.received();
@@ -94,7 +101,7 @@ fn transfer(seed: u64, error_rate: f64, stall_chance: f64) -> (Outcome, u32, u64
         Ok(Progress::Done) if received => {
             // Delivered: it must be exactly what was sent.
             let mut s2 = vec![0u32; staging.len()];
-            let got = MapEncoder::new(&staging, &mut s2).unwrap().digest();
+            let got = map_digest(&staging, &mut s2).unwrap();
             if got == digest && staging.len() == sent.len() {
                 Outcome::Delivered
             } else {
@@ -147,7 +154,7 @@ fn thousand_transfers_at_low_error_rates_all_arrive() {
 fn thousand_transfers_at_five_percent_mostly_arrive_and_never_corrupt() {
     let (delivered, corrupted, _) = run(0.05, 0.0005, 1000);
     assert_eq!(corrupted, 0);
-    assert!(delivered >= 950, "{delivered}/1000");
+    assert_eq!(delivered, 1000);
 }
 
 #[test]
@@ -157,7 +164,7 @@ fn silent_peer_is_a_typed_error_in_bounded_time() {
     let wire = line(3, 0.0, 0.0);
     let (mut pa, _pb) = Line::ports(&wire);
     let config = LinkConfig::default();
-    let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None).unwrap();
+    let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
     let mut result = Ok(Progress::Busy);
     let mut when = 0;
     for now in 0..200_000u64 {
@@ -179,8 +186,8 @@ fn a_map_too_large_is_refused_and_the_sender_told() {
     let wire = line(5, 0.0, 0.0);
     let (mut pa, mut pb) = Line::ports(&wire);
     let config = LinkConfig::default();
-    let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None).unwrap();
-    let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut tiny)).unwrap();
+    let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
+    let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut tiny), bufs()).unwrap();
     let (ra, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 10_000);
     assert!(matches!(rb, Err(LinkError::TooLarge { .. })), "{rb:?}");
     assert_eq!(ra, Err(LinkError::PeerAborted(crate::wire::AbortReason::TooLarge)));
@@ -195,8 +202,8 @@ fn both_ways_at_once() {
     let wire = line(9, 0.01, 0.0);
     let (mut p0, mut p1) = Line::ports(&wire);
     let config = LinkConfig::default();
-    let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0)).unwrap();
-    let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1)).unwrap();
+    let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0), bufs()).unwrap();
+    let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1), bufs()).unwrap();
     let (r0, r1) = drive(&wire, (&mut e0, &mut p0), (&mut e1, &mut p1), 100_000);
     assert_eq!((r0, r1), (Ok(Progress::Done), Ok(Progress::Done)));
     assert_eq!(st0.len(), m1.len());
@@ -217,8 +224,8 @@ fn half_duplex_line_takes_turns_without_collisions() {
     })));
     let (mut p0, mut p1) = Line::ports(&wire);
     let config = LinkConfig { half_duplex: true, ..LinkConfig::default() };
-    let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0)).unwrap();
-    let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1)).unwrap();
+    let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0), bufs()).unwrap();
+    let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1), bufs()).unwrap();
     let (r0, r1) = drive(&wire, (&mut e0, &mut p0), (&mut e1, &mut p1), 200_000);
     assert_eq!((r0, r1), (Ok(Progress::Done), Ok(Progress::Done)));
     assert_eq!((st0.len(), st1.len()), (m1.len(), m0.len()));

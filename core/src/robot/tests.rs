@@ -58,8 +58,9 @@ fn two_robots_map_link_and_align() {
     );
     let (mut sa, mut sb) = (std::vec![0u32; 4096], std::vec![0u32; 4096]);
     let pyr = || heap_pyramid(4096, 4096, 20_000);
-    let mut a = Robot::new(RobotConfig::default(), &mut own_a, &mut rec_a, &mut sa, pyr(), pyr());
-    let mut b = Robot::new(RobotConfig::default(), &mut own_b, &mut rec_b, &mut sb, pyr(), pyr());
+    let (mut la, mut lb) = (std::boxed::Box::new(LinkBuffers::new()), std::boxed::Box::new(LinkBuffers::new()));
+    let mut a = Robot::new(RobotConfig::default(), &mut own_a, &mut rec_a, &mut sa, &mut la, pyr(), pyr());
+    let mut b = Robot::new(RobotConfig::default(), &mut own_b, &mut rec_b, &mut sb, &mut lb, pyr(), pyr());
     let line = std::boxed::Box::new(core::cell::RefCell::new(SimLine::<8192>::new(SimConfig {
         seed: 3,
         error_rate: 0.0,
@@ -89,11 +90,13 @@ fn a_bad_feed_is_reported() {
     let feed = feed_of(0, None);
     let (mut own, mut rec) = (heap_map(4096, MapConfig::default()), heap_map(4096, MapConfig::default()));
     let mut scratch = std::vec![0u32; 4096];
+    let mut buffers = std::boxed::Box::new(LinkBuffers::new());
     let mut robot = Robot::new(
         RobotConfig { feed_silence_ms: 100 },
         &mut own,
         &mut rec,
         &mut scratch,
+        &mut buffers,
         heap_pyramid(1, 1, 1),
         heap_pyramid(1, 1, 1),
     );

@@ -2,33 +2,40 @@
 //!
 //! Voxels travel in Morton (Z) order of their keys, so neighbours in space
 //! are neighbours in the stream and a key costs only the gap to the previous
-//! one, coded with an adaptive Golomb-Rice code (the parameter follows the
-//! running mean of the gaps, identically on both sides). Per voxel:
+//! one. Every field is coded by an adaptive binary range coder
+//! ([`super::range`]) whose probabilities follow the map as it goes, each in
+//! a context that predicts it:
 //!
-//! | field | bits |
-//! |---|---|
-//! | gap to the previous Morton code, minus one | Golomb-Rice, adaptive |
-//! | class: same as the previous voxel's? | 1 (the chunk's first voxel: none) |
-//! | class index (31: none), when it changed | 5 |
-//! | confidence of the class, one of [`CONFIDENCE_LEVELS`] | 3 |
-//! | occupancy: 1 to 4 hits' worth of log-odds | 2 |
-//! | mean position, 1/16 of the voxel per axis | 12 |
+//! | field | coded as | context |
+//! |---|---|---|
+//! | gap to the previous Morton code | bit length, then the two bits below the leading one, then the rest at even odds | the previous gap's length |
+//! | class (or none) | 5-bit symbol | the previous voxel's class |
+//! | confidence of the class, one of [`CONFIDENCE_LEVELS`] | 3-bit symbol | the class |
+//! | occupancy: 1 to 4 hits' worth of log-odds | 2-bit symbol | the class |
+//! | mean position in the voxel, [`POSITION_BITS`] bits per axis | symbol per axis | the axis, ground or not |
+//!
+//! The position keeps 1/16 of a voxel per axis: coarser positions (a
+//! quarter of a voxel, 1.4 instead of 2.2 bytes a voxel) let prior-free
+//! alignment slide by one period along a street of regular structures and
+//! call it converged (`cosem robots --no-prior` on `cosem synth --seed 5`).
 //!
 //! The stream is cut into *chunks* of a bounded size, decoded in order: a
 //! chunk starts with its voxel count and the gap from the previous chunk's
-//! last code to its first (the first chunk: the absolute code), so a map
-//! larger than any buffer streams chunk by chunk and a lost chunk is resent
-//! alone. The decoder checks everything: codes strictly
-//! increasing across chunks (no duplicates), classes in range, no trailing
-//! bits; it never panics, never loops without consuming input, never
-//! allocates.
+//! last code to its first (the first chunk: the absolute code), then the
+//! range-coded voxels. The probabilities ([`CodecModel`]) carry over from
+//! chunk to chunk, so a map larger than any buffer streams chunk by chunk at
+//! the rate of one long stream; chunks must be decoded in the order they
+//! were encoded (the link's stream and map files keep that order). The
+//! decoder checks everything: codes strictly increasing across chunks (no
+//! duplicates), classes in range, every byte of the chunk used and no more;
+//! it never panics, never loops without consuming input, never allocates.
 //!
 //! The encoding is lossy, but idempotent: a decoded map encodes to the same
 //! bytes. So a map read from a file and the same map received over the link
 //! are identical.
 
-use super::bits::{rice_len, BitReader, BitWriter, Overflow, Truncated, MAX_RICE_K};
 use super::crc::Crc32;
+use super::range::{RangeDecoder, RangeEncoder, PROB_INIT};
 use crate::classes::{Class, NUM_CLASSES};
 use crate::map::labels::{LabelDistribution, SCORE_MAX, SCORE_UNITS_PER_NAT};
 use crate::map::voxel::LOGODDS_UNITS;
@@ -41,8 +48,14 @@ pub const CONFIDENCE_LEVELS: [f32; 8] = [0.15, 0.35, 0.55, 0.7, 0.82, 0.91, 0.97
 const OCCUPANCY_STEP: f32 = 0.85;
 /// Bytes a chunk header takes at most (two LEB128 varints).
 pub const CHUNK_HEADER_MAX: usize = 5 + 7;
+/// Bytes one voxel can take at most in the range coder, with its flush.
+const VOXEL_MAX: usize = 36;
 /// Smallest chunk buffer the encoder accepts: a header and one voxel.
-pub const MIN_CHUNK: usize = CHUNK_HEADER_MAX + 8;
+pub const MIN_CHUNK: usize = CHUNK_HEADER_MAX + VOXEL_MAX;
+/// Bits of the mean position per axis: `2^POSITION_BITS` steps a voxel.
+pub const POSITION_BITS: u32 = 4;
+/// Class symbols: the classes, then "none".
+const CLASS_SYMBOLS: usize = NUM_CLASSES + 1;
 const NO_CLASS: u32 = 31;
 const MORTON_LIMIT: u64 = 1 << 48;
 
@@ -170,7 +183,7 @@ fn quantise(v: &SemanticVoxel) -> Quantised {
         class: class.map(|c| u32::from(c.index())).unwrap_or(NO_CLASS),
         confidence,
         occupancy,
-        position: [u32::from(m[0] >> 12), u32::from(m[1] >> 12), u32::from(m[2] >> 12)],
+        position: m.map(|v| u32::from(v >> (16 - POSITION_BITS))),
     }
 }
 
@@ -201,76 +214,159 @@ fn rebuild(key: VoxelKey, q: &Quantised) -> Result<SemanticVoxel, DecodeError> {
     }
     let hits = q.occupancy as u16 + 1;
     let occupancy = libm::roundf(f32::from(hits) * OCCUPANCY_STEP * LOGODDS_UNITS) as i16;
-    let mean = q.position.map(|p| ((p as u16) << 12) | 0x800);
+    let mean = q.position.map(|p| ((p as u16) << (16 - POSITION_BITS)) | (1 << (15 - POSITION_BITS)));
     Ok(SemanticVoxel::from_parts(key, mean, occupancy, hits, labels))
 }
 
-/// The adaptive Golomb-Rice parameter, the same on both sides: the smallest
-/// `k` with `count * 2^k >= sum` of the recent gaps.
-#[derive(Clone, Copy)]
-struct Adapt {
-    sum: u64,
-    count: u64,
+/// The probabilities of the range coder, per field and context: what the
+/// encoder and the decoder of one map learn as it goes (about 3.6 KiB).
+/// Kept by the caller, so a robot can keep it with its other buffers.
+#[derive(Clone)]
+pub struct CodecModel {
+    gap_len: [[u16; 64]; 8],
+    gap_top: [[u16; 4]; 50],
+    class: [[u16; 32]; CLASS_SYMBOLS],
+    confidence: [[u16; 8]; CLASS_SYMBOLS],
+    occupancy: [[u16; 4]; CLASS_SYMBOLS],
+    position: [[[u16; 1 << POSITION_BITS]; POSITION_CONTEXTS]; 3],
+    prev_class: usize,
+    prev_len: usize,
 }
 
-impl Adapt {
-    fn new() -> Self {
-        Adapt { sum: 8, count: 1 }
+/// Contexts of a position: ground or not (the previous voxel's position as
+/// a context gained 2% and cost 3 KiB of a robot's RAM per model).
+const POSITION_CONTEXTS: usize = 2;
+
+fn is_ground(symbol: usize) -> bool {
+    matches!(symbol, 8..=11 | 16)
+}
+
+fn position_context(symbol: usize) -> usize {
+    usize::from(is_ground(symbol))
+}
+
+impl Default for CodecModel {
+    fn default() -> Self {
+        Self::new()
     }
-    fn k(&self) -> u32 {
-        let mut k = 0;
-        while k < MAX_RICE_K && (self.count << k) < self.sum {
-            k += 1;
+}
+
+impl CodecModel {
+    /// A model that has seen nothing.
+    pub const fn new() -> Self {
+        CodecModel {
+            gap_len: [[PROB_INIT; 64]; 8],
+            gap_top: [[PROB_INIT; 4]; 50],
+            class: [[PROB_INIT; 32]; CLASS_SYMBOLS],
+            confidence: [[PROB_INIT; 8]; CLASS_SYMBOLS],
+            occupancy: [[PROB_INIT; 4]; CLASS_SYMBOLS],
+            position: [[[PROB_INIT; 1 << POSITION_BITS]; POSITION_CONTEXTS]; 3],
+            prev_class: NUM_CLASSES,
+            prev_len: 0,
         }
-        k
     }
-    fn update(&mut self, gap: u64) {
-        self.sum = self.sum.saturating_add(gap);
-        self.count += 1;
-        if self.count >= 32 {
-            self.sum /= 2;
-            self.count /= 2;
+
+    /// Forgets everything (a new map), in place: no copy of the model on
+    /// the stack, which a robot's is too small to waste.
+    pub fn reset(&mut self) {
+        fn fill<const N: usize>(rows: &mut [[u16; N]]) {
+            for row in rows {
+                row.fill(PROB_INIT);
+            }
         }
+        fill(&mut self.gap_len);
+        fill(&mut self.gap_top);
+        fill(&mut self.class);
+        fill(&mut self.confidence);
+        fill(&mut self.occupancy);
+        for axis in &mut self.position {
+            fill(axis);
+        }
+        self.prev_class = NUM_CLASSES;
+        self.prev_len = 0;
     }
 }
 
-fn voxel_bits(gap: Option<u64>, adapt: &Adapt, q: &Quantised, prev_class: Option<u32>) -> usize {
-    let mut bits = 3 + 2 + 12;
-    if let Some(g) = gap {
-        bits += rice_len(g, adapt.k());
+/// The symbol of a class index (none: after the classes).
+fn class_symbol(class: u32) -> usize {
+    if class == NO_CLASS {
+        NUM_CLASSES
+    } else {
+        class as usize
     }
-    bits += match prev_class {
-        Some(c) if c == q.class => 1,
-        Some(_) => 6,
-        None => 5,
-    };
-    bits
 }
 
-fn write_voxel(
-    w: &mut BitWriter<'_>,
-    gap: Option<u64>,
-    adapt: &Adapt,
+/// A gap as its bit length `len` (of `gap + 1`), the two bits below the
+/// leading one, and the rest.
+fn gap_parts(gap: u64) -> (u32, u32, u32, u64, u32) {
+    let v = gap.saturating_add(1);
+    let len = 64 - v.leading_zeros();
+    let below = len - 1;
+    let top = below.min(2);
+    let rest = below - top;
+    (len, ((v >> rest) & ((1 << top) - 1)) as u32, top, v & ((1u64 << rest) - 1), rest)
+}
+
+/// Codes one voxel: its gap to the previous one (not coded when `coded`
+/// is false: the chunk header holds it) and its fields.
+fn encode_voxel(
+    e: &mut RangeEncoder<'_>,
+    m: &mut CodecModel,
+    gap: u64,
+    coded: bool,
     q: &Quantised,
-    prev_class: Option<u32>,
-) -> Result<(), Overflow> {
-    if let Some(g) = gap {
-        w.write_rice(g, adapt.k())?;
+) -> Result<(), super::range::Full> {
+    use super::range::Full;
+    if coded {
+        let g = gap;
+        let (len, top_bits, top, rest_bits, rest) = gap_parts(g);
+        let ctx = m.prev_len.min(7);
+        e.tree(m.gap_len.get_mut(ctx).ok_or(Full)?, len - 1, 6)?;
+        e.tree(m.gap_top.get_mut(len as usize).ok_or(Full)?, top_bits, top)?;
+        e.direct(rest_bits, rest)?;
+        m.prev_len = len as usize;
     }
-    match prev_class {
-        Some(c) if c == q.class => w.write(1, 1)?,
-        Some(_) => {
-            w.write(0, 1)?;
-            w.write(q.class, 5)?;
-        }
-        None => w.write(q.class, 5)?,
-    }
-    w.write(q.confidence, 3)?;
-    w.write(q.occupancy, 2)?;
-    for p in q.position {
-        w.write(p, 4)?;
+    let cls = class_symbol(q.class);
+    e.tree(m.class.get_mut(m.prev_class).ok_or(Full)?, cls as u32, 5)?;
+    m.prev_class = cls;
+    e.tree(m.confidence.get_mut(cls).ok_or(Full)?, q.confidence, 3)?;
+    e.tree(m.occupancy.get_mut(cls).ok_or(Full)?, q.occupancy, 2)?;
+    for (axis, &p) in q.position.iter().enumerate() {
+        let ctx = position_context(cls);
+        e.tree(m.position.get_mut(axis).and_then(|a| a.get_mut(ctx)).ok_or(Full)?, p, POSITION_BITS)?;
     }
     Ok(())
+}
+
+/// Decodes one voxel's gap (when `coded`; else `gap` is it) and fields;
+/// `None` for a class symbol beyond the table.
+fn decode_voxel(d: &mut RangeDecoder<'_>, m: &mut CodecModel, mut gap: u64, coded: bool) -> Option<(u64, Quantised)> {
+    if coded {
+        let ctx = m.prev_len.min(7);
+        let len = d.tree(m.gap_len.get_mut(ctx)?, 6)? + 1;
+        let below = len - 1;
+        let top = below.min(2);
+        let top_bits = d.tree(m.gap_top.get_mut(len as usize)?, top)?;
+        let rest = below - top;
+        let rest_bits = d.direct(rest);
+        let v = (1u64 << below) | (u64::from(top_bits) << rest) | rest_bits;
+        gap = v - 1;
+        m.prev_len = len as usize;
+    }
+    let cls = d.tree(m.class.get_mut(m.prev_class)?, 5)? as usize;
+    if cls >= CLASS_SYMBOLS {
+        return None;
+    }
+    m.prev_class = cls;
+    let confidence = d.tree(m.confidence.get_mut(cls)?, 3)?;
+    let occupancy = d.tree(m.occupancy.get_mut(cls)?, 2)?;
+    let mut position = [0u32; 3];
+    for (axis, p) in position.iter_mut().enumerate() {
+        let ctx = position_context(cls);
+        *p = d.tree(m.position.get_mut(axis)?.get_mut(ctx)?, POSITION_BITS)?;
+    }
+    let class = if cls == NUM_CLASSES { NO_CLASS } else { cls as u32 };
+    Some((gap, Quantised { class, confidence, occupancy, position }))
 }
 
 fn write_varint(out: &mut [u8], at: &mut usize, mut v: u64) -> Result<(), EncodeError> {
@@ -318,20 +414,17 @@ pub struct MapEncoder<'a, S: VoxelStorage> {
     map: &'a LocalMap<S>,
     /// The caller's scratch; its first `map.len()` entries hold the order.
     scratch: &'a mut [u32],
+    model: &'a mut CodecModel,
     next: usize,
 }
 
 impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
     /// Prepares the Morton order of `map` in `scratch` (at least one `u32`
-    /// per voxel).
-    pub fn new(map: &'a LocalMap<S>, scratch: &'a mut [u32]) -> Result<Self, EncodeError> {
-        let order = scratch.get_mut(..map.len()).ok_or(EncodeError::Scratch)?;
-        for (i, o) in order.iter_mut().enumerate() {
-            *o = i as u32;
-        }
-        let voxels = map.voxels();
-        order.sort_unstable_by_key(|&i| voxels.get(i as usize).map(|v| morton(v.key)).unwrap_or(u64::MAX));
-        Ok(MapEncoder { map, scratch, next: 0 })
+    /// per voxel); codes with `model` (reset first).
+    pub fn new(map: &'a LocalMap<S>, scratch: &'a mut [u32], model: &'a mut CodecModel) -> Result<Self, EncodeError> {
+        stream_order(map, scratch)?;
+        model.reset();
+        Ok(MapEncoder { map, scratch, model, next: 0 })
     }
 
     /// The voxel indices in stream (Morton) order.
@@ -348,22 +441,12 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
     /// Digest of the whole map's encoded content (all voxels, in stream
     /// order): what [`MapDecoder::digest`] gives after the last chunk.
     pub fn digest(&self) -> u32 {
-        let mut crc = Crc32::new();
-        for v in self.order().iter().filter_map(|&i| self.map.voxel(i as usize)) {
-            digest_voxel(&mut crc, morton(v.key), &quantise(v));
-        }
-        crc.finish()
+        digest_in_order(self.map, self.order())
     }
 
     /// Index (in stream order) of the next voxel to encode.
     pub fn position(&self) -> usize {
         self.next
-    }
-
-    /// Moves to voxel `index` of the stream (e.g. to encode a chunk again,
-    /// smaller). Beyond the end means done.
-    pub fn seek(&mut self, index: usize) {
-        self.next = index.min(self.map.len());
     }
 
     /// Voxels not yet encoded.
@@ -376,8 +459,8 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
         self.next >= self.map.len()
     }
 
-    /// Writes the next chunk (as many voxels as fit in `out`) and returns its
-    /// length; 0 when done.
+    /// Writes the next chunk (as many voxels as surely fit in `out`, at
+    /// least [`MIN_CHUNK`] bytes) and returns its length; 0 when done.
     pub fn next_chunk(&mut self, out: &mut [u8]) -> Result<usize, EncodeError> {
         if self.is_done() {
             return Ok(0);
@@ -385,77 +468,86 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
         if out.len() < MIN_CHUNK {
             return Err(EncodeError::Buffer);
         }
-        let voxel = |i: usize| self.order().get(i).and_then(|&v| self.map.voxel(v as usize));
-        let first = voxel(self.next).ok_or(EncodeError::Buffer)?;
+        let (map, order, start) = (self.map, self.scratch.get(..self.map.len()).unwrap_or(&[]), self.next);
+        let voxel = |i: usize| order.get(i).and_then(|&v| map.voxel(v as usize));
+        let first = voxel(start).ok_or(EncodeError::Buffer)?;
         // The first code as a gap from the previous chunk's last one.
-        let lead = match self.next.checked_sub(1).and_then(voxel) {
+        let lead = match start.checked_sub(1).and_then(voxel) {
             Some(prev) => morton(first.key) - morton(prev.key) - 1,
             None => morton(first.key),
         };
-        // Dry run: how many voxels fit after the header (a voxel takes at
-        // least 18 bits, which bounds the count's varint).
-        let count_len = varint_len((out.len() * 8 / 18) as u64);
-        let budget = out.len().saturating_sub(count_len + varint_len(lead)) * 8;
-        let (mut bits, mut n) = (0usize, 0usize);
-        let (mut adapt, mut prev_code, mut prev_class) = (Adapt::new(), 0u64, None);
-        while let Some(v) = voxel(self.next + n) {
-            let code = morton(v.key);
-            let q = quantise(v);
-            let gap = (n > 0).then(|| code - prev_code - 1);
-            let b = voxel_bits(gap, &adapt, &q, prev_class);
-            if bits + b > budget {
+        // The body goes after room for the largest header, then moves up.
+        let room = varint_len((map.len() - start) as u64) + varint_len(lead);
+        let body = out.get_mut(room..).ok_or(EncodeError::Buffer)?;
+        let capacity = body.len();
+        let mut e = RangeEncoder::new(body);
+        let (mut n, mut prev_code) = (0usize, morton(first.key));
+        while let Some(v) = voxel(start + n) {
+            if n > 0 && e.len_if_finished() + VOXEL_MAX > capacity {
                 break;
             }
-            bits += b;
-            if let Some(g) = gap {
-                adapt.update(g);
-            }
+            let code = morton(v.key);
+            let gap = if n > 0 { code - prev_code - 1 } else { lead };
+            encode_voxel(&mut e, self.model, gap, n > 0, &quantise(v)).map_err(|_| EncodeError::Buffer)?;
             prev_code = code;
-            prev_class = Some(q.class);
             n += 1;
         }
-        if n == 0 {
+        let body_len = e.finish().map_err(|_| EncodeError::Buffer)?;
+        let mut head = [0u8; CHUNK_HEADER_MAX];
+        let mut at = 0;
+        write_varint(&mut head, &mut at, n as u64)?;
+        write_varint(&mut head, &mut at, lead)?;
+        if at > room {
             return Err(EncodeError::Buffer);
         }
-        let mut at = 0;
-        write_varint(out, &mut at, n as u64)?;
-        write_varint(out, &mut at, lead)?;
-        let mut w = BitWriter::new(out.get_mut(at..).ok_or(EncodeError::Buffer)?);
-        let (mut adapt, mut prev_code, mut prev_class) = (Adapt::new(), 0u64, None);
-        for i in 0..n {
-            let v = voxel(self.next + i).ok_or(EncodeError::Buffer)?;
-            let code = morton(v.key);
-            let q = quantise(v);
-            let gap = (i > 0).then(|| code - prev_code - 1);
-            write_voxel(&mut w, gap, &adapt, &q, prev_class).map_err(|_| EncodeError::Buffer)?;
-            if let Some(g) = gap {
-                adapt.update(g);
-            }
-            prev_code = code;
-            prev_class = Some(q.class);
-        }
+        out.copy_within(room..room + body_len, at);
+        out.get_mut(..at).ok_or(EncodeError::Buffer)?.copy_from_slice(head.get(..at).unwrap_or(&[]));
         self.next += n;
-        Ok(at + w.byte_len())
+        Ok(at + body_len)
     }
 }
 
-fn truncated(_: Truncated) -> DecodeError {
-    DecodeError::Truncated
+fn digest_in_order<S: VoxelStorage>(map: &LocalMap<S>, order: &[u32]) -> u32 {
+    let mut crc = Crc32::new();
+    for v in order.iter().filter_map(|&i| map.voxel(i as usize)) {
+        digest_voxel(&mut crc, morton(v.key), &quantise(v));
+    }
+    crc.finish()
+}
+
+/// The order of `map`'s voxels in the stream (Morton order), in `scratch`.
+fn stream_order<'s, S: VoxelStorage>(map: &LocalMap<S>, scratch: &'s mut [u32]) -> Result<&'s mut [u32], EncodeError> {
+    let order = scratch.get_mut(..map.len()).ok_or(EncodeError::Scratch)?;
+    for (i, o) in order.iter_mut().enumerate() {
+        *o = i as u32;
+    }
+    let voxels = map.voxels();
+    order.sort_unstable_by_key(|&i| voxels.get(i as usize).map(|v| morton(v.key)).unwrap_or(u64::MAX));
+    Ok(order)
+}
+
+/// The digest [`MapEncoder::digest`] gives, without a codec model
+/// (`scratch`: one `u32` per voxel).
+pub fn map_digest<S: VoxelStorage>(map: &LocalMap<S>, scratch: &mut [u32]) -> Result<u32, EncodeError> {
+    let order = stream_order(map, scratch)?;
+    Ok(digest_in_order(map, order))
 }
 
 /// Rebuilds a map from its chunks, in order.
-#[derive(Clone, Copy, Debug)]
-pub struct MapDecoder {
+pub struct MapDecoder<'a> {
     expected: usize,
     decoded: usize,
     last: Option<u64>,
     digest: Crc32,
+    model: &'a mut CodecModel,
 }
 
-impl MapDecoder {
-    /// A decoder for a map of `voxels` voxels.
-    pub fn new(voxels: usize) -> Self {
-        MapDecoder { expected: voxels, decoded: 0, last: None, digest: Crc32::new() }
+impl<'a> MapDecoder<'a> {
+    /// A decoder for a map of `voxels` voxels, learning in `model` (reset
+    /// first).
+    pub fn new(voxels: usize, model: &'a mut CodecModel) -> Self {
+        model.reset();
+        MapDecoder { expected: voxels, decoded: 0, last: None, digest: Crc32::new(), model }
     }
 
     /// Voxels decoded so far.
@@ -490,42 +582,18 @@ impl MapDecoder {
             Some(l) => l.checked_add(lead).and_then(|c| c.checked_add(1)).ok_or(DecodeError::Range)?,
             None => lead,
         };
-        if code >= MORTON_LIMIT {
-            return Err(DecodeError::Range);
-        }
-        let mut r = BitReader::new(chunk.get(at..).unwrap_or(&[]));
-        let mut adapt = Adapt::new();
-        let mut prev_class = None;
+        let mut d = RangeDecoder::new(chunk.get(at..).unwrap_or(&[]));
         for i in 0..n {
+            let (gap, q) = decode_voxel(&mut d, self.model, lead, i > 0).ok_or(DecodeError::Class)?;
             if i > 0 {
-                let gap = r.read_rice(adapt.k()).map_err(|_| DecodeError::Truncated)?;
                 code = code.checked_add(gap).and_then(|c| c.checked_add(1)).ok_or(DecodeError::Range)?;
-                if code >= MORTON_LIMIT {
-                    return Err(DecodeError::Range);
-                }
-                adapt.update(gap);
+            }
+            if code >= MORTON_LIMIT {
+                return Err(DecodeError::Range);
             }
             if self.last.is_some_and(|l| code <= l) {
                 return Err(DecodeError::Order);
             }
-            let class = match prev_class {
-                Some(c) => {
-                    if r.read(1).map_err(truncated)? == 1 {
-                        c
-                    } else {
-                        r.read(5).map_err(truncated)?
-                    }
-                }
-                None => r.read(5).map_err(truncated)?,
-            };
-            if class != NO_CLASS && class as usize >= NUM_CLASSES {
-                return Err(DecodeError::Class);
-            }
-            let confidence = r.read(3).map_err(truncated)?;
-            let occupancy = r.read(2).map_err(truncated)?;
-            let position =
-                [r.read(4).map_err(truncated)?, r.read(4).map_err(truncated)?, r.read(4).map_err(truncated)?];
-            let q = Quantised { class, confidence, occupancy, position };
             let key = key_of(code).ok_or(DecodeError::Range)?;
             map.insert_voxel(rebuild(key, &q)?).map_err(|e| match e {
                 InsertError::DuplicateKey => DecodeError::Order,
@@ -534,12 +602,8 @@ impl MapDecoder {
             digest_voxel(&mut self.digest, code, &q);
             self.last = Some(code);
             self.decoded += 1;
-            prev_class = Some(class);
         }
-        // Only zero padding to the byte boundary may follow.
-        if r.remaining() >= 8 || r.read(r.remaining() as u32).map_err(|_| DecodeError::Truncated)? != 0 {
-            return Err(DecodeError::Trailing);
-        }
-        Ok(n)
+        // Every byte of the chunk, and no more.
+        d.finish().map_err(|over| if over { DecodeError::Truncated } else { DecodeError::Trailing }).map(|()| n)
     }
 }

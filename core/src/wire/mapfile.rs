@@ -18,7 +18,7 @@
 //! truncation, flipped byte, bad chunk or impossible count is a typed error
 //! with the byte offset where it was found.
 
-use super::codec::{self, DecodeError, EncodeError, MapDecoder, MapEncoder};
+use super::codec::{self, CodecModel, DecodeError, EncodeError, MapDecoder, MapEncoder};
 use super::crc::{crc32, Crc32};
 use crate::classes::CLASS_TABLE_VERSION;
 use crate::map::{LocalMap, VoxelStorage};
@@ -27,14 +27,15 @@ use serde::{Deserialize, Serialize};
 /// File magic.
 pub const MAGIC: [u8; 4] = *b"CMAP";
 /// Format version this build reads and writes.
-pub const MAP_FILE_VERSION: u16 = 2;
+pub const MAP_FILE_VERSION: u16 = 3;
 /// Magic, version and header length.
 pub const PREAMBLE: usize = 10;
 /// Chunk size in files (the link uses smaller ones).
 pub const FILE_CHUNK: usize = 4096;
-/// Fewest bits a voxel takes in the encoding (flag, confidence, occupancy,
-/// position, a one-bit gap): bounds the voxel count a file can claim.
-const MIN_VOXEL_BITS: usize = 19;
+/// Most voxels a byte of encoding can hold: a voxel is 22 coded decisions
+/// at least, each costing at least log2(2048/2017) bits (the most skewed
+/// probability), so about half a bit. Bounds the voxel count a file can claim.
+const MAX_VOXELS_PER_BYTE: usize = 16;
 
 /// What a map file says about its map. `S` is the text of its source:
 /// `&str` borrowed from the file's bytes here (no allocator), an owned
@@ -301,7 +302,7 @@ pub fn parse(bytes: &[u8]) -> Result<MapFile<'_>, MapFileError> {
         return Err(MapFileError::Numbers);
     }
     let chunks = bytes.get(header_end..body_end).unwrap_or(&[]);
-    if (header.voxel_count as usize).saturating_mul(MIN_VOXEL_BITS) > chunks.len().saturating_mul(8) {
+    if header.voxel_count as usize > chunks.len().saturating_mul(MAX_VOXELS_PER_BYTE) {
         return Err(MapFileError::TooManyVoxels { claimed: header.voxel_count, chunk_bytes: chunks.len() as u32 });
     }
     Ok(MapFile { header, chunks, chunks_at: header_end })
@@ -317,7 +318,8 @@ impl MapFile<'_> {
         }
         map.clear();
         let announced = self.header.voxel_count;
-        let mut decoder = MapDecoder::new(announced as usize);
+        let mut model = CodecModel::new();
+        let mut decoder = MapDecoder::new(announced as usize, &mut model);
         let (body, base) = (self.chunks, self.chunks_at);
         let mut at = 0;
         while at < body.len() {
@@ -399,7 +401,8 @@ pub fn write<S: VoxelStorage>(
     out.put(&MAP_FILE_VERSION.to_le_bytes())?;
     out.put(&(header_bytes.len() as u32).to_le_bytes())?;
     out.put(header_bytes)?;
-    let mut encoder = MapEncoder::new(map, scratch).map_err(|_: EncodeError| MapFileError::Write)?;
+    let mut model = CodecModel::new();
+    let mut encoder = MapEncoder::new(map, scratch, &mut model).map_err(|_: EncodeError| MapFileError::Write)?;
     loop {
         let n = encoder.next_chunk(chunk).map_err(|_| MapFileError::Write)?;
         if n == 0 {
@@ -428,17 +431,17 @@ pub fn write<S: VoxelStorage>(
 /// (three voxels: a pole, a road cell, a building cell), anchor time 1.5 s,
 /// source `golden`, in one chunk ([`GOLDEN_CHUNK`]).
 pub const GOLDEN_FILE: &[u8] = &[
-    67, 77, 65, 80, 2, 0, 27, 0, 0, 0, 1, 0, 0, 0, 63, 205, 204, 76, 63, 3, 1, 0, 0, 0, 0, 0, 0, 248, 63, 1, 6, 103,
-    111, 108, 100, 101, 110, 37, 3, 136, 182, 219, 237, 182, 219, 21, 68, 3, 51, 255, 255, 255, 253, 73, 36, 146, 73,
-    35, 8, 200, 100, 159, 255, 255, 255, 249, 182, 219, 109, 182, 229, 226, 48, 54, 144, 140, 171, 240, 158,
+    67, 77, 65, 80, 3, 0, 27, 0, 0, 0, 1, 0, 0, 0, 63, 205, 204, 76, 63, 3, 1, 0, 0, 0, 0, 0, 0, 248, 63, 1, 6, 103,
+    111, 108, 100, 101, 110, 33, 3, 136, 182, 219, 237, 182, 219, 21, 68, 3, 46, 228, 146, 73, 36, 146, 48, 217, 12,
+    147, 182, 219, 109, 182, 219, 151, 177, 129, 165, 95, 102, 0, 0, 236, 169, 88, 36,
 ];
 
 /// The golden map's voxels as one chunk of the compact encoding
-/// ([`super::codec`]): count, lead gap, then per voxel its gap, class,
-/// confidence, occupancy and sub-voxel position.
+/// ([`super::codec`]): count, lead gap, then the range-coded voxels (gaps,
+/// classes, confidences, occupancies, sub-voxel positions).
 pub const GOLDEN_CHUNK: &[u8] = &[
-    3, 136, 182, 219, 237, 182, 219, 21, 68, 3, 51, 255, 255, 255, 253, 73, 36, 146, 73, 35, 8, 200, 100, 159, 255,
-    255, 255, 249, 182, 219, 109, 182, 229, 226, 48, 54, 144,
+    3, 136, 182, 219, 237, 182, 219, 21, 68, 3, 46, 228, 146, 73, 36, 146, 48, 217, 12, 147, 182, 219, 109, 182, 219,
+    151, 177, 129, 165, 95, 102, 0, 0,
 ];
 
 /// The points of the golden map (each inserted once into a 0.5 m map).

@@ -24,9 +24,10 @@ pub mod feed;
 pub mod frame;
 pub mod mapfile;
 pub mod message;
+pub mod range;
 pub mod report;
 
-pub use codec::{DecodeError, EncodeError, MapDecoder, MapEncoder};
+pub use codec::{CodecModel, DecodeError, EncodeError, MapDecoder, MapEncoder};
 pub use crc::{crc32, Crc32};
 pub use feed::{FeedError, FeedMessage, RobotMessage, RobotReport, Setup};
 pub use frame::{encode_frame, frame_with, DeframeError, Deframer, FrameError, MAX_FRAME, MAX_PAYLOAD};

@@ -9,6 +9,7 @@
 
 use core::ptr::addr_of_mut;
 use cortex_m_rt::entry;
+use cosem_core::link::LinkBuffers;
 use cosem_core::map::LocalMap;
 use cosem_core::matching::MatchStatus;
 use cosem_core::robot::{map_config, MapStorage, Meter, ModelStorage, Poll, Robot, RobotConfig, SceneStorage, VOXELS};
@@ -20,6 +21,7 @@ static mut RECEIVED: MapStorage = MapStorage::new();
 static mut MODEL: ModelStorage = ModelStorage::new();
 static mut SCENE: SceneStorage = SceneStorage::new();
 static mut SCRATCH: [u32; VOXELS] = [0; VOXELS];
+static mut LINK: LinkBuffers = LinkBuffers::new();
 
 /// This board's measures: SysTick instructions and the painted stack.
 struct Board;
@@ -41,13 +43,14 @@ fn main() -> ! {
     // SAFETY: UART0 and UART1 are CMSDK UARTs of this board, each owned once here.
     let (mut feed, mut link) = unsafe { (Uart::new(UART1, CLOCK_HZ, 115_200), Uart::new(UART0, CLOCK_HZ, 115_200)) };
     // SAFETY: `main` runs once; each static is borrowed exactly once here.
-    let (own, received, model, scene, scratch) = unsafe {
+    let (own, received, model, scene, scratch, buffers) = unsafe {
         (
             &mut *addr_of_mut!(OWN),
             &mut *addr_of_mut!(RECEIVED),
             &mut *addr_of_mut!(MODEL),
             &mut *addr_of_mut!(SCENE),
             &mut *addr_of_mut!(SCRATCH),
+            &mut *addr_of_mut!(LINK),
         )
     };
     // The set-up names the voxel size; until then the maps wait empty.
@@ -56,7 +59,7 @@ fn main() -> ! {
     else {
         exit(false)
     };
-    let mut robot = Robot::new(RobotConfig::default(), &mut own, &mut received, scratch, model, scene);
+    let mut robot = Robot::new(RobotConfig::default(), &mut own, &mut received, scratch, buffers, model, scene);
     loop {
         match robot.poll(&mut feed, &mut link, millis(), &Board) {
             Ok(Poll::Busy) => {}

@@ -65,11 +65,18 @@ pub struct PairArgs {
 impl PairArgs {
     /// Loads the pair at `voxel` (the guard removes a synthetic folder).
     fn load(&self, voxel: f32) -> Result<(Pair, PathBuf, Option<TempDir>), Error> {
+        self.load_within(voxel, None)
+    }
+
+    /// Loads the pair at `voxel`, points within `max_range` of their sensor.
+    fn load_within(&self, voxel: f32, max_range: Option<f32>) -> Result<(Pair, PathBuf, Option<TempDir>), Error> {
         let (dir, tmp) = bench::data_dir(self.data.clone(), &data_root(), self.b.end)?;
         if tmp.is_some() {
             println!("(no kitti00 under {}: using a synthetic sequence)", data_root().display());
         }
-        Ok((Pair::load(&PairSpec::new(&dir, self.a, self.b, voxel))?, dir, tmp))
+        let mut spec = PairSpec::new(&dir, self.a, self.b, voxel);
+        spec.filter.max_range = max_range;
+        Ok((Pair::load(&spec)?, dir, tmp))
     }
 }
 
@@ -90,11 +97,20 @@ pub struct LinkArgs {
     #[command(flatten)]
     pair: PairArgs,
     /// Byte error rates to simulate (each byte flipped, dropped or duplicated).
-    #[arg(long, default_value = "0,0.001,0.01", value_delimiter = ',')]
+    #[arg(long, default_value = "0,0.01,0.05", value_delimiter = ',')]
     error_rates: Vec<f64>,
     /// Line speed (baud, 8N1).
     #[arg(long, default_value_t = 115_200)]
     baud: u32,
+    /// Voxel size (m); the default makes a robot's map.
+    #[arg(long, default_value = "0.5", value_parser = super::args::positive_f32)]
+    voxel: f32,
+    /// Keep points within this range of their sensor (m).
+    #[arg(long, default_value = "25", value_parser = super::args::positive_f32)]
+    max_range: f32,
+    /// Seeded runs per error rate.
+    #[arg(long, default_value_t = 10)]
+    seeds: u64,
 }
 
 #[derive(clap::Args, Debug)]
@@ -152,13 +168,24 @@ fn bench_wire(a: MapArgs) -> Result<(), Error> {
 }
 
 fn bench_link(a: LinkArgs) -> Result<(), Error> {
-    let (pair, dir, _tmp) = a.pair.load(cosem_core::map::MapConfig::default().resolution)?;
+    let (pair, dir, _tmp) = a.pair.load_within(a.voxel, Some(a.max_range))?;
     let (na, nb) = (pair.map_a.len(), pair.map_b.len());
     let (ra, rb) = (a.pair.a, a.pair.b);
-    println!("bench link: A {na} voxels ({ra}), B {nb} voxels ({rb}) of {}, both ways at once, {} baud (8N1), simulated time", dir.display(), a.baud);
+    println!(
+        "bench link: A {na} voxels ({ra}), B {nb} voxels ({rb}) of {} at {} m within {} m; both ways at once, {} baud (8N1), simulated time, {} seeds",
+        dir.display(),
+        a.voxel,
+        a.max_range,
+        a.baud,
+        a.seeds
+    );
     for &rate in &a.error_rates {
-        println!("{}", bench::link(&pair, rate, a.baud)?);
+        let runs =
+            (1..=a.seeds.max(1)).map(|seed| bench::link(&pair, rate, a.baud, seed)).collect::<Result<Vec<_>, _>>()?;
+        println!("{}", bench::LinkSummary::of(&runs, a.baud));
     }
+    println!("  goodput: map bytes per direction over the line's bytes in the time until that map was through;");
+    println!("  bound: the best any retransmission scheme without FEC can do with this frame overhead, max over L of (L-h)/L (1-p)^L");
     Ok(())
 }
 
