@@ -162,6 +162,10 @@ pub struct LinkJson {
     pub retransmissions: u32,
     /// Frames rejected.
     pub bad_frames: u32,
+    /// Data frames received that brought nothing new.
+    pub duplicates: u32,
+    /// Acknowledgements sent.
+    pub acks_sent: u32,
     /// Voxels of our map.
     pub voxels_sent: usize,
     /// Voxels of the peer's map.

@@ -156,6 +156,11 @@ pub struct LinkStats {
     pub voxels_received: u32,
     /// Encoded voxel bytes sent (chunk data only, first transmissions).
     pub chunk_bytes_sent: u64,
+    /// Data frames received that brought no byte not held already (a copy
+    /// sent while its acknowledgement was on the way or lost).
+    pub duplicates: u32,
+    /// Acknowledgements sent.
+    pub acks_sent: u32,
 }
 
 /// Where an endpoint stands after a step.
@@ -583,6 +588,7 @@ impl<S: VoxelStorage> Rx<'_, S> {
         let delta = i64::from(offset.wrapping_sub(self.cum as u16) as i16);
         let start = i64::from(self.cum) + delta;
         let limit = i64::from(self.consumed) + STREAM_BUFFER as i64;
+        let mut fresh = false;
         for (k, &b) in data.iter().enumerate() {
             let pos = start + k as i64;
             if pos < i64::from(self.cum) || pos < 0 {
@@ -592,11 +598,15 @@ impl<S: VoxelStorage> Rx<'_, S> {
                 break;
             }
             let pos = pos as u32;
+            fresh |= !self.bit(pos);
             self.ring[pos as usize % STREAM_BUFFER] = b;
             self.set_bit(pos, true);
             self.latest = pos;
         }
         let end = (start + data.len() as i64).clamp(0, limit) as u32;
+        if !fresh {
+            stats.duplicates += 1;
+        }
         self.highest = self.highest.max(end);
         while i64::from(self.cum) < limit && self.bit(self.cum) {
             self.cum += 1;
@@ -982,6 +992,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
     fn send_ack<IO: Write>(&mut self, io: &mut IO) -> Result<(), LinkError> {
         let ack = self.rx.ack(self.finished());
         send_msg(io, &Message::Ack(ack), &mut self.stats)?;
+        self.stats.acks_sent += 1;
         self.rx.unacked = 0;
         self.rx.ack_now = false;
         Ok(())

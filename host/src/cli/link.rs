@@ -98,6 +98,8 @@ pub fn run(a: Args) -> Result<u8, Error> {
             frames: stats.frames_sent,
             frames_received: stats.frames_received,
             retransmissions: stats.retransmissions,
+            duplicates: stats.duplicates,
+            acks_sent: stats.acks_sent,
             bad_frames: stats.bad_frames,
             voxels_sent: ours.len(),
             voxels_received: theirs.len(),
