@@ -3,9 +3,9 @@
 //! format can be read, tested and fuzzed on its own.
 //!
 //! - [`crc`]: CRC-32 of frames and map files;
-//! - [`bits`]: bit-level writer and reader;
-//! - [`codec`]: the compact, chunked voxel encoding (Morton order, adaptive
-//!   Golomb-Rice gaps, quantised labels, occupancy and position);
+//! - [`range`]: the adaptive binary range coder the codec uses;
+//! - [`codec`]: the compact, chunked voxel encoding (Morton order, range
+//!   coded in context: gaps, quantised labels, occupancy and position);
 //! - [`frame`]: COBS framing with a CRC-32 per frame, and
 //!   [`frame::frame_with`], the one "encode a message, then frame it";
 //! - [`message`]: the link's versioned messages (postcard);
@@ -17,7 +17,6 @@
 //! Each format has golden bytes (`GOLDEN*`) that the unit tests and the
 //! on-target self-test check, and a fuzz target in `core/fuzz`.
 
-pub mod bits;
 pub mod codec;
 pub mod crc;
 pub mod feed;
