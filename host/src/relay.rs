@@ -1,7 +1,8 @@
 //! A line between two `cosem link` processes, as a UART would be: each
 //! direction paced to a baud rate (8N1: ten bits a byte) and, with
-//! probability `error_rate` per byte, the byte flipped, dropped or
-//! duplicated (a third each), from a seeded generator per direction. For
+//! probability `error_rate` per byte, the byte flipped (one bit, or with
+//! [`Flip::Byte`] any value), dropped or duplicated (a third each), from a
+//! seeded generator per direction. For
 //! measuring the link on a realistic line, and for tests (`cosem relay`).
 
 use crate::error::Error;
@@ -22,6 +23,19 @@ pub struct LineModel {
     pub error_rate: f64,
     /// Seed of the errors (each direction draws from its own stream).
     pub seed: u64,
+    /// What a flip does to a byte.
+    pub flip: Flip,
+}
+
+/// What a flip does to a byte: a UART's bit error flips one bit; noise
+/// across a whole character (or a clock slip) garbles it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Flip {
+    /// One bit flipped.
+    #[default]
+    Bit,
+    /// XOR with a random non-zero byte.
+    Byte,
 }
 
 /// What crossed the relay, per direction (first connection to second, then back).
@@ -50,7 +64,10 @@ fn pump(mut from: TcpStream, mut to: TcpStream, model: LineModel, seed: u64, cou
             if model.error_rate > 0.0 && rng.chance(model.error_rate) {
                 counts[1].fetch_add(1, Ordering::Relaxed);
                 match rng.below(3) {
-                    0 => out.push(b ^ (1 << rng.below(8))),
+                    0 => out.push(match model.flip {
+                        Flip::Bit => b ^ (1 << rng.below(8)),
+                        Flip::Byte => b ^ (1 + rng.below(255) as u8),
+                    }),
                     1 => {}
                     _ => out.extend_from_slice(&[b, b]),
                 }

@@ -162,6 +162,9 @@ pub struct LinkJson {
     pub retransmissions: u32,
     /// Frames rejected.
     pub bad_frames: u32,
+    /// Frames received with one flipped bit or one duplicated byte, repaired
+    /// (counted in `frames_received` too).
+    pub repaired_frames: u32,
     /// Data frames received that brought nothing new.
     pub duplicates: u32,
     /// Acknowledgements sent.

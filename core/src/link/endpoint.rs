@@ -152,6 +152,8 @@ pub struct LinkStats {
     pub retransmissions: u32,
     /// Frames rejected (CRC, COBS, malformed).
     pub bad_frames: u32,
+    /// Frames repaired (one flipped bit or one duplicated byte) and used.
+    pub repaired_frames: u32,
     /// Voxels received.
     pub voxels_received: u32,
     /// Encoded voxel bytes sent (chunk data only, first transmissions).
@@ -311,15 +313,29 @@ impl<S: VoxelStorage> Tx<'_, S> {
         base.min(config.max_timeout_ms)
     }
 
-    /// Sizes frames for the most data per byte of line at byte error rate
-    /// `r`: a frame of `L` bytes (`h` of them overhead) gets through with
-    /// probability `(1 - r)^L`, so data per byte sent, `(L - h) / L * (1 -
-    /// r)^L`, peaks at `L = (h + sqrt(h^2 + 4h/a)) / 2` with `a = -ln(1 - r)`.
-    fn resize(&mut self, r: f32, config: &LinkConfig) {
-        let a = -libm::log1pf(-r.clamp(1e-6, 0.5));
+    /// Sizes frames for the most data per byte of line. A frame of `L`
+    /// bytes (`h` of them overhead) arrives whole with probability
+    /// `exp(-tL)` and is repaired with probability `cL exp(-tL)` (one error
+    /// of the repairable kind), so data per byte sent is `g(L) = (L - h) / L
+    /// * exp(-tL) * (1 + cL)`. `ln g` is concave: its peak is where the
+    /// derivative `h / (L (L - h)) - t + c / (1 + cL)` crosses zero, found
+    /// by bisection (without repair, `L = (h + sqrt(h^2 + 4h/t)) / 2`).
+    fn resize(&mut self, line: LineModel, config: &LinkConfig) {
         let h = DATA_OVERHEAD as f32;
-        let l = (h + libm::sqrtf(h * h + 4.0 * h / a)) / 2.0;
-        self.size = ((l - h) as usize).clamp(usize::from(config.min_chunk), usize::from(config.max_chunk));
+        let slope = |l: f32| h / (l * (l - h)) - line.rate + line.repairable / (1.0 + line.repairable * l);
+        let (mut lo, mut hi) = (h + f32::from(config.min_chunk), h + f32::from(config.max_chunk));
+        if slope(hi) >= 0.0 {
+            lo = hi;
+        }
+        for _ in 0..24 {
+            let mid = 0.5 * (lo + hi);
+            if slope(mid) > 0.0 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        self.size = ((lo - h) as usize).clamp(usize::from(config.min_chunk), usize::from(config.max_chunk));
     }
 
     /// Cuts segment `i` to the current frame size; the rest stays lost.
@@ -373,7 +389,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
         io: &mut IO,
         now: u64,
         heard: u64,
-        r: f32,
+        line: LineModel,
         config: &LinkConfig,
         stats: &mut LinkStats,
     ) -> Result<(), LinkError> {
@@ -384,7 +400,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
         // Frames sized for the line as the peer's frames show it (after a
         // stall, no larger than the probes were).
         let probe = self.size;
-        self.resize(r, config);
+        self.resize(line, config);
         if self.backoff > 0 {
             self.size = self.size.min(probe);
         }
@@ -434,7 +450,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
             self.backoff += 1;
             self.last_probe = now;
             let half = (self.size / 2).max(usize::from(config.min_chunk));
-            self.resize(r, config);
+            self.resize(line, config);
             self.size = self.size.min(half);
             self.cut(0);
             stats.retransmissions += 1;
@@ -444,7 +460,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
         // one, sooner (a round trip and a half): there the oldest bytes are
         // likely lost again, and the line would idle meanwhile.
         let wait = match self.srtt {
-            Some(s) if r > 0.005 => s + s / 2 + 5,
+            Some(s) if line.residual(self.size + DATA_OVERHEAD) > 0.005 => s + s / 2 + 5,
             _ => rto,
         };
         let due = self.segs.iter().take(8).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);
@@ -726,13 +742,33 @@ impl<S: VoxelStorage> Rx<'_, S> {
     }
 }
 
-/// The line's byte error rate, judged by the frames that arrive: a frame
-/// of `L` bytes arrives whole with probability `(1 - r)^L`, so from the
-/// fraction `f` of broken frames and their mean length, `r = 1 - (1 -
-/// f)^(1/L)`. Counts halve now and then, to follow a line that changes.
+/// What the line does to frames, per byte: `rate` of any damage and
+/// `repairable`, the part the deframer repairs when it is a frame's only
+/// damage (a flipped bit, a duplicated byte). Both as `-ln(1 - p)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct LineModel {
+    rate: f32,
+    repairable: f32,
+}
+
+impl LineModel {
+    /// The rate of damage that costs a frame of `len` bytes: `u` with
+    /// `exp(-u len)` the chance that it arrives usable.
+    fn residual(&self, len: usize) -> f32 {
+        let l = len.max(1) as f32;
+        self.rate - libm::log1pf(self.repairable * l) / l
+    }
+}
+
+/// The line, judged by the frames that arrive: a frame of `L` bytes
+/// arrives whole with probability `exp(-tL)` and repaired with probability
+/// `cL exp(-tL)`, so from the fractions of whole and repaired frames and
+/// their mean length, `t = -ln(whole) / L` and `c = repaired / whole / L`.
+/// Counts halve now and then, to follow a line that changes.
 #[derive(Clone, Copy, Debug, Default)]
 struct LineEstimate {
     good: u32,
+    repaired: u32,
     bad: u32,
     bytes: u32,
     /// Bytes of the frame being received.
@@ -744,27 +780,34 @@ impl LineEstimate {
         self.current = self.current.saturating_add(1);
     }
 
-    fn frame(&mut self, whole: bool) {
-        if whole {
+    fn frame(&mut self, whole: bool, repaired: bool) {
+        if repaired {
+            self.repaired += 1;
+        } else if whole {
             self.good += 1;
         } else {
             self.bad += 1;
         }
         self.bytes = self.bytes.saturating_add(core::mem::take(&mut self.current));
-        if self.good + self.bad > 400 {
+        if self.good + self.repaired + self.bad > 400 {
             self.good /= 2;
+            self.repaired /= 2;
             self.bad /= 2;
             self.bytes /= 2;
         }
     }
 
     /// The estimate, with a prior of one error in 2000 bytes worth four
-    /// frames of 100 bytes.
-    fn byte_error_rate(&self) -> f32 {
-        let frames = (self.good + self.bad) as f32 + 4.0;
-        let f = (self.bad as f32 + 4.0 * (1.0 - libm::powf(1.0 - 1.0 / 2000.0, 100.0))) / frames;
-        let mean = (self.bytes as f32 + 400.0) / frames;
-        1.0 - libm::powf(1.0 - f.min(0.99), 1.0 / mean.max(1.0))
+    /// whole frames of 100 bytes.
+    fn model(&self) -> LineModel {
+        const PRIOR_FRAMES: f32 = 4.0;
+        const PRIOR_RATE: f32 = 1.0 / 2000.0;
+        let frames = (self.good + self.repaired + self.bad) as f32 + PRIOR_FRAMES;
+        let whole = self.good as f32 + PRIOR_FRAMES * libm::expf(-PRIOR_RATE * 100.0);
+        let mean = ((self.bytes as f32 + PRIOR_FRAMES * 100.0) / frames).max(1.0);
+        let rate = (-libm::logf((whole / frames).max(0.01)) / mean).min(0.7);
+        let repairable = (self.repaired as f32 / whole / mean).min(rate);
+        LineModel { rate, repairable }
     }
 }
 
@@ -872,7 +915,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                     last_probe: 0,
                     idle_resends: 0,
                 };
-                tx.resize(LineEstimate::default().byte_error_rate(), &config);
+                tx.resize(LineEstimate::default().model(), &config);
                 Some(tx)
             }
         };
@@ -1037,8 +1080,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         let may_send =
             (!self.config.half_duplex || self.robot_id == 0 || self.rx.done) && io.write_ready().map_err(io_error)?;
         if let (Some(tx), true) = (self.tx.as_mut(), may_send) {
-            let r = self.line.byte_error_rate();
-            tx.send_next(io, now, self.last_byte.max(self.last_heard), r, &self.config, &mut self.stats)?;
+            let line = self.line.model();
+            tx.send_next(io, now, self.last_byte.max(self.last_heard), line, &self.config, &mut self.stats)?;
         }
         if self.finished() {
             if self.finished_at.is_none() {
@@ -1062,21 +1105,22 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         if b != 0 {
             line.byte();
         }
-        let payload = match deframer.push(b) {
-            Ok(Some(p)) => p,
+        let (payload, repaired) = match deframer.push_frame(b) {
+            Ok(Some(f)) => (f.payload, f.repaired),
             Ok(None) => return Ok(()),
             Err(_) => {
                 stats.bad_frames += 1;
-                line.frame(false);
+                line.frame(false, false);
                 return Ok(());
             }
         };
         let Ok(msg) = Message::decode(payload) else {
             stats.bad_frames += 1;
-            line.frame(false);
+            line.frame(false, false);
             return Ok(());
         };
-        line.frame(true);
+        line.frame(true, repaired);
+        stats.repaired_frames += u32::from(repaired);
         stats.frames_received += 1;
         *last_heard = now;
         match msg {

@@ -29,7 +29,7 @@ pub mod report;
 pub use codec::{CodecModel, DecodeError, EncodeError, MapDecoder, MapEncoder};
 pub use crc::{crc32, Crc32};
 pub use feed::{FeedError, FeedMessage, RobotMessage, RobotReport, Setup};
-pub use frame::{encode_frame, frame_with, DeframeError, Deframer, FrameError, MAX_FRAME, MAX_PAYLOAD};
+pub use frame::{encode_frame, frame_with, Arrived, DeframeError, Deframer, FrameError, MAX_FRAME, MAX_PAYLOAD};
 pub use mapfile::{MapFileError, MapFileHeader};
 pub use message::{AbortReason, Hello, MapHeader, Message, MessageError, PROTOCOL_VERSION};
 pub use report::MatchReport;

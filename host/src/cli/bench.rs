@@ -185,7 +185,8 @@ fn bench_link(a: LinkArgs) -> Result<(), Error> {
         println!("{}", bench::LinkSummary::of(&runs, a.baud));
     }
     println!("  goodput: map bytes per direction over the line's bytes in the time until that map was through;");
-    println!("  bound: the best any retransmission scheme without FEC can do with this frame overhead, max over L of (L-h)/L (1-p)^L");
+    println!("  bounds: the best a retransmission scheme can do with this frame overhead, max over L of (L-h)/L (1-p)^L without FEC;");
+    println!("  with repair, frames whose one error is repairable count too (here the duplicated bytes, a third: the simulator's flips garble whole bytes)");
     Ok(())
 }
 

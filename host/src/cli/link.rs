@@ -101,6 +101,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
             duplicates: stats.duplicates,
             acks_sent: stats.acks_sent,
             bad_frames: stats.bad_frames,
+            repaired_frames: stats.repaired_frames,
             voxels_sent: ours.len(),
             voxels_received: theirs.len(),
             wire_bytes_per_voxel: per_voxel,
@@ -114,8 +115,8 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let (n_out, n_in) = (ours.len(), theirs.len());
     println!("robot {robot_id}: sent {n_out} voxels in {} bytes ({per_voxel:.2} bytes/voxel of encoding), received {n_in} voxels in {} bytes", stats.bytes_sent, stats.bytes_received);
     println!(
-        "frames {} sent, {} received, {} retransmitted, {} broken; {link_s:.2} s here; at {baud} baud: {sent_s:.1} s out, {received_s:.1} s in",
-        stats.frames_sent, stats.frames_received, stats.retransmissions, stats.bad_frames
+        "frames {} sent, {} received ({} repaired), {} retransmitted, {} broken; {link_s:.2} s here; at {baud} baud: {sent_s:.1} s out, {received_s:.1} s in",
+        stats.frames_sent, stats.frames_received, stats.repaired_frames, stats.retransmissions, stats.bad_frames
     );
     println!("match (ours = model, peer's = scene):");
     print!("{}", result_text(&r, global.as_ref()));

@@ -1,8 +1,17 @@
 //! `cosem relay`: a paced, lossy line between two `cosem link` processes.
 
 use super::Error;
-use cosem_host::relay::{run, LineModel};
+use cosem_host::relay::{run, Flip, LineModel};
 use std::time::Duration;
+
+/// What a flip does (`--flip`).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum FlipArg {
+    /// One bit flipped.
+    Bit,
+    /// XOR with a random non-zero byte.
+    Byte,
+}
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -19,6 +28,10 @@ pub struct Args {
     /// Seed of the errors.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// What a flip does: `bit` flips one bit, `byte` XORs a random non-zero
+    /// byte.
+    #[arg(long, value_enum, default_value_t = FlipArg::Bit)]
+    flip: FlipArg,
     /// Give up when the two sides have not connected in this long (s).
     #[arg(long, default_value = "60", value_parser = super::args::positive)]
     accept_timeout: f64,
@@ -28,7 +41,15 @@ pub fn run_relay(a: Args) -> Result<(), Error> {
     let bind =
         |p: u16| std::net::TcpListener::bind(("127.0.0.1", p)).map_err(|e| format!("listen on 127.0.0.1:{p}: {e}"));
     let listeners = [bind(a.ports[0])?, bind(a.ports[1])?];
-    let model = LineModel { baud: a.baud, error_rate: a.error_rate, seed: a.seed };
+    let model = LineModel {
+        baud: a.baud,
+        error_rate: a.error_rate,
+        seed: a.seed,
+        flip: match a.flip {
+            FlipArg::Bit => Flip::Bit,
+            FlipArg::Byte => Flip::Byte,
+        },
+    };
     let wait = Duration::from_secs_f64(a.accept_timeout.min(86_400.0));
     let stats = run(listeners, model, wait, |[x, y]| eprintln!("relay on {x} {y}"))?;
     println!(
