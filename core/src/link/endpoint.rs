@@ -8,7 +8,7 @@ use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::frame::{Deframer, MAX_FRAME, MAX_PAYLOAD};
 use crate::wire::message::{
     AbortReason, Ack, Hello, MapHeader, Message, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED, DATA_OVERHEAD,
-    MAX_SACK,
+    MAX_SACK, OFFSET_MODULUS,
 };
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
@@ -372,7 +372,8 @@ impl<S: VoxelStorage> Tx<'_, S> {
         seg.sends = seg.sends.saturating_add(1);
         seg.sent_at = now as u32;
         seg.lost = false;
-        let msg = Message::Data { offset: seg.start as u16, poll, data: data.get(..len).unwrap_or(&[]) };
+        let offset = (seg.start % OFFSET_MODULUS) as u16;
+        let msg = Message::Data { offset, poll, data: data.get(..len).unwrap_or(&[]) };
         send_msg(io, &msg, stats)?;
         Ok(())
     }
@@ -408,14 +409,10 @@ impl<S: VoxelStorage> Tx<'_, S> {
             self.cut(i);
             let more = self.segs.iter().skip(i + 1).any(|s| s.lost);
             let poll = !more && !self.can_send_new(config);
-            // Bytes lost again and again hold the window on a bad line: one
-            // more copy for every three sends so far (at most three more).
-            let copies = 1 + self.segs.get(i).map_or(0, |s| (s.sends / 3).min(3));
-            for c in 1..=copies {
-                stats.retransmissions += 1;
-                self.transmit(i, poll && c == copies, io, now, stats)?;
-            }
-            return Ok(());
+            // One copy: since the deframer repairs single errors, extra
+            // copies of bytes lost again and again no longer paid (measured).
+            stats.retransmissions += 1;
+            return self.transmit(i, poll, io, now, stats);
         }
         if self.can_send_new(config) {
             let room = self.window().saturating_sub(self.sent_end.wrapping_sub(self.acked)) as usize;
@@ -601,7 +598,8 @@ impl<S: VoxelStorage> Rx<'_, S> {
             return Ok(());
         }
         // The frame's place in the stream, near what we hold.
-        let delta = i64::from(offset.wrapping_sub(self.cum as u16) as i16);
+        let ahead = (u32::from(offset).wrapping_sub(self.cum) % OFFSET_MODULUS) as i64;
+        let delta = if ahead >= i64::from(OFFSET_MODULUS / 2) { ahead - i64::from(OFFSET_MODULUS) } else { ahead };
         let start = i64::from(self.cum) + delta;
         let limit = i64::from(self.consumed) + STREAM_BUFFER as i64;
         let mut fresh = false;

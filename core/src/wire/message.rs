@@ -2,17 +2,28 @@
 //! the fields (postcard for `Hello` and `Abort`, fixed little-endian fields and
 //! varints for the frequent `Data` and `Ack`, which must be short).
 //!
-//! Every frame payload starts with one byte: [`PROTOCOL_VERSION`] in the
-//! high nibble, the message tag in the low one (a byte saved on every
-//! frame: on a bad line frames are short, and each byte counts); a peer speaking
-//! another version is told apart at the first frame. Floats from the wire
+//! A `Data` payload starts with two bytes: the top bit set, the poll flag,
+//! then the stream offset modulo 2^14 (on a bad line frames are short, and
+//! each byte counts). Every other payload starts with one byte: the top bit
+//! clear, [`PROTOCOL_VERSION`] in the next three bits, the message tag in
+//! the low four. A peer speaking another version is told apart at the
+//! first frame (its `Hello`; a version-2 `Data` byte reads as version 2). Floats from the wire
 //! are checked: a NaN or infinity is a typed error, never a value.
 
 use super::frame::{frame_with, FrameError};
 use serde::{Deserialize, Serialize};
 
-/// Version of the link protocol (first byte of every payload).
-pub const PROTOCOL_VERSION: u8 = 2;
+/// Version of the link protocol (in the first byte of every payload but
+/// `Data`). At most 7.
+pub const PROTOCOL_VERSION: u8 = 3;
+
+/// `Data` offsets count stream bytes modulo this (the window is far smaller).
+pub const OFFSET_MODULUS: u32 = 1 << 14;
+
+/// First byte of a `Data` payload: this bit set, then [`DATA_POLL_BIT`],
+/// then the offset's top six bits.
+const DATA_BIT: u8 = 0x80;
+const DATA_POLL_BIT: u8 = 0x40;
 
 /// First message of each side: who it is and what it speaks.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -115,7 +126,7 @@ pub enum Message<'a> {
     Hello(Hello),
     /// Bytes of the sender's map stream.
     Data {
-        /// Stream offset of the first byte, modulo 2^16.
+        /// Stream offset of the first byte, modulo [`OFFSET_MODULUS`].
         offset: u16,
         /// Answer with an [`Ack`] at once (the sender is about to wait).
         poll: bool,
@@ -133,16 +144,15 @@ pub enum Message<'a> {
     },
 }
 
-/// Message tags (second byte of a payload).
+/// Message tags (low nibble of the first byte; 1 and 2 were `Data` in
+/// version 2).
 const TAG_HELLO: u8 = 0;
-const TAG_DATA: u8 = 1;
-const TAG_DATA_POLL: u8 = 2;
 const TAG_ACK: u8 = 3;
 const TAG_ABORT: u8 = 4;
 
-/// Bytes a `Data` frame adds to its data: version and tag, offset, CRC-32,
-/// COBS code and delimiter (one more COBS code per 254 bytes).
-pub const DATA_OVERHEAD: usize = 1 + 2 + 4 + 1 + 1;
+/// Bytes a `Data` frame adds to its data: flags and offset, CRC-32, COBS
+/// code and delimiter (one more COBS code per 254 bytes).
+pub const DATA_OVERHEAD: usize = 2 + 4 + 1 + 1;
 
 #[derive(Serialize, Deserialize)]
 struct AbortFields {
@@ -274,10 +284,9 @@ impl<'a> Message<'a> {
                 at += postcard::to_slice(h, rest).map_err(|_| MessageError::Buffer)?.len();
             }
             Message::Data { offset, poll, data } => {
-                push(out, &mut at, PROTOCOL_VERSION << 4 | if *poll { TAG_DATA_POLL } else { TAG_DATA })?;
-                for b in offset.to_le_bytes() {
-                    push(out, &mut at, b)?;
-                }
+                let [lo, hi] = offset.to_le_bytes();
+                push(out, &mut at, DATA_BIT | if *poll { DATA_POLL_BIT } else { 0 } | hi)?;
+                push(out, &mut at, lo)?;
                 let dst = out.get_mut(at..at + data.len()).ok_or(MessageError::Buffer)?;
                 dst.copy_from_slice(data);
                 at += data.len();
@@ -311,17 +320,17 @@ impl<'a> Message<'a> {
     /// Decodes a payload; borrows `Data` bytes from it.
     pub fn decode(payload: &'a [u8]) -> Result<Self, MessageError> {
         let (&first, body) = payload.split_first().ok_or(MessageError::Empty)?;
+        if first & DATA_BIT != 0 {
+            let (&lo, data) = body.split_first().ok_or(MessageError::Malformed)?;
+            let offset = u16::from_le_bytes([lo, first & !(DATA_BIT | DATA_POLL_BIT)]);
+            return Ok(Message::Data { offset, poll: first & DATA_POLL_BIT != 0, data });
+        }
         if first >> 4 != PROTOCOL_VERSION {
             return Err(MessageError::Version(first >> 4));
         }
         let tag = first & 0x0F;
         let msg = match tag {
             TAG_HELLO => Message::Hello(decode_exact(body)?),
-            TAG_DATA | TAG_DATA_POLL => {
-                let (off, data) = body.split_at_checked(2).ok_or(MessageError::Malformed)?;
-                let offset = u16::from_le_bytes([off[0], off[1]]);
-                Message::Data { offset, poll: tag == TAG_DATA_POLL, data }
-            }
             TAG_ACK => {
                 let (head, mut blocks) = body.split_at_checked(3).ok_or(MessageError::Malformed)?;
                 let mut ack = Ack { cum: u16::from_le_bytes([head[0], head[1]]), flags: head[2], ..Ack::default() };
@@ -352,6 +361,7 @@ impl<'a> Message<'a> {
     fn check(&self) -> Result<(), MessageError> {
         match self {
             Message::Hello(h) => finite(&[h.resolution]),
+            Message::Data { offset, .. } if u32::from(*offset) >= OFFSET_MODULUS => Err(MessageError::Malformed),
             _ => Ok(()),
         }
     }
@@ -389,10 +399,10 @@ impl MapHeader {
 pub const GOLDEN: [(Message<'static>, &[u8]); 5] = [
     (
         Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: 0.2, max_payload: 512 }),
-        &[0x20, 1, 1, 205, 204, 76, 62, 128, 4],
+        &[0x30, 1, 1, 205, 204, 76, 62, 128, 4],
     ),
-    (Message::Data { offset: 0x1234, poll: false, data: &[1, 2, 0, 255] }, &[0x21, 0x34, 0x12, 1, 2, 0, 255]),
-    (Message::Data { offset: 7, poll: true, data: &[9] }, &[0x22, 7, 0, 9]),
+    (Message::Data { offset: 0x1234, poll: false, data: &[1, 2, 0, 255] }, &[0x92, 0x34, 1, 2, 0, 255]),
+    (Message::Data { offset: 7, poll: true, data: &[9] }, &[0xC0, 7, 9]),
     (
         Message::Ack(Ack {
             cum: 300,
@@ -400,9 +410,9 @@ pub const GOLDEN: [(Message<'static>, &[u8]); 5] = [
             sack: [SackBlock { start: 20, len: 200 }, SackBlock { start: 400, len: 1 }, SackBlock { start: 0, len: 0 }],
             blocks: 2,
         }),
-        &[0x23, 44, 1, 1, 20, 200, 1, 144, 3, 1],
+        &[0x33, 44, 1, 1, 20, 200, 1, 144, 3, 1],
     ),
-    (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[0x24, 7, 2]),
+    (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[0x34, 7, 2]),
 ];
 
 /// The golden map header (a record of the map stream) and its bytes.
