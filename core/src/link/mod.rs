@@ -12,16 +12,19 @@
 //! `MapHeader`, then codec chunks, each behind a length byte), cut into
 //! `Data` frames wherever the sender likes. Frames are COBS with a CRC-32,
 //! so a receiver resynchronises after any flipped, dropped or duplicated
-//! byte and never takes a corrupted one. The receiver keeps what arrives
+//! byte and never takes a corrupted one; a frame whose only damage is one
+//! flipped bit or one duplicated byte is repaired
+//! ([`crate::wire::Deframer`]). The receiver keeps what arrives
 //! ahead of a gap (up to [`STREAM_BUFFER`] bytes), decodes records once the
 //! bytes before them are in, and acknowledges every few frames, or at once
 //! when a frame asks: a cumulative offset plus up to three ranges held
 //! beyond it. A serial line keeps order, so bytes sent before bytes now
 //! acknowledged, and not acknowledged themselves, were lost: they are sent
 //! again at once, cut to the current frame size; a timer (twice the
-//! measured round trip, backing off) catches the rest. The sender
-//! estimates the line's byte error rate from its losses and sizes frames
-//! for the most data per byte of line. On a half-duplex line the same
+//! measured round trip, backing off) catches the rest. Each side
+//! estimates the line from the frames that arrive (whole, repaired,
+//! broken, and their lengths) and sizes its frames for the most data per
+//! byte of line. On a half-duplex line the same
 //! machinery keeps one frame in flight (stop-and-wait), and the two maps
 //! go one after the other.
 //!
