@@ -35,6 +35,12 @@ impl core::fmt::Display for MatchError {
 
 impl core::error::Error for MatchError {}
 
+/// How far from an answer [`Matcher::align`] looks for a look-alike (m).
+pub const LOOK_ALIKE_RANGE: f32 = 3.0;
+/// How much better a look-alike must agree (after its own refinement) to
+/// replace the answer.
+const LOOK_ALIKE_MARGIN: f32 = 0.02;
+
 /// Aligns a scene map to a model map.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Matcher {
@@ -75,11 +81,90 @@ impl Matcher {
 
     /// Estimates `T_model_scene` starting from `init` (a `T_model_scene`).
     /// Deterministic: the same inputs give bit-identical results.
+    ///
+    /// A converged answer is checked against its look-alikes: along a
+    /// street of regular structures (poles, trees, parked cars at even
+    /// spacing) EM can settle one period off, where most of what both maps
+    /// saw still agrees. The agreement is scored at placements shifted
+    /// along the least constrained horizontal direction (steps of a cell,
+    /// at least 0.25 m, up to [`LOOK_ALIKE_RANGE`]); when one scores higher
+    /// than the answer, EM refines it too, and the better-agreeing
+    /// converged answer is kept.
     pub fn align<A: PyramidStorage, B: PyramidStorage>(
         &self,
         model: &Pyramid<'_, A>,
         scene: &Pyramid<'_, B>,
         init: &Isometry3<f32>,
+    ) -> Result<MatchResult, MatchError> {
+        let first = self.align_once(model, scene, init, None)?;
+        if first.status != MatchStatus::Converged {
+            return Ok(first);
+        }
+        let Some((shifted, step)) = self.look_alike(model, scene, &first) else { return Ok(first) };
+        // EM from the level whose cells hold the shift's error (half a step),
+        // not from the coarsest, which would blur the two apart again.
+        let second = self.align_once(model, scene, &shifted, Some(step))?;
+        if second.status == MatchStatus::Converged && second.agreement > first.agreement + LOOK_ALIKE_MARGIN {
+            return Ok(MatchResult { iterations: first.iterations + second.iterations, ..second });
+        }
+        Ok(first)
+    }
+
+    /// The placement shifted from `found` along its least constrained
+    /// horizontal direction (model frame) that agrees better than `found`
+    /// by more than a point, if any, and the step of the scan (m).
+    fn look_alike<A: PyramidStorage, B: PyramidStorage>(
+        &self,
+        model: &Pyramid<'_, A>,
+        scene: &Pyramid<'_, B>,
+        found: &MatchResult,
+    ) -> Option<(Isometry3<f32>, f32)> {
+        let (m0, c0) = (model.level(0)?, scene.level(0)?);
+        let cell = m0.resolution();
+        let cover_level = (0..model.levels()).find(|&l| model.level(l).is_some_and(|lv| lv.resolution() >= 1.5));
+        let cover = cover_level.and_then(|l| model.level(l));
+        let stride = c0.len().div_ceil(self.settings.max_agreement_entries.max(1) as usize);
+        // The eigenvector of the smaller eigenvalue of the x-y block.
+        let i = &found.information;
+        let (a, b, c) = (i[(0, 0)], i[(0, 1)], i[(1, 1)]);
+        let lambda = 0.5 * (a + c) - libm::sqrtf(0.25 * (a - c) * (a - c) + b * b);
+        let (mut dx, mut dy) = if b.abs() > 1e-6 * (a.abs() + c.abs()) {
+            (b, lambda - a)
+        } else if a <= c {
+            (1.0, 0.0)
+        } else {
+            (0.0, 1.0)
+        };
+        let norm = libm::sqrtf(dx * dx + dy * dy);
+        if !(norm > 0.0 && norm.is_finite()) {
+            return None;
+        }
+        (dx, dy) = (dx / norm, dy / norm);
+        let step = cell.max(0.25);
+        let steps = (LOOK_ALIKE_RANGE / step) as i32;
+        let mut best: Option<(f32, Isometry3<f32>)> = None;
+        for k in (1..=steps).flat_map(|k| [k, -k]) {
+            let d = k as f32 * step;
+            let t = Isometry3::from_parts(nalgebra::Translation3::new(d * dx, d * dy, 0.0), Default::default())
+                * found.transform;
+            let score = agreement(&m0, cover.as_ref(), &c0, &t, stride).agreement;
+            if score > found.agreement + 0.01 && best.is_none_or(|(s, _)| score > s) {
+                best = Some((score, t));
+            }
+        }
+        best.map(|(_, t)| (t, step))
+    }
+
+    /// One refinement from `init`: the coarse search of the window (when
+    /// the settings have one), then EM down the pyramid. With `near`, `init`
+    /// is within about that many metres: no search, and EM from the finest
+    /// level whose cells are at least that large.
+    fn align_once<A: PyramidStorage, B: PyramidStorage>(
+        &self,
+        model: &Pyramid<'_, A>,
+        scene: &Pyramid<'_, B>,
+        init: &Isometry3<f32>,
+        near: Option<f32>,
     ) -> Result<MatchResult, MatchError> {
         self.check()?;
         if !finite_iso(init) {
@@ -99,7 +184,11 @@ impl Matcher {
         // Coarse search of the prior's window, then EM from the level of the
         // footprint's cell size; without it, EM from the coarsest level.
         let mut top = levels.saturating_sub(1);
-        if let (Some(window), Some(fm), Some(fs)) = (s.search, model.footprint(), scene.footprint()) {
+        if let Some(err) = near {
+            while top > 0 && model.level(top - 1).is_some_and(|lv| lv.resolution() >= err) {
+                top -= 1;
+            }
+        } else if let (Some(window), Some(fm), Some(fs)) = (s.search, model.footprint(), scene.footprint()) {
             if let Some(found) = search(fm, fs, init, &window, s.method != Method::Geometric) {
                 t = found.transform;
                 // The finest level whose cells hold the search's error (about one

@@ -14,10 +14,13 @@
 //! | occupancy: 1 to 4 hits' worth of log-odds | 2-bit symbol | the class |
 //! | mean position in the voxel, [`POSITION_BITS`] bits per axis | symbol per axis | the axis, ground or not |
 //!
-//! The position keeps 1/16 of a voxel per axis: coarser positions (a
-//! quarter of a voxel, 1.4 instead of 2.2 bytes a voxel) let prior-free
-//! alignment slide by one period along a street of regular structures and
-//! call it converged (`cosem robots --no-prior` on `cosem synth --seed 5`).
+//! The position keeps a quarter of a voxel per axis: what matching needs
+//! (`cosem eval --through-encoding` moves rotation errors by about as much
+//! as 1/16 did, 0.005-0.04 degrees) at two thirds of the bytes. Coarser
+//! positions make a one-period slide along a street of regular structures
+//! a little likelier (`cosem synth --seed 5` did slide at 1/4, and one way
+//! at 1/16 too): the matcher's look-alike check ([`crate::matching::Matcher::align`])
+//! refines the better-agreeing placement one period over.
 //!
 //! The stream is cut into *chunks* of a bounded size, decoded in order: a
 //! chunk starts with its voxel count and the gap from the previous chunk's
@@ -53,7 +56,7 @@ const VOXEL_MAX: usize = 36;
 /// Smallest chunk buffer the encoder accepts: a header and one voxel.
 pub const MIN_CHUNK: usize = CHUNK_HEADER_MAX + VOXEL_MAX;
 /// Bits of the mean position per axis: `2^POSITION_BITS` steps a voxel.
-pub const POSITION_BITS: u32 = 4;
+pub const POSITION_BITS: u32 = 2;
 /// Class symbols: the classes, then "none".
 const CLASS_SYMBOLS: usize = NUM_CLASSES + 1;
 const NO_CLASS: u32 = 31;

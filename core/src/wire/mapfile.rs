@@ -3,7 +3,7 @@
 //! container, so a map read from a file and the same map received over the
 //! link are identical.
 //!
-//! Layout (format 2):
+//! Layout (format 4):
 //!
 //! | bytes | content |
 //! |---|---|
@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 /// File magic.
 pub const MAGIC: [u8; 4] = *b"CMAP";
 /// Format version this build reads and writes.
-pub const MAP_FILE_VERSION: u16 = 3;
+pub const MAP_FILE_VERSION: u16 = 4;
 /// Magic, version and header length.
 pub const PREAMBLE: usize = 10;
 /// Chunk size in files (the link uses smaller ones).
@@ -431,17 +431,17 @@ pub fn write<S: VoxelStorage>(
 /// (three voxels: a pole, a road cell, a building cell), anchor time 1.5 s,
 /// source `golden`, in one chunk ([`GOLDEN_CHUNK`]).
 pub const GOLDEN_FILE: &[u8] = &[
-    67, 77, 65, 80, 3, 0, 27, 0, 0, 0, 1, 0, 0, 0, 63, 205, 204, 76, 63, 3, 1, 0, 0, 0, 0, 0, 0, 248, 63, 1, 6, 103,
-    111, 108, 100, 101, 110, 33, 3, 136, 182, 219, 237, 182, 219, 21, 68, 3, 46, 228, 146, 73, 36, 146, 48, 217, 12,
-    147, 182, 219, 109, 182, 219, 151, 177, 129, 165, 95, 102, 0, 0, 236, 169, 88, 36,
+    67, 77, 65, 80, 4, 0, 27, 0, 0, 0, 1, 0, 0, 0, 63, 205, 204, 76, 63, 3, 1, 0, 0, 0, 0, 0, 0, 248, 63, 1, 6, 103,
+    111, 108, 100, 101, 110, 30, 3, 136, 182, 219, 237, 182, 219, 21, 68, 15, 181, 36, 146, 73, 36, 140, 54, 67, 139,
+    109, 182, 219, 109, 185, 123, 24, 11, 97, 8, 0, 81, 123, 59, 65,
 ];
 
 /// The golden map's voxels as one chunk of the compact encoding
 /// ([`super::codec`]): count, lead gap, then the range-coded voxels (gaps,
 /// classes, confidences, occupancies, sub-voxel positions).
 pub const GOLDEN_CHUNK: &[u8] = &[
-    3, 136, 182, 219, 237, 182, 219, 21, 68, 3, 46, 228, 146, 73, 36, 146, 48, 217, 12, 147, 182, 219, 109, 182, 219,
-    151, 177, 129, 165, 95, 102, 0, 0,
+    3, 136, 182, 219, 237, 182, 219, 21, 68, 15, 181, 36, 146, 73, 36, 140, 54, 67, 139, 109, 182, 219, 109, 185, 123,
+    24, 11, 97, 8, 0,
 ];
 
 /// The points of the golden map (each inserted once into a 0.5 m map).
