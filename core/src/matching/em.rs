@@ -113,6 +113,7 @@ impl Matcher {
     /// The placement shifted from `found` along its least constrained
     /// horizontal direction (model frame) that agrees better than `found`
     /// by more than a point, if any, and the step of the scan (m).
+    #[inline(never)]
     fn look_alike<A: PyramidStorage, B: PyramidStorage>(
         &self,
         model: &Pyramid<'_, A>,
@@ -163,6 +164,9 @@ impl Matcher {
     /// the settings have one), then EM down the pyramid. With `near`, `init`
     /// is within about that many metres: no search, and EM from the finest
     /// level whose cells are at least that large.
+    // Not inlined: two inlined copies would share one frame with both
+    // copies' locals, and a robot's stack is small.
+    #[inline(never)]
     fn align_once<A: PyramidStorage, B: PyramidStorage>(
         &self,
         model: &Pyramid<'_, A>,
