@@ -29,6 +29,8 @@
 //!    information matrix; [`matching::global`] aligns without a prior.
 //! 6. [`robot`]: one robot's sequence (feed, map, link, align, report) as a
 //!    poll-driven step machine that the firmware and a host both drive.
+//! 7. [`team`]: the kept pairwise matches of a team of robots place every
+//!    robot in one frame (a small pose graph, with covariances).
 //!
 //! [`geometry`] (rigid transforms, the conventions' pose syntax and error
 //! measures) underlies them all. [`selftest`] runs a fixed mapping, wire and
@@ -76,6 +78,7 @@ pub mod map;
 pub mod matching;
 pub mod robot;
 pub mod selftest;
+pub mod team;
 pub mod wire;
 
 #[cfg(test)]
