@@ -154,10 +154,24 @@ pub struct LinkFigures {
     pub delivered: bool,
 }
 
-/// Both maps of `pair` exchanged at once over a simulated line of `baud`
-/// with byte error `rate` (seeded by `seed`), in simulated time.
-pub fn link(pair: &Pair, rate: f64, baud: u32, seed: u64) -> Result<LinkFigures, Error> {
-    let (ma, mb) = (&pair.map_a, &pair.map_b);
+/// One simulated exchange of two maps, both ways at once.
+pub struct SimExchange {
+    /// What each side received: B's map at A, then A's map at B.
+    pub received: [HostMap; 2],
+    /// Each side's link figures.
+    pub stats: [cosem_core::link::LinkStats; 2],
+    /// Simulated seconds until A's map, then B's, was through (`None`: never).
+    pub through_s: [Option<f64>; 2],
+    /// Simulated seconds until both ends were over (closing included).
+    pub over_s: f64,
+    /// Both maps arrived whole (digest checked) and both ends ended well.
+    pub delivered: bool,
+}
+
+/// Maps `ma` and `mb` exchanged at once over a simulated line of `baud`
+/// with byte error `rate` (seeded by `seed`), in simulated time, by the
+/// core's link endpoints (robot ids 0 and 1).
+pub fn simulate_exchange(ma: &HostMap, mb: &HostMap, rate: f64, baud: u32, seed: u64) -> Result<SimExchange, Error> {
     let line = Box::new(std::cell::RefCell::new(SimLine::<65536>::new(SimConfig {
         seed,
         error_rate: rate,
@@ -192,16 +206,25 @@ pub fn link(pair: &Pair, rate: f64, baud: u32, seed: u64) -> Result<LinkFigures,
         }
         now += 1;
     }
-    let (x, y) = (e0.stats(), e1.stats());
+    let stats = [e0.stats(), e1.stats()];
     let whole = st1.len() == ma.len() && st0.len() == mb.len();
+    let delivered = r0 == Ok(Progress::Done) && r1 == Ok(Progress::Done) && whole;
+    Ok(SimExchange { received: [st0, st1], stats, through_s: through, over_s: now as f64 / 1e3, delivered })
+}
+
+/// Both maps of `pair` exchanged at once over a simulated line of `baud`
+/// with byte error `rate` (seeded by `seed`), in simulated time.
+pub fn link(pair: &Pair, rate: f64, baud: u32, seed: u64) -> Result<LinkFigures, Error> {
+    let x = simulate_exchange(&pair.map_a, &pair.map_b, rate, baud, seed)?;
+    let [a, b] = x.stats;
     Ok(LinkFigures {
         rate,
-        through_s: through,
-        over_s: now as f64 / 1e3,
-        bytes: [x.bytes_sent, y.bytes_sent],
-        stream_bytes: [x.chunk_bytes_sent, y.chunk_bytes_sent],
-        retransmissions: [x.retransmissions, y.retransmissions],
-        delivered: r0 == Ok(Progress::Done) && r1 == Ok(Progress::Done) && whole,
+        through_s: x.through_s,
+        over_s: x.over_s,
+        bytes: [a.bytes_sent, b.bytes_sent],
+        stream_bytes: [a.chunk_bytes_sent, b.chunk_bytes_sent],
+        retransmissions: [a.retransmissions, b.retransmissions],
+        delivered: x.delivered,
     })
 }
 

@@ -51,3 +51,9 @@ impl From<MatchError> for Error {
         Error::Match(e)
     }
 }
+
+impl From<cosem_core::team::TeamError> for Error {
+    fn from(e: cosem_core::team::TeamError) -> Self {
+        Error::Invalid(format!("team: {e}"))
+    }
+}

@@ -41,6 +41,7 @@ pub mod rng;
 pub mod robots;
 pub mod stats;
 pub mod synth;
+pub mod team;
 pub mod transport;
 
 pub use error::Error;

@@ -14,6 +14,7 @@ mod matching;
 mod relay;
 mod robots;
 mod synth;
+mod team;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -45,6 +46,10 @@ enum Command {
     /// Two robots on emulated Cortex-M4F boards: onboard mapping, map
     /// exchange over UART0, onboard matching.
     Robots(robots::Args),
+    /// A team of 2 to 8 robots: maps over a mesh of links, every pair
+    /// matched both ways, matches checked around cycles, every robot placed
+    /// in robot 0's frame.
+    Team(team::Args),
     /// Describe a map file.
     Info(info::Args),
     /// Export a map to another format.
@@ -76,6 +81,7 @@ pub fn run(cli: Cli) -> Result<u8, Error> {
         Command::Eval(a) => done(eval::run(a)),
         Command::Link(a) => link::run(a),
         Command::Robots(a) => robots::run(a),
+        Command::Team(a) => team::run(a),
         Command::Relay(a) => done(relay::run_relay(a)),
         Command::Info(a) => done(info::run(a)),
         Command::Export { format } => done(export::run(format)),

@@ -1,0 +1,171 @@
+//! `cosem team`: N robots placed in robot 0's frame (see
+//! `cosem_host::team`).
+
+use super::{print_json, Error};
+use cosem_core::geometry::{errors_of, row_major};
+use cosem_core::matching::MatchSettings;
+use cosem_host::kitti::FrameRange;
+use cosem_host::team::{run as run_team, RobotSpec, TeamSpec};
+use serde::Serialize;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// A robot: a SemanticKITTI-layout folder and its frames,
+    /// DIR:START:END[:STRIDE]; robot i is the i-th (2 to 8).
+    #[arg(long = "robot", required = true, value_parser = robot)]
+    robots: Vec<RobotSpec>,
+    /// Voxel size (m).
+    #[arg(long, default_value_t = 0.2, value_parser = super::args::positive_f32)]
+    voxel: f32,
+    /// No prior: every robot searches every heading and offset (the default).
+    #[arg(long, conflicts_with = "prior_noise")]
+    no_prior: bool,
+    /// A prior for robots of one trajectory: the true relative pose moved
+    /// by METRES and DEGREES (seeded): METRES,DEGREES.
+    #[arg(long, value_parser = pair_f64)]
+    prior_noise: Option<(f64, f64)>,
+    /// Replace robot I's estimate of robot J (only that direction) with one
+    /// 5 m and 20 degrees off, Converged: I,J.
+    #[arg(long, value_parser = pair_usize)]
+    inject_false_match: Option<(usize, usize)>,
+    /// Seed of the prior noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// JSON on standard output.
+    #[arg(long)]
+    json: bool,
+}
+
+fn robot(s: &str) -> Result<RobotSpec, String> {
+    // The frames are the last two or three colon-separated fields.
+    for fields in [3, 2] {
+        let parts: Vec<&str> = s.rsplitn(fields + 1, ':').collect();
+        if parts.len() == fields + 1 {
+            let frames = parts[..fields].iter().rev().copied().collect::<Vec<_>>().join(":");
+            if let Ok(r) = frames.parse::<FrameRange>() {
+                return Ok(RobotSpec { data: parts[fields].into(), frames: r });
+            }
+        }
+    }
+    Err(format!("`{s}`: expected DIR:START:END[:STRIDE]"))
+}
+
+fn pair_f64(s: &str) -> Result<(f64, f64), String> {
+    let v: Vec<f64> =
+        s.split(',').map(|x| x.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+    match v[..] {
+        [m, d] if m.is_finite() && d.is_finite() && m >= 0.0 && d >= 0.0 => Ok((m, d)),
+        _ => Err(format!("`{s}`: expected METRES,DEGREES, both finite and non-negative")),
+    }
+}
+
+fn pair_usize(s: &str) -> Result<(usize, usize), String> {
+    let v: Vec<usize> =
+        s.split(',').map(|x| x.trim().parse::<usize>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+    match v[..] {
+        [i, j] => Ok((i, j)),
+        _ => Err(format!("`{s}`: expected I,J")),
+    }
+}
+
+#[derive(Serialize)]
+struct RobotJson {
+    index: usize,
+    placed: bool,
+    group: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    transform: Option<[f64; 16]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    covariance: Option<Vec<f64>>,
+    voxels: usize,
+    bytes_sent: u64,
+    bytes_received: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    e_t: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    e_r: Option<f64>,
+}
+
+#[derive(Serialize)]
+struct MatchJson {
+    a: usize,
+    b: usize,
+    status: &'static str,
+    accepted: bool,
+    reason: &'static str,
+    agreement: f32,
+}
+
+#[derive(Serialize)]
+struct TeamJson {
+    schema_version: u32,
+    links: &'static str,
+    robots: Vec<RobotJson>,
+    matches: Vec<MatchJson>,
+    consistency_exhaustive: bool,
+}
+
+/// Exit code: 0 when every robot is placed in robot 0's frame, else 5
+/// (no overlap: some robot could not be placed).
+pub fn run(a: Args) -> Result<u8, Error> {
+    let spec = TeamSpec {
+        robots: a.robots,
+        voxel: a.voxel,
+        prior_noise: a.prior_noise,
+        inject_false_match: a.inject_false_match,
+        seed: a.seed,
+        settings: MatchSettings::default(),
+    };
+    let out = run_team(&spec)?;
+    let code = if out.robots.iter().all(|r| r.placed) { 0 } else { 5 };
+    let robots = out.robots.iter().map(|r| {
+        let errors = r.truth.filter(|_| r.placed).map(|t| errors_of(&r.transform.cast::<f32>(), &t));
+        RobotJson {
+            index: r.index,
+            placed: r.placed,
+            group: r.group,
+            transform: r.placed.then(|| row_major(&r.transform)),
+            covariance: r.placed.then(|| r.covariance.transpose().iter().copied().collect()),
+            voxels: r.voxels,
+            bytes_sent: r.bytes_sent,
+            bytes_received: r.bytes_received,
+            e_t: errors.map(|e| e.0),
+            e_r: errors.map(|e| e.1),
+        }
+    });
+    let robots: Vec<RobotJson> = robots.collect();
+    if a.json {
+        let matches = out
+            .matches
+            .iter()
+            .map(|m| MatchJson {
+                a: m.a,
+                b: m.b,
+                status: m.status.as_str(),
+                accepted: m.accepted,
+                reason: m.reason,
+                agreement: m.agreement,
+            })
+            .collect();
+        let links = "mesh of point-to-point links (each map crosses each link once)";
+        print_json(&TeamJson { schema_version: 1, links, robots, matches, consistency_exhaustive: out.exhaustive })?;
+        return Ok(code);
+    }
+    for r in &robots {
+        let place = match (r.placed, r.transform) {
+            (true, Some(t)) => format!("placed at ({:.3}, {:.3}, {:.3}) m in robot 0's frame", t[3], t[7], t[11]),
+            _ if r.group != r.index => format!("unplaced (in a group with robot {})", r.group),
+            _ => "unplaced".to_string(),
+        };
+        let err = r.e_t.zip(r.e_r).map(|(t, d)| format!(", e_t {t:.3} m, e_r {d:.3} deg")).unwrap_or_default();
+        println!(
+            "robot {}: {place}{err}; {} voxels, {} bytes sent, {} received",
+            r.index, r.voxels, r.bytes_sent, r.bytes_received
+        );
+    }
+    for m in &out.matches {
+        let kept = if m.accepted { "kept" } else { "left out" };
+        println!("T_{}_{}: {}, agreement {:.2}, {kept} ({})", m.a, m.b, m.status.as_str(), m.agreement, m.reason);
+    }
+    Ok(code)
+}

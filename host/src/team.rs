@@ -1,0 +1,236 @@
+//! `cosem team`: a team of N robots placed in one frame.
+//!
+//! Each robot builds its map from its own folder and frames. The maps cross
+//! a mesh of point-to-point links (every pair of robots has its own line, as
+//! UARTs give: each map crosses each link once, both directions at once),
+//! simulated by the core's link endpoints on a clean 115200-baud line, so
+//! each robot matches what it really received. Each robot matches every
+//! peer with its own map as the model (with no prior by default), so `T_a_b`
+//! and `T_b_a` are separate estimates. The converged ones are checked
+//! against each other around cycles and the largest consistent set is kept
+//! ([`cosem_core::team::consistent_set`]); a small pose graph then places
+//! every robot the kept matches connect to robot 0 in robot 0's frame
+//! ([`cosem_core::team::solve`]). Robots connected among themselves but not
+//! to robot 0 are a separate group in the frame of their lowest index.
+
+use crate::align::{align, prepare, DEFAULT_LEVELS};
+use crate::bench::simulate_exchange;
+use crate::error::Error;
+use crate::kitti::{FrameRange, Sequence};
+use crate::mapping::{build_map, HostMap, PointFilter};
+use crate::rng::Rng;
+use cosem_core::geometry::Isometry3;
+use cosem_core::map::MapConfig;
+use cosem_core::matching::{MatchSettings, MatchStatus};
+use cosem_core::team::{consistent_set, solve, RelativePose, MAX_ROBOTS};
+use nalgebra::Matrix6;
+use std::path::PathBuf;
+
+/// One robot: a SemanticKITTI-layout folder and its frames.
+#[derive(Clone, Debug)]
+pub struct RobotSpec {
+    /// The folder.
+    pub data: PathBuf,
+    /// Its frames; the first is the robot's anchor.
+    pub frames: FrameRange,
+}
+
+/// What `cosem team` runs.
+#[derive(Clone, Debug)]
+pub struct TeamSpec {
+    /// Robot i is the i-th.
+    pub robots: Vec<RobotSpec>,
+    /// Voxel size (m).
+    pub voxel: f32,
+    /// Prior noise (m, degrees) on the true relative poses of robots from
+    /// one trajectory; `None`: no prior (the default).
+    pub prior_noise: Option<(f64, f64)>,
+    /// Replace the estimate `T_I_J` (only that direction) with one 5 m and
+    /// 20 degrees off, Converged, keeping the true match's information.
+    pub inject_false_match: Option<(usize, usize)>,
+    /// Seed of the prior noise.
+    pub seed: u64,
+    /// Matcher settings.
+    pub settings: MatchSettings,
+}
+
+/// Where one robot ended up.
+#[derive(Clone, Debug)]
+pub struct TeamRobot {
+    /// Index (the `--robot` order).
+    pub index: usize,
+    /// Placed in robot 0's frame.
+    pub placed: bool,
+    /// The lowest index of its group (0: robot 0's group).
+    pub group: usize,
+    /// `T_robot0_roboti` (placed robots) or `T_group_roboti` (others).
+    pub transform: Isometry3<f64>,
+    /// Covariance of `transform` (left perturbation in the group's frame,
+    /// order tx, ty, tz, rx, ry, rz).
+    pub covariance: Matrix6<f64>,
+    /// Voxels of its map.
+    pub voxels: usize,
+    /// Bytes it sent and received over its links.
+    pub bytes_sent: u64,
+    /// Bytes it received.
+    pub bytes_received: u64,
+    /// The true `T_robot0_roboti`, when robot i's folder holds robot 0's
+    /// trajectory.
+    pub truth: Option<Isometry3<f64>>,
+}
+
+/// One robot's estimate of another.
+#[derive(Clone, Debug)]
+pub struct TeamMatch {
+    /// The estimating robot (its map the model).
+    pub a: usize,
+    /// The estimated robot: the estimate is `T_a_b`.
+    pub b: usize,
+    /// The match's status (Converged when injected).
+    pub status: MatchStatus,
+    /// Kept for the pose graph.
+    pub accepted: bool,
+    /// Why (not) kept.
+    pub reason: &'static str,
+    /// `T_a_b` as estimated (or injected).
+    pub transform: Isometry3<f64>,
+    /// Agreement of the match.
+    pub agreement: f32,
+}
+
+/// The team's outcome.
+#[derive(Clone, Debug)]
+pub struct TeamOutcome {
+    /// One per robot.
+    pub robots: Vec<TeamRobot>,
+    /// Every ordered pair's estimate.
+    pub matches: Vec<TeamMatch>,
+    /// Whether the consistency search went through every set.
+    pub exhaustive: bool,
+}
+
+/// Runs the team (see the module documentation).
+pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
+    let n = spec.robots.len();
+    if !(2..=MAX_ROBOTS).contains(&n) {
+        return Err(Error::Invalid(format!("a team has 2 to {MAX_ROBOTS} robots, not {n}")));
+    }
+    if let Some((i, j)) = spec.inject_false_match {
+        if i >= n || j >= n || i == j {
+            return Err(Error::Invalid(format!("--inject-false-match {i},{j}: two different robots of 0..{n}")));
+        }
+    }
+    let config = MapConfig::with_resolution(spec.voxel);
+    let mut seqs = Vec::with_capacity(n);
+    let mut maps: Vec<HostMap> = Vec::with_capacity(n);
+    for r in &spec.robots {
+        let seq = Sequence::open(&r.data)?;
+        let frames = seq.load_range(r.frames)?;
+        maps.push(build_map(&frames, config, &PointFilter::default())?.0);
+        seqs.push(seq);
+    }
+    // T_i_j from the poses, when both robots come from one trajectory.
+    let truth = |i: usize, j: usize| -> Option<Isometry3<f64>> {
+        let (si, sj) = (&seqs[i], &seqs[j]);
+        si.same_trajectory(sj)
+            .then(|| si.relative_pose(spec.robots[i].frames.start, spec.robots[j].frames.start).ok())?
+    };
+    // The mesh: every pair exchanges its maps once, both ways at once.
+    let mut received: Vec<Vec<Option<HostMap>>> = (0..n).map(|_| (0..n).map(|_| None).collect()).collect();
+    let (mut sent, mut got) = (vec![0u64; n], vec![0u64; n]);
+    for i in 0..n {
+        for j in i + 1..n {
+            let x = simulate_exchange(&maps[i], &maps[j], 0.0, 115_200, (i * n + j) as u64)?;
+            if !x.delivered {
+                return Err(Error::Invalid(format!("the link between robots {i} and {j} did not deliver both maps")));
+            }
+            let [at_i, at_j] = x.received;
+            received[i][j] = Some(at_i);
+            received[j][i] = Some(at_j);
+            let [si, sj] = x.stats;
+            sent[i] += si.bytes_sent;
+            got[i] += si.bytes_received;
+            sent[j] += sj.bytes_sent;
+            got[j] += sj.bytes_received;
+        }
+    }
+    // Every robot matches every peer, its own map the model.
+    let mut rng = Rng::new(spec.seed);
+    let mut matches = Vec::new();
+    let mut candidates = Vec::new();
+    for a in 0..n {
+        let model = prepare(&maps[a], DEFAULT_LEVELS)?;
+        for b in (0..n).filter(|&b| b != a) {
+            let Some(scene_map) = received[a][b].as_ref() else { continue };
+            let scene = prepare(scene_map, DEFAULT_LEVELS)?;
+            let prior = match (spec.prior_noise, truth(a, b)) {
+                (Some((m, deg)), Some(t)) => Some(perturbed(&t, m, deg, &mut rng).cast::<f32>()),
+                _ => None,
+            };
+            let (r, _) =
+                align(spec.settings, prior.as_ref(), (&model, &scene)).map_err(|e| Error::Invalid(e.to_string()))?;
+            let mut m = TeamMatch {
+                a,
+                b,
+                status: r.status,
+                accepted: false,
+                reason: "",
+                transform: r.transform.cast::<f64>(),
+                agreement: r.agreement,
+            };
+            if spec.inject_false_match == Some((a, b)) {
+                m.transform = cosem_core::geometry::pose_deg(5.0, 0.0, 0.0, 0.0, 0.0, 20.0) * m.transform;
+                m.status = MatchStatus::Converged;
+            }
+            if m.status == MatchStatus::Converged {
+                let information = r.information.cast::<f64>();
+                candidates.push((
+                    matches.len(),
+                    RelativePose { a: a as u8, b: b as u8, transform: m.transform, information },
+                ));
+            } else {
+                m.reason = "not converged";
+            }
+            matches.push(m);
+        }
+    }
+    let list: Vec<RelativePose> = candidates.iter().map(|c| c.1).collect();
+    let c = consistent_set(n, &list)?;
+    let mut kept = Vec::new();
+    for (k, (at, rel)) in candidates.iter().enumerate() {
+        let ok = c.kept & (1 << k) != 0;
+        matches[*at].accepted = ok;
+        matches[*at].reason = if ok { "consistent" } else { "inconsistent around a cycle" };
+        if ok {
+            kept.push(*rel);
+        }
+    }
+    let solution = solve(n, &kept, 50)?;
+    let robots = (0..n)
+        .map(|i| {
+            let p = solution.placements[i].ok_or_else(|| Error::Invalid(format!("robot {i} not solved")))?;
+            Ok(TeamRobot {
+                index: i,
+                placed: p.anchor == 0,
+                group: usize::from(p.anchor),
+                transform: p.pose,
+                covariance: p.covariance,
+                voxels: maps[i].len(),
+                bytes_sent: sent[i],
+                bytes_received: got[i],
+                truth: truth(0, i),
+            })
+        })
+        .collect::<Result<Vec<_>, Error>>()?;
+    Ok(TeamOutcome { robots, matches, exhaustive: c.exhaustive })
+}
+
+/// `t` moved by a seeded shift of `metres` and a yaw of `degrees`, each with
+/// a random sign and direction.
+fn perturbed(t: &Isometry3<f64>, metres: f64, degrees: f64, rng: &mut Rng) -> Isometry3<f64> {
+    let heading = rng.unit() * std::f64::consts::TAU;
+    let sign = if rng.unit() < 0.5 { -1.0 } else { 1.0 };
+    let d =
+        cosem_core::geometry::pose_deg(metres * heading.cos(), metres * heading.sin(), 0.0, 0.0, 0.0, sign * degrees);
+    d * t
+}
