@@ -74,8 +74,8 @@ pub struct TeamRobot {
     pub bytes_sent: u64,
     /// Bytes it received.
     pub bytes_received: u64,
-    /// The true `T_robot0_roboti`, when robot i's folder holds robot 0's
-    /// trajectory.
+    /// The true `T_group_roboti` (`T_robot0_roboti` for placed robots),
+    /// when robot i's folder holds its group anchor's trajectory.
     pub truth: Option<Isometry3<f64>>,
 }
 
@@ -218,7 +218,7 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
                 voxels: maps[i].len(),
                 bytes_sent: sent[i],
                 bytes_received: got[i],
-                truth: truth(0, i),
+                truth: truth(usize::from(p.anchor), i),
             })
         })
         .collect::<Result<Vec<_>, Error>>()?;

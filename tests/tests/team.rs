@@ -72,3 +72,23 @@ fn a_synthetic_team_of_four_is_placed_despite_a_false_match() {
     assert!(!accepted(&v, 1, 2));
     assert_eq!(v["matches"].as_array().unwrap().len(), 12);
 }
+
+#[test]
+fn a_pair_met_elsewhere_is_a_group_of_its_own() {
+    let (Some(k00), Some(k08)) = (real_data("kitti00"), real_data("kitti08-loop")) else { return };
+    let (a, b) = (k00.display().to_string(), k08.display().to_string());
+    let robots = [format!("{a}:0:3"), format!("{a}:3:6"), format!("{b}:720:721"), format!("{b}:1500:1501")];
+    let args: Vec<&str> = robots.iter().flat_map(|r| ["--robot", r.as_str()]).collect();
+    let (v, code) = team(&args);
+    assert_placed(&v, 1);
+    assert_eq!(code, Some(5));
+    // kitti08's two passes (opposite directions) find each other, in robot 2's frame.
+    for i in [2, 3] {
+        let r = &v["robots"][i];
+        assert_eq!((r["placed"].as_bool(), r["group"].as_u64()), (Some(false), Some(2)), "{r}");
+        assert_eq!(r["group_transform"].as_array().map(Vec::len), Some(16), "{r}");
+    }
+    let r3 = &v["robots"][3];
+    let (et, er) = (r3["e_t"].as_f64().unwrap(), r3["e_r"].as_f64().unwrap());
+    assert!(et < 0.2 && er < 0.5, "robot 3 in robot 2's frame: e_t {et} m, e_r {er} deg");
+}

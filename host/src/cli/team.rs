@@ -77,6 +77,9 @@ struct RobotJson {
     transform: Option<[f64; 16]>,
     #[serde(skip_serializing_if = "Option::is_none")]
     covariance: Option<Vec<f64>>,
+    /// Robots of a group not connected to robot 0: `T_group_roboti`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    group_transform: Option<[f64; 16]>,
     voxels: usize,
     bytes_sent: u64,
     bytes_received: u64,
@@ -118,14 +121,18 @@ pub fn run(a: Args) -> Result<u8, Error> {
     };
     let out = run_team(&spec)?;
     let code = if out.robots.iter().all(|r| r.placed) { 0 } else { 5 };
+    let members = |g: usize| out.robots.iter().filter(|r| r.group == g).count();
     let robots = out.robots.iter().map(|r| {
-        let errors = r.truth.filter(|_| r.placed).map(|t| errors_of(&r.transform.cast::<f32>(), &t));
+        // Errors against the truth in the frame the robot is reported in.
+        let in_group = !r.placed && members(r.group) > 1;
+        let errors = r.truth.filter(|_| r.placed || in_group).map(|t| errors_of(&r.transform.cast::<f32>(), &t));
         RobotJson {
             index: r.index,
             placed: r.placed,
             group: r.group,
             transform: r.placed.then(|| row_major(&r.transform)),
             covariance: r.placed.then(|| r.covariance.transpose().iter().copied().collect()),
+            group_transform: in_group.then(|| row_major(&r.transform)),
             voxels: r.voxels,
             bytes_sent: r.bytes_sent,
             bytes_received: r.bytes_received,
@@ -154,7 +161,13 @@ pub fn run(a: Args) -> Result<u8, Error> {
     for r in &robots {
         let place = match (r.placed, r.transform) {
             (true, Some(t)) => format!("placed at ({:.3}, {:.3}, {:.3}) m in robot 0's frame", t[3], t[7], t[11]),
-            _ if r.group != r.index => format!("unplaced (in a group with robot {})", r.group),
+            _ if r.group != r.index => match r.group_transform {
+                Some(t) => {
+                    format!("unplaced; at ({:.3}, {:.3}, {:.3}) m in robot {}'s frame", t[3], t[7], t[11], r.group)
+                }
+                None => format!("unplaced (in a group with robot {})", r.group),
+            },
+            _ if r.group_transform.is_some() => "unplaced; anchor of its own group".to_string(),
             _ => "unplaced".to_string(),
         };
         let err = r.e_t.zip(r.e_r).map(|(t, d)| format!(", e_t {t:.3} m, e_r {d:.3} deg")).unwrap_or_default();
