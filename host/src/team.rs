@@ -45,9 +45,11 @@ pub struct TeamSpec {
     /// Prior noise (m, degrees) on the true relative poses of robots from
     /// one trajectory; `None`: no prior (the default).
     pub prior_noise: Option<(f64, f64)>,
-    /// Replace the estimate `T_I_J` (only that direction) with one 5 m and
-    /// 20 degrees off, Converged, keeping the true match's information.
-    pub inject_false_match: Option<(usize, usize)>,
+    /// Replace each estimate `T_I_J` listed (only that direction) with one
+    /// 5 m and 20 degrees off, Converged, keeping the true match's
+    /// information. When both `(I, J)` and `(J, I)` are listed, the second
+    /// is the inverse of the first: one false match, seen from both robots.
+    pub inject_false_match: Vec<(usize, usize)>,
     /// Seed of the prior noise.
     pub seed: u64,
     /// Matcher settings.
@@ -115,7 +117,7 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
     if !(2..=MAX_ROBOTS).contains(&n) {
         return Err(Error::Invalid(format!("a team has 2 to {MAX_ROBOTS} robots, not {n}")));
     }
-    if let Some((i, j)) = spec.inject_false_match {
+    for &(i, j) in &spec.inject_false_match {
         if i >= n || j >= n || i == j {
             return Err(Error::Invalid(format!("--inject-false-match {i},{j}: two different robots of 0..{n}")));
         }
@@ -178,8 +180,14 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
                 transform: r.transform.cast::<f64>(),
                 agreement: r.agreement,
             };
-            if spec.inject_false_match == Some((a, b)) {
-                m.transform = cosem_core::geometry::pose_deg(5.0, 0.0, 0.0, 0.0, 0.0, 20.0) * m.transform;
+            if spec.inject_false_match.contains(&(a, b)) {
+                let earlier = matches
+                    .iter()
+                    .find(|x: &&TeamMatch| (x.a, x.b) == (b, a) && spec.inject_false_match.contains(&(b, a)));
+                m.transform = match earlier {
+                    Some(x) => x.transform.inverse(),
+                    None => cosem_core::geometry::pose_deg(5.0, 0.0, 0.0, 0.0, 0.0, 20.0) * m.transform,
+                };
                 m.status = MatchStatus::Converged;
             }
             if m.status == MatchStatus::Converged {

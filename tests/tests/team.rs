@@ -62,15 +62,23 @@ fn a_synthetic_team_of_four_is_placed_despite_a_false_match() {
     synth(&seq, 12, 21);
     let s = seq.display().to_string();
     let robots: Vec<String> = (0..4).map(|i| format!("{s}:{}:{}", 3 * i, 3 * i + 3)).collect();
-    let mut args: Vec<&str> = robots.iter().flat_map(|r| ["--robot", r.as_str()]).collect();
-    args.extend_from_slice(&["--inject-false-match", "1,2"]);
-    let (v, code) = team(&args);
-    for i in 0..4 {
-        assert_placed(&v, i);
+    let args: Vec<&str> = robots.iter().flat_map(|r| ["--robot", r.as_str()]).collect();
+    // One direction, then one false match seen from both robots (on the
+    // cycles 0-1-2, 1-2-3 and more).
+    for inject in [&["1,2"][..], &["1,2", "2,1"][..]] {
+        let mut args = args.clone();
+        for i in inject {
+            args.extend_from_slice(&["--inject-false-match", i]);
+        }
+        let (v, code) = team(&args);
+        for i in 0..4 {
+            assert_placed(&v, i);
+        }
+        assert_eq!(code, Some(0));
+        assert!(!accepted(&v, 1, 2));
+        assert_eq!(accepted(&v, 2, 1), inject.len() == 1);
+        assert_eq!(v["matches"].as_array().unwrap().len(), 12);
     }
-    assert_eq!(code, Some(0));
-    assert!(!accepted(&v, 1, 2));
-    assert_eq!(v["matches"].as_array().unwrap().len(), 12);
 }
 
 #[test]

@@ -25,9 +25,10 @@ pub struct Args {
     #[arg(long, value_parser = pair_f64)]
     prior_noise: Option<(f64, f64)>,
     /// Replace robot I's estimate of robot J (only that direction) with one
-    /// 5 m and 20 degrees off, Converged: I,J.
+    /// 5 m and 20 degrees off, Converged: I,J. Repeatable; given as I,J and
+    /// J,I, one false match seen from both robots.
     #[arg(long, value_parser = pair_usize)]
-    inject_false_match: Option<(usize, usize)>,
+    inject_false_match: Vec<(usize, usize)>,
     /// Seed of the prior noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
