@@ -50,7 +50,9 @@ pub struct TeamSpec {
     /// information. When both `(I, J)` and `(J, I)` are listed, the second
     /// is the inverse of the first: one false match, seen from both robots.
     pub inject_false_match: Vec<(usize, usize)>,
-    /// Seed of the prior noise.
+    /// Label noise on every robot's scans (robot i's seeded by `seed + i`).
+    pub label_noise: crate::noise::LabelNoise,
+    /// Seed of the prior and label noise.
     pub seed: u64,
     /// Matcher settings.
     pub settings: MatchSettings,
@@ -127,7 +129,8 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
     let mut maps: Vec<HostMap> = Vec::with_capacity(n);
     for r in &spec.robots {
         let seq = Sequence::open(&r.data)?;
-        let frames = seq.load_range(r.frames)?;
+        let mut frames = seq.load_range(r.frames)?;
+        crate::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(maps.len() as u64));
         maps.push(build_map(&frames, config, &PointFilter::default())?.0);
         seqs.push(seq);
     }

@@ -29,7 +29,11 @@ pub struct Args {
     /// J,I, one false match seen from both robots.
     #[arg(long, value_parser = pair_usize)]
     inject_false_match: Vec<(usize, usize)>,
-    /// Seed of the prior noise.
+    /// Label noise on every scan: none, network[:SEVERITY] or iid:P (see
+    /// `cosem eval --help`).
+    #[arg(long, default_value = "none")]
+    label_noise: cosem_host::noise::LabelNoise,
+    /// Seed of the prior and label noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// JSON on standard output.
@@ -117,6 +121,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
         voxel: a.voxel,
         prior_noise: a.prior_noise,
         inject_false_match: a.inject_false_match,
+        label_noise: a.label_noise,
         seed: a.seed,
         settings: MatchSettings::default(),
     };
