@@ -120,9 +120,9 @@ fn finite_iso(t: &Isometry3<f64>) -> bool {
     t.translation.vector.iter().chain(t.rotation.coords.iter()).all(|v| v.is_finite())
 }
 
-/// Places every robot of a team of `robots` from the kept `matches` (see
-/// the module documentation). Deterministic.
-pub fn solve(robots: usize, matches: &[RelativePose], max_iterations: u32) -> Result<TeamSolution, TeamError> {
+/// The team's size and every match checked: robots inside the team, two
+/// different ones, finite numbers.
+fn check(robots: usize, matches: &[RelativePose]) -> Result<(), TeamError> {
     if robots > MAX_ROBOTS {
         return Err(TeamError::TooManyRobots);
     }
@@ -135,6 +135,13 @@ pub fn solve(robots: usize, matches: &[RelativePose], max_iterations: u32) -> Re
             return Err(TeamError::NonFinite { index });
         }
     }
+    Ok(())
+}
+
+/// Places every robot of a team of `robots` from the kept `matches` (see
+/// the module documentation). Deterministic.
+pub fn solve(robots: usize, matches: &[RelativePose], max_iterations: u32) -> Result<TeamSolution, TeamError> {
+    check(robots, matches)?;
     // Groups: each robot's anchor is the lowest index it is connected to.
     let mut anchor: [usize; MAX_ROBOTS] = core::array::from_fn(|i| i);
     loop {
@@ -323,16 +330,10 @@ pub fn consistent_set(robots: usize, matches: &[RelativePose]) -> Result<Consist
     if matches.len() > 64 {
         return Err(TeamError::BadMatch { index: 64 });
     }
+    check(robots, matches)?;
     let mut edges = [None; 64];
-    for (index, m) in matches.iter().enumerate() {
-        let (a, b) = (usize::from(m.a), usize::from(m.b));
-        if a >= robots || b >= robots || a == b {
-            return Err(TeamError::BadMatch { index });
-        }
-        if !finite_iso(&m.transform) || m.information.iter().any(|v| !v.is_finite()) {
-            return Err(TeamError::NonFinite { index });
-        }
-        edges[index] = Uncertain::of(m);
+    for (e, m) in edges.iter_mut().zip(matches) {
+        *e = Uncertain::of(m);
     }
     let mut search = Search { matches, edges: &edges, best: 0, best_count: 0, branches: 0 };
     search.run(0, 0, 0);

@@ -2,7 +2,7 @@
 //! annealed within each level, one iteration budget across all of them.
 
 use super::associate::{accumulate, agreement, Normal, Pass, Sampling};
-use super::pyramid::{Pyramid, PyramidStorage, MAX_LEVELS};
+use super::pyramid::{Level, Pyramid, PyramidStorage, MAX_LEVELS};
 use super::result::{MatchResult, MatchStatus};
 use super::search::search;
 use super::settings::{MatchSettings, Method};
@@ -40,6 +40,13 @@ pub const LOOK_ALIKE_RANGE: f32 = 3.0;
 /// How much better a look-alike must agree (after its own refinement) to
 /// replace the answer.
 const LOOK_ALIKE_MARGIN: f32 = 0.02;
+
+/// The model's level of cells of about 1.5 m: it says where the model saw
+/// anything (the agreement's coverage).
+fn cover<'p, A: PyramidStorage>(model: &'p Pyramid<'_, A>) -> Option<Level<'p>> {
+    let l = (0..model.levels()).find(|&l| model.level(l).is_some_and(|lv| lv.resolution() >= 1.5))?;
+    model.level(l)
+}
 
 /// Aligns a scene map to a model map.
 #[derive(Clone, Copy, Debug, Default)]
@@ -122,8 +129,7 @@ impl Matcher {
     ) -> Option<(Isometry3<f32>, f32)> {
         let (m0, c0) = (model.level(0)?, scene.level(0)?);
         let cell = m0.resolution();
-        let cover_level = (0..model.levels()).find(|&l| model.level(l).is_some_and(|lv| lv.resolution() >= 1.5));
-        let cover = cover_level.and_then(|l| model.level(l));
+        let cover = cover(model);
         // A fifth of the verdict's sample: enough to rank placements a period
         // apart, and cheap on a robot (a dozen passes).
         let sample = (self.settings.max_agreement_entries / 5).max(1) as usize;
@@ -257,9 +263,7 @@ impl Matcher {
             return Err(MatchError::ResolutionMismatch);
         };
         let cell = m0.resolution();
-        // The model's level of cells of about 1.5 m says where it saw anything.
-        let cover_level = (0..model.levels()).find(|&l| model.level(l).is_some_and(|lv| lv.resolution() >= 1.5));
-        let cover = cover_level.and_then(|l| model.level(l));
+        let cover = cover(model);
         let stride = c0.len().div_ceil(s.max_agreement_entries.max(1) as usize);
         let agree = agreement(&m0, cover.as_ref(), &c0, &t, stride);
         // The information at the solution: the last finest-level iteration's
