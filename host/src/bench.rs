@@ -185,8 +185,8 @@ pub fn simulate_exchange(ma: &HostMap, mb: &HostMap, rate: f64, baud: u32, seed:
     let lc = LinkConfig::default();
     let setup = |e| Error::Invalid(format!("link set-up: {e}"));
     let (mut b0, mut b1) = (Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new()));
-    let mut e0 = Endpoint::new(lc, 0, 1, 0, Some((ma, &mut s0)), Some(&mut st0), &mut b0).map_err(setup)?;
-    let mut e1 = Endpoint::new(lc, 1, 2, 0, Some((mb, &mut s1)), Some(&mut st1), &mut b1).map_err(setup)?;
+    let mut e0 = Endpoint::new(lc, 0, 1, 0, Some((ma, &mut s0)), Some(&mut st0), &mut *b0).map_err(setup)?;
+    let mut e1 = Endpoint::new(lc, 1, 2, 0, Some((mb, &mut s1)), Some(&mut st1), &mut *b1).map_err(setup)?;
     let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
     let mut through = [None, None];
     let mut now = 0u64;

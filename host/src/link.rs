@@ -54,8 +54,8 @@ pub fn exchange(
     let config = LinkConfig { half_duplex, ..LinkConfig::default() };
     let mut buffers = Box::new(LinkBuffers::new());
     let mine = Some((ours, &mut scratch[..]));
-    let endpoint =
-        Endpoint::new(config, robot_id, map_id, anchor_us, mine, Some(&mut staging), &mut buffers).map_err(link_err)?;
+    let endpoint = Endpoint::new(config, robot_id, map_id, anchor_us, mine, Some(&mut staging), &mut *buffers)
+        .map_err(link_err)?;
     let stats = run(line, endpoint, how, on_listen)?;
     Ok((staging, stats))
 }

@@ -202,6 +202,35 @@ impl LinkBuffers {
     }
 }
 
+/// A link's buffers borrowed piece by piece: what an [`Endpoint`] works
+/// in, and gives back at its end ([`Endpoint::finish`]) so that one set
+/// of buffers serves several exchanges in a row (a team robot's peers).
+pub struct LinkParts<'a> {
+    tx: &'a mut [u8; STREAM_BUFFER],
+    rx: &'a mut [u8; STREAM_BUFFER],
+    have: &'a mut [u32; STREAM_BUFFER / 32],
+    segs: &'a mut heapless::Vec<Segment, MAX_SEGMENTS>,
+    tx_model: &'a mut CodecModel,
+    rx_model: &'a mut CodecModel,
+}
+
+impl<'a> From<&'a mut LinkBuffers> for LinkParts<'a> {
+    fn from(b: &'a mut LinkBuffers) -> Self {
+        let LinkBuffers { tx, rx, have, segs, tx_model, rx_model } = b;
+        LinkParts { tx, rx, have, segs, tx_model, rx_model }
+    }
+}
+
+/// What an ended [`Endpoint`] gives back.
+pub struct Finished<'a, R: VoxelStorage> {
+    /// The scratch its map was ordered in (`None`: it sent no map).
+    pub scratch: Option<&'a mut [u32]>,
+    /// The staging map, holding the peer's map when it arrived whole.
+    pub staging: Option<&'a mut LocalMap<R>>,
+    /// The link's buffers, for the next endpoint.
+    pub buffers: LinkParts<'a>,
+}
+
 impl Default for LinkBuffers {
     fn default() -> Self {
         Self::new()
@@ -809,12 +838,16 @@ impl LineEstimate {
     }
 }
 
+type TxParts<'a> = (&'a mut [u8; STREAM_BUFFER], &'a mut heapless::Vec<Segment, MAX_SEGMENTS>, &'a mut CodecModel);
+
 /// One robot's end of the link: sends its map, receives the peer's.
 pub struct Endpoint<'a, M: VoxelStorage, R: VoxelStorage> {
     config: LinkConfig,
     robot_id: u8,
     resolution: f32,
     tx: Option<Tx<'a, M>>,
+    /// The sending half's buffers when there is no map to send.
+    tx_spare: Option<TxParts<'a>>,
     rx: Rx<'a, R>,
     deframer: Deframer,
     line: LineEstimate,
@@ -858,9 +891,9 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         anchor_time_us: u64,
         map: Option<(&'a LocalMap<M>, &'a mut [u32])>,
         mut staging: Option<&'a mut LocalMap<R>>,
-        buffers: &'a mut LinkBuffers,
+        buffers: impl Into<LinkParts<'a>>,
     ) -> Result<Self, LinkError> {
-        let LinkBuffers { tx: tx_ring, rx: rx_ring, have, segs, tx_model, rx_model } = buffers;
+        let LinkParts { tx: tx_ring, rx: rx_ring, have, segs, tx_model, rx_model } = buffers.into();
         segs.clear();
         have.fill(0);
         if config.max_chunk < config.min_chunk.max(1)
@@ -875,8 +908,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
             (None, Some((m, _))) => m.resolution(),
             (None, None) => return Err(LinkError::Setup),
         };
-        let tx = match map {
-            None => None,
+        let (tx, tx_spare) = match map {
+            None => (None, Some((tx_ring, segs, tx_model))),
             Some((m, scratch)) => {
                 if (m.resolution() - resolution).abs() > 1e-6 * resolution {
                     return Err(LinkError::Setup);
@@ -914,7 +947,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                     idle_resends: 0,
                 };
                 tx.resize(LineEstimate::default().model(), &config);
-                Some(tx)
+                (Some(tx), None)
             }
         };
         if let Some(s) = staging.as_mut() {
@@ -926,6 +959,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
             robot_id,
             resolution,
             tx,
+            tx_spare,
             rx: Rx {
                 map: staging,
                 ring: rx_ring,
@@ -974,6 +1008,27 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
     /// peer's map when [`Endpoint::received`] is true).
     pub fn into_parts(self) -> (Option<&'a mut [u32]>, Option<&'a mut LocalMap<R>>) {
         (self.tx.map(|t| t.encoder.into_scratch()), self.rx.map)
+    }
+
+    /// Ends the endpoint and gives back everything it borrowed mutably,
+    /// the link's buffers included (`None` only if they were lost, which
+    /// does not happen: each part is always held somewhere).
+    pub fn finish(self) -> Option<Finished<'a, R>> {
+        let (scratch, (tx, segs, tx_model)) = match (self.tx, self.tx_spare) {
+            (Some(t), _) => {
+                let (scratch, model) = t.encoder.into_parts();
+                (Some(scratch), (t.ring, t.segs, model))
+            }
+            (None, Some(spare)) => (None, spare),
+            (None, None) => return None,
+        };
+        let rx_model = match (self.rx.decoder, self.rx.model) {
+            (Some(d), _) => d.into_model(),
+            (None, Some(m)) => m,
+            (None, None) => return None,
+        };
+        let buffers = LinkParts { tx, rx: self.rx.ring, have: self.rx.have, segs, tx_model, rx_model };
+        Some(Finished { scratch, staging: self.rx.map, buffers })
     }
 
     /// Runs the link until done or failed, calling `idle` between steps

@@ -36,7 +36,9 @@
 mod endpoint;
 pub mod sim;
 
-pub use endpoint::{Endpoint, LinkBuffers, LinkConfig, LinkError, LinkStats, Progress, STREAM_BUFFER};
+pub use endpoint::{
+    Endpoint, Finished, LinkBuffers, LinkConfig, LinkError, LinkParts, LinkStats, Progress, STREAM_BUFFER,
+};
 
 /// Milliseconds from a monotonic source: a SysTick counter on the chip, a
 /// `std::time::Instant` on the host, a simulated clock in tests.

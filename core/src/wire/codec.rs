@@ -441,6 +441,11 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
         self.scratch
     }
 
+    /// Gives back the scratch and the model (e.g. for the next map).
+    pub fn into_parts(self) -> (&'a mut [u32], &'a mut CodecModel) {
+        (self.scratch, self.model)
+    }
+
     /// Digest of the whole map's encoded content (all voxels, in stream
     /// order): what [`MapDecoder::digest`] gives after the last chunk.
     pub fn digest(&self) -> u32 {
@@ -551,6 +556,11 @@ impl<'a> MapDecoder<'a> {
     pub fn new(voxels: usize, model: &'a mut CodecModel) -> Self {
         model.reset();
         MapDecoder { expected: voxels, decoded: 0, last: None, digest: Crc32::new(), model }
+    }
+
+    /// Gives back the model (e.g. for the next map).
+    pub fn into_model(self) -> &'a mut CodecModel {
+        self.model
     }
 
     /// Voxels decoded so far.
