@@ -63,10 +63,18 @@ struct Scorer<'a> {
 }
 
 /// Scene points' model cells at one yaw and zero translation, with masks.
+/// Cells as `i16` (a footprint is far narrower; cells beyond are clamped
+/// and stay outside the grid at every offset): the cache is the largest
+/// thing on a board's stack.
 struct YawCells<const N: usize> {
     yaw: i16,
     len: usize,
-    cells: [(i32, i32, u32); N],
+    cells: [(i16, i16, u32); N],
+}
+
+/// A cell index as the cache keeps it.
+fn narrow(v: i32) -> i16 {
+    v.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16
 }
 
 impl Scorer<'_> {
@@ -83,7 +91,7 @@ impl Scorer<'_> {
             let x = m[0] * q[0] + m[1] * q[1] + o[0];
             let y = m[2] * q[0] + m[3] * q[1] + o[1];
             let (ci, cj) = self.model.cell_of(x, y);
-            *slot = (ci, cj, mask);
+            *slot = (narrow(ci), narrow(cj), mask);
             out.len += 1;
         }
     }
@@ -95,11 +103,11 @@ impl Scorer<'_> {
         let points = cells.cells.get(..cells.len).unwrap_or(&[]);
         if self.semantic {
             for &(ci, cj, mask) in points {
-                total += (mask & grid.mask(ci + i0, cj + j0)).count_ones();
+                total += (mask & grid.mask(i32::from(ci) + i0, i32::from(cj) + j0)).count_ones();
             }
         } else {
             for &(ci, cj, _) in points {
-                total += u32::from(grid.mask(ci + i0, cj + j0) != 0);
+                total += u32::from(grid.mask(i32::from(ci) + i0, i32::from(cj) + j0) != 0);
             }
         }
         total
