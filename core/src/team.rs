@@ -22,6 +22,9 @@ use nalgebra::{Isometry3, Matrix6, SMatrix, SVector, Translation3, UnitQuaternio
 /// Most robots in a team.
 pub const MAX_ROBOTS: usize = 8;
 const DIM: usize = 6 * MAX_ROBOTS;
+/// The pose graph's normal equations, row by row (an array, built in
+/// place: a board's stack holds one).
+type Normal = [[f64; DIM]; DIM];
 
 /// One kept match: robot `a`'s estimate of `T_a_b` (robot `b`'s frame in
 /// robot `a`'s).
@@ -36,6 +39,39 @@ pub struct RelativePose {
     /// Information of the estimate (left perturbation in `a`'s frame,
     /// translation first).
     pub information: Matrix6<f64>,
+}
+
+/// The matches a team is placed from: a slice, or any list that hands them
+/// out one at a time (a robot's table of estimates, read in place: a
+/// board's stack could not hold 56 of them as `f64`).
+pub trait Matches {
+    /// How many.
+    fn count(&self) -> usize;
+    /// Match `i` (`None` past the end).
+    fn get(&self, i: usize) -> Option<RelativePose>;
+}
+
+impl Matches for [RelativePose] {
+    fn count(&self) -> usize {
+        self.len()
+    }
+    fn get(&self, i: usize) -> Option<RelativePose> {
+        <[RelativePose]>::get(self, i).copied()
+    }
+}
+
+impl<const N: usize> Matches for [RelativePose; N] {
+    fn count(&self) -> usize {
+        N
+    }
+    fn get(&self, i: usize) -> Option<RelativePose> {
+        self.as_slice().get(i).copied()
+    }
+}
+
+/// The matches of `list` in order.
+fn each<L: Matches + ?Sized>(list: &L) -> impl Iterator<Item = (usize, RelativePose)> + '_ {
+    (0..list.count()).filter_map(|i| list.get(i).map(|m| (i, m)))
 }
 
 /// Where a robot ends up.
@@ -122,11 +158,11 @@ fn finite_iso(t: &Isometry3<f64>) -> bool {
 
 /// The team's size and every match checked: robots inside the team, two
 /// different ones, finite numbers.
-fn check(robots: usize, matches: &[RelativePose]) -> Result<(), TeamError> {
+fn check<L: Matches + ?Sized>(robots: usize, matches: &L) -> Result<(), TeamError> {
     if robots > MAX_ROBOTS {
         return Err(TeamError::TooManyRobots);
     }
-    for (index, m) in matches.iter().enumerate() {
+    for (index, m) in each(matches) {
         let (a, b) = (usize::from(m.a), usize::from(m.b));
         if a >= robots || b >= robots || a == b {
             return Err(TeamError::BadMatch { index });
@@ -139,14 +175,16 @@ fn check(robots: usize, matches: &[RelativePose]) -> Result<(), TeamError> {
 }
 
 /// Places every robot of a team of `robots` from the kept `matches` (see
-/// the module documentation). Deterministic.
-pub fn solve(robots: usize, matches: &[RelativePose], max_iterations: u32) -> Result<TeamSolution, TeamError> {
+/// the module documentation). Deterministic. Never inlined: its normal
+/// equations (18 KiB) are on the stack only while it runs.
+#[inline(never)]
+pub fn solve<L: Matches + ?Sized>(robots: usize, matches: &L, max_iterations: u32) -> Result<TeamSolution, TeamError> {
     check(robots, matches)?;
     // Groups: each robot's anchor is the lowest index it is connected to.
     let mut anchor: [usize; MAX_ROBOTS] = core::array::from_fn(|i| i);
     loop {
         let mut changed = false;
-        for m in matches {
+        for (_, m) in each(matches) {
             let (a, b) = (usize::from(m.a), usize::from(m.b));
             let low = anchor[a].min(anchor[b]);
             changed |= anchor[a] != low || anchor[b] != low;
@@ -166,7 +204,7 @@ pub fn solve(robots: usize, matches: &[RelativePose], max_iterations: u32) -> Re
     }
     loop {
         let mut grew = false;
-        for m in matches {
+        for (_, m) in each(matches) {
             let (a, b) = (usize::from(m.a), usize::from(m.b));
             match (pose[a], pose[b]) {
                 (Some(xa), None) => pose[b] = Some(xa * m.transform),
@@ -180,58 +218,30 @@ pub fn solve(robots: usize, matches: &[RelativePose], max_iterations: u32) -> Re
         }
     }
     let mut x: [Isometry3<f64>; MAX_ROBOTS] = core::array::from_fn(|i| pose[i].unwrap_or_else(Isometry3::identity));
-    let free = |i: usize| i < robots && anchor[i] != i;
+    let movable: [bool; MAX_ROBOTS] = core::array::from_fn(|i| i < robots && anchor[i] != i);
+    let free = |i: usize| movable[i];
     let mut iterations = 0;
-    let mut h = SMatrix::<f64, DIM, DIM>::zeros();
+    // The normal equations, factored in place (the one big matrix: a
+    // robot's stack holds it once).
+    let mut h = [[0.0f64; DIM]; DIM];
     for _ in 0..max_iterations.max(1) {
         iterations += 1;
-        h = SMatrix::<f64, DIM, DIM>::zeros();
+        h = [[0.0f64; DIM]; DIM];
         let mut g = SVector::<f64, DIM>::zeros();
-        for m in matches {
-            let (a, b) = (usize::from(m.a), usize::from(m.b));
-            let r = residual(m, &x[a], &x[b]);
-            // Numeric Jacobians of the residual in each free pose.
-            let mut j = [SMatrix::<f64, 6, 6>::zeros(); 2];
-            for (side, &k) in [a, b].iter().enumerate() {
-                if !free(k) {
-                    continue;
-                }
-                for c in 0..6 {
-                    let e = 1e-6;
-                    let mut d = Vector6::zeros();
-                    d[c] = e;
-                    let (mut xp, mut xm) = (x, x);
-                    xp[k] = retract(&d, &x[k]);
-                    xm[k] = retract(&(-d), &x[k]);
-                    let col = (residual(m, &xp[a], &xp[b]) - residual(m, &xm[a], &xm[b])) / (2.0 * e);
-                    j[side].set_column(c, &col);
-                }
-            }
-            for (s1, &k1) in [a, b].iter().enumerate() {
-                if !free(k1) {
-                    continue;
-                }
-                let jt_l = j[s1].transpose() * m.information;
-                let mut gk = g.fixed_rows_mut::<6>(6 * k1);
-                gk += jt_l * r;
-                for (s2, &k2) in [a, b].iter().enumerate() {
-                    if free(k2) {
-                        let mut block = h.fixed_view_mut::<6, 6>(6 * k1, 6 * k2);
-                        block += jt_l * j[s2];
-                    }
-                }
-            }
+        for (_, m) in each(matches) {
+            add_match(&mut h, &mut g, &m, &x, &movable);
         }
         // Anchors and robots beyond the team do not move.
         for i in 0..MAX_ROBOTS {
             if !free(i) {
                 for c in 0..6 {
-                    h[(6 * i + c, 6 * i + c)] = 1.0;
+                    h[6 * i + c][6 * i + c] = 1.0;
                 }
             }
         }
-        let chol = nalgebra::Cholesky::new(h).ok_or(TeamError::Singular)?;
-        let delta = -chol.solve(&g);
+        cholesky_in_place(&mut h).ok_or(TeamError::Singular)?;
+        cholesky_solve(&h, &mut g);
+        let delta = -g;
         for (i, xi) in x.iter_mut().enumerate() {
             if free(i) {
                 *xi = retract(&delta.fixed_rows::<6>(6 * i).into_owned(), xi);
@@ -241,13 +251,130 @@ pub fn solve(robots: usize, matches: &[RelativePose], max_iterations: u32) -> Re
             break;
         }
     }
-    let inverse = nalgebra::Cholesky::new(h).ok_or(TeamError::Singular)?.inverse();
+    // Each pose's covariance: its diagonal block of the inverse, one column
+    // at a time from the last factor.
     let mut placements = [None; MAX_ROBOTS];
     for (i, p) in placements.iter_mut().enumerate().take(robots) {
-        let covariance = if free(i) { inverse.fixed_view::<6, 6>(6 * i, 6 * i).into_owned() } else { Matrix6::zeros() };
+        let mut covariance = Matrix6::zeros();
+        if free(i) {
+            for c in 0..6 {
+                let mut col = SVector::<f64, DIM>::zeros();
+                col[6 * i + c] = 1.0;
+                cholesky_solve(&h, &mut col);
+                covariance.set_column(c, &col.fixed_rows::<6>(6 * i));
+            }
+        }
         *p = Some(Placement { anchor: anchor[i] as u8, pose: x[i], covariance });
     }
     Ok(TeamSolution { placements, iterations })
+}
+
+/// Adds match `m`'s terms to the normal equations `h`, `g` at the poses
+/// `x` (numeric Jacobians in each pose that may move). Not inlined, like
+/// the factorisation: `solve`'s frame holds the one big matrix, no more.
+#[inline(never)]
+fn add_match(
+    h: &mut Normal,
+    g: &mut SVector<f64, DIM>,
+    m: &RelativePose,
+    x: &[Isometry3<f64>; MAX_ROBOTS],
+    free: &[bool; MAX_ROBOTS],
+) {
+    let (a, b) = (usize::from(m.a), usize::from(m.b));
+    let (Some(&xa), Some(&xb)) = (x.get(a), x.get(b)) else { return };
+    let free = |k: usize| free.get(k).copied().unwrap_or(false);
+    let r = residual(m, &xa, &xb);
+    let mut j = [SMatrix::<f64, 6, 6>::zeros(); 2];
+    for (side, &k) in [a, b].iter().enumerate() {
+        if !free(k) {
+            continue;
+        }
+        let xk = if k == a { xa } else { xb };
+        for c in 0..6 {
+            let e = 1e-6;
+            let mut d = Vector6::zeros();
+            d[c] = e;
+            let moved = |d: &Vector6<f64>| {
+                let moved = retract(d, &xk);
+                if k == a {
+                    residual(m, &moved, &xb)
+                } else {
+                    residual(m, &xa, &moved)
+                }
+            };
+            let col = (moved(&d) - moved(&(-d))) / (2.0 * e);
+            j[side].set_column(c, &col);
+        }
+    }
+    for (s1, &k1) in [a, b].iter().enumerate() {
+        if !free(k1) {
+            continue;
+        }
+        let jt_l = j[s1].transpose() * m.information;
+        let mut gk = g.fixed_rows_mut::<6>(6 * k1);
+        gk += jt_l * r;
+        for (s2, &k2) in [a, b].iter().enumerate() {
+            if free(k2) {
+                let block = jt_l * j[s2];
+                for (r, row) in h.iter_mut().skip(6 * k1).take(6).enumerate() {
+                    for (c, v) in row.iter_mut().skip(6 * k2).take(6).enumerate() {
+                        *v += block[(r, c)];
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Factors the symmetric positive definite `h` in place: its lower
+/// triangle becomes `L` with `h = L L^T` (the upper triangle is left as
+/// is). `None` when `h` is not positive definite.
+#[inline(never)]
+fn cholesky_in_place(h: &mut Normal) -> Option<()> {
+    for j in 0..DIM {
+        let (upper, lower) = h.split_at_mut(j + 1);
+        let row_j = upper.last_mut()?;
+        let (left, rest) = row_j.split_at_mut(j);
+        let diag = rest.first_mut()?;
+        let d = *diag - dot(left, left);
+        if !(d > 0.0 && d.is_finite()) {
+            return None;
+        }
+        let d = libm::sqrt(d);
+        *diag = d;
+        for row_i in lower.iter_mut() {
+            let (left_i, rest_i) = row_i.split_at_mut(j);
+            if let Some(v) = rest_i.first_mut() {
+                *v = (*v - dot(left_i, left)) / d;
+            }
+        }
+    }
+    Some(())
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).fold(0.0, |s, (x, y)| s + x * y)
+}
+
+/// Solves `L L^T x = v` in place, `L` the lower triangle of `l` (from
+/// [`cholesky_in_place`]).
+#[inline(never)]
+fn cholesky_solve(l: &Normal, v: &mut SVector<f64, DIM>) {
+    let v = v.as_mut_slice();
+    for (i, row) in l.iter().enumerate() {
+        let (done, rest) = v.split_at_mut(i);
+        if let Some(x) = rest.first_mut() {
+            *x = (*x - dot(&row[..i], done)) / row[i];
+        }
+    }
+    for i in (0..DIM).rev() {
+        let (head, done) = v.split_at_mut(i + 1);
+        let below = l.iter().skip(i + 1).map(|row| row[i]);
+        let s = below.zip(done.iter()).fold(0.0, |s, (a, b)| s + a * b);
+        if let Some(x) = head.last_mut() {
+            *x = (*x - s) / l[i][i];
+        }
+    }
 }
 
 /// Tolerance floor added to every match's own covariance: the matcher's
@@ -322,40 +449,80 @@ pub struct Consistency {
 /// the matches they all hold are kept: two robots whose two estimates
 /// disagree, with no cycle to tell which is right, keep neither (never a
 /// guess). Branch and bound over the matches; a match whose information
-/// cannot be inverted is never kept. Deterministic.
-pub fn consistent_set(robots: usize, matches: &[RelativePose]) -> Result<Consistency, TeamError> {
+/// cannot be inverted is never kept. Deterministic. Never inlined (its
+/// table of covariances is on the stack only while it runs).
+#[inline(never)]
+pub fn consistent_set<L: Matches + ?Sized>(robots: usize, matches: &L) -> Result<Consistency, TeamError> {
     if robots > MAX_ROBOTS {
         return Err(TeamError::TooManyRobots);
     }
-    if matches.len() > 64 {
+    if matches.count() > 64 {
         return Err(TeamError::BadMatch { index: 64 });
     }
     check(robots, matches)?;
+    // Each match's covariance (floor included), packed: a board's stack
+    // holds 64 of them.
     let mut edges = [None; 64];
-    for (e, m) in edges.iter_mut().zip(matches) {
-        *e = Uncertain::of(m);
+    for (i, m) in each(matches) {
+        if let Some(e) = edges.get_mut(i) {
+            *e = Uncertain::of(&m).map(|u| pack(&u.cov));
+        }
     }
     let mut search = Search { matches, edges: &edges, best: 0, best_count: 0, branches: 0 };
     search.run(0, 0, 0);
     Ok(Consistency { kept: search.best, exhaustive: search.branches <= MAX_BRANCHES })
 }
 
-struct Search<'a> {
-    matches: &'a [RelativePose],
-    edges: &'a [Option<Uncertain>; 64],
+struct Search<'a, L: Matches + ?Sized> {
+    matches: &'a L,
+    edges: &'a [Option<[f64; 21]>; 64],
     best: u64,
     best_count: u32,
     branches: u32,
 }
 
-impl Search<'_> {
+/// The upper triangle of a symmetric 6x6 matrix, row by row.
+fn pack(m: &Matrix6<f64>) -> [f64; 21] {
+    let mut out = [0.0; 21];
+    let mut k = 0;
+    for r in 0..6 {
+        for c in r..6 {
+            out[k] = m[(r, c)];
+            k += 1;
+        }
+    }
+    out
+}
+
+/// The symmetric matrix [`pack`] packed.
+fn unpack(p: &[f64; 21]) -> Matrix6<f64> {
+    let mut m = Matrix6::zeros();
+    let mut k = 0;
+    for r in 0..6 {
+        for c in r..6 {
+            m[(r, c)] = p[k];
+            m[(c, r)] = p[k];
+            k += 1;
+        }
+    }
+    m
+}
+
+impl<L: Matches + ?Sized> Search<'_, L> {
+    /// Match `i` with its covariance, when it has one.
+    fn edge(&self, i: usize) -> Option<(RelativePose, Uncertain)> {
+        let cov = unpack(self.edges.get(i)?.as_ref()?);
+        let m = self.matches.get(i)?;
+        Some((m, Uncertain { t: m.transform, cov }))
+    }
+
     fn run(&mut self, next: usize, kept: u64, count: u32) {
         self.branches += 1;
-        let left = (self.matches.len() - next) as u32;
+        let left = self.matches.count().saturating_sub(next) as u32;
         if count + left < self.best_count || self.branches > MAX_BRANCHES {
             return;
         }
-        if next == self.matches.len() {
+        if next >= self.matches.count() {
             // Equally large sets: only what they all keep is sure.
             if count > self.best_count || self.best_count == 0 {
                 (self.best, self.best_count) = (kept, count);
@@ -371,8 +538,11 @@ impl Search<'_> {
     }
 
     /// Whether match `i` closes every cycle it makes with the set `kept`.
+    // Not inlined: the search recurses once per match, and each level's
+    // frame would hold this one's path table.
+    #[inline(never)]
     fn fits(&self, kept: u64, i: usize) -> bool {
-        let (Some(m), Some(e)) = (self.matches.get(i), self.edges[i]) else { return false };
+        let Some((m, e)) = self.edge(i) else { return false };
         let Some(path) = self.path(kept, usize::from(m.a), usize::from(m.b)) else { return true };
         // The cycle path^-1 * match: the identity when they agree.
         let cycle = path.inverse().then(&e);
@@ -389,8 +559,8 @@ impl Search<'_> {
         *reach.get_mut(from)? = Some(start);
         loop {
             let mut grew = false;
-            for (i, m) in self.matches.iter().enumerate() {
-                let Some(e) = self.edges[i].filter(|_| kept & (1 << i) != 0) else { continue };
+            for i in (0..self.matches.count()).filter(|i| kept & (1 << i) != 0) {
+                let Some((m, e)) = self.edge(i) else { continue };
                 let (a, b) = (usize::from(m.a), usize::from(m.b));
                 match (reach[a], reach[b]) {
                     (Some(xa), None) => reach[b] = Some(xa.then(&e)),

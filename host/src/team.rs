@@ -206,7 +206,7 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
         }
     }
     let list: Vec<RelativePose> = candidates.iter().map(|c| c.1).collect();
-    let c = consistent_set(n, &list)?;
+    let c = consistent_set(n, &list[..])?;
     let mut kept = Vec::new();
     for (k, (at, rel)) in candidates.iter().enumerate() {
         let ok = c.kept & (1 << k) != 0;
@@ -216,7 +216,7 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
             kept.push(*rel);
         }
     }
-    let solution = solve(n, &kept, 50)?;
+    let solution = solve(n, &kept[..], 50)?;
     let robots = (0..n)
         .map(|i| {
             let p = solution.placements[i].ok_or_else(|| Error::Invalid(format!("robot {i} not solved")))?;
