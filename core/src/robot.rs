@@ -194,6 +194,8 @@ pub enum RobotError {
     Align(AlignError),
     /// `poll` was called after the robot finished.
     Finished,
+    /// The team's consistency check or pose graph refused its input.
+    Team(crate::team::TeamError),
 }
 
 impl RobotError {
@@ -207,7 +209,7 @@ impl RobotError {
             | RobotError::PointCount { .. } => Stage::Feed,
             RobotError::Config(_) | RobotError::Points(_) => Stage::Map,
             RobotError::Link(_) => Stage::Link,
-            RobotError::Align(_) | RobotError::Finished => Stage::Match,
+            RobotError::Align(_) | RobotError::Team(_) | RobotError::Finished => Stage::Match,
         }
     }
 }
@@ -226,6 +228,7 @@ impl core::fmt::Display for RobotError {
             RobotError::Points(e) => write!(f, "{e}"),
             RobotError::Link(e) => write!(f, "{e}"),
             RobotError::Align(e) => write!(f, "{e}"),
+            RobotError::Team(e) => write!(f, "team: {e}"),
             RobotError::Finished => f.write_str("the robot has finished"),
         }
     }
@@ -282,16 +285,97 @@ enum State<'a, M: VoxelStorage, R: VoxelStorage> {
 
 /// One robot: its maps, its link, its alignment, driven by [`Robot::poll`].
 pub struct Robot<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage> {
-    config: RobotConfig,
     state: State<'a, M, R>,
     pyramids: Option<(P, Q)>,
+    fed: FeedIn,
+    link_started_ms: u64,
+    link_ms: u32,
+}
+
+/// What a robot took from its feed line: the set-up, the points inserted,
+/// and the feed's framing and timing. Shared by the pair robot and the
+/// team robot ([`team`]).
+struct FeedIn {
+    config: RobotConfig,
     deframer: Deframer,
     setup: Option<Setup>,
+    /// Robots in the team (a team robot only).
+    team: Option<u8>,
     points: u32,
     map_instructions: u64,
     last_fed_ms: Option<u64>,
-    link_started_ms: u64,
-    link_ms: u32,
+}
+
+impl FeedIn {
+    fn new(config: RobotConfig) -> Self {
+        FeedIn {
+            config,
+            deframer: Deframer::new(),
+            setup: None,
+            team: None,
+            points: 0,
+            map_instructions: 0,
+            last_fed_ms: None,
+        }
+    }
+
+    /// Reads what the feed line holds into `own` (both maps reconfigured by
+    /// the set-up); `true` at the end of the feed. A team robot (`team`)
+    /// needs [`FeedMessage::Team`] after the set-up and no prior; a pair
+    /// robot refuses it.
+    fn read<F: Read + ReadReady, M: VoxelStorage, R: VoxelStorage, T: Meter>(
+        &mut self,
+        feed: &mut F,
+        own: &mut LocalMap<M>,
+        received: &mut LocalMap<R>,
+        team: bool,
+        now_ms: u64,
+        meter: &T,
+    ) -> Result<bool, RobotError> {
+        let last = *self.last_fed_ms.get_or_insert(now_ms);
+        let mut buf = [0u8; 64];
+        while feed.read_ready().map_err(|_| RobotError::FeedIo)? {
+            let n = feed.read(&mut buf).map_err(|_| RobotError::FeedIo)?;
+            if n == 0 {
+                break;
+            }
+            self.last_fed_ms = Some(now_ms);
+            for &b in buf.get(..n).unwrap_or(&[]) {
+                let FeedIn { deframer, setup, points, map_instructions, team: robots, .. } = self;
+                let Some(payload) = deframer.push(b).map_err(RobotError::Frame)? else { continue };
+                let ready = setup.is_some() && robots.is_some() == team;
+                match FeedMessage::decode(payload).map_err(RobotError::Feed)? {
+                    FeedMessage::Setup(s) if setup.is_none() && !(team && s.prior.is_some()) => {
+                        let config = map_config(s.resolution);
+                        own.reset(config).map_err(RobotError::Config)?;
+                        received.reset(config).map_err(RobotError::Config)?;
+                        *setup = Some(s);
+                    }
+                    FeedMessage::Team { robots: n }
+                        if team && robots.is_none() && setup.is_some_and(|s| s.robot_id < n) =>
+                    {
+                        *robots = Some(n);
+                    }
+                    FeedMessage::Points { data, .. } if ready => {
+                        let t0 = meter.instructions();
+                        *points += insert_points(own, data).map_err(RobotError::Points)?;
+                        *map_instructions += meter.instructions().saturating_sub(t0);
+                    }
+                    FeedMessage::EndOfFeed { points: sent, .. } if ready => {
+                        if sent != *points {
+                            return Err(RobotError::PointCount { sent, received: *points });
+                        }
+                        return Ok(true);
+                    }
+                    _ => return Err(RobotError::Feed(FeedError::Order)),
+                }
+            }
+        }
+        if now_ms.saturating_sub(self.last_fed_ms.unwrap_or(last)) > self.config.feed_silence_ms {
+            return Err(RobotError::FeederSilent { points: self.points });
+        }
+        Ok(false)
+    }
 }
 
 impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage> Robot<'a, M, R, P, Q> {
@@ -309,14 +393,9 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         scene: Q,
     ) -> Self {
         Robot {
-            config,
             state: State::Feed { own, received, scratch, buffers },
             pyramids: Some((model, scene)),
-            deframer: Deframer::new(),
-            setup: None,
-            points: 0,
-            map_instructions: 0,
-            last_fed_ms: None,
+            fed: FeedIn::new(config),
             link_started_ms: 0,
             link_ms: 0,
         }
@@ -324,7 +403,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
 
     /// The set-up, once it arrived.
     pub fn setup(&self) -> Option<&Setup> {
-        self.setup.as_ref()
+        self.fed.setup.as_ref()
     }
 
     /// Does what can be done now: reads the feed, exchanges maps, aligns
@@ -358,8 +437,9 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
     {
         match core::mem::replace(&mut self.state, State::Done) {
             State::Feed { own, received, scratch, buffers } => {
+                let done = self.fed.read(feed, own, received, false, now_ms, meter);
                 self.state = State::Feed { own, received, scratch, buffers };
-                if self.read_feed(feed, now_ms, meter)? {
+                if done? {
                     self.start_link(now_ms)?;
                 }
                 Ok(Poll::Busy)
@@ -386,55 +466,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         }
     }
 
-    /// Reads what the feed line holds; `true` at the end of the feed.
-    fn read_feed<F: Read + ReadReady, T: Meter>(
-        &mut self,
-        feed: &mut F,
-        now_ms: u64,
-        meter: &T,
-    ) -> Result<bool, RobotError> {
-        let last = *self.last_fed_ms.get_or_insert(now_ms);
-        let mut buf = [0u8; 64];
-        while feed.read_ready().map_err(|_| RobotError::FeedIo)? {
-            let n = feed.read(&mut buf).map_err(|_| RobotError::FeedIo)?;
-            if n == 0 {
-                break;
-            }
-            self.last_fed_ms = Some(now_ms);
-            for &b in buf.get(..n).unwrap_or(&[]) {
-                let Robot { deframer, state, setup, points, map_instructions, .. } = self;
-                let Some(payload) = deframer.push(b).map_err(RobotError::Frame)? else { continue };
-                let State::Feed { own, received, .. } = state else { return Err(RobotError::Feed(FeedError::Order)) };
-                match FeedMessage::decode(payload).map_err(RobotError::Feed)? {
-                    FeedMessage::Setup(s) if setup.is_none() => {
-                        let config = map_config(s.resolution);
-                        own.reset(config).map_err(RobotError::Config)?;
-                        received.reset(config).map_err(RobotError::Config)?;
-                        *setup = Some(s);
-                    }
-                    FeedMessage::Points { data, .. } if setup.is_some() => {
-                        let t0 = meter.instructions();
-                        *points += insert_points(&mut **own, data).map_err(RobotError::Points)?;
-                        *map_instructions += meter.instructions().saturating_sub(t0);
-                    }
-                    FeedMessage::EndOfFeed { points: sent, .. } if setup.is_some() => {
-                        if sent != *points {
-                            return Err(RobotError::PointCount { sent, received: *points });
-                        }
-                        return Ok(true);
-                    }
-                    _ => return Err(RobotError::Feed(FeedError::Order)),
-                }
-            }
-        }
-        if now_ms.saturating_sub(self.last_fed_ms.unwrap_or(last)) > self.config.feed_silence_ms {
-            return Err(RobotError::FeederSilent { points: self.points });
-        }
-        Ok(false)
-    }
-
     fn start_link(&mut self, now_ms: u64) -> Result<(), RobotError> {
-        let setup = self.setup.ok_or(RobotError::Feed(FeedError::Order))?;
+        let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
         let State::Feed { own, received, scratch, buffers } = core::mem::replace(&mut self.state, State::Done) else {
             return Err(RobotError::Feed(FeedError::Order));
         };
@@ -455,7 +488,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         stats: &LinkStats,
         meter: &T,
     ) -> Result<RobotReport, RobotError> {
-        let setup = self.setup.ok_or(RobotError::Feed(FeedError::Order))?;
+        let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
         let (model, scene) = self.pyramids.take().ok_or(RobotError::Finished)?;
         let prior = setup.prior.as_ref().map(from_rows);
         let mut marks = [0u64; 4];
@@ -467,14 +500,14 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         .map_err(RobotError::Align)?;
         Ok(RobotReport {
             result: result.report(setup.robot_id),
-            points: self.points,
+            points: self.fed.points,
             map_voxels: own.len() as u32,
             received_voxels: received.len() as u32,
             bytes_sent: stats.bytes_sent,
             bytes_received: stats.bytes_received,
             retransmissions: stats.retransmissions,
             link_ms: self.link_ms,
-            map_instructions: self.map_instructions,
+            map_instructions: self.fed.map_instructions,
             prepare_instructions: marks[1].saturating_sub(marks[0]),
             locate_instructions: marks[2].saturating_sub(marks[1]),
             match_instructions: marks[3].saturating_sub(marks[2]),
@@ -534,6 +567,8 @@ fn send<F: Write>(feed: &mut F, msg: &RobotMessage<'_>) {
         let _ = feed.flush();
     }
 }
+
+pub mod team;
 
 #[cfg(test)]
 mod tests;

@@ -62,6 +62,13 @@ pub enum FeedMessage<'a> {
         /// Points sent.
         points: u32,
     },
+    /// The robot is one of a team of `robots` (2 to 8), its index the
+    /// set-up's `robot_id`: after the set-up, before the points. A pair
+    /// robot refuses it.
+    Team {
+        /// Robots in the team.
+        robots: u8,
+    },
 }
 
 /// What the prior-free alignment found, for the host.
@@ -153,6 +160,54 @@ pub enum RobotMessage<'a> {
         #[serde(borrow)]
         message: &'a str,
     },
+    /// A team robot matched one peer (its report's match is
+    /// `T_own_peer`).
+    Matched {
+        /// The peer.
+        peer: u8,
+        /// The report of that round.
+        report: RobotReport,
+    },
+    /// Where a team robot placed one robot of the team (one message per
+    /// robot, then [`RobotMessage::TeamEnd`]).
+    Placed(PlacedRobot),
+    /// A team robot's last message.
+    TeamEnd(TeamEnd),
+}
+
+/// One robot of a team as a team robot placed it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PlacedRobot {
+    /// The placed robot.
+    pub index: u8,
+    /// The lowest index of its group: 0 when placed in robot 0's frame.
+    pub anchor: u8,
+    /// `T_anchor_index`, top three rows, row by row.
+    pub transform: [f32; 12],
+    /// Its covariance (left perturbation in the anchor's frame, tx ty tz
+    /// rx ry rz), upper triangle row by row.
+    pub covariance: [f32; 21],
+}
+
+/// How a team robot's consistency check and pose graph went.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TeamEnd {
+    /// Bit k: the k-th converged estimate (in the order a, then b) kept.
+    pub kept: u64,
+    /// Converged estimates checked.
+    pub candidates: u8,
+    /// The consistency search went through every set.
+    pub exhaustive: bool,
+    /// Bit r: robot r's estimates arrived (its own bit always set).
+    pub heard: u8,
+    /// Duration of sharing the estimates (ms of the robot's clock).
+    pub share_ms: u32,
+    /// Instructions of the consistency check and the pose graph.
+    pub solve_instructions: u64,
+    /// Peak stack over the whole run (bytes).
+    pub peak_stack: u32,
 }
 
 /// Why a feed message is not one.
@@ -277,6 +332,12 @@ impl FeedMessage<'_> {
                 Ok(())
             }
             FeedMessage::EndOfFeed { .. } => Ok(()),
+            FeedMessage::Team { robots } => {
+                if !(2..=8).contains(robots) {
+                    return Err(FeedError::Malformed);
+                }
+                Ok(())
+            }
         }
     }
 }
@@ -285,7 +346,9 @@ impl RobotMessage<'_> {
     fn check(&self) -> Result<(), FeedError> {
         match self {
             RobotMessage::Report(r) => r.result.check().map_err(FeedError::from),
-            RobotMessage::Failed { .. } => Ok(()),
+            RobotMessage::Matched { report, .. } => report.result.check().map_err(FeedError::from),
+            RobotMessage::Placed(p) => finite(&p.transform).and(finite(&p.covariance)),
+            RobotMessage::Failed { .. } | RobotMessage::TeamEnd(_) => Ok(()),
         }
     }
 }

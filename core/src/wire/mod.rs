@@ -11,6 +11,7 @@
 //! - [`message`]: the link's versioned messages (postcard);
 //! - [`report`]: a match result as plain numbers;
 //! - [`feed`]: the feed protocol between a host and a robot;
+//! - [`share`]: a team's estimates, sent between robots after matching;
 //! - [`mapfile`]: the `.cmap` map file, read and written without an
 //!   allocator.
 //!
@@ -25,6 +26,7 @@ pub mod mapfile;
 pub mod message;
 pub mod range;
 pub mod report;
+pub mod share;
 
 pub use codec::{CodecModel, DecodeError, EncodeError, MapDecoder, MapEncoder};
 pub use crc::{crc32, Crc32};
