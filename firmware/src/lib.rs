@@ -9,7 +9,9 @@
 //! - `selftest` (the default `cargo run`): the core's self-test on the
 //!   target, every figure printed for the host to compare bit for bit;
 //! - `bench`: two map files matched on board (bench.sh);
-//! - `robot`: one robot of a pair (`cosem robots`).
+//! - `robot`: one robot of a pair (`cosem robots`);
+//! - `team`: one robot of a team of up to five (`cosem team --on-board`):
+//!   UART1 its feeder line, UART0, 2, 3 and 4 its peers.
 #![no_std]
 
 use core::sync::atomic::{AtomicU32, Ordering};

@@ -11,6 +11,12 @@ use core::ptr::{read_volatile, write_volatile};
 pub const UART0: usize = 0x4000_4000;
 /// UART1 (the second `-serial` option).
 pub const UART1: usize = 0x4000_5000;
+/// UART2 (the third `-serial`): a team robot's second peer line.
+pub const UART2: usize = 0x4000_6000;
+/// UART3: a team robot's third peer line.
+pub const UART3: usize = 0x4000_7000;
+/// UART4: a team robot's fourth peer line.
+pub const UART4: usize = 0x4000_9000;
 
 const DATA: usize = 0x0;
 const STATE: usize = 0x4;
