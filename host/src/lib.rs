@@ -42,6 +42,7 @@ pub mod robots;
 pub mod stats;
 pub mod synth;
 pub mod team;
+pub mod team_board;
 pub mod transport;
 
 pub use error::Error;

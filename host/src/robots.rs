@@ -86,6 +86,12 @@ impl Feed {
     /// The feed as framed bytes: the set-up, the points in messages of up
     /// to [`MAX_POINTS_PER_MESSAGE`], the end.
     pub fn bytes(&self) -> Result<Vec<u8>, Error> {
+        self.bytes_in_team(None)
+    }
+
+    /// The feed as framed bytes for a robot of a team of `team` robots
+    /// (`None`: a pair robot): [`FeedMessage::Team`] after the set-up.
+    pub fn bytes_in_team(&self, team: Option<u8>) -> Result<Vec<u8>, Error> {
         let mut out = Vec::new();
         let mut frame = [0u8; MAX_FRAME];
         let mut push = |msg: FeedMessage<'_>| -> Result<(), Error> {
@@ -94,6 +100,9 @@ impl Feed {
             Ok(())
         };
         push(FeedMessage::Setup(self.setup))?;
+        if let Some(robots) = team {
+            push(FeedMessage::Team { robots })?;
+        }
         for (i, scan) in self.scans.iter().enumerate() {
             for part in scan.chunks(MAX_POINTS_PER_MESSAGE) {
                 let data: Vec<u8> = part.iter().flatten().copied().collect();
@@ -169,7 +178,10 @@ pub const DEFAULT_FIRMWARE: &str = "firmware/target/thumbv7em-none-eabihf/releas
 /// so a run never uses a stale build; any other path must exist.
 pub fn firmware(path: &Path) -> Result<PathBuf, Error> {
     let dir = PathBuf::from("firmware");
-    let default = path == Path::new(DEFAULT_FIRMWARE);
+    // A binary at the default place (robot, team) is built first.
+    let built_here = Path::new(DEFAULT_FIRMWARE).parent();
+    let bin = path.file_name().and_then(|b| b.to_str()).unwrap_or("robot");
+    let default = path.parent() == built_here && matches!(bin, "robot" | "team");
     if !default || !dir.join("Cargo.toml").exists() {
         return if path.exists() {
             Ok(path.to_path_buf())
@@ -182,7 +194,7 @@ pub fn firmware(path: &Path) -> Result<PathBuf, Error> {
     }
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let out = Command::new(&cargo)
-        .args(["build", "--release", "--bin", "robot"])
+        .args(["build", "--release", "--bin", bin])
         .current_dir(&dir)
         .env_remove("CARGO_TARGET_DIR")
         .env_remove("RUSTFLAGS")
@@ -256,14 +268,14 @@ pub struct PairRun {
     pub wall_s: f64,
 }
 
-fn qemu(elf: &Path, link_port: u16, feed_port: u16) -> std::io::Result<Child> {
+pub(crate) fn qemu(elf: &Path, serials: &[Option<u16>]) -> std::io::Result<Child> {
     Command::new("qemu-system-arm")
         .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-icount", "shift=0"])
         .args(["-semihosting-config", "enable=on,target=native", "-monitor", "none"])
-        .arg("-serial")
-        .arg(format!("tcp:127.0.0.1:{link_port}"))
-        .arg("-serial")
-        .arg(format!("tcp:127.0.0.1:{feed_port}"))
+        .args(serials.iter().flat_map(|p| {
+            ["-serial".to_string(), p.map_or_else(|| "null".to_string(), |p| format!("tcp:127.0.0.1:{p}"))]
+        }))
+        .args(debug_gdb())
         .arg("-kernel")
         .arg(elf)
         .stdin(Stdio::null())
@@ -272,13 +284,21 @@ fn qemu(elf: &Path, link_port: u16, feed_port: u16) -> std::io::Result<Child> {
         .spawn()
 }
 
-fn accept(listener: &TcpListener, deadline: Instant) -> Result<TcpStream, String> {
+fn debug_gdb() -> Vec<String> {
+    static NEXT: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(0);
+    match std::env::var("COSEM_DEBUG_GDB").ok().and_then(|v| v.parse::<u16>().ok()) {
+        Some(base) => vec!["-gdb".into(), format!("tcp::{}", base + NEXT.fetch_add(1, Ordering::Relaxed))],
+        None => vec![],
+    }
+}
+
+pub(crate) fn accept(listener: &TcpListener, deadline: Instant) -> Result<TcpStream, String> {
     crate::transport::accept_within(listener, deadline)
         .map_err(|e| format!("QEMU did not connect its serial port: {e}"))
 }
 
 /// Copies `from` to `to` through `fault` until either side closes; counts bytes.
-fn pump(mut from: TcpStream, mut to: TcpStream, fault: LineFault, seed: u64, count: Arc<AtomicU64>) {
+pub(crate) fn pump(mut from: TcpStream, mut to: TcpStream, fault: LineFault, seed: u64, count: Arc<AtomicU64>) {
     let mut rng = crate::rng::Rng::new(seed);
     let mut buf = [0u8; 4096];
     loop {
@@ -334,6 +354,9 @@ fn feed_and_listen(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant) -> Out
                     Ok(RobotMessage::Failed { stage, message }) => {
                         Outcome::Failed { stage: stage.as_str().into(), message: message.into() }
                     }
+                    Ok(RobotMessage::Matched { .. } | RobotMessage::Placed(_) | RobotMessage::TeamEnd(_)) => {
+                        Outcome::Lost("a team robot's message from a pair robot".into())
+                    }
                     Err(e) => Outcome::Lost(format!("undecodable report: {e}")),
                 });
                 break;
@@ -364,7 +387,7 @@ fn run_pair_inner(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Dura
     let bytes = [feeds[0].bytes().map_err(|e| e.to_string())?, feeds[1].bytes().map_err(|e| e.to_string())?];
     let mut children = Vec::new();
     for f in &feeders {
-        let child = qemu(elf, port(&link)?, port(f)?).map_err(|e| format!("qemu-system-arm: {e}"))?;
+        let child = qemu(elf, &[Some(port(&link)?), Some(port(f)?)]).map_err(|e| format!("qemu-system-arm: {e}"))?;
         children.push(child);
     }
     let connect_by = Instant::now() + Duration::from_secs(20);

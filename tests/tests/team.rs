@@ -100,3 +100,76 @@ fn a_pair_met_elsewhere_is_a_group_of_its_own() {
     let (et, er) = (r3["e_t"].as_f64().unwrap(), r3["e_r"].as_f64().unwrap());
     assert!(et < 0.2 && er < 0.5, "robot 3 in robot 2's frame: e_t {et} m, e_r {er} deg");
 }
+
+/// One team of emulated boards at a time (each QEMU busy-waits on its UARTs).
+static BOARDS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Checks an on-board run: every board finished, each agrees with the
+/// host's run of the same robots on the same fed points (1e-4 m) and with
+/// board 0, and measured its peak stack.
+fn assert_boards_agree(v: &Value, boards: usize) {
+    assert_eq!(v["on_board"], true, "{v}");
+    let b = v["boards"].as_array().unwrap();
+    assert_eq!(b.len(), boards, "{v}");
+    for board in b {
+        assert_eq!(board["finished"], true, "{board}");
+        assert_eq!(board["exit_code"], 0, "{board}");
+        assert_eq!(board["heard"].as_array().unwrap().len(), boards, "every board holds every estimate: {board}");
+        assert!(board["difference_to_host_m"].as_f64().unwrap() <= 1e-4, "{board}");
+        assert!(board["difference_to_board0_m"].as_f64().unwrap() <= 1e-4, "{board}");
+        assert_eq!(board["same_groups_as_host"], true, "{board}");
+        assert!(board["peak_stack_bytes"].as_u64().unwrap() > 0, "{board}");
+        assert!(board["map_voxels"].as_u64().unwrap() > 1000, "{board}");
+    }
+    assert!(v["host_difference_m"].as_f64().unwrap() <= 1e-4, "{v}");
+}
+
+#[test]
+fn a_drive_cut_in_three_is_placed_on_boards_and_a_robot_from_elsewhere_is_not() {
+    let (Some(k00), Some(k07)) = (real_data("kitti00"), real_data("kitti07")) else { return };
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let (a, b) = (k00.display().to_string(), k07.display().to_string());
+    let robots = [format!("{a}:0:3"), format!("{a}:3:6"), format!("{a}:6:10"), format!("{b}:0:3")];
+    let mut args: Vec<&str> = robots.iter().flat_map(|r| ["--robot", r.as_str()]).collect();
+    args.push("--on-board");
+    let (v, code) = {
+        let _one = BOARDS.lock().unwrap_or_else(|e| e.into_inner());
+        team(&args)
+    };
+    assert_boards_agree(&v, 4);
+    for i in 0..3 {
+        assert_placed(&v, i);
+    }
+    let r3 = &v["robots"][3];
+    assert_eq!(r3["placed"], false, "{r3}");
+    assert_eq!(code, Some(5), "a robot unplaced");
+    for m in v["matches"].as_array().unwrap() {
+        let with_3 = m["a"] == 3 || m["b"] == 3;
+        assert_eq!(m["accepted"].as_bool(), Some(!with_3), "{m}");
+    }
+}
+
+#[test]
+fn a_synthetic_street_cut_in_three_is_placed_on_boards() {
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 9, 5);
+    let s = seq.display().to_string();
+    let robots: Vec<String> = (0..3).map(|i| format!("{s}:{}:{}", 3 * i, 3 * i + 3)).collect();
+    let mut args: Vec<&str> = robots.iter().flat_map(|r| ["--robot", r.as_str()]).collect();
+    args.push("--on-board");
+    let (v, code) = {
+        let _one = BOARDS.lock().unwrap_or_else(|e| e.into_inner());
+        team(&args)
+    };
+    assert_boards_agree(&v, 3);
+    for i in 0..3 {
+        assert_placed(&v, i);
+    }
+    assert_eq!(code, Some(0));
+}

@@ -15,6 +15,7 @@ mod relay;
 mod robots;
 mod synth;
 mod team;
+mod team_board;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;

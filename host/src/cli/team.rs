@@ -13,32 +13,53 @@ pub struct Args {
     /// A robot: a SemanticKITTI-layout folder and its frames,
     /// DIR:START:END[:STRIDE]; robot i is the i-th (2 to 8).
     #[arg(long = "robot", required = true, value_parser = robot)]
-    robots: Vec<RobotSpec>,
-    /// Voxel size (m).
-    #[arg(long, default_value_t = 0.2, value_parser = super::args::positive_f32)]
-    voxel: f32,
+    pub(super) robots: Vec<RobotSpec>,
+    /// Voxel size (m; default 0.2, or 0.5 with --on-board).
+    #[arg(long, value_parser = super::args::positive_f32)]
+    pub(super) voxel: Option<f32>,
     /// No prior: every robot searches every heading and offset (the default).
     #[arg(long, conflicts_with = "prior_noise")]
-    no_prior: bool,
+    pub(super) no_prior: bool,
     /// A prior for robots of one trajectory: the true relative pose moved
     /// by METRES and DEGREES (seeded): METRES,DEGREES.
     #[arg(long, value_parser = pair_f64)]
-    prior_noise: Option<(f64, f64)>,
+    pub(super) prior_noise: Option<(f64, f64)>,
     /// Replace robot I's estimate of robot J (only that direction) with one
     /// 5 m and 20 degrees off, Converged: I,J. Repeatable; given as I,J and
     /// J,I, one false match seen from both robots.
     #[arg(long, value_parser = pair_usize)]
-    inject_false_match: Vec<(usize, usize)>,
+    pub(super) inject_false_match: Vec<(usize, usize)>,
     /// Label noise on every scan: none, network[:SEVERITY] or iid:P (see
     /// `cosem eval --help`).
     #[arg(long, default_value = "none")]
-    label_noise: cosem_host::noise::LabelNoise,
+    pub(super) label_noise: cosem_host::noise::LabelNoise,
     /// Seed of the prior and label noise.
     #[arg(long, default_value_t = 1)]
-    seed: u64,
+    pub(super) seed: u64,
     /// JSON on standard output.
     #[arg(long)]
-    json: bool,
+    pub(super) json: bool,
+    /// Run each robot on an emulated board (QEMU mps2-an386, 2 to 5
+    /// robots, no prior): fed its thinned scans, it maps, exchanges,
+    /// matches, checks consistency and solves the pose graph on board;
+    /// shown beside the host's run of the same robots on the same points.
+    #[arg(long, conflicts_with_all = ["prior_noise", "inject_false_match"])]
+    pub(super) on_board: bool,
+    /// With --on-board: points farther than this from their sensor are not
+    /// fed (m).
+    #[arg(long, default_value = "25", value_parser = super::args::positive_f32)]
+    pub(super) crop: f32,
+    /// With --on-board: the firmware's team binary (at the default path,
+    /// built or brought up to date first).
+    #[arg(long, default_value = cosem_host::team_board::DEFAULT_TEAM_FIRMWARE)]
+    pub(super) firmware: std::path::PathBuf,
+    /// With --on-board: a robot gives up on a peer after this long without a
+    /// valid frame (s).
+    #[arg(long, default_value = "60", value_parser = super::args::positive)]
+    pub(super) silence: f64,
+    /// With --on-board: kill the emulators after this long (s).
+    #[arg(long, default_value = "1800", value_parser = super::args::positive)]
+    pub(super) timeout: f64,
 }
 
 fn robot(s: &str) -> Result<RobotSpec, String> {
@@ -74,41 +95,41 @@ fn pair_usize(s: &str) -> Result<(usize, usize), String> {
 }
 
 #[derive(Serialize)]
-struct RobotJson {
-    index: usize,
-    placed: bool,
-    group: usize,
+pub(super) struct RobotJson {
+    pub(super) index: usize,
+    pub(super) placed: bool,
+    pub(super) group: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
-    transform: Option<[f64; 16]>,
+    pub(super) transform: Option<[f64; 16]>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    covariance: Option<Vec<f64>>,
+    pub(super) covariance: Option<Vec<f64>>,
     /// Robots of a group not connected to robot 0: `T_group_roboti`.
     #[serde(skip_serializing_if = "Option::is_none")]
-    group_transform: Option<[f64; 16]>,
-    voxels: usize,
-    bytes_sent: u64,
-    bytes_received: u64,
+    pub(super) group_transform: Option<[f64; 16]>,
+    pub(super) voxels: usize,
+    pub(super) bytes_sent: u64,
+    pub(super) bytes_received: u64,
     #[serde(skip_serializing_if = "Option::is_none")]
-    e_t: Option<f64>,
+    pub(super) e_t: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    e_r: Option<f64>,
+    pub(super) e_r: Option<f64>,
 }
 
 #[derive(Serialize)]
-struct MatchJson {
-    a: usize,
-    b: usize,
-    status: &'static str,
-    accepted: bool,
-    reason: &'static str,
-    agreement: f32,
+pub(super) struct MatchJson {
+    pub(super) a: usize,
+    pub(super) b: usize,
+    pub(super) status: &'static str,
+    pub(super) accepted: bool,
+    pub(super) reason: &'static str,
+    pub(super) agreement: f32,
 }
 
 #[derive(Serialize)]
 struct TeamJson {
     schema_version: u32,
     links: &'static str,
-    robots: Vec<RobotJson>,
+    pub(super) robots: Vec<RobotJson>,
     matches: Vec<MatchJson>,
     consistency_exhaustive: bool,
 }
@@ -116,9 +137,12 @@ struct TeamJson {
 /// Exit code: 0 when every robot is placed in robot 0's frame, else 5
 /// (no overlap: some robot could not be placed).
 pub fn run(a: Args) -> Result<u8, Error> {
+    if a.on_board {
+        return super::team_board::run(a);
+    }
     let spec = TeamSpec {
         robots: a.robots,
-        voxel: a.voxel,
+        voxel: a.voxel.unwrap_or(0.2),
         prior_noise: a.prior_noise,
         inject_false_match: a.inject_false_match,
         label_noise: a.label_noise,

@@ -1,0 +1,426 @@
+//! `cosem team --on-board`: each robot of a team on its own emulated board
+//! (QEMU `mps2-an386`, the firmware's `team` binary), beside the host's run
+//! of the same robots on the same fed points.
+//!
+//! Board i's UART1 is its feeder line (a TCP listener of this process: its
+//! thinned scans in, its messages out). Its other four UARTs are its peer
+//! lines, in peer index order (UART0, 2, 3, 4), so a team on boards has at
+//! most five robots. Every pair of boards has its own line: this process
+//! joins the two UARTs byte for byte, a mesh of point-to-point links like
+//! the host's `cosem team`. The host's run drives the core's
+//! [`TeamRobot`] with the same feeds over simulated clean lines, so the
+//! boards' placements must be the host's.
+
+use crate::error::Error;
+use crate::mapping::new_map;
+use crate::robots::{accept, pump, qemu, Feed, LineFault};
+use cosem_core::link::sim::{ScriptPort, SimConfig, SimLine, SimPort};
+use cosem_core::link::LinkBuffers;
+use cosem_core::matching::{PyramidCapacity, VecPyramidStorage};
+use cosem_core::robot::team::{port_of, TeamRobot, TABLE_WORDS};
+use cosem_core::robot::{self, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
+use cosem_core::wire::feed::{PlacedRobot, RobotMessage, RobotReport, TeamEnd};
+use cosem_core::wire::frame::Deframer;
+use std::cell::RefCell;
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::Path;
+use std::sync::atomic::AtomicU64;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Most robots of a team on boards: one feeder UART and four peer UARTs.
+pub const MAX_BOARDS: usize = 5;
+
+/// Where the firmware's `team` binary is built.
+pub const DEFAULT_TEAM_FIRMWARE: &str = "firmware/target/thumbv7em-none-eabihf/release/team";
+
+/// What one team robot said over its feeder line.
+#[derive(Clone, Debug, Default)]
+pub struct TeamReports {
+    /// One per round met: the peer and the report (`T_own_peer`).
+    pub matched: Vec<(u8, RobotReport)>,
+    /// Where it placed each robot.
+    pub placed: Vec<PlacedRobot>,
+    /// Its last message.
+    pub end: Option<TeamEnd>,
+    /// Where and why it stopped (or what went wrong on the host's side).
+    pub failed: Option<(String, String)>,
+}
+
+impl TeamReports {
+    /// Takes one message; `true` when it was the last.
+    fn take(&mut self, payload: &[u8]) -> bool {
+        match RobotMessage::decode(payload) {
+            Ok(RobotMessage::Matched { peer, report }) => self.matched.push((peer, report)),
+            Ok(RobotMessage::Placed(p)) => self.placed.push(p),
+            Ok(RobotMessage::TeamEnd(e)) => {
+                self.end = Some(e);
+                return true;
+            }
+            Ok(RobotMessage::Failed { stage, message }) => {
+                self.failed = Some((stage.as_str().into(), message.into()));
+                return true;
+            }
+            Ok(RobotMessage::Report(_)) => {
+                self.failed = Some(("host".into(), "a pair robot's report from a team robot".into()));
+                return true;
+            }
+            Err(e) => {
+                self.failed = Some(("host".into(), format!("undecodable message: {e}")));
+                return true;
+            }
+        }
+        false
+    }
+
+    /// All the messages in `bytes` (frames).
+    fn from_bytes(bytes: &[u8]) -> Self {
+        let mut out = TeamReports::default();
+        let mut deframer = Deframer::new();
+        for &b in bytes {
+            if let Ok(Some(payload)) = deframer.push(b) {
+                if out.take(payload) {
+                    break;
+                }
+            }
+        }
+        if out.end.is_none() && out.failed.is_none() {
+            out.failed = Some(("host".into(), "no last message".into()));
+        }
+        out
+    }
+}
+
+/// The team's framed feeds (robot i's set-up names it i of `feeds.len()`).
+pub fn team_feed_bytes(feeds: &[Feed]) -> Result<Vec<Vec<u8>>, Error> {
+    let n = u8::try_from(feeds.len()).map_err(|_| Error::Invalid("too many robots".into()))?;
+    feeds.iter().map(|f| f.bytes_in_team(Some(n))).collect()
+}
+
+/// The team run on this host, exactly as on the boards: the core's team
+/// robot with the firmware's capacities, each pair joined by a clean
+/// simulated 115200-baud line, one millisecond per round of polls.
+pub fn host_team_run(feeds: &[Feed]) -> Result<Vec<TeamReports>, Error> {
+    let n = feeds.len();
+    let bytes = team_feed_bytes(feeds)?;
+    let config = robot::map_config(feeds.first().map_or(0.5, |f| f.setup.resolution));
+    struct Buffers {
+        own: crate::mapping::HostMap,
+        received: crate::mapping::HostMap,
+        scratch: Vec<u32>,
+        link: Box<LinkBuffers>,
+    }
+    let mut buffers = (0..n)
+        .map(|_| {
+            Ok(Buffers {
+                own: new_map(VOXELS, config)?,
+                received: new_map(VOXELS, config)?,
+                scratch: vec![0u32; VOXELS.max(TABLE_WORDS)],
+                link: Box::new(LinkBuffers::new()),
+            })
+        })
+        .collect::<Result<Vec<_>, Error>>()?;
+    let storage = |words| VecPyramidStorage::new(PyramidCapacity { voxels: VOXELS, entries: COARSE, words });
+    let mut robots: Vec<_> = buffers
+        .iter_mut()
+        .map(|b| {
+            TeamRobot::new(
+                RobotConfig::default(),
+                &mut b.own,
+                &mut b.received,
+                &mut b.scratch,
+                &mut *b.link,
+                storage(MODEL_WORDS),
+                storage(SCENE_WORDS),
+            )
+        })
+        .collect();
+    // One line per pair (i < j): side 0 is robot i's end.
+    let sim = |k: usize| SimConfig {
+        seed: k as u64 + 1,
+        error_rate: 0.0,
+        stall_chance: 0.0,
+        bytes_per_ms: 11.52,
+        half_duplex: false,
+    };
+    let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
+    let lines: Vec<RefCell<SimLine<65536>>> =
+        pairs.iter().enumerate().map(|(k, _)| RefCell::new(SimLine::new(sim(k)))).collect();
+    let mut ports: Vec<Vec<Option<SimPort<'_, 65536>>>> =
+        (0..n).map(|_| (0..n.max(2) - 1).map(|_| None).collect()).collect();
+    for (&(i, j), line) in pairs.iter().zip(&lines) {
+        let (a, b) = SimLine::ports(line);
+        ports[i][port_of(i as u8, j as u8)] = Some(a);
+        ports[j][port_of(j as u8, i as u8)] = Some(b);
+    }
+    let mut ports: Vec<Vec<SimPort<'_, 65536>>> =
+        ports.into_iter().map(|p| p.into_iter().flatten().collect()).collect();
+    let mut feeders: Vec<ScriptPort<'_, 16384>> = bytes.iter().map(|b| ScriptPort::new(b, 64)).collect();
+    let mut done = vec![false; n];
+    let limit_ms = 3_600_000u64;
+    let mut now = 0u64;
+    while done.iter().any(|d| !d) && now <= limit_ms {
+        for line in &lines {
+            line.borrow_mut().tick(now);
+        }
+        for i in 0..n {
+            if !done[i] {
+                match robots[i].poll(&mut feeders[i], &mut ports[i], now, &()) {
+                    Ok(false) => {}
+                    Ok(true) | Err(_) => done[i] = true,
+                }
+            }
+        }
+        now += 1;
+    }
+    Ok(feeders.iter().map(|f| TeamReports::from_bytes(&f.output)).collect())
+}
+
+/// One board's run.
+#[derive(Clone, Debug)]
+pub struct BoardRun {
+    /// What it said.
+    pub reports: TeamReports,
+    /// QEMU's exit code (`None`: killed at the deadline).
+    pub exit_code: Option<i32>,
+}
+
+/// Feeds one board and collects its messages until its last.
+fn feed_and_collect(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant, progress: Option<usize>) -> TeamReports {
+    let mut out = TeamReports::default();
+    let mut reader = match conn.try_clone() {
+        Ok(r) => r,
+        Err(e) => {
+            out.failed = Some(("host".into(), e.to_string()));
+            return out;
+        }
+    };
+    let writer = std::thread::spawn(move || conn.write_all(&feed).map(|_| conn));
+    let mut deframer = Deframer::new();
+    let mut buf = [0u8; 1024];
+    'read: loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            out.failed = Some(("host".into(), "no last message before the deadline".into()));
+            break;
+        }
+        let _ = reader.set_read_timeout(Some(left.min(Duration::from_millis(500))));
+        let k = match reader.read(&mut buf) {
+            Ok(0) => {
+                out.failed = Some(("host".into(), "the robot closed its feeder line".into()));
+                break;
+            }
+            Ok(k) => k,
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
+            Err(e) => {
+                out.failed = Some(("host".into(), e.to_string()));
+                break;
+            }
+        };
+        for &b in &buf[..k] {
+            if let Ok(Some(payload)) = deframer.push(b) {
+                if let Some(i) = progress {
+                    eprintln!("board {i}: {}", describe(payload));
+                }
+                if out.take(payload) {
+                    break 'read;
+                }
+            }
+        }
+    }
+    drop(reader);
+    let _ = writer.join();
+    out
+}
+
+/// One line on what a board said, for progress on stderr.
+fn describe(payload: &[u8]) -> String {
+    match RobotMessage::decode(payload) {
+        Ok(RobotMessage::Matched { peer, report }) => format!(
+            "met robot {peer}: status {}, overlap {:.2}, {} B sent, {} B received, {} ms on the line",
+            report.result.status, report.result.overlap, report.bytes_sent, report.bytes_received, report.link_ms
+        ),
+        Ok(RobotMessage::Placed(p)) => format!("robot {} in the frame of robot {}", p.index, p.anchor),
+        Ok(RobotMessage::TeamEnd(e)) => {
+            format!("finished: {} candidates, heard {:#b}, shared in {} ms", e.candidates, e.heard, e.share_ms)
+        }
+        Ok(RobotMessage::Failed { stage, message }) => format!("stopped at {}: {message}", stage.as_str()),
+        Ok(RobotMessage::Report(_)) => "a pair robot's report".into(),
+        Err(e) => format!("undecodable message: {e}"),
+    }
+}
+
+/// Runs the team on boards: `elf` is the firmware's `team` binary. Every
+/// QEMU is killed at `timeout`. With `progress`, each board's messages are
+/// told on stderr as they come.
+pub fn run_boards(
+    elf: &Path,
+    feeds: &[Feed],
+    timeout: Duration,
+    progress: bool,
+) -> Result<(Vec<BoardRun>, f64), Error> {
+    run_boards_inner(elf, feeds, timeout, progress).map_err(Error::Invalid)
+}
+
+fn run_boards_inner(
+    elf: &Path,
+    feeds: &[Feed],
+    timeout: Duration,
+    progress: bool,
+) -> Result<(Vec<BoardRun>, f64), String> {
+    let n = feeds.len();
+    if !(2..=MAX_BOARDS).contains(&n) {
+        return Err(format!("a team on boards has 2 to {MAX_BOARDS} robots (four peer UARTs each), not {n}"));
+    }
+    let started = Instant::now();
+    let deadline = started + timeout;
+    let bind = || TcpListener::bind("127.0.0.1:0").map_err(|e| format!("listen on 127.0.0.1: {e}"));
+    let port = |l: &TcpListener| l.local_addr().map(|a| a.port()).map_err(|e| e.to_string());
+    let bytes = team_feed_bytes(feeds).map_err(|e| e.to_string())?;
+    let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
+    let links = pairs.iter().map(|_| bind()).collect::<Result<Vec<_>, _>>()?;
+    let feeders = (0..n).map(|_| bind()).collect::<Result<Vec<_>, _>>()?;
+    // Board i's serial ports: UART0, 2, 3, 4 are its peers in order, UART1 its feeder.
+    const PEER_UARTS: [usize; 4] = [0, 2, 3, 4];
+    let mut children = Vec::new();
+    for (i, f) in feeders.iter().enumerate() {
+        let mut serials: Vec<Option<u16>> = vec![None; 5];
+        serials[1] = Some(port(f)?);
+        for (&(a, b), l) in pairs.iter().zip(&links) {
+            if a == i || b == i {
+                let peer = if a == i { b } else { a };
+                serials[PEER_UARTS[port_of(i as u8, peer as u8)]] = Some(port(l)?);
+            }
+        }
+        // QEMU connects its serial ports in order; unused ones go nowhere.
+        let last = serials.iter().rposition(Option::is_some).unwrap_or(1);
+        let child = qemu(elf, &serials[..=last]).map_err(|e| format!("qemu-system-arm: {e}"))?;
+        children.push(child);
+    }
+    let connect_by = Instant::now() + Duration::from_secs(30);
+    let result = (|| {
+        for l in &links {
+            let (x, y) = (accept(l, connect_by)?, accept(l, connect_by)?);
+            let clone = |s: &TcpStream| s.try_clone().map_err(|e| e.to_string());
+            let (xb, yb) = (clone(&x)?, clone(&y)?);
+            let (cx, cy) = (Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0)));
+            std::thread::spawn(move || pump(x, yb, LineFault::None, 1, cx));
+            std::thread::spawn(move || pump(y, xb, LineFault::None, 2, cy));
+        }
+        let mut listeners = Vec::new();
+        for (i, (f, b)) in feeders.iter().zip(bytes).enumerate() {
+            let conn = accept(f, connect_by)?;
+            let progress = progress.then_some(i);
+            listeners.push(std::thread::spawn(move || feed_and_collect(conn, b, deadline, progress)));
+        }
+        Ok::<_, String>(
+            listeners
+                .into_iter()
+                .map(|h| {
+                    h.join().unwrap_or_else(|_| TeamReports {
+                        failed: Some(("host".into(), "feeder thread failed".into())),
+                        ..TeamReports::default()
+                    })
+                })
+                .collect::<Vec<_>>(),
+        )
+    })();
+    let mut codes = Vec::new();
+    for c in &mut children {
+        let code = loop {
+            match c.try_wait() {
+                Ok(Some(s)) => break s.code(),
+                Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
+                _ => {
+                    let _ = c.kill();
+                    let _ = c.wait();
+                    break None;
+                }
+            }
+        };
+        codes.push(code);
+    }
+    let reports = result?;
+    let runs = reports.into_iter().zip(codes).map(|(reports, exit_code)| BoardRun { reports, exit_code }).collect();
+    Ok((runs, started.elapsed().as_secs_f64()))
+}
+
+/// Each robot's feed: its frames (label noise applied, robot i's seeded by
+/// `seed + i`) thinned to one point per `voxel` within `crop` m, no prior.
+pub fn team_feeds(spec: &crate::team::TeamSpec, crop: f32, silence_ms: u32) -> Result<Vec<Feed>, Error> {
+    let filter = crate::mapping::PointFilter::default();
+    let mut out = Vec::new();
+    for (i, r) in spec.robots.iter().enumerate() {
+        let seq = crate::kitti::Sequence::open(&r.data)?;
+        let mut frames = seq.load_range(r.frames)?;
+        crate::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(i as u64));
+        let scans = frames.iter().map(|f| crate::robots::thin_scan(f, spec.voxel, crop, &filter)).collect();
+        let setup =
+            cosem_core::wire::feed::Setup { robot_id: i as u8, resolution: spec.voxel, prior: None, silence_ms };
+        out.push(Feed { setup, scans });
+    }
+    Ok(out)
+}
+
+/// Largest distance (m) between the translations two robots' reports give
+/// for the same robot, and whether every robot has the same anchor in
+/// both (`None` when either placed nothing).
+pub fn placement_difference(a: &TeamReports, b: &TeamReports) -> Option<(f64, bool)> {
+    if a.placed.is_empty() || a.placed.len() != b.placed.len() {
+        return None;
+    }
+    let mut worst = 0.0f64;
+    let mut same = true;
+    for (p, q) in a.placed.iter().zip(&b.placed) {
+        same &= p.index == q.index && p.anchor == q.anchor;
+        let d = (0..3).map(|k| f64::from(p.transform[4 * k + 3] - q.transform[4 * k + 3]).powi(2)).sum::<f64>();
+        worst = worst.max(d.sqrt());
+    }
+    Some((worst, same))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::team::{RobotSpec, TeamSpec};
+
+    fn data() -> Option<std::path::PathBuf> {
+        let root = std::env::var_os("COSEM_DATA").map_or_else(|| "../../shared/data".into(), std::path::PathBuf::from);
+        let dir = root.join("kitti00");
+        if dir.is_dir() {
+            Some(dir)
+        } else {
+            eprintln!("skipped: no {}", dir.display());
+            None
+        }
+    }
+
+    #[test]
+    fn host_team_run_places_three_robots_of_one_drive() {
+        let Some(dir) = data() else { return };
+        let robot =
+            |a, b| RobotSpec { data: dir.clone(), frames: crate::kitti::FrameRange { start: a, end: b, stride: 1 } };
+        let spec = TeamSpec {
+            robots: vec![robot(0, 3), robot(3, 6), robot(6, 10)],
+            voxel: 0.5,
+            prior_noise: None,
+            inject_false_match: Vec::new(),
+            label_noise: crate::noise::LabelNoise::None,
+            seed: 1,
+            settings: Default::default(),
+        };
+        let feeds = team_feeds(&spec, 25.0, 60_000).unwrap();
+        let reports = host_team_run(&feeds).unwrap();
+        for r in &reports {
+            assert!(r.end.is_some(), "{:?}", r.failed);
+            assert_eq!(r.matched.len(), 2, "{r:?}");
+            assert!(r.placed.iter().all(|p| p.anchor == 0) && r.placed.len() == 3, "{r:?}");
+            // Every robot holds every estimate and places the team alike.
+            assert_eq!(placement_difference(r, &reports[0]), Some((0.0, true)));
+        }
+        // Robot 2 started about 4.3 m ahead of robot 0 (kitti00 frames 0 and 6).
+        let x = reports[0].placed[2].transform[3];
+        assert!((4.0..4.6).contains(&x), "{x}");
+    }
+}
