@@ -173,3 +173,26 @@ fn a_synthetic_street_cut_in_three_is_placed_on_boards() {
     }
     assert_eq!(code, Some(0));
 }
+
+#[test]
+fn a_synthetic_street_cut_in_eight_is_placed_despite_a_false_match_both_ways() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 24, 21);
+    let s = seq.display().to_string();
+    let robots: Vec<String> = (0..8).map(|i| format!("{s}:{}:{}", 3 * i, 3 * i + 3)).collect();
+    let mut args: Vec<&str> = robots.iter().flat_map(|r| ["--robot", r.as_str()]).collect();
+    args.extend_from_slice(&["--inject-false-match", "3,4", "--inject-false-match", "4,3"]);
+    let (v, code) = team(&args);
+    for i in 0..8 {
+        assert_placed(&v, i);
+    }
+    assert_eq!(code, Some(0));
+    assert!(!accepted(&v, 3, 4) && !accepted(&v, 4, 3));
+    assert_eq!(v["matches"].as_array().unwrap().len(), 56);
+    // Each robot sent its map over its 7 links, once each.
+    for r in v["robots"].as_array().unwrap() {
+        let (sent, voxels) = (r["bytes_sent"].as_u64().unwrap(), r["voxels"].as_u64().unwrap());
+        assert!(sent > 7 * voxels && sent < 7 * 8 * voxels, "{r}");
+    }
+}
