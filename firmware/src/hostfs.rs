@@ -25,3 +25,16 @@ pub fn read_file<'a>(path: &[u8], buf: &'a mut [u8]) -> Option<&'a [u8]> {
         }
     }
 }
+
+/// The semihosting command line (QEMU: the kernel's path, a space and
+/// `-append`'s text). `None` when there is none or it does not fit.
+pub fn command_line(buf: &mut [u8]) -> Option<&[u8]> {
+    let mut block = [buf.as_mut_ptr() as usize, buf.len()];
+    // SAFETY: GET_CMDLINE writes at most `block[1]` bytes into `buf` and the
+    // length it wrote into `block[1]`.
+    let r = unsafe { cortex_m_semihosting::syscall1(nr::GET_CMDLINE, block.as_mut_ptr() as usize) };
+    if r != 0 {
+        return None;
+    }
+    buf.get(..block[1])
+}

@@ -17,8 +17,8 @@
 use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::exception;
+use cortex_m_rt::ExceptionFrame;
 use cortex_m_semihosting::debug;
-use panic_halt as _;
 
 pub mod hostfs;
 pub mod uart;
@@ -124,4 +124,39 @@ pub fn exit(ok: bool) -> ! {
     loop {
         cortex_m::asm::wfi();
     }
+}
+
+/// Exit code of a firmware that panicked.
+pub const EXIT_PANIC: u32 = 101;
+/// Exit code of a firmware that took a hard fault (e.g. its stack ran into
+/// the statics).
+pub const EXIT_FAULT: u32 = 102;
+
+/// Ends the program with any exit code (semihosting `SYS_EXIT_EXTENDED`:
+/// `debug::exit` passes only 0 or 1).
+pub fn exit_with(code: u32) -> ! {
+    // SAFETY: semihosting call 0x20 takes a pointer to two words: the
+    // reason (ADP_Stopped_ApplicationExit) and the exit code.
+    unsafe {
+        cortex_m_semihosting::syscall(0x20, &[0x2_0026usize, code as usize]);
+    }
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+/// A panic ends QEMU at once with [`EXIT_PANIC`] (never a silent hang),
+/// after one line on the host's stderr.
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo<'_>) -> ! {
+    cortex_m::interrupt::disable();
+    cortex_m_semihosting::heprintln!("firmware panicked: {}", info);
+    exit_with(EXIT_PANIC)
+}
+
+/// A hard fault ends QEMU at once with [`EXIT_FAULT`].
+#[cortex_m_rt::exception]
+unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
+    cortex_m_semihosting::heprintln!("firmware hard fault at pc {:#010x}", frame.pc());
+    exit_with(EXIT_FAULT)
 }

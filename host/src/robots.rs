@@ -431,6 +431,33 @@ fn run_pair_inner(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Dura
     Ok(PairRun { robots: [a, b], line_bytes, wall_s: started.elapsed().as_secs_f64() })
 }
 
+/// Exit code of a firmware that panicked (its panic handler exits through
+/// semihosting at once).
+pub const EXIT_PANIC: i32 = 101;
+/// Exit code of a firmware that took a hard fault.
+pub const EXIT_FAULT: i32 = 102;
+
+/// The stage a robot that said nothing stopped at: the firmware itself
+/// when QEMU's exit code says it panicked or faulted, else the host.
+pub(crate) fn firmware_stage(code: Option<i32>) -> &'static str {
+    match code {
+        Some(EXIT_PANIC | EXIT_FAULT) => "firmware",
+        _ => "host",
+    }
+}
+
+/// Why a robot said nothing, with what its exit code tells.
+pub(crate) fn lost_reason(why: &str, code: Option<i32>) -> String {
+    match code {
+        Some(EXIT_PANIC) => format!("the firmware panicked (exit {EXIT_PANIC}; QEMU's stderr has the message): {why}"),
+        Some(EXIT_FAULT) => {
+            format!("the firmware took a hard fault (exit {EXIT_FAULT}: a stack overflow or a bad address): {why}")
+        }
+        None => format!("{why}; QEMU killed at the deadline"),
+        Some(_) => why.to_string(),
+    }
+}
+
 /// 8N1 at `baud`: seconds a number of bytes takes on the line.
 pub fn line_seconds(bytes: u64, baud: u32) -> f64 {
     bytes as f64 * 10.0 / f64::from(baud.max(1))
@@ -570,7 +597,7 @@ fn robot_json(i: usize, run: &RobotRun, truth: &Isometry3<f64>) -> RobotJson {
     let rep = match &run.outcome {
         Outcome::Report(r) => r,
         Outcome::Failed { stage, message } => return failed(stage, message),
-        Outcome::Lost(why) => return failed("host", why),
+        Outcome::Lost(why) => return failed(firmware_stage(run.exit_code), &lost_reason(why, run.exit_code)),
     };
     let t = rep.result.transform();
     let (e_t, e_r) = errors_of(&t, truth);

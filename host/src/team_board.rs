@@ -342,7 +342,18 @@ fn run_boards_inner(
         codes.push(code);
     }
     let reports = result?;
-    let runs = reports.into_iter().zip(codes).map(|(reports, exit_code)| BoardRun { reports, exit_code }).collect();
+    let runs = reports
+        .into_iter()
+        .zip(codes)
+        .map(|(mut reports, exit_code)| {
+            // A board that stopped without a word: say what its exit code tells.
+            if let Some((stage, message)) = reports.failed.as_mut().filter(|(s, _)| s == "host") {
+                *message = crate::robots::lost_reason(message, exit_code);
+                *stage = crate::robots::firmware_stage(exit_code).to_string();
+            }
+            BoardRun { reports, exit_code }
+        })
+        .collect();
     Ok((runs, started.elapsed().as_secs_f64()))
 }
 

@@ -132,6 +132,41 @@ pub fn firmware_elves() -> Option<PathBuf> {
     }
 }
 
+/// Runs `cmd` (a QEMU) to its end and returns what it printed; kills it
+/// and fails the test when it runs past `limit` (a hung firmware must not
+/// hang the tests). A panicking or faulting firmware exits at once with
+/// its own code (see the firmware's `exit` module).
+pub fn run_within(cmd: &mut Command, limit: std::time::Duration) -> Output {
+    use std::io::Read;
+    use std::process::Stdio;
+    let mut child = cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start");
+    let drain = |r: Option<Box<dyn Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut buf = Vec::new();
+            if let Some(mut r) = r {
+                let _ = r.read_to_end(&mut buf);
+            }
+            buf
+        })
+    };
+    let out = drain(child.stdout.take().map(|s| Box::new(s) as Box<dyn Read + Send>));
+    let err = drain(child.stderr.take().map(|s| Box::new(s) as Box<dyn Read + Send>));
+    let deadline = std::time::Instant::now() + limit;
+    let status = loop {
+        if let Some(s) = child.try_wait().expect("wait") {
+            break s;
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            let stdout = out.join().unwrap_or_default();
+            panic!("{cmd:?} still running after {limit:?}: killed\n{}", String::from_utf8_lossy(&stdout));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    Output { status, stdout: out.join().unwrap_or_default(), stderr: err.join().unwrap_or_default() }
+}
+
 /// The QEMU command line of the firmware's runner (firmware/.cargo/config.toml)
 /// for `elf`, without `-serial` options.
 pub fn qemu(elf: &Path) -> Command {

@@ -30,11 +30,10 @@ fn firmware_matches_the_host_bit_for_bit() {
     // Run it as firmware/.cargo/config.toml's runner does, with UART0 to a file.
     let tmp = tempfile::tempdir().unwrap();
     let uart0 = tmp.path().join("uart0.txt");
-    let out = cosem_tests::qemu(&elves.join("selftest"))
-        .arg("-serial")
-        .arg(format!("file:{}", uart0.display()))
-        .output()
-        .expect("run qemu-system-arm");
+    let out = cosem_tests::run_within(
+        cosem_tests::qemu(&elves.join("selftest")).arg("-serial").arg(format!("file:{}", uart0.display())),
+        std::time::Duration::from_secs(600),
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "firmware failed:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
     let target: Vec<&str> = stdout.lines().filter(|l| l.starts_with("selftest ")).collect();
@@ -111,7 +110,10 @@ fn firmware_matches_real_maps_in_the_budget() {
             &out,
         ]);
     }
-    let out = cosem_tests::qemu(&elves.join("bench")).current_dir(tmp.path()).output().expect("run qemu-system-arm");
+    let out = cosem_tests::run_within(
+        cosem_tests::qemu(&elves.join("bench")).current_dir(tmp.path()),
+        std::time::Duration::from_secs(600),
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "bench failed:\n{stdout}");
     eprintln!("{stdout}");
@@ -127,4 +129,16 @@ fn firmware_matches_real_maps_in_the_budget() {
     let gyaw = g[(1, 0)].atan2(g[(0, 0)]).to_degrees();
     let e_t = ((t[0] - gx).powi(2) + (t[1] - gy).powi(2) + (t[2] - gz).powi(2)).sqrt();
     assert!(e_t < 0.2 && (yaw - gyaw).abs() < 0.5, "on board {t:?} {yaw} vs truth {gx} {gy} {gz} {gyaw}");
+}
+
+#[test]
+fn a_panic_or_a_hard_fault_ends_qemu_at_once_with_its_own_code() {
+    let Some(elves) = cosem_tests::firmware_elves() else { return };
+    for (what, code) in [("panic", 101), ("fault", 102), ("nothing", 0)] {
+        let out = cosem_tests::run_within(
+            cosem_tests::qemu(&elves.join("crash")).args(["-append", what]),
+            std::time::Duration::from_secs(60),
+        );
+        assert_eq!(out.status.code(), Some(code), "{what}: {}", String::from_utf8_lossy(&out.stderr));
+    }
 }

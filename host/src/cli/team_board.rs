@@ -97,7 +97,17 @@ pub fn run(a: Args) -> Result<u8, Error> {
             .then(|| seqs[i].relative_pose(spec.robots[i].frames.start, spec.robots[j].frames.start).ok())
             .flatten()
     };
-    let first = boards.iter().position(|b| b.reports.end.is_some()).ok_or("no board finished")?;
+    let Some(first) = boards.iter().position(|b| b.reports.end.is_some()) else {
+        let why: Vec<String> = boards
+            .iter()
+            .enumerate()
+            .map(|(i, b)| match &b.reports.failed {
+                Some((stage, message)) => format!("board {i} stopped at {stage}: {message}"),
+                None => format!("board {i}: no last message (exit {:?})", b.exit_code),
+            })
+            .collect();
+        return Err(format!("no board finished: {}", why.join("; ")).into());
+    };
     let lead: &TeamReports = &boards[first].reports;
     let end = lead.end.ok_or("no board finished")?;
     // Every robot's bytes over its links, from its own board.
