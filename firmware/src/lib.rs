@@ -11,7 +11,9 @@
 //! - `bench`: two map files matched on board (bench.sh);
 //! - `robot`: one robot of a pair (`cosem robots`);
 //! - `team`: one robot of a team of up to five (`cosem team --on-board`):
-//!   UART1 its feeder line, UART0, 2, 3 and 4 its peers.
+//!   UART1 its feeder line, UART0, 2, 3 and 4 its peers;
+//! - `crash`: panics or faults on purpose (`-append panic|fault`), for the
+//!   tests of the exit codes.
 #![no_std]
 
 use core::sync::atomic::{AtomicU32, Ordering};
