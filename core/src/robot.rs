@@ -27,6 +27,7 @@ use crate::matching::{
 };
 use crate::wire::feed::{self, FeedError, FeedMessage, GlobalReport, RobotMessage, RobotReport, Setup, Stage};
 use crate::wire::frame::{DeframeError, Deframer, MAX_FRAME};
+use crate::wire::share::Estimate;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
 /// Voxels a robot's map holds (and the received map): 256 KiB each. When a
@@ -280,6 +281,12 @@ enum State<'a, M: VoxelStorage, R: VoxelStorage> {
         received: &'a LocalMap<R>,
         stats: LinkStats,
     },
+    /// A one-sided exchange (the peer took no map): telling the peer the
+    /// result before reporting it.
+    Tell {
+        report: RobotReport,
+        teller: tell::Teller,
+    },
     Done,
 }
 
@@ -290,6 +297,9 @@ pub struct Robot<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: Pyr
     fed: FeedIn,
     link_started_ms: u64,
     link_ms: u32,
+    /// The peer took no map: it is told the result (its robot id).
+    tell_peer: Option<u8>,
+    link_config: LinkConfig,
 }
 
 /// What a robot took from its feed line: the set-up, the points inserted,
@@ -320,14 +330,15 @@ impl FeedIn {
     }
 
     /// Reads what the feed line holds into `own` (both maps reconfigured by
-    /// the set-up); `true` at the end of the feed. A team robot (`team`)
+    /// the set-up; a robot that receives no map has no `received`); `true`
+    /// at the end of the feed. A team robot (`team`)
     /// needs [`FeedMessage::Team`] after the set-up and no prior; a pair
     /// robot refuses it.
     fn read<F: Read + ReadReady, M: VoxelStorage, R: VoxelStorage, T: Meter>(
         &mut self,
         feed: &mut F,
         own: &mut LocalMap<M>,
-        received: &mut LocalMap<R>,
+        mut received: Option<&mut LocalMap<R>>,
         team: bool,
         now_ms: u64,
         meter: &T,
@@ -348,7 +359,9 @@ impl FeedIn {
                     FeedMessage::Setup(s) if setup.is_none() && !(team && s.prior.is_some()) => {
                         let config = map_config(s.resolution);
                         own.reset(config).map_err(RobotError::Config)?;
-                        received.reset(config).map_err(RobotError::Config)?;
+                        if let Some(r) = received.as_deref_mut() {
+                            r.reset(config).map_err(RobotError::Config)?;
+                        }
                         *setup = Some(s);
                     }
                     FeedMessage::Team { robots: n }
@@ -398,6 +411,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
             fed: FeedIn::new(config),
             link_started_ms: 0,
             link_ms: 0,
+            tell_peer: None,
+            link_config: LinkConfig::default(),
         }
     }
 
@@ -437,7 +452,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
     {
         match core::mem::replace(&mut self.state, State::Done) {
             State::Feed { own, received, scratch, buffers } => {
-                let done = self.fed.read(feed, own, received, false, now_ms, meter);
+                let done = self.fed.read(feed, own, Some(&mut *received), false, now_ms, meter);
                 self.state = State::Feed { own, received, scratch, buffers };
                 if done? {
                     self.start_link(now_ms)?;
@@ -452,6 +467,9 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
                 Progress::Done => {
                     self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
                     let stats = endpoint.stats();
+                    if endpoint.peer_takes_map() == Some(false) {
+                        self.tell_peer = endpoint.peer_id();
+                    }
                     let (_, received) = endpoint.into_parts();
                     let Some(received) = received else { return Err(RobotError::Link(LinkError::Setup)) };
                     self.state = State::Align { own, received, stats };
@@ -459,8 +477,23 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
                 }
             },
             State::Align { own, received, stats } => {
-                let report = self.align(own, received, &stats, meter)?;
-                Ok(Poll::Done(report))
+                let (report, estimate) = self.align(own, received, &stats, meter)?;
+                match self.tell_peer {
+                    Some(peer) => {
+                        let estimate = Estimate { b: peer, ..estimate };
+                        self.state = State::Tell { report, teller: tell::Teller::new(estimate, now_ms) };
+                        Ok(Poll::Busy)
+                    }
+                    None => Ok(Poll::Done(report)),
+                }
+            }
+            State::Tell { report, mut teller } => {
+                let io = |_| RobotError::Link(LinkError::Io(embedded_io::ErrorKind::Other));
+                if teller.step(link, now_ms, &self.link_config).map_err(io)? {
+                    return Ok(Poll::Done(report));
+                }
+                self.state = State::Tell { report, teller };
+                Ok(Poll::Busy)
             }
             State::Done => Err(RobotError::Finished),
         }
@@ -473,6 +506,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         };
         let own: &'a LocalMap<M> = own;
         let config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
+        self.link_config = config;
         let id = setup.robot_id;
         let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), Some(received), buffers)
             .map_err(RobotError::Link)?;
@@ -487,7 +521,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         received: &LocalMap<R>,
         stats: &LinkStats,
         meter: &T,
-    ) -> Result<RobotReport, RobotError> {
+    ) -> Result<(RobotReport, Estimate), RobotError> {
         let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
         let (model, scene) = self.pyramids.take().ok_or(RobotError::Finished)?;
         let prior = setup.prior.as_ref().map(from_rows);
@@ -498,7 +532,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
             }
         })
         .map_err(RobotError::Align)?;
-        Ok(RobotReport {
+        let estimate = Estimate::of(setup.robot_id, 0, &result);
+        let report = RobotReport {
             result: result.report(setup.robot_id),
             points: self.fed.points,
             map_voxels: own.len() as u32,
@@ -513,7 +548,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
             match_instructions: marks[3].saturating_sub(marks[2]),
             global: located.as_ref().map(GlobalReport::from),
             peak_stack: meter.peak_stack(),
-        })
+        };
+        Ok((report, estimate))
     }
 }
 
@@ -568,7 +604,9 @@ fn send<F: Write>(feed: &mut F, msg: &RobotMessage<'_>) {
     }
 }
 
+pub mod sender;
 pub mod team;
+mod tell;
 
 #[cfg(test)]
 mod tests;

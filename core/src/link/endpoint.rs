@@ -858,6 +858,11 @@ pub struct Endpoint<'a, M: VoxelStorage, R: VoxelStorage> {
     /// We said we are finished (at this time).
     finished_at: Option<u64>,
     peer_finished: bool,
+    /// What the peer's `Hello` said: whether it takes our map (`None`
+    /// until heard).
+    peer_takes_map: Option<bool>,
+    /// The peer's robot id, from its `Hello`.
+    peer_id: Option<u8>,
     failed: Option<LinkError>,
     stats: LinkStats,
 }
@@ -982,6 +987,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
             last_byte: 0,
             finished_at: None,
             peer_finished: false,
+            peer_takes_map: None,
+            peer_id: None,
             failed: None,
             stats: LinkStats::default(),
         })
@@ -1000,7 +1007,20 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
 
     /// Whether the peer said it holds our whole map.
     pub fn sent(&self) -> bool {
-        self.tx.as_ref().is_none_or(|t| t.complete)
+        self.tx.as_ref().is_none_or(|t| t.complete) || self.peer_takes_map == Some(false)
+    }
+
+    /// Whether the peer takes our map, from its `Hello` (`None`: not heard
+    /// yet). `Some(false)`: a one-sided exchange, nothing of ours is sent;
+    /// a robot then tells the peer its match result instead
+    /// ([`crate::wire::share`]).
+    pub fn peer_takes_map(&self) -> Option<bool> {
+        self.peer_takes_map
+    }
+
+    /// The peer's robot id, from its `Hello` (`None`: not heard yet).
+    pub fn peer_id(&self) -> Option<u8> {
+        self.peer_id
     }
 
     /// Ends the endpoint and gives back what it borrowed mutably: the
@@ -1107,6 +1127,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                 class_table: CLASS_TABLE_VERSION,
                 resolution: self.resolution,
                 max_payload: MAX_PAYLOAD as u16,
+                takes_map: self.rx.map.is_some(),
             };
             send_msg(io, &Message::Hello(hello), &mut self.stats)?;
         }
@@ -1130,8 +1151,9 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         // is in.
         // A data frame only when the line takes it at once: acknowledgements
         // never wait behind a queue of data.
-        let may_send =
-            (!self.config.half_duplex || self.robot_id == 0 || self.rx.done) && io.write_ready().map_err(io_error)?;
+        let may_send = (!self.config.half_duplex || self.robot_id == 0 || self.rx.done)
+            && self.peer_takes_map != Some(false)
+            && io.write_ready().map_err(io_error)?;
         if let (Some(tx), true) = (self.tx.as_mut(), may_send) {
             let line = self.line.model();
             tx.send_next(io, now, self.last_byte.max(self.last_heard), line, &self.config, &mut self.stats)?;
@@ -1154,7 +1176,20 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
     }
 
     fn on_byte(&mut self, b: u8, now: u64) -> Result<(), LinkError> {
-        let Endpoint { deframer, rx, tx, stats, config, resolution, last_heard, peer_finished, line, .. } = self;
+        let Endpoint {
+            deframer,
+            rx,
+            tx,
+            stats,
+            config,
+            resolution,
+            last_heard,
+            peer_finished,
+            peer_takes_map,
+            peer_id,
+            line,
+            ..
+        } = self;
         if b != 0 {
             line.byte();
         }
@@ -1181,6 +1216,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
                 if h.class_table != CLASS_TABLE_VERSION || (h.resolution - *resolution).abs() > 1e-6 * *resolution {
                     return Err(LinkError::Incompatible);
                 }
+                *peer_takes_map = Some(h.takes_map);
+                *peer_id = Some(h.robot_id);
             }
             Message::Data { offset, poll, data } => rx.on_data(offset, poll, data, *resolution, stats)?,
             Message::Ack(ack) => {

@@ -198,7 +198,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
     {
         match core::mem::replace(&mut self.phase, Phase::Done) {
             Phase::Feed { own, received, scratch, buffers } => {
-                let done = self.fed.read(feed, own, received, true, now_ms, meter);
+                let done = self.fed.read(feed, own, Some(&mut *received), true, now_ms, meter);
                 if done? {
                     let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
                     self.link_config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
@@ -303,16 +303,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         })
         .map_err(RobotError::Align)?;
         let me = self.me();
-        let info: [[f32; 6]; 6] = core::array::from_fn(|r| core::array::from_fn(|c| result.information[(r, c)]));
         if let Some(slot) = self.estimates.get_mut(usize::from(peer)) {
-            *slot = Some(Estimate {
-                a: me,
-                b: peer,
-                status: result.status.code(),
-                transform: rows(&result.transform),
-                information: Estimate::upper(&info),
-                agreement: result.agreement,
-            });
+            *slot = Some(Estimate::of(me, peer, &result));
         }
         let mut report = self.report_base(own, stats, link_ms, meter);
         report.result = result.report(me);

@@ -83,6 +83,63 @@ fn two_robots_map_link_and_align() {
     assert_eq!(a.poll(&mut feed, &mut port, 0, &()), Err(RobotError::Finished));
 }
 
+/// A one-sided exchange over a line with byte errors: robot B takes no
+/// map (a small board), sends its own and is told robot A's result, which
+/// it reports inverted as its own `T_B_A` with A's status.
+#[test]
+fn a_robot_that_takes_no_map_is_told_the_result() {
+    let truth = crate::selftest::truth();
+    let prior = crate::geometry::from_xyz_rpy(1.5, -1.0, 0.0, 0.0, 0.0, 0.1) * truth;
+    let feeds = [feed_of(0, Some(crate::geometry::rows(&prior))), feed_of(1, None)];
+    let (mut own_a, mut rec_a, mut own_b) = (
+        heap_map(4096, MapConfig::default()),
+        heap_map(4096, MapConfig::default()),
+        heap_map(4096, MapConfig::default()),
+    );
+    let (mut sa, mut sb) = (std::vec![0u32; 4096], std::vec![0u32; 4096]);
+    let pyr = || heap_pyramid(4096, 4096, 20_000);
+    let (mut la, mut lb) = (std::boxed::Box::new(LinkBuffers::new()), std::boxed::Box::new(LinkBuffers::new()));
+    let mut a = Robot::new(RobotConfig::default(), &mut own_a, &mut rec_a, &mut sa, &mut la, pyr(), pyr());
+    let mut b = sender::SenderRobot::new(RobotConfig::default(), &mut own_b, &mut sb, &mut lb);
+    {
+        let line = std::boxed::Box::new(core::cell::RefCell::new(SimLine::<8192>::new(SimConfig {
+            seed: 5,
+            error_rate: 0.01,
+            stall_chance: 0.0,
+            bytes_per_ms: 11.52,
+            half_duplex: false,
+        })));
+        let (mut pa, mut pb) = SimLine::ports(&line);
+        let mut fa = ScriptPort::<256>::new(&feeds[0], 64);
+        let mut fb = ScriptPort::<256>::new(&feeds[1], 64);
+        let (mut ra, mut rb) = (None, None);
+        let mut now = 0u64;
+        while (ra.is_none() || rb.is_none()) && now < 600_000 {
+            line.borrow_mut().tick(now);
+            if ra.is_none() {
+                if let Poll::Done(r) = a.poll(&mut fa, &mut pa, now, &()).unwrap() {
+                    ra = Some(r);
+                }
+            }
+            if rb.is_none() {
+                if let Poll::Done(r) = b.poll(&mut fb, &mut pb, now, &()).unwrap() {
+                    rb = Some(r);
+                }
+            }
+            now += 1;
+        }
+        let (ra, rb) = (ra.expect("robot A reported"), rb.expect("robot B reported"));
+        assert_eq!(ra.result.status, crate::matching::MatchStatus::Converged.code());
+        assert_eq!(rb.result.status, ra.result.status);
+        // B's transform is A's, inverted; A received B's map, B none.
+        let d = rb.result.transform() * ra.result.transform();
+        assert!(d.translation.vector.norm() < 1e-4 && d.rotation.angle() < 1e-5, "{d:?}");
+        assert!(ra.received_voxels > 800 && rb.received_voxels == 0 && ra.received_voxels == rb.map_voxels);
+        // Only B's map crossed: A sent little more than its hello and acks.
+        assert!(rb.bytes_sent > 5 * ra.bytes_sent, "A {} B {}", ra.bytes_sent, rb.bytes_sent);
+    }
+}
+
 /// A robot whose feed breaks off, or whose feeder counts wrong, stops with
 /// a typed error and tells its feeder where.
 #[test]

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 
 /// Version of the link protocol (in the first byte of every payload but
 /// `Data`). At most 7.
-pub const PROTOCOL_VERSION: u8 = 3;
+pub const PROTOCOL_VERSION: u8 = 4;
 
 /// `Data` offsets count stream bytes modulo this (the window is far smaller).
 pub const OFFSET_MODULUS: u32 = 1 << 14;
@@ -36,6 +36,10 @@ pub struct Hello {
     pub resolution: f32,
     /// Largest frame payload it can receive.
     pub max_payload: u16,
+    /// Whether it takes the peer's map. A robot that cannot hold one (a
+    /// small microcontroller) says no: the exchange is then one-sided, its
+    /// map goes out, none comes in (version 4).
+    pub takes_map: bool,
 }
 
 /// Announces a map: what the receiver must end up with.
@@ -398,8 +402,8 @@ impl MapHeader {
 /// robot that pass agree on every byte.
 pub const GOLDEN: [(Message<'static>, &[u8]); 5] = [
     (
-        Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: 0.2, max_payload: 512 }),
-        &[0x30, 1, 1, 205, 204, 76, 62, 128, 4],
+        Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: 0.2, max_payload: 512, takes_map: true }),
+        &[0x40, 1, 1, 205, 204, 76, 62, 128, 4, 1],
     ),
     (Message::Data { offset: 0x1234, poll: false, data: &[1, 2, 0, 255] }, &[0x92, 0x34, 1, 2, 0, 255]),
     (Message::Data { offset: 7, poll: true, data: &[9] }, &[0xC0, 7, 9]),
@@ -410,9 +414,9 @@ pub const GOLDEN: [(Message<'static>, &[u8]); 5] = [
             sack: [SackBlock { start: 20, len: 200 }, SackBlock { start: 400, len: 1 }, SackBlock { start: 0, len: 0 }],
             blocks: 2,
         }),
-        &[0x33, 44, 1, 1, 20, 200, 1, 144, 3, 1],
+        &[0x43, 44, 1, 1, 20, 200, 1, 144, 3, 1],
     ),
-    (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[0x34, 7, 2]),
+    (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[0x44, 7, 2]),
 ];
 
 /// The golden map header (a record of the map stream) and its bytes.

@@ -53,6 +53,19 @@ impl Estimate {
         Estimate { a, b, status: NO_EXCHANGE, transform, information: [0.0; 21], agreement: 0.0 }
     }
 
+    /// Robot `a`'s match of robot `b`'s map (as the scene) against its own.
+    pub fn of(a: u8, b: u8, result: &crate::matching::MatchResult) -> Self {
+        let info: [[f32; 6]; 6] = core::array::from_fn(|r| core::array::from_fn(|c| result.information[(r, c)]));
+        Estimate {
+            a,
+            b,
+            status: result.status.code(),
+            transform: crate::geometry::rows(&result.transform),
+            information: Estimate::upper(&info),
+            agreement: result.agreement,
+        }
+    }
+
     /// `T_a_b`.
     pub fn transform(&self) -> Isometry3<f32> {
         from_rows(&self.transform)

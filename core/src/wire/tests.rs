@@ -163,7 +163,7 @@ fn golden_messages() {
     let n = Message::Ack(ack).encode(&mut payload).unwrap();
     let mut frame = [0u8; MAX_FRAME];
     let f = encode_frame(&payload[..n], &mut frame).unwrap();
-    assert_eq!(&frame[..f], &[4, 51, 44, 1, 5, 150, 6, 150, 235, 0]);
+    assert_eq!(&frame[..f], &[4, 67, 44, 1, 5, 10, 166, 169, 128, 0]);
     assert_eq!(f - n + 2, super::message::DATA_OVERHEAD, "frame overhead: CRC, COBS, delimiter; flags and offset");
 }
 
@@ -173,20 +173,22 @@ fn bad_messages_are_typed_errors() {
     assert_eq!(Message::decode(&[1, 4, 7, 1, 0]), Err(MessageError::Version(0)), "a version 1 peer");
     assert_eq!(Message::decode(&[0x23, 7]), Err(MessageError::Version(2)), "a version 2 peer's ack");
     assert_eq!(Message::decode(&[0x21, 7, 0, 1]), Err(MessageError::Version(2)), "a version 2 peer's data");
-    assert_eq!(Message::decode(&[0x3F]), Err(MessageError::Malformed), "unknown tag");
-    assert_eq!(Message::decode(&[0x31]), Err(MessageError::Malformed), "version 2's data tag");
+    assert_eq!(Message::decode(&[0x33, 7]), Err(MessageError::Version(3)), "a version 3 peer's ack");
+    assert_eq!(Message::decode(&[0x4F]), Err(MessageError::Malformed), "unknown tag");
+    assert_eq!(Message::decode(&[0x41]), Err(MessageError::Malformed), "version 2's data tag");
     assert_eq!(Message::decode(&[0x80]), Err(MessageError::Malformed), "data without its offset");
-    assert_eq!(Message::decode(&[0x34, 7, 2, 0]), Err(MessageError::Trailing));
-    assert_eq!(Message::decode(&[0x33, 1, 0, 0, 5]), Err(MessageError::Malformed), "a sack block cut short");
-    assert_eq!(Message::decode(&[0x33, 1, 0, 0, 5, 0]), Err(MessageError::Malformed), "an empty sack block");
-    assert_eq!(Message::decode(&[0x33, 1, 0, 0, 1, 1, 2, 1, 3, 1, 4, 1]), Err(MessageError::Trailing), "four blocks");
-    assert_eq!(Message::decode(&[0x33, 1, 0, 0, 0x80, 0, 1]), Err(MessageError::Malformed), "non-canonical varint");
+    assert_eq!(Message::decode(&[0x44, 7, 2, 0]), Err(MessageError::Trailing));
+    assert_eq!(Message::decode(&[0x43, 1, 0, 0, 5]), Err(MessageError::Malformed), "a sack block cut short");
+    assert_eq!(Message::decode(&[0x43, 1, 0, 0, 5, 0]), Err(MessageError::Malformed), "an empty sack block");
+    assert_eq!(Message::decode(&[0x43, 1, 0, 0, 1, 1, 2, 1, 3, 1, 4, 1]), Err(MessageError::Trailing), "four blocks");
+    assert_eq!(Message::decode(&[0x43, 1, 0, 0, 0x80, 0, 1]), Err(MessageError::Malformed), "non-canonical varint");
     let far = Message::Data { offset: 1 << 14, poll: false, data: &[1] };
     assert_eq!(far.encode(&mut [0u8; 8]), Err(MessageError::Malformed), "an offset beyond 14 bits");
-    let nan = Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: f32::NAN, max_payload: 512 });
+    let nan =
+        Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: f32::NAN, max_payload: 512, takes_map: true });
     assert_eq!(nan.encode(&mut [0u8; 32]), Err(MessageError::NonFinite));
     // A NaN smuggled in by hand is refused on decode.
-    let mut bytes = [0x30u8, 1, 1, 0, 0, 192, 127, 128, 4];
+    let mut bytes = [0x40u8, 1, 1, 0, 0, 192, 127, 128, 4, 1];
     assert_eq!(Message::decode(&bytes), Err(MessageError::NonFinite));
     bytes[6] = 0x3F;
     assert!(Message::decode(&bytes).is_ok());
