@@ -34,6 +34,10 @@ use embedded_io::{Read, ReadReady, Write, WriteReady};
 /// map is full the voxels farthest from the anchor are evicted
 /// ([`FullPolicy::EvictFarthest`]).
 pub const VOXELS: usize = 8192;
+/// Voxels of a robot on a small board (an STM32F405: its 128 KiB of main
+/// SRAM hold this map and nothing else): a [`sender::SenderRobot`], which
+/// sends its map and takes none.
+pub const SMALL_VOXELS: usize = 4096;
 /// Coarse pyramid entries per map (0.5 m maps with [`LEVELS`] levels take
 /// about 0.42 per voxel).
 pub const COARSE: usize = 3840;
@@ -334,7 +338,7 @@ impl FeedIn {
     /// at the end of the feed. A team robot (`team`)
     /// needs [`FeedMessage::Team`] after the set-up and no prior; a pair
     /// robot refuses it.
-    fn read<F: Read + ReadReady, M: VoxelStorage, R: VoxelStorage, T: Meter>(
+    fn read<F: Read + Write + ReadReady, M: VoxelStorage, R: VoxelStorage, T: Meter>(
         &mut self,
         feed: &mut F,
         own: &mut LocalMap<M>,
@@ -343,6 +347,10 @@ impl FeedIn {
         now_ms: u64,
         meter: &T,
     ) -> Result<bool, RobotError> {
+        if self.last_fed_ms.is_none() {
+            // First call: tell the feeder the robot listens.
+            send(feed, &RobotMessage::Ready);
+        }
         let last = *self.last_fed_ms.get_or_insert(now_ms);
         let mut buf = [0u8; 64];
         while feed.read_ready().map_err(|_| RobotError::FeedIo)? {

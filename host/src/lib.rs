@@ -14,7 +14,9 @@
 //!   thresholds, outcomes, summaries), [`stats`] (one quantile).
 //! - Robots: [`link`] (one robot's end of the map exchange), [`robots`]
 //!   (feeds, the host's run of the robots' pipeline, two QEMU boards),
-//!   [`transport`] (TCP and serial ports behind embedded-io).
+//!   [`board`] (the boards a robot runs on), [`team`] and [`team_board`]
+//!   (a team on the host and on boards), [`transport`] (TCP and serial
+//!   ports behind embedded-io).
 //! - Output: [`report`] (the JSON of the commands), [`boxplot`] (SVG).
 //!
 //! Transforms are nalgebra `Isometry3` throughout, with the conventions'
@@ -22,6 +24,7 @@
 
 pub mod align;
 pub mod bench;
+pub mod board;
 pub mod boxplot;
 pub mod cmap;
 pub mod demo;

@@ -8,15 +8,19 @@
 //! joins the two robots' UART0s, byte for byte in both directions (and can
 //! drop or corrupt bytes, to test the firmware against a bad peer).
 
+use crate::board::Board;
 use crate::error::Error;
 use crate::kitti::{Frame, FrameRange, Sequence};
 use crate::mapping::{new_map, PointFilter};
 use cosem_core::classes::{Class, NUM_CLASSES};
 use cosem_core::geometry::{errors_of, from_rows, pose_deg, row_major, rows, Isometry3};
+use cosem_core::link::sim::ScriptPort;
 use cosem_core::link::sim::{SimConfig, SimLine};
 use cosem_core::link::LinkBuffers;
+use cosem_core::map::VecStorage;
 use cosem_core::matching::{MatchStatus, PyramidCapacity, VecPyramidStorage};
-use cosem_core::robot::{self, simulate_pair, Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
+use cosem_core::robot::sender::SenderRobot;
+use cosem_core::robot::{self, Poll, Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
 use cosem_core::wire::feed::{
     self, FeedMessage, RobotMessage, RobotReport, Setup, MAX_POINTS_PER_MESSAGE, POINT_BYTES,
 };
@@ -139,23 +143,47 @@ pub fn feeds(
     Ok([a, b])
 }
 
+/// A robot of a pair as the host runs it: the full robot, or one that
+/// sends its map and is told the result (a small board's).
+enum HostRobot<'a> {
+    Full(Robot<'a, VecStorage, VecStorage, VecPyramidStorage, VecPyramidStorage>),
+    Sender(SenderRobot<'a, VecStorage>),
+}
+
 /// The two robots' pipeline run on this host, exactly as on the boards:
-/// the core's robot step machine, the firmware's capacities, the maps
-/// exchanged over a clean simulated 115200-baud line. Returns each robot's
-/// report (`T_own_peer`).
-pub fn host_run(feeds: [&Feed; 2]) -> Result<[RobotReport; 2], Error> {
+/// the core's robot step machines with each board's capacities, the maps
+/// exchanged over a clean simulated 115200-baud line, one millisecond per
+/// round of polls. Returns each robot's report (`T_own_peer`).
+pub fn host_run(feeds: [&Feed; 2], boards: [Board; 2]) -> Result<[RobotReport; 2], Error> {
+    if !boards.iter().any(|b| b.matches()) {
+        return Err(Error::Invalid("neither robot's board can match: one must hold both maps".into()));
+    }
     let bytes = [feeds[0].bytes()?, feeds[1].bytes()?];
     let config = robot::map_config(feeds[0].setup.resolution);
-    let map = || new_map(VOXELS, config);
-    let (mut own_a, mut rec_a, mut own_b, mut rec_b) = (map()?, map()?, map()?, map()?);
-    let (mut sa, mut sb) = (vec![0u32; VOXELS], vec![0u32; VOXELS]);
+    let mut own = [new_map(boards[0].voxels(), config)?, new_map(boards[1].voxels(), config)?];
+    let mut received = [new_map(VOXELS, config)?, new_map(VOXELS, config)?];
+    let mut scratch = [vec![0u32; VOXELS], vec![0u32; VOXELS]];
+    let mut links = [Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new())];
     let storage = |words| VecPyramidStorage::new(PyramidCapacity { voxels: VOXELS, entries: COARSE, words });
     let robot_config = RobotConfig::default();
-    let (mut la, mut lb) = (Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new()));
-    let (ma, sa_) = (storage(MODEL_WORDS), storage(SCENE_WORDS));
-    let mut a = Robot::new(robot_config, &mut own_a, &mut rec_a, &mut sa, &mut la, ma, sa_);
-    let (mb, sb_) = (storage(MODEL_WORDS), storage(SCENE_WORDS));
-    let mut b = Robot::new(robot_config, &mut own_b, &mut rec_b, &mut sb, &mut lb, mb, sb_);
+    let mut robots: Vec<HostRobot<'_>> = Vec::new();
+    for ((((board, own), received), scratch), link) in
+        boards.iter().zip(&mut own).zip(&mut received).zip(&mut scratch).zip(&mut links)
+    {
+        robots.push(if board.matches() {
+            HostRobot::Full(Robot::new(
+                robot_config,
+                own,
+                received,
+                scratch,
+                link,
+                storage(MODEL_WORDS),
+                storage(SCENE_WORDS),
+            ))
+        } else {
+            HostRobot::Sender(SenderRobot::new(robot_config, own, scratch, link))
+        });
+    }
     let line = Box::new(std::cell::RefCell::new(SimLine::<65536>::new(SimConfig {
         seed: 1,
         error_rate: 0.0,
@@ -163,10 +191,35 @@ pub fn host_run(feeds: [&Feed; 2]) -> Result<[RobotReport; 2], Error> {
         bytes_per_ms: 11.52,
         half_duplex: false,
     })));
-    let [ra, rb] = simulate_pair([&mut a, &mut b], [&bytes[0], &bytes[1]], &line, 3_600_000);
-    let named = |i: usize, r: Result<RobotReport, robot::RobotError>| {
-        r.map_err(|e| Error::Invalid(format!("host run of robot {i}: {} stage: {e}", e.stage().as_str())))
+    let (pa, pb) = SimLine::ports(&line);
+    let mut ports = [pa, pb];
+    let mut feeders = [ScriptPort::<256>::new(&bytes[0], 64), ScriptPort::<256>::new(&bytes[1], 64)];
+    let mut out: [Option<Result<RobotReport, robot::RobotError>>; 2] = [None, None];
+    let mut now = 0u64;
+    while out.iter().any(Option::is_none) && now <= 3_600_000 {
+        line.borrow_mut().tick(now);
+        for (i, robot) in robots.iter_mut().enumerate() {
+            if out[i].is_some() {
+                continue;
+            }
+            let polled = match robot {
+                HostRobot::Full(r) => r.poll(&mut feeders[i], &mut ports[i], now, &()),
+                HostRobot::Sender(r) => r.poll(&mut feeders[i], &mut ports[i], now, &()),
+            };
+            match polled {
+                Ok(Poll::Busy) => {}
+                Ok(Poll::Done(r)) => out[i] = Some(Ok(r)),
+                Err(e) => out[i] = Some(Err(e)),
+            }
+        }
+        now += 1;
+    }
+    let named = |i: usize, r: Option<Result<RobotReport, robot::RobotError>>| match r {
+        Some(Ok(r)) => Ok(r),
+        Some(Err(e)) => Err(Error::Invalid(format!("host run of robot {i}: {} stage: {e}", e.stage().as_str()))),
+        None => Err(Error::Invalid(format!("host run of robot {i}: no report within an hour of robot time"))),
     };
+    let [ra, rb] = out;
     Ok([named(0, ra)?, named(1, rb)?])
 }
 
@@ -181,7 +234,7 @@ pub fn firmware(path: &Path) -> Result<PathBuf, Error> {
     // A binary at the default place (robot, team) is built first.
     let built_here = Path::new(DEFAULT_FIRMWARE).parent();
     let bin = path.file_name().and_then(|b| b.to_str()).unwrap_or("robot");
-    let default = path.parent() == built_here && matches!(bin, "robot" | "team");
+    let default = path.parent() == built_here && matches!(bin, "robot" | "team" | "stm32f405-robot");
     if !default || !dir.join("Cargo.toml").exists() {
         return if path.exists() {
             Ok(path.to_path_buf())
@@ -255,6 +308,10 @@ pub struct RobotRun {
     pub outcome: Outcome,
     /// QEMU's exit code (`None`: killed at the deadline).
     pub exit_code: Option<i32>,
+    /// Its board.
+    pub board: Board,
+    /// Static RAM of its firmware image (bytes, from the ELF).
+    pub static_ram_bytes: u64,
 }
 
 /// Both robots' runs and what the line carried.
@@ -284,7 +341,7 @@ pub(crate) fn qemu(elf: &Path, serials: &[Option<u16>]) -> std::io::Result<Child
         .spawn()
 }
 
-fn debug_gdb() -> Vec<String> {
+pub(crate) fn debug_gdb() -> Vec<String> {
     static NEXT: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(0);
     match std::env::var("COSEM_DEBUG_GDB").ok().and_then(|v| v.parse::<u16>().ok()) {
         Some(base) => vec!["-gdb".into(), format!("tcp::{}", base + NEXT.fetch_add(1, Ordering::Relaxed))],
@@ -326,12 +383,43 @@ pub(crate) fn pump(mut from: TcpStream, mut to: TcpStream, fault: LineFault, see
 }
 
 /// Feeds one robot and waits for its message (report or failure).
-fn feed_and_listen(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant) -> Outcome {
+/// The feeder's side of a robot's feeder line: the feed goes out once the
+/// robot said it listens ([`RobotMessage::Ready`]: a UART that is not yet
+/// enabled drops what arrives), on a thread of its own, while the robot's
+/// messages are read here.
+pub(crate) struct FeederLine {
+    conn: Option<TcpStream>,
+    feed: Vec<u8>,
+    writer: Option<std::thread::JoinHandle<std::io::Result<TcpStream>>>,
+}
+
+impl FeederLine {
+    pub(crate) fn new(conn: TcpStream, feed: Vec<u8>) -> Self {
+        FeederLine { conn: Some(conn), feed, writer: None }
+    }
+
+    /// The robot is ready: start feeding (once).
+    pub(crate) fn ready(&mut self) {
+        if let Some(mut conn) = self.conn.take() {
+            let feed = std::mem::take(&mut self.feed);
+            self.writer = Some(std::thread::spawn(move || conn.write_all(&feed).map(|_| conn)));
+        }
+    }
+
+    /// Waits for the feed to be written (or to fail).
+    pub(crate) fn finish(self) {
+        if let Some(w) = self.writer {
+            let _ = w.join();
+        }
+    }
+}
+
+fn feed_and_listen(conn: TcpStream, feed: Vec<u8>, deadline: Instant) -> Outcome {
     let mut reader = match conn.try_clone() {
         Ok(r) => r,
         Err(e) => return Outcome::Lost(e.to_string()),
     };
-    let writer = std::thread::spawn(move || conn.write_all(&feed).map(|_| conn));
+    let mut line = FeederLine::new(conn, feed);
     let mut deframer = Deframer::new();
     let mut buf = [0u8; 1024];
     let outcome = loop {
@@ -349,16 +437,20 @@ fn feed_and_listen(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant) -> Out
         let mut found = None;
         for &b in &buf[..n] {
             if let Ok(Some(payload)) = deframer.push(b) {
-                found = Some(match RobotMessage::decode(payload) {
-                    Ok(RobotMessage::Report(r)) => Outcome::Report(r),
+                found = match RobotMessage::decode(payload) {
+                    Ok(RobotMessage::Ready) => {
+                        line.ready();
+                        continue;
+                    }
+                    Ok(RobotMessage::Report(r)) => Some(Outcome::Report(r)),
                     Ok(RobotMessage::Failed { stage, message }) => {
-                        Outcome::Failed { stage: stage.as_str().into(), message: message.into() }
+                        Some(Outcome::Failed { stage: stage.as_str().into(), message: message.into() })
                     }
                     Ok(RobotMessage::Matched { .. } | RobotMessage::Placed(_) | RobotMessage::TeamEnd(_)) => {
-                        Outcome::Lost("a team robot's message from a pair robot".into())
+                        Some(Outcome::Lost("a team robot's message from a pair robot".into()))
                     }
-                    Err(e) => Outcome::Lost(format!("undecodable report: {e}")),
-                });
+                    Err(e) => Some(Outcome::Lost(format!("undecodable report: {e}"))),
+                };
                 break;
             }
         }
@@ -367,17 +459,32 @@ fn feed_and_listen(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant) -> Out
         }
     };
     drop(reader);
-    let _ = writer.join();
+    line.finish();
     outcome
 }
 
-/// Runs both robots: `elf` is the firmware's `robot` binary; `feeds[0]` is
-/// robot A's, `feeds[1]` robot B's. Each QEMU is killed at `timeout`.
-pub fn run_pair(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Duration) -> Result<PairRun, Error> {
-    run_pair_inner(elf, feeds, fault, timeout).map_err(Error::Invalid)
+/// Runs both robots, robot i on `boards[i]` from firmware `elves[i]`;
+/// `feeds[0]` is robot A's, `feeds[1]` robot B's. Each QEMU is killed at
+/// `timeout`.
+pub fn run_pair(
+    elves: [&Path; 2],
+    boards: [Board; 2],
+    feeds: [&Feed; 2],
+    fault: LineFault,
+    timeout: Duration,
+) -> Result<PairRun, Error> {
+    let ram = [crate::board::static_ram_bytes(elves[0])?, crate::board::static_ram_bytes(elves[1])?];
+    run_pair_inner(elves, boards, ram, feeds, fault, timeout).map_err(Error::Invalid)
 }
 
-fn run_pair_inner(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Duration) -> Result<PairRun, String> {
+fn run_pair_inner(
+    elves: [&Path; 2],
+    boards: [Board; 2],
+    ram: [u64; 2],
+    feeds: [&Feed; 2],
+    fault: LineFault,
+    timeout: Duration,
+) -> Result<PairRun, String> {
     let started = Instant::now();
     let deadline = started + timeout;
     let bind = || TcpListener::bind("127.0.0.1:0").map_err(|e| format!("listen on 127.0.0.1: {e}"));
@@ -386,8 +493,8 @@ fn run_pair_inner(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Dura
     let feeders = [bind()?, bind()?];
     let bytes = [feeds[0].bytes().map_err(|e| e.to_string())?, feeds[1].bytes().map_err(|e| e.to_string())?];
     let mut children = Vec::new();
-    for f in &feeders {
-        let child = qemu(elf, &[Some(port(&link)?), Some(port(f)?)]).map_err(|e| format!("qemu-system-arm: {e}"))?;
+    for ((f, board), elf) in feeders.iter().zip(boards).zip(elves) {
+        let child = board.qemu(elf, port(f)?, port(&link)?).map_err(|e| format!("qemu-system-arm: {e}"))?;
         children.push(child);
     }
     let connect_by = Instant::now() + Duration::from_secs(20);
@@ -426,7 +533,9 @@ fn run_pair_inner(elf: &Path, feeds: [&Feed; 2], fault: LineFault, timeout: Dura
         codes.push(code);
     }
     let (outcomes, line_bytes) = result?;
-    let mut runs = outcomes.into_iter().zip(codes).map(|(outcome, exit_code)| RobotRun { outcome, exit_code });
+    let mut runs = outcomes.into_iter().zip(codes).zip(boards.into_iter().zip(ram)).map(
+        |((outcome, exit_code), (board, static_ram_bytes))| RobotRun { outcome, exit_code, board, static_ram_bytes },
+    );
     let (Some(a), Some(b)) = (runs.next(), runs.next()) else { return Err("two robots expected".into()) };
     Ok(PairRun { robots: [a, b], line_bytes, wall_s: started.elapsed().as_secs_f64() })
 }
@@ -487,6 +596,11 @@ pub enum RobotJson {
 pub struct ReportJson {
     /// Robot id (0: A, 1: B).
     pub id: usize,
+    /// Its board (`mps2-an386`, `stm32f405`).
+    pub board: &'static str,
+    /// Static RAM of its firmware (bytes, from the ELF; the stack comes on
+    /// top, `peak_stack_bytes`).
+    pub static_ram_bytes: u64,
     /// Status string.
     pub status: &'static str,
     /// `T_own_peer`, row by row.
@@ -555,7 +669,8 @@ pub struct HostJson {
 /// `cosem robots --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct RobotsJson {
-    /// Version of this JSON (2: `global` holds the prior-free search's
+    /// Version of this JSON (3: each robot's `board` and
+    /// `static_ram_bytes`; 2: `global` holds the prior-free search's
     /// figures, schema 1 landmark correspondences).
     pub schema_version: u32,
     /// Robot A then B.
@@ -603,6 +718,8 @@ fn robot_json(i: usize, run: &RobotRun, truth: &Isometry3<f64>) -> RobotJson {
     let (e_t, e_r) = errors_of(&t, truth);
     RobotJson::Report(Box::new(ReportJson {
         id: i,
+        board: run.board.as_str(),
+        static_ram_bytes: run.static_ram_bytes,
         status: status_str(rep.result.status),
         transform: row_major(&t.cast::<f64>()),
         instructions: rep.locate_instructions + rep.match_instructions,
@@ -643,7 +760,7 @@ pub fn summarise(
     let (ha, hb) = (host[0].result.transform(), host[1].result.transform());
     let (e_t, e_r) = errors_of(&ha, gt);
     RobotsJson {
-        schema_version: 2,
+        schema_version: 3,
         robots,
         host: HostJson {
             transform: row_major(&ha.cast::<f64>()),

@@ -13,7 +13,7 @@
 
 use crate::error::Error;
 use crate::mapping::new_map;
-use crate::robots::{accept, pump, qemu, Feed, LineFault};
+use crate::robots::{accept, pump, qemu, Feed, FeederLine, LineFault};
 use cosem_core::link::sim::{ScriptPort, SimConfig, SimLine, SimPort};
 use cosem_core::link::LinkBuffers;
 use cosem_core::matching::{PyramidCapacity, VecPyramidStorage};
@@ -22,7 +22,7 @@ use cosem_core::robot::{self, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOX
 use cosem_core::wire::feed::{PlacedRobot, RobotMessage, RobotReport, TeamEnd};
 use cosem_core::wire::frame::Deframer;
 use std::cell::RefCell;
-use std::io::{Read, Write};
+use std::io::Read;
 use std::net::{TcpListener, TcpStream};
 use std::path::Path;
 use std::sync::atomic::AtomicU64;
@@ -66,6 +66,7 @@ impl TeamReports {
                 self.failed = Some(("host".into(), "a pair robot's report from a team robot".into()));
                 return true;
             }
+            Ok(RobotMessage::Ready) => {}
             Err(e) => {
                 self.failed = Some(("host".into(), format!("undecodable message: {e}")));
                 return true;
@@ -187,7 +188,7 @@ pub struct BoardRun {
 }
 
 /// Feeds one board and collects its messages until its last.
-fn feed_and_collect(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant, progress: Option<usize>) -> TeamReports {
+fn feed_and_collect(conn: TcpStream, feed: Vec<u8>, deadline: Instant, progress: Option<usize>) -> TeamReports {
     let mut out = TeamReports::default();
     let mut reader = match conn.try_clone() {
         Ok(r) => r,
@@ -196,7 +197,7 @@ fn feed_and_collect(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant, progr
             return out;
         }
     };
-    let writer = std::thread::spawn(move || conn.write_all(&feed).map(|_| conn));
+    let mut line = FeederLine::new(conn, feed);
     let mut deframer = Deframer::new();
     let mut buf = [0u8; 1024];
     'read: loop {
@@ -220,6 +221,10 @@ fn feed_and_collect(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant, progr
         };
         for &b in &buf[..k] {
             if let Ok(Some(payload)) = deframer.push(b) {
+                if RobotMessage::decode(payload) == Ok(RobotMessage::Ready) {
+                    line.ready();
+                    continue;
+                }
                 if let Some(i) = progress {
                     eprintln!("board {i}: {}", describe(payload));
                 }
@@ -230,7 +235,7 @@ fn feed_and_collect(mut conn: TcpStream, feed: Vec<u8>, deadline: Instant, progr
         }
     }
     drop(reader);
-    let _ = writer.join();
+    line.finish();
     out
 }
 
@@ -247,6 +252,7 @@ fn describe(payload: &[u8]) -> String {
         }
         Ok(RobotMessage::Failed { stage, message }) => format!("stopped at {}: {message}", stage.as_str()),
         Ok(RobotMessage::Report(_)) => "a pair robot's report".into(),
+        Ok(RobotMessage::Ready) => "listening".into(),
         Err(e) => format!("undecodable message: {e}"),
     }
 }

@@ -150,3 +150,57 @@ fn a_silent_or_corrupting_line_is_a_typed_link_error() {
         }
     }
 }
+
+/// Checks a heterogeneous pair: robot A on mps2-an386 received B's map and
+/// matched; robot B on an STM32F405 sent its map, took none, and reports
+/// A's result inverted; both near the truth and equal to the host's runs;
+/// robot B within the STM32F405's 192 KiB.
+fn check_one_sided(json: &Value) {
+    assert_eq!(json["schema_version"], 3, "{json}");
+    let gt = matrix(&json["ground_truth"]);
+    let truths = [gt, gt.inverse()];
+    let hosts = [matrix(&json["host"]["transform"]), matrix(&json["host_b"]["transform"])];
+    let r = json["robots"].as_array().unwrap();
+    for (i, robot) in r.iter().enumerate() {
+        assert_eq!(robot["status"], "Converged", "robot {i}: {robot}");
+        assert_eq!(robot["exit_code"], 0, "robot {i}: {robot}");
+        let t = matrix(&robot["transform"]);
+        let (e_t, e_r) = cosem_core::geometry::pose_errors(&t, &truths[i]);
+        assert!(e_t < 0.2 && e_r < 0.5, "robot {i} off the truth: {e_t} m, {e_r} deg");
+        let (d_t, d_r) = cosem_core::geometry::pose_errors(&t, &hosts[i]);
+        assert!(d_t < 1e-4 && d_r < 1e-3, "robot {i} differs from the host: {d_t} m, {d_r} deg");
+        assert!(robot["static_ram_bytes"].as_u64().unwrap() > 0 && robot["peak_stack_bytes"].as_u64().unwrap() > 0);
+    }
+    assert_eq!((r[0]["board"].as_str(), r[1]["board"].as_str()), (Some("mps2-an386"), Some("stm32f405")));
+    assert_eq!(r[0]["received_voxels"], r[1]["map_voxels"]);
+    assert_eq!(r[1]["received_voxels"], 0, "robot B takes no map");
+    assert_eq!(r[1]["match_instructions"], 0, "robot B does not match");
+    let b_ram = r[1]["static_ram_bytes"].as_u64().unwrap() + r[1]["peak_stack_bytes"].as_u64().unwrap();
+    assert!(b_ram <= 192 * 1024, "robot B takes {b_ram} bytes");
+    // A full map of 4,096 voxels evicts its farthest eighth.
+    assert!(r[1]["map_voxels"].as_u64().unwrap() >= 4096 * 7 / 8, "{}", r[1]);
+}
+
+#[test]
+fn robot_b_on_an_stm32f405_sends_its_map_and_is_told_the_result() {
+    let Some(data) = cosem_tests::real_data("kitti00") else { return };
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let (json, ok) =
+        robots(&["--data", &data.display().to_string(), "--a", "0:5", "--b", "5:10", "--board-b", "stm32f405"]);
+    assert!(ok, "{json}");
+    check_one_sided(&json);
+}
+
+#[test]
+fn robot_b_on_an_stm32f405_matches_a_synthetic_street_with_no_prior() {
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let tmp = synthetic(10);
+    let seq = tmp.path().join("seq").display().to_string();
+    let (json, ok) = robots(&["--data", &seq, "--a", "0:5", "--b", "5:10", "--no-prior", "--board-b", "stm32f405"]);
+    assert!(ok, "{json}");
+    check_one_sided(&json);
+}

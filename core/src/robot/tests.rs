@@ -176,7 +176,10 @@ fn a_bad_feed_is_reported() {
         }
     };
     assert!(matches!(err, RobotError::FeederSilent { points } if points > 0), "{err:?}");
+    // It said it listens, then where it stopped.
     let mut d = crate::wire::Deframer::new();
-    let msg = port.output.iter().find_map(|&b| d.push(b).ok().flatten().map(|p| p.to_vec())).unwrap();
-    assert!(matches!(RobotMessage::decode(&msg), Ok(RobotMessage::Failed { stage: Stage::Feed, .. })));
+    let msgs: Vec<_> = port.output.iter().filter_map(|&b| d.push(b).ok().flatten().map(|p| p.to_vec())).collect();
+    assert_eq!(msgs.len(), 2);
+    assert_eq!(RobotMessage::decode(&msgs[0]), Ok(RobotMessage::Ready));
+    assert!(matches!(RobotMessage::decode(&msgs[1]), Ok(RobotMessage::Failed { stage: Stage::Feed, .. })));
 }

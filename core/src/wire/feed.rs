@@ -173,6 +173,10 @@ pub enum RobotMessage<'a> {
     Placed(PlacedRobot),
     /// A team robot's last message.
     TeamEnd(TeamEnd),
+    /// The robot is up and listening: its first message, before which a
+    /// feeder sends nothing (a UART that is not enabled yet drops what
+    /// arrives, as an STM32's does).
+    Ready,
 }
 
 /// One robot of a team as a team robot placed it.
@@ -348,7 +352,7 @@ impl RobotMessage<'_> {
             RobotMessage::Report(r) => r.result.check().map_err(FeedError::from),
             RobotMessage::Matched { report, .. } => report.result.check().map_err(FeedError::from),
             RobotMessage::Placed(p) => finite(&p.transform).and(finite(&p.covariance)),
-            RobotMessage::Failed { .. } | RobotMessage::TeamEnd(_) => Ok(()),
+            RobotMessage::Failed { .. } | RobotMessage::TeamEnd(_) | RobotMessage::Ready => Ok(()),
         }
     }
 }

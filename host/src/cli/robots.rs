@@ -5,6 +5,7 @@
 use super::args::{pose, positive, positive_f32};
 use super::{print_json, Error};
 use cosem_core::geometry::Isometry3;
+use cosem_host::board::Board;
 use cosem_host::kitti::{FrameRange, Sequence};
 use cosem_host::report::status_code;
 use cosem_host::robots::{
@@ -41,10 +42,17 @@ pub struct Args {
     /// Print JSON.
     #[arg(long)]
     json: bool,
-    /// The firmware's robot binary (at the default path, built or brought
-    /// up to date first).
+    /// The firmware's robot binary for mps2-an386 boards (at the default
+    /// path, built or brought up to date first).
     #[arg(long, default_value = DEFAULT_FIRMWARE)]
     firmware: PathBuf,
+    /// Robot A's board: mps2-an386 (the full robot) or stm32f405 (192 KiB:
+    /// it maps and sends its map, and is told the other robot's result).
+    #[arg(long, default_value = "mps2-an386")]
+    board_a: Board,
+    /// Robot B's board (see --board-a).
+    #[arg(long, default_value = "mps2-an386")]
+    board_b: Board,
     /// What the line between the UART0s does: none, silent, or corrupt=P
     /// (each byte flipped with probability P).
     #[arg(long, default_value = "none")]
@@ -65,11 +73,19 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let feeds = feeds(&seq, [a.a, a.b], a.voxel, a.crop, prior.as_ref(), silence_ms)?;
     // The host runs both robots' pipeline too, as the boards do.
     let t = std::time::Instant::now();
-    let host = host_run([&feeds[0], &feeds[1]])?;
+    let boards = [a.board_a, a.board_b];
+    if !boards.iter().any(|b| b.matches()) {
+        return Err("--board-a and --board-b: one robot must be able to match (an mps2-an386 board)".into());
+    }
+    let host = host_run([&feeds[0], &feeds[1]], boards)?;
     let host_ms = t.elapsed().as_secs_f64() * 1e3;
-    let elf = firmware(&a.firmware)?;
+    let elf = |b: Board| match b {
+        Board::Mps2An386 => firmware(&a.firmware),
+        Board::Stm32f405 => firmware(std::path::Path::new(b.default_firmware())),
+    };
+    let elves = [elf(boards[0])?, elf(boards[1])?];
     let timeout = Duration::from_secs_f64(a.timeout.min(86_400.0));
-    let run = run_pair(&elf, [&feeds[0], &feeds[1]], a.line, timeout)?;
+    let run = run_pair([&elves[0], &elves[1]], boards, [&feeds[0], &feeds[1]], a.line, timeout)?;
     let report = summarise(&run, feeds[0].setup.prior.as_ref(), &host, host_ms, &gt);
     if a.json {
         print_json(&report)?;

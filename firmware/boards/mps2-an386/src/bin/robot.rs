@@ -13,8 +13,8 @@ use cosem_core::link::LinkBuffers;
 use cosem_core::map::LocalMap;
 use cosem_core::matching::MatchStatus;
 use cosem_core::robot::{map_config, MapStorage, Meter, ModelStorage, Poll, Robot, RobotConfig, SceneStorage, VOXELS};
-use cosem_firmware::uart::{Uart, UART0, UART1};
-use cosem_firmware::{exit, instructions, millis, peak_stack, start_clock, CLOCK_HZ};
+use cosem_mps2_an386::uart::{Uart, UART0, UART1};
+use cosem_mps2_an386::{exit, instructions, millis, peak_stack, start_clock, CLOCK_HZ};
 
 static mut OWN: MapStorage = MapStorage::new();
 static mut RECEIVED: MapStorage = MapStorage::new();

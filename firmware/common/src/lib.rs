@@ -1,19 +1,16 @@
-//! cosem firmware: a robot's computer (Cortex-M4F, QEMU mps2-an386).
+//! What every cosem board shares (the boards are crates of their own
+//! under `firmware/boards/`: clocks, UARTs and memory maps differ; the
+//! robot is the core's, the same on every board):
 //!
-//! This library is the platform the binaries share: the instruction clock
-//! (SysTick), the peak-stack gauge, the CMSDK UART driver behind the
-//! `embedded-io` traits, and semihosting file reads. Every binary keeps its
-//! buffers in statics sized at compile time, in a RAM budget of 1 MiB that
-//! the linker enforces (memory-budget.x).
-//!
-//! - `selftest` (the default `cargo run`): the core's self-test on the
-//!   target, every figure printed for the host to compare bit for bit;
-//! - `bench`: two map files matched on board (bench.sh);
-//! - `robot`: one robot of a pair (`cosem robots`);
-//! - `team`: one robot of a team of up to five (`cosem team --on-board`):
-//!   UART1 its feeder line, UART0, 2, 3 and 4 its peers;
-//! - `crash`: panics or faults on purpose (`-append panic|fault`), for the
-//!   tests of the exit codes.
+//! - exit codes through semihosting, a panic handler and a hard-fault
+//!   handler that end QEMU at once with their own codes ([`EXIT_PANIC`],
+//!   [`EXIT_FAULT`]);
+//! - the SysTick instruction clock ([`start_clock`], [`ticks`]; a board
+//!   gives its SysTick rate) and the painted-stack gauge ([`peak_stack`]);
+//! - [`serial`]: receive rings that interrupt handlers fill, and the one
+//!   adapter from `embedded-hal-nb` serial to the `embedded-io` traits of
+//!   the core's link;
+//! - [`hostfs`]: semihosting file reads and the command line.
 #![no_std]
 
 use core::sync::atomic::{AtomicU32, Ordering};
@@ -23,20 +20,16 @@ use cortex_m_rt::ExceptionFrame;
 use cortex_m_semihosting::debug;
 
 pub mod hostfs;
-pub mod uart;
+pub mod serial;
 
 #[cfg(feature = "defmt")]
 use defmt_semihosting as _;
 
-/// SysTick wraps (24-bit counter): with QEMU's `-icount shift=0` one
-/// instruction is one nanosecond of virtual time and SysTick counts the
-/// 25 MHz system clock, so a tick is 40 instructions.
+/// SysTick wraps (24-bit counter). With QEMU's `-icount shift=0` one
+/// instruction is one nanosecond of virtual time, so SysTick's count at
+/// the board's rate is an instruction count.
 static WRAPS: AtomicU32 = AtomicU32::new(0);
 const RELOAD: u32 = 0x00FF_FFFF;
-/// Instructions per SysTick tick under `-icount shift=0`.
-pub const INSTRUCTIONS_PER_TICK: u64 = 40;
-/// System (and peripheral) clock of the board (Hz).
-pub const CLOCK_HZ: u32 = 25_000_000;
 
 #[exception]
 fn SysTick() {
@@ -66,14 +59,15 @@ pub fn ticks() -> u64 {
     }
 }
 
-/// Instructions executed since [`start_clock`].
-pub fn instructions() -> u64 {
-    ticks() * INSTRUCTIONS_PER_TICK
+/// Instructions executed since [`start_clock`] (nanoseconds of virtual
+/// time under `-icount shift=0`) on a board whose SysTick counts `hz`.
+pub fn instructions_at(hz: u32) -> u64 {
+    (u128::from(ticks()) * 1_000_000_000 / u128::from(hz.max(1))) as u64
 }
 
-/// Milliseconds of virtual time since [`start_clock`].
-pub fn millis() -> u64 {
-    ticks() / u64::from(CLOCK_HZ / 1000)
+/// Milliseconds since [`start_clock`] on a board whose SysTick counts `hz`.
+pub fn millis_at(hz: u32) -> u64 {
+    ticks() / u64::from((hz / 1000).max(1))
 }
 
 /// Peak stack use (bytes): the start-up code paints the stack with

@@ -12,8 +12,8 @@ use cosem_core::matching::{MatchSettings, Matcher, Pyramid, Role};
 // A robot's capacities: the bench matches what a robot can hold.
 use cosem_core::robot::{MapStorage, ModelStorage, SceneStorage, FOOTPRINT_CELL, LEVELS};
 use cosem_core::wire::mapfile;
-use cosem_firmware::hostfs::read_file;
-use cosem_firmware::{exit, peak_stack, say, start_clock, ticks, INSTRUCTIONS_PER_TICK};
+use cosem_mps2_an386::hostfs::read_file;
+use cosem_mps2_an386::{exit, peak_stack, say, start_clock, ticks, INSTRUCTIONS_PER_TICK};
 
 const FILE_BYTES: usize = 32 * 1024;
 

@@ -10,7 +10,7 @@ use cortex_m_rt::entry;
 use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
 use cosem_core::matching::ArrayPyramidStorage;
 use cosem_core::selftest::{self, FOOTPRINT_WORDS, MAP_VOXELS, PYRAMID_ENTRIES, RESOLUTION};
-use cosem_firmware::{exit, peak_stack, say, start_clock, ticks, uart, CLOCK_HZ, INSTRUCTIONS_PER_TICK};
+use cosem_mps2_an386::{exit, peak_stack, say, start_clock, ticks, uart, CLOCK_HZ, INSTRUCTIONS_PER_TICK};
 
 type MapStorage = ArrayStorage<MAP_VOXELS>;
 type PyrStorage = ArrayPyramidStorage<MAP_VOXELS, PYRAMID_ENTRIES, FOOTPRINT_WORDS>;

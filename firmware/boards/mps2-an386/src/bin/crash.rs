@@ -5,7 +5,7 @@
 #![no_main]
 
 use cortex_m_rt::entry;
-use cosem_firmware::{exit, hostfs};
+use cosem_mps2_an386::{exit, hostfs};
 
 #[entry]
 fn main() -> ! {

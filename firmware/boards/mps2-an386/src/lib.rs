@@ -1,0 +1,45 @@
+//! cosem on QEMU's `mps2-an386` (Cortex-M4F): the board's part. What the
+//! boards share comes from `cosem-firmware` (re-exported here); this crate
+//! adds the CMSDK UART driver, the clock rate and the memory map (a 1 MiB
+//! RAM budget the linker enforces, `memory-budget.x`: an STM32H7-class
+//! robot computer).
+//!
+//! - `selftest` (the default `cargo run`): the core's self-test on the
+//!   target, every figure printed for the host to compare bit for bit;
+//! - `bench`: two map files matched on board (bench.sh);
+//! - `robot`: one robot of a pair (`cosem robots`);
+//! - `team`: one robot of a team of up to five (`cosem team --on-board`):
+//!   UART1 its feeder line, UART0, 2, 3 and 4 its peers;
+//! - `crash`: panics or faults on purpose (`-append panic|fault`), for the
+//!   tests of the exit codes.
+#![no_std]
+
+pub use cosem_firmware::*;
+
+pub mod uart;
+
+/// System (and peripheral) clock of the board (Hz): SysTick counts it.
+pub const CLOCK_HZ: u32 = 25_000_000;
+/// Instructions per SysTick tick under `-icount shift=0` (1 ns each).
+pub const INSTRUCTIONS_PER_TICK: u64 = 40;
+
+extern "C" {
+    fn DefaultHandler();
+}
+
+/// The interrupt part of the vector table (the CMSDK peripherals' 32
+/// lines), every entry the default handler until a driver takes one.
+#[link_section = ".vector_table.interrupts"]
+#[no_mangle]
+#[used]
+pub static __INTERRUPTS: [unsafe extern "C" fn(); 32] = [DefaultHandler; 32];
+
+/// Instructions executed since [`start_clock`].
+pub fn instructions() -> u64 {
+    instructions_at(CLOCK_HZ)
+}
+
+/// Milliseconds of virtual time since [`start_clock`].
+pub fn millis() -> u64 {
+    millis_at(CLOCK_HZ)
+}

@@ -1,0 +1,18 @@
+//! The memory layout (memory.x) for QEMU or for hardware, and the main
+//! SRAM's section.
+use std::{env, fs, path::PathBuf};
+
+fn main() {
+    let out = PathBuf::from(env::var_os("OUT_DIR").expect("OUT_DIR is set by cargo"));
+    let layout = if env::var_os("CARGO_FEATURE_HARDWARE").is_some() { "memory-hardware.x" } else { "memory-qemu.x" };
+    fs::copy(layout, out.join("memory.x")).expect("copy the memory layout");
+    fs::copy("sram.x", out.join("sram.x")).expect("copy the SRAM section");
+    println!("cargo:rustc-link-search={}", out.display());
+    println!("cargo:rustc-link-arg=-Tsram.x");
+    for f in ["memory-qemu.x", "memory-hardware.x", "sram.x"] {
+        println!("cargo:rerun-if-changed={f}");
+    }
+    if env::var_os("CARGO_FEATURE_DEFMT").is_some() {
+        println!("cargo:rustc-link-arg=-Tdefmt.x");
+    }
+}

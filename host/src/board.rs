@@ -1,0 +1,129 @@
+//! The boards a robot runs on under QEMU (`cosem robots --board-a/-b`):
+//! which emulated machine, which firmware binary, which UART is the feeder
+//! line and which the link, and what a robot on it can hold. Also the
+//! static RAM a firmware image takes, read from its ELF section headers.
+
+use crate::error::Error;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+/// A board for one robot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Board {
+    /// QEMU `mps2-an386` (Cortex-M4F, 1 MiB budget): the full robot, both
+    /// maps and the matcher.
+    Mps2An386,
+    /// An STM32F405 (QEMU `netduinoplus2`: 128 KiB SRAM + 64 KiB CCM,
+    /// through stm32f4xx-hal): it maps and sends, and is told the result
+    /// (a one-sided exchange).
+    Stm32f405,
+}
+
+impl std::str::FromStr for Board {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "mps2-an386" => Ok(Board::Mps2An386),
+            "stm32f405" => Ok(Board::Stm32f405),
+            _ => Err(format!("unknown board `{s}`: mps2-an386 or stm32f405")),
+        }
+    }
+}
+
+impl Board {
+    /// Its name on the command line and in JSON.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Board::Mps2An386 => "mps2-an386",
+            Board::Stm32f405 => "stm32f405",
+        }
+    }
+
+    /// Where `cargo build --release` in firmware/ puts its robot binary.
+    pub fn default_firmware(self) -> &'static str {
+        match self {
+            Board::Mps2An386 => "firmware/target/thumbv7em-none-eabihf/release/robot",
+            Board::Stm32f405 => "firmware/target/thumbv7em-none-eabihf/release/stm32f405-robot",
+        }
+    }
+
+    /// Whether its robot holds the peer's map and matches (else it sends
+    /// its own and is told the result).
+    pub fn matches(self) -> bool {
+        self == Board::Mps2An386
+    }
+
+    /// Voxels its robot's map holds.
+    pub fn voxels(self) -> usize {
+        match self {
+            Board::Mps2An386 => cosem_core::robot::VOXELS,
+            Board::Stm32f405 => cosem_core::robot::SMALL_VOXELS,
+        }
+    }
+
+    /// Starts QEMU with `elf`, its feeder line and its link on TCP ports of
+    /// this host (QEMU connects). The mps2 robot's link is UART0 and its
+    /// feeder UART1; the STM32F405's feeder is USART1 (QEMU's first serial
+    /// port) and its link USART2.
+    pub fn qemu(self, elf: &Path, feed: u16, link: u16) -> std::io::Result<Child> {
+        let mut cmd = Command::new("qemu-system-arm");
+        let serials = match self {
+            Board::Mps2An386 => {
+                cmd.args(["-machine", "mps2-an386", "-cpu", "cortex-m4"]);
+                [link, feed]
+            }
+            Board::Stm32f405 => {
+                cmd.args(["-machine", "netduinoplus2"]);
+                [feed, link]
+            }
+        };
+        cmd.args(["-display", "none", "-icount", "shift=0", "-monitor", "none"])
+            .args(["-semihosting-config", "enable=on,target=native"]);
+        for p in serials {
+            cmd.arg("-serial").arg(format!("tcp:127.0.0.1:{p}"));
+        }
+        cmd.args(crate::robots::debug_gdb())
+            .arg("-kernel")
+            .arg(elf)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+    }
+}
+
+/// Bytes of RAM a firmware image takes statically: every section that is
+/// allocated and writable (`.data`, `.bss`, `.uninit`, a board's own RAM
+/// sections), from the ELF's section headers. The stack comes on top.
+pub fn static_ram_bytes(elf: &Path) -> Result<u64, Error> {
+    let bytes = std::fs::read(elf).map_err(|source| Error::Io { path: elf.to_path_buf(), source })?;
+    let bad = |what: &str| Error::Invalid(format!("{}: not a 32-bit little-endian ELF ({what})", elf.display()));
+    let u16_at = |at: usize| bytes.get(at..at + 2).map(|b| u16::from_le_bytes([b[0], b[1]]));
+    let u32_at = |at: usize| bytes.get(at..at + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+    if bytes.get(..6) != Some(&[0x7F, b'E', b'L', b'F', 1, 1][..]) {
+        return Err(bad("header"));
+    }
+    let shoff = u32_at(0x20).ok_or_else(|| bad("section table offset"))? as usize;
+    let shentsize = usize::from(u16_at(0x2E).ok_or_else(|| bad("section entry size"))?);
+    let shnum = usize::from(u16_at(0x30).ok_or_else(|| bad("section count"))?);
+    if shentsize < 40 {
+        return Err(bad("section entry size"));
+    }
+    const SHF_WRITE: u32 = 0x1;
+    const SHF_ALLOC: u32 = 0x2;
+    let mut total = 0u64;
+    for k in 0..shnum {
+        let at = shoff + k * shentsize;
+        let flags = u32_at(at + 8).ok_or_else(|| bad("section header"))?;
+        let size = u32_at(at + 20).ok_or_else(|| bad("section header"))?;
+        if flags & (SHF_WRITE | SHF_ALLOC) == SHF_WRITE | SHF_ALLOC {
+            total += u64::from(size);
+        }
+    }
+    Ok(total)
+}
+
+/// The firmware for `board`: `given` if any, else its default binary.
+pub fn firmware_for(board: Board, given: Option<&Path>) -> PathBuf {
+    given.map_or_else(|| PathBuf::from(board.default_firmware()), Path::to_path_buf)
+}
