@@ -444,9 +444,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
             Err(RobotError::Finished) | Ok(Poll::Busy) => {}
             Err(e) => {
                 self.state = State::Done;
-                let mut message: heapless::String<96> = heapless::String::new();
-                let _ = core::fmt::write(&mut message, format_args!("{e}"));
-                send(feed, &RobotMessage::Failed { stage: e.stage(), message: &message });
+                send_failure(feed, e);
             }
         }
         r
@@ -600,6 +598,13 @@ where
         now += 1;
     }
     out.map(|o| o.unwrap_or(Err(RobotError::Link(LinkError::Silent))))
+}
+
+/// Tells the feeder where and why the robot stopped, best effort.
+fn send_failure<F: Write>(feed: &mut F, e: &RobotError) {
+    let mut message: heapless::String<96> = heapless::String::new();
+    let _ = core::fmt::write(&mut message, format_args!("{e}"));
+    send(feed, &RobotMessage::Failed { stage: e.stage(), message: &message });
 }
 
 /// Sends one message to the feeder, best effort (a robot that cannot talk

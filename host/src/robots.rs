@@ -341,6 +341,27 @@ pub(crate) fn qemu(elf: &Path, serials: &[Option<u16>]) -> std::io::Result<Child
         .spawn()
 }
 
+/// Waits for every QEMU to exit, killing those still running at
+/// `deadline`; their exit codes (`None`: killed).
+pub(crate) fn reap(children: &mut [Child], deadline: Instant) -> Vec<Option<i32>> {
+    let mut codes = Vec::new();
+    for c in children {
+        let code = loop {
+            match c.try_wait() {
+                Ok(Some(s)) => break s.code(),
+                Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
+                _ => {
+                    let _ = c.kill();
+                    let _ = c.wait();
+                    break None;
+                }
+            }
+        };
+        codes.push(code);
+    }
+    codes
+}
+
 pub(crate) fn debug_gdb() -> Vec<String> {
     static NEXT: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(0);
     match std::env::var("COSEM_DEBUG_GDB").ok().and_then(|v| v.parse::<u16>().ok()) {
@@ -517,21 +538,7 @@ fn run_pair_inner(
         Ok::<_, String>((outcomes, [counts[0].load(Ordering::Relaxed), counts[1].load(Ordering::Relaxed)]))
     })();
     // Every QEMU ends by the deadline.
-    let mut codes = Vec::new();
-    for c in &mut children {
-        let code = loop {
-            match c.try_wait() {
-                Ok(Some(s)) => break s.code(),
-                Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
-                _ => {
-                    let _ = c.kill();
-                    let _ = c.wait();
-                    break None;
-                }
-            }
-        };
-        codes.push(code);
-    }
+    let codes = reap(&mut children, deadline);
     let (outcomes, line_bytes) = result?;
     let mut runs = outcomes.into_iter().zip(codes).zip(boards.into_iter().zip(ram)).map(
         |((outcome, exit_code), (board, static_ram_bytes))| RobotRun { outcome, exit_code, board, static_ram_bytes },

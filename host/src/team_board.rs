@@ -332,21 +332,7 @@ fn run_boards_inner(
                 .collect::<Vec<_>>(),
         )
     })();
-    let mut codes = Vec::new();
-    for c in &mut children {
-        let code = loop {
-            match c.try_wait() {
-                Ok(Some(s)) => break s.code(),
-                Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(20)),
-                _ => {
-                    let _ = c.kill();
-                    let _ = c.wait();
-                    break None;
-                }
-            }
-        };
-        codes.push(code);
-    }
+    let codes = crate::robots::reap(&mut children, deadline);
     let reports = result?;
     let runs = reports
         .into_iter()

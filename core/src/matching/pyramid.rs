@@ -704,7 +704,7 @@ fn smallest_eigen(a: &[f32; 6]) -> Option<(f32, f32, [f32; 3])> {
     let (b00, b11, b22) = (a00 - q, a11 - q, a22 - q);
     let p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1;
     let p = libm::sqrtf(p2 / 6.0);
-    if !(p > 0.0) {
+    if p.is_nan() || p <= 0.0 {
         return None;
     }
     // det(B) / 2 with B = (A - qI) / p.

@@ -67,9 +67,7 @@ impl<'a, M: VoxelStorage> SenderRobot<'a, M> {
             Err(RobotError::Finished) | Ok(Poll::Busy) => {}
             Err(e) => {
                 self.state = State::Done;
-                let mut message: heapless::String<96> = heapless::String::new();
-                let _ = core::fmt::write(&mut message, format_args!("{e}"));
-                super::send(feed, &RobotMessage::Failed { stage: e.stage(), message: &message });
+                super::send_failure(feed, e);
             }
         }
         r

@@ -172,9 +172,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         if let Err(e) = &r {
             if *e != RobotError::Finished {
                 self.phase = Phase::Done;
-                let mut message: heapless::String<96> = heapless::String::new();
-                let _ = core::fmt::write(&mut message, format_args!("{e}"));
-                super::send(feed, &RobotMessage::Failed { stage: e.stage(), message: &message });
+                super::send_failure(feed, e);
             }
         }
         r

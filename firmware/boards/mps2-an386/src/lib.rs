@@ -43,3 +43,16 @@ pub fn instructions() -> u64 {
 pub fn millis() -> u64 {
     millis_at(CLOCK_HZ)
 }
+
+/// This board's measures for a robot: SysTick instructions and the painted
+/// stack.
+pub struct Board;
+
+impl cosem_core::robot::Meter for Board {
+    fn instructions(&self) -> u64 {
+        instructions()
+    }
+    fn peak_stack(&self) -> u32 {
+        peak_stack()
+    }
+}

@@ -12,9 +12,9 @@ use cortex_m_rt::entry;
 use cosem_core::link::LinkBuffers;
 use cosem_core::map::LocalMap;
 use cosem_core::matching::MatchStatus;
-use cosem_core::robot::{map_config, MapStorage, Meter, ModelStorage, Poll, Robot, RobotConfig, SceneStorage, VOXELS};
+use cosem_core::robot::{map_config, MapStorage, ModelStorage, Poll, Robot, RobotConfig, SceneStorage, VOXELS};
 use cosem_mps2_an386::uart::{Uart, UART0, UART1};
-use cosem_mps2_an386::{exit, instructions, millis, peak_stack, start_clock, CLOCK_HZ};
+use cosem_mps2_an386::{exit, millis, start_clock, Board, CLOCK_HZ};
 
 static mut OWN: MapStorage = MapStorage::new();
 static mut RECEIVED: MapStorage = MapStorage::new();
@@ -22,18 +22,6 @@ static mut MODEL: ModelStorage = ModelStorage::new();
 static mut SCENE: SceneStorage = SceneStorage::new();
 static mut SCRATCH: [u32; VOXELS] = [0; VOXELS];
 static mut LINK: LinkBuffers = LinkBuffers::new();
-
-/// This board's measures: SysTick instructions and the painted stack.
-struct Board;
-
-impl Meter for Board {
-    fn instructions(&self) -> u64 {
-        instructions()
-    }
-    fn peak_stack(&self) -> u32 {
-        peak_stack()
-    }
-}
 
 #[entry]
 fn main() -> ! {
