@@ -82,7 +82,7 @@ impl Board {
         for p in serials {
             cmd.arg("-serial").arg(format!("tcp:127.0.0.1:{p}"));
         }
-        cmd.args(crate::robots::debug_gdb())
+        cmd.args(crate::robots::debug_args())
             .arg("-kernel")
             .arg(elf)
             .stdin(Stdio::null())

@@ -332,7 +332,7 @@ pub(crate) fn qemu(elf: &Path, serials: &[Option<u16>]) -> std::io::Result<Child
         .args(serials.iter().flat_map(|p| {
             ["-serial".to_string(), p.map_or_else(|| "null".to_string(), |p| format!("tcp:127.0.0.1:{p}"))]
         }))
-        .args(debug_gdb())
+        .args(debug_args())
         .arg("-kernel")
         .arg(elf)
         .stdin(Stdio::null())
@@ -362,12 +362,19 @@ pub(crate) fn reap(children: &mut [Child], deadline: Instant) -> Vec<Option<i32>
     codes
 }
 
-pub(crate) fn debug_gdb() -> Vec<String> {
+pub(crate) fn debug_args() -> Vec<String> {
     static NEXT: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(0);
-    match std::env::var("COSEM_DEBUG_GDB").ok().and_then(|v| v.parse::<u16>().ok()) {
-        Some(base) => vec!["-gdb".into(), format!("tcp::{}", base + NEXT.fetch_add(1, Ordering::Relaxed))],
+    let n = NEXT.fetch_add(1, Ordering::Relaxed);
+    let mut args = match std::env::var("COSEM_DEBUG_GDB").ok().and_then(|v| v.parse::<u16>().ok()) {
+        Some(base) => vec!["-gdb".into(), format!("tcp::{}", base + n)],
         None => vec![],
+    };
+    // A TCG plugin for every QEMU (e.g. a profiler); `{n}` becomes the
+    // instance's number, so each writes its own file.
+    if let Ok(plugin) = std::env::var("COSEM_QEMU_PLUGIN") {
+        args.extend(["-plugin".into(), plugin.replace("{n}", &n.to_string())]);
     }
+    args
 }
 
 pub(crate) fn accept(listener: &TcpListener, deadline: Instant) -> Result<TcpStream, String> {

@@ -135,13 +135,34 @@ impl VoxelKey {
         (u(self.x) << 32) | (u(self.y) << 16) | u(self.z)
     }
 
-    /// A well-mixed 32-bit hash, the same on every platform.
+    /// The key's place in x, then y, then z order of the signed
+    /// coordinates, for `(x, y, z)` given as `i32` (one cell beyond the
+    /// `i16` range still orders: 18 bits per axis).
+    #[inline]
+    pub fn sweep_order(x: i32, y: i32, z: i32) -> u64 {
+        let f = |v: i32| (v.wrapping_add(1 << 17) as u32 & 0x3_FFFF) as u64;
+        (f(x) << 36) | (f(y) << 18) | f(z)
+    }
+
+    /// [`VoxelKey::sweep_order`] of this key.
+    #[inline]
+    pub fn sweep(self) -> u64 {
+        Self::sweep_order(i32::from(self.x), i32::from(self.y), i32::from(self.z))
+    }
+
+    /// A well-mixed 32-bit hash, the same on every platform: each
+    /// coordinate times an odd constant, then murmur3's finaliser, all in
+    /// 32-bit arithmetic (a 32-bit core has no 64-bit multiply; hashing is
+    /// a tenth of preparing a map on board).
+    #[inline]
     pub fn hash32(self) -> u32 {
-        // splitmix64 finaliser.
-        let mut z = self.packed().wrapping_add(0x9E37_79B9_7F4A_7C15);
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        (z ^ (z >> 31)) as u32
+        let u = |v: i16, k: u32| u32::from(v as u16).wrapping_mul(k);
+        let mut h = u(self.x, 0x9E37_79B1) ^ u(self.y, 0x85EB_CA77).rotate_left(11) ^ u(self.z, 0xC2B2_AE3D).rotate_left(22);
+        h ^= h >> 16;
+        h = h.wrapping_mul(0x85EB_CA6B);
+        h ^= h >> 13;
+        h = h.wrapping_mul(0xC2B2_AE35);
+        h ^ (h >> 16)
     }
 }
 

@@ -378,6 +378,47 @@ pub(crate) fn agreement(
     }
 }
 
+/// [`Agreement::agreement`] alone, to the bit, for ranking placements
+/// (the look-alike check's dozen passes): ground entries and entries the
+/// model did not see around are skipped before any lookup of the finest
+/// level, and each search stops at the first same-group entry.
+pub(crate) fn standing_agreement(
+    model: &Level<'_>,
+    cover: Option<&Level<'_>>,
+    scene: &Level<'_>,
+    t: &Isometry3<f32>,
+    stride: usize,
+) -> f32 {
+    let Some(cover) = cover else { return 0.0 };
+    let res_sq = model.resolution() * model.resolution();
+    let group = |c: u8| GROUP_BITS.get(usize::from(c)).copied().unwrap_or(0);
+    let (mut covered, mut agreeing) = (0u32, 0u32);
+    for i in (0..scene.len()).step_by(stride.max(1)) {
+        let g = scene.class_at(i).map_or(0, group);
+        if g == 0 {
+            continue;
+        }
+        let Some(s) = scene.entry(i) else { continue };
+        let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
+        if !near_any(cover, [q.x, q.y, q.z]) {
+            continue;
+        }
+        covered += 1;
+        let Some(key) = model.locate([q.x, q.y, q.z]) else { continue };
+        let near_same_group = |dx: i32, dy: i32, dz: i32| {
+            key.offset(dx, dy, dz).is_some_and(|k| {
+                model.cell(k).any(|m| {
+                    let d = [q.x - m.position[0], q.y - m.position[1], q.z - m.position[2]];
+                    d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= res_sq && group(m.class) == g
+                })
+            })
+        };
+        let found = (-1..=1).any(|dx| (-1..=1).any(|dy| (-1..=1).any(|dz| near_same_group(dx, dy, dz))));
+        agreeing += u32::from(found);
+    }
+    agreeing as f32 / covered.max(1) as f32
+}
+
 /// Whether `level` has an entry in the cell of `p` or one of its 26
 /// neighbours.
 fn near_any(level: &Level<'_>, p: [f32; 3]) -> bool {

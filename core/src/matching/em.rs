@@ -1,7 +1,7 @@
 //! The coarse-to-fine EM driver: levels from coarse to fine, a Gaussian width
 //! annealed within each level, one iteration budget across all of them.
 
-use super::associate::{accumulate, agreement, Normal, Pass, Sampling};
+use super::associate::{accumulate, agreement, standing_agreement, Normal, Pass, Sampling};
 use super::pyramid::{Level, Pyramid, PyramidStorage, MAX_LEVELS};
 use super::result::{MatchResult, MatchStatus};
 use super::search::search;
@@ -134,7 +134,7 @@ impl Matcher {
         // apart, and cheap on a robot (a dozen passes).
         let sample = (self.settings.max_agreement_entries / 5).max(1) as usize;
         let stride = c0.len().div_ceil(sample);
-        let here = agreement(&m0, cover.as_ref(), &c0, &found.transform, stride).agreement;
+        let here = standing_agreement(&m0, cover.as_ref(), &c0, &found.transform, stride);
         // The eigenvector of the smaller eigenvalue of the x-y block.
         let i = &found.information;
         let (a, b, c) = (i[(0, 0)], i[(0, 1)], i[(1, 1)]);
@@ -158,7 +158,7 @@ impl Matcher {
             let d = k as f32 * step;
             let t = Isometry3::from_parts(nalgebra::Translation3::new(d * dx, d * dy, 0.0), Default::default())
                 * found.transform;
-            let score = agreement(&m0, cover.as_ref(), &c0, &t, stride).agreement;
+            let score = standing_agreement(&m0, cover.as_ref(), &c0, &t, stride);
             if score > here + 0.01 && best.is_none_or(|(s, _)| score > s) {
                 best = Some((score, t));
             }

@@ -146,7 +146,7 @@ impl CoarseEntry {
     };
 
     fn order(&self) -> (u64, u8) {
-        (self.key.packed(), self.class)
+        (self.key.sweep(), self.class)
     }
 
     #[inline]
@@ -299,7 +299,9 @@ impl PyramidCapacity {
         PyramidCapacity {
             voxels: map.len(),
             entries: map.len().saturating_mul(levels.saturating_sub(1)),
-            words: grids * cells + 3 * listed,
+            // At least one per voxel: level 0's sweep order while normals
+            // are fitted.
+            words: (grids * cells + 3 * listed).max(map.len()),
         }
     }
 
@@ -511,6 +513,15 @@ impl<'a> Level<'a> {
         }
     }
 
+    /// Cell of entry `i` (cheaper than decoding it).
+    #[inline]
+    pub fn key_at(&self, i: usize) -> Option<VoxelKey> {
+        match self.data {
+            LevelData::Voxels { voxels, .. } => voxels.get(i).map(|v| v.key),
+            LevelData::Coarse { entries, .. } => entries.get(i).map(|c| c.key),
+        }
+    }
+
     /// Class of entry `i` (cheaper than decoding it).
     #[inline]
     pub fn class_at(&self, i: usize) -> Option<u8> {
@@ -636,57 +647,147 @@ fn merge_level(src: &Level<'_>, dst: &mut [CoarseEntry], table: &mut [u32]) -> R
     Ok(out)
 }
 
+/// Weighted moments of a neighbourhood's offsets from its centre entry
+/// (centred: better conditioned than absolute positions), the six
+/// distinct second moments; entries farther than 1.5 cells are left out.
+struct Moments {
+    centre: [f32; 3],
+    radius_sq: f32,
+    sum_w: f32,
+    m1: [f32; 3],
+    m2: [f32; 6],
+    count: u32,
+}
+
+impl Moments {
+    fn new(e: &Entry, resolution: f32) -> Self {
+        let r = 1.5 * resolution;
+        Moments { centre: e.position, radius_sq: r * r, sum_w: 0.0, m1: [0.0; 3], m2: [0.0; 6], count: 0 }
+    }
+
+    #[inline]
+    fn add(&mut self, o: &Entry) {
+        let c = self.centre;
+        let d = [o.position[0] - c[0], o.position[1] - c[1], o.position[2] - c[2]];
+        if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > self.radius_sq {
+            return;
+        }
+        let w = o.weight;
+        self.sum_w += w;
+        for (m, v) in self.m1.iter_mut().zip(d) {
+            *m += w * v;
+        }
+        let wd = [w * d[0], w * d[1], w * d[2]];
+        let m2 = &mut self.m2;
+        m2[0] += wd[0] * d[0];
+        m2[1] += wd[0] * d[1];
+        m2[2] += wd[0] * d[2];
+        m2[3] += wd[1] * d[1];
+        m2[4] += wd[1] * d[2];
+        m2[5] += wd[2] * d[2];
+        self.count += 1;
+    }
+
+    /// The normal: planar when the smallest eigenvalue of the covariance
+    /// is under a tenth of the middle one (and at least four entries).
+    fn normal(&self) -> PackedNormal {
+        let (sum_w, m1, m2) = (self.sum_w, self.m1, self.m2);
+        if self.count < 4 || sum_w <= 0.0 {
+            return PackedNormal::NONE;
+        }
+        let mean = [m1[0] / sum_w, m1[1] / sum_w, m1[2] / sum_w];
+        let c = |k: usize, a: usize, b: usize| m2[k] / sum_w - mean[a] * mean[b];
+        let cov = [c(0, 0, 0), c(1, 0, 1), c(2, 0, 2), c(3, 1, 1), c(4, 1, 2), c(5, 2, 2)];
+        let Some((l0, l1, v)) = smallest_eigen(&cov) else { return PackedNormal::NONE };
+        if !(l0.is_finite() && l1.is_finite()) || l1 <= 0.0 || l0 > 0.1 * l1 {
+            return PackedNormal::NONE;
+        }
+        PackedNormal::pack(v)
+    }
+}
+
 /// Fits the normal of `e`: the weighted covariance of the entries of all
-/// classes of `level` within 1.5 cells; planar when the smallest eigenvalue
-/// is under a tenth of the middle one.
+/// classes of `level` within 1.5 cells, gathered by looking up the 27
+/// cells around it (the fallback of [`NormalSweep`], with the same result
+/// to the bit: the same entries in the same order).
 fn fit_normal(level: &Level<'_>, e: &Entry) -> PackedNormal {
-    let r = level.resolution;
-    let radius_sq = (1.5 * r) * (1.5 * r);
-    // Weighted moments of the offsets from the entry (centred: better
-    // conditioned than absolute positions), the six distinct ones.
-    let mut sum_w = 0.0f32;
-    let mut m1 = [0.0f32; 3];
-    let mut m2 = [0.0f32; 6];
-    let mut count = 0;
+    let mut m = Moments::new(e, level.resolution);
     for dx in -1..=1 {
         for dy in -1..=1 {
             for dz in -1..=1 {
                 let Some(k) = e.key.offset(dx, dy, dz) else { continue };
                 for o in level.cell(k) {
-                    let d =
-                        [o.position[0] - e.position[0], o.position[1] - e.position[1], o.position[2] - e.position[2]];
-                    if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > radius_sq {
-                        continue;
-                    }
-                    let w = o.weight;
-                    sum_w += w;
-                    for (m, v) in m1.iter_mut().zip(d) {
-                        *m += w * v;
-                    }
-                    let wd = [w * d[0], w * d[1], w * d[2]];
-                    m2[0] += wd[0] * d[0];
-                    m2[1] += wd[0] * d[1];
-                    m2[2] += wd[0] * d[2];
-                    m2[3] += wd[1] * d[1];
-                    m2[4] += wd[1] * d[2];
-                    m2[5] += wd[2] * d[2];
-                    count += 1;
+                    m.add(&o);
                 }
             }
         }
     }
-    if count < 4 || sum_w <= 0.0 {
-        return PackedNormal::NONE;
-    }
-    let mean = [m1[0] / sum_w, m1[1] / sum_w, m1[2] / sum_w];
-    let c = |k: usize, a: usize, b: usize| m2[k] / sum_w - mean[a] * mean[b];
-    let cov = [c(0, 0, 0), c(1, 0, 1), c(2, 0, 2), c(3, 1, 1), c(4, 1, 2), c(5, 2, 2)];
-    let Some((l0, l1, v)) = smallest_eigen(&cov) else { return PackedNormal::NONE };
-    if !(l0.is_finite() && l1.is_finite()) || l1 <= 0.0 || l0 > 0.1 * l1 {
-        return PackedNormal::NONE;
-    }
-    PackedNormal::pack(v)
+    m.normal()
 }
+
+/// [`fit_normal`] for the matcher's tests.
+#[cfg(test)]
+pub(crate) fn fit_normal_for_tests(level: &Level<'_>, e: &Entry) -> PackedNormal {
+    fit_normal(level, e)
+}
+
+/// Fits the normals of a level's entries visited in sweep order (x, then
+/// y, then z: [`VoxelKey::sweep`]) without a hash lookup: the entries of
+/// the 3 x 3 columns around an entry are contiguous in that order, and
+/// where each column starts only moves forward from one entry to the next,
+/// so nine cursors walk the level once. Nine times cheaper than 27 lookups
+/// per entry, which were most of preparing a map on board.
+struct NormalSweep {
+    cursors: [usize; 9],
+}
+
+impl NormalSweep {
+    fn new() -> Self {
+        NormalSweep { cursors: [0; 9] }
+    }
+
+    /// The normal of `e`; `at(r)` is the level's index of the entry of
+    /// rank `r` in sweep order, for ranks `0..len`. Calls come in sweep
+    /// order.
+    #[inline]
+    fn fit(&mut self, level: &Level<'_>, e: &Entry, len: usize, at: impl Fn(usize) -> Option<usize>) -> PackedNormal {
+        // Keys compared as (x, y, z) in i32: one cell beyond the i16 range
+        // still orders.
+        let cell = |r: usize| {
+            let i = if r < len { at(r)? } else { return None };
+            let k = level.key_at(i)?;
+            Some((i, (i32::from(k.x), i32::from(k.y), i32::from(k.z))))
+        };
+        let mut m = Moments::new(e, level.resolution);
+        let (x, y, z) = (i32::from(e.key.x), i32::from(e.key.y), i32::from(e.key.z));
+        let mut columns = self.cursors.iter_mut();
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                let Some(cursor) = columns.next() else { break };
+                let (lo, hi) = ((x + dx, y + dy, z - 1), (x + dx, y + dy, z + 1));
+                let mut c = *cursor;
+                while cell(c).is_some_and(|(_, k)| k < lo) {
+                    c += 1;
+                }
+                *cursor = c;
+                while let Some((i, k)) = cell(c) {
+                    if k > hi {
+                        break;
+                    }
+                    if let Some(o) = level.entry(i) {
+                        m.add(&o);
+                    }
+                    c += 1;
+                }
+            }
+        }
+        m.normal()
+    }
+}
+
+/// Newton steps for the cubic's smallest root (quadratic convergence from
+/// a simple root: about five are taken).
+const NEWTON_STEPS: usize = 24;
 
 /// The smallest eigenvalue of a symmetric 3x3 matrix (upper triangle
 /// `[a00, a01, a02, a11, a12, a22]`), the middle one, and a unit
@@ -710,8 +811,27 @@ fn smallest_eigen(a: &[f32; 6]) -> Option<(f32, f32, [f32; 3])> {
     // det(B) / 2 with B = (A - qI) / p.
     let det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02);
     let half = (det / (p * p * p) / 2.0).clamp(-1.0, 1.0);
-    let phi = libm::acosf(half) / 3.0;
-    let mut l0 = q + 2.0 * p * libm::cosf(phi + 2.0 * core::f32::consts::PI / 3.0);
+    // The smallest eigenvalue is q + 2 p t, t the smallest root of
+    // 4 t^3 - 3 t = half (t = cos(acos(half) / 3 + 2 pi / 3), in [-1, -1/2]).
+    // Newton's method from t = -1 climbs to it monotonically (the cubic is
+    // increasing and concave there), in f32: libm's cosf and acosf work in
+    // f64, which a Cortex-M4F emulates in software. Slow only when the root
+    // is double (t = -1/2: the two smallest eigenvalues equal, a
+    // neighbourhood that is not planar, refused below); the Rayleigh
+    // refinement fixes the rest.
+    let mut t = -1.0f32;
+    for _ in 0..NEWTON_STEPS {
+        let slope = 12.0 * t * t - 3.0;
+        if slope <= 0.0 {
+            break;
+        }
+        let step = (4.0 * t * t * t - 3.0 * t - half) / slope;
+        t -= step;
+        if step.abs() < 1e-7 {
+            break;
+        }
+    }
+    let mut l0 = q + 2.0 * p * t.max(-1.0).min(-0.5);
     let cross =
         |u: [f32; 3], v: [f32; 3]| [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
     let norm_sq = |v: [f32; 3]| v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
@@ -819,30 +939,62 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
             }
         }
         let mut pyramid = Pyramid { voxels, index, storage, levels: info, count: levels, footprint: None };
-        // Normals, level by level: fitted against the read-only level, then written.
+        // Normals, level by level: fitted against the read-only level, then
+        // written. Coarse levels are sorted in sweep order; level 0 (the
+        // map, in insertion order) is visited through a permutation sorted
+        // in the footprint's words (built after), or, where they are too
+        // few, through hash lookups (the same normals).
         for l in 0..levels {
             let li = pyramid.levels[l];
+            let permuted = l == 0 && {
+                let words = pyramid.storage.parts_mut().words;
+                match words.get_mut(..li.len) {
+                    Some(order) if li.len < u32::MAX as usize => {
+                        for (i, w) in order.iter_mut().enumerate() {
+                            *w = i as u32;
+                        }
+                        order.sort_unstable_by_key(|&i| voxels.get(i as usize).map_or(u64::MAX, |v| v.key.sweep()));
+                        true
+                    }
+                    _ => false,
+                }
+            };
+            let mut sweep = NormalSweep::new();
             for chunk_start in (0..li.len).step_by(NORMAL_CHUNK) {
-                let mut normals = [PackedNormal::NONE; NORMAL_CHUNK];
+                let mut normals = [(0u32, PackedNormal::NONE); NORMAL_CHUNK];
                 let n = (li.len - chunk_start).min(NORMAL_CHUNK);
                 {
                     let level = pyramid.level(l).ok_or(PyramidError::Levels)?;
+                    let order = pyramid.storage.parts().words;
+                    let at = |r: usize| {
+                        if permuted {
+                            order.get(r).map(|&i| i as usize)
+                        } else {
+                            Some(r)
+                        }
+                    };
                     for (k, nm) in normals.iter_mut().enumerate().take(n) {
-                        if let Some(e) = level.entry(chunk_start + k) {
-                            *nm = fit_normal(&level, &e);
+                        let rank = chunk_start + k;
+                        let Some(i) = at(rank) else { continue };
+                        if let Some(e) = level.entry(i) {
+                            let normal = if l == 0 && !permuted {
+                                fit_normal(&level, &e)
+                            } else {
+                                sweep.fit(&level, &e, li.len, at)
+                            };
+                            *nm = (i as u32, normal);
                         }
                     }
                 }
                 let parts = pyramid.storage.parts_mut();
-                if l == 0 {
-                    if let Some(dst) = parts.extras.get_mut(chunk_start..chunk_start + n) {
-                        for (x, nm) in dst.iter_mut().zip(normals.iter()) {
-                            x.normal = *nm;
-                        }
-                    }
-                } else if let Some(dst) = parts.entries.get_mut(li.start + chunk_start..li.start + chunk_start + n) {
-                    for (x, nm) in dst.iter_mut().zip(normals.iter()) {
-                        x.normal = *nm;
+                for &(i, normal) in normals.iter().take(n) {
+                    let slot = if l == 0 {
+                        parts.extras.get_mut(i as usize).map(|x| &mut x.normal)
+                    } else {
+                        parts.entries.get_mut(li.start + i as usize).map(|x| &mut x.normal)
+                    };
+                    if let Some(slot) = slot {
+                        *slot = normal;
                     }
                 }
             }

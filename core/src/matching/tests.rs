@@ -244,3 +244,65 @@ fn scene_role_pyramid_matches_like_a_model() {
     let b = Matcher::default().align(&full, &scene, &start).unwrap();
     assert_eq!(a.transform, b.transform);
 }
+
+/// The normal sweep (sorted cursors) gives the 27-lookup fit's normals to
+/// the bit at every level, with and without room for level 0's
+/// permutation (which falls back to lookups), on a map that spans
+/// negative and positive cells on every axis.
+#[test]
+fn swept_normals_equal_looked_up_normals() {
+    let mut m = new_map();
+    corner(&mut m, &from_xyz_rpy(-2.5, 1.3, -0.7, 0.1, -0.05, 0.7));
+    let mut seed = 7u32;
+    let mut rnd = || {
+        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (seed >> 8) as f32 / (1u32 << 24) as f32 - 0.5
+    };
+    for k in 0..3000 {
+        let p = [rnd() * 16.0, rnd() * 16.0, rnd() * 3.0];
+        m.insert_point(p, [Class::Vegetation, Class::Terrain, Class::Car][k % 3]).unwrap();
+    }
+    let n = m.len();
+    let roomy = Pyramid::build(&m, 3, 1.0, heap_pyramid(n, 3 * n, 400_000)).unwrap();
+    let tight = Pyramid::build(&m, 3, 0.0, heap_pyramid(n, 3 * n, 0)).unwrap();
+    let mut planar = 0;
+    for l in 0..3 {
+        let (a, b) = (roomy.level(l).unwrap(), tight.level(l).unwrap());
+        assert_eq!(a.len(), b.len());
+        for i in 0..a.len() {
+            let e = a.entry(i).unwrap();
+            assert_eq!(e.normal, b.entry(i).unwrap().normal, "level {l} entry {i}");
+            assert_eq!(e.normal, super::pyramid::fit_normal_for_tests(&a, &e), "level {l} entry {i}");
+            planar += usize::from(e.is_planar());
+        }
+    }
+    assert!(planar > n / 2, "{planar} planar of {n}");
+}
+
+/// The look-alike check's agreement-only pass gives the full pass's
+/// agreement to the bit, aligned, shifted and far off.
+#[test]
+fn standing_agreement_equals_the_full_pass() {
+    use super::associate::{agreement, standing_agreement};
+    let mut a = new_map();
+    corner(&mut a, &Isometry3::identity());
+    let mut b = new_map();
+    corner(&mut b, &from_xyz_rpy(0.3, -0.2, 0.0, 0.0, 0.0, 0.05));
+    let (pa, pb) = (pyramid(&a), pyramid(&b));
+    let (m0, c0) = (pa.level(0).unwrap(), pb.level(0).unwrap());
+    let cover = pa.level(2);
+    let mut seen = 0;
+    for (i, t) in [(0.0, 0.0, 0.0), (0.3, -0.2, 0.05), (1.0, 0.5, -0.1), (-2.0, 3.0, 0.4), (40.0, 0.0, 0.0)]
+        .iter()
+        .map(|&(x, y, yaw)| from_xyz_rpy(x, y, 0.0, 0.0, 0.0, yaw))
+        .enumerate()
+    {
+        for stride in [1, 3] {
+            let full = agreement(&m0, cover.as_ref(), &c0, &t, stride).agreement;
+            assert_eq!(standing_agreement(&m0, cover.as_ref(), &c0, &t, stride), full, "case {i} stride {stride}");
+            seen += usize::from(full > 0.0);
+        }
+        assert_eq!(standing_agreement(&m0, None, &c0, &t, 1), agreement(&m0, None, &c0, &t, 1).agreement);
+    }
+    assert!(seen >= 4, "{seen}");
+}
