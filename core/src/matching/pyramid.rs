@@ -831,7 +831,7 @@ fn smallest_eigen(a: &[f32; 6]) -> Option<(f32, f32, [f32; 3])> {
             break;
         }
     }
-    let mut l0 = q + 2.0 * p * t.max(-1.0).min(-0.5);
+    let mut l0 = q + 2.0 * p * t.clamp(-1.0, -0.5);
     let cross =
         |u: [f32; 3], v: [f32; 3]| [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
     let norm_sq = |v: [f32; 3]| v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
