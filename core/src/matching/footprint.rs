@@ -133,15 +133,22 @@ pub struct Grid<'a> {
 }
 
 impl Grid<'_> {
+    /// Words (row-major), width, height and window span, for loops that
+    /// inline [`Grid::mask`].
+    #[inline]
+    pub(crate) fn parts(&self) -> (&[u32], i32, i32, i32) {
+        (self.words, self.width, self.height, self.span)
+    }
+
     /// The class mask at cell (i, j); 0 outside. A window that starts below
     /// the grid but reaches into it reads the window at 0 (an upper bound).
     #[inline]
     pub fn mask(&self, i: i32, j: i32) -> u32 {
-        let i = if i < 0 && i + self.span > 0 { 0 } else { i };
-        let j = if j < 0 && j + self.span > 0 { 0 } else { j };
-        if i < 0 || j < 0 || i >= self.width || j >= self.height {
+        // Beyond the grid, or a window that ends before it: nothing.
+        if i <= -self.span || j <= -self.span || i >= self.width || j >= self.height {
             return 0;
         }
+        let (i, j) = (i.max(0), j.max(0));
         self.words.get((j * self.width + i) as usize).copied().unwrap_or(0)
     }
 }

@@ -11,7 +11,7 @@
 //! exact optimum of the score over the window's lattice, found in a
 //! deterministic order (ties go to the candidate nearest the prior).
 
-use super::footprint::{Footprint, POOL_LEVELS};
+use super::footprint::{Footprint, Grid, POOL_LEVELS};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 /// The region around the prior that the coarse search covers.
@@ -70,6 +70,36 @@ struct YawCells<const N: usize> {
     yaw: i16,
     len: usize,
     cells: [(i16, i16, u32); N],
+    /// The most each [`CHUNK`] of cells can add to a score (their class
+    /// groups), for scoring that stops once a floor is out of reach.
+    most: [u16; MAX_CHUNKS],
+}
+
+impl<const N: usize> YawCells<N> {
+    fn new() -> Self {
+        YawCells { yaw: 0, len: 0, cells: [(0, 0, 0); N], most: [0; MAX_CHUNKS] }
+    }
+}
+
+/// Cells scored between two checks of the floor.
+const CHUNK: usize = 32;
+/// Chunks of the largest cache.
+const MAX_CHUNKS: usize = MAX_POINTS.div_ceil(CHUNK);
+
+/// Set bits of a class mask: a table for the footprint's five group bits
+/// (a Cortex-M4 has no population count instruction), else counted.
+#[inline]
+fn ones(m: u32) -> u32 {
+    const TABLE: [u8; 32] = {
+        let mut t = [0u8; 32];
+        let mut i = 0;
+        while i < 32 {
+            t[i] = (i as u32).count_ones() as u8;
+            i += 1;
+        }
+        t
+    };
+    TABLE.get(m as usize).map_or_else(|| m.count_ones(), |&c| u32::from(c))
 }
 
 /// A cell index as the cache keeps it.
@@ -87,31 +117,67 @@ impl Scorer<'_> {
         let o = [c * p[2] - s * p[5], s * p[2] + c * p[5]];
         out.yaw = yaw;
         out.len = 0;
+        out.most = [0; MAX_CHUNKS];
         for ((q, mask), slot) in self.scene.occupied().step_by(self.stride).zip(out.cells.iter_mut()) {
             let x = m[0] * q[0] + m[1] * q[1] + o[0];
             let y = m[2] * q[0] + m[3] * q[1] + o[1];
             let (ci, cj) = self.model.cell_of(x, y);
             *slot = (narrow(ci), narrow(cj), mask);
+            if let Some(most) = out.most.get_mut(out.len / CHUNK) {
+                let add = if self.semantic { mask.count_ones() } else { 1 };
+                *most = most.saturating_add(add as u16);
+            }
             out.len += 1;
         }
     }
 
     /// Score of a block of translations at the yaw of `cells`.
+    #[inline]
     fn score<const N: usize>(&self, cells: &YawCells<N>, i0: i32, j0: i32, h: usize) -> u32 {
+        self.score_above(cells, i0, j0, h, 0)
+    }
+
+    /// The score if it is above `floor`; otherwise some value at most
+    /// `floor` (scoring stops once the cells left cannot lift it above).
+    /// Branch and bound discards such a node whatever its exact score.
+    #[inline]
+    fn score_above<const N: usize>(&self, cells: &YawCells<N>, i0: i32, j0: i32, h: usize, floor: u32) -> u32 {
         let Some(grid) = self.model.grid(h) else { return 0 };
-        let mut total = 0u32;
         let points = cells.cells.get(..cells.len).unwrap_or(&[]);
-        if self.semantic {
-            for &(ci, cj, mask) in points {
-                total += (mask & grid.mask(i32::from(ci) + i0, i32::from(cj) + j0)).count_ones();
-            }
-        } else {
-            for &(ci, cj, _) in points {
-                total += u32::from(grid.mask(i32::from(ci) + i0, i32::from(cj) + j0) != 0);
+        let mut left: u32 = cells.most.iter().map(|&m| u32::from(m)).sum();
+        let mut total = 0;
+        for (chunk, &most) in points.chunks(CHUNK).zip(cells.most.iter()) {
+            total += score_points(chunk, &grid, i0, j0, self.semantic);
+            left -= u32::from(most);
+            if total + left <= floor {
+                return total + left;
             }
         }
         total
     }
+}
+
+/// The search's inner loop, kept apart so that its few values stay in
+/// registers: for each cached scene cell shifted by `(i0, j0)`, the model
+/// grid's mask there ([`Grid::mask`], inlined: one unsigned test per axis
+/// for "inside, or a window reaching into the grid from below"), its
+/// common class groups counted (bare occupancy unless `semantic`).
+#[inline(never)]
+fn score_points(points: &[(i16, i16, u32)], grid: &Grid<'_>, i0: i32, j0: i32, semantic: bool) -> u32 {
+    let (words, width, height, span) = grid.parts();
+    // Valid cells: -span < i < width, i.e. (i + span - 1) below width + span - 1.
+    let (ri, rj) = ((width + span - 1) as u32, (height + span - 1) as u32);
+    let (si, sj) = (i0 + span - 1, j0 + span - 1);
+    let mut total = 0u32;
+    for &(ci, cj, mask) in points {
+        let (i, j) = (i32::from(ci), i32::from(cj));
+        if ((i + si) as u32) < ri && ((j + sj) as u32) < rj {
+            let at = ((j + j0).max(0) * width + (i + i0).max(0)) as usize;
+            let m = words.get(at).copied().unwrap_or(0);
+            total += if semantic { ones(mask & m) } else { u32::from(m != 0) };
+        }
+    }
+    total
 }
 
 /// Searches `window` around `prior` (a `T_model_scene`) for the placement of
@@ -157,7 +223,7 @@ pub fn search(
     }
     let stride = scene.occupied_len().div_ceil(MAX_POINTS);
     let scorer = Scorer { model, scene, prior: p, step, stride, semantic };
-    let mut cells = YawCells { yaw: 0, len: 0, cells: [(0, 0, 0); MAX_POINTS] };
+    let mut cells = YawCells::<MAX_POINTS>::new();
     let mut evaluations = 0u32;
     let mut roots: heapless::Vec<Node, MAX_ROOTS> = heapless::Vec::new();
     for k in -n_yaw..=n_yaw {
@@ -217,7 +283,8 @@ pub fn search(
                 if i > w || j > w {
                     continue;
                 }
-                let score = scorer.score(&cells, i, j, usize::from(node.h - 1));
+                let floor = best.map_or(0, |b| b.score);
+                let score = scorer.score_above(&cells, i, j, usize::from(node.h - 1), floor);
                 evaluations += 1;
                 children[c] = Some(Node { yaw: node.yaw, i: i as i16, j: j as i16, h: node.h - 1, score });
             }
@@ -413,7 +480,7 @@ fn descend<const N: usize>(
             if i > bounds.i.1 || j > bounds.j.1 || i + half <= bounds.i.0 || j + half <= bounds.j.0 {
                 continue;
             }
-            let score = scorer.score(cells, i, j, usize::from(node.h - 1));
+            let score = scorer.score_above(cells, i, j, usize::from(node.h - 1), kept.threshold());
             *evaluations += 1;
             children[c] = Some(Node { yaw: node.yaw, i: i as i16, j: j as i16, h: node.h - 1, score });
         }
@@ -487,7 +554,7 @@ pub fn search_global(
     let top = POOL_LEVELS - 1;
     let block = 1i32 << top;
     let roots = |b: (i32, i32)| (b.0..=b.1).step_by(block as usize);
-    let mut cells = YawCells { yaw: 0, len: 0, cells: [(0, 0, 0); MAX_GLOBAL_POINTS] };
+    let mut cells = YawCells::<MAX_GLOBAL_POINTS>::new();
     let mut evaluations = 0u32;
     // Each heading's best root bound.
     let mut order: heapless::Vec<(u32, u16), MAX_YAWS> = heapless::Vec::new();
@@ -496,7 +563,7 @@ pub fn search_global(
         let mut best_root = 0;
         for i in roots(bounds.i) {
             for j in roots(bounds.j) {
-                best_root = best_root.max(scorer.score(&cells, i, j, top));
+                best_root = best_root.max(scorer.score_above(&cells, i, j, top, best_root));
                 evaluations += 1;
             }
         }
@@ -518,7 +585,7 @@ pub fn search_global(
         yaw_roots.clear();
         for i in roots(bounds.i) {
             for j in roots(bounds.j) {
-                let score = scorer.score(&cells, i, j, top);
+                let score = scorer.score_above(&cells, i, j, top, kept.threshold());
                 evaluations += 1;
                 let root = Node { yaw: k as i16, i: i as i16, j: j as i16, h: top as u8, score };
                 if yaw_roots.push(root).is_err() {
