@@ -456,32 +456,37 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         L: Read + Write + ReadReady + WriteReady,
         T: Meter,
     {
-        match core::mem::replace(&mut self.state, State::Done) {
-            State::Feed { own, received, scratch, buffers } => {
-                let done = self.fed.read(feed, own, Some(&mut *received), false, now_ms, meter);
-                self.state = State::Feed { own, received, scratch, buffers };
-                if done? {
+        // The waiting states are polled in place: moving the state out and
+        // back (the link's endpoint is kilobytes) on every poll was most of
+        // a waiting robot's instructions.
+        match &mut self.state {
+            State::Feed { own, received, .. } => {
+                if self.fed.read(feed, own, Some(&mut **received), false, now_ms, meter)? {
                     self.start_link(now_ms)?;
                 }
+                return Ok(Poll::Busy);
+            }
+            State::Link { endpoint, .. } => {
+                if endpoint.step(link, now_ms).map_err(RobotError::Link)? == Progress::Busy {
+                    return Ok(Poll::Busy);
+                }
+            }
+            _ => {}
+        }
+        match core::mem::replace(&mut self.state, State::Done) {
+            State::Feed { .. } => Err(RobotError::Finished),
+            State::Link { own, endpoint } => {
+                // The exchange is done (the step above said so).
+                self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
+                let stats = endpoint.stats();
+                if endpoint.peer_takes_map() == Some(false) {
+                    self.tell_peer = endpoint.peer_id();
+                }
+                let (_, received) = endpoint.into_parts();
+                let Some(received) = received else { return Err(RobotError::Link(LinkError::Setup)) };
+                self.state = State::Align { own, received, stats };
                 Ok(Poll::Busy)
             }
-            State::Link { own, mut endpoint } => match endpoint.step(link, now_ms).map_err(RobotError::Link)? {
-                Progress::Busy => {
-                    self.state = State::Link { own, endpoint };
-                    Ok(Poll::Busy)
-                }
-                Progress::Done => {
-                    self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
-                    let stats = endpoint.stats();
-                    if endpoint.peer_takes_map() == Some(false) {
-                        self.tell_peer = endpoint.peer_id();
-                    }
-                    let (_, received) = endpoint.into_parts();
-                    let Some(received) = received else { return Err(RobotError::Link(LinkError::Setup)) };
-                    self.state = State::Align { own, received, stats };
-                    Ok(Poll::Busy)
-                }
-            },
             State::Align { own, received, stats } => {
                 let (report, estimate) = self.align(own, received, &stats, meter)?;
                 match self.tell_peer {

@@ -29,6 +29,19 @@ fn matrix(v: &Value) -> cosem_core::geometry::Isometry3<f64> {
     cosem_core::geometry::rigid_from_matrix(&nalgebra::Matrix4::from_row_slice(&n)).expect("a rigid transform")
 }
 
+/// The whole onboard pipeline of a robot that converged (mapping,
+/// preparation, prior-free landmark search, match) within 3e8 instructions
+/// (QEMU's virtual nanoseconds under `-icount shift=0`), printed on every
+/// run: a count, not a time, so the same on every machine.
+fn check_budget(i: usize, r: &Value) {
+    let n = |k: &str| r[k].as_u64().unwrap_or_else(|| panic!("robot {i}: no {k}: {r}"));
+    let (map, prepare, locate, matching) =
+        (n("map_instructions"), n("prepare_instructions"), n("locate_instructions"), n("match_instructions"));
+    let total = map + prepare + locate + matching;
+    eprintln!("robot {i} pipeline: map {map} + prepare {prepare} + locate {locate} + match {matching} = {total} instructions");
+    assert!(total <= 300_000_000, "robot {i}: pipeline of {total} instructions over 3e8: {r}");
+}
+
 /// Checks both robots converged near the truth and equal the host's runs.
 fn check_pair(json: &Value) {
     let gt = matrix(&json["ground_truth"]);
@@ -50,6 +63,7 @@ fn check_pair(json: &Value) {
             "robot {i}: e_t {e_t:.3} m e_r {e_r:.3} deg; {} voxels; {} B out; match {} instructions",
             r["map_voxels"], r["bytes_sent"], r["instructions"]
         );
+        check_budget(i, r);
     }
     // Each robot received the other's whole map, and no byte the other did
     // not send (the last acknowledgements may still be on the line when a
@@ -170,6 +184,7 @@ fn check_one_sided(json: &Value) {
         let (d_t, d_r) = cosem_core::geometry::pose_errors(&t, &hosts[i]);
         assert!(d_t < 1e-4 && d_r < 1e-3, "robot {i} differs from the host: {d_t} m, {d_r} deg");
         assert!(robot["static_ram_bytes"].as_u64().unwrap() > 0 && robot["peak_stack_bytes"].as_u64().unwrap() > 0);
+        check_budget(i, robot);
     }
     assert_eq!((r[0]["board"].as_str(), r[1]["board"].as_str()), (Some("mps2-an386"), Some("stm32f405")));
     assert_eq!(r[0]["received_voxels"], r[1]["map_voxels"]);

@@ -80,13 +80,23 @@ impl<'a, M: VoxelStorage> SenderRobot<'a, M> {
         T: Meter,
     {
         let io = |_| RobotError::Link(LinkError::Io(embedded_io::ErrorKind::Other));
-        match core::mem::replace(&mut self.state, State::Done) {
-            State::Feed { own, scratch, buffers } => {
-                let done = self.fed.read(feed, own, None::<&mut LocalMap<M>>, false, now_ms, meter);
-                if !done? {
-                    self.state = State::Feed { own, scratch, buffers };
+        // Waiting states are polled in place (see the pair robot).
+        match &mut self.state {
+            State::Feed { own, .. } => {
+                if !self.fed.read(feed, own, None::<&mut LocalMap<M>>, false, now_ms, meter)? {
                     return Ok(Poll::Busy);
                 }
+            }
+            State::Link { endpoint, .. } => {
+                if endpoint.step(link, now_ms).map_err(RobotError::Link)? == Progress::Busy {
+                    return Ok(Poll::Busy);
+                }
+            }
+            _ => {}
+        }
+        match core::mem::replace(&mut self.state, State::Done) {
+            // The feed ended (read above).
+            State::Feed { own, scratch, buffers } => {
                 let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
                 let own: &'a LocalMap<M> = own;
                 self.link_config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
@@ -98,20 +108,15 @@ impl<'a, M: VoxelStorage> SenderRobot<'a, M> {
                 self.state = State::Link { own, endpoint };
                 Ok(Poll::Busy)
             }
-            State::Link { own, mut endpoint } => match endpoint.step(link, now_ms).map_err(RobotError::Link)? {
-                Progress::Busy => {
-                    self.state = State::Link { own, endpoint };
-                    Ok(Poll::Busy)
-                }
-                Progress::Done => {
-                    self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
-                    let me = self.fed.setup.map_or(0, |s| s.robot_id);
-                    let peer = endpoint.peer_id().ok_or(RobotError::Link(LinkError::Silent))?;
-                    let stats = endpoint.stats();
-                    self.state = State::Await { own, stats, awaiter: Awaiter::new(me, peer, now_ms) };
-                    Ok(Poll::Busy)
-                }
-            },
+            // The exchange is done (stepped above).
+            State::Link { own, endpoint } => {
+                self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
+                let me = self.fed.setup.map_or(0, |s| s.robot_id);
+                let peer = endpoint.peer_id().ok_or(RobotError::Link(LinkError::Silent))?;
+                let stats = endpoint.stats();
+                self.state = State::Await { own, stats, awaiter: Awaiter::new(me, peer, now_ms) };
+                Ok(Poll::Busy)
+            }
             State::Await { own, stats, mut awaiter } => {
                 match awaiter.step(link, now_ms, &self.link_config).map_err(io)? {
                     Awaited::Busy => {

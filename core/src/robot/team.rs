@@ -194,32 +194,42 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         L: Read + Write + ReadReady + WriteReady,
         T: Meter,
     {
-        match core::mem::replace(&mut self.phase, Phase::Done) {
-            Phase::Feed { own, received, scratch, buffers } => {
-                let done = self.fed.read(feed, own, Some(&mut *received), true, now_ms, meter);
-                if done? {
-                    let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
-                    self.link_config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
-                    if ports.len() + 1 < usize::from(self.robots()) {
-                        return Err(RobotError::Link(LinkError::Setup));
-                    }
-                    self.phase = Phase::Ready { own, received, scratch, buffers };
-                } else {
-                    self.phase = Phase::Feed { own, received, scratch, buffers };
+        // Waiting phases are polled in place (see the pair robot); the
+        // phase moves out only to change.
+        let mut progress = Ok(Progress::Done);
+        let me = self.me();
+        match &mut self.phase {
+            Phase::Feed { own, received, .. } => {
+                if !self.fed.read(feed, own, Some(&mut **received), true, now_ms, meter)? {
+                    return Ok(false);
                 }
+            }
+            Phase::Link { peer, endpoint, .. } => {
+                let port = ports.get_mut(port_of(me, *peer)).ok_or(RobotError::Link(LinkError::Setup))?;
+                progress = endpoint.step(port, now_ms);
+                if progress == Ok(Progress::Busy) {
+                    return Ok(false);
+                }
+            }
+            _ => {}
+        }
+        match core::mem::replace(&mut self.phase, Phase::Done) {
+            // The feed ended (read above).
+            Phase::Feed { own, received, scratch, buffers } => {
+                let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
+                self.link_config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
+                if ports.len() + 1 < usize::from(self.robots()) {
+                    return Err(RobotError::Link(LinkError::Setup));
+                }
+                self.phase = Phase::Ready { own, received, scratch, buffers };
                 Ok(false)
             }
             Phase::Ready { own, received, scratch, buffers } => {
                 self.next_round(own, received, scratch, buffers, now_ms)?;
                 Ok(false)
             }
-            Phase::Link { own, peer, started, mut endpoint } => {
-                let port = ports.get_mut(port_of(self.me(), peer)).ok_or(RobotError::Link(LinkError::Setup))?;
-                let progress = endpoint.step(port, now_ms);
-                if progress == Ok(Progress::Busy) {
-                    self.phase = Phase::Link { own, peer, started, endpoint };
-                    return Ok(false);
-                }
+            // The exchange ended (stepped above, `progress`).
+            Phase::Link { own, peer, started, endpoint } => {
                 let stats = endpoint.stats();
                 let Finished { scratch: Some(scratch), staging: Some(received), buffers } =
                     endpoint.finish().ok_or(RobotError::Link(LinkError::Setup))?
