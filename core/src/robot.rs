@@ -467,7 +467,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
                 return Ok(Poll::Busy);
             }
             State::Link { endpoint, .. } => {
-                if endpoint.step(link, now_ms).map_err(RobotError::Link)? == Progress::Busy {
+                let progress = endpoint.step(link, now_ms).map_err(RobotError::Link)?;
+                if progress == Progress::Busy {
                     return Ok(Poll::Busy);
                 }
             }

@@ -83,12 +83,14 @@ impl<'a, M: VoxelStorage> SenderRobot<'a, M> {
         // Waiting states are polled in place (see the pair robot).
         match &mut self.state {
             State::Feed { own, .. } => {
-                if !self.fed.read(feed, own, None::<&mut LocalMap<M>>, false, now_ms, meter)? {
+                let ended = self.fed.read(feed, own, None::<&mut LocalMap<M>>, false, now_ms, meter)?;
+                if !ended {
                     return Ok(Poll::Busy);
                 }
             }
             State::Link { endpoint, .. } => {
-                if endpoint.step(link, now_ms).map_err(RobotError::Link)? == Progress::Busy {
+                let progress = endpoint.step(link, now_ms).map_err(RobotError::Link)?;
+                if progress == Progress::Busy {
                     return Ok(Poll::Busy);
                 }
             }

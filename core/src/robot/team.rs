@@ -200,7 +200,8 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
         let me = self.me();
         match &mut self.phase {
             Phase::Feed { own, received, .. } => {
-                if !self.fed.read(feed, own, Some(&mut **received), true, now_ms, meter)? {
+                let ended = self.fed.read(feed, own, Some(&mut **received), true, now_ms, meter)?;
+                if !ended {
                     return Ok(false);
                 }
             }
