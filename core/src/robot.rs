@@ -30,14 +30,15 @@ use crate::wire::frame::{DeframeError, Deframer, MAX_FRAME};
 use crate::wire::share::Estimate;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
-/// Voxels a robot's map holds (and the received map): 256 KiB each. When a
-/// map is full the voxels farthest from the anchor are evicted
-/// ([`FullPolicy::EvictFarthest`]).
+/// Voxels a robot's map holds (and the received map): 224 KiB each (28
+/// bytes per voxel with 16-bit index slots). When a map is full the voxels
+/// farthest from the anchor are evicted ([`FullPolicy::EvictFarthest`]).
 pub const VOXELS: usize = 8192;
 /// Voxels of a robot on a small board (an STM32F405: its 128 KiB of main
-/// SRAM hold this map and nothing else): a [`sender::SenderRobot`], which
-/// sends its map and takes none.
-pub const SMALL_VOXELS: usize = 4096;
+/// SRAM hold this map, 28 bytes per voxel, and nothing else): a
+/// [`sender::SenderRobot`], which sends its map and takes none. A full map
+/// evicts its farthest eighth (585 voxels) and keeps 4,096.
+pub const SMALL_VOXELS: usize = 4681;
 /// Coarse pyramid entries per map (0.5 m maps with [`LEVELS`] levels take
 /// about 0.42 per voxel).
 pub const COARSE: usize = 3840;
@@ -51,8 +52,10 @@ pub const LEVELS: usize = 3;
 /// First footprint cell tried (m); doubled until the grids fit.
 pub const FOOTPRINT_CELL: f32 = 1.0;
 
-/// A robot's map storage.
-pub type MapStorage = ArrayStorage<VOXELS>;
+/// A robot's map storage (16-bit index slots).
+pub type MapStorage = ArrayStorage<VOXELS, u16>;
+/// A small board's map storage (16-bit index slots).
+pub type SmallMapStorage = ArrayStorage<SMALL_VOXELS, u16>;
 /// Pyramid storage of a robot's own map (the model).
 pub type ModelStorage = ArrayPyramidStorage<VOXELS, COARSE, MODEL_WORDS>;
 /// Pyramid storage of the received map (the scene).

@@ -2,7 +2,7 @@
 
 use super::key::{KeyError, VoxelKey};
 use super::labels::{LabelDistribution, SensorModel};
-use super::table::{self, Probe, VoxelStorage, SLOTS_PER_VOXEL};
+use super::table::{self, MapIndex, Probe, SlotInt, VoxelStorage, SLOTS_PER_VOXEL};
 use super::voxel::{quantise_fraction, SemanticVoxel, LOGODDS_UNITS};
 use crate::classes::Class;
 
@@ -207,12 +207,15 @@ impl<S: VoxelStorage> LocalMap<S> {
     /// An empty map over `storage`.
     pub fn new(mut storage: S, config: MapConfig) -> Result<Self, ConfigError> {
         let capacity = storage.voxels().len();
-        if capacity == 0 || capacity >= u32::MAX as usize || storage.slots().len() < SLOTS_PER_VOXEL * capacity {
+        if capacity == 0
+            || capacity >= <S::Slot as SlotInt>::MAX as usize
+            || storage.slots().len() < SLOTS_PER_VOXEL * capacity
+        {
             return Err(ConfigError::Storage);
         }
         let mut map = LocalMap {
             storage: {
-                storage.parts_mut().1.fill(0);
+                storage.parts_mut().1.fill(<S::Slot as SlotInt>::ZERO);
                 storage
             },
             len: 0,
@@ -303,7 +306,7 @@ impl<S: VoxelStorage> LocalMap<S> {
 
     /// Removes every voxel (keeps configuration and storage).
     pub fn clear(&mut self) {
-        self.storage.parts_mut().1.fill(0);
+        self.storage.parts_mut().1.fill(<S::Slot as SlotInt>::ZERO);
         self.len = 0;
         self.keep_radius_sq = f32::INFINITY;
         self.evicted = 0;
@@ -315,8 +318,8 @@ impl<S: VoxelStorage> LocalMap<S> {
     }
 
     /// The hash index over [`LocalMap::voxels`] (read by the matcher's level 0).
-    pub(crate) fn index_slots(&self) -> &[u32] {
-        self.storage.slots()
+    pub(crate) fn index_slots(&self) -> MapIndex<'_> {
+        <S::Slot as SlotInt>::index(self.storage.slots())
     }
 
     /// Iterates over the voxels in insertion order.
@@ -422,7 +425,7 @@ impl<S: VoxelStorage> LocalMap<S> {
         let (voxels, slots) = self.storage.parts_mut();
         if let (Some(v), Some(s)) = (voxels.get_mut(len), slots.get_mut(slot)) {
             *v = voxel;
-            *s = len as u32 + 1;
+            *s = <S::Slot as SlotInt>::of(len as u32 + 1);
             self.len += 1;
         }
     }
@@ -439,47 +442,83 @@ impl<S: VoxelStorage> LocalMap<S> {
         }
     }
 
-    /// Removes the voxels farthest from `anchor`: about an eighth of the
-    /// capacity, cut at a radius found with a 256-bin histogram of distances.
+    /// Removes the eighth of the capacity farthest from `anchor`, exactly:
+    /// a 256-bin histogram of distances finds the bin where the cut falls,
+    /// a second histogram within that bin narrows it, and of the voxels
+    /// that remain tied the latest inserted go. Later points at or beyond
+    /// the cut radius are dropped. (A small board's map keeps exactly 7/8
+    /// of its capacity.)
     fn evict_farthest(&mut self, anchor: [f32; 3]) {
-        let res = self.config.resolution;
-        let mut max_d = 0.0f32;
-        for v in self.voxels() {
-            max_d = max_d.max(libm::sqrtf(dist_sq(v.key.center(res), anchor)));
-        }
         const BINS: usize = 256;
-        let bin_of = |d: f32| -> usize {
-            if max_d <= 0.0 {
+        let res = self.config.resolution;
+        let distance = |v: &SemanticVoxel| libm::sqrtf(dist_sq(v.key.center(res), anchor));
+        let max_d = self.voxels().iter().map(distance).fold(0.0f32, f32::max);
+        // Bin `b` holds distances in [b w, (b + 1) w), w = max_d / (BINS - 1).
+        let width = if max_d > 0.0 { max_d / (BINS as f32 - 1.0) } else { 0.0 };
+        let bin_in = |d: f32, lo: f32, w: f32| -> usize {
+            if w <= 0.0 {
                 0
             } else {
-                ((d / max_d * (BINS as f32 - 1.0)) as usize).min(BINS - 1)
+                (((d - lo) / w) as usize).min(BINS - 1)
             }
         };
+        let bin_of = |d: f32| bin_in(d, 0.0, width);
+        let target = (self.capacity() / 8).max(1).min(self.len);
+        // The coarse cut: bins above `cut` go whole.
         let mut hist = [0usize; BINS];
         for v in self.voxels() {
-            let b = bin_of(libm::sqrtf(dist_sq(v.key.center(res), anchor)));
-            if let Some(h) = hist.get_mut(b) {
+            if let Some(h) = hist.get_mut(bin_of(distance(v))) {
                 *h += 1;
             }
         }
-        let target = (self.capacity() / 8).max(1);
-        let mut cut_bin = BINS - 1;
-        let mut acc = 0;
+        let (mut cut, mut above) = (0usize, 0usize);
         for b in (0..BINS).rev() {
-            acc += hist.get(b).copied().unwrap_or(0);
-            cut_bin = b;
-            if acc >= target {
+            let here = hist.get(b).copied().unwrap_or(0);
+            cut = b;
+            if above + here >= target {
                 break;
             }
+            above += here;
         }
-        // Voxels in bins >= cut_bin go; the kept radius is that bin's lower edge.
-        let cut = if max_d <= 0.0 { 0.0 } else { cut_bin as f32 / (BINS as f32 - 1.0) * max_d };
+        // The fine cut within bin `cut`: sub-bins above `sub` go whole.
+        let (lo, sub_w) = (cut as f32 * width, width / BINS as f32);
+        let sub_of = |d: f32| bin_in(d, lo, sub_w);
+        let mut fine = [0usize; BINS];
+        for v in self.voxels() {
+            let d = distance(v);
+            if bin_of(d) == cut {
+                if let Some(h) = fine.get_mut(sub_of(d)) {
+                    *h += 1;
+                }
+            }
+        }
+        let need = target - above;
+        let (mut sub, mut above_sub) = (0usize, 0usize);
+        for b in (0..BINS).rev() {
+            let here = fine.get(b).copied().unwrap_or(0);
+            sub = b;
+            if above_sub + here >= need {
+                break;
+            }
+            above_sub += here;
+        }
+        // Of the voxels in sub-bin `sub`, the first `keep_tied` stay.
+        let keep_tied = fine.get(sub).copied().unwrap_or(0).saturating_sub(need - above_sub);
+        let radius = lo + sub as f32 * sub_w;
         let len = self.len;
         let (voxels, slots) = self.storage.parts_mut();
-        let mut kept = 0;
+        let (mut kept, mut tied) = (0, 0);
         for i in 0..len {
             let Some(v) = voxels.get(i).copied() else { break };
-            if bin_of(libm::sqrtf(dist_sq(v.key.center(res), anchor))) < cut_bin {
+            let d = distance(&v);
+            let (b, sb) = (bin_of(d), sub_of(d));
+            let stays = b < cut
+                || (b == cut && sb < sub)
+                || (b == cut && sb == sub && {
+                    tied += 1;
+                    tied <= keep_tied
+                });
+            if stays {
                 if let Some(dst) = voxels.get_mut(kept) {
                     *dst = v;
                 }
@@ -489,7 +528,7 @@ impl<S: VoxelStorage> LocalMap<S> {
         self.evicted += len - kept;
         self.len = kept;
         table::rebuild(voxels.get(..kept).unwrap_or(&[]), slots);
-        self.keep_radius_sq = self.keep_radius_sq.min(cut * cut);
+        self.keep_radius_sq = self.keep_radius_sq.min(radius * radius);
     }
 
     /// Builds the level `factor` times coarser into `out` (cleared first; its

@@ -19,7 +19,7 @@ pub use key::{CellPoint, KeyError, VoxelKey};
 pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS, SCORE_UNITS_PER_NAT};
 pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertion, LocalMap, MapConfig, Neighbours};
 pub use overlap::overlap;
-pub use table::{ArrayStorage, SliceStorage, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};
+pub use table::{ArrayStorage, MapIndex, SlotInt, SliceStorage, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};
 pub use voxel::SemanticVoxel;
 
 #[cfg(any(test, feature = "alloc"))]

@@ -1,11 +1,12 @@
 //! Storage for a map and the open-addressing index over it.
 //!
 //! Voxels live densely, in insertion order, in a caller-provided slice; an
-//! index of `u32` slots (0 = empty, otherwise dense position + 1) with linear
+//! index of slots (0 = empty, otherwise dense position + 1) with linear
 //! probing finds them by key. The index has twice as many slots as there are
 //! voxels of capacity, so its load factor never passes 0.5 and a probe never
-//! runs long. Per voxel of capacity that is 24 bytes of voxel and 8 bytes of
-//! index: 32 bytes.
+//! runs long. Slots are `u32`, or `u16` for maps of fewer than 65,535 voxels
+//! (a robot's: half the index). Per voxel of capacity that is 24 bytes of
+//! voxel and 8 (or 4) bytes of index: 32 (or 28) bytes.
 
 use super::key::VoxelKey;
 use super::voxel::SemanticVoxel;
@@ -13,83 +14,152 @@ use super::voxel::SemanticVoxel;
 /// Index slots per voxel of capacity.
 pub const SLOTS_PER_VOXEL: usize = 2;
 
-/// Bytes per voxel of capacity, index included.
+/// Bytes per voxel of capacity with `u32` slots, index included.
 pub const BYTES_PER_VOXEL: usize =
     core::mem::size_of::<SemanticVoxel>() + SLOTS_PER_VOXEL * core::mem::size_of::<u32>();
+
+/// The integer of an index slot: `u32`, or `u16` for a map of at most
+/// [`SlotInt::MAX`] - 1 voxels.
+pub trait SlotInt: Copy + Default + PartialEq + sealed::Sealed {
+    /// An empty slot.
+    const ZERO: Self;
+    /// The largest value a slot holds (dense position + 1).
+    const MAX: u32;
+    /// The slot's value.
+    fn get(self) -> u32;
+    /// A slot holding `v` (at most [`SlotInt::MAX`]; callers check capacity).
+    fn of(v: u32) -> Self;
+    /// A map's index, as the pyramid keeps it.
+    fn index(slots: &[Self]) -> MapIndex<'_>;
+}
+
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for u16 {}
+    impl Sealed for u32 {}
+}
+
+impl SlotInt for u32 {
+    const ZERO: Self = 0;
+    const MAX: u32 = u32::MAX;
+    #[inline]
+    fn get(self) -> u32 {
+        self
+    }
+    #[inline]
+    fn of(v: u32) -> Self {
+        v
+    }
+    fn index(slots: &[Self]) -> MapIndex<'_> {
+        MapIndex::Wide(slots)
+    }
+}
+
+impl SlotInt for u16 {
+    const ZERO: Self = 0;
+    const MAX: u32 = u16::MAX as u32;
+    #[inline]
+    fn get(self) -> u32 {
+        u32::from(self)
+    }
+    #[inline]
+    fn of(v: u32) -> Self {
+        v as u16
+    }
+    fn index(slots: &[Self]) -> MapIndex<'_> {
+        MapIndex::Narrow(slots)
+    }
+}
+
+/// A map's index slots of either width.
+#[derive(Clone, Copy, Debug)]
+pub enum MapIndex<'a> {
+    /// `u32` slots.
+    Wide(&'a [u32]),
+    /// `u16` slots.
+    Narrow(&'a [u16]),
+}
 
 /// Where a map keeps its voxels and index. [`ArrayStorage`] fixes the
 /// capacity at compile time (firmware statics); [`SliceStorage`] borrows
 /// buffers the caller owns (e.g. heap vectors sized at run time on a host).
 pub trait VoxelStorage {
+    /// The slot integer (`u32`, or `u16` for small maps).
+    type Slot: SlotInt;
     /// The voxel buffer; its length is the map's capacity.
     fn voxels(&self) -> &[SemanticVoxel];
     /// The index buffer; at least [`SLOTS_PER_VOXEL`] times the capacity.
-    fn slots(&self) -> &[u32];
+    fn slots(&self) -> &[Self::Slot];
     /// Both buffers, mutably.
-    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]);
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [Self::Slot]);
 }
 
-/// Storage for `N` voxels, inline. Zero-initialised, so a `static` of it
-/// lands in `.bss` on a microcontroller.
-pub struct ArrayStorage<const N: usize> {
+/// Storage for `N` voxels, inline, with slots of `T` (`u32` by default;
+/// `u16` takes 4 bytes per voxel less for up to 65,534 voxels).
+/// Zero-initialised, so a `static` of it lands in `.bss` on a
+/// microcontroller.
+pub struct ArrayStorage<const N: usize, T: SlotInt = u32> {
     voxels: [SemanticVoxel; N],
-    slots: [[u32; SLOTS_PER_VOXEL]; N],
+    slots: [[T; SLOTS_PER_VOXEL]; N],
 }
 
-impl<const N: usize> ArrayStorage<N> {
+impl<const N: usize, T: SlotInt> ArrayStorage<N, T> {
     /// Empty storage.
     pub const fn new() -> Self {
-        ArrayStorage { voxels: [SemanticVoxel::EMPTY; N], slots: [[0; SLOTS_PER_VOXEL]; N] }
+        ArrayStorage { voxels: [SemanticVoxel::EMPTY; N], slots: [[T::ZERO; SLOTS_PER_VOXEL]; N] }
     }
 }
 
-impl<const N: usize> Default for ArrayStorage<N> {
+impl<const N: usize, T: SlotInt> Default for ArrayStorage<N, T> {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl<const N: usize> VoxelStorage for ArrayStorage<N> {
+impl<const N: usize, T: SlotInt> VoxelStorage for ArrayStorage<N, T> {
+    type Slot = T;
     fn voxels(&self) -> &[SemanticVoxel] {
         &self.voxels
     }
-    fn slots(&self) -> &[u32] {
+    fn slots(&self) -> &[T] {
         self.slots.as_flattened()
     }
-    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [T]) {
         (&mut self.voxels, self.slots.as_flattened_mut())
     }
 }
 
 /// A map may borrow its storage, e.g. a `static` on a microcontroller.
-impl<T: VoxelStorage + ?Sized> VoxelStorage for &mut T {
+impl<S: VoxelStorage + ?Sized> VoxelStorage for &mut S {
+    type Slot = S::Slot;
     fn voxels(&self) -> &[SemanticVoxel] {
         (**self).voxels()
     }
-    fn slots(&self) -> &[u32] {
+    fn slots(&self) -> &[S::Slot] {
         (**self).slots()
     }
-    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [S::Slot]) {
         (**self).parts_mut()
     }
 }
 
-/// Storage in buffers the caller owns.
-pub struct SliceStorage<'a> {
+/// Storage in buffers the caller owns, with slots of `T` (`u32` by default).
+pub struct SliceStorage<'a, T: SlotInt = u32> {
     /// Voxel buffer (its length is the capacity).
     pub voxels: &'a mut [SemanticVoxel],
     /// Index buffer, at least twice as long as `voxels`.
-    pub slots: &'a mut [u32],
+    pub slots: &'a mut [T],
 }
 
-impl VoxelStorage for SliceStorage<'_> {
+impl<T: SlotInt> VoxelStorage for SliceStorage<'_, T> {
+    type Slot = T;
     fn voxels(&self) -> &[SemanticVoxel] {
         self.voxels
     }
-    fn slots(&self) -> &[u32] {
+    fn slots(&self) -> &[T] {
         self.slots
     }
-    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u32]) {
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [T]) {
         (self.voxels, self.slots)
     }
 }
@@ -116,6 +186,7 @@ impl VecStorage {
 
 #[cfg(any(test, feature = "alloc"))]
 impl VoxelStorage for VecStorage {
+    type Slot = u32;
     fn voxels(&self) -> &[SemanticVoxel] {
         &self.voxels
     }
@@ -155,14 +226,14 @@ fn home(hash: u32, slots: usize) -> usize {
 /// walk visits slots in order (wrapping) until `is_match(value)` or an empty
 /// slot. Bounded by the slot count, so a full table cannot loop.
 #[inline]
-pub(crate) fn walk(slots: &[u32], hash: u32, mut is_match: impl FnMut(u32) -> bool) -> Slot {
+pub(crate) fn walk<T: SlotInt>(slots: &[T], hash: u32, mut is_match: impl FnMut(u32) -> bool) -> Slot {
     let n = slots.len();
     if n == 0 {
         return Slot::Full;
     }
     let mut i = home(hash, n);
     for _ in 0..n {
-        let value = slots.get(i).copied().unwrap_or(0);
+        let value = slots.get(i).map_or(0, |s| s.get());
         if value == 0 {
             return Slot::Vacant(i);
         }
@@ -188,7 +259,8 @@ pub(crate) enum Probe {
 /// position plus one. The index always has an empty slot (load factor at
 /// most 0.5); a full one answers `Vacant(slots.len())`, a slot no write
 /// reaches.
-pub(crate) fn probe(voxels: &[SemanticVoxel], slots: &[u32], key: VoxelKey) -> Probe {
+#[inline]
+pub(crate) fn probe<T: SlotInt>(voxels: &[SemanticVoxel], slots: &[T], key: VoxelKey) -> Probe {
     let at_key = |s: u32| voxels.get((s - 1) as usize).map(|v| v.key) == Some(key);
     match walk(slots, key.hash32(), at_key) {
         Slot::Found { value, .. } => Probe::Found((value - 1) as usize),
@@ -197,13 +269,22 @@ pub(crate) fn probe(voxels: &[SemanticVoxel], slots: &[u32], key: VoxelKey) -> P
     }
 }
 
+/// [`probe`] in an index of either width.
+#[inline]
+pub(crate) fn probe_index(voxels: &[SemanticVoxel], index: MapIndex<'_>, key: VoxelKey) -> Probe {
+    match index {
+        MapIndex::Wide(s) => probe(voxels, s, key),
+        MapIndex::Narrow(s) => probe(voxels, s, key),
+    }
+}
+
 /// Rebuilds the index for the filled prefix `voxels`.
-pub(crate) fn rebuild(voxels: &[SemanticVoxel], slots: &mut [u32]) {
-    slots.fill(0);
+pub(crate) fn rebuild<T: SlotInt>(voxels: &[SemanticVoxel], slots: &mut [T]) {
+    slots.fill(T::ZERO);
     for (d, v) in voxels.iter().enumerate() {
         if let Probe::Vacant(i) = probe(voxels, slots, v.key) {
             if let Some(s) = slots.get_mut(i) {
-                *s = d as u32 + 1;
+                *s = T::of(d as u32 + 1);
             }
         }
     }

@@ -290,3 +290,60 @@ fn overlap_under_identity_and_shift() {
     }
     assert_eq!(overlap(&a, &b, &id), 0.0, "different classes do not overlap");
 }
+
+/// A full map evicts exactly an eighth of its capacity, the farthest
+/// voxels (ties at one distance included: a shell of a lattice), and
+/// keeps 7/8 of it.
+#[test]
+fn eviction_removes_exactly_the_farthest_eighth() {
+    let config = MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] }, ..MapConfig::default() };
+    let mut map = heap_map(400, config);
+    // A 20 x 20 plane of voxels around the anchor: many equal distances.
+    for i in 0..20 {
+        for j in 0..20 {
+            map.insert_point([0.2 * i as f32 - 1.9, 0.2 * j as f32 - 1.9, 0.1], Class::Road).unwrap();
+        }
+    }
+    assert_eq!(map.len(), 400);
+    let far_before: Vec<f32> = {
+        let mut d: Vec<f32> = map.iter().map(|v| v.key.center(0.2)).map(|c| (c[0] * c[0] + c[1] * c[1]).sqrt()).collect();
+        d.sort_by(|a, b| a.total_cmp(b));
+        d
+    };
+    // One more voxel fills it past capacity: 50 of 400 go.
+    assert_eq!(map.insert_point([0.05, 0.05, 0.3], Class::Pole), Ok(Insertion::Created));
+    assert_eq!(map.evicted(), 50);
+    assert_eq!(map.len(), 351);
+    // Every kept voxel is at most as far as the 350th nearest before.
+    let limit = far_before[349];
+    for v in map.iter() {
+        let c = v.key.center(0.2);
+        assert!((c[0] * c[0] + c[1] * c[1]).sqrt() <= limit + 1e-5);
+    }
+}
+
+/// 16-bit index slots: the same map as with 32-bit ones (same voxels in the
+/// same order, same lookups), and a capacity they cannot address refused.
+#[test]
+fn sixteen_bit_slots_index_like_thirty_two_bit_ones() {
+    let config = MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] }, ..MapConfig::default() };
+    let mut narrow = LocalMap::new(ArrayStorage::<300, u16>::new(), config).unwrap();
+    let mut wide = LocalMap::new(ArrayStorage::<300, u32>::new(), config).unwrap();
+    let mut seed = 3u32;
+    for _ in 0..5000 {
+        seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        let p = [(seed >> 8) as f32 / 16_777_216.0 * 12.0 - 6.0, (seed >> 4 & 0xFF) as f32 * 0.05 - 6.0, 0.1];
+        assert_eq!(narrow.insert_point(p, Class::Road), wide.insert_point(p, Class::Road));
+    }
+    assert!(narrow.evicted() > 0);
+    assert_eq!(narrow.voxels(), wide.voxels());
+    for v in wide.iter() {
+        assert_eq!(narrow.get(v.key), Some(v));
+    }
+    let mut voxels = std::vec![SemanticVoxel::EMPTY; 65_535];
+    let mut slots = std::vec![0u16; 2 * 65_535];
+    let too_many = SliceStorage { voxels: &mut voxels, slots: &mut slots };
+    assert!(matches!(LocalMap::new(too_many, MapConfig::default()), Err(ConfigError::Storage)));
+    let ok = SliceStorage { voxels: &mut voxels[..65_534], slots: &mut slots };
+    assert!(LocalMap::new(ok, MapConfig::default()).is_ok());
+}

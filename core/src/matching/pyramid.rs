@@ -19,7 +19,7 @@
 
 use super::footprint::{self, Footprint, FootprintInfo};
 use crate::classes::NUM_CLASSES;
-use crate::map::table::{probe, walk, Probe, Slot};
+use crate::map::table::{probe_index, walk, MapIndex, Probe, Slot};
 use crate::map::voxel::{dequantise_fraction, quantise_fraction};
 use crate::map::{CellPoint, LocalMap, SemanticVoxel, VoxelKey, VoxelStorage};
 
@@ -417,7 +417,7 @@ struct LevelInfo {
 /// A map prepared for matching. It borrows the map: level 0 is the map.
 pub struct Pyramid<'m, S: PyramidStorage> {
     voxels: &'m [SemanticVoxel],
-    index: &'m [u32],
+    index: MapIndex<'m>,
     storage: S,
     levels: [LevelInfo; MAX_LEVELS],
     count: usize,
@@ -427,7 +427,7 @@ pub struct Pyramid<'m, S: PyramidStorage> {
 #[derive(Clone, Copy)]
 enum LevelData<'a> {
     /// Level 0: the map's voxels and index, and the extras.
-    Voxels { voxels: &'a [SemanticVoxel], index: &'a [u32], extras: &'a [VoxelExtra] },
+    Voxels { voxels: &'a [SemanticVoxel], index: MapIndex<'a>, extras: &'a [VoxelExtra] },
     /// A coarse level: sorted entries and their index.
     Coarse { entries: &'a [CoarseEntry], slots: &'a [u32] },
 }
@@ -541,7 +541,7 @@ impl<'a> Level<'a> {
     #[inline]
     pub fn cell(&self, key: VoxelKey) -> Cell<'a> {
         let (next, end) = match self.data {
-            LevelData::Voxels { voxels, index, .. } => match probe(voxels, index, key) {
+            LevelData::Voxels { voxels, index, .. } => match probe_index(voxels, index, key) {
                 Probe::Found(i) => (i, i + 1),
                 Probe::Vacant(_) => (0, 0),
             },

@@ -17,10 +17,10 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::NVIC;
 use cortex_m_rt::entry;
 use cosem_core::link::LinkBuffers;
-use cosem_core::map::{ArrayStorage, LocalMap};
+use cosem_core::map::LocalMap;
 use cosem_core::matching::MatchStatus;
 use cosem_core::robot::sender::SenderRobot;
-use cosem_core::robot::{map_config, Meter, Poll, RobotConfig};
+use cosem_core::robot::{map_config, Meter, Poll, RobotConfig, SmallMapStorage};
 use cosem_firmware::serial::{IrqReceiver, RingSerial, RxInterrupt, RX_RING};
 use cosem_firmware::{exit, instructions_at, millis_at, peak_stack, start_clock};
 use stm32f4xx_hal::pac::{self, interrupt, Interrupt};
@@ -28,7 +28,7 @@ use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
 use stm32f4xx_hal::serial::{Instance, Rx, RxListen};
 
-/// Voxels of the robot's map: 32 bytes each, the main SRAM's 128 KiB.
+/// Voxels of the robot's map: 28 bytes each, the main SRAM's 128 KiB.
 const VOXELS: usize = cosem_core::robot::SMALL_VOXELS;
 /// SysTick's rate under QEMU's netduinoplus2 (fixed, whatever the clock
 /// tree says); with `-icount shift=0` its count is an instruction count.
@@ -43,7 +43,7 @@ fn systick_hz() -> u32 {
 /// The map, in the main SRAM (cleared in `main`: the section is not
 /// zeroed at reset).
 #[link_section = ".sram"]
-static mut OWN: MaybeUninit<ArrayStorage<VOXELS>> = MaybeUninit::uninit();
+static mut OWN: MaybeUninit<SmallMapStorage> = MaybeUninit::uninit();
 static mut SCRATCH: [u32; VOXELS] = [0; VOXELS];
 static mut LINK: LinkBuffers = LinkBuffers::new();
 
