@@ -148,3 +148,129 @@ impl embedded_io::Read for Uart {
         Ok(n)
     }
 }
+
+/// INTSTATUS / INTCLEAR (+0xC): bit 1 is the receive interrupt.
+const INTCLEAR: usize = 0xC;
+/// CTRL bit 3: raise the receive interrupt when a byte arrives.
+const RX_INT_ENABLE: u32 = 1 << 3;
+const RX_INT: u32 = 1 << 1;
+
+/// The NVIC line of each UART's receive interrupt (the CMSDK combined
+/// numbering of the mps2 boards: UART n's RX is line 2n for n < 3, then
+/// 18 and 20).
+pub fn rx_irq(base: usize) -> Option<u16> {
+    match base {
+        UART0 => Some(0),
+        UART1 => Some(2),
+        UART2 => Some(4),
+        UART3 => Some(18),
+        UART4 => Some(20),
+        _ => None,
+    }
+}
+
+/// An NVIC line by number, for `cortex_m`'s mask and unmask.
+#[derive(Clone, Copy)]
+struct Line(u16);
+
+// SAFETY: the numbers are lines of this board's NVIC (`rx_irq`).
+unsafe impl cortex_m::interrupt::InterruptNumber for Line {
+    fn number(self) -> u16 {
+        self.0
+    }
+}
+
+/// A UART's receiver, interrupt-driven: what an HAL's `embedded-hal-nb`
+/// reader plus its interrupt switch would be on a real board.
+pub struct UartRx {
+    base: usize,
+    line: Line,
+}
+
+/// A UART's transmitter (`embedded-hal-nb` serial).
+pub struct UartTx {
+    base: usize,
+}
+
+impl Uart {
+    /// The receiver and transmitter halves, for interrupt-driven reception
+    /// ([`cosem_firmware::serial::IrqReceiver`]); `None` for a base with
+    /// no known receive interrupt.
+    pub fn split(self) -> Option<(UartRx, UartTx)> {
+        let line = Line(rx_irq(self.base)?);
+        Some((UartRx { base: self.base, line }, UartTx { base: self.base }))
+    }
+}
+
+impl UartRx {
+    /// Acknowledges the receive interrupt (the interrupt handler, before
+    /// draining: a byte arriving while it drains raises it again).
+    pub fn clear(base: usize) {
+        // SAFETY: INTCLEAR of a CMSDK UART at `base` (the handler's own).
+        unsafe { write_volatile((base + INTCLEAR) as *mut u32, RX_INT) }
+    }
+}
+
+impl embedded_hal_nb::serial::ErrorType for UartRx {
+    type Error = Infallible;
+}
+
+impl embedded_hal_nb::serial::Read<u8> for UartRx {
+    fn read(&mut self) -> nb::Result<u8, Infallible> {
+        let uart = Uart { base: self.base };
+        if uart.state() & RX_FULL == 0 {
+            return Err(nb::Error::WouldBlock);
+        }
+        // SAFETY: DATA is a register of this UART.
+        Ok(unsafe { uart.reg(DATA) } as u8)
+    }
+}
+
+impl cosem_firmware::serial::RxInterrupt for UartRx {
+    fn listen(&mut self) {
+        let uart = Uart { base: self.base };
+        // SAFETY: CTRL of this UART; the interrupt is unmasked by the board.
+        unsafe { uart.write_reg(CTRL, uart.reg(CTRL) | RX_INT_ENABLE) };
+    }
+    fn pause(&mut self) {
+        cortex_m::peripheral::NVIC::mask(self.line);
+    }
+    fn resume(&mut self) {
+        // SAFETY: the line's handler only touches its own receiver.
+        unsafe { cortex_m::peripheral::NVIC::unmask(self.line) };
+    }
+}
+
+impl embedded_hal_nb::serial::ErrorType for UartTx {
+    type Error = Infallible;
+}
+
+impl embedded_hal_nb::serial::Write<u8> for UartTx {
+    fn write(&mut self, byte: u8) -> nb::Result<(), Infallible> {
+        let uart = Uart { base: self.base };
+        if uart.state() & TX_FULL != 0 {
+            return Err(nb::Error::WouldBlock);
+        }
+        // SAFETY: DATA is a register of this UART.
+        unsafe { uart.write_reg(DATA, u32::from(byte)) };
+        Ok(())
+    }
+    fn flush(&mut self) -> nb::Result<(), Infallible> {
+        if (Uart { base: self.base }).state() & TX_FULL != 0 {
+            return Err(nb::Error::WouldBlock);
+        }
+        Ok(())
+    }
+}
+
+/// Unmasks UART `base`'s receive interrupt in the NVIC.
+///
+/// # Safety
+/// Its handler must be ready (the receiver installed).
+pub unsafe fn unmask_rx(base: usize) {
+    if let Some(n) = rx_irq(base) {
+        // SAFETY: the caller's promise.
+        unsafe { cortex_m::peripheral::NVIC::unmask(Line(n)) };
+    }
+}
+
