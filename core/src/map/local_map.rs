@@ -203,6 +203,19 @@ const NEIGHBOUR_OFFSETS: [[i8; 3]; 27] = {
     out
 };
 
+/// Where a histogram's top `target` counts start: the bin at which the
+/// counts from the top reach `target`, and the count above that bin.
+fn cut_from_top(hist: &[usize], target: usize) -> (usize, usize) {
+    let mut above = 0;
+    for (b, &here) in hist.iter().enumerate().rev() {
+        if above + here >= target {
+            return (b, above);
+        }
+        above += here;
+    }
+    (0, above)
+}
+
 impl<S: VoxelStorage> LocalMap<S> {
     /// An empty map over `storage`.
     pub fn new(mut storage: S, config: MapConfig) -> Result<Self, ConfigError> {
@@ -471,15 +484,7 @@ impl<S: VoxelStorage> LocalMap<S> {
                 *h += 1;
             }
         }
-        let (mut cut, mut above) = (0usize, 0usize);
-        for b in (0..BINS).rev() {
-            let here = hist.get(b).copied().unwrap_or(0);
-            cut = b;
-            if above + here >= target {
-                break;
-            }
-            above += here;
-        }
+        let (cut, above) = cut_from_top(&hist, target);
         // The fine cut within bin `cut`: sub-bins above `sub` go whole.
         let (lo, sub_w) = (cut as f32 * width, width / BINS as f32);
         let sub_of = |d: f32| bin_in(d, lo, sub_w);
@@ -493,15 +498,7 @@ impl<S: VoxelStorage> LocalMap<S> {
             }
         }
         let need = target - above;
-        let (mut sub, mut above_sub) = (0usize, 0usize);
-        for b in (0..BINS).rev() {
-            let here = fine.get(b).copied().unwrap_or(0);
-            sub = b;
-            if above_sub + here >= need {
-                break;
-            }
-            above_sub += here;
-        }
+        let (sub, above_sub) = cut_from_top(&fine, need);
         // Of the voxels in sub-bin `sub`, the first `keep_tied` stay.
         let keep_tied = fine.get(sub).copied().unwrap_or(0).saturating_sub(need - above_sub);
         let radius = lo + sub as f32 * sub_w;
