@@ -165,17 +165,34 @@ impl Scorer<'_> {
 #[inline(never)]
 fn score_points(points: &[(i16, i16, u32)], grid: &Grid<'_>, i0: i32, j0: i32, semantic: bool) -> u32 {
     let (words, width, height, span) = grid.parts();
+    if semantic {
+        score_cells::<true>(points, words, (width, height, span), i0, j0)
+    } else {
+        score_cells::<false>(points, words, (width, height, span), i0, j0)
+    }
+}
+
+/// [`score_points`] for one kind of score (class groups, or occupancy).
+#[inline(always)]
+fn score_cells<const SEMANTIC: bool>(
+    points: &[(i16, i16, u32)],
+    words: &[u32],
+    (width, height, span): (i32, i32, i32),
+    i0: i32,
+    j0: i32,
+) -> u32 {
     // Valid cells: -span < i < width, i.e. (i + span - 1) below width + span - 1.
     let (ri, rj) = ((width + span - 1) as u32, (height + span - 1) as u32);
     let (si, sj) = (i0 + span - 1, j0 + span - 1);
     let mut total = 0u32;
     for &(ci, cj, mask) in points {
         let (i, j) = (i32::from(ci), i32::from(cj));
-        if ((i + si) as u32) < ri && ((j + sj) as u32) < rj {
-            let at = ((j + j0).max(0) * width + (i + i0).max(0)) as usize;
-            let m = words.get(at).copied().unwrap_or(0);
-            total += if semantic { ones(mask & m) } else { u32::from(m != 0) };
+        if ((i + si) as u32) >= ri || ((j + sj) as u32) >= rj {
+            continue;
         }
+        let at = ((j + j0).max(0) * width + (i + i0).max(0)) as usize;
+        let Some(&m) = words.get(at) else { continue };
+        total += if SEMANTIC { ones(mask & m) } else { u32::from(m != 0) };
     }
     total
 }
