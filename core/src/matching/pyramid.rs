@@ -513,6 +513,18 @@ impl<'a> Level<'a> {
         }
     }
 
+    /// Position and weight of entry `i` (all a neighbourhood's moments
+    /// need: cheaper than decoding the whole entry).
+    #[inline]
+    pub fn point(&self, i: usize) -> Option<([f32; 3], f32)> {
+        match self.data {
+            LevelData::Voxels { voxels, .. } => voxels.get(i).map(|v| (v.position(self.resolution), 1.0)),
+            LevelData::Coarse { entries, .. } => {
+                entries.get(i).map(|c| (c.position(self.resolution), f32::from(c.weight)))
+            }
+        }
+    }
+
     /// Cell of entry `i` (cheaper than decoding it).
     #[inline]
     pub fn key_at(&self, i: usize) -> Option<VoxelKey> {
@@ -666,13 +678,12 @@ impl Moments {
     }
 
     #[inline]
-    fn add(&mut self, o: &Entry) {
+    fn add(&mut self, (position, w): ([f32; 3], f32)) {
         let c = self.centre;
-        let d = [o.position[0] - c[0], o.position[1] - c[1], o.position[2] - c[2]];
+        let d = [position[0] - c[0], position[1] - c[1], position[2] - c[2]];
         if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > self.radius_sq {
             return;
         }
-        let w = o.weight;
         self.sum_w += w;
         for (m, v) in self.m1.iter_mut().zip(d) {
             *m += w * v;
@@ -717,7 +728,7 @@ fn fit_normal(level: &Level<'_>, e: &Entry) -> PackedNormal {
             for dz in -1..=1 {
                 let Some(k) = e.key.offset(dx, dy, dz) else { continue };
                 for o in level.cell(k) {
-                    m.add(&o);
+                    m.add((o.position, o.weight));
                 }
             }
         }
@@ -774,8 +785,8 @@ impl NormalSweep {
                     if k > hi {
                         break;
                     }
-                    if let Some(o) = level.entry(i) {
-                        m.add(&o);
+                    if let Some(o) = level.point(i) {
+                        m.add(o);
                     }
                     c += 1;
                 }
