@@ -5,17 +5,19 @@
 //! has at most five boards), exchanges maps and matches, shares the
 //! estimates, checks them for consistency and solves the pose graph, and
 //! reports every step over UART1. Exit code 0 when it finished, 1 when it
-//! stopped (its last message says why).
+//! stopped (its last message says why). Every UART receives by interrupt
+//! into a 4 KiB ring.
 #![no_std]
 #![no_main]
 
 use core::ptr::addr_of_mut;
-use cortex_m_rt::entry;
+use cortex_m_rt::{entry, exception};
 use cosem_core::link::LinkBuffers;
 use cosem_core::map::LocalMap;
 use cosem_core::robot::team::TeamRobot;
 use cosem_core::robot::{map_config, MapStorage, ModelStorage, RobotConfig, SceneStorage, VOXELS};
-use cosem_mps2_an386::uart::{Uart, UART0, UART1, UART2, UART3, UART4};
+use cosem_mps2_an386::serial::{IrqReceiver, RingSerial, RX_RING};
+use cosem_mps2_an386::uart::{unmask_rx, Uart, UartRx, UART0, UART1, UART2, UART3, UART4};
 use cosem_mps2_an386::{exit, millis, start_clock, Board, CLOCK_HZ};
 
 static mut OWN: MapStorage = MapStorage::new();
@@ -25,16 +27,52 @@ static mut SCENE: SceneStorage = SceneStorage::new();
 static mut SCRATCH: [u32; VOXELS] = [0; VOXELS];
 static mut LINK: LinkBuffers = LinkBuffers::new();
 
+/// Each UART's receive ring: UART1 the feeder's, UART0, 2, 3, 4 the peers'.
+type Receiver = IrqReceiver<UartRx, RX_RING>;
+static RX: [Receiver; 5] = [Receiver::new(), Receiver::new(), Receiver::new(), Receiver::new(), Receiver::new()];
+/// The UARTs in the order of `RX`.
+const UARTS: [usize; 5] = [UART1, UART0, UART2, UART3, UART4];
+
+/// The UARTs' receive interrupts: acknowledged, then drained into their
+/// rings (a peer that starts the next round while this robot matches
+/// fills its ring instead of overrunning a one-byte register).
+#[exception]
+unsafe fn DefaultHandler(irqn: i16) {
+    let at = match irqn {
+        2 => 0,
+        0 => 1,
+        4 => 2,
+        18 => 3,
+        20 => 4,
+        _ => return,
+    };
+    if let (Some(&base), Some(rx)) = (UARTS.get(at), RX.get(at)) {
+        UartRx::clear(base);
+        rx.on_interrupt();
+    }
+}
+
+fn idle() {
+    cortex_m::asm::wfi();
+}
+
 #[entry]
 fn main() -> ! {
     if start_clock().is_none() {
         exit(false);
     }
-    // SAFETY: the five CMSDK UARTs of this board, each owned once here.
-    let (mut feed, mut peers) = unsafe {
-        let uart = |base| Uart::new(base, CLOCK_HZ, 115_200);
-        (uart(UART1), [uart(UART0), uart(UART2), uart(UART3), uart(UART4)])
+    // SAFETY: the five CMSDK UARTs of this board, each owned once here;
+    // each interrupt is unmasked once its receiver is installed.
+    let [Some(feed), Some(p0), Some(p1), Some(p2), Some(p3)] = UARTS.map(|base| unsafe {
+        let (rx, tx) = Uart::new(base, CLOCK_HZ, 115_200).split()?;
+        let receiver = RX.iter().zip(UARTS).find(|(_, b)| *b == base)?.0;
+        receiver.install(rx);
+        unmask_rx(base);
+        Some(RingSerial::new(receiver, tx, idle))
+    }) else {
+        exit(false)
     };
+    let (mut feed, mut peers) = (feed, [p0, p1, p2, p3]);
     // SAFETY: `main` runs once; each static is borrowed exactly once here.
     let (own, received, model, scene, scratch, buffers) = unsafe {
         (
@@ -55,7 +93,16 @@ fn main() -> ! {
     let mut robot = TeamRobot::new(RobotConfig::default(), &mut own, &mut received, scratch, buffers, model, scene);
     loop {
         match robot.poll(&mut feed, &mut peers, millis(), &Board) {
-            Ok(false) => {}
+            Ok(false) => {
+                // Nothing received: sleep until a byte or the clock's wrap
+                // (a guest spinning on memory starves QEMU's I/O thread; a
+                // real chip saves power).
+                cortex_m::interrupt::free(|_| {
+                    if RX.iter().all(|r| r.ring().is_empty()) {
+                        cortex_m::asm::wfi();
+                    }
+                });
+            }
             Ok(true) => exit(true),
             Err(_e) => {
                 #[cfg(feature = "defmt")]
