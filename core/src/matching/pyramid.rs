@@ -972,7 +972,8 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
             };
             let mut sweep = NormalSweep::new();
             for chunk_start in (0..li.len).step_by(NORMAL_CHUNK) {
-                let mut normals = [(0u32, PackedNormal::NONE); NORMAL_CHUNK];
+                // (index, normal); an index of u32::MAX writes nothing.
+                let mut normals = [(u32::MAX, PackedNormal::NONE); NORMAL_CHUNK];
                 let n = (li.len - chunk_start).min(NORMAL_CHUNK);
                 {
                     let level = pyramid.level(l).ok_or(PyramidError::Levels)?;
@@ -998,7 +999,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                     }
                 }
                 let parts = pyramid.storage.parts_mut();
-                for &(i, normal) in normals.iter().take(n) {
+                for &(i, normal) in normals.iter().take(n).filter(|(i, _)| *i != u32::MAX) {
                     let slot = if l == 0 {
                         parts.extras.get_mut(i as usize).map(|x| &mut x.normal)
                     } else {

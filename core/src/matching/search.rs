@@ -73,11 +73,13 @@ struct YawCells<const N: usize> {
     /// The most each [`CHUNK`] of cells can add to a score (their class
     /// groups), for scoring that stops once a floor is out of reach.
     most: [u16; MAX_CHUNKS],
+    /// The sum of `most`: the most the whole cache can score.
+    most_total: u32,
 }
 
 impl<const N: usize> YawCells<N> {
     fn new() -> Self {
-        YawCells { yaw: 0, len: 0, cells: [(0, 0, 0); N], most: [0; MAX_CHUNKS] }
+        YawCells { yaw: 0, len: 0, cells: [(0, 0, 0); N], most: [0; MAX_CHUNKS], most_total: 0 }
     }
 }
 
@@ -118,6 +120,7 @@ impl Scorer<'_> {
         out.yaw = yaw;
         out.len = 0;
         out.most = [0; MAX_CHUNKS];
+        out.most_total = 0;
         for ((q, mask), slot) in self.scene.occupied().step_by(self.stride).zip(out.cells.iter_mut()) {
             let x = m[0] * q[0] + m[1] * q[1] + o[0];
             let y = m[2] * q[0] + m[3] * q[1] + o[1];
@@ -126,6 +129,7 @@ impl Scorer<'_> {
             if let Some(most) = out.most.get_mut(out.len / CHUNK) {
                 let add = if self.semantic { mask.count_ones() } else { 1 };
                 *most = most.saturating_add(add as u16);
+                out.most_total += add;
             }
             out.len += 1;
         }
@@ -144,7 +148,7 @@ impl Scorer<'_> {
     fn score_above<const N: usize>(&self, cells: &YawCells<N>, i0: i32, j0: i32, h: usize, floor: u32) -> u32 {
         let Some(grid) = self.model.grid(h) else { return 0 };
         let points = cells.cells.get(..cells.len).unwrap_or(&[]);
-        let mut left: u32 = cells.most.iter().map(|&m| u32::from(m)).sum();
+        let mut left = cells.most_total;
         let mut total = 0;
         for (chunk, &most) in points.chunks(CHUNK).zip(cells.most.iter()) {
             total += score_points(chunk, &grid, i0, j0, self.semantic);
