@@ -19,19 +19,23 @@
 use crate::geometry::{from_rows, Isometry3};
 use crate::link::sim::{ScriptPort, SimLine};
 use crate::link::{Endpoint, LinkBuffers, LinkConfig, LinkError, LinkStats, Progress};
-use crate::map::{ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, VoxelStorage};
+use crate::map::{
+    ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, ScenePoint, VoxelSink, VoxelStorage,
+};
 use crate::matching::global::{align_searched, Searched};
 use crate::matching::search::GlobalSearch;
 use crate::matching::{
-    ArrayPyramidStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError, PyramidStorage, Role,
+    ArrayPyramidStorage, ArraySceneStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError,
+    PyramidStorage, Role, SceneSource,
 };
 use crate::wire::feed::{self, FeedError, FeedMessage, GlobalReport, RobotMessage, RobotReport, Setup, Stage};
 use crate::wire::frame::{DeframeError, Deframer, MAX_FRAME};
 use crate::wire::share::Estimate;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
-/// Voxels a robot's map holds (and the received map): 224 KiB each (28
-/// bytes per voxel with 16-bit index slots). When a map is full the voxels
+/// Voxels a robot's map holds (and the received map): 224 KiB for its own
+/// (28 bytes per voxel with 16-bit index slots), 112 KiB for the received
+/// one (a [`SceneMap`](crate::map::SceneMap): 14 bytes per voxel). When a map is full the voxels
 /// farthest from the anchor are evicted ([`FullPolicy::EvictFarthest`]).
 pub const VOXELS: usize = 8192;
 /// Voxels of a robot on a small board (an STM32F405: its 128 KiB of main
@@ -58,8 +62,12 @@ pub type MapStorage = ArrayStorage<VOXELS, u16>;
 pub type SmallMapStorage = ArrayStorage<SMALL_VOXELS, u16>;
 /// Pyramid storage of a robot's own map (the model).
 pub type ModelStorage = ArrayPyramidStorage<VOXELS, COARSE, MODEL_WORDS>;
-/// Pyramid storage of the received map (the scene).
-pub type SceneStorage = ArrayPyramidStorage<VOXELS, COARSE, SCENE_WORDS>;
+/// Pyramid storage of the received map (the scene) kept as a
+/// [`SceneMap`](crate::map::SceneMap): no extras, no index slots.
+pub type SceneStorage = ArraySceneStorage<COARSE, SCENE_WORDS>;
+/// What a robot receives its peer's map into: [`VOXELS`] scene points,
+/// 14 bytes each (a [`SceneMap`](crate::map::SceneMap) over them), half a [`MapStorage`].
+pub type ReceivedStorage = [ScenePoint; VOXELS];
 
 /// The map configuration of a robot at `resolution`: full maps evict the
 /// voxels farthest from the anchor.
@@ -127,9 +135,9 @@ impl core::error::Error for AlignError {}
 /// `on_phase(k)` runs before preparation (0), before the prior-free search
 /// (1), before the match (2) and after it (3), e.g. to read an instruction
 /// counter. Returns the match and, without a prior, what the search found.
-pub fn align<A: VoxelStorage, B: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>(
+pub fn align<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: PyramidStorage>(
     own: &LocalMap<A>,
-    received: &LocalMap<B>,
+    received: &B,
     prior: Option<&Isometry3<f32>>,
     model_storage: P,
     scene_storage: Q,
@@ -138,8 +146,7 @@ pub fn align<A: VoxelStorage, B: VoxelStorage, P: PyramidStorage, Q: PyramidStor
     on_phase(0);
     let model =
         Pyramid::build_as(own, LEVELS, FOOTPRINT_CELL, Role::Model, model_storage).map_err(AlignError::Pyramid)?;
-    let scene =
-        Pyramid::build_as(received, LEVELS, FOOTPRINT_CELL, Role::Scene, scene_storage).map_err(AlignError::Pyramid)?;
+    let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene_storage).map_err(AlignError::Pyramid)?;
     on_phase(1);
     let matcher = Matcher::new(MatchSettings::default());
     let r = match prior {
@@ -272,10 +279,10 @@ pub enum Poll {
 // The link's state (its frame buffer) is the large variant; without an
 // allocator there is nothing to box it in, and a robot holds one state.
 #[allow(clippy::large_enum_variant)]
-enum State<'a, M: VoxelStorage, R: VoxelStorage> {
+enum State<'a, M: VoxelStorage, R: VoxelSink + SceneSource> {
     Feed {
         own: &'a mut LocalMap<M>,
-        received: &'a mut LocalMap<R>,
+        received: &'a mut R,
         scratch: &'a mut [u32],
         buffers: &'a mut LinkBuffers,
     },
@@ -285,7 +292,7 @@ enum State<'a, M: VoxelStorage, R: VoxelStorage> {
     },
     Align {
         own: &'a LocalMap<M>,
-        received: &'a LocalMap<R>,
+        received: &'a R,
         stats: LinkStats,
     },
     /// A one-sided exchange (the peer took no map): telling the peer the
@@ -298,7 +305,7 @@ enum State<'a, M: VoxelStorage, R: VoxelStorage> {
 }
 
 /// One robot: its maps, its link, its alignment, driven by [`Robot::poll`].
-pub struct Robot<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage> {
+pub struct Robot<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: PyramidStorage> {
     state: State<'a, M, R>,
     pyramids: Option<(P, Q)>,
     fed: FeedIn,
@@ -341,11 +348,11 @@ impl FeedIn {
     /// at the end of the feed. A team robot (`team`)
     /// needs [`FeedMessage::Team`] after the set-up and no prior; a pair
     /// robot refuses it.
-    fn read<F: Read + Write + ReadReady, M: VoxelStorage, R: VoxelStorage, T: Meter>(
+    fn read<F: Read + Write + ReadReady, M: VoxelStorage, R: VoxelSink, T: Meter>(
         &mut self,
         feed: &mut F,
         own: &mut LocalMap<M>,
-        mut received: Option<&mut LocalMap<R>>,
+        mut received: Option<&mut R>,
         team: bool,
         now_ms: u64,
         meter: &T,
@@ -371,7 +378,7 @@ impl FeedIn {
                         let config = map_config(s.resolution);
                         own.reset(config).map_err(RobotError::Config)?;
                         if let Some(r) = received.as_deref_mut() {
-                            r.reset(config).map_err(RobotError::Config)?;
+                            r.configure(config).map_err(RobotError::Config)?;
                         }
                         *setup = Some(s);
                     }
@@ -402,7 +409,7 @@ impl FeedIn {
     }
 }
 
-impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage> Robot<'a, M, R, P, Q> {
+impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: PyramidStorage> Robot<'a, M, R, P, Q> {
     /// A robot over the caller's buffers: its own map and the received map
     /// (reconfigured by the set-up), a scratch of one `u32` per voxel of the
     /// larger map, the link's buffers, and the model's and scene's pyramid
@@ -410,7 +417,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
     pub fn new(
         config: RobotConfig,
         own: &'a mut LocalMap<M>,
-        received: &'a mut LocalMap<R>,
+        received: &'a mut R,
         scratch: &'a mut [u32],
         buffers: &'a mut LinkBuffers,
         model: P,
@@ -533,7 +540,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
     fn align<T: Meter>(
         &mut self,
         own: &LocalMap<M>,
-        received: &LocalMap<R>,
+        received: &R,
         stats: &LinkStats,
         meter: &T,
     ) -> Result<(RobotReport, Estimate), RobotError> {
@@ -581,7 +588,7 @@ pub fn simulate_pair<M, R, P, Q, const N: usize>(
 ) -> [Result<RobotReport, RobotError>; 2]
 where
     M: VoxelStorage,
-    R: VoxelStorage,
+    R: VoxelSink + SceneSource,
     P: PyramidStorage,
     Q: PyramidStorage,
 {

@@ -21,7 +21,7 @@ pub fn map(capacity: usize) -> VecMap {
 /// Pyramid storage on the heap for maps of up to `voxels` voxels, `entries`
 /// coarse entries and `words` footprint words.
 pub fn heap_pyramid(voxels: usize, entries: usize, words: usize) -> VecPyramidStorage {
-    VecPyramidStorage::new(PyramidCapacity { voxels, entries, words })
+    VecPyramidStorage::new(PyramidCapacity { voxels, entries, slots: 2 * entries, words })
 }
 
 #[test]

@@ -67,7 +67,7 @@ fn link_err(e: cosem_core::link::LinkError) -> Error {
 /// Runs `endpoint` to its end over `line`.
 fn run(
     line: &Line,
-    mut endpoint: Endpoint<'_, cosem_core::map::VecStorage, cosem_core::map::VecStorage>,
+    mut endpoint: Endpoint<'_, cosem_core::map::VecStorage, cosem_core::map::VecMap>,
     how: &Exchange,
     on_listen: impl FnOnce(std::net::SocketAddr),
 ) -> Result<LinkStats, Error> {
@@ -98,7 +98,7 @@ fn run(
 
 /// Steps the endpoint until it is done, fails, or the deadline passes.
 fn drive<IO: embedded_io::Read + embedded_io::Write + embedded_io::ReadReady + embedded_io::WriteReady>(
-    endpoint: &mut Endpoint<'_, cosem_core::map::VecStorage, cosem_core::map::VecStorage>,
+    endpoint: &mut Endpoint<'_, cosem_core::map::VecStorage, cosem_core::map::VecMap>,
     io: &mut IO,
     started: std::time::Instant,
     deadline: Duration,

@@ -17,7 +17,7 @@ use cosem_core::geometry::{errors_of, from_rows, pose_deg, row_major, rows, Isom
 use cosem_core::link::sim::ScriptPort;
 use cosem_core::link::sim::{SimConfig, SimLine};
 use cosem_core::link::LinkBuffers;
-use cosem_core::map::VecStorage;
+use cosem_core::map::{SceneMap, ScenePoint, VecStorage};
 use cosem_core::matching::{MatchStatus, PyramidCapacity, VecPyramidStorage};
 use cosem_core::robot::sender::SenderRobot;
 use cosem_core::robot::{self, Poll, Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
@@ -143,10 +143,34 @@ pub fn feeds(
     Ok([a, b])
 }
 
+/// A received map as a board holds it: a scene of [`VOXELS`] points.
+pub(crate) type Received = SceneMap<Vec<ScenePoint>>;
+
+/// An empty received map as a board's (voxels of `resolution` m).
+pub(crate) fn received_scene(resolution: f32) -> Result<Received, Error> {
+    SceneMap::new(vec![ScenePoint::EMPTY; VOXELS], resolution)
+        .map_err(|e| Error::Invalid(format!("received map: {e:?}")))
+}
+
+/// A board's pyramid storages (model, scene) on the heap: the firmware's
+/// capacities.
+pub(crate) fn board_pyramids() -> (impl Fn() -> VecPyramidStorage, impl Fn() -> VecPyramidStorage) {
+    let model = || {
+        VecPyramidStorage::new(PyramidCapacity {
+            voxels: VOXELS,
+            entries: COARSE,
+            slots: 2 * COARSE,
+            words: MODEL_WORDS,
+        })
+    };
+    let scene = || VecPyramidStorage::new(PyramidCapacity { voxels: 0, entries: COARSE, slots: 0, words: SCENE_WORDS });
+    (model, scene)
+}
+
 /// A robot of a pair as the host runs it: the full robot, or one that
 /// sends its map and is told the result (a small board's).
 enum HostRobot<'a> {
-    Full(Robot<'a, VecStorage, VecStorage, VecPyramidStorage, VecPyramidStorage>),
+    Full(Robot<'a, VecStorage, Received, VecPyramidStorage, VecPyramidStorage>),
     Sender(SenderRobot<'a, VecStorage>),
 }
 
@@ -161,25 +185,17 @@ pub fn host_run(feeds: [&Feed; 2], boards: [Board; 2]) -> Result<[RobotReport; 2
     let bytes = [feeds[0].bytes()?, feeds[1].bytes()?];
     let config = robot::map_config(feeds[0].setup.resolution);
     let mut own = [new_map(boards[0].voxels(), config)?, new_map(boards[1].voxels(), config)?];
-    let mut received = [new_map(VOXELS, config)?, new_map(VOXELS, config)?];
+    let mut received = [received_scene(config.resolution)?, received_scene(config.resolution)?];
     let mut scratch = [vec![0u32; VOXELS], vec![0u32; VOXELS]];
     let mut links = [Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new())];
-    let storage = |words| VecPyramidStorage::new(PyramidCapacity { voxels: VOXELS, entries: COARSE, words });
+    let (model_storage, scene_storage) = board_pyramids();
     let robot_config = RobotConfig::default();
     let mut robots: Vec<HostRobot<'_>> = Vec::new();
     for ((((board, own), received), scratch), link) in
         boards.iter().zip(&mut own).zip(&mut received).zip(&mut scratch).zip(&mut links)
     {
         robots.push(if board.matches() {
-            HostRobot::Full(Robot::new(
-                robot_config,
-                own,
-                received,
-                scratch,
-                link,
-                storage(MODEL_WORDS),
-                storage(SCENE_WORDS),
-            ))
+            HostRobot::Full(Robot::new(robot_config, own, received, scratch, link, model_storage(), scene_storage()))
         } else {
             HostRobot::Sender(SenderRobot::new(robot_config, own, scratch, link))
         });

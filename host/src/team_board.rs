@@ -13,12 +13,11 @@
 
 use crate::error::Error;
 use crate::mapping::new_map;
-use crate::robots::{accept, pump, qemu, Feed, FeederLine, LineFault};
+use crate::robots::{accept, board_pyramids, pump, qemu, Feed, FeederLine, LineFault};
 use cosem_core::link::sim::{ScriptPort, SimConfig, SimLine, SimPort};
 use cosem_core::link::LinkBuffers;
-use cosem_core::matching::{PyramidCapacity, VecPyramidStorage};
 use cosem_core::robot::team::{port_of, TeamRobot, TABLE_WORDS};
-use cosem_core::robot::{self, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
+use cosem_core::robot::{self, RobotConfig, VOXELS};
 use cosem_core::wire::feed::{PlacedRobot, RobotMessage, RobotReport, TeamEnd};
 use cosem_core::wire::frame::Deframer;
 use std::cell::RefCell;
@@ -108,7 +107,7 @@ pub fn host_team_run(feeds: &[Feed]) -> Result<Vec<TeamReports>, Error> {
     let config = robot::map_config(feeds.first().map_or(0.5, |f| f.setup.resolution));
     struct Buffers {
         own: crate::mapping::HostMap,
-        received: crate::mapping::HostMap,
+        received: crate::robots::Received,
         scratch: Vec<u32>,
         link: Box<LinkBuffers>,
     }
@@ -116,13 +115,13 @@ pub fn host_team_run(feeds: &[Feed]) -> Result<Vec<TeamReports>, Error> {
         .map(|_| {
             Ok(Buffers {
                 own: new_map(VOXELS, config)?,
-                received: new_map(VOXELS, config)?,
+                received: crate::robots::received_scene(config.resolution)?,
                 scratch: vec![0u32; VOXELS.max(TABLE_WORDS)],
                 link: Box::new(LinkBuffers::new()),
             })
         })
         .collect::<Result<Vec<_>, Error>>()?;
-    let storage = |words| VecPyramidStorage::new(PyramidCapacity { voxels: VOXELS, entries: COARSE, words });
+    let (model_storage, scene_storage) = board_pyramids();
     let mut robots: Vec<_> = buffers
         .iter_mut()
         .map(|b| {
@@ -132,8 +131,8 @@ pub fn host_team_run(feeds: &[Feed]) -> Result<Vec<TeamReports>, Error> {
                 &mut b.received,
                 &mut b.scratch,
                 &mut *b.link,
-                storage(MODEL_WORDS),
-                storage(SCENE_WORDS),
+                model_storage(),
+                scene_storage(),
             )
         })
         .collect();

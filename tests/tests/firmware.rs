@@ -18,7 +18,12 @@ fn host_lines() -> Vec<String> {
     );
     let mut scratch = vec![0u32; MAP_VOXELS];
     let mut chunk = [0u8; 240];
-    let capacity = PyramidCapacity { voxels: MAP_VOXELS, entries: PYRAMID_ENTRIES, words: FOOTPRINT_WORDS };
+    let capacity = PyramidCapacity {
+        voxels: MAP_VOXELS,
+        entries: PYRAMID_ENTRIES,
+        slots: 2 * PYRAMID_ENTRIES,
+        words: FOOTPRINT_WORDS,
+    };
     let (pa, pb) = (VecPyramidStorage::new(capacity), VecPyramidStorage::new(capacity));
     let report = selftest::run(&mut a, &mut b, &mut r, &mut scratch, &mut chunk, pa, pb, |_| {}).unwrap();
     report.to_string().lines().map(str::to_string).collect()

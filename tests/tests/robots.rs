@@ -38,7 +38,9 @@ fn check_budget(i: usize, r: &Value) {
     let (map, prepare, locate, matching) =
         (n("map_instructions"), n("prepare_instructions"), n("locate_instructions"), n("match_instructions"));
     let total = map + prepare + locate + matching;
-    eprintln!("robot {i} pipeline: map {map} + prepare {prepare} + locate {locate} + match {matching} = {total} instructions");
+    eprintln!(
+        "robot {i} pipeline: map {map} + prepare {prepare} + locate {locate} + match {matching} = {total} instructions"
+    );
     assert!(total <= 300_000_000, "robot {i}: pipeline of {total} instructions over 3e8: {r}");
 }
 

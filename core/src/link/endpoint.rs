@@ -3,7 +3,7 @@
 
 use super::Clock;
 use crate::classes::CLASS_TABLE_VERSION;
-use crate::map::{LocalMap, VoxelStorage};
+use crate::map::{LocalMap, VoxelSink, VoxelStorage};
 use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::frame::{Deframer, MAX_FRAME, MAX_PAYLOAD};
 use crate::wire::message::{
@@ -222,11 +222,11 @@ impl<'a> From<&'a mut LinkBuffers> for LinkParts<'a> {
 }
 
 /// What an ended [`Endpoint`] gives back.
-pub struct Finished<'a, R: VoxelStorage> {
+pub struct Finished<'a, R: VoxelSink> {
     /// The scratch its map was ordered in (`None`: it sent no map).
     pub scratch: Option<&'a mut [u32]>,
     /// The staging map, holding the peer's map when it arrived whole.
-    pub staging: Option<&'a mut LocalMap<R>>,
+    pub staging: Option<&'a mut R>,
     /// The link's buffers, for the next endpoint.
     pub buffers: LinkParts<'a>,
 }
@@ -576,9 +576,9 @@ impl<S: VoxelStorage> Tx<'_, S> {
 
 /// The receiving half: stream bytes into a ring until the records before
 /// the first gap are whole, then records into the map.
-struct Rx<'a, S: VoxelStorage> {
+struct Rx<'a, S: VoxelSink> {
     /// `None`: this endpoint receives nothing.
-    map: Option<&'a mut LocalMap<S>>,
+    map: Option<&'a mut S>,
     ring: &'a mut [u8; STREAM_BUFFER],
     have: &'a mut [u32; STREAM_BUFFER / 32],
     /// Everything before `cum` arrived; before `consumed` was decoded;
@@ -598,7 +598,7 @@ struct Rx<'a, S: VoxelStorage> {
     ack_now: bool,
 }
 
-impl<S: VoxelStorage> Rx<'_, S> {
+impl<S: VoxelSink> Rx<'_, S> {
     fn bit(&self, pos: u32) -> bool {
         let p = pos as usize % STREAM_BUFFER;
         self.have.get(p / 32).is_some_and(|w| w & (1 << (p % 32)) != 0)
@@ -841,7 +841,7 @@ impl LineEstimate {
 type TxParts<'a> = (&'a mut [u8; STREAM_BUFFER], &'a mut heapless::Vec<Segment, MAX_SEGMENTS>, &'a mut CodecModel);
 
 /// One robot's end of the link: sends its map, receives the peer's.
-pub struct Endpoint<'a, M: VoxelStorage, R: VoxelStorage> {
+pub struct Endpoint<'a, M: VoxelStorage, R: VoxelSink> {
     config: LinkConfig,
     robot_id: u8,
     resolution: f32,
@@ -883,7 +883,7 @@ fn io_error<E: embedded_io::Error>(e: E) -> LinkError {
     LinkError::Io(e.kind())
 }
 
-impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
+impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
     /// An endpoint that will send `map` (Morton order prepared in `scratch`,
     /// one `u32` per voxel; `None`: send nothing) as transfer `map_id`, and
     /// receive the peer's map into `staging` (cleared first; `None`: receive
@@ -895,7 +895,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
         map_id: u32,
         anchor_time_us: u64,
         map: Option<(&'a LocalMap<M>, &'a mut [u32])>,
-        mut staging: Option<&'a mut LocalMap<R>>,
+        mut staging: Option<&'a mut R>,
         buffers: impl Into<LinkParts<'a>>,
     ) -> Result<Self, LinkError> {
         let LinkParts { tx: tx_ring, rx: rx_ring, have, segs, tx_model, rx_model } = buffers.into();
@@ -1026,7 +1026,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage> Endpoint<'a, M, R> {
     /// Ends the endpoint and gives back what it borrowed mutably: the
     /// scratch its map was ordered in and the staging map (which holds the
     /// peer's map when [`Endpoint::received`] is true).
-    pub fn into_parts(self) -> (Option<&'a mut [u32]>, Option<&'a mut LocalMap<R>>) {
+    pub fn into_parts(self) -> (Option<&'a mut [u32]>, Option<&'a mut R>) {
         (self.tx.map(|t| t.encoder.into_scratch()), self.rx.map)
     }
 

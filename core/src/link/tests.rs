@@ -8,7 +8,7 @@ fn bufs() -> &'static mut LinkBuffers {
     std::boxed::Box::leak(std::boxed::Box::new(LinkBuffers::new()))
 }
 use crate::classes::Class;
-use crate::map::{LocalMap, VoxelStorage};
+use crate::map::{LocalMap, VoxelSink, VoxelStorage};
 use crate::test_util::{map, Heap};
 use crate::wire::codec::map_digest;
 use core::cell::RefCell;
@@ -49,7 +49,7 @@ type Port<'a> = sim::SimPort<'a, 65536>;
 
 /// Steps both endpoints once per simulated millisecond until both are over
 /// (or `limit` ms): what each ended with.
-fn drive<A: VoxelStorage, B: VoxelStorage, C: VoxelStorage, D: VoxelStorage>(
+fn drive<A: VoxelStorage, B: VoxelSink, C: VoxelStorage, D: VoxelSink>(
     wire: &RefCell<Line>,
     (e0, p0): (&mut Endpoint<'_, A, B>, &mut Port<'_>),
     (e1, p1): (&mut Endpoint<'_, C, D>, &mut Port<'_>),
@@ -91,8 +91,9 @@ fn transfer(seed: u64, error_rate: f64, stall_chance: f64) -> (Outcome, u32, u64
     let (mut pa, mut pb) = Line::ports(&wire);
     let config = LinkConfig::default();
     let mut a =
-        Endpoint::<Heap, Heap>::new(config, 0, seed as u32, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
-    let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut staging), bufs()).unwrap();
+        Endpoint::<Heap, LocalMap<Heap>>::new(config, 0, seed as u32, 0, Some((&sent, &mut scratch)), None, bufs())
+            .unwrap();
+    let mut b = Endpoint::<Heap, LocalMap<Heap>>::new(config, 1, 0, 0, None, Some(&mut staging), bufs()).unwrap();
     let (_, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 2_000_000);
     let retrans = a.stats().retransmissions;
     let received = b.received();
@@ -164,7 +165,8 @@ fn silent_peer_is_a_typed_error_in_bounded_time() {
     let wire = line(3, 0.0, 0.0);
     let (mut pa, _pb) = Line::ports(&wire);
     let config = LinkConfig::default();
-    let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
+    let mut a =
+        Endpoint::<Heap, LocalMap<Heap>>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
     let mut result = Ok(Progress::Busy);
     let mut when = 0;
     for now in 0..200_000u64 {
@@ -186,8 +188,9 @@ fn a_map_too_large_is_refused_and_the_sender_told() {
     let wire = line(5, 0.0, 0.0);
     let (mut pa, mut pb) = Line::ports(&wire);
     let config = LinkConfig::default();
-    let mut a = Endpoint::<Heap, Heap>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
-    let mut b = Endpoint::<Heap, Heap>::new(config, 1, 0, 0, None, Some(&mut tiny), bufs()).unwrap();
+    let mut a =
+        Endpoint::<Heap, LocalMap<Heap>>::new(config, 0, 1, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
+    let mut b = Endpoint::<Heap, LocalMap<Heap>>::new(config, 1, 0, 0, None, Some(&mut tiny), bufs()).unwrap();
     let (ra, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 10_000);
     assert!(matches!(rb, Err(LinkError::TooLarge { .. })), "{rb:?}");
     assert_eq!(ra, Err(LinkError::PeerAborted(crate::wire::AbortReason::TooLarge)));
@@ -232,4 +235,57 @@ fn half_duplex_line_takes_turns_without_collisions() {
     // Only the opening hellos and a rare ack crossing a resend may overlap.
     let collisions = wire.borrow().collisions();
     assert!(collisions < 10, "{collisions} collisions");
+}
+
+/// A map received into a [`crate::map::SceneMap`] over a lossy line holds
+/// exactly what the same map received into a `LocalMap` gives a scene:
+/// the same voxels in the same (arrival) order, reduced to scene points;
+/// one that does not fit is refused as too large.
+#[test]
+fn a_map_received_as_a_scene_is_the_received_map_reduced() {
+    use crate::map::{SceneMap, ScenePoint};
+    let sent = small_map(7);
+    let config = LinkConfig::default();
+    let mut whole = map(1000);
+    {
+        let wire = line(7, 0.01, 0.0);
+        let (mut pa, mut pb) = Line::ports(&wire);
+        let mut scratch = vec![0u32; sent.len()];
+        let mut a =
+            Endpoint::<Heap, LocalMap<Heap>>::new(config, 0, 7, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
+        let mut b = Endpoint::<Heap, LocalMap<Heap>>::new(config, 1, 0, 0, None, Some(&mut whole), bufs()).unwrap();
+        let (_, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 2_000_000);
+        assert_eq!(rb, Ok(Progress::Done));
+    }
+    let mut scene = SceneMap::new(vec![ScenePoint::EMPTY; 1000], sent.resolution()).unwrap();
+    {
+        let wire = line(8, 0.01, 0.0);
+        let (mut pa, mut pb) = Line::ports(&wire);
+        let mut scratch = vec![0u32; sent.len()];
+        let mut a = Endpoint::<Heap, SceneMap<std::vec::Vec<ScenePoint>>>::new(
+            config,
+            0,
+            7,
+            0,
+            Some((&sent, &mut scratch)),
+            None,
+            bufs(),
+        )
+        .unwrap();
+        let mut b = Endpoint::<Heap, _>::new(config, 1, 0, 0, None, Some(&mut scene), bufs()).unwrap();
+        let (_, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 2_000_000);
+        assert_eq!(rb, Ok(Progress::Done));
+    }
+    assert_eq!(whole.len(), sent.len());
+    let reduced: std::vec::Vec<ScenePoint> = whole.voxels().iter().map(ScenePoint::of).collect();
+    assert_eq!(scene.points(), &reduced[..]);
+    let mut small = SceneMap::new(vec![ScenePoint::EMPTY; sent.len() - 1], sent.resolution()).unwrap();
+    let wire = line(9, 0.0, 0.0);
+    let (mut pa, mut pb) = Line::ports(&wire);
+    let mut scratch = vec![0u32; sent.len()];
+    let mut a =
+        Endpoint::<Heap, LocalMap<Heap>>::new(config, 0, 7, 0, Some((&sent, &mut scratch)), None, bufs()).unwrap();
+    let mut b = Endpoint::<Heap, _>::new(config, 1, 0, 0, None, Some(&mut small), bufs()).unwrap();
+    let (_, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 2_000_000);
+    assert_eq!(rb, Err(LinkError::TooLarge { voxels: sent.len() as u32 }));
 }

@@ -157,7 +157,8 @@ impl VoxelKey {
     #[inline]
     pub fn hash32(self) -> u32 {
         let u = |v: i16, k: u32| u32::from(v as u16).wrapping_mul(k);
-        let mut h = u(self.x, 0x9E37_79B1) ^ u(self.y, 0x85EB_CA77).rotate_left(11) ^ u(self.z, 0xC2B2_AE3D).rotate_left(22);
+        let mut h =
+            u(self.x, 0x9E37_79B1) ^ u(self.y, 0x85EB_CA77).rotate_left(11) ^ u(self.z, 0xC2B2_AE3D).rotate_left(22);
         h ^= h >> 16;
         h = h.wrapping_mul(0x85EB_CA6B);
         h ^= h >> 13;

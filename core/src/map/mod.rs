@@ -6,12 +6,16 @@
 //! - [`table`]: storage (compile-time or caller-provided) and the index;
 //! - [`local_map`]: [`LocalMap`], which fuses points, finds neighbours and
 //!   builds coarser levels;
-//! - [`overlap`](mod@overlap): how much two maps agree under a transform.
+//! - [`overlap`](mod@overlap): how much two maps agree under a transform;
+//! - [`scene`]: a received map kept as only what matching it as a scene
+//!   reads ([`SceneMap`], 14 bytes per voxel), and [`VoxelSink`], where a
+//!   decoder puts voxels.
 
 pub mod key;
 pub mod labels;
 pub mod local_map;
 pub mod overlap;
+pub mod scene;
 pub mod table;
 pub mod voxel;
 
@@ -19,7 +23,8 @@ pub use key::{CellPoint, KeyError, VoxelKey};
 pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS, SCORE_UNITS_PER_NAT};
 pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertion, LocalMap, MapConfig, Neighbours};
 pub use overlap::overlap;
-pub use table::{ArrayStorage, MapIndex, SlotInt, SliceStorage, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};
+pub use scene::{SceneMap, ScenePoint, VoxelSink};
+pub use table::{ArrayStorage, MapIndex, SliceStorage, SlotInt, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};
 pub use voxel::SemanticVoxel;
 
 #[cfg(any(test, feature = "alloc"))]

@@ -306,7 +306,8 @@ fn eviction_removes_exactly_the_farthest_eighth() {
     }
     assert_eq!(map.len(), 400);
     let far_before: Vec<f32> = {
-        let mut d: Vec<f32> = map.iter().map(|v| v.key.center(0.2)).map(|c| (c[0] * c[0] + c[1] * c[1]).sqrt()).collect();
+        let mut d: Vec<f32> =
+            map.iter().map(|v| v.key.center(0.2)).map(|c| (c[0] * c[0] + c[1] * c[1]).sqrt()).collect();
         d.sort_by(|a, b| a.total_cmp(b));
         d
     };

@@ -2,7 +2,7 @@
 //! annealed within each level, one iteration budget across all of them.
 
 use super::associate::{accumulate, agreement, standing_agreement, Normal, Pass, Sampling};
-use super::pyramid::{Level, Pyramid, PyramidStorage, MAX_LEVELS};
+use super::pyramid::{Level, Pyramid, PyramidStorage, Role, MAX_LEVELS};
 use super::result::{MatchResult, MatchStatus};
 use super::search::search;
 use super::settings::{MatchSettings, Method};
@@ -21,6 +21,9 @@ pub enum MatchError {
     /// Settings out of range (zero budget, widths or tolerances not positive,
     /// annealing factor not in (0, 1]).
     Settings,
+    /// The model was prepared as a scene ([`super::Role::Scene`]): it has
+    /// no normals and no index to look its cells up.
+    SceneAsModel,
 }
 
 impl core::fmt::Display for MatchError {
@@ -29,6 +32,7 @@ impl core::fmt::Display for MatchError {
             MatchError::NonFiniteInit => "initial transform is not finite",
             MatchError::ResolutionMismatch => "model and scene pyramids have different resolutions",
             MatchError::Settings => "match settings out of range",
+            MatchError::SceneAsModel => "the model pyramid was prepared as a scene",
         })
     }
 }
@@ -181,6 +185,9 @@ impl Matcher {
         near: Option<f32>,
     ) -> Result<MatchResult, MatchError> {
         self.check()?;
+        if model.role() != Role::Model {
+            return Err(MatchError::SceneAsModel);
+        }
         if !finite_iso(init) {
             return Err(MatchError::NonFiniteInit);
         }

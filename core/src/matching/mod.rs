@@ -53,8 +53,9 @@ pub mod solve;
 pub use em::{MatchError, Matcher};
 pub use footprint::Footprint;
 pub use pyramid::{
-    ArrayPyramidStorage, CoarseEntry, Entry, Level, PackedNormal, Pyramid, PyramidCapacity, PyramidError, PyramidParts,
-    PyramidPartsMut, PyramidStorage, Role, VoxelExtra, MAX_FOOTPRINT_CELLS, MAX_LEVELS,
+    ArrayPyramidStorage, ArraySceneStorage, CoarseEntry, Entry, Level, PackedNormal, Pyramid, PyramidCapacity,
+    PyramidError, PyramidParts, PyramidPartsMut, PyramidStorage, Role, SceneSource, VoxelExtra, MAX_FOOTPRINT_CELLS,
+    MAX_LEVELS,
 };
 #[cfg(any(test, feature = "alloc"))]
 pub use pyramid::{VecPyramid, VecPyramidStorage};

@@ -18,10 +18,9 @@
 //! a pyramid costs about 6 + 0.4 * 28 = 17 bytes per voxel besides the map.
 
 use super::footprint::{self, Footprint, FootprintInfo};
-use crate::classes::NUM_CLASSES;
 use crate::map::table::{probe_index, walk, MapIndex, Probe, Slot};
 use crate::map::voxel::{dequantise_fraction, quantise_fraction};
-use crate::map::{CellPoint, LocalMap, SemanticVoxel, VoxelKey, VoxelStorage};
+use crate::map::{CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage};
 
 /// Most levels a pyramid has.
 pub const MAX_LEVELS: usize = 8;
@@ -260,6 +259,36 @@ impl<const V: usize, const E: usize, const W: usize> PyramidStorage for ArrayPyr
     }
 }
 
+/// Storage of a scene's pyramid ([`Role::Scene`], e.g. of a
+/// [`SceneMap`]) of compile-time size: `E` coarse entries and `W` footprint
+/// words, no extras and no index slots. Bytes: `20 E + 4 W`.
+pub struct ArraySceneStorage<const E: usize, const W: usize> {
+    entries: [CoarseEntry; E],
+    words: [u32; W],
+}
+
+impl<const E: usize, const W: usize> ArraySceneStorage<E, W> {
+    /// Empty storage.
+    pub const fn new() -> Self {
+        ArraySceneStorage { entries: [CoarseEntry::EMPTY; E], words: [0; W] }
+    }
+}
+
+impl<const E: usize, const W: usize> Default for ArraySceneStorage<E, W> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const E: usize, const W: usize> PyramidStorage for ArraySceneStorage<E, W> {
+    fn parts(&self) -> PyramidParts<'_> {
+        PyramidParts { extras: &[], entries: &self.entries, slots: &[], words: &self.words }
+    }
+    fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
+        PyramidPartsMut { extras: &mut [], entries: &mut self.entries, slots: &mut [], words: &mut self.words }
+    }
+}
+
 /// Most footprint cells a [`PyramidCapacity`] plans for: a 250 m square at
 /// 1 m. A larger map's footprint gets coarser cells instead of more memory.
 pub const MAX_FOOTPRINT_CELLS: usize = 62_500;
@@ -270,8 +299,11 @@ pub const MAX_FOOTPRINT_CELLS: usize = 62_500;
 pub struct PyramidCapacity {
     /// [`VoxelExtra`]s: one per voxel.
     pub voxels: usize,
-    /// Coarse entries (each with two index slots).
+    /// Coarse entries.
     pub entries: usize,
+    /// Index slots of the coarse levels: two per entry for a model, none
+    /// for a scene (nothing looks a scene's cell up).
+    pub slots: usize,
     /// Footprint words.
     pub words: usize,
 }
@@ -283,11 +315,27 @@ impl PyramidCapacity {
     /// the map's bounds (at most [`MAX_FOOTPRINT_CELLS`] cells; beyond that
     /// the build doubles the cell until it fits).
     pub fn for_map<V: VoxelStorage>(map: &LocalMap<V>, levels: usize, footprint_cell: f32, role: Role) -> Self {
+        Self::of(map.len(), map.bounds(), levels, footprint_cell, role)
+    }
+
+    /// Room to prepare `scene` ([`Pyramid::build_scene`]), as
+    /// [`PyramidCapacity::for_map`]: no extras (the scene's points hold
+    /// what they would).
+    pub fn for_scene<S: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>>(
+        scene: &SceneMap<S>,
+        levels: usize,
+        footprint_cell: f32,
+    ) -> Self {
+        let len = crate::map::VoxelSink::len(scene);
+        PyramidCapacity { voxels: 0, ..Self::of(len, scene.bounds(), levels, footprint_cell, Role::Scene) }
+    }
+
+    fn of(len: usize, bounds: Option<([f32; 3], [f32; 3])>, levels: usize, footprint_cell: f32, role: Role) -> Self {
         let grids = match role {
             Role::Model => footprint::POOL_LEVELS,
             Role::Scene => 2,
         };
-        let cells = match map.bounds() {
+        let cells = match bounds {
             Some((lo, hi)) if footprint_cell.is_finite() && footprint_cell > 0.0 => {
                 // One cell of margin per axis: the grid spans the voxels' means.
                 let side = |a: usize| (libm::floorf((hi[a] - lo[a]) / footprint_cell) as usize).saturating_add(2);
@@ -295,20 +343,31 @@ impl PyramidCapacity {
             }
             _ => 0,
         };
-        let listed = cells.min(map.len());
+        let listed = cells.min(len);
+        let entries = len.saturating_mul(levels.saturating_sub(1));
+        // A model's words hold level 0's sweep order while normals are
+        // fitted (one per voxel); a scene's hold the merge's hash table
+        // while its coarse levels are built (two per entry of a level).
+        let scratch = match role {
+            Role::Model => len,
+            Role::Scene => 2 * len,
+        };
         PyramidCapacity {
-            voxels: map.len(),
-            entries: map.len().saturating_mul(levels.saturating_sub(1)),
-            // At least one per voxel: level 0's sweep order while normals
-            // are fitted.
-            words: (grids * cells + 3 * listed).max(map.len()),
+            voxels: len,
+            entries,
+            slots: match role {
+                Role::Model => 2 * entries,
+                Role::Scene => 0,
+            },
+            words: (grids * cells + 3 * listed).max(scratch),
         }
     }
 
     /// Bytes of storage this takes.
     pub fn bytes(&self) -> usize {
         self.voxels * core::mem::size_of::<VoxelExtra>()
-            + self.entries * (core::mem::size_of::<CoarseEntry>() + 2 * core::mem::size_of::<u32>())
+            + self.entries * core::mem::size_of::<CoarseEntry>()
+            + self.slots * core::mem::size_of::<u32>()
             + self.words * core::mem::size_of::<u32>()
     }
 }
@@ -329,7 +388,7 @@ impl VecPyramidStorage {
         VecPyramidStorage {
             extras: alloc::vec![VoxelExtra::EMPTY; capacity.voxels],
             entries: alloc::vec![CoarseEntry::EMPTY; capacity.entries],
-            slots: alloc::vec![0; 2 * capacity.entries],
+            slots: alloc::vec![0; capacity.slots],
             words: alloc::vec![0; capacity.words],
         }
     }
@@ -365,6 +424,40 @@ impl<'m> Pyramid<'m, VecPyramidStorage> {
     ) -> Result<Self, PyramidError> {
         let storage = VecPyramidStorage::new(PyramidCapacity::for_map(map, levels, footprint_cell, role));
         Self::build_as(map, levels, footprint_cell, role, storage)
+    }
+}
+
+/// A map that can be prepared as the scene of a match: a [`LocalMap`] or a
+/// [`SceneMap`] (what a robot receives its peer's map into).
+pub trait SceneSource {
+    /// The map prepared as a scene ([`Role::Scene`]) in `storage`.
+    fn prepare_scene<S: PyramidStorage>(
+        &self,
+        levels: usize,
+        footprint_cell: f32,
+        storage: S,
+    ) -> Result<Pyramid<'_, S>, PyramidError>;
+}
+
+impl<V: VoxelStorage> SceneSource for LocalMap<V> {
+    fn prepare_scene<S: PyramidStorage>(
+        &self,
+        levels: usize,
+        footprint_cell: f32,
+        storage: S,
+    ) -> Result<Pyramid<'_, S>, PyramidError> {
+        Pyramid::build_as(self, levels, footprint_cell, Role::Scene, storage)
+    }
+}
+
+impl<P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> SceneSource for SceneMap<P> {
+    fn prepare_scene<S: PyramidStorage>(
+        &self,
+        levels: usize,
+        footprint_cell: f32,
+        storage: S,
+    ) -> Result<Pyramid<'_, S>, PyramidError> {
+        Pyramid::build_scene(self, levels, footprint_cell, storage)
     }
 }
 
@@ -414,10 +507,28 @@ struct LevelInfo {
     resolution: f32,
 }
 
+/// What a pyramid's level 0 is.
+#[derive(Clone, Copy)]
+enum Base<'m> {
+    /// A map's voxels and index (the pyramid adds their extras).
+    Map { voxels: &'m [SemanticVoxel], index: MapIndex<'m> },
+    /// A scene's points (they hold what the extras would, but normals).
+    Scene { points: &'m [ScenePoint] },
+}
+
+impl Base<'_> {
+    fn len(&self) -> usize {
+        match self {
+            Base::Map { voxels, .. } => voxels.len(),
+            Base::Scene { points } => points.len(),
+        }
+    }
+}
+
 /// A map prepared for matching. It borrows the map: level 0 is the map.
 pub struct Pyramid<'m, S: PyramidStorage> {
-    voxels: &'m [SemanticVoxel],
-    index: MapIndex<'m>,
+    base: Base<'m>,
+    role: Role,
     storage: S,
     levels: [LevelInfo; MAX_LEVELS],
     count: usize,
@@ -428,6 +539,8 @@ pub struct Pyramid<'m, S: PyramidStorage> {
 enum LevelData<'a> {
     /// Level 0: the map's voxels and index, and the extras.
     Voxels { voxels: &'a [SemanticVoxel], index: MapIndex<'a>, extras: &'a [VoxelExtra] },
+    /// Level 0 of a scene: its points, in arrival order, without an index.
+    Points { points: &'a [ScenePoint] },
     /// A coarse level: sorted entries and their index.
     Coarse { entries: &'a [CoarseEntry], slots: &'a [u32] },
 }
@@ -474,6 +587,7 @@ impl<'a> Level<'a> {
     pub fn len(&self) -> usize {
         match self.data {
             LevelData::Voxels { voxels, .. } => voxels.len(),
+            LevelData::Points { points } => points.len(),
             LevelData::Coarse { entries, .. } => entries.len(),
         }
     }
@@ -499,6 +613,17 @@ impl<'a> Level<'a> {
                     confidence: x.confidence,
                 })
             }
+            LevelData::Points { points } => {
+                let p = points.get(i)?;
+                Some(Entry {
+                    position: p.position(self.resolution),
+                    normal: PackedNormal::NONE,
+                    weight: 1.0,
+                    key: p.key,
+                    class: p.class(),
+                    confidence: p.confidence(),
+                })
+            }
             LevelData::Coarse { entries, .. } => {
                 let c = entries.get(i)?;
                 Some(Entry {
@@ -519,6 +644,7 @@ impl<'a> Level<'a> {
     pub fn point(&self, i: usize) -> Option<([f32; 3], f32)> {
         match self.data {
             LevelData::Voxels { voxels, .. } => voxels.get(i).map(|v| (v.position(self.resolution), 1.0)),
+            LevelData::Points { points } => points.get(i).map(|p| (p.position(self.resolution), 1.0)),
             LevelData::Coarse { entries, .. } => {
                 entries.get(i).map(|c| (c.position(self.resolution), f32::from(c.weight)))
             }
@@ -530,6 +656,7 @@ impl<'a> Level<'a> {
     pub fn key_at(&self, i: usize) -> Option<VoxelKey> {
         match self.data {
             LevelData::Voxels { voxels, .. } => voxels.get(i).map(|v| v.key),
+            LevelData::Points { points } => points.get(i).map(|p| p.key),
             LevelData::Coarse { entries, .. } => entries.get(i).map(|c| c.key),
         }
     }
@@ -539,6 +666,7 @@ impl<'a> Level<'a> {
     pub fn class_at(&self, i: usize) -> Option<u8> {
         match self.data {
             LevelData::Voxels { extras, .. } => extras.get(i).map(|x| x.class),
+            LevelData::Points { points } => points.get(i).map(|p| p.class()),
             LevelData::Coarse { entries, .. } => entries.get(i).map(|c| c.class),
         }
     }
@@ -549,7 +677,8 @@ impl<'a> Level<'a> {
         (0..self.len()).filter_map(move |i| level.entry(i))
     }
 
-    /// The entries of one cell (one per class present).
+    /// The entries of one cell (one per class present). A scene's levels
+    /// ([`Role::Scene`]) have no index: nothing is found there.
     #[inline]
     pub fn cell(&self, key: VoxelKey) -> Cell<'a> {
         let (next, end) = match self.data {
@@ -557,6 +686,7 @@ impl<'a> Level<'a> {
                 Probe::Found(i) => (i, i + 1),
                 Probe::Vacant(_) => (0, 0),
             },
+            LevelData::Points { .. } => (0, 0),
             LevelData::Coarse { entries, slots } => coarse_run(entries, slots, key),
         };
         Cell { level: *self, next, end }
@@ -896,69 +1026,122 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         Self::build_as(map, levels, footprint_cell, Role::Model, storage)
     }
 
-    /// As [`Pyramid::build`], for the given [`Role`].
+    /// As [`Pyramid::build`], for the given [`Role`]. A scene
+    /// ([`Role::Scene`]) gets no normals and no index of its coarse levels
+    /// (the matcher reads neither of a scene), so it needs no index slots,
+    /// and its footprint words double as the scratch of the coarse merge.
     pub fn build_as<V: VoxelStorage>(
         map: &'m LocalMap<V>,
         levels: usize,
         footprint_cell: f32,
         role: Role,
+        storage: S,
+    ) -> Result<Self, PyramidError> {
+        let base = Base::Map { voxels: map.voxels(), index: map.index_slots() };
+        Self::build_base(base, map.resolution(), levels, footprint_cell, role, storage)
+    }
+
+    /// Prepares a received [`SceneMap`] as a scene ([`Role::Scene`]): the
+    /// same levels, entries and footprint as [`Pyramid::build_as`] gives a
+    /// [`LocalMap`] holding the same voxels in the same order, with no
+    /// extras in the storage (the scene's points hold them).
+    pub fn build_scene<P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>>(
+        scene: &'m SceneMap<P>,
+        levels: usize,
+        footprint_cell: f32,
+        storage: S,
+    ) -> Result<Self, PyramidError> {
+        let base = Base::Scene { points: scene.points() };
+        Self::build_base(base, scene.resolution(), levels, footprint_cell, Role::Scene, storage)
+    }
+
+    fn build_base(
+        base: Base<'m>,
+        resolution: f32,
+        levels: usize,
+        footprint_cell: f32,
+        role: Role,
         mut storage: S,
     ) -> Result<Self, PyramidError> {
-        if map.is_empty() {
+        if base.len() == 0 {
             return Err(PyramidError::EmptyMap);
         }
         if levels == 0 || levels > MAX_LEVELS {
             return Err(PyramidError::Levels);
         }
-        let (voxels, index, resolution) = (map.voxels(), map.index_slots(), map.resolution());
+        let model = role == Role::Model;
         let mut info = [LevelInfo::default(); MAX_LEVELS];
-        info[0] = LevelInfo { start: 0, len: voxels.len(), slot_start: 0, slot_len: 0, resolution };
+        info[0] = LevelInfo { start: 0, len: base.len(), slot_start: 0, slot_len: 0, resolution };
         {
-            let PyramidPartsMut { extras, entries, slots, .. } = storage.parts_mut();
+            let PyramidPartsMut { extras, entries, slots, words } = storage.parts_mut();
             // Slots address entries with 27 bits.
-            if entries.len() >= (1 << (32 - RUN_BITS)) - 1 || (levels > 1 && slots.len() < 2 * entries.len()) {
+            if entries.len() >= (1 << (32 - RUN_BITS)) - 1 || (model && levels > 1 && slots.len() < 2 * entries.len()) {
                 return Err(PyramidError::Full);
             }
-            let extras = extras.get_mut(..voxels.len()).ok_or(PyramidError::Full)?;
-            for (x, v) in extras.iter_mut().zip(voxels) {
-                let class = v.class();
-                let p = class.map(|c| v.labels.probability(c)).unwrap_or(1.0 / NUM_CLASSES as f32);
-                *x = VoxelExtra {
-                    normal: PackedNormal::NONE,
-                    class: class.map(|c| c.index()).unwrap_or(u8::MAX),
-                    confidence: (p * 255.0 + 0.5) as u8,
-                };
-            }
-            // Coarse levels: each merged from the one below, then indexed.
+            let level0 = match base {
+                Base::Map { voxels, index } => {
+                    let extras = extras.get_mut(..voxels.len()).ok_or(PyramidError::Full)?;
+                    for (x, v) in extras.iter_mut().zip(voxels) {
+                        let p = ScenePoint::of(v);
+                        *x = VoxelExtra { normal: PackedNormal::NONE, class: p.class(), confidence: p.confidence() };
+                    }
+                    LevelData::Voxels { voxels, index, extras: &*extras }
+                }
+                Base::Scene { points } => LevelData::Points { points },
+            };
+            // Coarse levels: each merged from the one below, then indexed
+            // (a model's).
             let (mut start, mut slot_start) = (0usize, 0usize);
             for l in 1..levels {
                 let prev = info[l - 1];
                 let (done, rest) = entries.split_at_mut(start);
                 let src = if l == 1 {
-                    Level::new(LevelData::Voxels { voxels, index, extras: &*extras }, resolution)
+                    Level::new(level0, resolution)
                 } else {
                     let e = done.get(prev.start..prev.start + prev.len).ok_or(PyramidError::Full)?;
                     Level::new(LevelData::Coarse { entries: e, slots: &[] }, prev.resolution)
                 };
-                let table = slots.get_mut(slot_start..).ok_or(PyramidError::Full)?;
+                let table = if model { slots.get_mut(slot_start..) } else { Some(&mut *words) };
+                let table = table.ok_or(PyramidError::Full)?;
                 let len = merge_level(&src, rest, table)?;
-                let level_slots = table.get_mut(..2 * len).ok_or(PyramidError::Full)?;
-                index_level(rest.get(..len).ok_or(PyramidError::Full)?, level_slots);
-                info[l] = LevelInfo { start, len, slot_start, slot_len: 2 * len, resolution: prev.resolution * 2.0 };
+                let slot_len = if model {
+                    let level_slots = table.get_mut(..2 * len).ok_or(PyramidError::Full)?;
+                    index_level(rest.get(..len).ok_or(PyramidError::Full)?, level_slots);
+                    2 * len
+                } else {
+                    0
+                };
+                info[l] = LevelInfo { start, len, slot_start, slot_len, resolution: prev.resolution * 2.0 };
                 start += len;
-                slot_start += 2 * len;
+                slot_start += slot_len;
             }
         }
-        let mut pyramid = Pyramid { voxels, index, storage, levels: info, count: levels, footprint: None };
-        // Normals, level by level: fitted against the read-only level, then
-        // written. Coarse levels are sorted in sweep order; level 0 (the
-        // map, in insertion order) is visited through a permutation sorted
-        // in the footprint's words (built after), or, where they are too
-        // few, through hash lookups (the same normals).
-        for l in 0..levels {
-            let li = pyramid.levels[l];
+        let mut pyramid = Pyramid { base, role, storage, levels: info, count: levels, footprint: None };
+        // Normals (a model's), level by level: fitted against the read-only
+        // level, then written. Coarse levels are sorted in sweep order;
+        // level 0 (the map, in insertion order) is visited through a
+        // permutation sorted in the footprint's words (built after), or,
+        // where they are too few, through hash lookups (the same normals).
+        if let (true, Base::Map { voxels, .. }) = (model, base) {
+            pyramid.fit_normals(voxels)?;
+        }
+        if footprint_cell.is_finite() && footprint_cell > 0.0 {
+            let PyramidPartsMut { extras, words, .. } = pyramid.storage.parts_mut();
+            let data = match base {
+                Base::Map { voxels, index } => LevelData::Voxels { voxels, index, extras: &*extras },
+                Base::Scene { points } => LevelData::Points { points },
+            };
+            pyramid.footprint = footprint::build(&Level::new(data, resolution), footprint_cell, model, words);
+        }
+        Ok(pyramid)
+    }
+
+    /// Fits the normals of a model's levels (see [`NormalSweep`]).
+    fn fit_normals(&mut self, voxels: &[SemanticVoxel]) -> Result<(), PyramidError> {
+        for l in 0..self.count {
+            let li = self.levels[l];
             let permuted = l == 0 && {
-                let words = pyramid.storage.parts_mut().words;
+                let words = self.storage.parts_mut().words;
                 match words.get_mut(..li.len) {
                     Some(order) if li.len < u32::MAX as usize => {
                         for (i, w) in order.iter_mut().enumerate() {
@@ -976,8 +1159,8 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 let mut normals = [(u32::MAX, PackedNormal::NONE); NORMAL_CHUNK];
                 let n = (li.len - chunk_start).min(NORMAL_CHUNK);
                 {
-                    let level = pyramid.level(l).ok_or(PyramidError::Levels)?;
-                    let order = pyramid.storage.parts().words;
+                    let level = self.level(l).ok_or(PyramidError::Levels)?;
+                    let order = self.storage.parts().words;
                     let at = |r: usize| {
                         if permuted {
                             order.get(r).map(|&i| i as usize)
@@ -998,7 +1181,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                         }
                     }
                 }
-                let parts = pyramid.storage.parts_mut();
+                let parts = self.storage.parts_mut();
                 for &(i, normal) in normals.iter().take(n).filter(|(i, _)| *i != u32::MAX) {
                     let slot = if l == 0 {
                         parts.extras.get_mut(i as usize).map(|x| &mut x.normal)
@@ -1011,12 +1194,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 }
             }
         }
-        if footprint_cell.is_finite() && footprint_cell > 0.0 {
-            let PyramidPartsMut { extras, words, .. } = pyramid.storage.parts_mut();
-            let level0 = Level::new(LevelData::Voxels { voxels, index, extras: &*extras }, resolution);
-            pyramid.footprint = footprint::build(&level0, footprint_cell, role == Role::Model, words);
-        }
-        Ok(pyramid)
+        Ok(())
     }
 
     /// The footprint, if the storage had room for one.
@@ -1024,6 +1202,11 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         let info = self.footprint?;
         let words = self.storage.parts().words;
         Some(Footprint { info, words: words.get(..info.words())? })
+    }
+
+    /// How the pyramid was prepared.
+    pub fn role(&self) -> Role {
+        self.role
     }
 
     /// Number of levels.
@@ -1036,7 +1219,10 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         let li = self.levels.get(..self.count)?.get(l)?;
         let parts = self.storage.parts();
         let data = if l == 0 {
-            LevelData::Voxels { voxels: self.voxels, index: self.index, extras: parts.extras.get(..li.len)? }
+            match self.base {
+                Base::Map { voxels, index } => LevelData::Voxels { voxels, index, extras: parts.extras.get(..li.len)? },
+                Base::Scene { points } => LevelData::Points { points },
+            }
         } else {
             LevelData::Coarse {
                 entries: parts.entries.get(li.start..li.start + li.len)?,

@@ -306,3 +306,46 @@ fn standing_agreement_equals_the_full_pass() {
     }
     assert!(seen >= 4, "{seen}");
 }
+
+/// A received map kept as a [`crate::map::SceneMap`] (what a robot holds)
+/// prepares into the same scene as the same voxels in a `LocalMap`, to the
+/// bit: the same levels and footprint, so the same match, with a prior and
+/// without; and a scene-only pyramid is refused as a model.
+#[test]
+fn scene_map_matches_like_the_local_map_it_holds() {
+    use crate::map::{SceneMap, ScenePoint, VoxelSink};
+    let mut model = new_map();
+    corner(&mut model, &Isometry3::identity());
+    let t = from_xyz_rpy(1.2, -0.7, 0.0, 0.0, 0.0, 0.3);
+    let mut m = new_map();
+    corner(&mut m, &t.inverse());
+    let mut scene = SceneMap::new(vec![ScenePoint::EMPTY; m.len()], m.resolution()).unwrap();
+    for v in m.voxels() {
+        scene.accept(*v).unwrap();
+    }
+    assert_eq!(scene.accept(m.voxels()[0]), Err(crate::map::InsertError::Full));
+    let n = m.len();
+    let pm = pyramid(&model);
+    let as_map = Pyramid::build_as(&m, 4, 1.0, Role::Scene, heap_pyramid(n, 3 * n, 400_000)).unwrap();
+    let cap = PyramidCapacity::for_scene(&scene, 4, 1.0);
+    assert_eq!((cap.voxels, cap.slots), (0, 0));
+    let as_scene = Pyramid::build_scene(&scene, 4, 1.0, VecPyramidStorage::new(cap)).unwrap();
+    for l in 0..4 {
+        let (a, b) = (as_map.level(l).unwrap(), as_scene.level(l).unwrap());
+        assert_eq!(a.len(), b.len(), "level {l}");
+        assert!(a.iter().zip(b.iter()).all(|(x, y)| x == y), "level {l}");
+    }
+    let (fa, fb) = (as_map.footprint().unwrap(), as_scene.footprint().unwrap());
+    assert_eq!(fa.cell(), fb.cell());
+    let start = from_xyz_rpy(1.0, -0.5, 0.0, 0.0, 0.0, 0.25);
+    let a = Matcher::default().align(&pm, &as_map, &start).unwrap();
+    let b = Matcher::default().align(&pm, &as_scene, &start).unwrap();
+    assert_eq!(a, b);
+    assert_eq!(a.status, MatchStatus::Converged);
+    assert!((a.transform.translation.vector - t.translation.vector).norm() < 0.05, "{:?}", a.transform);
+    let search = crate::matching::search::GlobalSearch::default();
+    let ga = crate::matching::global::align_searched(&Matcher::default(), &pm, &as_map, &search, || {}).unwrap();
+    let gb = crate::matching::global::align_searched(&Matcher::default(), &pm, &as_scene, &search, || {}).unwrap();
+    assert_eq!(ga.0, gb.0);
+    assert_eq!(Matcher::default().align(&as_scene, &pm, &start), Err(MatchError::SceneAsModel));
+}

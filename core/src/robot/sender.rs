@@ -19,7 +19,7 @@ use embedded_io::{Read, ReadReady, Write, WriteReady};
 #[allow(clippy::large_enum_variant)]
 enum State<'a, M: VoxelStorage> {
     Feed { own: &'a mut LocalMap<M>, scratch: &'a mut [u32], buffers: &'a mut LinkBuffers },
-    Link { own: &'a LocalMap<M>, endpoint: Endpoint<'a, M, M> },
+    Link { own: &'a LocalMap<M>, endpoint: Endpoint<'a, M, LocalMap<M>> },
     Await { own: &'a LocalMap<M>, stats: LinkStats, awaiter: Awaiter },
     Done,
 }

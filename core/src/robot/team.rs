@@ -21,8 +21,8 @@
 use super::{align, FeedIn, Meter, RobotConfig, RobotError};
 use crate::geometry::{from_rows, rows, Isometry3};
 use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkParts, LinkStats, Progress};
-use crate::map::{LocalMap, VoxelStorage};
-use crate::matching::{MatchStatus, PyramidStorage};
+use crate::map::{LocalMap, VoxelSink, VoxelStorage};
+use crate::matching::{MatchStatus, PyramidStorage, SceneSource};
 use crate::team::{consistent_set, solve, RelativePose, MAX_ROBOTS};
 use crate::wire::feed::{FeedError, PlacedRobot, RobotMessage, RobotReport, TeamEnd};
 use crate::wire::frame::{Deframer, MAX_FRAME};
@@ -77,17 +77,17 @@ pub fn port_of(me: u8, peer: u8) -> usize {
 }
 
 #[allow(clippy::large_enum_variant)]
-enum Phase<'a, M: VoxelStorage, R: VoxelStorage> {
+enum Phase<'a, M: VoxelStorage, R: VoxelSink + SceneSource> {
     Feed {
         own: &'a mut LocalMap<M>,
-        received: &'a mut LocalMap<R>,
+        received: &'a mut R,
         scratch: &'a mut [u32],
         buffers: LinkParts<'a>,
     },
     /// Between rounds: everything free for the next one.
     Ready {
         own: &'a LocalMap<M>,
-        received: &'a mut LocalMap<R>,
+        received: &'a mut R,
         scratch: &'a mut [u32],
         buffers: LinkParts<'a>,
     },
@@ -121,7 +121,7 @@ struct ShareRound {
 }
 
 /// One robot of a team (see the module documentation).
-pub struct TeamRobot<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage> {
+pub struct TeamRobot<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: PyramidStorage> {
     phase: Phase<'a, M, R>,
     model: P,
     scene: Q,
@@ -133,13 +133,13 @@ pub struct TeamRobot<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q:
     link_config: LinkConfig,
 }
 
-impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage> TeamRobot<'a, M, R, P, Q> {
+impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: PyramidStorage> TeamRobot<'a, M, R, P, Q> {
     /// A team robot over the caller's buffers, as [`Robot::new`](super::Robot::new);
     /// the scratch must also hold [`TABLE_WORDS`].
     pub fn new(
         config: RobotConfig,
         own: &'a mut LocalMap<M>,
-        received: &'a mut LocalMap<R>,
+        received: &'a mut R,
         scratch: &'a mut [u32],
         buffers: impl Into<LinkParts<'a>>,
         model: P,
@@ -257,7 +257,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
     fn next_round(
         &mut self,
         own: &'a LocalMap<M>,
-        received: &'a mut LocalMap<R>,
+        received: &'a mut R,
         scratch: &'a mut [u32],
         buffers: LinkParts<'a>,
         now_ms: u64,
@@ -298,7 +298,7 @@ impl<'a, M: VoxelStorage, R: VoxelStorage, P: PyramidStorage, Q: PyramidStorage>
     fn match_peer<T: Meter>(
         &mut self,
         own: &LocalMap<M>,
-        received: &LocalMap<R>,
+        received: &R,
         peer: u8,
         stats: &LinkStats,
         link_ms: u32,

@@ -42,7 +42,7 @@ use super::range::{RangeDecoder, RangeEncoder, PROB_INIT};
 use crate::classes::{Class, NUM_CLASSES};
 use crate::map::labels::{LabelDistribution, SCORE_MAX, SCORE_UNITS_PER_NAT};
 use crate::map::voxel::LOGODDS_UNITS;
-use crate::map::{InsertError, LocalMap, SemanticVoxel, VoxelKey, VoxelStorage};
+use crate::map::{InsertError, LocalMap, SemanticVoxel, VoxelKey, VoxelSink, VoxelStorage};
 
 /// Probabilities a voxel's class confidence is rounded to.
 pub const CONFIDENCE_LEVELS: [f32; 8] = [0.15, 0.35, 0.55, 0.7, 0.82, 0.91, 0.97, 0.995];
@@ -580,7 +580,7 @@ impl<'a> MapDecoder<'a> {
     }
 
     /// Decodes one chunk into `map`; returns the voxels it held.
-    pub fn decode_chunk<S: VoxelStorage>(&mut self, chunk: &[u8], map: &mut LocalMap<S>) -> Result<usize, DecodeError> {
+    pub fn decode_chunk<K: VoxelSink + ?Sized>(&mut self, chunk: &[u8], map: &mut K) -> Result<usize, DecodeError> {
         let mut at = 0;
         let n = read_varint(chunk, &mut at, 5)?;
         if n == 0 {
@@ -608,7 +608,7 @@ impl<'a> MapDecoder<'a> {
                 return Err(DecodeError::Order);
             }
             let key = key_of(code).ok_or(DecodeError::Range)?;
-            map.insert_voxel(rebuild(key, &q)?).map_err(|e| match e {
+            map.accept(rebuild(key, &q)?).map_err(|e| match e {
                 InsertError::DuplicateKey => DecodeError::Order,
                 _ => DecodeError::Full,
             })?;

@@ -21,7 +21,7 @@
 use super::codec::{self, CodecModel, DecodeError, EncodeError, MapDecoder, MapEncoder};
 use super::crc::{crc32, Crc32};
 use crate::classes::CLASS_TABLE_VERSION;
-use crate::map::{LocalMap, VoxelStorage};
+use crate::map::{LocalMap, VoxelSink, VoxelStorage};
 use serde::{Deserialize, Serialize};
 
 /// File magic.
@@ -310,8 +310,9 @@ pub fn parse(bytes: &[u8]) -> Result<MapFile<'_>, MapFileError> {
 
 impl MapFile<'_> {
     /// Decodes the voxels into `map` (cleared first; its resolution must be
-    /// the file's and its capacity at least the voxel count).
-    pub fn decode_into<S: VoxelStorage>(&self, map: &mut LocalMap<S>) -> Result<(), MapFileError> {
+    /// the file's and its capacity at least the voxel count): a
+    /// [`LocalMap`], or a [`crate::map::SceneMap`] to match it as a scene.
+    pub fn decode_into<K: VoxelSink + ?Sized>(&self, map: &mut K) -> Result<(), MapFileError> {
         let r = self.header.resolution;
         if (map.resolution() - r).abs() > 1e-6 * r {
             return Err(MapFileError::Resolution);
@@ -340,9 +341,9 @@ impl MapFile<'_> {
 
 /// Decodes a map file's bytes into `map` (cleared first; its resolution must
 /// be the file's); returns the header.
-pub fn read_into<'a, S: VoxelStorage>(
+pub fn read_into<'a, K: VoxelSink + ?Sized>(
     bytes: &'a [u8],
-    map: &mut LocalMap<S>,
+    map: &mut K,
 ) -> Result<MapFileHeader<&'a str>, MapFileError> {
     let file = parse(bytes)?;
     file.decode_into(map)?;

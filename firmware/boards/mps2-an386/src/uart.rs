@@ -273,4 +273,3 @@ pub unsafe fn unmask_rx(base: usize) {
         unsafe { cortex_m::peripheral::NVIC::unmask(Line(n)) };
     }
 }
-

@@ -1,16 +1,16 @@
 //! The benchmark: reads two map files through semihosting (bench-a.cmap,
 //! the model, and bench-b.cmap, the scene, from QEMU's working directory),
-//! matches them on board within the 1 MiB budget and prints the
+//! matches them on board (the scene kept as a robot keeps a received map) and prints the
 //! instructions the preparation and the match took (bench.sh).
 #![no_std]
 #![no_main]
 
 use core::ptr::addr_of_mut;
 use cortex_m_rt::entry;
-use cosem_core::map::{LocalMap, MapConfig};
-use cosem_core::matching::{MatchSettings, Matcher, Pyramid, Role};
+use cosem_core::map::{LocalMap, MapConfig, SceneMap, ScenePoint, VoxelSink};
+use cosem_core::matching::{MatchSettings, Matcher, Pyramid};
 // A robot's capacities: the bench matches what a robot can hold.
-use cosem_core::robot::{MapStorage, ModelStorage, SceneStorage, FOOTPRINT_CELL, LEVELS};
+use cosem_core::robot::{MapStorage, ModelStorage, ReceivedStorage, SceneStorage, FOOTPRINT_CELL, LEVELS, VOXELS};
 use cosem_core::wire::mapfile;
 use cosem_mps2_an386::hostfs::read_file;
 use cosem_mps2_an386::{exit, peak_stack, say, start_clock, ticks, INSTRUCTIONS_PER_TICK};
@@ -19,7 +19,7 @@ const FILE_BYTES: usize = 32 * 1024;
 
 static mut FILE: [u8; FILE_BYTES] = [0; FILE_BYTES];
 static mut MAP_A: MapStorage = MapStorage::new();
-static mut MAP_B: MapStorage = MapStorage::new();
+static mut MAP_B: ReceivedStorage = [ScenePoint::EMPTY; VOXELS];
 static mut PYR_A: ModelStorage = ModelStorage::new();
 static mut PYR_B: SceneStorage = SceneStorage::new();
 
@@ -41,8 +41,13 @@ fn run() -> bool {
         )
     };
     let config = MapConfig::with_resolution(0.5);
-    let (Ok(mut ma), Ok(mut mb)) = (LocalMap::new(a, config), LocalMap::new(b, config)) else { return false };
-    for (name, map) in [(&b"bench-a.cmap\0"[..], &mut ma), (&b"bench-b.cmap\0"[..], &mut mb)] {
+    // The scene as a robot holds a received map.
+    let (Ok(mut ma), Ok(mut mb)) = (LocalMap::new(a, config), SceneMap::new(&mut b[..], config.resolution)) else {
+        return false;
+    };
+    let sinks: [(&[u8], &mut dyn VoxelSink); 2] =
+        [(&b"bench-a.cmap\0"[..], &mut ma), (&b"bench-b.cmap\0"[..], &mut mb)];
+    for (name, map) in sinks {
         let Some(bytes) = read_file(name, file) else {
             say!("bench error=cannot read a map file");
             return false;
@@ -55,7 +60,7 @@ fn run() -> bool {
     let t0 = ticks();
     let (pya, pyb) = match (
         Pyramid::build(&ma, LEVELS, FOOTPRINT_CELL, pa),
-        Pyramid::build_as(&mb, LEVELS, FOOTPRINT_CELL, Role::Scene, pb),
+        Pyramid::build_scene(&mb, LEVELS, FOOTPRINT_CELL, pb),
     ) {
         (Ok(a), Ok(b)) => (a, b),
         (Err(e), _) | (_, Err(e)) => {

@@ -13,15 +13,15 @@
 use core::ptr::addr_of_mut;
 use cortex_m_rt::{entry, exception};
 use cosem_core::link::LinkBuffers;
-use cosem_core::map::LocalMap;
+use cosem_core::map::{LocalMap, SceneMap, ScenePoint};
 use cosem_core::robot::team::TeamRobot;
-use cosem_core::robot::{map_config, MapStorage, ModelStorage, RobotConfig, SceneStorage, VOXELS};
+use cosem_core::robot::{map_config, MapStorage, ModelStorage, ReceivedStorage, RobotConfig, SceneStorage, VOXELS};
 use cosem_mps2_an386::serial::{IrqReceiver, RingSerial, RX_RING};
 use cosem_mps2_an386::uart::{unmask_rx, Uart, UartRx, UART0, UART1, UART2, UART3, UART4};
 use cosem_mps2_an386::{exit, millis, start_clock, Board, CLOCK_HZ};
 
 static mut OWN: MapStorage = MapStorage::new();
-static mut RECEIVED: MapStorage = MapStorage::new();
+static mut RECEIVED: ReceivedStorage = [ScenePoint::EMPTY; VOXELS];
 static mut MODEL: ModelStorage = ModelStorage::new();
 static mut SCENE: SceneStorage = SceneStorage::new();
 static mut SCRATCH: [u32; VOXELS] = [0; VOXELS];
@@ -85,8 +85,7 @@ fn main() -> ! {
         )
     };
     // The set-up names the voxel size; until then the maps wait empty.
-    let (Ok(mut own), Ok(mut received)) =
-        (LocalMap::new(own, map_config(0.5)), LocalMap::new(received, map_config(0.5)))
+    let (Ok(mut own), Ok(mut received)) = (LocalMap::new(own, map_config(0.5)), SceneMap::new(&mut received[..], 0.5))
     else {
         exit(false)
     };

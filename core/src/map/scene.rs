@@ -1,0 +1,209 @@
+//! A received map kept only as what matching it as a scene reads.
+//!
+//! A robot matches the map it receives as the scene: the matcher walks the
+//! scene's entries in order and never looks a scene cell up, reads no
+//! occupancy, hit count or full label distribution, and fits no scene
+//! normal. So a received map need not be a [`LocalMap`] (24 bytes per voxel
+//! and two index slots): a [`SceneMap`] keeps 14 bytes per voxel (cell,
+//! mean, class, confidence), filled straight from the wire decoder through
+//! [`VoxelSink`], in the order the voxels arrive. The pyramid built on it
+//! ([`crate::matching::Pyramid::build_scene`]) gives the matcher exactly
+//! the entries a [`LocalMap`] holding the same voxels would.
+
+use super::local_map::{ConfigError, InsertError, MapConfig};
+use super::voxel::dequantise_fraction;
+use super::{LocalMap, SemanticVoxel, VoxelKey, VoxelStorage};
+use crate::classes::NUM_CLASSES;
+
+/// Where decoded voxels go: a [`LocalMap`], or a [`SceneMap`] for a map
+/// that will only be matched as a scene.
+pub trait VoxelSink {
+    /// Voxels held.
+    fn len(&self) -> usize;
+    /// Whether no voxel is held.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Most voxels it can hold.
+    fn capacity(&self) -> usize;
+    /// Voxel size (m).
+    fn resolution(&self) -> f32;
+    /// Forgets every voxel (keeps the configuration).
+    fn clear(&mut self);
+    /// Forgets every voxel and takes `config` (a [`SceneMap`] keeps only
+    /// its resolution).
+    fn configure(&mut self, config: MapConfig) -> Result<(), ConfigError>;
+    /// Takes one voxel; [`InsertError::DuplicateKey`] when its cell is held
+    /// already (a sink that cannot tell, [`SceneMap`], takes voxels in
+    /// strictly increasing order from a decoder that checks the order),
+    /// [`InsertError::Full`] when there is no room.
+    fn accept(&mut self, voxel: SemanticVoxel) -> Result<(), InsertError>;
+}
+
+impl<S: VoxelStorage> VoxelSink for LocalMap<S> {
+    fn len(&self) -> usize {
+        LocalMap::len(self)
+    }
+    fn capacity(&self) -> usize {
+        LocalMap::capacity(self)
+    }
+    fn resolution(&self) -> f32 {
+        LocalMap::resolution(self)
+    }
+    fn clear(&mut self) {
+        LocalMap::clear(self)
+    }
+    fn configure(&mut self, config: MapConfig) -> Result<(), ConfigError> {
+        self.reset(config)
+    }
+    fn accept(&mut self, voxel: SemanticVoxel) -> Result<(), InsertError> {
+        self.insert_voxel(voxel)
+    }
+}
+
+/// A sink may be borrowed.
+impl<T: VoxelSink + ?Sized> VoxelSink for &mut T {
+    fn len(&self) -> usize {
+        (**self).len()
+    }
+    fn capacity(&self) -> usize {
+        (**self).capacity()
+    }
+    fn resolution(&self) -> f32 {
+        (**self).resolution()
+    }
+    fn clear(&mut self) {
+        (**self).clear()
+    }
+    fn configure(&mut self, config: MapConfig) -> Result<(), ConfigError> {
+        (**self).configure(config)
+    }
+    fn accept(&mut self, voxel: SemanticVoxel) -> Result<(), InsertError> {
+        (**self).accept(voxel)
+    }
+}
+
+/// One voxel of a [`SceneMap`]: 14 bytes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ScenePoint {
+    /// The cell.
+    pub key: VoxelKey,
+    mean: [u16; 3],
+    class: u8,
+    confidence: u8,
+}
+
+impl ScenePoint {
+    /// All zero (a `static` of them lands in `.bss`).
+    pub const EMPTY: ScenePoint = ScenePoint { key: VoxelKey::new(0, 0, 0), mean: [0; 3], class: 0, confidence: 0 };
+
+    /// What a scene keeps of `v`: its cell and mean, its most probable
+    /// class (`u8::MAX` without one) and that class's probability in 1/255
+    /// (a uniform one without a class), as a pyramid's level 0 derives them.
+    pub fn of(v: &SemanticVoxel) -> Self {
+        let class = v.class();
+        let p = class.map(|c| v.labels.probability(c)).unwrap_or(1.0 / NUM_CLASSES as f32);
+        ScenePoint {
+            key: v.key,
+            mean: v.mean_raw(),
+            class: class.map(|c| c.index()).unwrap_or(u8::MAX),
+            confidence: (p * 255.0 + 0.5) as u8,
+        }
+    }
+
+    /// Mean position (m, map frame), as [`SemanticVoxel::position`].
+    #[inline]
+    pub fn position(&self, resolution: f32) -> [f32; 3] {
+        let c = self.key.corner(resolution);
+        let f = self.mean.map(dequantise_fraction);
+        [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
+    }
+
+    /// Class index (0..19; `u8::MAX` without one).
+    pub fn class(&self) -> u8 {
+        self.class
+    }
+
+    /// Probability of the class, in 1/255.
+    pub fn confidence(&self) -> u8 {
+        self.confidence
+    }
+}
+
+/// A received map as a scene: [`ScenePoint`]s in arrival order, in a
+/// buffer the caller provides (an array, a slice, a vector): its length is
+/// the capacity.
+pub struct SceneMap<S> {
+    points: S,
+    len: usize,
+    resolution: f32,
+}
+
+impl<S: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> SceneMap<S> {
+    /// An empty scene of voxels of `resolution` metres (a positive finite
+    /// number in [1 mm, 1 km], as a map's).
+    pub fn new(points: S, resolution: f32) -> Result<Self, ConfigError> {
+        let mut scene = SceneMap { points, len: 0, resolution: 1.0 };
+        scene.reset(resolution)?;
+        Ok(scene)
+    }
+
+    /// Empties the scene and sets its voxel size.
+    pub fn reset(&mut self, resolution: f32) -> Result<(), ConfigError> {
+        if !(resolution.is_finite() && (1e-3..=1e3).contains(&resolution)) {
+            return Err(ConfigError::Resolution);
+        }
+        self.len = 0;
+        self.resolution = resolution;
+        Ok(())
+    }
+
+    /// Voxel size (m).
+    pub fn resolution(&self) -> f32 {
+        self.resolution
+    }
+
+    /// The points held, in arrival order.
+    pub fn points(&self) -> &[ScenePoint] {
+        self.points.as_ref().get(..self.len).unwrap_or(&[])
+    }
+
+    /// The axis-aligned bounds of the held cells (m), as
+    /// [`LocalMap::bounds`].
+    pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
+        let first = self.points().first()?.key;
+        let (mut lo, mut hi) = (first, first);
+        for p in self.points() {
+            let k = p.key;
+            lo = VoxelKey::new(lo.x.min(k.x), lo.y.min(k.y), lo.z.min(k.z));
+            hi = VoxelKey::new(hi.x.max(k.x), hi.y.max(k.y), hi.z.max(k.z));
+        }
+        let r = self.resolution;
+        let top = hi.corner(r);
+        Some((lo.corner(r), [top[0] + r, top[1] + r, top[2] + r]))
+    }
+}
+
+impl<S: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> VoxelSink for SceneMap<S> {
+    fn len(&self) -> usize {
+        self.len
+    }
+    fn capacity(&self) -> usize {
+        self.points.as_ref().len()
+    }
+    fn resolution(&self) -> f32 {
+        self.resolution
+    }
+    fn clear(&mut self) {
+        self.len = 0;
+    }
+    fn configure(&mut self, config: MapConfig) -> Result<(), ConfigError> {
+        self.reset(config.resolution)
+    }
+    fn accept(&mut self, voxel: SemanticVoxel) -> Result<(), InsertError> {
+        let slot = self.points.as_mut().get_mut(self.len).ok_or(InsertError::Full)?;
+        *slot = ScenePoint::of(&voxel);
+        self.len += 1;
+        Ok(())
+    }
+}
