@@ -12,8 +12,13 @@
 //! from the maps alone ([`align`]), and reports a
 //! [`RobotReport`] over its feed line (or where and why it stopped).
 //!
-//! Every buffer belongs to the caller: two maps, a scratch of one `u32` per
-//! voxel (the link's Morton order) and two pyramid storages. The capacities a robot's firmware uses are the
+//! Every buffer belongs to the caller: its own map, what it receives the
+//! peer's map into (a [`SceneMap`](crate::map::SceneMap) on a board: only
+//! what matching it as a scene reads), a scratch of one `u32` per voxel
+//! (the link's Morton order), the link's buffers and two pyramid storages.
+//! In this pair robot the link's memory and the pyramids' are never used at once: the link's
+//! endpoint is dropped before preparing starts, so a board may overlay
+//! them. The capacities a robot's firmware uses are the
 //! constants below.
 
 use crate::geometry::{from_rows, Isometry3};
@@ -170,6 +175,12 @@ pub trait Meter {
     }
     /// Peak stack use so far (bytes).
     fn peak_stack(&self) -> u32 {
+        0
+    }
+    /// Bytes taken off the link line so far (any origin; wrapping): a
+    /// board counts what its receive interrupt put into its rings, which
+    /// goes on while the robot prepares and matches.
+    fn link_bytes(&self) -> u32 {
         0
     }
 }
@@ -548,9 +559,11 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         let (model, scene) = self.pyramids.take().ok_or(RobotError::Finished)?;
         let prior = setup.prior.as_ref().map(from_rows);
         let mut marks = [0u64; 4];
+        let mut line = [0u32; 4];
         let (result, located) = align(own, received, prior.as_ref(), model, scene, |k| {
-            if let Some(m) = marks.get_mut(usize::from(k)) {
+            if let (Some(m), Some(b)) = (marks.get_mut(usize::from(k)), line.get_mut(usize::from(k))) {
                 *m = meter.instructions();
+                *b = meter.link_bytes();
             }
         })
         .map_err(RobotError::Align)?;
@@ -570,6 +583,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
             match_instructions: marks[3].saturating_sub(marks[2]),
             global: located.as_ref().map(GlobalReport::from),
             peak_stack: meter.peak_stack(),
+            link_bytes_while_matching: line[3].wrapping_sub(line[0]),
         };
         Ok((report, estimate))
     }

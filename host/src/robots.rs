@@ -667,6 +667,10 @@ pub struct ReportJson {
     pub overlap: f32,
     /// Peak stack (bytes).
     pub peak_stack_bytes: u32,
+    /// Bytes that came in on the link line while the robot prepared and
+    /// matched, taken by its receive interrupt (0 for a robot that does
+    /// not match).
+    pub link_bytes_while_matching: u32,
     /// QEMU's exit code.
     pub exit_code: Option<i32>,
     /// Instructions of the prior-free alignment.
@@ -768,6 +772,7 @@ fn robot_json(i: usize, run: &RobotRun, truth: &Isometry3<f64>) -> RobotJson {
         inliers: rep.result.inliers,
         overlap: rep.result.overlap,
         peak_stack_bytes: rep.peak_stack,
+        link_bytes_while_matching: rep.link_bytes_while_matching,
         exit_code: run.exit_code,
         locate_instructions: rep.locate_instructions,
         global: rep.global.map(Into::into),
@@ -836,11 +841,13 @@ impl std::fmt::Display for ReportJson {
         let m = |v: u64| v as f64 / 1e6;
         writeln!(
             f,
-            "  instructions: mapping {:.1} M, preparation {:.1} M, match {:.1} M; peak stack {} B; exit {:?}",
+            "  instructions: mapping {:.1} M, preparation {:.1} M, match {:.1} M; peak stack {} B; \
+             {} B came in on the link while matching; exit {:?}",
             m(self.map_instructions),
             m(self.prepare_instructions),
             m(self.match_instructions),
             self.peak_stack_bytes,
+            self.link_bytes_while_matching,
             self.exit_code
         )
     }

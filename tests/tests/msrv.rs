@@ -11,12 +11,24 @@ fn version(v: &str) -> (u64, u64, u64) {
     (n.next().unwrap_or(0), n.next().unwrap_or(0), n.next().unwrap_or(0))
 }
 
-/// Every package of a lock file with the rust-version it declares, and the
-/// root package's own.
+/// The host's target triple (what `rustc -vV` says).
+fn host_triple() -> String {
+    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+    let out = Command::new(rustc).arg("-vV").output().expect("run rustc -vV");
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    text.lines().find_map(|l| l.strip_prefix("host: ")).expect("rustc -vV names the host").trim().to_string()
+}
+
+/// Every package of a lock file that builds for the host or the firmware's
+/// target, with the rust-version it declares, and the root package's own.
+/// (Only those: on a fresh machine the registry holds no crate of another
+/// platform, such as a Windows console crate, and the test is offline.)
 fn declared(dir: &Path) -> Vec<(String, String)> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let host = host_triple();
     let out = Command::new(cargo)
         .args(["metadata", "--format-version", "1", "--locked", "--offline"])
+        .args(["--filter-platform", &host, "--filter-platform", "thumbv7em-none-eabihf"])
         .current_dir(dir)
         .output()
         .expect("run cargo metadata");

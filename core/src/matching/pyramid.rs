@@ -11,6 +11,12 @@
 //! neighbourhood at its own level. The matcher reads every level through
 //! [`Level`], which decodes entries into the plain [`Entry`] form.
 //!
+//! A scene ([`Role::Scene`]) is read less: the matcher walks its entries
+//! and never looks its cells up nor reads its normals, so a scene's pyramid
+//! fits no normals and indexes no coarse level, and its level 0 may be a
+//! [`SceneMap`] (a received map kept as 14 bytes per voxel,
+//! [`Pyramid::build_scene`]) instead of a map.
+//!
 //! Building a pyramid is the one-off per-map preparation; matching only reads
 //! it. Nothing allocates: the extras, coarse entries, index slots and
 //! footprint words live in a [`PyramidStorage`] the caller provides. A map's

@@ -153,6 +153,7 @@ impl<'a, M: VoxelStorage> SenderRobot<'a, M> {
                             match_instructions: 0,
                             global: None,
                             peak_stack: meter.peak_stack(),
+                            link_bytes_while_matching: 0,
                         }))
                     }
                 }

@@ -305,9 +305,11 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         meter: &T,
     ) -> Result<RobotReport, RobotError> {
         let mut marks = [0u64; 4];
+        let mut line = [0u32; 4];
         let (result, located) = align(own, received, None, &mut self.model, &mut self.scene, |k| {
-            if let Some(m) = marks.get_mut(usize::from(k)) {
+            if let (Some(m), Some(b)) = (marks.get_mut(usize::from(k)), line.get_mut(usize::from(k))) {
                 *m = meter.instructions();
+                *b = meter.link_bytes();
             }
         })
         .map_err(RobotError::Align)?;
@@ -322,6 +324,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         report.locate_instructions = marks[2].saturating_sub(marks[1]);
         report.match_instructions = marks[3].saturating_sub(marks[2]);
         report.global = located.as_ref().map(crate::wire::feed::GlobalReport::from);
+        report.link_bytes_while_matching = line[3].wrapping_sub(line[0]);
         Ok(report)
     }
 
@@ -368,6 +371,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
             match_instructions: 0,
             global: None,
             peak_stack: meter.peak_stack(),
+            link_bytes_while_matching: 0,
         }
     }
 

@@ -20,7 +20,7 @@ use crate::classes::{Class, NUM_CLASSES};
 use serde::{Deserialize, Serialize};
 
 /// Version byte of the feed protocol.
-pub const FEED_VERSION: u8 = 3;
+pub const FEED_VERSION: u8 = 4;
 /// Bytes of one fed point: x, y, z in centimetres (i16, little endian) and
 /// the class index.
 pub const POINT_BYTES: usize = 7;
@@ -119,6 +119,11 @@ pub struct RobotReport {
     pub global: Option<GlobalReport>,
     /// Peak stack (bytes).
     pub peak_stack: u32,
+    /// Bytes that came in on the link lines while the robot prepared and
+    /// matched (a board's receive interrupt took them into its rings; a
+    /// UART without would have overrun): a team's next peer, or a peer
+    /// resending its last frames.
+    pub link_bytes_while_matching: u32,
 }
 
 /// Where a robot failed.
@@ -398,6 +403,7 @@ pub const GOLDEN_REPORT: RobotReport = RobotReport {
     match_instructions: 149_000_000,
     global: Some(GlobalReport { score: 138, runner_up: 83, refined: 2, chosen: 1, evaluations: 51_032 }),
     peak_stack: 49_200,
+    link_bytes_while_matching: 1_234,
 };
 
 /// Every feed message with its exact bytes: the feed format, frozen.
@@ -410,19 +416,19 @@ pub const GOLDEN_FEED: [(FeedMessage<'static>, &[u8]); 4] = [
             silence_ms: 30_000,
         }),
         &[
-            3, 0, 1, 0, 0, 0, 63, 1, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0,
+            4, 0, 1, 0, 0, 0, 63, 1, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0,
             0, 0, 0, 0, 0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 176, 234, 1,
         ],
     ),
     (
         FeedMessage::Setup(Setup { robot_id: 0, resolution: 0.5, prior: None, silence_ms: 30_000 }),
-        &[3, 0, 0, 0, 0, 0, 63, 0, 176, 234, 1],
+        &[4, 0, 0, 0, 0, 0, 63, 0, 176, 234, 1],
     ),
     (
         FeedMessage::Points { scan: 3, data: &[100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8] },
-        &[3, 1, 3, 14, 100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8],
+        &[4, 1, 3, 14, 100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8],
     ),
-    (FeedMessage::EndOfFeed { scans: 5, points: 26_309 }, &[3, 2, 5, 197, 205, 1]),
+    (FeedMessage::EndOfFeed { scans: 5, points: 26_309 }, &[4, 2, 5, 197, 205, 1]),
 ];
 
 /// Every robot message with its exact bytes.
@@ -430,15 +436,15 @@ pub const GOLDEN_ROBOT: [(RobotMessage<'static>, &[u8]); 2] = [
     (
         RobotMessage::Report(GOLDEN_REPORT),
         &[
-            3, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0,
+            4, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0,
             0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 17, 210, 9, 0, 0, 64, 63, 0, 0, 0, 62, 197,
             205, 1, 197, 58, 220, 55, 202, 207, 1, 164, 199, 1, 2, 169, 18, 128, 236, 184, 11, 192, 175, 213, 140, 1,
-            128, 252, 164, 2, 192, 158, 134, 71, 1, 138, 1, 83, 2, 1, 216, 142, 3, 176, 128, 3,
+            128, 252, 164, 2, 192, 158, 134, 71, 1, 138, 1, 83, 2, 1, 216, 142, 3, 176, 128, 3, 210, 9,
         ],
     ),
     (
         RobotMessage::Failed { stage: Stage::Link, message: "peer silent" },
-        &[3, 1, 2, 11, 112, 101, 101, 114, 32, 115, 105, 108, 101, 110, 116],
+        &[4, 1, 2, 11, 112, 101, 101, 114, 32, 115, 105, 108, 101, 110, 116],
     ),
 ];
 

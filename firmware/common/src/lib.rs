@@ -10,7 +10,8 @@
 //! - [`serial`]: receive rings that interrupt handlers fill, and the one
 //!   adapter from `embedded-hal-nb` serial to the `embedded-io` traits of
 //!   the core's link;
-//! - [`hostfs`]: semihosting file reads and the command line.
+//! - [`hostfs`]: semihosting file reads and the command line;
+//! - [`turns`]: memory the link and the pyramids take in turns.
 #![no_std]
 
 use core::sync::atomic::{AtomicU32, Ordering};
@@ -21,6 +22,7 @@ use cortex_m_semihosting::debug;
 
 pub mod hostfs;
 pub mod serial;
+pub mod turns;
 
 #[cfg(feature = "defmt")]
 use defmt_semihosting as _;

@@ -100,6 +100,11 @@ impl<const N: usize> RxRing<N> {
         n
     }
 
+    /// Bytes the ring ever took (wrapping).
+    pub fn pushed(&self) -> u32 {
+        self.head.load(Ordering::Acquire)
+    }
+
     /// Bytes lost because the ring was full.
     pub fn dropped(&self) -> u32 {
         self.dropped.load(Ordering::Relaxed)

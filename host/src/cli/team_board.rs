@@ -44,6 +44,9 @@ struct BoardJson {
     match_instructions: u64,
     solve_instructions: u64,
     peak_stack_bytes: u32,
+    /// Over all its matches: bytes its peers sent that came in (taken by
+    /// its receive interrupts into the rings) while it prepared and matched.
+    link_bytes_while_matching: u32,
     link_ms_onboard: u32,
     share_ms_onboard: u32,
     /// Largest translation difference (m) from the host's run of this robot.
@@ -197,6 +200,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
                 match_instructions: sum(|m| m.match_instructions),
                 solve_instructions: r.end.map_or(0, |e| e.solve_instructions),
                 peak_stack_bytes: r.end.map_or(0, |e| e.peak_stack),
+                link_bytes_while_matching: r.matched.iter().map(|m| m.1.link_bytes_while_matching).sum(),
                 link_ms_onboard: r.matched.iter().map(|m| m.1.link_ms).sum(),
                 share_ms_onboard: r.end.map_or(0, |e| e.share_ms),
                 difference_to_host_m: to_host.map(|d| d.0),
@@ -263,7 +267,7 @@ fn print_text(out: &TeamBoardJson) {
         match &b.error {
             Some(e) => println!("board {}: stopped at {}: {}; exit {:?}", b.index, e["stage"], e["message"], b.exit_code),
             None => println!(
-                "board {}: map {:.1} M, prepare {:.1} M, locate {:.1} M, match {:.1} M, consistency and pose graph {:.1} M instructions; peak stack {} B; {} robots heard; differs from the host by {} m; exit {:?}",
+                "board {}: map {:.1} M, prepare {:.1} M, locate {:.1} M, match {:.1} M, consistency and pose graph {:.1} M instructions; peak stack {} B; {} B came in while matching; {} robots heard; differs from the host by {} m; exit {:?}",
                 b.index,
                 mi(b.map_instructions),
                 mi(b.prepare_instructions),
@@ -271,6 +275,7 @@ fn print_text(out: &TeamBoardJson) {
                 mi(b.match_instructions),
                 mi(b.solve_instructions),
                 b.peak_stack_bytes,
+                b.link_bytes_while_matching,
                 b.heard.len(),
                 b.difference_to_host_m.map_or("?".into(), |d| format!("{d:.1e}")),
                 b.exit_code

@@ -47,9 +47,13 @@ pub fn millis() -> u64 {
     millis_at(CLOCK_HZ)
 }
 
-/// This board's measures for a robot: SysTick instructions and the painted
-/// stack.
-pub struct Board;
+/// This board's measures for a robot: SysTick instructions, the painted
+/// stack, and the bytes its link rings took (the binary that owns them
+/// says how to count them).
+pub struct Board {
+    /// Bytes the link lines' receive interrupts took so far (wrapping).
+    pub link_bytes: fn() -> u32,
+}
 
 impl cosem_core::robot::Meter for Board {
     fn instructions(&self) -> u64 {
@@ -57,5 +61,8 @@ impl cosem_core::robot::Meter for Board {
     }
     fn peak_stack(&self) -> u32 {
         peak_stack()
+    }
+    fn link_bytes(&self) -> u32 {
+        (self.link_bytes)()
     }
 }

@@ -5,10 +5,13 @@
 //! code 0 when the match converged, 1 otherwise (the report or failure says
 //! why). Both UARTs receive by interrupt into rings, so bytes the peer
 //! sends while this robot prepares or matches wait in its ring, not in a
-//! one-byte UART register that a real chip would overrun.
+//! one-byte UART register that a real chip would overrun. The link's
+//! buffers and the pyramids' storage take turns in one static
+//! ([`cosem_mps2_an386::turns`]).
 #![no_std]
 #![no_main]
 
+use core::mem::ManuallyDrop;
 use core::ptr::addr_of_mut;
 use cortex_m_rt::{entry, exception};
 use cosem_core::link::LinkBuffers;
@@ -18,15 +21,34 @@ use cosem_core::robot::{
     map_config, MapStorage, ModelStorage, Poll, ReceivedStorage, Robot, RobotConfig, SceneStorage, VOXELS,
 };
 use cosem_mps2_an386::serial::{IrqReceiver, RingSerial, RX_RING};
+use cosem_mps2_an386::turns::Later;
 use cosem_mps2_an386::uart::{unmask_rx, Uart, UartRx, UART0, UART1};
 use cosem_mps2_an386::{exit, millis, start_clock, Board, CLOCK_HZ};
 
 static mut OWN: MapStorage = MapStorage::new();
 static mut RECEIVED: ReceivedStorage = [ScenePoint::EMPTY; VOXELS];
-static mut MODEL: ModelStorage = ModelStorage::new();
-static mut SCENE: SceneStorage = SceneStorage::new();
-static mut SCRATCH: [u32; VOXELS] = [0; VOXELS];
-static mut LINK: LinkBuffers = LinkBuffers::new();
+
+/// The link's turn: its buffers and the Morton order of the map it sends.
+struct LinkTurn {
+    buffers: LinkBuffers,
+    scratch: [u32; VOXELS],
+}
+
+/// The pyramids' turn.
+struct AlignTurn {
+    model: ModelStorage,
+    scene: SceneStorage,
+}
+
+/// Both turns in one place (the larger sets its size). Zeroed: the link's
+/// buffers are written when the robot starts.
+union Turns {
+    link: ManuallyDrop<LinkTurn>,
+    align: ManuallyDrop<AlignTurn>,
+}
+
+static mut TURNS: Turns =
+    Turns { align: ManuallyDrop::new(AlignTurn { model: ModelStorage::new(), scene: SceneStorage::new() }) };
 static FEED_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 static LINK_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 
@@ -69,14 +91,20 @@ fn main() -> ! {
     let mut feed = RingSerial::new(&FEED_RX, feed_tx, idle);
     let mut link = RingSerial::new(&LINK_RX, link_tx, idle);
     // SAFETY: `main` runs once; each static is borrowed exactly once here.
-    let (own, received, model, scene, scratch, buffers) = unsafe {
+    // The link's turn is borrowed now; the pyramids' is reached only when
+    // the robot prepares, after its link endpoint (and every borrow of the
+    // link's turn) is gone.
+    let (own, received, scratch, buffers, model, scene) = unsafe {
+        let link = addr_of_mut!(TURNS.link).cast::<LinkTurn>();
+        let align = addr_of_mut!(TURNS.align).cast::<AlignTurn>();
+        addr_of_mut!((*link).buffers).write(LinkBuffers::new());
         (
             &mut *addr_of_mut!(OWN),
             &mut *addr_of_mut!(RECEIVED),
-            &mut *addr_of_mut!(MODEL),
-            &mut *addr_of_mut!(SCENE),
-            &mut *addr_of_mut!(SCRATCH),
-            &mut *addr_of_mut!(LINK),
+            &mut *addr_of_mut!((*link).scratch),
+            &mut *addr_of_mut!((*link).buffers),
+            Later::new(addr_of_mut!((*align).model)),
+            Later::new(addr_of_mut!((*align).scene)),
         )
     };
     // The set-up names the voxel size; until then the maps wait empty.
@@ -85,8 +113,9 @@ fn main() -> ! {
         exit(false)
     };
     let mut robot = Robot::new(RobotConfig::default(), &mut own, &mut received, scratch, buffers, model, scene);
+    let board = Board { link_bytes: || LINK_RX.ring().pushed() };
     loop {
-        match robot.poll(&mut feed, &mut link, millis(), &Board) {
+        match robot.poll(&mut feed, &mut link, millis(), &board) {
             Ok(Poll::Busy) => {
                 // Nothing received: sleep until a byte or the clock's
                 // wrap (a guest that spins on memory alone starves QEMU's

@@ -90,8 +90,10 @@ fn main() -> ! {
         exit(false)
     };
     let mut robot = TeamRobot::new(RobotConfig::default(), &mut own, &mut received, scratch, buffers, model, scene);
+    // The peers' rings (all but the feeder's).
+    let board = Board { link_bytes: || RX.iter().skip(1).fold(0u32, |n, rx| n.wrapping_add(rx.ring().pushed())) };
     loop {
-        match robot.poll(&mut feed, &mut peers, millis(), &Board) {
+        match robot.poll(&mut feed, &mut peers, millis(), &board) {
             Ok(false) => {
                 // Nothing received: sleep until a byte or the clock's wrap
                 // (a guest spinning on memory starves QEMU's I/O thread; a
