@@ -51,10 +51,14 @@ pub const SMALL_VOXELS: usize = 4681;
 /// Coarse pyramid entries per map (0.5 m maps with [`LEVELS`] levels take
 /// about 0.42 per voxel).
 pub const COARSE: usize = 3840;
-/// Footprint words of the model's pyramid (pooled grids: 2 m cells over
-/// about 50 m x 50 m).
-pub const MODEL_WORDS: usize = 20_480;
-/// Footprint words of the scene's pyramid (occupied cells only).
+/// Footprint words of the model's pyramid: one per voxel (level 0's sweep
+/// order while normals are fitted), then the pooled grids (six of one-byte
+/// cells: two words per cell) and the occupied cells: 1 m cells over up to
+/// about 58 m x 58 m (3,350 cells), coarser beyond.
+pub const MODEL_WORDS: usize = 9216;
+/// Footprint words of the scene's pyramid: the coarse merge's hash table
+/// (two per entry of a level) while its levels are built, then its grid,
+/// its 2 x 2 pooling and its occupied cells.
 pub const SCENE_WORDS: usize = 8192;
 /// Pyramid levels (0.5 m maps: cells of 0.5, 1 and 2 m).
 pub const LEVELS: usize = 3;

@@ -1,7 +1,10 @@
 //! A map's semantic footprint: a bird's-eye grid where each cell holds the
-//! set of classes seen in its column (a 19-bit mask), with max-pooled copies
-//! for branch and bound, and the list of occupied cells for when the map is
-//! the scene. Both anchor frames are level (z against gravity), so a column
+//! set of class groups seen in its column (a 5-bit mask, one byte), with
+//! max-pooled copies for branch and bound, and the list of occupied cells
+//! for when the map is the scene. A storage word holds one cell of four
+//! grids (a plane of four grids: byte `h % 4` of plane `h / 4` is grid
+//! `h`), so a search over one grid reads a word and shifts it by a fixed
+//! amount. Both anchor frames are level (z against gravity), so a column
 //! mask is a rotation-invariant description of what stands there.
 
 use super::pyramid::Level;
@@ -39,10 +42,42 @@ pub(crate) struct FootprintInfo {
     pub grids: usize,
 }
 
+/// Storage words that `grids` grids of `cells` cells take: a plane of
+/// `cells` words per four grids.
+pub(crate) const fn packed(grids: usize, cells: usize) -> usize {
+    grids.div_ceil(4) * cells
+}
+
+/// Where grid `h`'s cell `c` is: its word and the byte's shift.
+#[inline(always)]
+fn place(h: usize, cells: usize, c: usize) -> (usize, u32) {
+    ((h / 4) * cells + c, ((h % 4) * 8) as u32)
+}
+
+/// Grid `h`'s cell `c` (0 beyond the words).
+#[inline(always)]
+fn cell_byte(words: &[u32], h: usize, cells: usize, c: usize) -> u32 {
+    let (at, shift) = place(h, cells, c);
+    words.get(at).map_or(0, |w| (w >> shift) & 0xFF)
+}
+
+/// Sets grid `h`'s cell `c`.
+fn set_cell_byte(words: &mut [u32], h: usize, cells: usize, c: usize, v: u32) {
+    let (at, shift) = place(h, cells, c);
+    if let Some(w) = words.get_mut(at) {
+        *w = (*w & !(0xFF << shift)) | ((v & 0xFF) << shift);
+    }
+}
+
 impl FootprintInfo {
-    /// u32 words the grids and list take.
+    /// u32 words the grids (packed) and the list take.
     pub fn words(&self) -> usize {
-        self.grids * self.width * self.height + 3 * self.occupied
+        self.list_start() + 3 * self.occupied
+    }
+
+    /// Where the occupied cells' list starts (words).
+    fn list_start(&self) -> usize {
+        packed(self.grids, self.width * self.height)
     }
 }
 
@@ -83,7 +118,7 @@ impl<'a> Footprint<'a> {
         if iu >= w || ju >= ht {
             return 0;
         }
-        self.words.get(h * w * ht + ju * w + iu).copied().unwrap_or(0)
+        cell_byte(self.words, h, w * ht, ju * w + iu)
     }
 
     /// Pooled grid `h` (windows of `2^h` cells), for many lookups.
@@ -93,8 +128,9 @@ impl<'a> Footprint<'a> {
             return None;
         }
         let (w, ht) = (self.info.width, self.info.height);
-        let words = self.words.get(h * w * ht..(h + 1) * w * ht)?;
-        Some(Grid { words, width: w as i32, height: ht as i32, span: 1 << h })
+        let (start, shift) = place(h, w * ht, 0);
+        let words = self.words.get(start..start + w * ht)?;
+        Some(Grid { words, shift, width: w as i32, height: ht as i32, span: 1 << h })
     }
 
     /// Cell index (i, j) of a point, unclamped.
@@ -106,7 +142,7 @@ impl<'a> Footprint<'a> {
 
     /// Occupied cells: (centre x, centre y, mean z, mask).
     pub fn occupied(&self) -> impl Iterator<Item = ([f32; 3], u32)> + 'a {
-        let base = self.info.grids * self.info.width * self.info.height;
+        let base = self.info.list_start();
         let list = self.words.get(base..base + 3 * self.info.occupied).unwrap_or(&[]);
         list.chunks_exact(3).map(|c| ([f32::from_bits(c[0]), f32::from_bits(c[1]), 0.0], c[2]))
     }
@@ -126,18 +162,21 @@ impl<'a> Footprint<'a> {
 /// lookup, for the search's inner loop.
 #[derive(Clone, Copy)]
 pub struct Grid<'a> {
+    /// The plane holding this grid, row-major.
     words: &'a [u32],
+    /// This grid's byte in each word (bits).
+    shift: u32,
     width: i32,
     height: i32,
     span: i32,
 }
 
 impl Grid<'_> {
-    /// Words (row-major), width, height and window span, for loops that
-    /// inline [`Grid::mask`].
+    /// The plane (row-major), this grid's shift in it, width, height and
+    /// window span, for loops that inline [`Grid::mask`].
     #[inline]
-    pub(crate) fn parts(&self) -> (&[u32], i32, i32, i32) {
-        (self.words, self.width, self.height, self.span)
+    pub(crate) fn parts(&self) -> (&[u32], u32, i32, i32, i32) {
+        (self.words, self.shift, self.width, self.height, self.span)
     }
 
     /// The class mask at cell (i, j); 0 outside. A window that starts below
@@ -149,7 +188,7 @@ impl Grid<'_> {
             return 0;
         }
         let (i, j) = (i.max(0), j.max(0));
-        self.words.get((j * self.width + i) as usize).copied().unwrap_or(0)
+        self.words.get((j * self.width + i) as usize).map_or(0, |w| (w >> self.shift) & 0xFF)
     }
 }
 
@@ -174,7 +213,7 @@ pub(crate) fn build(level: &Level<'_>, cell: f32, pooled: bool, words: &mut [u32
         let grid = width * height;
         // Occupied cells are listed at every other cell on each axis.
         let listed = width.div_ceil(2) * height.div_ceil(2);
-        if grids * grid + 3 * listed.min(level.len()) <= words.len() {
+        if packed(grids, grid) + 3 * listed.min(level.len()) <= words.len() {
             let mut info = FootprintInfo { cell, origin, width, height, occupied: 0, grids };
             fill(level, &mut info, words);
             return Some(info);
@@ -187,15 +226,14 @@ pub(crate) fn build(level: &Level<'_>, cell: f32, pooled: bool, words: &mut [u32
 fn fill(level: &Level<'_>, info: &mut FootprintInfo, words: &mut [u32]) {
     let (w, h) = (info.width, info.height);
     let grid = w * h;
-    words.iter_mut().take(info.grids * grid).for_each(|v| *v = 0);
+    words.iter_mut().take(packed(info.grids, grid)).for_each(|v| *v = 0);
     let inv = 1.0 / info.cell;
     for e in level.iter() {
         let Some(&bit) = GROUP_BITS.get(usize::from(e.class)) else { continue };
         let i = libm::floorf((e.position[0] - info.origin[0]) * inv) as usize;
         let j = libm::floorf((e.position[1] - info.origin[1]) * inv) as usize;
-        if let Some(v) = words.get_mut(j.min(h - 1) * w + i.min(w - 1)) {
-            *v |= bit;
-        }
+        let c = j.min(h - 1) * w + i.min(w - 1);
+        set_cell_byte(words, 0, grid, c, cell_byte(words, 0, grid, c) | bit);
     }
     // Max-pooling: level k ORs the 2x2 block of level k-1 at offset 2^(k-1),
     // so cell (i, j) of level k covers [i, i + 2^k) x [j, j + 2^k).
@@ -205,15 +243,13 @@ fn fill(level: &Level<'_>, info: &mut FootprintInfo, words: &mut [u32]) {
             for i in 0..w {
                 let at = |ii: usize, jj: usize| -> u32 {
                     if ii < w && jj < h {
-                        words.get((k - 1) * grid + jj * w + ii).copied().unwrap_or(0)
+                        cell_byte(words, k - 1, grid, jj * w + ii)
                     } else {
                         0
                     }
                 };
                 let v = at(i, j) | at(i + step, j) | at(i, j + step) | at(i + step, j + step);
-                if let Some(dst) = words.get_mut(k * grid + j * w + i) {
-                    *dst = v;
-                }
+                set_cell_byte(words, k, grid, j * w + i, v);
             }
         }
     }
@@ -222,10 +258,10 @@ fn fill(level: &Level<'_>, info: &mut FootprintInfo, words: &mut [u32]) {
     // than the model's grid, they keep the search fast; the error they add
     // stays within a cell, which EM removes.
     let mut n = 0;
-    let base = info.grids * grid;
+    let base = info.list_start();
     for j in (0..h).step_by(2) {
         for i in (0..w).step_by(2) {
-            let m = words.get(grid + j * w + i).copied().unwrap_or(0);
+            let m = cell_byte(words, 1, grid, j * w + i);
             if m == 0 {
                 continue;
             }

@@ -365,7 +365,7 @@ impl PyramidCapacity {
                 Role::Model => 2 * entries,
                 Role::Scene => 0,
             },
-            words: (grids * cells + 3 * listed).max(scratch),
+            words: (footprint::packed(grids, cells) + 3 * listed).max(scratch),
         }
     }
 

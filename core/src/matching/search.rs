@@ -168,11 +168,11 @@ impl Scorer<'_> {
 /// common class groups counted (bare occupancy unless `semantic`).
 #[inline(never)]
 fn score_points(points: &[(i16, i16, u32)], grid: &Grid<'_>, i0: i32, j0: i32, semantic: bool) -> u32 {
-    let (words, width, height, span) = grid.parts();
+    let (words, shift, width, height, span) = grid.parts();
     if semantic {
-        score_cells::<true>(points, words, (width, height, span), i0, j0)
+        score_cells::<true>(points, words, shift, (width, height, span), i0, j0)
     } else {
-        score_cells::<false>(points, words, (width, height, span), i0, j0)
+        score_cells::<false>(points, words, shift, (width, height, span), i0, j0)
     }
 }
 
@@ -181,6 +181,7 @@ fn score_points(points: &[(i16, i16, u32)], grid: &Grid<'_>, i0: i32, j0: i32, s
 fn score_cells<const SEMANTIC: bool>(
     points: &[(i16, i16, u32)],
     words: &[u32],
+    shift: u32,
     (width, height, span): (i32, i32, i32),
     i0: i32,
     j0: i32,
@@ -195,7 +196,8 @@ fn score_cells<const SEMANTIC: bool>(
             continue;
         }
         let at = ((j + j0).max(0) * width + (i + i0).max(0)) as usize;
-        let Some(&m) = words.get(at) else { continue };
+        let Some(&w) = words.get(at) else { continue };
+        let m = (w >> shift) & 0xFF;
         total += if SEMANTIC { ones(mask & m) } else { u32::from(m != 0) };
     }
     total

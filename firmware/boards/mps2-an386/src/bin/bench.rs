@@ -85,6 +85,12 @@ fn run() -> bool {
     defmt::info!("bench match: {}", r);
     let t = r.transform.translation.vector;
     say!("bench voxels={},{} coarse_entries={},{}", ma.len(), mb.len(), pya.coarse_entries(), pyb.coarse_entries());
+    for (name, fp) in [("model", pya.footprint()), ("scene", pyb.footprint())] {
+        if let Some(fp) = fp {
+            let (w, h) = fp.size();
+            say!("bench {}_footprint cell={} cells={}x{} occupied={}", name, fp.cell(), w, h, fp.occupied_len());
+        }
+    }
     say!(
         "bench status={} iterations={} translation={:.4},{:.4},{:.4} yaw_deg={:.4}",
         r.status.as_str(),
