@@ -119,8 +119,11 @@ impl Feed {
 }
 
 /// Both robots' feeds from one sequence: robot A (id 0) maps `a`, robot B
-/// (id 1) `b`; each scan thinned to one point per `voxel` within `crop` m.
-/// A gets the prior `T_A_B`, B its inverse (none: both without).
+/// (id 1) `b`; each scan thinned to one point per `voxel` within `crop` m,
+/// its labels first corrupted by `noise` (seeded with `seed` plus the
+/// robot's id, as `cosem team` does). A gets the prior `T_A_B`, B its
+/// inverse (none: both without).
+#[allow(clippy::too_many_arguments)]
 pub fn feeds(
     seq: &Sequence,
     ranges: [FrameRange; 2],
@@ -128,12 +131,15 @@ pub fn feeds(
     crop: f32,
     prior_ab: Option<&Isometry3<f64>>,
     silence_ms: u32,
+    noise: crate::noise::LabelNoise,
+    seed: u64,
 ) -> Result<[Feed; 2], Error> {
     let filter = PointFilter::default();
     let priors = [prior_ab.copied(), prior_ab.map(Isometry3::inverse)];
     let mut out = Vec::new();
     for (id, (range, prior)) in ranges.into_iter().zip(priors).enumerate() {
-        let frames = seq.load_range(range)?;
+        let mut frames = seq.load_range(range)?;
+        crate::noise::corrupt_all(&mut frames, noise, seed.wrapping_add(id as u64));
         let scans = frames.iter().map(|f| thin_scan(f, voxel, crop, &filter)).collect();
         let prior = prior.map(|p| rows(&p.cast::<f32>()));
         let setup = Setup { robot_id: id as u8, resolution: voxel, prior, silence_ms };
@@ -721,6 +727,10 @@ pub struct RobotsJson {
     pub line_bytes: [u64; 2],
     /// Wall time of the emulated run (s).
     pub wall_time_s: f64,
+    /// The label noise the fed scans carried, and its seed (absent: the
+    /// ground truth's labels).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub label_noise: Option<String>,
 }
 
 /// The host's run of robot B's match.
@@ -810,6 +820,7 @@ pub fn summarise(
         ground_truth: row_major(gt),
         line_bytes: run.line_bytes,
         wall_time_s: run.wall_s,
+        label_noise: None,
     }
 }
 

@@ -571,16 +571,7 @@ impl<S: VoxelStorage> LocalMap<S> {
 
     /// Axis-aligned bounds of the occupied cells (min corner, max corner), in metres.
     pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
-        let first = self.voxels().first()?.key;
-        let (mut lo, mut hi) = (first, first);
-        for v in self.iter() {
-            let k = v.key;
-            lo = VoxelKey::new(lo.x.min(k.x), lo.y.min(k.y), lo.z.min(k.z));
-            hi = VoxelKey::new(hi.x.max(k.x), hi.y.max(k.y), hi.z.max(k.z));
-        }
-        let r = self.config.resolution;
-        let top = hi.corner(r);
-        Some((lo.corner(r), [top[0] + r, top[1] + r, top[2] + r]))
+        VoxelKey::bounds(self.iter().map(|v| v.key), self.config.resolution)
     }
 }
 

@@ -171,16 +171,7 @@ impl<S: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> SceneMap<S> {
     /// The axis-aligned bounds of the held cells (m), as
     /// [`LocalMap::bounds`].
     pub fn bounds(&self) -> Option<([f32; 3], [f32; 3])> {
-        let first = self.points().first()?.key;
-        let (mut lo, mut hi) = (first, first);
-        for p in self.points() {
-            let k = p.key;
-            lo = VoxelKey::new(lo.x.min(k.x), lo.y.min(k.y), lo.z.min(k.z));
-            hi = VoxelKey::new(hi.x.max(k.x), hi.y.max(k.y), hi.z.max(k.z));
-        }
-        let r = self.resolution;
-        let top = hi.corner(r);
-        Some((lo.corner(r), [top[0] + r, top[1] + r, top[2] + r]))
+        VoxelKey::bounds(self.points().iter().map(|p| p.key), self.resolution)
     }
 }
 

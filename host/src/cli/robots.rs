@@ -63,6 +63,13 @@ pub struct Args {
     /// Kill both emulators after this long (s, at most a day).
     #[arg(long, default_value = "900", value_parser = positive)]
     timeout: f64,
+    /// Label noise on every scan before it is fed: none, network[:SEVERITY]
+    /// or iid:P (see `cosem eval --help`); robot i's seed is --seed + i.
+    #[arg(long, default_value = "none")]
+    label_noise: cosem_host::noise::LabelNoise,
+    /// Seed of the label noise.
+    #[arg(long, default_value = "1")]
+    seed: u64,
 }
 
 pub fn run(a: Args) -> Result<u8, Error> {
@@ -70,7 +77,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let gt = seq.relative_pose(a.a.start, a.b.start)?;
     let prior = (!a.no_prior).then(|| a.prior.unwrap_or_else(|| default_prior(&gt)));
     let silence_ms = (a.silence * 1000.0).min(f64::from(u32::MAX)) as u32;
-    let feeds = feeds(&seq, [a.a, a.b], a.voxel, a.crop, prior.as_ref(), silence_ms)?;
+    let feeds = feeds(&seq, [a.a, a.b], a.voxel, a.crop, prior.as_ref(), silence_ms, a.label_noise, a.seed)?;
     // The host runs both robots' pipeline too, as the boards do.
     let t = std::time::Instant::now();
     let boards = [a.board_a, a.board_b];
@@ -86,7 +93,10 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let elves = [elf(boards[0])?, elf(boards[1])?];
     let timeout = Duration::from_secs_f64(a.timeout.min(86_400.0));
     let run = run_pair([&elves[0], &elves[1]], boards, [&feeds[0], &feeds[1]], a.line, timeout)?;
-    let report = summarise(&run, feeds[0].setup.prior.as_ref(), &host, host_ms, &gt);
+    let mut report = summarise(&run, feeds[0].setup.prior.as_ref(), &host, host_ms, &gt);
+    if a.label_noise != cosem_host::noise::LabelNoise::None {
+        report.label_noise = Some(format!("{:?}, seed {} (+ robot id)", a.label_noise, a.seed));
+    }
     if a.json {
         print_json(&report)?;
     } else {
