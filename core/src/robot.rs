@@ -57,9 +57,11 @@ pub const COARSE: usize = 3840;
 /// about 58 m x 58 m (3,350 cells), coarser beyond.
 pub const MODEL_WORDS: usize = 9216;
 /// Footprint words of the scene's pyramid: the coarse merge's hash table
-/// (two per entry of a level) while its levels are built, then its grid,
-/// its 2 x 2 pooling and its occupied cells.
-pub const SCENE_WORDS: usize = 8192;
+/// (two 16-bit slots per entry of a level, two to a word) while its levels
+/// are built, then its grid and its 2 x 2 pooling (one word per cell) and
+/// its occupied cells: room for every grid the 32-bit cells of before held
+/// at 1 m.
+pub const SCENE_WORDS: usize = 6656;
 /// Pyramid levels (0.5 m maps: cells of 0.5, 1 and 2 m).
 pub const LEVELS: usize = 3;
 /// First footprint cell tried (m); doubled until the grids fit.

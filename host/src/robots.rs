@@ -162,12 +162,7 @@ pub(crate) fn received_scene(resolution: f32) -> Result<Received, Error> {
 /// capacities.
 pub(crate) fn board_pyramids() -> (impl Fn() -> VecPyramidStorage, impl Fn() -> VecPyramidStorage) {
     let model = || {
-        VecPyramidStorage::new(PyramidCapacity {
-            voxels: VOXELS,
-            entries: COARSE,
-            slots: 2 * COARSE,
-            words: MODEL_WORDS,
-        })
+        VecPyramidStorage::new(PyramidCapacity { voxels: VOXELS, entries: COARSE, slots: COARSE, words: MODEL_WORDS })
     };
     let scene = || VecPyramidStorage::new(PyramidCapacity { voxels: 0, entries: COARSE, slots: 0, words: SCENE_WORDS });
     (model, scene)

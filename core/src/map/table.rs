@@ -226,14 +226,19 @@ fn home(hash: u32, slots: usize) -> usize {
 /// walk visits slots in order (wrapping) until `is_match(value)` or an empty
 /// slot. Bounded by the slot count, so a full table cannot loop.
 #[inline]
-pub(crate) fn walk<T: SlotInt>(slots: &[T], hash: u32, mut is_match: impl FnMut(u32) -> bool) -> Slot {
-    let n = slots.len();
+pub(crate) fn walk<T: SlotInt>(slots: &[T], hash: u32, is_match: impl FnMut(u32) -> bool) -> Slot {
+    walk_by(slots.len(), |i| slots.get(i).map_or(0, |s| s.get()), hash, is_match)
+}
+
+/// [`walk`] over `n` slots read by `get` (e.g. two 16-bit slots to a word).
+#[inline]
+pub(crate) fn walk_by(n: usize, get: impl Fn(usize) -> u32, hash: u32, mut is_match: impl FnMut(u32) -> bool) -> Slot {
     if n == 0 {
         return Slot::Full;
     }
     let mut i = home(hash, n);
     for _ in 0..n {
-        let value = slots.get(i).map_or(0, |s| s.get());
+        let value = get(i);
         if value == 0 {
             return Slot::Vacant(i);
         }

@@ -24,7 +24,7 @@
 //! a pyramid costs about 6 + 0.4 * 28 = 17 bytes per voxel besides the map.
 
 use super::footprint::{self, Footprint, FootprintInfo};
-use crate::map::table::{probe_index, walk, MapIndex, Probe, Slot};
+use crate::map::table::{probe_index, walk, walk_by, MapIndex, Probe, Slot};
 use crate::map::voxel::{dequantise_fraction, quantise_fraction};
 use crate::map::{CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage};
 
@@ -219,12 +219,12 @@ impl<T: PyramidStorage + ?Sized> PyramidStorage for &mut T {
 }
 
 /// Pyramid storage of compile-time size: extras for `V` voxels, `E` coarse
-/// entries with `2 * E` index slots, `W` footprint words. Bytes:
-/// `6 V + 28 E + 4 W`.
+/// entries with one index word each (two 16-bit slots: `E` must stay under
+/// [`NARROW_LIMIT`]), `W` footprint words. Bytes: `6 V + 24 E + 4 W`.
 pub struct ArrayPyramidStorage<const V: usize, const E: usize, const W: usize> {
     extras: [VoxelExtra; V],
     entries: [CoarseEntry; E],
-    slots: [[u32; 2]; E],
+    slots: [u32; E],
     words: [u32; W],
 }
 
@@ -234,7 +234,7 @@ impl<const V: usize, const E: usize, const W: usize> ArrayPyramidStorage<V, E, W
         ArrayPyramidStorage {
             extras: [VoxelExtra::EMPTY; V],
             entries: [CoarseEntry::EMPTY; E],
-            slots: [[0; 2]; E],
+            slots: [0; E],
             words: [0; W],
         }
     }
@@ -248,18 +248,13 @@ impl<const V: usize, const E: usize, const W: usize> Default for ArrayPyramidSto
 
 impl<const V: usize, const E: usize, const W: usize> PyramidStorage for ArrayPyramidStorage<V, E, W> {
     fn parts(&self) -> PyramidParts<'_> {
-        PyramidParts {
-            extras: &self.extras,
-            entries: &self.entries,
-            slots: self.slots.as_flattened(),
-            words: &self.words,
-        }
+        PyramidParts { extras: &self.extras, entries: &self.entries, slots: &self.slots, words: &self.words }
     }
     fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
         PyramidPartsMut {
             extras: &mut self.extras,
             entries: &mut self.entries,
-            slots: self.slots.as_flattened_mut(),
+            slots: &mut self.slots,
             words: &mut self.words,
         }
     }
@@ -307,8 +302,9 @@ pub struct PyramidCapacity {
     pub voxels: usize,
     /// Coarse entries.
     pub entries: usize,
-    /// Index slots of the coarse levels: two per entry for a model, none
-    /// for a scene (nothing looks a scene's cell up).
+    /// Index words of the coarse levels: one per entry for a model (two
+    /// 16-bit slots; two words from [`NARROW_LIMIT`] entries on), none for
+    /// a scene (nothing looks a scene's cell up).
     pub slots: usize,
     /// Footprint words.
     pub words: usize,
@@ -354,15 +350,17 @@ impl PyramidCapacity {
         // A model's words hold level 0's sweep order while normals are
         // fitted (one per voxel); a scene's hold the merge's hash table
         // while its coarse levels are built (two per entry of a level).
+        // Slots of 16 bits, two to a word, below NARROW_LIMIT entries.
+        let per_entry = if entries < NARROW_LIMIT { 1 } else { 2 };
         let scratch = match role {
             Role::Model => len,
-            Role::Scene => 2 * len,
+            Role::Scene => per_entry * len,
         };
         PyramidCapacity {
             voxels: len,
             entries,
             slots: match role {
-                Role::Model => 2 * entries,
+                Role::Model => per_entry * entries,
                 Role::Scene => 0,
             },
             words: (footprint::packed(grids, cells) + 3 * listed).max(scratch),
@@ -511,6 +509,8 @@ struct LevelInfo {
     slot_start: usize,
     slot_len: usize,
     resolution: f32,
+    /// Index slots of 16 bits, two to a word (see [`NARROW_LIMIT`]).
+    narrow: bool,
 }
 
 /// What a pyramid's level 0 is.
@@ -547,8 +547,9 @@ enum LevelData<'a> {
     Voxels { voxels: &'a [SemanticVoxel], index: MapIndex<'a>, extras: &'a [VoxelExtra] },
     /// Level 0 of a scene: its points, in arrival order, without an index.
     Points { points: &'a [ScenePoint] },
-    /// A coarse level: sorted entries and their index.
-    Coarse { entries: &'a [CoarseEntry], slots: &'a [u32] },
+    /// A coarse level: sorted entries and their index (`narrow`: 16-bit
+    /// slots, two to a word).
+    Coarse { entries: &'a [CoarseEntry], slots: &'a [u32], narrow: bool },
 }
 
 /// One level of a pyramid, read-only.
@@ -693,7 +694,7 @@ impl<'a> Level<'a> {
                 Probe::Vacant(_) => (0, 0),
             },
             LevelData::Points { .. } => (0, 0),
-            LevelData::Coarse { entries, slots } => coarse_run(entries, slots, key),
+            LevelData::Coarse { entries, slots, narrow } => coarse_run(entries, slots, narrow, key),
         };
         Cell { level: *self, next, end }
     }
@@ -709,13 +710,49 @@ impl<'a> Level<'a> {
     }
 }
 
-/// Bits of a slot holding the number of entries of its cell.
+/// Bits of a (32-bit) slot holding the number of entries of its cell.
 const RUN_BITS: u32 = 5;
 const RUN_MASK: u32 = (1 << RUN_BITS) - 1;
 
+/// Storages of fewer entries than this index them with 16-bit slots, two to
+/// a word, holding a cell's first entry plus one (its run is counted from
+/// the sorted entries): half the index and merge table of 32-bit slots.
+pub const NARROW_LIMIT: usize = 0xFFFF;
+
+/// Slot `k` of 16-bit slots packed two to a word.
+#[inline(always)]
+fn half(words: &[u32], k: usize) -> u32 {
+    words.get(k >> 1).map_or(0, |w| (w >> ((k & 1) << 4)) & 0xFFFF)
+}
+
+/// Sets slot `k` of 16-bit slots packed two to a word.
+fn set_half(words: &mut [u32], k: usize, v: u32) {
+    if let Some(w) = words.get_mut(k >> 1) {
+        let shift = (k & 1) << 4;
+        *w = (*w & !(0xFFFF << shift)) | ((v & 0xFFFF) << shift);
+    }
+}
+
+/// Entries from `first` on in cell `key` (sorted entries: a cell's run is
+/// contiguous, at most one per class).
+fn run_from(entries: &[CoarseEntry], first: usize, key: VoxelKey) -> usize {
+    entries.get(first..).unwrap_or(&[]).iter().take_while(|e| e.key == key).count()
+}
+
 /// The range of a coarse level's entries in cell `key`.
 #[inline]
-fn coarse_run(entries: &[CoarseEntry], slots: &[u32], key: VoxelKey) -> (usize, usize) {
+fn coarse_run(entries: &[CoarseEntry], slots: &[u32], narrow: bool, key: VoxelKey) -> (usize, usize) {
+    if narrow {
+        // A slot holds first entry + 1.
+        let hit = |v: u32| entries.get((v - 1) as usize).map(|e| e.key) == Some(key);
+        return match walk_by(2 * slots.len(), |k| half(slots, k), key.hash32(), hit) {
+            Slot::Found { value, .. } => {
+                let first = (value - 1) as usize;
+                (first, first + run_from(entries, first, key))
+            }
+            Slot::Vacant(_) | Slot::Full => (0, 0),
+        };
+    }
     // A slot holds (first entry + 1) << 5 | entries in the cell.
     let first = |s: u32| ((s >> RUN_BITS) - 1) as usize;
     match walk(slots, key.hash32(), |s| entries.get(first(s)).map(|e| e.key) == Some(key)) {
@@ -725,32 +762,41 @@ fn coarse_run(entries: &[CoarseEntry], slots: &[u32], key: VoxelKey) -> (usize, 
 }
 
 /// Builds the index of one coarse level over its (sorted) entries.
-fn index_level(entries: &[CoarseEntry], slots: &mut [u32]) {
+fn index_level(entries: &[CoarseEntry], slots: &mut [u32], narrow: bool) {
     slots.fill(0);
-    let n = slots.len();
-    if n == 0 {
+    if slots.is_empty() {
         return;
     }
     let mut i = 0;
     while let Some(e) = entries.get(i) {
-        let run = entries.get(i..).unwrap_or(&[]).iter().take_while(|o| o.key == e.key).count().max(1);
-        // One entry per class: a run never exceeds the class count (< 32).
-        let value = ((i as u32 + 1) << RUN_BITS) | (run as u32 & RUN_MASK);
-        i += run;
-        if let Slot::Vacant(s) = walk(slots, e.key.hash32(), |_| false) {
-            if let Some(slot) = slots.get_mut(s) {
-                *slot = value;
+        let run = run_from(entries, i, e.key).max(1);
+        if narrow {
+            if let Slot::Vacant(k) = walk_by(2 * slots.len(), |k| half(slots, k), e.key.hash32(), |_| false) {
+                set_half(slots, k, i as u32 + 1);
+            }
+        } else {
+            // One entry per class: a run never exceeds the class count (< 32).
+            let value = ((i as u32 + 1) << RUN_BITS) | (run as u32 & RUN_MASK);
+            if let Slot::Vacant(s) = walk(slots, e.key.hash32(), |_| false) {
+                if let Some(slot) = slots.get_mut(s) {
+                    *slot = value;
+                }
             }
         }
+        i += run;
     }
 }
 
 /// Merges the entries of `src` by (cell twice as large, class) into `dst`,
-/// with `table` (zeroed here) as a scratch hash index; returns the count.
+/// with `table` (zeroed here) as a scratch hash index of two slots per
+/// entry of `dst` at most (16-bit slots, two to a word, when `dst` holds
+/// fewer than [`NARROW_LIMIT`]); returns the count.
 fn merge_level(src: &Level<'_>, dst: &mut [CoarseEntry], table: &mut [u32]) -> Result<usize, PyramidError> {
-    let n = table.len().min(2 * dst.len());
-    let table = table.get_mut(..n).ok_or(PyramidError::Full)?;
+    let narrow = dst.len() < NARROW_LIMIT;
+    let n = if narrow { (2 * table.len()).min(2 * dst.len()) } else { table.len().min(2 * dst.len()) };
+    let table = table.get_mut(..if narrow { n.div_ceil(2) } else { n }).ok_or(PyramidError::Full)?;
     table.fill(0);
+    let get = |t: &[u32], k: usize| if narrow { half(t, k) } else { t.get(k).copied().unwrap_or(0) };
     let resolution = 2.0 * src.resolution();
     let mut out = 0usize;
     for i in 0..src.len() {
@@ -758,7 +804,7 @@ fn merge_level(src: &Level<'_>, dst: &mut [CoarseEntry], table: &mut [u32]) -> R
         let key = e.key.coarsen(2);
         let hash = key.hash32() ^ u32::from(e.class).wrapping_mul(0x9E37_79B9);
         let same = |v: u32| dst.get((v - 1) as usize).is_some_and(|a| a.key == key && a.class == e.class);
-        match walk(table, hash, same) {
+        match walk_by(n, |k| get(table, k), hash, same) {
             Slot::Vacant(s) => {
                 let fresh = dst.get_mut(out).ok_or(PyramidError::Full)?;
                 *fresh = CoarseEntry {
@@ -771,7 +817,11 @@ fn merge_level(src: &Level<'_>, dst: &mut [CoarseEntry], table: &mut [u32]) -> R
                 };
                 fresh.set_position(e.position, resolution);
                 out += 1;
-                *table.get_mut(s).ok_or(PyramidError::Full)? = out as u32;
+                if narrow {
+                    set_half(table, s, out as u32);
+                } else {
+                    *table.get_mut(s).ok_or(PyramidError::Full)? = out as u32;
+                }
             }
             Slot::Found { value, .. } => {
                 let acc = dst.get_mut((value - 1) as usize).ok_or(PyramidError::Full)?;
@@ -1077,11 +1127,16 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         }
         let model = role == Role::Model;
         let mut info = [LevelInfo::default(); MAX_LEVELS];
-        info[0] = LevelInfo { start: 0, len: base.len(), slot_start: 0, slot_len: 0, resolution };
+        info[0] = LevelInfo { start: 0, len: base.len(), slot_start: 0, slot_len: 0, resolution, narrow: false };
         {
             let PyramidPartsMut { extras, entries, slots, words } = storage.parts_mut();
-            // Slots address entries with 27 bits.
-            if entries.len() >= (1 << (32 - RUN_BITS)) - 1 || (model && levels > 1 && slots.len() < 2 * entries.len()) {
+            // 32-bit slots address entries with 27 bits; 16-bit ones (fewer
+            // entries than NARROW_LIMIT) take one word per entry, not two.
+            let narrow = entries.len() < NARROW_LIMIT;
+            let words_per_entry = if narrow { 1 } else { 2 };
+            if entries.len() >= (1 << (32 - RUN_BITS)) - 1
+                || (model && levels > 1 && slots.len() < words_per_entry * entries.len())
+            {
                 return Err(PyramidError::Full);
             }
             let level0 = match base {
@@ -1105,19 +1160,19 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                     Level::new(level0, resolution)
                 } else {
                     let e = done.get(prev.start..prev.start + prev.len).ok_or(PyramidError::Full)?;
-                    Level::new(LevelData::Coarse { entries: e, slots: &[] }, prev.resolution)
+                    Level::new(LevelData::Coarse { entries: e, slots: &[], narrow }, prev.resolution)
                 };
                 let table = if model { slots.get_mut(slot_start..) } else { Some(&mut *words) };
                 let table = table.ok_or(PyramidError::Full)?;
                 let len = merge_level(&src, rest, table)?;
                 let slot_len = if model {
-                    let level_slots = table.get_mut(..2 * len).ok_or(PyramidError::Full)?;
-                    index_level(rest.get(..len).ok_or(PyramidError::Full)?, level_slots);
-                    2 * len
+                    let level_slots = table.get_mut(..words_per_entry * len).ok_or(PyramidError::Full)?;
+                    index_level(rest.get(..len).ok_or(PyramidError::Full)?, level_slots, narrow);
+                    words_per_entry * len
                 } else {
                     0
                 };
-                info[l] = LevelInfo { start, len, slot_start, slot_len, resolution: prev.resolution * 2.0 };
+                info[l] = LevelInfo { start, len, slot_start, slot_len, resolution: prev.resolution * 2.0, narrow };
                 start += len;
                 slot_start += slot_len;
             }
@@ -1233,6 +1288,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
             LevelData::Coarse {
                 entries: parts.entries.get(li.start..li.start + li.len)?,
                 slots: parts.slots.get(li.slot_start..li.slot_start + li.slot_len)?,
+                narrow: li.narrow,
             }
         };
         Some(Level::new(data, li.resolution))

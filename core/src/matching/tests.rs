@@ -349,3 +349,33 @@ fn scene_map_matches_like_the_local_map_it_holds() {
     assert_eq!(ga.0, gb.0);
     assert_eq!(Matcher::default().align(&as_scene, &pm, &start), Err(MatchError::SceneAsModel));
 }
+
+/// Coarse levels indexed by 16-bit slots (a storage of fewer than
+/// `NARROW_LIMIT` entries, as a robot's) find the same cells as 32-bit ones
+/// (a large host storage), and merge into the same levels, so the same
+/// match to the bit.
+#[test]
+fn narrow_and_wide_coarse_indexes_agree() {
+    let mut m = new_map();
+    corner(&mut m, &Isometry3::identity());
+    let n = m.len();
+    let narrow = Pyramid::build(&m, 4, 1.0, heap_pyramid(n, 3 * n, 400_000)).unwrap();
+    let wide = Pyramid::build(&m, 4, 1.0, heap_pyramid(n, super::pyramid::NARROW_LIMIT, 400_000)).unwrap();
+    assert!(3 * n < super::pyramid::NARROW_LIMIT);
+    for l in 1..4 {
+        let (a, b) = (narrow.level(l).unwrap(), wide.level(l).unwrap());
+        assert_eq!(a.len(), b.len());
+        for e in a.iter() {
+            let (x, y): (Vec<Entry>, Vec<Entry>) = (a.cell(e.key).collect(), b.cell(e.key).collect());
+            assert!(!x.is_empty() && x == y, "level {l}: {:?}", e.key);
+            assert!(x.contains(&e));
+        }
+        assert!(a.cell(crate::map::VoxelKey::new(i16::MAX, i16::MAX, i16::MAX)).next().is_none());
+    }
+    let start = from_xyz_rpy(0.4, -0.3, 0.0, 0.0, 0.0, 0.08);
+    let (ra, rb) = (
+        Matcher::default().align(&narrow, &narrow, &start).unwrap(),
+        Matcher::default().align(&wide, &wide, &start).unwrap(),
+    );
+    assert_eq!(ra, rb);
+}
