@@ -24,7 +24,11 @@ pub struct SearchWindow {
     pub yaw: f32,
 }
 
-const MAX_ROOTS: usize = 1024;
+/// Roots (top-level blocks at each heading) of a windowed search, on the
+/// stack: the matcher's windows (15 m and 30 degrees with a prior, 4 m and
+/// 6 degrees around a prior-free candidate) need at most 61 at cells of
+/// 1 m or more; a wider window coarsens its heading step to fit.
+const MAX_ROOTS: usize = 128;
 /// Scene points whose cells are cached per yaw; more are thinned by stride.
 const MAX_POINTS: usize = 2048;
 const STACK: usize = 4 * POOL_LEVELS + 4;
