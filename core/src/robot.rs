@@ -172,6 +172,54 @@ pub fn align<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: Pyr
     Ok(r)
 }
 
+/// What a [`Meter`] read at [`align`]'s phases (before preparing, before
+/// the prior-free search, before the match, after it).
+#[derive(Clone, Copy, Debug, Default)]
+struct PhaseMarks {
+    instructions: [u64; 4],
+    link: [u32; 4],
+}
+
+impl PhaseMarks {
+    /// [`align`] with `meter` read at each phase.
+    fn align<A, B, P, Q, T>(
+        own: &LocalMap<A>,
+        received: &B,
+        prior: Option<&Isometry3<f32>>,
+        model: P,
+        scene: Q,
+        meter: &T,
+    ) -> Result<(MatchResult, Option<Searched>, PhaseMarks), RobotError>
+    where
+        A: VoxelStorage,
+        B: SceneSource + ?Sized,
+        P: PyramidStorage,
+        Q: PyramidStorage,
+        T: Meter,
+    {
+        let mut marks = PhaseMarks::default();
+        let (result, located) = align(own, received, prior, model, scene, |k| {
+            let k = usize::from(k);
+            if let (Some(m), Some(b)) = (marks.instructions.get_mut(k), marks.link.get_mut(k)) {
+                *m = meter.instructions();
+                *b = meter.link_bytes();
+            }
+        })
+        .map_err(RobotError::Align)?;
+        Ok((result, located, marks))
+    }
+
+    /// Puts each phase's instructions, and the bytes that came in on the
+    /// link meanwhile, into `report`.
+    fn write_to(&self, report: &mut RobotReport) {
+        let m = &self.instructions;
+        report.prepare_instructions = m[1].saturating_sub(m[0]);
+        report.locate_instructions = m[2].saturating_sub(m[1]);
+        report.match_instructions = m[3].saturating_sub(m[2]);
+        report.link_bytes_while_matching = self.link[3].wrapping_sub(self.link[0]);
+    }
+}
+
 /// What a platform measures for a robot's report. The defaults measure
 /// nothing (a host); a board counts instructions and watches its stack.
 pub trait Meter {
@@ -564,17 +612,9 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
         let (model, scene) = self.pyramids.take().ok_or(RobotError::Finished)?;
         let prior = setup.prior.as_ref().map(from_rows);
-        let mut marks = [0u64; 4];
-        let mut line = [0u32; 4];
-        let (result, located) = align(own, received, prior.as_ref(), model, scene, |k| {
-            if let (Some(m), Some(b)) = (marks.get_mut(usize::from(k)), line.get_mut(usize::from(k))) {
-                *m = meter.instructions();
-                *b = meter.link_bytes();
-            }
-        })
-        .map_err(RobotError::Align)?;
+        let (result, located, marks) = PhaseMarks::align(own, received, prior.as_ref(), model, scene, meter)?;
         let estimate = Estimate::of(setup.robot_id, 0, &result);
-        let report = RobotReport {
+        let mut report = RobotReport {
             result: result.report(setup.robot_id),
             points: self.fed.points,
             map_voxels: own.len() as u32,
@@ -584,13 +624,14 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
             retransmissions: stats.retransmissions,
             link_ms: self.link_ms,
             map_instructions: self.fed.map_instructions,
-            prepare_instructions: marks[1].saturating_sub(marks[0]),
-            locate_instructions: marks[2].saturating_sub(marks[1]),
-            match_instructions: marks[3].saturating_sub(marks[2]),
+            prepare_instructions: 0,
+            locate_instructions: 0,
+            match_instructions: 0,
             global: located.as_ref().map(GlobalReport::from),
             peak_stack: meter.peak_stack(),
-            link_bytes_while_matching: line[3].wrapping_sub(line[0]),
+            link_bytes_while_matching: 0,
         };
+        marks.write_to(&mut report);
         Ok((report, estimate))
     }
 }

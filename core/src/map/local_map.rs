@@ -58,6 +58,15 @@ impl MapConfig {
     }
 }
 
+/// A voxel size a map (or a scene) accepts: finite, in [1 mm, 1 km].
+pub(crate) fn check_resolution(r: f32) -> Result<(), ConfigError> {
+    if r.is_finite() && (1e-3..=1e3).contains(&r) {
+        Ok(())
+    } else {
+        Err(ConfigError::Resolution)
+    }
+}
+
 /// Why a map could not be set up.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -254,10 +263,7 @@ impl<S: VoxelStorage> LocalMap<S> {
     }
 
     fn set_config(&mut self, config: MapConfig) -> Result<(), ConfigError> {
-        let r = config.resolution;
-        if !(r.is_finite() && (1e-3..=1e3).contains(&r)) {
-            return Err(ConfigError::Resolution);
-        }
+        check_resolution(config.resolution)?;
         if !config.sensor.is_valid() {
             return Err(ConfigError::SensorModel);
         }
@@ -271,7 +277,7 @@ impl<S: VoxelStorage> LocalMap<S> {
             }
         }
         self.config = config;
-        self.inv_resolution = 1.0 / r;
+        self.inv_resolution = 1.0 / config.resolution;
         self.evidence = config.sensor.evidence_units();
         self.hit_units = libm::roundf(config.hit_logodds * LOGODDS_UNITS) as i16;
         self.max_units = libm::roundf(config.max_logodds * LOGODDS_UNITS) as i16;

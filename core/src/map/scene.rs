@@ -150,9 +150,7 @@ impl<S: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> SceneMap<S> {
 
     /// Empties the scene and sets its voxel size.
     pub fn reset(&mut self, resolution: f32) -> Result<(), ConfigError> {
-        if !(resolution.is_finite() && (1e-3..=1e3).contains(&resolution)) {
-            return Err(ConfigError::Resolution);
-        }
+        super::local_map::check_resolution(resolution)?;
         self.len = 0;
         self.resolution = resolution;
         Ok(())

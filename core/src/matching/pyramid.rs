@@ -522,11 +522,22 @@ enum Base<'m> {
     Scene { points: &'m [ScenePoint] },
 }
 
-impl Base<'_> {
+impl<'m> Base<'m> {
     fn len(&self) -> usize {
         match self {
             Base::Map { voxels, .. } => voxels.len(),
             Base::Scene { points } => points.len(),
+        }
+    }
+
+    /// Level 0 over this base, with a map's `extras`.
+    fn level0<'a>(self, extras: &'a [VoxelExtra]) -> LevelData<'a>
+    where
+        'm: 'a,
+    {
+        match self {
+            Base::Map { voxels, index } => LevelData::Voxels { voxels, index, extras },
+            Base::Scene { points } => LevelData::Points { points },
         }
     }
 }
@@ -789,10 +800,14 @@ fn index_level(entries: &[CoarseEntry], slots: &mut [u32], narrow: bool) {
 
 /// Merges the entries of `src` by (cell twice as large, class) into `dst`,
 /// with `table` (zeroed here) as a scratch hash index of two slots per
-/// entry of `dst` at most (16-bit slots, two to a word, when `dst` holds
-/// fewer than [`NARROW_LIMIT`]); returns the count.
-fn merge_level(src: &Level<'_>, dst: &mut [CoarseEntry], table: &mut [u32]) -> Result<usize, PyramidError> {
-    let narrow = dst.len() < NARROW_LIMIT;
+/// entry of `dst` at most (16-bit slots, two to a word, when `narrow`: a
+/// storage of fewer than [`NARROW_LIMIT`] entries); returns the count.
+fn merge_level(
+    src: &Level<'_>,
+    dst: &mut [CoarseEntry],
+    table: &mut [u32],
+    narrow: bool,
+) -> Result<usize, PyramidError> {
     let n = if narrow { (2 * table.len()).min(2 * dst.len()) } else { table.len().min(2 * dst.len()) };
     let table = table.get_mut(..if narrow { n.div_ceil(2) } else { n }).ok_or(PyramidError::Full)?;
     table.fill(0);
@@ -1139,17 +1154,18 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
             {
                 return Err(PyramidError::Full);
             }
-            let level0 = match base {
-                Base::Map { voxels, index } => {
+            let extras: &[VoxelExtra] = match base {
+                Base::Map { voxels, .. } => {
                     let extras = extras.get_mut(..voxels.len()).ok_or(PyramidError::Full)?;
                     for (x, v) in extras.iter_mut().zip(voxels) {
                         let p = ScenePoint::of(v);
                         *x = VoxelExtra { normal: PackedNormal::NONE, class: p.class(), confidence: p.confidence() };
                     }
-                    LevelData::Voxels { voxels, index, extras: &*extras }
+                    extras
                 }
-                Base::Scene { points } => LevelData::Points { points },
+                Base::Scene { .. } => &[],
             };
+            let level0 = base.level0(extras);
             // Coarse levels: each merged from the one below, then indexed
             // (a model's).
             let (mut start, mut slot_start) = (0usize, 0usize);
@@ -1164,7 +1180,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 };
                 let table = if model { slots.get_mut(slot_start..) } else { Some(&mut *words) };
                 let table = table.ok_or(PyramidError::Full)?;
-                let len = merge_level(&src, rest, table)?;
+                let len = merge_level(&src, rest, table, narrow)?;
                 let slot_len = if model {
                     let level_slots = table.get_mut(..words_per_entry * len).ok_or(PyramidError::Full)?;
                     index_level(rest.get(..len).ok_or(PyramidError::Full)?, level_slots, narrow);
@@ -1188,11 +1204,8 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         }
         if footprint_cell.is_finite() && footprint_cell > 0.0 {
             let PyramidPartsMut { extras, words, .. } = pyramid.storage.parts_mut();
-            let data = match base {
-                Base::Map { voxels, index } => LevelData::Voxels { voxels, index, extras: &*extras },
-                Base::Scene { points } => LevelData::Points { points },
-            };
-            pyramid.footprint = footprint::build(&Level::new(data, resolution), footprint_cell, model, words);
+            let level0 = Level::new(base.level0(extras), resolution);
+            pyramid.footprint = footprint::build(&level0, footprint_cell, model, words);
         }
         Ok(pyramid)
     }
@@ -1280,10 +1293,11 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         let li = self.levels.get(..self.count)?.get(l)?;
         let parts = self.storage.parts();
         let data = if l == 0 {
-            match self.base {
-                Base::Map { voxels, index } => LevelData::Voxels { voxels, index, extras: parts.extras.get(..li.len)? },
-                Base::Scene { points } => LevelData::Points { points },
-            }
+            let extras = match self.base {
+                Base::Map { .. } => parts.extras.get(..li.len)?,
+                Base::Scene { .. } => &[],
+            };
+            self.base.level0(extras)
         } else {
             LevelData::Coarse {
                 entries: parts.entries.get(li.start..li.start + li.len)?,

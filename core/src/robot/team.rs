@@ -18,7 +18,7 @@
 //! table of estimates lives in the scratch once the maps have crossed
 //! (the scratch orders the robot's own map for the link only).
 
-use super::{align, FeedIn, Meter, RobotConfig, RobotError};
+use super::{FeedIn, Meter, PhaseMarks, RobotConfig, RobotError};
 use crate::geometry::{from_rows, rows, Isometry3};
 use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkParts, LinkStats, Progress};
 use crate::map::{LocalMap, VoxelSink, VoxelStorage};
@@ -304,15 +304,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         link_ms: u32,
         meter: &T,
     ) -> Result<RobotReport, RobotError> {
-        let mut marks = [0u64; 4];
-        let mut line = [0u32; 4];
-        let (result, located) = align(own, received, None, &mut self.model, &mut self.scene, |k| {
-            if let (Some(m), Some(b)) = (marks.get_mut(usize::from(k)), line.get_mut(usize::from(k))) {
-                *m = meter.instructions();
-                *b = meter.link_bytes();
-            }
-        })
-        .map_err(RobotError::Align)?;
+        let (result, located, marks) = PhaseMarks::align(own, received, None, &mut self.model, &mut self.scene, meter)?;
         let me = self.me();
         if let Some(slot) = self.estimates.get_mut(usize::from(peer)) {
             *slot = Some(Estimate::of(me, peer, &result));
@@ -320,11 +312,8 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         let mut report = self.report_base(own, stats, link_ms, meter);
         report.result = result.report(me);
         report.received_voxels = received.len() as u32;
-        report.prepare_instructions = marks[1].saturating_sub(marks[0]);
-        report.locate_instructions = marks[2].saturating_sub(marks[1]);
-        report.match_instructions = marks[3].saturating_sub(marks[2]);
+        marks.write_to(&mut report);
         report.global = located.as_ref().map(crate::wire::feed::GlobalReport::from);
-        report.link_bytes_while_matching = line[3].wrapping_sub(line[0]);
         Ok(report)
     }
 
