@@ -40,7 +40,7 @@ use embedded_io::{Read, ReadReady, Write, WriteReady};
 
 /// Voxels a robot's map holds (and the received map): 224 KiB for its own
 /// (28 bytes per voxel with 16-bit index slots), 112 KiB for the received
-/// one (a [`SceneMap`](crate::map::SceneMap): 14 bytes per voxel). When a map is full the voxels
+/// one (a [`SceneMap`](crate::map::SceneMap): 8 bytes per voxel). When a map is full the voxels
 /// farthest from the anchor are evicted ([`FullPolicy::EvictFarthest`]).
 pub const VOXELS: usize = 8192;
 /// Voxels of a robot on a small board (an STM32F405: its 128 KiB of main
@@ -77,7 +77,7 @@ pub type ModelStorage = ArrayPyramidStorage<VOXELS, COARSE, MODEL_WORDS>;
 /// [`SceneMap`](crate::map::SceneMap): no extras, no index slots.
 pub type SceneStorage = ArraySceneStorage<COARSE, SCENE_WORDS>;
 /// What a robot receives its peer's map into: [`VOXELS`] scene points,
-/// 14 bytes each (a [`SceneMap`](crate::map::SceneMap) over them), half a [`MapStorage`].
+/// 8 bytes each (a [`SceneMap`](crate::map::SceneMap) over them).
 pub type ReceivedStorage = [ScenePoint; VOXELS];
 
 /// The map configuration of a robot at `resolution`: full maps evict the

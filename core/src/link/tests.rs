@@ -277,7 +277,7 @@ fn a_map_received_as_a_scene_is_the_received_map_reduced() {
         assert_eq!(rb, Ok(Progress::Done));
     }
     assert_eq!(whole.len(), sent.len());
-    let reduced: std::vec::Vec<ScenePoint> = whole.voxels().iter().map(ScenePoint::of).collect();
+    let reduced: std::vec::Vec<ScenePoint> = whole.voxels().iter().map(|v| ScenePoint::of(v).unwrap()).collect();
     assert_eq!(scene.points(), &reduced[..]);
     let mut small = SceneMap::new(vec![ScenePoint::EMPTY; sent.len() - 1], sent.resolution()).unwrap();
     let wire = line(9, 0.0, 0.0);

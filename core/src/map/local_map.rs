@@ -95,6 +95,10 @@ pub enum InsertError {
     Full,
     /// [`LocalMap::insert_voxel`]: the map already holds this key.
     DuplicateKey,
+    /// A [`SceneMap`](super::SceneMap) was given a voxel holding more than
+    /// a received one does (a mean off the quarter-cell grid, a confidence
+    /// off the encoding's levels): it would be kept altered.
+    Inexact,
 }
 
 impl From<KeyError> for InsertError {
@@ -113,6 +117,7 @@ impl core::fmt::Display for InsertError {
             InsertError::OutOfRange => "voxel index out of the 16-bit key range",
             InsertError::Full => "map is full",
             InsertError::DuplicateKey => "voxel key already in the map",
+            InsertError::Inexact => "voxel holds more than a received scene keeps (mean or confidence off the encoding's steps)",
         })
     }
 }

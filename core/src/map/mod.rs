@@ -8,7 +8,7 @@
 //!   builds coarser levels;
 //! - [`overlap`](mod@overlap): how much two maps agree under a transform;
 //! - [`scene`]: a received map kept as only what matching it as a scene
-//!   reads ([`SceneMap`], 14 bytes per voxel), and [`VoxelSink`], where a
+//!   reads ([`SceneMap`], 8 bytes per voxel), and [`VoxelSink`], where a
 //!   decoder puts voxels.
 
 pub mod key;
@@ -23,7 +23,7 @@ pub use key::{CellPoint, KeyError, VoxelKey};
 pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS, SCORE_UNITS_PER_NAT};
 pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertion, LocalMap, MapConfig, Neighbours};
 pub use overlap::overlap;
-pub use scene::{SceneMap, ScenePoint, VoxelSink};
+pub use scene::{class_and_confidence, SceneMap, ScenePoint, VoxelSink};
 pub use table::{ArrayStorage, MapIndex, SliceStorage, SlotInt, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};
 pub use voxel::SemanticVoxel;
 

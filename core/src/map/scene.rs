@@ -4,8 +4,9 @@
 //! scene's entries in order and never looks a scene cell up, reads no
 //! occupancy, hit count or full label distribution, and fits no scene
 //! normal. So a received map need not be a [`LocalMap`] (24 bytes per voxel
-//! and two index slots): a [`SceneMap`] keeps 14 bytes per voxel (cell,
-//! mean, class, confidence), filled straight from the wire decoder through
+//! and two index slots): a [`SceneMap`] keeps 8 bytes per voxel (cell,
+//! and what the link's encoding carries of the mean, class and confidence),
+//! filled straight from the wire decoder through
 //! [`VoxelSink`], in the order the voxels arrive. The pyramid built on it
 //! ([`crate::matching::Pyramid::build_scene`]) gives the matcher exactly
 //! the entries a [`LocalMap`] holding the same voxels would.
@@ -83,51 +84,109 @@ impl<T: VoxelSink + ?Sized> VoxelSink for &mut T {
     }
 }
 
-/// One voxel of a [`SceneMap`]: 14 bytes.
+/// One voxel of a [`SceneMap`]: 8 bytes, exactly what the link's encoding
+/// carries of it ([`crate::wire::codec`]): the cell, the mean to a quarter
+/// of the cell per axis, the class and one of
+/// [`CONFIDENCE_LEVELS`](crate::wire::codec::CONFIDENCE_LEVELS). Nothing a
+/// received voxel holds is lost (a [`SceneMap`] refuses a voxel that holds
+/// more, [`InsertError::Inexact`]), so a scene of them matches to the bit
+/// as the decoded map would.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ScenePoint {
     /// The cell.
     pub key: VoxelKey,
-    mean: [u16; 3],
-    class: u8,
-    confidence: u8,
+    /// Bits 0-5: the mean, [`MEAN_BITS`] per axis (x lowest); 6-10: the
+    /// class ([`NO_CLASS`] without one); 11-13: the confidence level.
+    packed: u16,
+}
+
+/// Bits of a scene point's mean per axis (the wire's position bits).
+const MEAN_BITS: u32 = 2;
+/// The class field of a point without a class.
+const NO_CLASS: u16 = 31;
+/// The class's probability in 1/255 at each of the encoding's confidence
+/// levels, as a voxel decoded at that level gives it (its one label slot's
+/// score rounded to 1/8 nat; tested against the decoder for every class).
+const LEVEL_CONFIDENCE: [u8; 8] = [37, 88, 142, 179, 208, 233, 247, 254];
+/// The confidence of a point without a class: a uniform distribution's.
+const NO_CLASS_CONFIDENCE: u8 = (255.0 / NUM_CLASSES as f32 + 0.5) as u8;
+
+/// A voxel's most probable class (`u8::MAX` without one) and that class's
+/// probability in 1/255 (a uniform one's without a class): what a
+/// pyramid's level 0 and a scene keep of its labels.
+pub fn class_and_confidence(v: &SemanticVoxel) -> (u8, u8) {
+    let class = v.class();
+    let p = class.map(|c| v.labels.probability(c)).unwrap_or(1.0 / NUM_CLASSES as f32);
+    (class.map(|c| c.index()).unwrap_or(u8::MAX), (p * 255.0 + 0.5) as u8)
 }
 
 impl ScenePoint {
     /// All zero (a `static` of them lands in `.bss`).
-    pub const EMPTY: ScenePoint = ScenePoint { key: VoxelKey::new(0, 0, 0), mean: [0; 3], class: 0, confidence: 0 };
+    pub const EMPTY: ScenePoint = ScenePoint { key: VoxelKey::new(0, 0, 0), packed: 0 };
 
-    /// What a scene keeps of `v`: its cell and mean, its most probable
-    /// class (`u8::MAX` without one) and that class's probability in 1/255
-    /// (a uniform one without a class), as a pyramid's level 0 derives them.
-    pub fn of(v: &SemanticVoxel) -> Self {
-        let class = v.class();
-        let p = class.map(|c| v.labels.probability(c)).unwrap_or(1.0 / NUM_CLASSES as f32);
-        ScenePoint {
-            key: v.key,
-            mean: v.mean_raw(),
-            class: class.map(|c| c.index()).unwrap_or(u8::MAX),
-            confidence: (p * 255.0 + 0.5) as u8,
+    /// What a scene keeps of `v`: its cell, mean, class and confidence
+    /// ([`class_and_confidence`]); `None` when `v` holds more than a
+    /// received voxel does (a mean off the quarter-cell grid, a confidence
+    /// off the encoding's levels).
+    pub fn of(v: &SemanticVoxel) -> Option<Self> {
+        let (class, confidence) = class_and_confidence(v);
+        let mut packed = 0u16;
+        for (axis, m) in v.mean_raw().into_iter().enumerate() {
+            let q = m >> (16 - MEAN_BITS);
+            if m != mean_of(q) {
+                return None;
+            }
+            packed |= q << (MEAN_BITS * axis as u32);
         }
+        let (class_field, level) = if class == u8::MAX {
+            (NO_CLASS, 0)
+        } else {
+            (u16::from(class), LEVEL_CONFIDENCE.iter().position(|&c| c == confidence)? as u16)
+        };
+        let point = ScenePoint { key: v.key, packed: packed | (class_field << 6) | (level << 11) };
+        (point.confidence() == confidence).then_some(point)
+    }
+
+    /// The mean in 1/65536 of the cell per axis (a decoded voxel's).
+    #[inline]
+    fn mean(&self) -> [u16; 3] {
+        let m = (1u16 << MEAN_BITS) - 1;
+        [0, 1, 2].map(|axis| mean_of((self.packed >> (MEAN_BITS * axis)) & m))
     }
 
     /// Mean position (m, map frame), as [`SemanticVoxel::position`].
     #[inline]
     pub fn position(&self, resolution: f32) -> [f32; 3] {
         let c = self.key.corner(resolution);
-        let f = self.mean.map(dequantise_fraction);
+        let f = self.mean().map(dequantise_fraction);
         [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
     }
 
     /// Class index (0..19; `u8::MAX` without one).
+    #[inline]
     pub fn class(&self) -> u8 {
-        self.class
+        match (self.packed >> 6) & 31 {
+            NO_CLASS => u8::MAX,
+            c => c as u8,
+        }
     }
 
     /// Probability of the class, in 1/255.
+    #[inline]
     pub fn confidence(&self) -> u8 {
-        self.confidence
+        if self.class() == u8::MAX {
+            NO_CLASS_CONFIDENCE
+        } else {
+            LEVEL_CONFIDENCE[usize::from((self.packed >> 11) & 7)]
+        }
     }
+}
+
+/// The stored mean of a quarter-cell step: its centre, as the decoder
+/// writes it.
+#[inline]
+fn mean_of(q: u16) -> u16 {
+    (q << (16 - MEAN_BITS)) | (1 << (15 - MEAN_BITS))
 }
 
 /// A received map as a scene: [`ScenePoint`]s in arrival order, in a
@@ -191,7 +250,7 @@ impl<S: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> VoxelSink for SceneMap<S> {
     }
     fn accept(&mut self, voxel: SemanticVoxel) -> Result<(), InsertError> {
         let slot = self.points.as_mut().get_mut(self.len).ok_or(InsertError::Full)?;
-        *slot = ScenePoint::of(&voxel);
+        *slot = ScenePoint::of(&voxel).ok_or(InsertError::Inexact)?;
         self.len += 1;
         Ok(())
     }

@@ -26,7 +26,7 @@
 use super::footprint::{self, Footprint, FootprintInfo};
 use crate::map::table::{probe_index, walk, walk_by, MapIndex, Probe, Slot};
 use crate::map::voxel::{dequantise_fraction, quantise_fraction};
-use crate::map::{CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage};
+use crate::map::{class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage};
 
 /// Most levels a pyramid has.
 pub const MAX_LEVELS: usize = 8;
@@ -1158,8 +1158,8 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 Base::Map { voxels, .. } => {
                     let extras = extras.get_mut(..voxels.len()).ok_or(PyramidError::Full)?;
                     for (x, v) in extras.iter_mut().zip(voxels) {
-                        let p = ScenePoint::of(v);
-                        *x = VoxelExtra { normal: PackedNormal::NONE, class: p.class(), confidence: p.confidence() };
+                        let (class, confidence) = class_and_confidence(v);
+                        *x = VoxelExtra { normal: PackedNormal::NONE, class, confidence };
                     }
                     extras
                 }

@@ -317,9 +317,23 @@ fn scene_map_matches_like_the_local_map_it_holds() {
     let mut model = new_map();
     corner(&mut model, &Isometry3::identity());
     let t = from_xyz_rpy(1.2, -0.7, 0.0, 0.0, 0.0, 0.3);
+    let mut fine = new_map();
+    corner(&mut fine, &t.inverse());
+    // What a robot receives: the map through the link's encoding (a file's).
+    let mut file = Vec::new();
+    let header = crate::wire::mapfile::header_of(&fine, None, None);
+    let mut chunk = vec![0u8; crate::wire::mapfile::FILE_CHUNK];
+    crate::wire::mapfile::write(&fine, &header, &mut vec![0; fine.len()], &mut chunk, |b| {
+        file.extend_from_slice(b);
+        true
+    })
+    .unwrap();
     let mut m = new_map();
-    corner(&mut m, &t.inverse());
+    crate::wire::mapfile::read_into(&file, &mut m).unwrap();
+    assert_eq!(m.len(), fine.len());
     let mut scene = SceneMap::new(vec![ScenePoint::EMPTY; m.len()], m.resolution()).unwrap();
+    // A voxel finer than the encoding's steps is refused, not rounded.
+    assert_eq!(scene.accept(fine.voxels()[0]), Err(crate::map::InsertError::Inexact));
     for v in m.voxels() {
         scene.accept(*v).unwrap();
     }

@@ -620,3 +620,40 @@ impl<'a> MapDecoder<'a> {
         d.finish().map_err(|over| if over { DecodeError::Truncated } else { DecodeError::Trailing }).map(|()| n)
     }
 }
+
+#[cfg(test)]
+mod scene_point_tests {
+    use super::*;
+    use crate::map::ScenePoint;
+
+    /// Every voxel the decoder can give fits a [`ScenePoint`] exactly: each
+    /// class (and none) at each confidence level, each quarter-cell mean.
+    #[test]
+    fn every_decoded_voxel_is_a_scene_point_exactly() {
+        let key = VoxelKey::new(-3, 7, 1);
+        for class in (0..NUM_CLASSES as u32).chain([NO_CLASS]) {
+            for confidence in 0..CONFIDENCE_LEVELS.len() as u32 {
+                for position in 0..(1u32 << (3 * POSITION_BITS)) {
+                    let m = (1 << POSITION_BITS) - 1;
+                    let q = Quantised {
+                        class,
+                        confidence,
+                        occupancy: position % 4,
+                        position: [position & m, (position >> POSITION_BITS) & m, position >> (2 * POSITION_BITS)],
+                    };
+                    let v = rebuild(key, &q).unwrap();
+                    let p = ScenePoint::of(&v);
+                    assert!(p.is_some(), "class {class} level {confidence} position {position}");
+                    let p = p.unwrap();
+                    assert_eq!((p.class(), p.confidence()), crate::map::class_and_confidence(&v));
+                    assert_eq!(p.position(0.5), v.position(0.5));
+                    assert_eq!(p.key, key);
+                }
+            }
+        }
+        // A mean the wire cannot carry is refused, not rounded.
+        let fine = crate::map::SemanticVoxel::from_parts(key, [1, 2, 3], 0, 1, Default::default());
+        assert_eq!(ScenePoint::of(&fine), None);
+        assert_eq!(core::mem::size_of::<ScenePoint>(), 8);
+    }
+}
