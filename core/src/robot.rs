@@ -30,8 +30,8 @@ use crate::map::{
 use crate::matching::global::{align_searched, Searched};
 use crate::matching::search::GlobalSearch;
 use crate::matching::{
-    ArrayPyramidStorage, ArraySceneStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError,
-    PyramidStorage, Role, SceneSource,
+    ArrayPyramidStorage, ArraySceneStorage, CopiedLevel, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError,
+    PyramidStorage, SceneSource,
 };
 use crate::wire::feed::{self, FeedError, FeedMessage, GlobalReport, RobotMessage, RobotReport, Setup, Stage};
 use crate::wire::frame::{DeframeError, Deframer, MAX_FRAME};
@@ -73,6 +73,14 @@ pub type MapStorage = ArrayStorage<VOXELS, u16>;
 pub type SmallMapStorage = ArrayStorage<SMALL_VOXELS, u16>;
 /// Pyramid storage of a robot's own map (the model).
 pub type ModelStorage = ArrayPyramidStorage<VOXELS, COARSE, MODEL_WORDS>;
+/// Room for the model's level 0 copied out of the robot's map (176 KiB: 22
+/// bytes per voxel): with it, the model's other parts and the scene's
+/// pyramid may lie over the map's memory ([`align`] builds the model
+/// first, and reads the map no more once it is copied).
+pub type ModelLevel0 = CopiedLevel<VOXELS>;
+/// The model's coarse levels, normals, index and footprint beside a copied
+/// level 0 ([`ModelLevel0`]): no extras.
+pub type ModelRest = ArrayPyramidStorage<0, COARSE, MODEL_WORDS>;
 /// Pyramid storage of the received map (the scene) kept as a
 /// [`SceneMap`](crate::map::SceneMap): no extras, no index slots.
 pub type SceneStorage = ArraySceneStorage<COARSE, SCENE_WORDS>;
@@ -155,8 +163,10 @@ pub fn align<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: Pyr
     mut on_phase: impl FnMut(u8),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
     on_phase(0);
-    let model =
-        Pyramid::build_as(own, LEVELS, FOOTPRINT_CELL, Role::Model, model_storage).map_err(AlignError::Pyramid)?;
+    // The model first: with room for a copied level 0 in its storage the
+    // own map is read for the last time here (a board reuses its memory for
+    // the pyramids' other parts).
+    let model = Pyramid::build_model(own, LEVELS, FOOTPRINT_CELL, model_storage).map_err(AlignError::Pyramid)?;
     let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene_storage).map_err(AlignError::Pyramid)?;
     on_phase(1);
     let matcher = Matcher::new(MatchSettings::default());

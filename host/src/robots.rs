@@ -169,7 +169,9 @@ pub(crate) fn board_pyramids() -> (impl Fn() -> VecPyramidStorage, impl Fn() -> 
 }
 
 /// A robot of a pair as the host runs it: the full robot, or one that
-/// sends its map and is told the result (a small board's).
+/// sends its map and is told the result (a small board's). Two per run:
+/// their size does not matter.
+#[allow(clippy::large_enum_variant)]
 enum HostRobot<'a> {
     Full(Robot<'a, VecStorage, Received, VecPyramidStorage, VecPyramidStorage>),
     Sender(SenderRobot<'a, VecStorage>),

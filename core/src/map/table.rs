@@ -266,7 +266,13 @@ pub(crate) enum Probe {
 /// reaches.
 #[inline]
 pub(crate) fn probe<T: SlotInt>(voxels: &[SemanticVoxel], slots: &[T], key: VoxelKey) -> Probe {
-    let at_key = |s: u32| voxels.get((s - 1) as usize).map(|v| v.key) == Some(key);
+    probe_keys(slots, key, |i| voxels.get(i).map(|v| v.key))
+}
+
+/// [`probe`] over entries whose keys `key_at` gives (by dense position).
+#[inline]
+pub(crate) fn probe_keys<T: SlotInt>(slots: &[T], key: VoxelKey, key_at: impl Fn(usize) -> Option<VoxelKey>) -> Probe {
+    let at_key = |s: u32| key_at((s - 1) as usize) == Some(key);
     match walk(slots, key.hash32(), at_key) {
         Slot::Found { value, .. } => Probe::Found((value - 1) as usize),
         Slot::Vacant(i) => Probe::Vacant(i),

@@ -24,7 +24,7 @@
 //! a pyramid costs about 6 + 0.4 * 28 = 17 bytes per voxel besides the map.
 
 use super::footprint::{self, Footprint, FootprintInfo};
-use crate::map::table::{probe_index, walk, walk_by, MapIndex, Probe, Slot};
+use crate::map::table::{probe_index, probe_keys, walk, walk_by, MapIndex, Probe, Slot};
 use crate::map::voxel::{dequantise_fraction, quantise_fraction};
 use crate::map::{class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage};
 
@@ -127,13 +127,119 @@ impl Default for VoxelExtra {
     }
 }
 
-/// A stored entry of a coarse level: 20 bytes. The position is kept as a
-/// 16-bit fraction of the cell, like a voxel's mean.
+/// A model's level 0 copied out of its map ([`Pyramid::build_model`]): one
+/// voxel's cell, mean, normal, class and confidence in 18 bytes, the 24-byte
+/// voxel and its 6-byte extra less what matching never reads (occupancy,
+/// hit count, label distribution).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ModelPoint {
+    key: VoxelKey,
+    mean: [u16; 3],
+    normal: PackedNormal,
+    class: u8,
+    confidence: u8,
+}
+
+impl ModelPoint {
+    /// Zeroed (a `static` of them lands in `.bss`).
+    pub const EMPTY: ModelPoint =
+        ModelPoint { key: VoxelKey::new(0, 0, 0), mean: [0; 3], normal: PackedNormal([0, 0]), class: 0, confidence: 0 };
+
+    #[inline]
+    fn position(&self, resolution: f32) -> [f32; 3] {
+        let c = self.key.corner(resolution);
+        let f = self.mean.map(dequantise_fraction);
+        [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
+    }
+}
+
+impl Default for ModelPoint {
+    fn default() -> Self {
+        Self::EMPTY
+    }
+}
+
+/// Room for a model's level 0 copied out of its map: `V` points and two
+/// 16-bit index slots each (the map's index, copied), 22 bytes per voxel.
+/// A model storage with this room ([`SplitStorage`]) lets the map's memory
+/// go to other uses once the model is built (a board overlays it).
+pub struct CopiedLevel<const V: usize> {
+    points: [ModelPoint; V],
+    slots: [[u16; 2]; V],
+}
+
+impl<const V: usize> CopiedLevel<V> {
+    /// Empty room.
+    pub const fn new() -> Self {
+        CopiedLevel { points: [ModelPoint::EMPTY; V], slots: [[0; 2]; V] }
+    }
+}
+
+impl<const V: usize> Default for CopiedLevel<V> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Where a copied level 0 goes: its points and index slots.
+pub trait CopiedRoom {
+    /// The points and slots.
+    fn room(&self) -> (&[ModelPoint], &[u16]);
+    /// The points and slots, mutably.
+    fn room_mut(&mut self) -> (&mut [ModelPoint], &mut [u16]);
+}
+
+impl<const V: usize> CopiedRoom for CopiedLevel<V> {
+    fn room(&self) -> (&[ModelPoint], &[u16]) {
+        (&self.points, self.slots.as_flattened())
+    }
+    fn room_mut(&mut self) -> (&mut [ModelPoint], &mut [u16]) {
+        (&mut self.points, self.slots.as_flattened_mut())
+    }
+}
+
+impl<T: CopiedRoom + ?Sized> CopiedRoom for &mut T {
+    fn room(&self) -> (&[ModelPoint], &[u16]) {
+        (**self).room()
+    }
+    fn room_mut(&mut self) -> (&mut [ModelPoint], &mut [u16]) {
+        (**self).room_mut()
+    }
+}
+
+/// A model's storage in two parts that may live apart: room for the copied
+/// level 0 (`level0`) and everything else (`rest`: coarse entries, normals,
+/// index, footprint; its extras unused). While the map is copied only
+/// `level0` is touched, so `rest` may overlay the map's memory.
+pub struct SplitStorage<L, S> {
+    /// Room for the copied level 0.
+    pub level0: L,
+    /// The coarse levels and footprint.
+    pub rest: S,
+}
+
+impl<L: CopiedRoom, S: PyramidStorage> PyramidStorage for SplitStorage<L, S> {
+    fn parts(&self) -> PyramidParts<'_> {
+        let (points, point_slots) = self.level0.room();
+        PyramidParts { points, point_slots, ..self.rest.parts() }
+    }
+    fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
+        let (points, point_slots) = self.level0.room_mut();
+        PyramidPartsMut { points, point_slots, ..self.rest.parts_mut() }
+    }
+    fn copied_mut(&mut self) -> (&mut [ModelPoint], &mut [u16]) {
+        self.level0.room_mut()
+    }
+}
+
+/// A stored entry of a coarse level: 16 bytes. The position is kept as a
+/// 16-bit fraction of the cell, like a voxel's mean. A model's entries
+/// have their normals beside them (a storage's `normals`), a scene's none:
+/// the matcher reads no scene normal.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CoarseEntry {
     key: VoxelKey,
     fraction: [u16; 3],
-    normal: PackedNormal,
     weight: u16,
     class: u8,
     confidence: u8,
@@ -144,7 +250,6 @@ impl CoarseEntry {
     pub const EMPTY: CoarseEntry = CoarseEntry {
         key: VoxelKey::new(0, 0, 0),
         fraction: [0; 3],
-        normal: PackedNormal([0, 0]),
         weight: 0,
         class: 0,
         confidence: 0,
@@ -178,26 +283,41 @@ impl Default for CoarseEntry {
 
 /// A pyramid's buffers, read-only.
 pub struct PyramidParts<'a> {
-    /// One per voxel of the map (at least the map's length).
+    /// One per voxel of the map (at least the map's length) when level 0 is
+    /// the map; none when it is copied or a scene.
     pub extras: &'a [VoxelExtra],
     /// Entries of all coarse levels.
     pub entries: &'a [CoarseEntry],
+    /// Normals of the coarse entries, one per entry (a model's; a scene's
+    /// storage has none).
+    pub normals: &'a [PackedNormal],
     /// Index slots of the coarse levels: at least two per entry.
     pub slots: &'a [u32],
     /// Footprint words.
     pub words: &'a [u32],
+    /// A copied level 0's points ([`Pyramid::build_model`]; may be empty).
+    pub points: &'a [ModelPoint],
+    /// A copied level 0's index slots.
+    pub point_slots: &'a [u16],
 }
 
 /// A pyramid's buffers, mutable.
 pub struct PyramidPartsMut<'a> {
-    /// One per voxel of the map (at least the map's length).
+    /// One per voxel of the map (at least the map's length) when level 0 is
+    /// the map; none when it is copied or a scene.
     pub extras: &'a mut [VoxelExtra],
     /// Entries of all coarse levels.
     pub entries: &'a mut [CoarseEntry],
+    /// Normals of the coarse entries, one per entry (a model's).
+    pub normals: &'a mut [PackedNormal],
     /// Index slots of the coarse levels: at least two per entry.
     pub slots: &'a mut [u32],
     /// Footprint words.
     pub words: &'a mut [u32],
+    /// A copied level 0's points.
+    pub points: &'a mut [ModelPoint],
+    /// A copied level 0's index slots.
+    pub point_slots: &'a mut [u16],
 }
 
 /// Where a pyramid keeps its buffers.
@@ -206,6 +326,12 @@ pub trait PyramidStorage {
     fn parts(&self) -> PyramidParts<'_>;
     /// The buffers, mutably.
     fn parts_mut(&mut self) -> PyramidPartsMut<'_>;
+    /// Only the room for a copied level 0 ([`Pyramid::build_model`]): all
+    /// that is touched while the map is copied, so the other parts may lie
+    /// over the map's memory. None by default.
+    fn copied_mut(&mut self) -> (&mut [ModelPoint], &mut [u16]) {
+        (&mut [], &mut [])
+    }
 }
 
 /// A pyramid may borrow its storage, e.g. a `static` on a microcontroller.
@@ -216,14 +342,19 @@ impl<T: PyramidStorage + ?Sized> PyramidStorage for &mut T {
     fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
         (**self).parts_mut()
     }
+    fn copied_mut(&mut self) -> (&mut [ModelPoint], &mut [u16]) {
+        (**self).copied_mut()
+    }
 }
 
 /// Pyramid storage of compile-time size: extras for `V` voxels, `E` coarse
-/// entries with one index word each (two 16-bit slots: `E` must stay under
-/// [`NARROW_LIMIT`]), `W` footprint words. Bytes: `6 V + 24 E + 4 W`.
+/// entries with a normal and one index word each (two 16-bit slots: `E`
+/// must stay under [`NARROW_LIMIT`]), `W` footprint words. Bytes:
+/// `6 V + 24 E + 4 W`.
 pub struct ArrayPyramidStorage<const V: usize, const E: usize, const W: usize> {
     extras: [VoxelExtra; V],
     entries: [CoarseEntry; E],
+    normals: [PackedNormal; E],
     slots: [u32; E],
     words: [u32; W],
 }
@@ -234,6 +365,7 @@ impl<const V: usize, const E: usize, const W: usize> ArrayPyramidStorage<V, E, W
         ArrayPyramidStorage {
             extras: [VoxelExtra::EMPTY; V],
             entries: [CoarseEntry::EMPTY; E],
+            normals: [PackedNormal([0, 0]); E],
             slots: [0; E],
             words: [0; W],
         }
@@ -248,21 +380,32 @@ impl<const V: usize, const E: usize, const W: usize> Default for ArrayPyramidSto
 
 impl<const V: usize, const E: usize, const W: usize> PyramidStorage for ArrayPyramidStorage<V, E, W> {
     fn parts(&self) -> PyramidParts<'_> {
-        PyramidParts { extras: &self.extras, entries: &self.entries, slots: &self.slots, words: &self.words }
+        PyramidParts {
+            extras: &self.extras,
+            entries: &self.entries,
+            normals: &self.normals,
+            slots: &self.slots,
+            words: &self.words,
+            points: &[],
+            point_slots: &[],
+        }
     }
     fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
         PyramidPartsMut {
             extras: &mut self.extras,
             entries: &mut self.entries,
+            normals: &mut self.normals,
             slots: &mut self.slots,
             words: &mut self.words,
+            points: &mut [],
+            point_slots: &mut [],
         }
     }
 }
 
 /// Storage of a scene's pyramid ([`Role::Scene`], e.g. of a
 /// [`SceneMap`]) of compile-time size: `E` coarse entries and `W` footprint
-/// words, no extras and no index slots. Bytes: `20 E + 4 W`.
+/// words, no extras, normals or index slots. Bytes: `16 E + 4 W`.
 pub struct ArraySceneStorage<const E: usize, const W: usize> {
     entries: [CoarseEntry; E],
     words: [u32; W],
@@ -283,10 +426,26 @@ impl<const E: usize, const W: usize> Default for ArraySceneStorage<E, W> {
 
 impl<const E: usize, const W: usize> PyramidStorage for ArraySceneStorage<E, W> {
     fn parts(&self) -> PyramidParts<'_> {
-        PyramidParts { extras: &[], entries: &self.entries, slots: &[], words: &self.words }
+        PyramidParts {
+            extras: &[],
+            entries: &self.entries,
+            normals: &[],
+            slots: &[],
+            words: &self.words,
+            points: &[],
+            point_slots: &[],
+        }
     }
     fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
-        PyramidPartsMut { extras: &mut [], entries: &mut self.entries, slots: &mut [], words: &mut self.words }
+        PyramidPartsMut {
+            extras: &mut [],
+            entries: &mut self.entries,
+            normals: &mut [],
+            slots: &mut [],
+            words: &mut self.words,
+            points: &mut [],
+            point_slots: &mut [],
+        }
     }
 }
 
@@ -367,10 +526,21 @@ impl PyramidCapacity {
         }
     }
 
+    /// Normals of coarse entries: one per entry for a model (a storage with
+    /// index slots), none for a scene.
+    pub fn normals(&self) -> usize {
+        if self.slots > 0 {
+            self.entries
+        } else {
+            0
+        }
+    }
+
     /// Bytes of storage this takes.
     pub fn bytes(&self) -> usize {
         self.voxels * core::mem::size_of::<VoxelExtra>()
             + self.entries * core::mem::size_of::<CoarseEntry>()
+            + self.normals() * core::mem::size_of::<PackedNormal>()
             + self.slots * core::mem::size_of::<u32>()
             + self.words * core::mem::size_of::<u32>()
     }
@@ -381,6 +551,7 @@ impl PyramidCapacity {
 pub struct VecPyramidStorage {
     extras: alloc::vec::Vec<VoxelExtra>,
     entries: alloc::vec::Vec<CoarseEntry>,
+    normals: alloc::vec::Vec<PackedNormal>,
     slots: alloc::vec::Vec<u32>,
     words: alloc::vec::Vec<u32>,
 }
@@ -392,6 +563,7 @@ impl VecPyramidStorage {
         VecPyramidStorage {
             extras: alloc::vec![VoxelExtra::EMPTY; capacity.voxels],
             entries: alloc::vec![CoarseEntry::EMPTY; capacity.entries],
+            normals: alloc::vec![PackedNormal::NONE; capacity.normals()],
             slots: alloc::vec![0; capacity.slots],
             words: alloc::vec![0; capacity.words],
         }
@@ -401,14 +573,25 @@ impl VecPyramidStorage {
 #[cfg(any(test, feature = "alloc"))]
 impl PyramidStorage for VecPyramidStorage {
     fn parts(&self) -> PyramidParts<'_> {
-        PyramidParts { extras: &self.extras, entries: &self.entries, slots: &self.slots, words: &self.words }
+        PyramidParts {
+            extras: &self.extras,
+            entries: &self.entries,
+            normals: &self.normals,
+            slots: &self.slots,
+            words: &self.words,
+            points: &[],
+            point_slots: &[],
+        }
     }
     fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
         PyramidPartsMut {
             extras: &mut self.extras,
             entries: &mut self.entries,
+            normals: &mut self.normals,
             slots: &mut self.slots,
             words: &mut self.words,
+            points: &mut [],
+            point_slots: &mut [],
         }
     }
 }
@@ -520,6 +703,9 @@ enum Base<'m> {
     Map { voxels: &'m [SemanticVoxel], index: MapIndex<'m> },
     /// A scene's points (they hold what the extras would, but normals).
     Scene { points: &'m [ScenePoint] },
+    /// A model's level 0 copied into the storage's `points` (`len` of
+    /// them) and `point_slots` (`slots` of them, the map's index).
+    Copied { len: usize, slots: usize },
 }
 
 impl<'m> Base<'m> {
@@ -527,17 +713,23 @@ impl<'m> Base<'m> {
         match self {
             Base::Map { voxels, .. } => voxels.len(),
             Base::Scene { points } => points.len(),
+            Base::Copied { len, .. } => *len,
         }
     }
 
-    /// Level 0 over this base, with a map's `extras`.
-    fn level0<'a>(self, extras: &'a [VoxelExtra]) -> LevelData<'a>
+    /// Level 0 over this base, with a map's `extras` or a copy's `points`
+    /// and `point_slots` (each only as long as the base needs).
+    fn level0<'a>(self, extras: &'a [VoxelExtra], points: &'a [ModelPoint], point_slots: &'a [u16]) -> LevelData<'a>
     where
         'm: 'a,
     {
         match self {
             Base::Map { voxels, index } => LevelData::Voxels { voxels, index, extras },
             Base::Scene { points } => LevelData::Points { points },
+            Base::Copied { len, slots } => LevelData::Copied {
+                points: points.get(..len).unwrap_or(&[]),
+                index: point_slots.get(..slots).unwrap_or(&[]),
+            },
         }
     }
 }
@@ -558,9 +750,12 @@ enum LevelData<'a> {
     Voxels { voxels: &'a [SemanticVoxel], index: MapIndex<'a>, extras: &'a [VoxelExtra] },
     /// Level 0 of a scene: its points, in arrival order, without an index.
     Points { points: &'a [ScenePoint] },
-    /// A coarse level: sorted entries and their index (`narrow`: 16-bit
-    /// slots, two to a word).
-    Coarse { entries: &'a [CoarseEntry], slots: &'a [u32], narrow: bool },
+    /// Level 0 copied out of a model's map: its points in the map's order
+    /// and the map's index.
+    Copied { points: &'a [ModelPoint], index: &'a [u16] },
+    /// A coarse level: sorted entries, their normals (none for a scene) and
+    /// their index (`narrow`: 16-bit slots, two to a word).
+    Coarse { entries: &'a [CoarseEntry], normals: &'a [PackedNormal], slots: &'a [u32], narrow: bool },
 }
 
 /// One level of a pyramid, read-only.
@@ -606,6 +801,7 @@ impl<'a> Level<'a> {
         match self.data {
             LevelData::Voxels { voxels, .. } => voxels.len(),
             LevelData::Points { points } => points.len(),
+            LevelData::Copied { points, .. } => points.len(),
             LevelData::Coarse { entries, .. } => entries.len(),
         }
     }
@@ -642,11 +838,22 @@ impl<'a> Level<'a> {
                     confidence: p.confidence(),
                 })
             }
-            LevelData::Coarse { entries, .. } => {
+            LevelData::Copied { points, .. } => {
+                let p = points.get(i)?;
+                Some(Entry {
+                    position: p.position(self.resolution),
+                    normal: p.normal,
+                    weight: 1.0,
+                    key: p.key,
+                    class: p.class,
+                    confidence: p.confidence,
+                })
+            }
+            LevelData::Coarse { entries, normals, .. } => {
                 let c = entries.get(i)?;
                 Some(Entry {
                     position: c.position(self.resolution),
-                    normal: c.normal,
+                    normal: normals.get(i).copied().unwrap_or(PackedNormal::NONE),
                     weight: f32::from(c.weight),
                     key: c.key,
                     class: c.class,
@@ -663,6 +870,7 @@ impl<'a> Level<'a> {
         match self.data {
             LevelData::Voxels { voxels, .. } => voxels.get(i).map(|v| (v.position(self.resolution), 1.0)),
             LevelData::Points { points } => points.get(i).map(|p| (p.position(self.resolution), 1.0)),
+            LevelData::Copied { points, .. } => points.get(i).map(|p| (p.position(self.resolution), 1.0)),
             LevelData::Coarse { entries, .. } => {
                 entries.get(i).map(|c| (c.position(self.resolution), f32::from(c.weight)))
             }
@@ -675,6 +883,7 @@ impl<'a> Level<'a> {
         match self.data {
             LevelData::Voxels { voxels, .. } => voxels.get(i).map(|v| v.key),
             LevelData::Points { points } => points.get(i).map(|p| p.key),
+            LevelData::Copied { points, .. } => points.get(i).map(|p| p.key),
             LevelData::Coarse { entries, .. } => entries.get(i).map(|c| c.key),
         }
     }
@@ -685,6 +894,7 @@ impl<'a> Level<'a> {
         match self.data {
             LevelData::Voxels { extras, .. } => extras.get(i).map(|x| x.class),
             LevelData::Points { points } => points.get(i).map(|p| p.class()),
+            LevelData::Copied { points, .. } => points.get(i).map(|p| p.class),
             LevelData::Coarse { entries, .. } => entries.get(i).map(|c| c.class),
         }
     }
@@ -705,7 +915,13 @@ impl<'a> Level<'a> {
                 Probe::Vacant(_) => (0, 0),
             },
             LevelData::Points { .. } => (0, 0),
-            LevelData::Coarse { entries, slots, narrow } => coarse_run(entries, slots, narrow, key),
+            LevelData::Copied { points, index } => {
+                match probe_keys(index, key, |i| points.get(i).map(|p| p.key)) {
+                    Probe::Found(i) => (i, i + 1),
+                    Probe::Vacant(_) => (0, 0),
+                }
+            }
+            LevelData::Coarse { entries, slots, narrow, .. } => coarse_run(entries, slots, narrow, key),
         };
         Cell { level: *self, next, end }
     }
@@ -718,6 +934,24 @@ impl<'a> Level<'a> {
     /// The cell holding point `p` and where in it `p` lies.
     pub fn locate_with_fraction(&self, p: [f32; 3]) -> Option<CellPoint> {
         VoxelKey::locate(p, self.inv_resolution).ok()
+    }
+}
+
+/// Copies a map's index into 16-bit slots of the same count; `false` when
+/// a slot's value does not fit 16 bits.
+fn copy_index(index: MapIndex<'_>, out: &mut [u16]) -> bool {
+    match index {
+        MapIndex::Narrow(s) if s.len() == out.len() => {
+            out.copy_from_slice(s);
+            true
+        }
+        MapIndex::Wide(s) if s.len() == out.len() && s.iter().all(|&v| v <= u32::from(u16::MAX)) => {
+            for (o, &v) in out.iter_mut().zip(s) {
+                *o = v as u16;
+            }
+            true
+        }
+        _ => false,
     }
 }
 
@@ -825,7 +1059,6 @@ fn merge_level(
                 *fresh = CoarseEntry {
                     key,
                     fraction: [0; 3],
-                    normal: PackedNormal::NONE,
                     weight: libm::roundf(e.weight.min(65535.0)) as u16,
                     class: e.class,
                     confidence: e.confidence,
@@ -1112,6 +1345,51 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         Self::build_base(base, map.resolution(), levels, footprint_cell, role, storage)
     }
 
+    /// Prepares `map` as a model ([`Role::Model`]) like [`Pyramid::build`],
+    /// copying level 0 into the storage's room for it
+    /// ([`PyramidStorage::copied_mut`], e.g. a [`SplitStorage`]) when the
+    /// room holds the map's voxels and index: then the pyramid reads nothing
+    /// of the map after the copy, and the storage's other parts are reached
+    /// only after it, so they may lie over the map's memory (a board reuses
+    /// its map's memory for both pyramids this way). Without the room, level
+    /// 0 is the map. The same levels, normals and footprint either way.
+    pub fn build_model<V: VoxelStorage>(
+        map: &'m LocalMap<V>,
+        levels: usize,
+        footprint_cell: f32,
+        mut storage: S,
+    ) -> Result<Self, PyramidError> {
+        let (len, resolution) = (map.len(), map.resolution());
+        let index = map.index_slots();
+        let index_len = match index {
+            MapIndex::Wide(s) => s.len(),
+            MapIndex::Narrow(s) => s.len(),
+        };
+        let copied = {
+            let (points, slots) = storage.copied_mut();
+            match (points.get_mut(..len), slots.get_mut(..index_len)) {
+                (Some(points), Some(slots)) if len > 0 => {
+                    let fits = copy_index(index, slots);
+                    if fits {
+                        for (p, v) in points.iter_mut().zip(map.voxels()) {
+                            let (class, confidence) = class_and_confidence(v);
+                            let mean = v.mean_raw();
+                            *p = ModelPoint { key: v.key, mean, normal: PackedNormal::NONE, class, confidence };
+                        }
+                    }
+                    fits
+                }
+                _ => false,
+            }
+        };
+        if !copied {
+            return Self::build_as(map, levels, footprint_cell, Role::Model, storage);
+        }
+        // The map is not read from here on.
+        let base = Base::Copied { len, slots: index_len };
+        Self::build_base(base, resolution, levels, footprint_cell, Role::Model, storage)
+    }
+
     /// Prepares a received [`SceneMap`] as a scene ([`Role::Scene`]): the
     /// same levels, entries and footprint as [`Pyramid::build_as`] gives a
     /// [`LocalMap`] holding the same voxels in the same order, with no
@@ -1144,13 +1422,14 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         let mut info = [LevelInfo::default(); MAX_LEVELS];
         info[0] = LevelInfo { start: 0, len: base.len(), slot_start: 0, slot_len: 0, resolution, narrow: false };
         {
-            let PyramidPartsMut { extras, entries, slots, words } = storage.parts_mut();
+            let PyramidPartsMut { extras, entries, normals, slots, words, points, point_slots } = storage.parts_mut();
             // 32-bit slots address entries with 27 bits; 16-bit ones (fewer
             // entries than NARROW_LIMIT) take one word per entry, not two.
             let narrow = entries.len() < NARROW_LIMIT;
             let words_per_entry = if narrow { 1 } else { 2 };
             if entries.len() >= (1 << (32 - RUN_BITS)) - 1
                 || (model && levels > 1 && slots.len() < words_per_entry * entries.len())
+                || (model && normals.len() < entries.len())
             {
                 return Err(PyramidError::Full);
             }
@@ -1163,9 +1442,9 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                     }
                     extras
                 }
-                Base::Scene { .. } => &[],
+                Base::Scene { .. } | Base::Copied { .. } => &[],
             };
-            let level0 = base.level0(extras);
+            let level0 = base.level0(extras, points, point_slots);
             // Coarse levels: each merged from the one below, then indexed
             // (a model's).
             let (mut start, mut slot_start) = (0usize, 0usize);
@@ -1176,7 +1455,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                     Level::new(level0, resolution)
                 } else {
                     let e = done.get(prev.start..prev.start + prev.len).ok_or(PyramidError::Full)?;
-                    Level::new(LevelData::Coarse { entries: e, slots: &[], narrow }, prev.resolution)
+                    Level::new(LevelData::Coarse { entries: e, normals: &[], slots: &[], narrow }, prev.resolution)
                 };
                 let table = if model { slots.get_mut(slot_start..) } else { Some(&mut *words) };
                 let table = table.ok_or(PyramidError::Full)?;
@@ -1199,29 +1478,36 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         // level 0 (the map, in insertion order) is visited through a
         // permutation sorted in the footprint's words (built after), or,
         // where they are too few, through hash lookups (the same normals).
-        if let (true, Base::Map { voxels, .. }) = (model, base) {
-            pyramid.fit_normals(voxels)?;
+        if model {
+            pyramid.fit_normals()?;
         }
         if footprint_cell.is_finite() && footprint_cell > 0.0 {
-            let PyramidPartsMut { extras, words, .. } = pyramid.storage.parts_mut();
-            let level0 = Level::new(base.level0(extras), resolution);
+            let PyramidPartsMut { extras, words, points, point_slots, .. } = pyramid.storage.parts_mut();
+            let level0 = Level::new(base.level0(extras, points, point_slots), resolution);
             pyramid.footprint = footprint::build(&level0, footprint_cell, model, words);
         }
         Ok(pyramid)
     }
 
     /// Fits the normals of a model's levels (see [`NormalSweep`]).
-    fn fit_normals(&mut self, voxels: &[SemanticVoxel]) -> Result<(), PyramidError> {
+    fn fit_normals(&mut self) -> Result<(), PyramidError> {
+        let base = self.base;
         for l in 0..self.count {
             let li = self.levels[l];
             let permuted = l == 0 && {
-                let words = self.storage.parts_mut().words;
+                let PyramidPartsMut { words, points, .. } = self.storage.parts_mut();
+                let points: &[ModelPoint] = points;
+                let key = |i: usize| match base {
+                    Base::Map { voxels, .. } => voxels.get(i).map(|v| v.key),
+                    Base::Copied { .. } => points.get(i).map(|p| p.key),
+                    Base::Scene { points } => points.get(i).map(|p| p.key),
+                };
                 match words.get_mut(..li.len) {
                     Some(order) if li.len < u32::MAX as usize => {
                         for (i, w) in order.iter_mut().enumerate() {
                             *w = i as u32;
                         }
-                        order.sort_unstable_by_key(|&i| voxels.get(i as usize).map_or(u64::MAX, |v| v.key.sweep()));
+                        order.sort_unstable_by_key(|&i| key(i as usize).map_or(u64::MAX, |k| k.sweep()));
                         true
                     }
                     _ => false,
@@ -1257,14 +1543,12 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 }
                 let parts = self.storage.parts_mut();
                 for &(i, normal) in normals.iter().take(n).filter(|(i, _)| *i != u32::MAX) {
-                    let slot = if l == 0 {
-                        parts.extras.get_mut(i as usize).map(|x| &mut x.normal)
-                    } else {
-                        parts.entries.get_mut(li.start + i as usize).map(|x| &mut x.normal)
+                    let slot = match (l, base) {
+                        (0, Base::Copied { .. }) => parts.points.get_mut(i as usize).map(|p| &mut p.normal),
+                        (0, _) => parts.extras.get_mut(i as usize).map(|x| &mut x.normal),
+                        _ => parts.normals.get_mut(li.start + i as usize),
                     };
-                    if let Some(slot) = slot {
-                        *slot = normal;
-                    }
+                    *slot.ok_or(PyramidError::Full)? = normal;
                 }
             }
         }
@@ -1295,12 +1579,16 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         let data = if l == 0 {
             let extras = match self.base {
                 Base::Map { .. } => parts.extras.get(..li.len)?,
-                Base::Scene { .. } => &[],
+                Base::Scene { .. } | Base::Copied { .. } => &[],
             };
-            self.base.level0(extras)
+            self.base.level0(extras, parts.points, parts.point_slots)
         } else {
             LevelData::Coarse {
                 entries: parts.entries.get(li.start..li.start + li.len)?,
+                normals: match self.role {
+                    Role::Model => parts.normals.get(li.start..li.start + li.len)?,
+                    Role::Scene => &[],
+                },
                 slots: parts.slots.get(li.slot_start..li.slot_start + li.slot_len)?,
                 narrow: li.narrow,
             }

@@ -226,7 +226,62 @@ fn packed_normals_round_trip() {
 #[test]
 fn storage_sizes() {
     assert_eq!(core::mem::size_of::<VoxelExtra>(), 6);
-    assert_eq!(core::mem::size_of::<CoarseEntry>(), 20);
+    assert_eq!(core::mem::size_of::<CoarseEntry>(), 16);
+    assert_eq!(core::mem::size_of::<super::ModelPoint>(), 18);
+    assert_eq!(core::mem::size_of::<super::CopiedLevel<8>>(), 8 * 22);
+}
+
+/// A model whose level 0 is copied out of the map (what a robot does to
+/// reuse its map's memory) is the model whose level 0 is the map, to the
+/// bit: the same levels, normals, cells and footprint, so the same match
+/// with a prior and without. A room too small (or none) falls back to the
+/// map.
+#[test]
+fn copied_model_matches_like_the_map_model() {
+    use super::{CopiedLevel, SplitStorage};
+    let mut m = new_map();
+    corner(&mut m, &Isometry3::identity());
+    let n = m.len();
+    // The room holds the map's index: two slots per voxel of capacity (the
+    // map's 32-bit slots hold values that fit 16 bits).
+    assert_eq!(m.capacity(), 40_000);
+    let t = from_xyz_rpy(1.2, -0.7, 0.0, 0.0, 0.0, 0.3);
+    let mut scene_map = new_map();
+    corner(&mut scene_map, &t.inverse());
+    let scene = pyramid(&scene_map);
+    let as_map = Pyramid::build(&m, 4, 1.0, heap_pyramid(n, 3 * n, 400_000)).unwrap();
+    let mut room = std::boxed::Box::new(CopiedLevel::<40_000>::new());
+    let copied =
+        Pyramid::build_model(&m, 4, 1.0, SplitStorage { level0: &mut *room, rest: heap_pyramid(0, 3 * n, 400_000) })
+            .unwrap();
+    for l in 0..4 {
+        let (a, b) = (as_map.level(l).unwrap(), copied.level(l).unwrap());
+        assert_eq!(a.len(), b.len(), "level {l}");
+        for (i, e) in a.iter().enumerate() {
+            assert_eq!(Some(e), b.entry(i), "level {l} entry {i}");
+            let (x, y): (Vec<Entry>, Vec<Entry>) = (a.cell(e.key).collect(), b.cell(e.key).collect());
+            assert_eq!(x, y, "level {l}");
+        }
+        assert!(b.cell(crate::map::VoxelKey::new(i16::MAX, 0, 0)).next().is_none());
+    }
+    assert!(as_map.level(0).unwrap().iter().filter(|e| e.is_planar()).count() > n / 4);
+    let (fa, fb) = (as_map.footprint().unwrap(), copied.footprint().unwrap());
+    assert_eq!((fa.cell(), fa.has_pooled_grids()), (fb.cell(), fb.has_pooled_grids()));
+    let start = from_xyz_rpy(1.0, -0.5, 0.0, 0.0, 0.0, 0.25);
+    let a = Matcher::default().align(&as_map, &scene, &start).unwrap();
+    let b = Matcher::default().align(&copied, &scene, &start).unwrap();
+    assert_eq!(a, b);
+    assert_eq!(a.status, MatchStatus::Converged);
+    let search = crate::matching::search::GlobalSearch::default();
+    let ga = crate::matching::global::align_searched(&Matcher::default(), &as_map, &scene, &search, || {}).unwrap();
+    let gb = crate::matching::global::align_searched(&Matcher::default(), &copied, &scene, &search, || {}).unwrap();
+    assert_eq!(ga.0, gb.0);
+    // Room for fewer points than the map: level 0 stays the map.
+    let mut small = std::boxed::Box::new(CopiedLevel::<16>::new());
+    let fallback =
+        Pyramid::build_model(&m, 4, 1.0, SplitStorage { level0: &mut *small, rest: heap_pyramid(n, 3 * n, 400_000) })
+            .unwrap();
+    assert_eq!(Matcher::default().align(&fallback, &scene, &start).unwrap(), a);
 }
 
 #[test]

@@ -5,9 +5,11 @@
 //! code 0 when the match converged, 1 otherwise (the report or failure says
 //! why). Both UARTs receive by interrupt into rings, so bytes the peer
 //! sends while this robot prepares or matches wait in its ring, not in a
-//! one-byte UART register that a real chip would overrun. The link's
-//! buffers and the pyramids' storage take turns in one static
-//! ([`cosem_mps2_an386::turns`]).
+//! one-byte UART register that a real chip would overrun. Memory takes
+//! turns ([`cosem_mps2_an386::turns`]): the link's buffers with the model's
+//! level 0 copied out of the map, and the map with the pyramids' other
+//! parts, so the robot fits 512 KiB with its stack (the link checks it,
+//! `robot-budget.x`).
 #![no_std]
 #![no_main]
 
@@ -17,15 +19,15 @@ use cortex_m_rt::{entry, exception};
 use cosem_core::link::LinkBuffers;
 use cosem_core::map::{LocalMap, SceneMap, ScenePoint};
 use cosem_core::matching::MatchStatus;
+use cosem_core::matching::SplitStorage;
 use cosem_core::robot::{
-    map_config, MapStorage, ModelStorage, Poll, ReceivedStorage, Robot, RobotConfig, SceneStorage, VOXELS,
+    map_config, MapStorage, ModelLevel0, ModelRest, Poll, ReceivedStorage, Robot, RobotConfig, SceneStorage, VOXELS,
 };
 use cosem_mps2_an386::serial::{IrqReceiver, RingSerial, RX_RING};
 use cosem_mps2_an386::turns::Later;
 use cosem_mps2_an386::uart::{unmask_rx, Uart, UartRx, UART0, UART1};
 use cosem_mps2_an386::{exit, millis, start_clock, Board, CLOCK_HZ};
 
-static mut OWN: MapStorage = MapStorage::new();
 static mut RECEIVED: ReceivedStorage = [ScenePoint::EMPTY; VOXELS];
 
 /// The link's turn: its buffers and the Morton order of the map it sends.
@@ -34,21 +36,28 @@ struct LinkTurn {
     scratch: [u32; VOXELS],
 }
 
-/// The pyramids' turn.
-struct AlignTurn {
-    model: ModelStorage,
+/// The link's turn, then the model's copied level 0 (the larger sets the
+/// size). Zeroed: the link's buffers are written when the robot starts.
+union Turns {
+    link: ManuallyDrop<LinkTurn>,
+    level0: ManuallyDrop<ModelLevel0>,
+}
+
+/// What follows the own map in its memory: the model's coarse levels and
+/// footprint, and the scene's pyramid.
+struct PyramidTurn {
+    model: ModelRest,
     scene: SceneStorage,
 }
 
-/// Both turns in one place (the larger sets its size). Zeroed: the link's
-/// buffers are written when the robot starts.
-union Turns {
-    link: ManuallyDrop<LinkTurn>,
-    align: ManuallyDrop<AlignTurn>,
+/// The own map, then the pyramids (the map is the larger).
+union OwnTurns {
+    map: ManuallyDrop<MapStorage>,
+    pyramids: ManuallyDrop<PyramidTurn>,
 }
 
-static mut TURNS: Turns =
-    Turns { align: ManuallyDrop::new(AlignTurn { model: ModelStorage::new(), scene: SceneStorage::new() }) };
+static mut TURNS: Turns = Turns { level0: ManuallyDrop::new(ModelLevel0::new()) };
+static mut OWN: OwnTurns = OwnTurns { map: ManuallyDrop::new(MapStorage::new()) };
 static FEED_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 static LINK_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 
@@ -91,20 +100,25 @@ fn main() -> ! {
     let mut feed = RingSerial::new(&FEED_RX, feed_tx, idle);
     let mut link = RingSerial::new(&LINK_RX, link_tx, idle);
     // SAFETY: `main` runs once; each static is borrowed exactly once here.
-    // The link's turn is borrowed now; the pyramids' is reached only when
-    // the robot prepares, after its link endpoint (and every borrow of the
-    // link's turn) is gone.
+    // The link's turn is borrowed now; the copied level 0 is reached only
+    // when the robot prepares, after its link endpoint (and every borrow of
+    // the link's turn) is gone. The map is reached through a pointer until
+    // the model's level 0 has been copied out of it; the pyramids' other
+    // parts only after that (see `turns`).
     let (own, received, scratch, buffers, model, scene) = unsafe {
         let link = addr_of_mut!(TURNS.link).cast::<LinkTurn>();
-        let align = addr_of_mut!(TURNS.align).cast::<AlignTurn>();
+        let pyramids = addr_of_mut!(OWN.pyramids).cast::<PyramidTurn>();
         addr_of_mut!((*link).buffers).write(LinkBuffers::new());
         (
-            &mut *addr_of_mut!(OWN),
+            Later::new(addr_of_mut!(OWN.map).cast::<MapStorage>()),
             &mut *addr_of_mut!(RECEIVED),
             &mut *addr_of_mut!((*link).scratch),
             &mut *addr_of_mut!((*link).buffers),
-            Later::new(addr_of_mut!((*align).model)),
-            Later::new(addr_of_mut!((*align).scene)),
+            SplitStorage {
+                level0: Later::new(addr_of_mut!(TURNS.level0).cast::<ModelLevel0>()),
+                rest: Later::new(addr_of_mut!((*pyramids).model)),
+            },
+            Later::new(addr_of_mut!((*pyramids).scene)),
         )
     };
     // The set-up names the voxel size; until then the maps wait empty.
