@@ -16,10 +16,14 @@
 //! peer's map into (a [`SceneMap`](crate::map::SceneMap) on a board: only
 //! what matching it as a scene reads), a scratch of one `u32` per voxel
 //! (the link's Morton order), the link's buffers and two pyramid storages.
-//! In this pair robot the link's memory and the pyramids' are never used at once: the link's
-//! endpoint is dropped before preparing starts, so a board may overlay
-//! them. The capacities a robot's firmware uses are the
-//! constants below.
+//! In this pair robot the link's memory and the pyramids' are never used
+//! at once: the link's endpoint is dropped before preparing starts, so a
+//! board may overlay them; and with a model storage that has room for a
+//! copied level 0 ([`ModelLevel0`] in a
+//! [`SplitStorage`](crate::matching::SplitStorage)) the own map is read for
+//! the last time when the model is built (first), so its memory may hold
+//! the pyramids' other parts. The capacities a robot's firmware uses are
+//! the constants below.
 
 use crate::geometry::{from_rows, Isometry3};
 use crate::link::sim::{ScriptPort, SimLine};
@@ -39,7 +43,7 @@ use crate::wire::share::Estimate;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
 /// Voxels a robot's map holds (and the received map): 224 KiB for its own
-/// (28 bytes per voxel with 16-bit index slots), 112 KiB for the received
+/// (28 bytes per voxel with 16-bit index slots), 64 KiB for the received
 /// one (a [`SceneMap`](crate::map::SceneMap): 8 bytes per voxel). When a map is full the voxels
 /// farthest from the anchor are evicted ([`FullPolicy::EvictFarthest`]).
 pub const VOXELS: usize = 8192;

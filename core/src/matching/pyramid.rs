@@ -2,26 +2,30 @@
 //!
 //! Level 0 is the map itself: its voxels and hash index, plus a 6-byte
 //! [`VoxelExtra`] per voxel (packed normal, class, confidence), so preparing
-//! a map does not copy it. Level `l >= 1` groups the entries of level `l - 1`
-//! by (cell twice as large, class) into 20-byte [`CoarseEntry`]s: a pole
+//! a map does not copy it; or, for a model whose storage has room for it
+//! ([`Pyramid::build_model`]), a copy of what matching reads of it (18-byte
+//! [`ModelPoint`]s and the map's index), after which the map's memory may
+//! serve other uses. Level `l >= 1` groups the entries of level `l - 1`
+//! by (cell twice as large, class) into 16-byte [`CoarseEntry`]s: a pole
 //! stays a pole at 3.2 m instead of dissolving into the building next to it,
 //! which is what lets the coarse levels associate semantically. Entries of
 //! one coarse cell are contiguous and an open-addressing index finds a
-//! cell's run; each entry carries a surface normal fitted to its
+//! cell's run; each entry of a model has a surface normal fitted to its
 //! neighbourhood at its own level. The matcher reads every level through
 //! [`Level`], which decodes entries into the plain [`Entry`] form.
 //!
 //! A scene ([`Role::Scene`]) is read less: the matcher walks its entries
 //! and never looks its cells up nor reads its normals, so a scene's pyramid
 //! fits no normals and indexes no coarse level, and its level 0 may be a
-//! [`SceneMap`] (a received map kept as 14 bytes per voxel,
+//! [`SceneMap`] (a received map kept as 8 bytes per voxel,
 //! [`Pyramid::build_scene`]) instead of a map.
 //!
 //! Building a pyramid is the one-off per-map preparation; matching only reads
-//! it. Nothing allocates: the extras, coarse entries, index slots and
-//! footprint words live in a [`PyramidStorage`] the caller provides. A map's
-//! coarse levels take about 0.4 entries per voxel (0.5 m maps, 3 levels), so
-//! a pyramid costs about 6 + 0.4 * 28 = 17 bytes per voxel besides the map.
+//! it. Nothing allocates: the extras, coarse entries, normals, index slots
+//! and footprint words live in a [`PyramidStorage`] the caller provides. A
+//! map's coarse levels take about 0.4 entries per voxel (0.5 m maps, 3
+//! levels), so a model's pyramid costs about 6 + 0.4 * 24 = 16 bytes per
+//! voxel besides the map and its footprint.
 
 use super::footprint::{self, Footprint, FootprintInfo};
 use crate::map::table::{probe_index, probe_keys, walk, walk_by, MapIndex, Probe, Slot};
