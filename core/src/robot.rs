@@ -66,6 +66,24 @@ pub const MODEL_WORDS: usize = 9216;
 /// its occupied cells: room for every grid the 32-bit cells of before held
 /// at 1 m.
 pub const SCENE_WORDS: usize = 6656;
+/// Nodes a robot's prior-free search may score
+/// ([`GlobalSearch::max_evaluations`]), with [`EM_ITERATIONS`] its compute
+/// budget. Robot maps (up to 8,192 voxels of 0.5 m, 25 m of range) that
+/// overlap met their best placement within 2-24 thousand nodes and proved
+/// it within 7-41 thousand, with ground truth and with a network's labels;
+/// maps that share nothing prune little (45-94 thousand nodes, and a
+/// second search and two more refinements: 5-7e8 instructions on a
+/// Cortex-M4). With this budget a robot spends at most about 1e8
+/// instructions searching, and after a search that took more than half of
+/// it refines only its best placement.
+pub const SEARCH_NODES: u32 = 40_000;
+/// EM iterations a robot's refinement may take
+/// ([`MatchSettings::max_iterations`]; the paper's 50 serve a host):
+/// converging matches took at most 16 (prior-free protocol with a network's
+/// labels at twice the usual severity, and the paper's grid of priors); a
+/// refinement that does not converge (a wrong placement, maps that share
+/// nothing) costs about 3.5e6 instructions per iteration.
+pub const EM_ITERATIONS: u32 = 30;
 /// Pyramid levels (0.5 m maps: cells of 0.5, 1 and 2 m).
 pub const LEVELS: usize = 3;
 /// First footprint cell tried (m); doubled until the grids fit.
@@ -173,13 +191,16 @@ pub fn align<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: Pyr
     let model = Pyramid::build_model(own, LEVELS, FOOTPRINT_CELL, model_storage).map_err(AlignError::Pyramid)?;
     let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene_storage).map_err(AlignError::Pyramid)?;
     on_phase(1);
-    let matcher = Matcher::new(MatchSettings::default());
+    let matcher = Matcher::new(MatchSettings { max_iterations: EM_ITERATIONS, ..MatchSettings::default() });
     let r = match prior {
         Some(p) => {
             on_phase(2);
             (matcher.align(&model, &scene, p).map_err(AlignError::Match)?, None)
         }
-        None => align_searched(&matcher, &model, &scene, &GlobalSearch::default(), || on_phase(2))
+        None => {
+            let search = GlobalSearch { max_evaluations: SEARCH_NODES, ..GlobalSearch::default() };
+            align_searched(&matcher, &model, &scene, &search, || on_phase(2))
+        }
             .map_err(AlignError::Match)?,
     };
     on_phase(3);

@@ -134,6 +134,30 @@ fn check_no_prior(json: &Value) {
 }
 
 #[test]
+fn two_robots_that_share_nothing_say_so_within_the_budget_on_board() {
+    // kitti00-loop frames 88 and 850, 308 m apart, no prior: both robots
+    // say NoOverlap, each within the same 3e8 instructions as a pair that
+    // matches (the search stops at the robot's node budget and the best
+    // placement found is refined once).
+    let Some(data) = cosem_tests::real_data("kitti00-loop") else { return };
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let data = data.display().to_string();
+    let (json, ok) = robots(&["--data", &data, "--a", "88:89", "--b", "850:851", "--no-prior"]);
+    assert!(!ok, "{json}");
+    for (i, r) in json["robots"].as_array().unwrap().iter().enumerate() {
+        assert_eq!(r["status"], "NoOverlap", "robot {i}: {r}");
+        check_budget(i, r);
+        let g = &r["global"];
+        let nodes = g["evaluations"].as_u64().unwrap();
+        assert!(nodes <= u64::from(cosem_core::robot::SEARCH_NODES) + 8, "robot {i}: {nodes} nodes");
+        assert_eq!(g["refined"], 1, "robot {i}: {r}");
+    }
+    check_no_prior(&json);
+}
+
+#[test]
 fn two_robots_align_the_opposite_direction_loop_with_no_prior_on_board() {
     // kitti08-loop: the same place driven in opposite directions (yaw about -148 degrees).
     let Some(data) = cosem_tests::real_data("kitti08-loop") else { return };

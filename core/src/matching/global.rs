@@ -6,7 +6,7 @@
 //! `MatchSettings::min_agreement`). None passing is an honest `NoOverlap`,
 //! never a guess.
 
-use super::search::{search_global, GlobalSearch, GlobalSearchOutcome, SearchWindow};
+use super::search::{search_global, Candidate, GlobalSearch, GlobalSearchOutcome, SearchWindow};
 use super::{MatchError, MatchResult, MatchSettings, MatchStatus, Matcher, Method, Pyramid, PyramidStorage};
 
 /// What the prior-free alignment tried.
@@ -39,7 +39,8 @@ impl From<&Searched> for crate::wire::feed::GlobalReport {
 /// best first; each is refined by the matcher (a narrow search window
 /// around it, then EM) until one passes the matcher's verdict
 /// (`Converged`). None passing: the best candidate's result, whatever its
-/// status. `None` with `NoOverlap` when a map has no footprint or the scene
+/// status. Both searches together score at most
+/// [`GlobalSearch::max_evaluations`] nodes. `None` with `NoOverlap` when a map has no footprint or the scene
 /// no occupied cell. `searched` runs after the first search (e.g. to read
 /// an instruction counter).
 pub fn align_searched<A: PyramidStorage, B: PyramidStorage>(
@@ -59,25 +60,45 @@ pub fn align_searched<A: PyramidStorage, B: PyramidStorage>(
     let window = SearchWindow { translation: 4.0, yaw: (2.0 * settings.yaw_step).max(6.0 * deg) };
     let local = Matcher::new(MatchSettings { search: Some(window), ..matcher.settings });
     // The best placement alone first (the cheap search); only when its
-    // refinement fails, the few best distinct ones.
+    // refinement fails, the few best distinct ones, with what is left of
+    // the node budget. The second search explores the first one's tree
+    // again before anything beyond it (its floor is lower), so it runs
+    // only with more nodes left than the first took: not when the first
+    // search took more than half the budget, as maps that share nothing
+    // do (they prune little; their best placements are no better than
+    // their runner-ups).
     let one = GlobalSearch { candidates: 1, ..*settings };
     let Some(search) = search_global(fm, fs, &one, semantic) else { return Ok((MatchResult::no_overlap(), None)) };
     searched();
-    let Some(best) = search.candidates.first() else { return Ok((MatchResult::no_overlap(), None)) };
+    let Some(best) = search.candidates.first().copied() else { return Ok((MatchResult::no_overlap(), None)) };
     let first = local.align(model, scene, &best.transform)?;
-    if first.status == MatchStatus::Converged || settings.candidates <= 1 {
+    let left = settings.max_evaluations.saturating_sub(search.evaluations);
+    if first.status == MatchStatus::Converged || settings.candidates <= 1 || left <= search.evaluations {
         return Ok((first, Some(Searched { search, chosen: 0, refined: 1 })));
     }
-    let Some(more) = search_global(fm, fs, settings, semantic) else {
+    let spent = search.evaluations;
+    let Some(mut more) = search_global(fm, fs, &GlobalSearch { max_evaluations: left, ..*settings }, semantic)
+    else {
         return Ok((first, Some(Searched { search, chosen: 0, refined: 1 })));
     };
-    for (k, c) in more.candidates.iter().enumerate().skip(1) {
+    more.evaluations = more.evaluations.saturating_add(spent);
+    // The first search's placement is refined already (a cut second
+    // search may not have found it first, or at all).
+    let same = |c: &Candidate| {
+        let d = c.transform.inverse() * best.transform;
+        d.translation.vector.xy().norm() < settings.exclusion.0 && d.rotation.angle() < settings.exclusion.1
+    };
+    let mut refined = 1;
+    for (k, c) in more.candidates.iter().enumerate() {
+        if same(c) {
+            continue;
+        }
+        refined += 1;
         let r = local.align(model, scene, &c.transform)?;
         if r.status == MatchStatus::Converged {
-            return Ok((r, Some(Searched { search: more.clone(), chosen: k, refined: k + 1 })));
+            return Ok((r, Some(Searched { search: more.clone(), chosen: k, refined })));
         }
     }
-    let refined = more.candidates.len().max(1);
     Ok((first, Some(Searched { search: more, chosen: 0, refined })))
 }
 
@@ -151,5 +172,34 @@ mod tests {
         let po = build(&other, Role::Scene);
         let (r, _) = align_searched(&matcher, &pm, &po, &GlobalSearch::default(), || {}).unwrap();
         assert_ne!(r.status, MatchStatus::Converged, "{r:?}");
+    }
+
+    /// The node budget: a search that has it all finds what an unbounded
+    /// one does; one cut short says so and keeps what it found; a cut first
+    /// search leaves no second one, so the alignment refines once.
+    #[test]
+    fn the_node_budget_cuts_a_search_and_the_second_chance() {
+        let model = corner(&crate::geometry::Isometry3::identity());
+        let t = from_xyz_rpy(6.0, -3.0, 0.0, 0.0, 0.0, 150f32.to_radians());
+        let scene = corner(&t.inverse());
+        let build = |m, role| crate::matching::Pyramid::build_vec(m, 3, 1.0, role).unwrap();
+        let (pm, ps) = (build(&model, Role::Model), build(&scene, Role::Scene));
+        let (fm, fs) = (pm.footprint().unwrap(), ps.footprint().unwrap());
+        let one = GlobalSearch { candidates: 1, ..GlobalSearch::default() };
+        let budgeted = search_global(fm, fs, &one, true).unwrap();
+        let unbounded = search_global(fm, fs, &GlobalSearch { max_evaluations: u32::MAX, ..one }, true).unwrap();
+        assert!(!budgeted.exhausted && budgeted.evaluations < one.max_evaluations);
+        assert_eq!(budgeted, GlobalSearchOutcome { exhausted: false, ..unbounded.clone() });
+        let budget = unbounded.evaluations / 2;
+        let cut = search_global(fm, fs, &GlobalSearch { max_evaluations: budget, ..one }, true).unwrap();
+        assert!(cut.exhausted && cut.evaluations >= budget && cut.evaluations < budget + 8, "{cut:?}");
+        assert!(!cut.candidates.is_empty());
+        // Too few nodes for a second search: one refinement, whatever it says.
+        let matcher = Matcher::new(MatchSettings::default());
+        let tight = GlobalSearch { max_evaluations: budget, ..GlobalSearch::default() };
+        let (_, found) = align_searched(&matcher, &pm, &ps, &tight, || {}).unwrap();
+        let found = found.unwrap();
+        assert_eq!(found.refined, 1);
+        assert!(found.search.evaluations <= budget + 8);
     }
 }

@@ -357,12 +357,30 @@ pub struct GlobalSearch {
     /// Placements count as distinct when this far apart in translation (m,
     /// default 4) or in yaw (radians, default 15 degrees).
     pub exclusion: (f32, f32),
+    /// Nodes a prior-free alignment may score, over all its searches
+    /// (default: no limit, an exhaustive search): a compute budget, such as
+    /// a robot's ([`crate::robot::SEARCH_NODES`]). The branch and bound
+    /// explores the headings of the best bounds first, so it meets a true
+    /// placement early; the rest of an exhaustive search proves it best.
+    /// Maps that share nothing prune little: when the budget runs out the
+    /// search keeps the best placements found so far
+    /// ([`GlobalSearchOutcome::exhausted`]), which the matcher's verdict
+    /// judges as any other. A cut search can only miss a placement (a
+    /// `NoOverlap` that waits for the next meeting), never make a wrong one
+    /// pass.
+    pub max_evaluations: u32,
 }
 
 impl Default for GlobalSearch {
     fn default() -> Self {
         let deg = core::f32::consts::PI / 180.0;
-        GlobalSearch { yaw_step: 3.0 * deg, points: 128, candidates: 3, exclusion: (4.0, 15.0 * deg) }
+        GlobalSearch {
+            yaw_step: 3.0 * deg,
+            points: 128,
+            candidates: 3,
+            exclusion: (4.0, 15.0 * deg),
+            max_evaluations: u32::MAX,
+        }
     }
 }
 
@@ -389,6 +407,9 @@ pub struct GlobalSearchOutcome {
     pub candidates: heapless::Vec<Candidate, MAX_GLOBAL_CANDIDATES>,
     /// Nodes scored.
     pub evaluations: u32,
+    /// The search stopped at [`GlobalSearch::max_evaluations`]: the
+    /// candidates are the best found until then, not proven best.
+    pub exhausted: bool,
 }
 
 impl GlobalSearchOutcome {
@@ -492,12 +513,16 @@ fn descend<const N: usize>(
     bounds: &Bounds,
     kept: &mut Kept,
     evaluations: &mut u32,
+    budget: u32,
 ) {
     let mut stack: heapless::Vec<Node, STACK> = heapless::Vec::new();
     let _ = stack.push(root);
     while let Some(node) = stack.pop() {
         if !kept.promising(&node) {
             continue;
+        }
+        if *evaluations >= budget {
+            return;
         }
         if node.h == 0 {
             let (i, j) = (i32::from(node.i), i32::from(node.j));
@@ -609,6 +634,7 @@ pub fn search_global(
     let mut kept =
         Kept { nodes: heapless::Vec::new(), capacity: settings.candidates.clamp(1, MAX_GLOBAL_CANDIDATES), sep };
     let mut yaw_roots: heapless::Vec<Node, MAX_YAW_ROOTS> = heapless::Vec::new();
+    let budget = settings.max_evaluations;
     for &(bound, k) in order.iter() {
         if bound <= kept.threshold() || bound == 0 {
             break;
@@ -622,7 +648,7 @@ pub fn search_global(
                 evaluations += 1;
                 let root = Node { yaw: k as i16, i: i as i16, j: j as i16, h: top as u8, score };
                 if yaw_roots.push(root).is_err() {
-                    descend(&scorer, &cells, root, &bounds, &mut kept, &mut evaluations);
+                    descend(&scorer, &cells, root, &bounds, &mut kept, &mut evaluations, budget);
                 }
             }
         }
@@ -631,7 +657,10 @@ pub fn search_global(
             if root.score <= kept.threshold() {
                 break;
             }
-            descend(&scorer, &cells, *root, &bounds, &mut kept, &mut evaluations);
+            descend(&scorer, &cells, *root, &bounds, &mut kept, &mut evaluations, budget);
+        }
+        if evaluations >= budget {
+            break;
         }
     }
     let candidates = kept
@@ -644,5 +673,5 @@ pub fn search_global(
             Candidate { transform: shift * centre, score: n.score }
         })
         .collect();
-    Some(GlobalSearchOutcome { candidates, evaluations })
+    Some(GlobalSearchOutcome { candidates, evaluations, exhausted: evaluations >= budget })
 }
