@@ -34,8 +34,8 @@ use crate::map::{
 use crate::matching::global::{align_searched, Searched};
 use crate::matching::search::GlobalSearch;
 use crate::matching::{
-    ArrayPyramidStorage, ArraySceneStorage, CopiedLevel, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError,
-    PyramidStorage, SceneSource,
+    ArrayPyramidStorage, ArraySceneStorage, CopiedLevel, MatchError, MatchResult, MatchSettings, Matcher, Pyramid,
+    PyramidError, PyramidStorage, SceneSource,
 };
 use crate::wire::feed::{self, FeedError, FeedMessage, GlobalReport, RobotMessage, RobotReport, Setup, Stage};
 use crate::wire::frame::{DeframeError, Deframer, MAX_FRAME};
@@ -201,7 +201,7 @@ pub fn align<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: Pyr
             let search = GlobalSearch { max_evaluations: SEARCH_NODES, ..GlobalSearch::default() };
             align_searched(&matcher, &model, &scene, &search, || on_phase(2))
         }
-            .map_err(AlignError::Match)?,
+        .map_err(AlignError::Match)?,
     };
     on_phase(3);
     Ok(r)

@@ -12,6 +12,9 @@ pub enum Error {
     /// Building a map.
     #[error(transparent)]
     Build(#[from] crate::mapping::BuildError),
+    /// Reading a user's scans (PCD, PLY) or their poses.
+    #[error(transparent)]
+    Cloud(#[from] crate::cloud::CloudError),
     /// Reading or writing a map file.
     #[error(transparent)]
     Cmap(#[from] crate::cmap::CmapError),

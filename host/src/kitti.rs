@@ -254,7 +254,7 @@ fn parse_rigid(path: &Path, line: usize, text: &str) -> Result<Matrix4<f64>, Kit
 }
 
 /// Inverse of a rigid 4x4 matrix (transpose of the rotation).
-fn rigid_inverse(m: &Matrix4<f64>) -> Matrix4<f64> {
+pub(crate) fn rigid_inverse(m: &Matrix4<f64>) -> Matrix4<f64> {
     let r = m.fixed_view::<3, 3>(0, 0).transpose();
     let t = -(r * m.fixed_view::<3, 1>(0, 3));
     let mut out = Matrix4::identity();
@@ -264,7 +264,7 @@ fn rigid_inverse(m: &Matrix4<f64>) -> Matrix4<f64> {
 }
 
 /// The isometry of a matrix already checked rigid.
-fn isometry(m: &Matrix4<f64>) -> Isometry3<f64> {
+pub(crate) fn isometry(m: &Matrix4<f64>) -> Isometry3<f64> {
     rigid_from_matrix(m).unwrap_or_else(Isometry3::identity)
 }
 
@@ -358,8 +358,10 @@ impl Sequence {
         self.camera_poses.len()
     }
 
-    /// `inv(Tr) * P_i * Tr` with the file's numbers.
-    fn velodyne_matrix(&self, frame: usize) -> Result<Matrix4<f64>, KittiError> {
+    /// The LiDAR pose of a scan in the world as the matrix
+    /// `inv(Tr) * P_i * Tr`, with the file's numbers (what
+    /// [`Sequence::load_range`] moves points with).
+    pub fn velodyne_matrix(&self, frame: usize) -> Result<Matrix4<f64>, KittiError> {
         let p = self.camera_poses.get(frame).ok_or_else(|| KittiError::MissingPose {
             path: self.dir.join("poses.txt"),
             frame,

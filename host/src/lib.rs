@@ -6,7 +6,8 @@
 //! - Data in: [`kitti`] (SemanticKITTI layout; every error names its file),
 //!   [`synth`] (procedural streets, a simulated 64-beam LiDAR, camera
 //!   segmentation), [`label`] (LiDAR labels from camera segmentation),
-//!   [`noise`] (a segmentation network's label errors, seeded).
+//!   [`noise`] (a segmentation network's label errors, seeded), [`cloud`]
+//!   (users' scans as PCD or PLY files with poses in KITTI's layout).
 //! - Maps: [`mapping`] (frames to a map on the heap), [`cmap`] (the core's
 //!   map file with path context), [`ply`] (export).
 //! - Matching: [`align`] (heap pyramids, alignment with or without a
@@ -26,6 +27,7 @@ pub mod align;
 pub mod bench;
 pub mod board;
 pub mod boxplot;
+pub mod cloud;
 pub mod cmap;
 pub mod demo;
 pub mod error;

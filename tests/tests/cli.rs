@@ -69,3 +69,71 @@ fn bench_map_prints_numbers() {
     let out = cosem_ok(&["bench", "map", "--repeat", "1", "--frames", "0:2"]);
     assert!(out.contains("M points/s") && out.contains("memory per voxel"), "{out}");
 }
+
+/// A user's scans as PCD or PLY files with their poses (`cosem export
+/// scans` writes a folder's) give the folder's map, to the voxel; on the
+/// synthetic street and, where present, on real KITTI scans.
+#[test]
+fn scans_as_pcd_or_ply_files_give_the_folders_map() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 4, 2);
+    let mut folders = vec![(seq, "0:4")];
+    if let Some(kitti) = cosem_tests::real_data("kitti00") {
+        folders.push((kitti, "3:6"));
+    }
+    let s = |p: &std::path::Path| p.display().to_string();
+    for (k, (data, frames)) in folders.iter().enumerate() {
+        let want = tmp.path().join(format!("{k}.cmap"));
+        cosem_ok(&["map", "--data", &s(data), "--frames", frames, "--voxel", "0.3", "-o", &s(&want)]);
+        let (_, want) = cosem_host::cmap::read(&want).unwrap();
+        for format in ["pcd", "ply"] {
+            let out = tmp.path().join(format!("{k}-{format}"));
+            cosem_ok(&["export", "scans", "--data", &s(data), "--frames", frames, "--format", format, "-o", &s(&out)]);
+            let mut files: Vec<String> = std::fs::read_dir(&out)
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .filter(|p| p.extension().is_some_and(|x| x == format))
+                .map(|p| s(&p))
+                .collect();
+            files.sort();
+            let got = tmp.path().join(format!("{k}-{format}.cmap"));
+            let poses = s(&out.join("poses.txt"));
+            let mut args = vec!["map", "--format", format, "--poses", &poses, "--voxel", "0.3"];
+            args.extend(files.iter().map(String::as_str));
+            let got_s = s(&got);
+            args.extend(["-o", &got_s]);
+            cosem_ok(&args);
+            let (_, got) = cosem_host::cmap::read(&got).unwrap();
+            assert!(want.len() > 1000, "{}", want.len());
+            assert_eq!(got.voxels(), want.voxels(), "{} {frames} as {format}", data.display());
+        }
+    }
+    // Inputs are never written over; a missing pose is a named error.
+    let out = tmp.path().join("0-pcd");
+    let first = s(&out.join("000000.pcd"));
+    let err = cosem_tests::cosem_err(&[
+        "map",
+        "--format",
+        "pcd",
+        &first,
+        "--poses",
+        &s(&out.join("poses.txt")),
+        "-o",
+        &first,
+    ]);
+    assert!(err.contains("input"), "{err}");
+    let short = tmp.path().join("short.txt");
+    std::fs::write(&short, "").unwrap();
+    let err = cosem_tests::cosem_err(&[
+        "map",
+        "--format",
+        "pcd",
+        &first,
+        "--poses",
+        &s(&short),
+        "-o",
+        &s(&tmp.path().join("x.cmap")),
+    ]);
+    assert!(err.contains("short.txt") && err.contains("0 poses for 1 scans"), "{err}");
+}

@@ -117,7 +117,9 @@ impl core::fmt::Display for InsertError {
             InsertError::OutOfRange => "voxel index out of the 16-bit key range",
             InsertError::Full => "map is full",
             InsertError::DuplicateKey => "voxel key already in the map",
-            InsertError::Inexact => "voxel holds more than a received scene keeps (mean or confidence off the encoding's steps)",
+            InsertError::Inexact => {
+                "voxel holds more than a received scene keeps (mean or confidence off the encoding's steps)"
+            }
         })
     }
 }

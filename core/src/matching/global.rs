@@ -77,8 +77,7 @@ pub fn align_searched<A: PyramidStorage, B: PyramidStorage>(
         return Ok((first, Some(Searched { search, chosen: 0, refined: 1 })));
     }
     let spent = search.evaluations;
-    let Some(mut more) = search_global(fm, fs, &GlobalSearch { max_evaluations: left, ..*settings }, semantic)
-    else {
+    let Some(mut more) = search_global(fm, fs, &GlobalSearch { max_evaluations: left, ..*settings }, semantic) else {
         return Ok((first, Some(Searched { search, chosen: 0, refined: 1 })));
     };
     more.evaluations = more.evaluations.saturating_add(spent);

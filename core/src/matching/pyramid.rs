@@ -30,7 +30,9 @@
 use super::footprint::{self, Footprint, FootprintInfo};
 use crate::map::table::{probe_index, probe_keys, walk, walk_by, MapIndex, Probe, Slot};
 use crate::map::voxel::{dequantise_fraction, quantise_fraction};
-use crate::map::{class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage};
+use crate::map::{
+    class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage,
+};
 
 /// Most levels a pyramid has.
 pub const MAX_LEVELS: usize = 8;
@@ -251,13 +253,8 @@ pub struct CoarseEntry {
 
 impl CoarseEntry {
     /// Zeroed (a `static` of them lands in `.bss`).
-    pub const EMPTY: CoarseEntry = CoarseEntry {
-        key: VoxelKey::new(0, 0, 0),
-        fraction: [0; 3],
-        weight: 0,
-        class: 0,
-        confidence: 0,
-    };
+    pub const EMPTY: CoarseEntry =
+        CoarseEntry { key: VoxelKey::new(0, 0, 0), fraction: [0; 3], weight: 0, class: 0, confidence: 0 };
 
     fn order(&self) -> (u64, u8) {
         (self.key.sweep(), self.class)
@@ -919,12 +916,10 @@ impl<'a> Level<'a> {
                 Probe::Vacant(_) => (0, 0),
             },
             LevelData::Points { .. } => (0, 0),
-            LevelData::Copied { points, index } => {
-                match probe_keys(index, key, |i| points.get(i).map(|p| p.key)) {
-                    Probe::Found(i) => (i, i + 1),
-                    Probe::Vacant(_) => (0, 0),
-                }
-            }
+            LevelData::Copied { points, index } => match probe_keys(index, key, |i| points.get(i).map(|p| p.key)) {
+                Probe::Found(i) => (i, i + 1),
+                Probe::Vacant(_) => (0, 0),
+            },
             LevelData::Coarse { entries, slots, narrow, .. } => coarse_run(entries, slots, narrow, key),
         };
         Cell { level: *self, next, end }

@@ -1,4 +1,6 @@
-//! `cosem export ply`: a map as a coloured point cloud.
+//! `cosem export ply`: a map as a coloured point cloud. `cosem export
+//! scans`: a SemanticKITTI folder's scans as PCD or PLY files and their
+//! poses, the input `cosem map --format` reads.
 
 use super::Error;
 use cosem_host::ply::{self, PlyPoint};
@@ -14,6 +16,23 @@ pub enum Format {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// A SemanticKITTI folder's scans as labelled point clouds, one file a
+    /// scan in the LiDAR's frame (x, y, z, label: the raw label word), and
+    /// `poses.txt`: each scan's LiDAR pose in KITTI's layout.
+    Scans {
+        /// SemanticKITTI-layout folder.
+        #[arg(long)]
+        data: PathBuf,
+        /// Frames START:END[:STRIDE] (END exclusive).
+        #[arg(long)]
+        frames: cosem_host::kitti::FrameRange,
+        /// File format.
+        #[arg(long)]
+        format: cosem_host::cloud::CloudFormat,
+        /// Output folder (created; never inside the input folder).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
 }
 
 pub fn run(f: Format) -> Result<(), Error> {
@@ -26,6 +45,30 @@ pub fn run(f: Format) -> Result<(), Error> {
             let points: Vec<PlyPoint> = map.iter().map(|v| PlyPoint::of(v, map.resolution(), &id, colour(v))).collect();
             ply::write(&output, &points).map_err(|e| format!("{}: {e}", output.display()))?;
             println!("{}: {} points", output.display(), points.len());
+            Ok(())
+        }
+        Format::Scans { data, frames, format, output } => {
+            use cosem_host::cloud::{write_pcd, write_ply, write_poses, CloudFormat};
+            cosem_host::paths::refuse_inside(&output, &[&data])?;
+            let seq = cosem_host::kitti::Sequence::open(&data)?;
+            std::fs::create_dir_all(&output).map_err(|e| format!("{}: {e}", output.display()))?;
+            let mut poses = Vec::new();
+            let ext = match format {
+                CloudFormat::Pcd => "pcd",
+                CloudFormat::Ply => "ply",
+            };
+            for i in frames.frames() {
+                let scan = seq.read_scan(i)?;
+                poses.push(seq.velodyne_matrix(i)?);
+                let points: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+                let path = output.join(format!("{i:06}.{ext}"));
+                match format {
+                    CloudFormat::Pcd => write_pcd(&path, &points, &scan.labels)?,
+                    CloudFormat::Ply => write_ply(&path, &points, &scan.labels)?,
+                }
+            }
+            write_poses(&output.join("poses.txt"), &poses)?;
+            println!("{}: {} scans as {ext} and poses.txt", output.display(), poses.len());
             Ok(())
         }
     }

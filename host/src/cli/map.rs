@@ -1,4 +1,6 @@
-//! `cosem map`: frames -> local map -> `.cmap` file.
+//! `cosem map`: frames -> local map -> `.cmap` file. Frames from a
+//! SemanticKITTI-layout folder (`--data`, `--frames`), or from a user's
+//! scans as PCD or PLY files with their poses (`--format`, `--poses`).
 
 use super::Error;
 use cosem_core::classes::MovingObjects;
@@ -12,11 +14,27 @@ use std::time::Instant;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// SemanticKITTI-layout folder (velodyne/, labels/, poses.txt, calib.txt).
-    #[arg(long)]
-    data: PathBuf,
+    #[arg(long, required_unless_present = "format", conflicts_with = "format")]
+    data: Option<PathBuf>,
     /// Frames START:END[:STRIDE] (END exclusive); the first is the anchor.
-    #[arg(long)]
-    frames: FrameRange,
+    #[arg(long, required_unless_present = "format", conflicts_with = "format")]
+    frames: Option<FrameRange>,
+    /// Read scans from these files instead, one per scan in the sensor's
+    /// frame, in order (the first is the anchor): labelled point clouds
+    /// (fields x, y, z and an integer label holding the SemanticKITTI id in
+    /// its low 16 bits; NaN points skipped).
+    #[arg(long, requires = "poses")]
+    format: Option<cosem_host::cloud::CloudFormat>,
+    /// The scans' files (with --format).
+    #[arg(requires = "format")]
+    files: Vec<PathBuf>,
+    /// With --format: the sensor's pose for each scan in KITTI's layout (one
+    /// line each: 12 numbers, the row-major 3x4 pose in the map frame).
+    #[arg(long, requires = "format")]
+    poses: Option<PathBuf>,
+    /// With --format: the label field's name.
+    #[arg(long, default_value = "label")]
+    label_field: String,
     /// Voxel size (m).
     #[arg(long, default_value = "0.2", value_parser = super::args::positive_f32)]
     voxel: f32,
@@ -42,10 +60,30 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
-    cosem_host::paths::refuse_inside(&a.output, &[&a.data])?;
     let t0 = Instant::now();
-    let seq = Sequence::open(&a.data)?;
-    let mut frames = seq.load_range(a.frames)?;
+    let (mut frames, name, range) = match (&a.format, &a.poses, &a.data, a.frames) {
+        (Some(format), Some(poses), _, _) => {
+            if a.files.is_empty() {
+                return Err("--format needs the scans' files".into());
+            }
+            let mut inputs: Vec<&std::path::Path> = a.files.iter().map(PathBuf::as_path).collect();
+            inputs.push(poses);
+            cosem_host::paths::refuse_overwrite(&a.output, &inputs)?;
+            let (frames, skipped) = cosem_host::cloud::load_scans(*format, &a.files, poses, &a.label_field)?;
+            if skipped > 0 {
+                eprintln!("{skipped} points with a NaN coordinate skipped");
+            }
+            let first = a.files[0].display();
+            (frames, format!("{} {format:?} scans from {first}", a.files.len()), String::new())
+        }
+        (_, _, Some(data), Some(range)) => {
+            cosem_host::paths::refuse_inside(&a.output, &[data])?;
+            let seq = Sequence::open(data)?;
+            let name = data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            (seq.load_range(range)?, name, range.to_string())
+        }
+        _ => return Err("give --data and --frames, or --format, the files and --poses".into()),
+    };
     let noise = cosem_host::noise::corrupt_all(&mut frames, a.label_noise, a.seed);
     let filter = PointFilter {
         max_range: a.max_range,
@@ -55,10 +93,9 @@ pub fn run(a: Args) -> Result<(), Error> {
         MapConfig { resolution: a.voxel, sensor: SensorModel { accuracy: a.label_accuracy }, ..MapConfig::default() };
     let (map, stats) = build_map(&frames, config, &filter)?;
     let anchor_time = frames.first().and_then(|f| f.time);
-    let name = a.data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let source = match a.label_noise {
-        LabelNoise::None => format!("{name} {}", a.frames),
-        n => format!("{name} {} label noise {n:?} seed {} ({:.1}% changed)", a.frames, a.seed, 100.0 * noise.rate()),
+        LabelNoise::None => format!("{name} {range}"),
+        n => format!("{name} {range} label noise {n:?} seed {} ({:.1}% changed)", a.seed, 100.0 * noise.rate()),
     };
     if stats.out_of_range > 0 {
         eprintln!(
