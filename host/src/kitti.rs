@@ -203,6 +203,9 @@ pub struct Sequence {
     camera_poses: Vec<Matrix4<f64>>,
     /// Timestamps, when times.txt is present.
     pub times: Option<Vec<f64>>,
+    /// Labels are checked to be SemanticKITTI ids (off when a user's class
+    /// table reads them: [`Sequence::with_user_ids`]).
+    check_ids: bool,
 }
 
 fn read(path: &Path) -> Result<Vec<u8>, KittiError> {
@@ -324,7 +327,7 @@ impl Sequence {
         } else {
             None
         };
-        Ok(Sequence { dir, tr, projections, camera_poses, times })
+        Ok(Sequence { dir, tr, projections, camera_poses, times, check_ids: true })
     }
 
     /// Path of a frame's scan.
@@ -368,6 +371,13 @@ impl Sequence {
             lines: self.camera_poses.len(),
         })?;
         Ok(rigid_inverse(&self.tr) * p * self.tr)
+    }
+
+    /// The same folder with labels that are a user's ids, read through a
+    /// class table ([`crate::class_table`]) instead of SemanticKITTI's.
+    pub fn with_user_ids(mut self) -> Self {
+        self.check_ids = false;
+        self
     }
 
     /// LiDAR pose of a scan in the world: `inv(Tr) * P_i * Tr`.
@@ -440,7 +450,8 @@ impl Sequence {
             return Err(KittiError::LabelSize { path: label_path, len: lbytes.len() as u64 });
         }
         let labels: Vec<u32> = lbytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        if let Some(i) = labels.iter().position(|l| !cosem_core::classes::Class::is_semantic_kitti_id(*l)) {
+        let not_kitti = |l: &u32| !cosem_core::classes::Class::is_semantic_kitti_id(*l);
+        if let Some(i) = labels.iter().position(not_kitti).filter(|_| self.check_ids) {
             return Err(KittiError::Malformed {
                 path: label_path,
                 what: format!(

@@ -27,6 +27,7 @@ pub mod align;
 pub mod bench;
 pub mod board;
 pub mod boxplot;
+pub mod class_table;
 pub mod cloud;
 pub mod cmap;
 pub mod demo;

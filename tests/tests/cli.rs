@@ -137,3 +137,66 @@ fn scans_as_pcd_or_ply_files_give_the_folders_map() {
     ]);
     assert!(err.contains("short.txt") && err.contains("0 poses for 1 scans"), "{err}");
 }
+
+/// A class table read by every reader: SemanticKITTI's own ids named in a
+/// table give the folder's map (from the folder and from PCD files); a
+/// table that keeps two classes maps only those; an id the table does not
+/// name is an error naming the scan, the point and the id.
+#[test]
+fn a_class_table_maps_a_users_ids_in_every_reader() {
+    use cosem_core::classes::{Class, MovingObjects};
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 3, 4);
+    let s = |p: &std::path::Path| p.display().to_string();
+    let ids: Vec<u32> = (0..=259).filter(|&id| Class::is_semantic_kitti_id(id)).collect();
+    let table = |keep: &dyn Fn(Class) -> bool| {
+        let mut t = String::from("# SemanticKITTI's ids\n[ids]\n");
+        for &id in &ids {
+            let name = Class::from_semantic_kitti(id, MovingObjects::Skip)
+                .filter(|&c| keep(c))
+                .map_or("unlabeled", Class::name);
+            t.push_str(&format!("{id} = \"{name}\"\n"));
+        }
+        t
+    };
+    let (same, two) = (tmp.path().join("same.toml"), tmp.path().join("two.toml"));
+    std::fs::write(&same, table(&|_| true)).unwrap();
+    std::fs::write(&two, table(&|c| c == Class::Road || c == Class::Building)).unwrap();
+    let map = |extra: &[&str], out: &str| {
+        let out = tmp.path().join(out);
+        let mut args = vec!["map", "--voxel", "0.3"];
+        args.extend_from_slice(extra);
+        let o = s(&out);
+        args.extend(["-o", &o]);
+        cosem_ok(&args);
+        cosem_host::cmap::read(&out).unwrap().1
+    };
+    let (seq_s, same_s, two_s) = (s(&seq), s(&same), s(&two));
+    let want = map(&["--data", &seq_s, "--frames", "0:3"], "want.cmap");
+    assert_eq!(map(&["--data", &seq_s, "--frames", "0:3", "--classes", &same_s], "a.cmap").voxels(), want.voxels());
+    let scans = tmp.path().join("scans");
+    cosem_ok(&["export", "scans", "--data", &seq_s, "--frames", "0:3", "--format", "pcd", "-o", &s(&scans)]);
+    let files: Vec<String> = (0..3).map(|i| s(&scans.join(format!("{i:06}.pcd")))).collect();
+    let poses = s(&scans.join("poses.txt"));
+    let mut args = vec!["--format", "pcd", "--poses", &poses, "--classes", &same_s];
+    args.extend(files.iter().map(String::as_str));
+    assert_eq!(map(&args, "b.cmap").voxels(), want.voxels());
+    let kept = map(&["--data", &seq_s, "--frames", "0:3", "--classes", &two_s], "c.cmap");
+    let classes: std::collections::BTreeSet<_> = kept.iter().filter_map(|v| v.class()).collect();
+    assert_eq!(classes.into_iter().collect::<Vec<_>>(), vec![Class::Road, Class::Building]);
+    // Without the road's id: every reader names the scan, point and id.
+    let road = Class::Road.semantic_kitti_id();
+    let partial = tmp.path().join("partial.toml");
+    let text: String =
+        table(&|_| true).lines().filter(|l| !l.starts_with(&format!("{road} ="))).map(|l| format!("{l}\n")).collect();
+    std::fs::write(&partial, text).unwrap();
+    let partial_s = s(&partial);
+    let o = s(&tmp.path().join("d.cmap"));
+    let err = cosem_tests::cosem_err(&["map", "--data", &seq_s, "--frames", "0:3", "--classes", &partial_s, "-o", &o]);
+    assert!(err.contains(&format!("label id {road} is not in the class table")) && err.contains("frame 0"), "{err}");
+    let mut args = vec!["map", "--format", "pcd", "--poses", &poses, "--classes", &partial_s, "-o", &o];
+    args.extend(files.iter().map(String::as_str));
+    let err = cosem_tests::cosem_err(&args);
+    assert!(err.contains("000000.pcd: point") && err.contains(&format!("label id {road}")), "{err}");
+}

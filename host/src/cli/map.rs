@@ -35,6 +35,11 @@ pub struct Args {
     /// With --format: the label field's name.
     #[arg(long, default_value = "label")]
     label_field: String,
+    /// A class table (TOML): the labels are a user's ids, mapped to classes
+    /// by its `[ids]` (`1 = "road"`, `0 = "unlabeled"`, ...) instead of
+    /// SemanticKITTI's; an id it does not name is an error.
+    #[arg(long)]
+    classes: Option<PathBuf>,
     /// Voxel size (m).
     #[arg(long, default_value = "0.2", value_parser = super::args::positive_f32)]
     voxel: f32,
@@ -79,11 +84,22 @@ pub fn run(a: Args) -> Result<(), Error> {
         (_, _, Some(data), Some(range)) => {
             cosem_host::paths::refuse_inside(&a.output, &[data])?;
             let seq = Sequence::open(data)?;
+            let seq = if a.classes.is_some() { seq.with_user_ids() } else { seq };
             let name = data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
             (seq.load_range(range)?, name, range.to_string())
         }
         _ => return Err("give --data and --frames, or --format, the files and --poses".into()),
     };
+    if let Some(path) = &a.classes {
+        let table = cosem_host::class_table::ClassTable::read(path)?;
+        table.relabel(&mut frames).map_err(|(f, i, id)| {
+            let scan = match (&a.format, a.files.get(f)) {
+                (Some(_), Some(file)) => file.display().to_string(),
+                _ => format!("frame {}", frames[f].index),
+            };
+            format!("{scan}: point {i}: label id {id} is not in the class table {}", path.display())
+        })?;
+    }
     let noise = cosem_host::noise::corrupt_all(&mut frames, a.label_noise, a.seed);
     let filter = PointFilter {
         max_range: a.max_range,
