@@ -77,7 +77,7 @@ pub struct Cloud {
 
 /// A scalar type of a field.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Scalar {
+pub(crate) enum Scalar {
     I8,
     U8,
     I16,
@@ -136,6 +136,21 @@ impl Scalar {
         })
     }
 
+    /// A ROS `sensor_msgs/PointField` datatype.
+    pub(crate) fn of_ros(datatype: u8) -> Option<Scalar> {
+        Some(match datatype {
+            1 => Scalar::I8,
+            2 => Scalar::U8,
+            3 => Scalar::I16,
+            4 => Scalar::U16,
+            5 => Scalar::I32,
+            6 => Scalar::U32,
+            7 => Scalar::F32,
+            8 => Scalar::F64,
+            _ => return None,
+        })
+    }
+
     /// A PCD field's TYPE and SIZE.
     fn of_pcd(kind: &str, size: usize) -> Option<Scalar> {
         Some(match (kind, size) {
@@ -162,13 +177,22 @@ struct Field {
 }
 
 /// The fields of a point record.
-struct Layout {
+pub(crate) struct Layout {
     fields: Vec<Field>,
     /// Bytes per record (binary).
     stride: usize,
 }
 
 impl Layout {
+    /// Fields at explicit offsets (a ROS message's) in records of `stride`
+    /// bytes; `None` when a field does not fit the record.
+    pub(crate) fn with_offsets(fields: Vec<(String, Scalar, usize, usize)>, stride: usize) -> Option<Self> {
+        let fields: Vec<Field> =
+            fields.into_iter().map(|(name, scalar, count, offset)| Field { name, scalar, count, offset }).collect();
+        let fits = fields.iter().all(|f| f.offset + f.scalar.size() * f.count.max(1) <= stride);
+        fits.then_some(Layout { fields, stride })
+    }
+
     fn new(fields: Vec<(String, Scalar, usize)>) -> Self {
         let mut offset = 0;
         let fields = fields
@@ -184,7 +208,7 @@ impl Layout {
 
     /// The indices of x, y, z and the label field: all single scalars,
     /// the label an integer.
-    fn pick(&self, label: &str, path: &Path) -> Result<[usize; 4], CloudError> {
+    pub(crate) fn pick(&self, label: &str, path: &Path) -> Result<[usize; 4], CloudError> {
         let find = |name: &str| {
             self.fields.iter().position(|f| f.name == name).ok_or_else(|| CloudError::Header {
                 path: path.to_owned(),
@@ -233,6 +257,37 @@ fn push(cloud: &mut Cloud, v: [f64; 4], at: impl Fn() -> String, path: &Path) ->
     }
     cloud.points.push(p);
     cloud.labels.push(l as u32);
+    Ok(())
+}
+
+/// Reads `n` binary little-endian records of `layout` from `body` into
+/// `cloud`; `what` names a record in errors (e.g. "point", "vertex") and
+/// `at` is the byte offset of `body` in the file.
+pub(crate) fn read_records(
+    body: &[u8],
+    n: usize,
+    layout: &Layout,
+    idx: [usize; 4],
+    path: &Path,
+    (what, at): (&str, usize),
+    cloud: &mut Cloud,
+) -> Result<(), CloudError> {
+    let need = n.checked_mul(layout.stride).filter(|&need| need <= body.len()).ok_or_else(|| CloudError::Data {
+        path: path.to_owned(),
+        what: format!(
+            "{n} {what}s of {} bytes need {} bytes from byte offset {at}, there are {}",
+            layout.stride,
+            n.saturating_mul(layout.stride),
+            body.len()
+        ),
+    })?;
+    for (i, rec) in body[..need].chunks_exact(layout.stride.max(1)).enumerate() {
+        let v = idx.map(|k| {
+            let f = &layout.fields[k];
+            f.scalar.read(&rec[f.offset..f.offset + f.scalar.size()])
+        });
+        push(cloud, v, || format!("{what} {i} (byte offset {})", at + i * layout.stride), path)?;
+    }
     Ok(())
 }
 
@@ -312,28 +367,7 @@ pub fn read_pcd(path: &Path, label: &str) -> Result<Cloud, CloudError> {
     let data = get("DATA")?.first().cloned().unwrap_or_default();
     let mut cloud = Cloud::default();
     match data.as_str() {
-        "binary" => {
-            let body = &bytes[data_at..];
-            let need = points.checked_mul(layout.stride).ok_or_else(|| bad("POINTS too large".into()))?;
-            if body.len() < need {
-                return Err(CloudError::Data {
-                    path: path.to_owned(),
-                    what: format!(
-                        "{points} points of {} bytes need {need} bytes from byte offset {data_at}, the file has {}",
-                        layout.stride,
-                        body.len()
-                    ),
-                });
-            }
-            for i in 0..points {
-                let rec = &body[i * layout.stride..(i + 1) * layout.stride];
-                let v = idx.map(|k| {
-                    let f = &layout.fields[k];
-                    f.scalar.read(&rec[f.offset..f.offset + f.scalar.size()])
-                });
-                push(&mut cloud, v, || format!("point {i} (byte offset {})", data_at + i * layout.stride), path)?;
-            }
-        }
+        "binary" => read_records(&bytes[data_at..], points, &layout, idx, path, ("point", data_at), &mut cloud)?,
         "ascii" => read_ascii(&bytes[data_at..], lines.len(), points, &layout, idx, path, &mut cloud)?,
         other => {
             return Err(bad(format!(
@@ -443,26 +477,7 @@ pub fn read_ply(path: &Path, label: &str) -> Result<Cloud, CloudError> {
     let mut cloud = Cloud::default();
     match format.as_deref() {
         Some("binary_little_endian") => {
-            let body = &bytes[data_at..];
-            let need = vertices.checked_mul(layout.stride).ok_or_else(|| bad("vertex count too large".into()))?;
-            if body.len() < need {
-                return Err(CloudError::Data {
-                    path: path.to_owned(),
-                    what: format!(
-                        "{vertices} vertices of {} bytes need {need} bytes from byte offset {data_at}, the file has {}",
-                        layout.stride,
-                        body.len()
-                    ),
-                });
-            }
-            for i in 0..vertices {
-                let rec = &body[i * layout.stride..(i + 1) * layout.stride];
-                let v = idx.map(|k| {
-                    let f = &layout.fields[k];
-                    f.scalar.read(&rec[f.offset..f.offset + f.scalar.size()])
-                });
-                push(&mut cloud, v, || format!("vertex {i} (byte offset {})", data_at + i * layout.stride), path)?;
-            }
+            read_records(&bytes[data_at..], vertices, &layout, idx, path, ("vertex", data_at), &mut cloud)?
         }
         Some("ascii") => read_ascii(&bytes[data_at..], lines.len(), vertices, &layout, idx, path, &mut cloud)?,
         Some("binary_big_endian") => return Err(bad("big-endian PLY is not read: save it little endian".into())),
@@ -577,24 +592,29 @@ pub fn load_scans(
     let mut skipped = 0;
     let mut frames = Vec::with_capacity(files.len());
     for (i, (file, pose)) in files.iter().zip(&poses).enumerate() {
-        let m = anchor_inv * pose;
         let cloud = read(format, file, label)?;
         skipped += cloud.skipped;
-        let mut points = Vec::with_capacity(cloud.points.len());
-        let mut ranges = Vec::with_capacity(cloud.points.len());
-        for p in &cloud.points {
-            let (x, y, z) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-            ranges.push((x * x + y * y + z * z).sqrt() as f32);
-            points.push([
-                (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
-                (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
-                (m[(2, 0)] * x + m[(2, 1)] * y + m[(2, 2)] * z + m[(2, 3)]) as f32,
-            ]);
-        }
-        let pose: Isometry3<f64> = crate::kitti::isometry(&m);
-        frames.push(Frame { index: i, time: None, pose, points, ranges, labels: cloud.labels, evidence: None });
+        frames.push(frame_of(i, None, &(anchor_inv * pose), cloud));
     }
     Ok((frames, skipped))
+}
+
+/// A scan as a [`Frame`]: its points moved by `m` (the scan's sensor pose
+/// in the anchor frame) with the folder reader's arithmetic.
+pub(crate) fn frame_of(index: usize, time: Option<f64>, m: &Matrix4<f64>, cloud: Cloud) -> Frame {
+    let mut points = Vec::with_capacity(cloud.points.len());
+    let mut ranges = Vec::with_capacity(cloud.points.len());
+    for p in &cloud.points {
+        let (x, y, z) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+        ranges.push((x * x + y * y + z * z).sqrt() as f32);
+        points.push([
+            (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
+            (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
+            (m[(2, 0)] * x + m[(2, 1)] * y + m[(2, 2)] * z + m[(2, 3)]) as f32,
+        ]);
+    }
+    let pose: Isometry3<f64> = crate::kitti::isometry(m);
+    Frame { index, time, pose, points, ranges, labels: cloud.labels, evidence: None }
 }
 
 #[cfg(test)]

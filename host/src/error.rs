@@ -15,6 +15,9 @@ pub enum Error {
     /// Reading a user's scans (PCD, PLY) or their poses.
     #[error(transparent)]
     Cloud(#[from] crate::cloud::CloudError),
+    /// Reading or writing a ROS 2 recording (MCAP).
+    #[error(transparent)]
+    Recording(#[from] crate::recording::RecordingError),
     /// Reading or writing a map file.
     #[error(transparent)]
     Cmap(#[from] crate::cmap::CmapError),

@@ -41,6 +41,7 @@ pub mod noise;
 pub mod pair;
 pub mod paths;
 pub mod ply;
+pub mod recording;
 pub mod relay;
 pub mod report;
 pub mod rng;

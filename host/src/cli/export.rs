@@ -1,6 +1,7 @@
 //! `cosem export ply`: a map as a coloured point cloud. `cosem export
 //! scans`: a SemanticKITTI folder's scans as PCD or PLY files and their
-//! poses, the input `cosem map --format` reads.
+//! poses, the input `cosem map --format` reads. `cosem export mcap`: the
+//! same as a ROS 2 recording, the input `cosem map --mcap` reads.
 
 use super::Error;
 use cosem_host::ply::{self, PlyPoint};
@@ -30,6 +31,23 @@ pub enum Format {
         #[arg(long)]
         format: cosem_host::cloud::CloudFormat,
         /// Output folder (created; never inside the input folder).
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// A SemanticKITTI folder's scans as a ROS 2 recording (MCAP, zstd):
+    /// PointCloud2 in frame `velodyne` (x, y, z, label) on --topic and the
+    /// LiDAR's pose `world -> velodyne` on /tf at each scan's stamp.
+    Mcap {
+        /// SemanticKITTI-layout folder.
+        #[arg(long)]
+        data: PathBuf,
+        /// Frames START:END[:STRIDE] (END exclusive).
+        #[arg(long)]
+        frames: cosem_host::kitti::FrameRange,
+        /// The point cloud topic.
+        #[arg(long, default_value = "/velodyne_points")]
+        topic: String,
+        /// Output MCAP file (never inside the input folder).
         #[arg(short, long)]
         output: PathBuf,
     },
@@ -69,6 +87,13 @@ pub fn run(f: Format) -> Result<(), Error> {
             }
             write_poses(&output.join("poses.txt"), &poses)?;
             println!("{}: {} scans as {ext} and poses.txt", output.display(), poses.len());
+            Ok(())
+        }
+        Format::Mcap { data, frames, topic, output } => {
+            cosem_host::paths::refuse_inside(&output, &[&data])?;
+            let seq = cosem_host::kitti::Sequence::open(&data)?;
+            let n = cosem_host::recording::export(&seq, frames, &topic, &output)?;
+            println!("{}: {n} scans on {topic} and /tf", output.display());
             Ok(())
         }
     }

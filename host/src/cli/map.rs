@@ -14,11 +14,22 @@ use std::time::Instant;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// SemanticKITTI-layout folder (velodyne/, labels/, poses.txt, calib.txt).
-    #[arg(long, required_unless_present = "format", conflicts_with = "format")]
+    #[arg(long, required_unless_present_any = ["format", "mcap"], conflicts_with_all = ["format", "mcap"])]
     data: Option<PathBuf>,
     /// Frames START:END[:STRIDE] (END exclusive); the first is the anchor.
+    /// With --mcap: 0-based indices among the topic's messages.
     #[arg(long, required_unless_present = "format", conflicts_with = "format")]
     frames: Option<FrameRange>,
+    /// A ROS 2 recording (MCAP): PointCloud2 scans on --points, poses from
+    /// /tf and /tf_static (zstd or lz4 chunks read).
+    #[arg(long, conflicts_with = "format")]
+    mcap: Option<PathBuf>,
+    /// With --mcap: the point cloud topic.
+    #[arg(long, default_value = "/velodyne_points")]
+    points: String,
+    /// With --mcap: the frame the scans' poses are chained from.
+    #[arg(long, default_value = "world")]
+    pose_frame: String,
     /// Read scans from these files instead, one per scan in the sensor's
     /// frame, in order (the first is the anchor): labelled point clouds
     /// (fields x, y, z and an integer label holding the SemanticKITTI id in
@@ -67,6 +78,22 @@ pub struct Args {
 pub fn run(a: Args) -> Result<(), Error> {
     let t0 = Instant::now();
     let (mut frames, name, range) = match (&a.format, &a.poses, &a.data, a.frames) {
+        (_, _, _, Some(range)) if a.mcap.is_some() => {
+            let file = a.mcap.as_deref().unwrap_or(std::path::Path::new(""));
+            cosem_host::paths::refuse_overwrite(&a.output, &[file])?;
+            let what = cosem_host::recording::RecordingScans {
+                points: &a.points,
+                label_field: &a.label_field,
+                pose_frame: &a.pose_frame,
+                frames: range,
+            };
+            let (frames, skipped) = cosem_host::recording::read_scans(file, &what)?;
+            if skipped > 0 {
+                eprintln!("{skipped} points with a NaN coordinate skipped");
+            }
+            let name = file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            (frames, format!("{name} {}", a.points), range.to_string())
+        }
         (Some(format), Some(poses), _, _) => {
             if a.files.is_empty() {
                 return Err("--format needs the scans' files".into());
@@ -95,6 +122,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         table.relabel(&mut frames).map_err(|(f, i, id)| {
             let scan = match (&a.format, a.files.get(f)) {
                 (Some(_), Some(file)) => file.display().to_string(),
+                _ if a.mcap.is_some() => format!("{} message {}", a.points, frames[f].index),
                 _ => format!("frame {}", frames[f].index),
             };
             format!("{scan}: point {i}: label id {id} is not in the class table {}", path.display())

@@ -1,0 +1,487 @@
+//! ROS 2 recordings (MCAP, rosbag2's default storage): labelled
+//! `sensor_msgs/msg/PointCloud2` scans on one topic and the sensor's pose
+//! at each scan's stamp from `/tf` and `/tf_static`
+//! (`tf2_msgs/msg/TFMessage`). Messages are CDR (ROS 2's serialisation,
+//! read and written by the `cdr` crate); chunks may be compressed with
+//! zstd or lz4 (the `mcap` crate).
+//!
+//! A scan's pose is the chain of transforms from the pose frame (default
+//! `world`) to the cloud's `frame_id`: a transform stamped exactly at the
+//! scan is used as it is, otherwise the two around the stamp are
+//! interpolated (linear translation, spherical rotation); static
+//! transforms hold at every stamp. A stamp outside an edge's transforms,
+//! or no chain, is an error naming the scan.
+
+use crate::cloud::{frame_of, read_records, Cloud, Layout, Scalar};
+use crate::kitti::Frame;
+use nalgebra::{Isometry3, Matrix4, Quaternion as NQuaternion, Translation3, UnitQuaternion};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Why a recording could not be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    /// Reading or writing the file.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The MCAP container is broken or holds what this reader cannot take.
+    #[error("{path}: {what}")]
+    Mcap {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+    /// A message could not be read, or a scan has no pose.
+    #[error("{path}: {what}")]
+    Message {
+        /// The file.
+        path: PathBuf,
+        /// Which message (topic, index, stamp) and what is wrong.
+        what: String,
+    },
+    /// A scan's points.
+    #[error(transparent)]
+    Cloud(#[from] crate::cloud::CloudError),
+}
+
+/// `builtin_interfaces/msg/Time`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Time {
+    /// Seconds.
+    pub sec: i32,
+    /// Nanoseconds.
+    pub nanosec: u32,
+}
+
+impl Time {
+    fn nanos(self) -> i64 {
+        i64::from(self.sec) * 1_000_000_000 + i64::from(self.nanosec)
+    }
+
+    fn of_seconds(t: f64) -> Self {
+        let ns = (t * 1e9).round() as i64;
+        Time { sec: ns.div_euclid(1_000_000_000) as i32, nanosec: ns.rem_euclid(1_000_000_000) as u32 }
+    }
+}
+
+/// `std_msgs/msg/Header`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Header {
+    /// When.
+    pub stamp: Time,
+    /// In which frame.
+    pub frame_id: String,
+}
+
+/// `sensor_msgs/msg/PointField`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PointField {
+    /// Field name.
+    pub name: String,
+    /// Byte offset in a point.
+    pub offset: u32,
+    /// 1 int8 ... 6 uint32, 7 float32, 8 float64.
+    pub datatype: u8,
+    /// Values.
+    pub count: u32,
+}
+
+/// `sensor_msgs/msg/PointCloud2`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PointCloud2 {
+    /// Stamp and sensor frame.
+    pub header: Header,
+    /// Rows (1 for an unorganised cloud).
+    pub height: u32,
+    /// Points a row.
+    pub width: u32,
+    /// The point layout.
+    pub fields: Vec<PointField>,
+    /// Big-endian data (refused).
+    pub is_bigendian: bool,
+    /// Bytes a point.
+    pub point_step: u32,
+    /// Bytes a row.
+    pub row_step: u32,
+    /// The points.
+    pub data: Vec<u8>,
+    /// No invalid points.
+    pub is_dense: bool,
+}
+
+/// `geometry_msgs/msg/Vector3`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Vector3 {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+}
+
+/// `geometry_msgs/msg/Quaternion`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Quaternion {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+    /// w.
+    pub w: f64,
+}
+
+/// `geometry_msgs/msg/Transform`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Transform {
+    /// Translation.
+    pub translation: Vector3,
+    /// Rotation.
+    pub rotation: Quaternion,
+}
+
+/// `geometry_msgs/msg/TransformStamped`: the child frame's pose in the
+/// parent (`header.frame_id`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TransformStamped {
+    /// Stamp and parent frame.
+    pub header: Header,
+    /// Child frame.
+    pub child_frame_id: String,
+    /// `T_parent_child`.
+    pub transform: Transform,
+}
+
+/// `tf2_msgs/msg/TFMessage`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TfMessage {
+    /// The transforms.
+    pub transforms: Vec<TransformStamped>,
+}
+
+/// The message definitions a recording's schemas carry (`ros2msg`).
+const POINTCLOUD2_SCHEMA: &str = "std_msgs/Header header\nuint32 height\nuint32 width\nPointField[] fields\nbool is_bigendian\nuint32 point_step\nuint32 row_step\nuint8[] data\nbool is_dense\n================================================================================\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n================================================================================\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n================================================================================\nMSG: sensor_msgs/PointField\nuint8 INT8=1\nuint8 UINT8=2\nuint8 INT16=3\nuint8 UINT16=4\nuint8 INT32=5\nuint8 UINT32=6\nuint8 FLOAT32=7\nuint8 FLOAT64=8\nstring name\nuint32 offset\nuint8 datatype\nuint32 count\n";
+const TFMESSAGE_SCHEMA: &str = "geometry_msgs/TransformStamped[] transforms\n================================================================================\nMSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\nTransform transform\n================================================================================\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n================================================================================\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n================================================================================\nMSG: geometry_msgs/Transform\nVector3 translation\nQuaternion rotation\n================================================================================\nMSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n================================================================================\nMSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n";
+
+fn iso_of(t: &Transform) -> Option<Isometry3<f64>> {
+    let r = t.rotation;
+    let q = NQuaternion::new(r.w, r.x, r.y, r.z);
+    let n = q.norm();
+    let finite = [r.x, r.y, r.z, r.w, t.translation.x, t.translation.y, t.translation.z].iter().all(|v| v.is_finite());
+    (finite && n > 1e-9).then(|| {
+        Isometry3::from_parts(
+            Translation3::new(t.translation.x, t.translation.y, t.translation.z),
+            UnitQuaternion::from_quaternion(q),
+        )
+    })
+}
+
+fn transform_of(m: &Matrix4<f64>) -> Transform {
+    let iso = crate::kitti::isometry(m);
+    let q = iso.rotation.quaternion();
+    let v = iso.translation.vector;
+    Transform {
+        translation: Vector3 { x: v.x, y: v.y, z: v.z },
+        rotation: Quaternion { x: q.i, y: q.j, z: q.k, w: q.w },
+    }
+}
+
+/// A (parent, child) frame pair.
+type Edge = (String, String);
+/// Stamped transforms of one edge (ns, `T_parent_child`).
+type Samples = Vec<(i64, Isometry3<f64>)>;
+
+/// The transforms of a recording: per (parent, child) edge, its stamped
+/// samples in time order, or one static transform.
+#[derive(Default)]
+struct Tree {
+    dynamic: BTreeMap<Edge, Samples>,
+    fixed: BTreeMap<Edge, Isometry3<f64>>,
+}
+
+impl Tree {
+    /// The parent edge of `child`, if any.
+    fn parent_of(&self, child: &str) -> Option<(String, bool)> {
+        if let Some((p, _)) = self.fixed.keys().find(|(_, c)| c == child) {
+            return Some((p.clone(), true));
+        }
+        self.dynamic.keys().find(|(_, c)| c == child).map(|(p, _)| (p.clone(), false))
+    }
+
+    /// `T_parent_child` at `t` on a dynamic edge.
+    fn at(&self, parent: &str, child: &str, t: i64) -> Result<Isometry3<f64>, String> {
+        let samples = self.dynamic.get(&(parent.to_owned(), child.to_owned())).map(Vec::as_slice).unwrap_or(&[]);
+        let i = samples.partition_point(|(s, _)| *s < t);
+        if let Some((s, iso)) = samples.get(i) {
+            if *s == t {
+                return Ok(*iso);
+            }
+        }
+        match (i.checked_sub(1).and_then(|k| samples.get(k)), samples.get(i)) {
+            (Some((t0, a)), Some((t1, b))) => {
+                let f = (t - t0) as f64 / (t1 - t0) as f64;
+                let tr = a.translation.vector.lerp(&b.translation.vector, f);
+                let rot = a.rotation.slerp(&b.rotation, f);
+                Ok(Isometry3::from_parts(Translation3::from(tr), rot))
+            }
+            _ => Err(format!(
+                "no /tf transform {parent} -> {child} around the stamp {}.{:09} s ({} transforms from {} to {})",
+                t.div_euclid(1_000_000_000),
+                t.rem_euclid(1_000_000_000),
+                samples.len(),
+                samples.first().map_or("-".into(), |s| format!("{:.3} s", s.0 as f64 * 1e-9)),
+                samples.last().map_or("-".into(), |s| format!("{:.3} s", s.0 as f64 * 1e-9)),
+            )),
+        }
+    }
+
+    /// `T_root_frame` at `t`: the chain of edges from `frame` up to `root`.
+    fn pose(&self, root: &str, frame: &str, t: i64) -> Result<Isometry3<f64>, String> {
+        let mut pose = Isometry3::identity();
+        let mut at = frame.to_owned();
+        let mut steps = 0;
+        while at != root {
+            let Some((parent, fixed)) = self.parent_of(&at) else {
+                return Err(format!("no chain of /tf transforms from `{root}` to `{frame}` (it ends at `{at}`)"));
+            };
+            let edge = if fixed { self.fixed[&(parent.clone(), at.clone())] } else { self.at(&parent, &at, t)? };
+            pose = edge * pose;
+            at = parent;
+            steps += 1;
+            if steps > 64 {
+                return Err(format!("the /tf frames above `{frame}` form a loop"));
+            }
+        }
+        Ok(pose)
+    }
+}
+
+/// What [`read_scans`] reads.
+#[derive(Clone, Debug)]
+pub struct RecordingScans<'a> {
+    /// The point cloud topic.
+    pub points: &'a str,
+    /// The label field's name.
+    pub label_field: &'a str,
+    /// The frame poses are expressed in (the root of the chain).
+    pub pose_frame: &'a str,
+    /// Which of the topic's messages (0-based, END exclusive).
+    pub frames: crate::kitti::FrameRange,
+}
+
+/// Reads scans from a recording and puts them into the first one's frame
+/// (as a SemanticKITTI folder's); returns the frames and the points
+/// skipped for a NaN coordinate.
+pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>, usize), RecordingError> {
+    let bytes = std::fs::read(path).map_err(|source| RecordingError::Io { path: path.to_owned(), source })?;
+    let mcap_err = |e: mcap::McapError| RecordingError::Mcap { path: path.to_owned(), what: e.to_string() };
+    let msg_err = |what: String| RecordingError::Message { path: path.to_owned(), what };
+    let mut tree = Tree::default();
+    let mut clouds: Vec<(usize, Vec<u8>)> = Vec::new();
+    let mut seen = 0usize;
+    for m in mcap::MessageStream::new(&bytes).map_err(mcap_err)? {
+        let m = m.map_err(mcap_err)?;
+        let topic = m.channel.topic.as_str();
+        if topic == what.points {
+            if what.frames.frames().any(|i| i == seen) {
+                if m.channel.message_encoding != "cdr" {
+                    return Err(msg_err(format!("{topic}: encoding `{}`, not cdr", m.channel.message_encoding)));
+                }
+                clouds.push((seen, m.data.into_owned()));
+            }
+            seen += 1;
+        } else if topic == "/tf" || topic == "/tf_static" {
+            let tf: TfMessage = cdr::deserialize(&m.data)
+                .map_err(|e| msg_err(format!("{topic} message at log time {}: {e}", m.log_time)))?;
+            for t in tf.transforms {
+                let iso = iso_of(&t.transform).ok_or_else(|| {
+                    msg_err(format!(
+                        "{topic}: transform {} -> {} is not a rigid transform",
+                        t.header.frame_id, t.child_frame_id
+                    ))
+                })?;
+                let key = (t.header.frame_id.clone(), t.child_frame_id.clone());
+                if topic == "/tf_static" {
+                    tree.fixed.insert(key, iso);
+                } else {
+                    tree.dynamic.entry(key).or_default().push((t.header.stamp.nanos(), iso));
+                }
+            }
+        }
+    }
+    for samples in tree.dynamic.values_mut() {
+        samples.sort_by_key(|s| s.0);
+    }
+    let wanted = what.frames.frames().count();
+    if clouds.len() < wanted {
+        return Err(msg_err(format!("{}: {} messages, frames {} ask for {wanted}", what.points, seen, what.frames)));
+    }
+    let mut frames = Vec::with_capacity(clouds.len());
+    let mut skipped = 0;
+    let mut anchor_inv: Option<Matrix4<f64>> = None;
+    for (index, data) in clouds {
+        let at = |what_: String| msg_err(format!("{} message {index}: {what_}", what.points));
+        let pc: PointCloud2 = cdr::deserialize(&data).map_err(|e| at(format!("not a PointCloud2: {e}")))?;
+        if pc.is_bigendian {
+            return Err(at("big-endian point data is not read".into()));
+        }
+        let mut fields = Vec::with_capacity(pc.fields.len());
+        for f in &pc.fields {
+            let s =
+                Scalar::of_ros(f.datatype).ok_or_else(|| at(format!("field `{}`: datatype {}", f.name, f.datatype)))?;
+            fields.push((f.name.clone(), s, f.count.max(1) as usize, f.offset as usize));
+        }
+        let layout = Layout::with_offsets(fields, pc.point_step as usize)
+            .ok_or_else(|| at(format!("a field lies beyond the point step of {} bytes", pc.point_step)))?;
+        let idx = layout.pick(what.label_field, path)?;
+        let n = pc.width as usize * pc.height as usize;
+        let mut cloud = Cloud::default();
+        // Rows may be padded: each row read on its own.
+        let row = pc.row_step as usize;
+        for r in 0..pc.height as usize {
+            let body = pc.data.get(r * row..).unwrap_or(&[]);
+            read_records(body, pc.width as usize, &layout, idx, path, ("point", r * row), &mut cloud)?;
+        }
+        debug_assert!(cloud.points.len() + cloud.skipped == n);
+        skipped += cloud.skipped;
+        let t = pc.header.stamp.nanos();
+        let pose = tree.pose(what.pose_frame, &pc.header.frame_id, t).map_err(at)?.to_homogeneous();
+        let anchor = *anchor_inv.get_or_insert_with(|| crate::kitti::rigid_inverse(&pose));
+        let time = Some(t as f64 * 1e-9);
+        frames.push(frame_of(index, time, &(anchor * pose), cloud));
+    }
+    Ok((frames, skipped))
+}
+
+/// Writes a SemanticKITTI folder's scans as a ROS 2 recording (zstd
+/// chunks): on `topic` each scan as a PointCloud2 in frame `velodyne` (x,
+/// y, z float32, label uint32), on `/tf` its pose `world -> velodyne` at
+/// the same stamp (`times.txt`, else 0.1 s a frame). Returns the scans
+/// written.
+pub fn export(
+    seq: &crate::kitti::Sequence,
+    frames: crate::kitti::FrameRange,
+    topic: &str,
+    out: &Path,
+) -> Result<usize, crate::Error> {
+    let file = std::fs::File::create(out).map_err(|source| crate::Error::Io { path: out.to_owned(), source })?;
+    let werr = |e: mcap::McapError| crate::Error::Invalid(format!("{}: {e}", out.display()));
+    let mut w = mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .profile("ros2")
+        .create(std::io::BufWriter::new(file))
+        .map_err(werr)?;
+    let schema = |name: &str, def: &str, w: &mut mcap::Writer<_>| w.add_schema(name, "ros2msg", def.as_bytes());
+    let pc_schema = schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA, &mut w).map_err(werr)?;
+    let tf_schema = schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA, &mut w).map_err(werr)?;
+    let pc_channel = w.add_channel(pc_schema, topic, "cdr", &BTreeMap::new()).map_err(werr)?;
+    let tf_channel = w.add_channel(tf_schema, "/tf", "cdr", &BTreeMap::new()).map_err(werr)?;
+    let mut n = 0;
+    for (k, i) in frames.frames().enumerate() {
+        let scan = seq.read_scan(i)?;
+        let seconds = seq.times.as_ref().and_then(|t| t.get(i).copied()).unwrap_or(0.1 * i as f64);
+        let stamp = Time::of_seconds(seconds);
+        let log_time = stamp.nanos().max(0) as u64;
+        let header = |frame: &str| Header { stamp, frame_id: frame.to_owned() };
+        let tf = TfMessage {
+            transforms: vec![TransformStamped {
+                header: header("world"),
+                child_frame_id: "velodyne".into(),
+                transform: transform_of(&seq.velodyne_matrix(i)?),
+            }],
+        };
+        let mut data = Vec::with_capacity(scan.points.len() * 16);
+        for (p, l) in scan.points.iter().zip(&scan.labels) {
+            for c in &p[..3] {
+                data.extend_from_slice(&c.to_le_bytes());
+            }
+            data.extend_from_slice(&l.to_le_bytes());
+        }
+        let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
+        let pc = PointCloud2 {
+            header: header("velodyne"),
+            height: 1,
+            width: scan.points.len() as u32,
+            fields: vec![field("x", 0, 7), field("y", 4, 7), field("z", 8, 7), field("label", 12, 6)],
+            is_bigendian: false,
+            point_step: 16,
+            row_step: 16 * scan.points.len() as u32,
+            data,
+            is_dense: true,
+        };
+        let ser = |m: &dyn erased::Ser| m.cdr().map_err(|e| crate::Error::Invalid(format!("CDR: {e}")));
+        let header_of = |channel_id, sequence| mcap::records::MessageHeader {
+            channel_id,
+            sequence,
+            log_time,
+            publish_time: log_time,
+        };
+        w.write_to_known_channel(&header_of(tf_channel, k as u32), &ser(&tf)?).map_err(werr)?;
+        w.write_to_known_channel(&header_of(pc_channel, k as u32), &ser(&pc)?).map_err(werr)?;
+        n += 1;
+    }
+    w.finish().map_err(werr)?;
+    Ok(n)
+}
+
+/// CDR little-endian with its encapsulation header, for either message.
+mod erased {
+    pub trait Ser {
+        fn cdr(&self) -> Result<Vec<u8>, cdr::Error>;
+    }
+    impl<T: serde::Serialize> Ser for T {
+        fn cdr(&self) -> Result<Vec<u8>, cdr::Error> {
+            cdr::serialize::<_, _, cdr::CdrLe>(self, cdr::Infinite)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn transforms_interpolate_and_chain() {
+        let mut tree = Tree::default();
+        let a = Isometry3::from_parts(Translation3::new(0.0, 0.0, 0.0), UnitQuaternion::identity());
+        let b =
+            Isometry3::from_parts(Translation3::new(2.0, 0.0, 0.0), UnitQuaternion::from_euler_angles(0.0, 0.0, 0.5));
+        tree.dynamic.insert(("world".into(), "base".into()), vec![(0, a), (1_000, b)]);
+        let mount = Isometry3::from_parts(Translation3::new(0.0, 0.0, 1.5), UnitQuaternion::identity());
+        tree.fixed.insert(("base".into(), "lidar".into()), mount);
+        let mid = tree.pose("world", "lidar", 500).unwrap();
+        assert!((mid.translation.vector - nalgebra::Vector3::new(1.0, 0.0, 1.5)).norm() < 1e-12);
+        assert!((mid.rotation.angle() - 0.25).abs() < 1e-12);
+        assert_eq!(tree.pose("world", "lidar", 1_000).unwrap(), b * mount);
+        assert!(tree.pose("world", "lidar", 2_000).unwrap_err().contains("around the stamp"));
+        assert!(tree.pose("map", "lidar", 0).unwrap_err().contains("no chain"));
+    }
+
+    #[test]
+    fn messages_round_trip_through_cdr() {
+        let pc = PointCloud2 {
+            header: Header { stamp: Time { sec: 3, nanosec: 5 }, frame_id: "velodyne".into() },
+            height: 1,
+            width: 1,
+            fields: vec![PointField { name: "x".into(), offset: 0, datatype: 7, count: 1 }],
+            is_bigendian: false,
+            point_step: 4,
+            row_step: 4,
+            data: vec![0, 0, 128, 63],
+            is_dense: true,
+        };
+        let bytes = cdr::serialize::<_, _, cdr::CdrLe>(&pc, cdr::Infinite).unwrap();
+        // The encapsulation header of little-endian CDR, then sec = 3.
+        assert_eq!(&bytes[..8], &[0, 1, 0, 0, 3, 0, 0, 0]);
+        assert_eq!(cdr::deserialize::<PointCloud2>(&bytes).unwrap(), pc);
+    }
+}
