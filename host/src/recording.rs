@@ -168,6 +168,56 @@ pub struct TfMessage {
     pub transforms: Vec<TransformStamped>,
 }
 
+/// `geometry_msgs/msg/Pose`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// Position.
+    pub position: Vector3,
+    /// Orientation.
+    pub orientation: Quaternion,
+}
+
+/// `geometry_msgs/msg/PoseWithCovariance`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PoseWithCovariance {
+    /// The pose.
+    pub pose: Pose,
+    /// Row-major 6x6 covariance.
+    pub covariance: [[f64; 6]; 6],
+}
+
+/// `geometry_msgs/msg/Twist`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Twist {
+    /// Linear velocity.
+    pub linear: Vector3,
+    /// Angular velocity.
+    pub angular: Vector3,
+}
+
+/// `geometry_msgs/msg/TwistWithCovariance`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TwistWithCovariance {
+    /// The twist.
+    pub twist: Twist,
+    /// Row-major 6x6 covariance.
+    pub covariance: [[f64; 6]; 6],
+}
+
+/// `nav_msgs/msg/Odometry`: the pose of `child_frame_id` in
+/// `header.frame_id`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Odometry {
+    /// Stamp and the odometry frame.
+    pub header: Header,
+    /// The moving frame.
+    pub child_frame_id: String,
+    /// Its pose.
+    pub pose: PoseWithCovariance,
+    /// Its velocity.
+    pub twist: TwistWithCovariance,
+}
+
 /// The message definitions a recording's schemas carry (`ros2msg`).
 const POINTCLOUD2_SCHEMA: &str = "std_msgs/Header header\nuint32 height\nuint32 width\nPointField[] fields\nbool is_bigendian\nuint32 point_step\nuint32 row_step\nuint8[] data\nbool is_dense\n================================================================================\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n================================================================================\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n================================================================================\nMSG: sensor_msgs/PointField\nuint8 INT8=1\nuint8 UINT8=2\nuint8 INT16=3\nuint8 UINT16=4\nuint8 INT32=5\nuint8 UINT32=6\nuint8 FLOAT32=7\nuint8 FLOAT64=8\nstring name\nuint32 offset\nuint8 datatype\nuint32 count\n";
 const TFMESSAGE_SCHEMA: &str = "geometry_msgs/TransformStamped[] transforms\n================================================================================\nMSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\nTransform transform\n================================================================================\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n================================================================================\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n================================================================================\nMSG: geometry_msgs/Transform\nVector3 translation\nQuaternion rotation\n================================================================================\nMSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n================================================================================\nMSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n";
@@ -276,6 +326,10 @@ pub struct RecordingScans<'a> {
     pub pose_frame: &'a str,
     /// Which of the topic's messages (0-based, END exclusive).
     pub frames: crate::kitti::FrameRange,
+    /// An odometry topic (`nav_msgs/msg/Odometry`) whose poses join the
+    /// transforms as `header.frame_id -> child_frame_id` (chained through
+    /// `/tf_static` to the clouds' frame).
+    pub odom: Option<&'a str>,
 }
 
 /// Reads scans from a recording and puts them into the first one's frame
@@ -299,6 +353,14 @@ pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>,
                 clouds.push((seen, m.data.into_owned()));
             }
             seen += 1;
+        } else if Some(topic) == what.odom {
+            let o: Odometry = cdr::deserialize(&m.data)
+                .map_err(|e| msg_err(format!("{topic} message at log time {}: not an Odometry: {e}", m.log_time)))?;
+            let p = o.pose.pose;
+            let t = Transform { translation: p.position, rotation: p.orientation };
+            let iso = iso_of(&t).ok_or_else(|| msg_err(format!("{topic}: a pose is not a rigid transform")))?;
+            let key = (o.header.frame_id.clone(), o.child_frame_id.clone());
+            tree.dynamic.entry(key).or_default().push((o.header.stamp.nanos(), iso));
         } else if topic == "/tf" || topic == "/tf_static" {
             let tf: TfMessage = cdr::deserialize(&m.data)
                 .map_err(|e| msg_err(format!("{topic} message at log time {}: {e}", m.log_time)))?;

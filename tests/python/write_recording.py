@@ -7,7 +7,10 @@ The recording: PointCloud2 scans in frame `velodyne` on /velodyne_points,
 the mount base_link -> velodyne on /tf_static, and odom -> base_link on /tf
 at each scan's stamp, under world -> odom on /tf_static (a chain of three).
 
-usage: write_recording.py SCANS_DIR OUT.mcap [zstd|lz4|none]
+With `odom`, odom -> base_link goes on /odom as nav_msgs/msg/Odometry
+instead of /tf.
+
+usage: write_recording.py SCANS_DIR OUT.mcap [zstd|lz4|none] [odom]
 """
 
 import math
@@ -82,6 +85,52 @@ float64 z 0
 float64 w 1
 """
 
+ODOMETRY = """std_msgs/Header header
+string child_frame_id
+geometry_msgs/PoseWithCovariance pose
+geometry_msgs/TwistWithCovariance twist
+================================================================================
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+================================================================================
+MSG: geometry_msgs/PoseWithCovariance
+Pose pose
+float64[36] covariance
+================================================================================
+MSG: geometry_msgs/Pose
+Point position
+Quaternion orientation
+================================================================================
+MSG: geometry_msgs/Point
+float64 x
+float64 y
+float64 z
+================================================================================
+MSG: geometry_msgs/Quaternion
+float64 x 0
+float64 y 0
+float64 z 0
+float64 w 1
+================================================================================
+MSG: geometry_msgs/TwistWithCovariance
+Twist twist
+float64[36] covariance
+================================================================================
+MSG: geometry_msgs/Twist
+Vector3 linear
+Vector3 angular
+================================================================================
+MSG: geometry_msgs/Vector3
+float64 x
+float64 y
+float64 z
+"""
+
 
 def matmul(a, b):
     return [[sum(a[i][k] * b[k][j] for k in range(4)) for j in range(4)] for i in range(4)]
@@ -134,6 +183,7 @@ def main():
     compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[
         sys.argv[3] if len(sys.argv) > 3 else "zstd"
     ]
+    use_odom = len(sys.argv) > 4 and sys.argv[4] == "odom"
     poses = []
     for line in (scans / "poses.txt").read_text().splitlines():
         v = [float(x) for x in line.split()]
@@ -147,6 +197,7 @@ def main():
         writer = Writer(f, compression=compression)
         pc = writer.register_msgdef("sensor_msgs/msg/PointCloud2", POINTCLOUD2)
         tf = writer.register_msgdef("tf2_msgs/msg/TFMessage", TFMESSAGE)
+        odom = writer.register_msgdef("nav_msgs/msg/Odometry", ODOMETRY)
         zero = {"sec": 0, "nanosec": 0}
         statics = [transform("world", "odom", world_odom, zero), transform("base_link", "velodyne", mount, zero)]
         writer.write_message("/tf_static", tf, {"transforms": statics}, log_time=0, publish_time=0)
@@ -155,8 +206,21 @@ def main():
             stamp = {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
             # odom -> base_link such that world -> velodyne is the scan's pose.
             odom_base = matmul(matmul(inverse(world_odom), pose), inverse(mount))
-            msg = {"transforms": [transform("odom", "base_link", odom_base, stamp)]}
-            writer.write_message("/tf", tf, msg, log_time=ns, publish_time=ns)
+            t = transform("odom", "base_link", odom_base, stamp)
+            if use_odom:
+                zero3 = {"x": 0.0, "y": 0.0, "z": 0.0}
+                msg = {
+                    "header": t["header"],
+                    "child_frame_id": "base_link",
+                    "pose": {
+                        "pose": {"position": t["transform"]["translation"], "orientation": t["transform"]["rotation"]},
+                        "covariance": [0.0] * 36,
+                    },
+                    "twist": {"twist": {"linear": zero3, "angular": zero3}, "covariance": [0.0] * 36},
+                }
+                writer.write_message("/odom", odom, msg, log_time=ns, publish_time=ns)
+            else:
+                writer.write_message("/tf", tf, {"transforms": [t]}, log_time=ns, publish_time=ns)
             data = read_pcd(path)
             n = len(data) // 16
             fields = [

@@ -243,8 +243,9 @@ fn a_ros2_recording_gives_the_folders_map() {
 
 /// A recording written by the Python `mcap` and `mcap-ros2-support` writers
 /// (a client cosem did not write; zstd chunks, their default, and lz4), with
-/// the LiDAR's pose on a chain of /tf_static and /tf transforms
-/// (`tests/python/write_recording.py`), gives the folder's map. Skipped,
+/// the LiDAR's pose on a chain of /tf_static and /tf transforms, or of
+/// /tf_static and /odom odometry (`tests/python/write_recording.py`), gives
+/// the folder's map. Skipped,
 /// saying why, where Python or those packages are missing (`tests/run`
 /// installs them).
 #[test]
@@ -273,35 +274,34 @@ fn a_recording_written_by_the_python_writers_gives_the_folders_map() {
         let (_, want) = cosem_host::cmap::read(&want).unwrap();
         let scans = tmp.path().join(format!("scans{k}"));
         cosem_ok(&["export", "scans", "--data", &s(data), "--frames", frames, "--format", "pcd", "-o", &s(&scans)]);
-        for compression in ["zstd", "lz4"] {
-            let bag = tmp.path().join(format!("{k}-{compression}.mcap"));
-            let out = std::process::Command::new("python3")
-                .args([s(&script), s(&scans), s(&bag), compression.into()])
-                .output()
-                .unwrap();
+        for (compression, odom) in [("zstd", false), ("lz4", false), ("zstd", true)] {
+            let bag = tmp.path().join(format!("{k}-{compression}-{odom}.mcap"));
+            let mut py = vec![s(&script), s(&scans), s(&bag), compression.into()];
+            if odom {
+                py.push("odom".into());
+            }
+            let out = std::process::Command::new("python3").args(&py).output().unwrap();
             assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-            let got = tmp.path().join(format!("{k}-{compression}.cmap"));
+            let got = tmp.path().join(format!("{k}-{compression}-{odom}.cmap"));
             let frames = format!("0:{n}");
-            cosem_ok(&[
-                "map",
-                "--mcap",
-                &s(&bag),
-                "--points",
-                "/velodyne_points",
-                "--frames",
-                &frames,
-                "--voxel",
-                "0.5",
-                "-o",
-                &s(&got),
-            ]);
+            let (bag_s, got_s) = (s(&bag), s(&got));
+            let mut args = vec!["map", "--mcap", &bag_s, "--points", "/velodyne_points", "--frames", &frames];
+            args.extend(["--voxel", "0.5"]);
+            if odom {
+                // Without the odometry the chain breaks at base_link.
+                let err = cosem_tests::cosem_err(&[&args[..], &["-o", &got_s]].concat());
+                assert!(err.contains("no chain"), "{err}");
+                args.extend(["--odom", "/odom"]);
+            }
+            args.extend(["-o", &got_s]);
+            cosem_ok(&args);
             let (_, got) = cosem_host::cmap::read(&got).unwrap();
             let (a, b) = (want.len() as f64, got.len() as f64);
             assert!((a - b).abs() <= 0.01 * a, "{compression}: {a} voxels from the folder, {b} from the recording");
             let same = got.iter().filter(|v| want.get(v.key).is_some_and(|w| w.class() == v.class())).count();
             assert!(same as f64 >= 0.99 * a, "{compression}: {same} of {a} voxels the same");
             eprintln!(
-                "{} {compression}: {a} voxels from the folder, {b} from the Python recording, {same} the same",
+                "{} {compression} odom {odom}: {a} voxels from the folder, {b} from the Python recording, {same} the same",
                 data.display()
             );
         }

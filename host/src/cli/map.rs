@@ -30,6 +30,10 @@ pub struct Args {
     /// With --mcap: the frame the scans' poses are chained from.
     #[arg(long, default_value = "world")]
     pose_frame: String,
+    /// With --mcap: an odometry topic (nav_msgs/msg/Odometry) whose poses
+    /// (header.frame_id -> child_frame_id) join /tf and /tf_static.
+    #[arg(long, requires = "mcap")]
+    odom: Option<String>,
     /// Read scans from these files instead, one per scan in the sensor's
     /// frame, in order (the first is the anchor): labelled point clouds
     /// (fields x, y, z and an integer label holding the SemanticKITTI id in
@@ -86,6 +90,7 @@ pub fn run(a: Args) -> Result<(), Error> {
                 label_field: &a.label_field,
                 pose_frame: &a.pose_frame,
                 frames: range,
+                odom: a.odom.as_deref(),
             };
             let (frames, skipped) = cosem_host::recording::read_scans(file, &what)?;
             if skipped > 0 {
