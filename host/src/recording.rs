@@ -547,3 +547,101 @@ mod tests {
         assert_eq!(cdr::deserialize::<PointCloud2>(&bytes).unwrap(), pc);
     }
 }
+
+/// `std_msgs/msg/String`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StringMsg {
+    /// The text.
+    pub data: String,
+}
+
+const STRING_SCHEMA: &str = "string data\n";
+
+/// A map's voxels as a PointCloud2 in `frame`: x, y, z (float32), rgba
+/// (uint32: the class's colour, opaque), label (uint32: the SemanticKITTI
+/// id of the voxel's class, 0 without one), class (uint8: its index, 255
+/// without one).
+fn map_cloud(map: &crate::mapping::HostMap, frame: &str) -> PointCloud2 {
+    let step = 21u32;
+    let mut data = Vec::with_capacity(map.len() * step as usize);
+    for v in map.iter() {
+        for c in v.position(map.resolution()) {
+            data.extend_from_slice(&c.to_le_bytes());
+        }
+        let class = v.class();
+        let [r, g, b] = class.map(|c| c.color()).unwrap_or([128; 3]);
+        data.extend_from_slice(&u32::from_be_bytes([r, g, b, 255]).to_le_bytes());
+        data.extend_from_slice(&u32::from(class.map_or(0, |c| c.semantic_kitti_id())).to_le_bytes());
+        data.push(class.map_or(255, |c| c.index()));
+    }
+    let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
+    PointCloud2 {
+        header: Header { stamp: Time::default(), frame_id: frame.into() },
+        height: 1,
+        width: map.len() as u32,
+        fields: vec![
+            field("x", 0, 7),
+            field("y", 4, 7),
+            field("z", 8, 7),
+            field("rgba", 12, 6),
+            field("label", 16, 6),
+            field("class", 20, 2),
+        ],
+        is_bigendian: false,
+        point_step: step,
+        row_step: step * map.len() as u32,
+        data,
+        is_dense: true,
+    }
+}
+
+/// Writes a match to view in Foxglove: both maps as PointCloud2 coloured
+/// by class (`/cosem/model` in frame `model`, `/cosem/scene` in frame
+/// `scene`), the found `T_model_scene` on `/tf` (`model -> scene`) and the
+/// result as JSON text on `/cosem/status` (`std_msgs/msg/String`).
+pub fn write_match(
+    path: &Path,
+    model: &crate::mapping::HostMap,
+    scene: &crate::mapping::HostMap,
+    t_model_scene: &Isometry3<f32>,
+    status_json: &str,
+) -> Result<(), crate::Error> {
+    let file = std::fs::File::create(path).map_err(|source| crate::Error::Io { path: path.to_owned(), source })?;
+    let werr = |e: mcap::McapError| crate::Error::Invalid(format!("{}: {e}", path.display()));
+    let mut w = mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .profile("ros2")
+        .create(std::io::BufWriter::new(file))
+        .map_err(werr)?;
+    let pc = w.add_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_SCHEMA.as_bytes()).map_err(werr)?;
+    let tf = w.add_schema("tf2_msgs/msg/TFMessage", "ros2msg", TFMESSAGE_SCHEMA.as_bytes()).map_err(werr)?;
+    let st = w.add_schema("std_msgs/msg/String", "ros2msg", STRING_SCHEMA.as_bytes()).map_err(werr)?;
+    let none = BTreeMap::new();
+    let channels = [
+        w.add_channel(pc, "/cosem/model", "cdr", &none).map_err(werr)?,
+        w.add_channel(pc, "/cosem/scene", "cdr", &none).map_err(werr)?,
+        w.add_channel(tf, "/tf", "cdr", &none).map_err(werr)?,
+        w.add_channel(st, "/cosem/status", "cdr", &none).map_err(werr)?,
+    ];
+    let t: Isometry3<f64> = nalgebra::convert(*t_model_scene);
+    let tf_msg = TfMessage {
+        transforms: vec![TransformStamped {
+            header: Header { stamp: Time::default(), frame_id: "model".into() },
+            child_frame_id: "scene".into(),
+            transform: transform_of(&t.to_homogeneous()),
+        }],
+    };
+    let ser = |m: &dyn erased::Ser| m.cdr().map_err(|e| crate::Error::Invalid(format!("CDR: {e}")));
+    let messages = [
+        ser(&map_cloud(model, "model"))?,
+        ser(&map_cloud(scene, "scene"))?,
+        ser(&tf_msg)?,
+        ser(&StringMsg { data: status_json.to_owned() })?,
+    ];
+    for (channel_id, data) in channels.into_iter().zip(&messages) {
+        let header = mcap::records::MessageHeader { channel_id, sequence: 0, log_time: 0, publish_time: 0 };
+        w.write_to_known_channel(&header, data).map_err(werr)?;
+    }
+    w.finish().map_err(werr)?;
+    Ok(())
+}

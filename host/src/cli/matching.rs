@@ -23,11 +23,16 @@ pub struct Args {
     /// Write both maps in the model frame, coloured by robot, to this PLY.
     #[arg(long)]
     merged: Option<PathBuf>,
+    /// Write the match as a ROS 2 recording (MCAP) to view in Foxglove: both
+    /// maps as PointCloud2 coloured by class (/cosem/model, /cosem/scene),
+    /// T_model_scene on /tf (model -> scene), the result on /cosem/status.
+    #[arg(long)]
+    mcap_out: Option<PathBuf>,
 }
 
 pub fn run(a: Args) -> Result<u8, Error> {
     let (settings, prior) = a.opts.resolve();
-    if let Some(out) = &a.merged {
+    for out in [&a.merged, &a.mcap_out].into_iter().flatten() {
         cosem_host::paths::refuse_overwrite(out, &[&a.model, &a.scene])?;
     }
     let (_, model) = cosem_host::cmap::read(&a.model)?;
@@ -51,10 +56,14 @@ pub fn run(a: Args) -> Result<u8, Error> {
         pts.extend(scene.iter().map(|v| PlyPoint::of(v, scene.resolution(), &r.transform, [255, 120, 30])));
         ply::write(path, &pts).map_err(|e| format!("{}: {e}", path.display()))?;
     }
+    let mut j = MatchJson::new(&r, time_ms, prep_ms);
+    j.method = Some(settings.method.name());
+    j.global = global.as_ref().map(GlobalJson::from);
+    if let Some(path) = &a.mcap_out {
+        let text = serde_json::to_string(&j).map_err(|e| format!("{}: {e}", path.display()))?;
+        cosem_host::recording::write_match(path, &model, &scene, &r.transform, &text)?;
+    }
     if a.json {
-        let mut j = MatchJson::new(&r, time_ms, prep_ms);
-        j.method = Some(settings.method.name());
-        j.global = global.as_ref().map(GlobalJson::from);
         print_json(&j)?;
         return Ok(exit_code(r.status));
     }
