@@ -1,0 +1,119 @@
+"""pytest for the Python bindings: maps from points, files, and matching
+two maps of a synthetic street corner with a known transform."""
+
+import math
+
+import numpy as np
+import pytest
+
+import cosem
+
+ROAD, SIDEWALK, BUILDING, POLE, VEGETATION, CAR = 40, 48, 50, 80, 70, 10
+
+
+def corner(rng):
+    """Labelled points of a street corner: road, sidewalk, two walls, poles,
+    a tree and parked cars, irregularly placed (no symmetry)."""
+    pts, labels = [], []
+
+    def add(p, label):
+        pts.append(p)
+        labels.append(np.full(len(p), label))
+
+    g = np.mgrid[-30:30:0.2, -20:20:0.2].reshape(2, -1).T
+    ground = np.column_stack([g, np.full(len(g), -1.7)])
+    add(ground[np.abs(ground[:, 1]) < 6], ROAD)
+    add(ground[np.abs(ground[:, 1]) >= 6], SIDEWALK)
+    w = np.mgrid[-30:12:0.2, -1.7:6:0.2].reshape(2, -1).T
+    add(np.column_stack([w[:, 0], np.full(len(w), 11.0), w[:, 1]]), BUILDING)
+    w = np.mgrid[-20:15:0.2, -1.7:4:0.2].reshape(2, -1).T
+    add(np.column_stack([np.full(len(w), 14.0), w[:, 0], w[:, 1]]), BUILDING)
+    for x, y in [(-22.0, -7.0), (-9.5, 7.5), (3.0, -7.5), (9.0, 8.0)]:
+        z = np.arange(-1.7, 4.0, 0.1)
+        add(np.column_stack([np.full(len(z), x), np.full(len(z), y), z]), POLE)
+    a = rng.uniform(0, 2 * math.pi, 800)
+    h = rng.uniform(1.0, 4.5, 800)
+    add(np.column_stack([-4.0 + 1.6 * np.cos(a), 8.5 + 1.6 * np.sin(a), h]), VEGETATION)
+    for x, y in [(-15.0, 4.0), (-2.0, -4.5), (6.0, 4.0)]:
+        c = np.mgrid[-2:2:0.2, -0.9:0.9:0.2, -1.6:-0.3:0.2].reshape(3, -1).T
+        add(c + np.array([x, y, 0.0]), CAR)
+    p = np.vstack(pts)
+    return p + rng.normal(0.0, 0.01, p.shape), np.concatenate(labels)
+
+
+def rot_z(deg, t):
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    m = np.eye(4)
+    m[:2, :2] = [[c, -s], [s, c]]
+    m[:3, 3] = t
+    return m
+
+
+def errors(a, b):
+    d = np.linalg.inv(a) @ b
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(d[:3, :3]) - 1) / 2))))
+    return np.linalg.norm(d[:3, 3]), angle
+
+
+@pytest.fixture(scope="module")
+def maps():
+    rng = np.random.default_rng(7)
+    p, labels = corner(rng)
+    truth = rot_z(35.0, [4.0, -2.5, 0.0])  # T_model_scene
+    q, qlabels = corner(np.random.default_rng(8))
+    scene_points = (np.linalg.inv(truth) @ np.column_stack([q, np.ones(len(q))]).T).T[:, :3]
+    model = cosem.Map.from_points(p, labels, 0.5)
+    scene = cosem.Map.from_points(scene_points, qlabels, 0.5)
+    return model, scene, truth
+
+
+def test_maps_from_points_hold_their_classes_and_round_trip(tmp_path, maps):
+    model, _, _ = maps
+    assert len(model) > 2000 and model.resolution == 0.5
+    pos, classes = model.voxels()
+    assert pos.shape == (len(model), 3) and pos.dtype == np.float32
+    names = {cosem.CLASSES[c] for c in classes if c != 255}
+    assert names == {"road", "sidewalk", "building", "pole", "vegetation", "car"}
+    path = tmp_path / "m.cmap"
+    model.save(str(path))
+    back = cosem.Map.load(str(path))
+    assert len(back) == len(model)
+    # The file holds the voxels in another order, each class kept.
+    assert np.array_equal(np.bincount(back.voxels()[1], minlength=256), np.bincount(classes, minlength=256))
+    # ... and each position to the encoding's quarter voxel (within its cell).
+    key = lambda p: np.floor(p / 0.5).astype(np.int64)
+    a = {tuple(k): v for k, v in zip(key(pos), pos)}
+    for k, v in zip(key(back.voxels()[0]), back.voxels()[0]):
+        assert np.abs(a[tuple(k)] - v).max() <= 0.5 / 8 + 1e-4
+
+
+def test_match_without_a_prior_and_from_one(maps):
+    model, scene, truth = maps
+    r = cosem.match(model, scene)
+    assert r.status == "Converged"
+    e_t, e_r = errors(r.transform, truth)
+    assert e_t < 0.1 and e_r < 0.5, (e_t, e_r)
+    assert r.transform.shape == (4, 4) and r.information.shape == (6, 6)
+    assert 0.5 < r.overlap <= 1.0 and r.inliers > 100
+    start = truth @ rot_z(5.0, [1.0, -1.0, 0.0])
+    r2 = cosem.match(model, scene, init=start)
+    assert r2.status == "Converged"
+    e_t, e_r = errors(r2.transform, truth)
+    assert e_t < 0.1 and e_r < 0.5, (e_t, e_r)
+
+
+def test_bad_input_is_a_python_error(tmp_path, maps):
+    model, scene, _ = maps
+    with pytest.raises(ValueError):
+        cosem.Map.from_points(np.zeros((5, 2)), np.zeros(5, dtype=np.int64), 0.5)
+    with pytest.raises(ValueError):
+        cosem.Map.from_points(np.zeros((5, 3)), np.zeros(4, dtype=np.int64), 0.5)
+    with pytest.raises(ValueError):
+        cosem.Map.from_points(np.full((1, 3), np.nan), np.array([40]), 0.5)
+    with pytest.raises(ValueError):
+        cosem.match(model, scene, init=np.eye(3))
+    with pytest.raises(OSError):
+        cosem.Map.load(str(tmp_path / "missing.cmap"))
+    other = cosem.Map.from_points(np.zeros((1, 3)), np.array([40]), 0.2)
+    with pytest.raises(ValueError):
+        cosem.match(model, other)
