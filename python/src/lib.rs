@@ -50,11 +50,7 @@ impl Map {
     /// outliers, moving objects) are left out; NaN points are an error.
     #[staticmethod]
     #[pyo3(signature = (xyz, labels, voxel = 0.2))]
-    fn from_points(
-        xyz: PyReadonlyArray2<'_, f64>,
-        labels: PyReadonlyArray1<'_, i64>,
-        voxel: f32,
-    ) -> PyResult<Self> {
+    fn from_points(xyz: PyReadonlyArray2<'_, f64>, labels: PyReadonlyArray1<'_, i64>, voxel: f32) -> PyResult<Self> {
         let shape = xyz.shape();
         if shape.len() != 2 || shape[1] != 3 {
             return Err(value_error(format!("xyz must be (N, 3), got {shape:?}")));
@@ -128,7 +124,7 @@ impl Match {
     /// `Converged`, `NotConverged`, `Degenerate` or `NoOverlap`.
     #[getter]
     fn status(&self) -> String {
-        format!("{:?}", self.result.status)
+        self.result.status.as_str().to_owned()
     }
 
     /// The 6x6 information matrix (x, y, z, roll, pitch, yaw).
@@ -167,8 +163,12 @@ impl Match {
     fn __repr__(&self) -> String {
         let t = self.result.transform.translation.vector;
         format!(
-            "cosem.Match({:?}, t = ({:.3}, {:.3}, {:.3}) m, overlap {:.2})",
-            self.result.status, t.x, t.y, t.z, self.result.overlap
+            "cosem.Match({}, t = ({:.3}, {:.3}, {:.3}) m, overlap {:.2})",
+            self.result.status.as_str(),
+            t.x,
+            t.y,
+            t.z,
+            self.result.overlap
         )
     }
 }
