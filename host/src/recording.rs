@@ -324,8 +324,8 @@ pub struct RecordingScans<'a> {
     pub label_field: &'a str,
     /// The frame poses are expressed in (the root of the chain).
     pub pose_frame: &'a str,
-    /// Which of the topic's messages (0-based, END exclusive).
-    pub frames: crate::kitti::FrameRange,
+    /// Which of the topic's messages (0-based, END exclusive; `None`: all).
+    pub frames: Option<crate::kitti::FrameRange>,
     /// An odometry topic (`nav_msgs/msg/Odometry`) whose poses join the
     /// transforms as `header.frame_id -> child_frame_id` (chained through
     /// `/tf_static` to the clouds' frame).
@@ -342,11 +342,13 @@ pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>,
     let mut tree = Tree::default();
     let mut clouds: Vec<(usize, Vec<u8>)> = Vec::new();
     let mut seen = 0usize;
+    let wanted =
+        |i: usize| what.frames.is_none_or(|r| i >= r.start && i < r.end && (i - r.start).is_multiple_of(r.stride));
     for m in mcap::MessageStream::new(&bytes).map_err(mcap_err)? {
         let m = m.map_err(mcap_err)?;
         let topic = m.channel.topic.as_str();
         if topic == what.points {
-            if what.frames.frames().any(|i| i == seen) {
+            if wanted(seen) {
                 if m.channel.message_encoding != "cdr" {
                     return Err(msg_err(format!("{topic}: encoding `{}`, not cdr", m.channel.message_encoding)));
                 }
@@ -383,9 +385,10 @@ pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>,
     for samples in tree.dynamic.values_mut() {
         samples.sort_by_key(|s| s.0);
     }
-    let wanted = what.frames.frames().count();
-    if clouds.len() < wanted {
-        return Err(msg_err(format!("{}: {} messages, frames {} ask for {wanted}", what.points, seen, what.frames)));
+    let asked = what.frames.map_or(1, |r| r.frames().count());
+    if clouds.len() < asked {
+        let frames = what.frames.map_or("all".into(), |r| r.to_string());
+        return Err(msg_err(format!("{}: {seen} messages, frames {frames} ask for {asked}", what.points)));
     }
     let mut frames = Vec::with_capacity(clouds.len());
     let mut skipped = 0;

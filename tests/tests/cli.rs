@@ -227,6 +227,10 @@ fn a_ros2_recording_gives_the_folders_map() {
         let got = tmp.path().join(format!("{k}-bag.cmap"));
         cosem_ok(&["map", "--mcap", &s(&bag), "--frames", &format!("0:{n}"), "--voxel", "0.5", "-o", &s(&got)]);
         let (_, got) = cosem_host::cmap::read(&got).unwrap();
+        // Without --frames: every scan of the topic, the same map.
+        let all = tmp.path().join(format!("{k}-all.cmap"));
+        cosem_ok(&["map", "--mcap", &s(&bag), "--voxel", "0.5", "-o", &s(&all)]);
+        assert_eq!(cosem_host::cmap::read(&all).unwrap().1.voxels(), got.voxels());
         let (a, b) = (want.len() as f64, got.len() as f64);
         assert!((a - b).abs() <= 0.01 * a, "{} voxels from the folder, {} from the recording", a, b);
         let same = got.iter().filter(|v| want.get(v.key).is_some_and(|w| w.class() == v.class())).count();

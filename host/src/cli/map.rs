@@ -17,8 +17,9 @@ pub struct Args {
     #[arg(long, required_unless_present_any = ["format", "mcap"], conflicts_with_all = ["format", "mcap"])]
     data: Option<PathBuf>,
     /// Frames START:END[:STRIDE] (END exclusive); the first is the anchor.
-    /// With --mcap: 0-based indices among the topic's messages.
-    #[arg(long, required_unless_present = "format", conflicts_with = "format")]
+    /// With --mcap: 0-based indices among the topic's messages (default:
+    /// all of them).
+    #[arg(long, required_unless_present_any = ["format", "mcap"], conflicts_with = "format")]
     frames: Option<FrameRange>,
     /// A ROS 2 recording (MCAP): PointCloud2 scans on --points, poses from
     /// /tf and /tf_static (zstd or lz4 chunks read).
@@ -82,7 +83,7 @@ pub struct Args {
 pub fn run(a: Args) -> Result<(), Error> {
     let t0 = Instant::now();
     let (mut frames, name, range) = match (&a.format, &a.poses, &a.data, a.frames) {
-        (_, _, _, Some(range)) if a.mcap.is_some() => {
+        (_, _, _, range) if a.mcap.is_some() => {
             let file = a.mcap.as_deref().unwrap_or(std::path::Path::new(""));
             cosem_host::paths::refuse_overwrite(&a.output, &[file])?;
             let what = cosem_host::recording::RecordingScans {
@@ -97,7 +98,7 @@ pub fn run(a: Args) -> Result<(), Error> {
                 eprintln!("{skipped} points with a NaN coordinate skipped");
             }
             let name = file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            (frames, format!("{name} {}", a.points), range.to_string())
+            (frames, format!("{name} {}", a.points), range.map_or("all".into(), |r| r.to_string()))
         }
         (Some(format), Some(poses), _, _) => {
             if a.files.is_empty() {
