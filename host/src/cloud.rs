@@ -104,11 +104,6 @@ impl Scalar {
 
     /// The value of little-endian `b` (exactly `size()` bytes).
     fn read(self, b: &[u8]) -> f64 {
-        let a = |n: usize| -> [u8; 8] {
-            let mut x = [0u8; 8];
-            x[..n].copy_from_slice(&b[..n]);
-            x
-        };
         match self {
             Scalar::I8 => f64::from(b[0] as i8),
             Scalar::U8 => f64::from(b[0]),
@@ -117,7 +112,7 @@ impl Scalar {
             Scalar::I32 => f64::from(i32::from_le_bytes([b[0], b[1], b[2], b[3]])),
             Scalar::U32 => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
             Scalar::F32 => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-            Scalar::F64 => f64::from_le_bytes(a(8)),
+            Scalar::F64 => f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]),
         }
     }
 
@@ -500,23 +495,14 @@ pub fn read_poses(path: &Path) -> Result<Vec<Matrix4<f64>>, CloudError> {
     let text = std::fs::read_to_string(path).map_err(|source| CloudError::Io { path: path.to_owned(), source })?;
     let mut poses = Vec::new();
     for (n, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-        let bad = |what: String| CloudError::Poses { path: path.to_owned(), what: format!("line {}: {what}", n + 1) };
-        let v: Vec<f64> = line
-            .split_whitespace()
-            .map(|s| s.parse::<f64>().map_err(|_| bad(format!("`{s}` is not a number"))))
-            .collect::<Result<_, _>>()?;
-        if v.len() != 12 {
-            return Err(bad(format!("{} numbers, a pose is 12", v.len())));
-        }
-        if v.iter().any(|x| !x.is_finite()) {
-            return Err(bad("a number is not finite".into()));
-        }
-        let mut m = Matrix4::identity();
-        for r in 0..3 {
-            for c in 0..4 {
-                m[(r, c)] = v[4 * r + c];
-            }
-        }
+        // The folder reader's parser of poses.txt lines.
+        let m = crate::kitti::parse_3x4(path, n + 1, line).map_err(|e| CloudError::Poses {
+            path: path.to_owned(),
+            what: match e {
+                crate::kitti::KittiError::Parse { line, what, .. } => format!("line {line}: {what}"),
+                other => other.to_string(),
+            },
+        })?;
         poses.push(m);
     }
     Ok(poses)
@@ -535,6 +521,20 @@ pub fn write_poses(path: &Path, poses: &[Matrix4<f64>]) -> Result<(), CloudError
     std::fs::write(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
 }
 
+/// Points and labels as little-endian records of x, y, z (float32) and
+/// label (uint32): 16 bytes a point, the body of the PCD, PLY and
+/// PointCloud2 scans cosem writes.
+pub(crate) fn records(points: impl Iterator<Item = [f32; 3]>, labels: &[u32]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(16 * labels.len());
+    for (p, l) in points.zip(labels) {
+        for c in p {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+        out.extend_from_slice(&l.to_le_bytes());
+    }
+    out
+}
+
 /// Writes a scan as a binary PCD file: fields x y z (float) and label
 /// (uint32).
 pub fn write_pcd(path: &Path, points: &[[f32; 3]], labels: &[u32]) -> Result<(), CloudError> {
@@ -544,12 +544,7 @@ pub fn write_pcd(path: &Path, points: &[[f32; 3]], labels: &[u32]) -> Result<(),
          COUNT 1 1 1 1\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
     )
     .into_bytes();
-    for (p, l) in points.iter().zip(labels) {
-        for c in p {
-            out.extend_from_slice(&c.to_le_bytes());
-        }
-        out.extend_from_slice(&l.to_le_bytes());
-    }
+    out.extend(records(points.iter().copied(), labels));
     std::fs::write(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
 }
 
@@ -562,12 +557,7 @@ pub fn write_ply(path: &Path, points: &[[f32; 3]], labels: &[u32]) -> Result<(),
          property float x\nproperty float y\nproperty float z\nproperty uint label\nend_header\n"
     )
     .into_bytes();
-    for (p, l) in points.iter().zip(labels) {
-        for c in p {
-            out.extend_from_slice(&c.to_le_bytes());
-        }
-        out.extend_from_slice(&l.to_le_bytes());
-    }
+    out.extend(records(points.iter().copied(), labels));
     std::fs::write(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
 }
 

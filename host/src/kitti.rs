@@ -222,14 +222,14 @@ fn read_text(path: &Path) -> Result<String, KittiError> {
 }
 
 /// Parses 12 numbers of a 3x4 row-major matrix into a 4x4 one.
-fn parse_3x4(path: &Path, line: usize, text: &str) -> Result<Matrix4<f64>, KittiError> {
+pub(crate) fn parse_3x4(path: &Path, line: usize, text: &str) -> Result<Matrix4<f64>, KittiError> {
     let err = |what: String| KittiError::Parse { path: path.to_path_buf(), line, what };
     let vals: Vec<f64> = text
         .split_whitespace()
         .map(|t| t.parse::<f64>().map_err(|_| err(format!("`{t}` is not a number"))))
         .collect::<Result<_, _>>()?;
     if vals.len() != 12 {
-        return Err(err(format!("expected 12 numbers (a 3x4 matrix), found {}", vals.len())));
+        return Err(err(format!("{} numbers, a 3x4 matrix takes 12", vals.len())));
     }
     if vals.iter().any(|v| !v.is_finite()) {
         return Err(err("non-finite number".into()));

@@ -438,18 +438,11 @@ pub fn export(
     topic: &str,
     out: &Path,
 ) -> Result<usize, crate::Error> {
-    let file = std::fs::File::create(out).map_err(|source| crate::Error::Io { path: out.to_owned(), source })?;
-    let werr = |e: mcap::McapError| crate::Error::Invalid(format!("{}: {e}", out.display()));
-    let mut w = mcap::WriteOptions::new()
-        .compression(Some(mcap::Compression::Zstd))
-        .profile("ros2")
-        .create(std::io::BufWriter::new(file))
-        .map_err(werr)?;
-    let schema = |name: &str, def: &str, w: &mut mcap::Writer<_>| w.add_schema(name, "ros2msg", def.as_bytes());
-    let pc_schema = schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA, &mut w).map_err(werr)?;
-    let tf_schema = schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA, &mut w).map_err(werr)?;
-    let pc_channel = w.add_channel(pc_schema, topic, "cdr", &BTreeMap::new()).map_err(werr)?;
-    let tf_channel = w.add_channel(tf_schema, "/tf", "cdr", &BTreeMap::new()).map_err(werr)?;
+    let mut w = Out::create(out)?;
+    let pc_schema = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA)?;
+    let tf_schema = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA)?;
+    let pc_channel = w.channel(pc_schema, topic)?;
+    let tf_channel = w.channel(tf_schema, "/tf")?;
     let mut n = 0;
     for (k, i) in frames.frames().enumerate() {
         let scan = seq.read_scan(i)?;
@@ -464,13 +457,7 @@ pub fn export(
                 transform: transform_of(&seq.velodyne_matrix(i)?),
             }],
         };
-        let mut data = Vec::with_capacity(scan.points.len() * 16);
-        for (p, l) in scan.points.iter().zip(&scan.labels) {
-            for c in &p[..3] {
-                data.extend_from_slice(&c.to_le_bytes());
-            }
-            data.extend_from_slice(&l.to_le_bytes());
-        }
+        let data = crate::cloud::records(scan.points.iter().map(|p| [p[0], p[1], p[2]]), &scan.labels);
         let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
         let pc = PointCloud2 {
             header: header("velodyne"),
@@ -483,30 +470,52 @@ pub fn export(
             data,
             is_dense: true,
         };
-        let ser = |m: &dyn erased::Ser| m.cdr().map_err(|e| crate::Error::Invalid(format!("CDR: {e}")));
-        let header_of = |channel_id, sequence| mcap::records::MessageHeader {
-            channel_id,
-            sequence,
-            log_time,
-            publish_time: log_time,
-        };
-        w.write_to_known_channel(&header_of(tf_channel, k as u32), &ser(&tf)?).map_err(werr)?;
-        w.write_to_known_channel(&header_of(pc_channel, k as u32), &ser(&pc)?).map_err(werr)?;
+        w.write(tf_channel, k as u32, log_time, &tf)?;
+        w.write(pc_channel, k as u32, log_time, &pc)?;
         n += 1;
     }
-    w.finish().map_err(werr)?;
+    w.finish()?;
     Ok(n)
 }
 
-/// CDR little-endian with its encapsulation header, for either message.
-mod erased {
-    pub trait Ser {
-        fn cdr(&self) -> Result<Vec<u8>, cdr::Error>;
+/// A ROS 2 recording being written (zstd chunks, `ros2msg` schemas, CDR
+/// messages), its errors naming the file.
+struct Out<'p> {
+    w: mcap::Writer<std::io::BufWriter<std::fs::File>>,
+    path: &'p Path,
+}
+
+impl<'p> Out<'p> {
+    fn create(path: &'p Path) -> Result<Self, crate::Error> {
+        let file = std::fs::File::create(path).map_err(|source| crate::Error::Io { path: path.to_owned(), source })?;
+        let w = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .profile("ros2")
+            .create(std::io::BufWriter::new(file));
+        w.map(|w| Out { w, path }).map_err(|e| crate::Error::Invalid(format!("{}: {e}", path.display())))
     }
-    impl<T: serde::Serialize> Ser for T {
-        fn cdr(&self) -> Result<Vec<u8>, cdr::Error> {
-            cdr::serialize::<_, _, cdr::CdrLe>(self, cdr::Infinite)
-        }
+
+    fn err(&self, e: impl std::fmt::Display) -> crate::Error {
+        crate::Error::Invalid(format!("{}: {e}", self.path.display()))
+    }
+
+    fn schema(&mut self, name: &str, definition: &str) -> Result<u16, crate::Error> {
+        self.w.add_schema(name, "ros2msg", definition.as_bytes()).map_err(|e| self.err(e))
+    }
+
+    fn channel(&mut self, schema: u16, topic: &str) -> Result<u16, crate::Error> {
+        self.w.add_channel(schema, topic, "cdr", &BTreeMap::new()).map_err(|e| self.err(e))
+    }
+
+    /// One message, CDR little endian with its encapsulation header.
+    fn write<T: Serialize>(&mut self, channel_id: u16, sequence: u32, time: u64, msg: &T) -> Result<(), crate::Error> {
+        let data = cdr::serialize::<_, _, cdr::CdrLe>(msg, cdr::Infinite).map_err(|e| self.err(format!("CDR: {e}")))?;
+        let header = mcap::records::MessageHeader { channel_id, sequence, log_time: time, publish_time: time };
+        self.w.write_to_known_channel(&header, &data).map_err(|e| self.err(e))
+    }
+
+    fn finish(mut self) -> Result<(), crate::Error> {
+        self.w.finish().map(|_| ()).map_err(|e| self.err(e))
     }
 }
 
@@ -609,23 +618,12 @@ pub fn write_match(
     t_model_scene: &Isometry3<f32>,
     status_json: &str,
 ) -> Result<(), crate::Error> {
-    let file = std::fs::File::create(path).map_err(|source| crate::Error::Io { path: path.to_owned(), source })?;
-    let werr = |e: mcap::McapError| crate::Error::Invalid(format!("{}: {e}", path.display()));
-    let mut w = mcap::WriteOptions::new()
-        .compression(Some(mcap::Compression::Zstd))
-        .profile("ros2")
-        .create(std::io::BufWriter::new(file))
-        .map_err(werr)?;
-    let pc = w.add_schema("sensor_msgs/msg/PointCloud2", "ros2msg", POINTCLOUD2_SCHEMA.as_bytes()).map_err(werr)?;
-    let tf = w.add_schema("tf2_msgs/msg/TFMessage", "ros2msg", TFMESSAGE_SCHEMA.as_bytes()).map_err(werr)?;
-    let st = w.add_schema("std_msgs/msg/String", "ros2msg", STRING_SCHEMA.as_bytes()).map_err(werr)?;
-    let none = BTreeMap::new();
-    let channels = [
-        w.add_channel(pc, "/cosem/model", "cdr", &none).map_err(werr)?,
-        w.add_channel(pc, "/cosem/scene", "cdr", &none).map_err(werr)?,
-        w.add_channel(tf, "/tf", "cdr", &none).map_err(werr)?,
-        w.add_channel(st, "/cosem/status", "cdr", &none).map_err(werr)?,
-    ];
+    let mut w = Out::create(path)?;
+    let pc = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA)?;
+    let tf = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA)?;
+    let st = w.schema("std_msgs/msg/String", STRING_SCHEMA)?;
+    let (model_ch, scene_ch) = (w.channel(pc, "/cosem/model")?, w.channel(pc, "/cosem/scene")?);
+    let (tf_ch, status_ch) = (w.channel(tf, "/tf")?, w.channel(st, "/cosem/status")?);
     let t: Isometry3<f64> = nalgebra::convert(*t_model_scene);
     let tf_msg = TfMessage {
         transforms: vec![TransformStamped {
@@ -634,17 +632,9 @@ pub fn write_match(
             transform: transform_of(&t.to_homogeneous()),
         }],
     };
-    let ser = |m: &dyn erased::Ser| m.cdr().map_err(|e| crate::Error::Invalid(format!("CDR: {e}")));
-    let messages = [
-        ser(&map_cloud(model, "model"))?,
-        ser(&map_cloud(scene, "scene"))?,
-        ser(&tf_msg)?,
-        ser(&StringMsg { data: status_json.to_owned() })?,
-    ];
-    for (channel_id, data) in channels.into_iter().zip(&messages) {
-        let header = mcap::records::MessageHeader { channel_id, sequence: 0, log_time: 0, publish_time: 0 };
-        w.write_to_known_channel(&header, data).map_err(werr)?;
-    }
-    w.finish().map_err(werr)?;
-    Ok(())
+    w.write(model_ch, 0, 0, &map_cloud(model, "model"))?;
+    w.write(scene_ch, 0, 0, &map_cloud(scene, "scene"))?;
+    w.write(tf_ch, 0, 0, &tf_msg)?;
+    w.write(status_ch, 0, 0, &StringMsg { data: status_json.to_owned() })?;
+    w.finish()
 }

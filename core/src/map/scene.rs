@@ -12,7 +12,7 @@
 //! the entries a [`LocalMap`] holding the same voxels would.
 
 use super::local_map::{ConfigError, InsertError, MapConfig};
-use super::voxel::dequantise_fraction;
+use super::voxel::mean_position;
 use super::{LocalMap, SemanticVoxel, VoxelKey, VoxelStorage};
 use crate::classes::NUM_CLASSES;
 
@@ -157,9 +157,7 @@ impl ScenePoint {
     /// Mean position (m, map frame), as [`SemanticVoxel::position`].
     #[inline]
     pub fn position(&self, resolution: f32) -> [f32; 3] {
-        let c = self.key.corner(resolution);
-        let f = self.mean().map(dequantise_fraction);
-        [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
+        mean_position(self.key, self.mean(), resolution)
     }
 
     /// Class index (0..19; `u8::MAX` without one).

@@ -92,9 +92,7 @@ impl SemanticVoxel {
 
     /// Mean position of the voxel's points, in metres in the map frame.
     pub fn position(&self, resolution: f32) -> [f32; 3] {
-        let c = self.key.corner(resolution);
-        let f = self.mean_fraction();
-        [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
+        mean_position(self.key, self.mean, resolution)
     }
 
     /// Number of points fused into the voxel (saturates at 65535).
@@ -121,6 +119,16 @@ impl SemanticVoxel {
     pub fn class(&self) -> Option<Class> {
         self.labels.argmax()
     }
+}
+
+/// The position (m) of a mean stored as 1/65536 of `key`'s cell per axis:
+/// one formula for map voxels, scene points and pyramid entries, so each
+/// gives the same bits for the same mean.
+#[inline]
+pub(crate) fn mean_position(key: VoxelKey, mean: [u16; 3], resolution: f32) -> [f32; 3] {
+    let c = key.corner(resolution);
+    let f = mean.map(dequantise_fraction);
+    [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
 }
 
 pub(crate) fn quantise_fraction(f: f32) -> u16 {

@@ -29,7 +29,7 @@
 
 use super::footprint::{self, Footprint, FootprintInfo};
 use crate::map::table::{probe_index, probe_keys, walk, walk_by, MapIndex, Probe, Slot};
-use crate::map::voxel::{dequantise_fraction, quantise_fraction};
+use crate::map::voxel::{mean_position, quantise_fraction};
 use crate::map::{
     class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage,
 };
@@ -153,9 +153,7 @@ impl ModelPoint {
 
     #[inline]
     fn position(&self, resolution: f32) -> [f32; 3] {
-        let c = self.key.corner(resolution);
-        let f = self.mean.map(dequantise_fraction);
-        [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
+        mean_position(self.key, self.mean, resolution)
     }
 }
 
@@ -262,9 +260,7 @@ impl CoarseEntry {
 
     #[inline]
     fn position(&self, resolution: f32) -> [f32; 3] {
-        let c = self.key.corner(resolution);
-        let f = self.fraction.map(dequantise_fraction);
-        [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
+        mean_position(self.key, self.fraction, resolution)
     }
 
     fn set_position(&mut self, p: [f32; 3], resolution: f32) {
