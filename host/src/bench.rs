@@ -424,6 +424,7 @@ fn label_options(
         image_size: None,
         frames,
         out,
+        copy_scans: false,
     }
 }
 

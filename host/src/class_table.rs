@@ -65,8 +65,12 @@ impl ClassTable {
     pub fn parse(text: &str) -> Result<Self, String> {
         let file: File = toml::from_str(text).map_err(|e| e.to_string().trim_end().to_owned())?;
         let mut ids = BTreeMap::new();
+        let mut keys: BTreeMap<u16, String> = BTreeMap::new();
         for (key, name) in file.ids {
             let id: u16 = key.trim().parse().map_err(|_| format!("[ids]: `{key}` is not a label id (0 to 65535)"))?;
+            if let Some(first) = keys.insert(id, key.clone()) {
+                return Err(format!("[ids]: `{first}` and `{key}` are both label id {id}: name each id once"));
+            }
             let class = match name.as_str() {
                 "unlabeled" => None,
                 n => Some(Class::from_name(n).ok_or_else(|| {
@@ -114,6 +118,13 @@ impl ClassTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_id_named_twice_is_refused() {
+        let e = ClassTable::parse("[ids]\n40 = \"road\"\n\"040\" = \"car\"\n").unwrap_err();
+        assert!(e.contains("`040` and `40`") || e.contains("`40` and `040`"), "{e}");
+        assert!(e.contains("label id 40"), "{e}");
+    }
 
     #[test]
     fn a_table_maps_names_and_drops_and_refuses_what_it_must() {

@@ -162,6 +162,10 @@ impl Scalar {
     }
 }
 
+/// The largest point record read (bytes): far beyond any real point type,
+/// small enough that no size computed from it overflows.
+const MAX_RECORD_BYTES: usize = 1 << 20;
+
 /// A field of a point record: its scalar, its count, its byte offset.
 #[derive(Clone, Debug)]
 struct Field {
@@ -184,21 +188,28 @@ impl Layout {
     pub(crate) fn with_offsets(fields: Vec<(String, Scalar, usize, usize)>, stride: usize) -> Option<Self> {
         let fields: Vec<Field> =
             fields.into_iter().map(|(name, scalar, count, offset)| Field { name, scalar, count, offset }).collect();
-        let fits = fields.iter().all(|f| f.offset + f.scalar.size() * f.count.max(1) <= stride);
+        let fits = fields.iter().all(|f| {
+            f.scalar.size().checked_mul(f.count.max(1)).and_then(|n| n.checked_add(f.offset)).is_some_and(|e| e <= stride)
+        });
         fits.then_some(Layout { fields, stride })
     }
 
-    fn new(fields: Vec<(String, Scalar, usize)>) -> Self {
-        let mut offset = 0;
-        let fields = fields
-            .into_iter()
-            .map(|(name, scalar, count)| {
-                let f = Field { name, scalar, count, offset };
-                offset += scalar.size() * count;
-                f
-            })
-            .collect();
-        Layout { fields, stride: offset }
+    /// Fields one after the other (a PCD's or PLY's); `Err` names the
+    /// field whose size overflows a record (a count beyond any file).
+    fn new(fields: Vec<(String, Scalar, usize)>) -> Result<Self, String> {
+        let mut offset = 0usize;
+        let mut out = Vec::with_capacity(fields.len());
+        for (name, scalar, count) in fields {
+            let end = scalar
+                .size()
+                .checked_mul(count)
+                .and_then(|size| offset.checked_add(size))
+                .filter(|&end| end <= MAX_RECORD_BYTES)
+                .ok_or_else(|| format!("field `{name}`: COUNT {count} makes a point larger than {MAX_RECORD_BYTES} bytes"))?;
+            out.push(Field { name, scalar, count, offset });
+            offset = end;
+        }
+        Ok(Layout { fields: out, stride: offset })
     }
 
     /// The indices of x, y, z and the label field: all single scalars,
@@ -350,15 +361,31 @@ pub fn read_pcd(path: &Path, label: &str) -> Result<Cloud, CloudError> {
         })?;
         fields.push((names[k].clone(), s, counts[k]));
     }
-    let layout = Layout::new(fields);
+    let layout = Layout::new(fields).map_err(bad)?;
     let idx = layout.pick(label, path)?;
     let number = |k: &str| -> Result<usize, CloudError> {
         get(k)?.first().and_then(|s| s.parse().ok()).ok_or_else(|| bad(format!("{k} is not a count")))
     };
-    let points = match keys.get("POINTS") {
-        Some(_) => number("POINTS")?,
-        None => number("WIDTH")? * number("HEIGHT")?,
+    // WIDTH x HEIGHT points (an organised cloud's rows), which POINTS
+    // repeats: the two must agree.
+    let size = match (keys.contains_key("WIDTH"), keys.contains_key("HEIGHT")) {
+        (true, true) => {
+            let (width, height) = (number("WIDTH")?, number("HEIGHT")?);
+            let product = width
+                .checked_mul(height)
+                .ok_or_else(|| bad(format!("WIDTH {width} times HEIGHT {height} is beyond any file")))?;
+            Some((width, height, product))
+        }
+        _ => None,
     };
+    let points = match (keys.contains_key("POINTS"), size) {
+        (true, _) => number("POINTS")?,
+        (false, Some((_, _, product))) => product,
+        (false, None) => return Err(bad("no POINTS line, nor WIDTH and HEIGHT".into())),
+    };
+    if let Some((width, height, product)) = size.filter(|s| s.2 != points) {
+        return Err(bad(format!("POINTS {points} is not WIDTH {width} times HEIGHT {height} ({product})")));
+    }
     let data = get("DATA")?.first().cloned().unwrap_or_default();
     let mut cloud = Cloud::default();
     match data.as_str() {
@@ -467,7 +494,7 @@ pub fn read_ply(path: &Path, label: &str) -> Result<Cloud, CloudError> {
         }
     }
     let vertices = vertices.ok_or_else(|| bad("no vertex element".into()))?;
-    let layout = Layout::new(fields);
+    let layout = Layout::new(fields).map_err(bad)?;
     let idx = layout.pick(label, path)?;
     let mut cloud = Cloud::default();
     match format.as_deref() {
@@ -490,13 +517,14 @@ pub fn read(format: CloudFormat, path: &Path, label: &str) -> Result<Cloud, Clou
 }
 
 /// Reads poses in KITTI's layout: one line per scan, 12 numbers, the
-/// row-major 3x4 pose of the sensor in the map frame.
+/// row-major 3x4 pose of the sensor in the map frame, each checked rigid
+/// (its 3x3 part a rotation: a scaled pose would scale the map).
 pub fn read_poses(path: &Path) -> Result<Vec<Matrix4<f64>>, CloudError> {
     let text = std::fs::read_to_string(path).map_err(|source| CloudError::Io { path: path.to_owned(), source })?;
     let mut poses = Vec::new();
     for (n, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
         // The folder reader's parser of poses.txt lines.
-        let m = crate::kitti::parse_3x4(path, n + 1, line).map_err(|e| CloudError::Poses {
+        let m = crate::kitti::parse_rigid(path, n + 1, line).map_err(|e| CloudError::Poses {
             path: path.to_owned(),
             what: match e {
                 crate::kitti::KittiError::Parse { line, what, .. } => format!("line {line}: {what}"),
@@ -518,7 +546,7 @@ pub fn write_poses(path: &Path, poses: &[Matrix4<f64>]) -> Result<(), CloudError
         out.push_str(&row.join(" "));
         out.push('\n');
     }
-    std::fs::write(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
+    crate::paths::write_file(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
 }
 
 /// Points and labels as little-endian records of x, y, z (float32) and
@@ -545,7 +573,7 @@ pub fn write_pcd(path: &Path, points: &[[f32; 3]], labels: &[u32]) -> Result<(),
     )
     .into_bytes();
     out.extend(records(points.iter().copied(), labels));
-    std::fs::write(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
+    crate::paths::write_file(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
 }
 
 /// Writes a scan as a binary little-endian PLY file: x y z (float) and
@@ -558,7 +586,7 @@ pub fn write_ply(path: &Path, points: &[[f32; 3]], labels: &[u32]) -> Result<(),
     )
     .into_bytes();
     out.extend(records(points.iter().copied(), labels));
-    std::fs::write(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
+    crate::paths::write_file(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
 }
 
 /// Reads scans (one file each, in order) with their sensor poses and puts
@@ -614,7 +642,7 @@ mod tests {
     fn tmp(name: &str, bytes: &[u8]) -> (tempfile::TempDir, PathBuf) {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join(name);
-        std::fs::write(&p, bytes).unwrap();
+        crate::paths::write_file(&p, bytes).unwrap();
         (dir, p)
     }
 

@@ -126,7 +126,7 @@ pub fn round_trip(map: &HostMap, source: &str) -> Result<(Vec<u8>, HostMap), Cma
 /// Writes a map file; returns its length.
 pub fn write(path: &Path, map: &HostMap, anchor_time: Option<f64>, source: Option<&str>) -> Result<usize, CmapError> {
     let bytes = encode(map, anchor_time, source);
-    std::fs::write(path, &bytes).map_err(|source| CmapError::Io { path: path.to_path_buf(), source })?;
+    crate::paths::write_file(path, &bytes).map_err(|source| CmapError::Io { path: path.to_path_buf(), source })?;
     Ok(bytes.len())
 }
 

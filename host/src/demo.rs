@@ -60,7 +60,7 @@ pub fn run(d: &Demo, dir: &Path, out: &mut impl Write) -> Result<(), Error> {
     if d.keep_maps {
         crate::cmap::write(&dir.join("robot_a.cmap"), &pair.map_a, None, Some(&format!("synthetic {ra}")))?;
         let b = dir.join("robot_b.cmap");
-        std::fs::write(&b, &bytes_b).map_err(|source| Error::Io { path: b, source })?;
+        crate::paths::write_file(&b, &bytes_b).map_err(|source| Error::Io { path: b, source })?;
     }
     describe(out, "A (model)", ra, &pair.map_a, d.voxel).map_err(io)?;
     describe(out, "B (scene)", rb, &received_b, d.voxel).map_err(io)?;

@@ -244,7 +244,7 @@ pub(crate) fn parse_3x4(path: &Path, line: usize, text: &str) -> Result<Matrix4<
 }
 
 /// Parses a 3x4 matrix that must be a rigid transform (a pose, `Tr`).
-fn parse_rigid(path: &Path, line: usize, text: &str) -> Result<Matrix4<f64>, KittiError> {
+pub(crate) fn parse_rigid(path: &Path, line: usize, text: &str) -> Result<Matrix4<f64>, KittiError> {
     let m = parse_3x4(path, line, text)?;
     match rigid_from_matrix(&m) {
         Some(_) => Ok(m),

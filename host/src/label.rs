@@ -167,14 +167,15 @@ pub fn write_seg_png(_path: &Path, _image: &SegImage) -> std::io::Result<()> {
 /// Writes an 8-bit grayscale PNG of class ids.
 #[cfg(feature = "png")]
 pub fn write_seg_png(path: &Path, image: &SegImage) -> std::io::Result<()> {
-    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
-    let mut enc = png::Encoder::new(file, image.width, image.height);
+    let mut file = crate::paths::Output::create(path)?;
+    let mut enc = png::Encoder::new(&mut file, image.width, image.height);
     enc.set_color(png::ColorType::Grayscale);
     enc.set_depth(png::BitDepth::Eight);
     enc.set_compression(png::Compression::Fast);
     let mut w = enc.write_header().map_err(std::io::Error::other)?;
     w.write_image_data(&image.ids).map_err(std::io::Error::other)?;
-    w.finish().map_err(std::io::Error::other)
+    w.finish().map_err(std::io::Error::other)?;
+    file.commit()
 }
 
 /// Per-pixel class probabilities: `channels` values per pixel, row by row.
@@ -295,7 +296,7 @@ pub fn write_probabilities(path: &Path, map: &ProbabilityMap) -> std::io::Result
     out.extend_from_slice(&(header.len() as u16).to_le_bytes());
     out.extend_from_slice(header.as_bytes());
     out.extend(map.values.iter().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8));
-    std::fs::write(path, out)
+    crate::paths::write_file(path, out)
 }
 
 /// What `cosem label` does.
@@ -320,6 +321,9 @@ pub struct LabelOptions {
     pub frames: Option<Vec<usize>>,
     /// The output folder.
     pub out: PathBuf,
+    /// Copy the scans into the output instead of linking them (relative
+    /// symbolic links by default).
+    pub copy_scans: bool,
 }
 
 /// Counts of one labelling run.
@@ -456,14 +460,35 @@ pub fn camera_of(seq: &Sequence, camera: u8, size: (u32, u32), image: &Path) -> 
     Ok(cam)
 }
 
-fn copy_or_link(from: &Path, to: &Path) -> Result<(), LabelError> {
+/// Puts `from` at `to`: a relative symbolic link (so that the output and
+/// input folders can be moved or copied together), or a copy when `copy`
+/// is asked or no link can be made.
+fn copy_or_link(from: &Path, to: &Path, copy: bool) -> Result<(), LabelError> {
     let _ = std::fs::remove_file(to);
     let abs = std::fs::canonicalize(from).map_err(io(from))?;
     #[cfg(unix)]
-    if std::os::unix::fs::symlink(&abs, to).is_ok() {
-        return Ok(());
+    if !copy {
+        let dir = to.parent().map(crate::paths::resolved).unwrap_or_default();
+        if std::os::unix::fs::symlink(relative_to(&abs, &dir), to).is_ok() {
+            return Ok(());
+        }
     }
     std::fs::copy(&abs, to).map(|_| ()).map_err(io(to))
+}
+
+/// `target` (absolute) as a path relative to the folder `base` (absolute).
+fn relative_to(target: &Path, base: &Path) -> PathBuf {
+    let t: Vec<_> = target.components().collect();
+    let b: Vec<_> = base.components().collect();
+    let common = t.iter().zip(&b).take_while(|(x, y)| x == y).count();
+    let mut rel = PathBuf::new();
+    for _ in common..b.len() {
+        rel.push("..");
+    }
+    for c in &t[common..] {
+        rel.push(c);
+    }
+    rel
 }
 
 /// First line of the PROVENANCE.md `cosem label` writes: an output folder
@@ -565,7 +590,7 @@ fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
         if o.probabilities { ", per-pixel probabilities" } else { "" },
         o.camera
     );
-    std::fs::write(o.out.join("PROVENANCE.md"), prov).map_err(io(&o.out))?;
+    crate::paths::write_file(o.out.join("PROVENANCE.md"), prov).map_err(io(&o.out))?;
     let model = SensorModel::default();
     let mut stats = LabelStats::default();
     let mut camera: Option<(Camera, (u32, u32))> = None;
@@ -666,13 +691,13 @@ fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
         stats.points += points.len();
         stats.frames += 1;
         let name = format!("{frame:06}");
-        copy_or_link(&seq.scan_path(frame), &o.out.join("velodyne").join(format!("{name}.bin")))?;
+        copy_or_link(&seq.scan_path(frame), &o.out.join("velodyne").join(format!("{name}.bin")), o.copy_scans)?;
         let lpath = o.out.join("labels").join(format!("{name}.label"));
         let bytes: Vec<u8> = labels.iter().flat_map(|l| l.to_le_bytes()).collect();
-        std::fs::write(&lpath, bytes).map_err(io(&lpath))?;
+        crate::paths::write_file(&lpath, bytes).map_err(io(&lpath))?;
         if o.probabilities {
             let epath = o.out.join("evidence").join(format!("{name}.bin"));
-            std::fs::write(&epath, evidence).map_err(io(&epath))?;
+            crate::paths::write_file(&epath, evidence).map_err(io(&epath))?;
         }
     }
     Ok(stats)
@@ -767,14 +792,14 @@ mod tests {
         // Every truncation, and a few corruptions, are errors naming the file.
         let bytes = std::fs::read(&path).unwrap();
         for k in 0..bytes.len() {
-            std::fs::write(&path, &bytes[..k]).unwrap();
+            crate::paths::write_file(&path, &bytes[..k]).unwrap();
             let e = read_probabilities(&path, 19).unwrap_err().to_string();
             assert!(e.contains("p.npy"), "{e}");
         }
         let text = String::from_utf8_lossy(&bytes).into_owned();
         for (from, to) in [("(2, 3, 19)", "(99999999999, 99999999999, 19)"), ("|u1", "<i8"), ("False", "True ")] {
             let bad = text.replacen(from, to, 1);
-            std::fs::write(&path, bad.as_bytes()).unwrap();
+            crate::paths::write_file(&path, bad.as_bytes()).unwrap();
             assert!(read_probabilities(&path, 19).is_err(), "{from} -> {to}");
         }
     }

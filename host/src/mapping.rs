@@ -29,6 +29,10 @@ pub enum BuildError {
         /// Why.
         error: InsertError,
     },
+    /// No point entered the map: what the frames held and why each point
+    /// stayed out.
+    #[error("the map is empty: {0}")]
+    Empty(String),
 }
 
 /// A local map on the host: the core's map on heap storage sized at run
@@ -80,6 +84,69 @@ pub struct BuildStats {
     /// an axis: 6.5 km at 0.2 m), left out: an outlier far away must not
     /// cost the whole map.
     pub out_of_range: usize,
+    /// Points farther from their sensor than the filter's range.
+    pub beyond_max_range: usize,
+    /// Points of moving objects, left out by the filter.
+    pub moving: usize,
+    /// Points whose SemanticKITTI id has no class (unlabeled, outlier,
+    /// other-structure, other-object).
+    pub no_class: usize,
+    /// Points whose id is not a SemanticKITTI id, and the first such id.
+    pub unknown_ids: usize,
+    /// The first id not known to SemanticKITTI.
+    pub first_unknown_id: Option<u16>,
+}
+
+/// SemanticKITTI's ids that name no class (unlabeled, outlier,
+/// other-structure, other-object).
+const CLASSLESS_IDS: [u32; 4] = [0, 1, 52, 99];
+
+impl BuildStats {
+    /// Counts why a point with `range` and `label` stayed out of the map.
+    fn count_left_out(&mut self, filter: &PointFilter, range: f32, label: u32) {
+        let id = label & 0xFFFF;
+        if filter.max_range.is_some_and(|r| range > r) {
+            self.beyond_max_range += 1;
+        } else if (252..=259).contains(&id) {
+            self.moving += 1;
+        } else if CLASSLESS_IDS.contains(&id) {
+            self.no_class += 1;
+        } else {
+            self.unknown_ids += 1;
+            self.first_unknown_id.get_or_insert(id as u16);
+        }
+    }
+
+    /// Why a map built from these points is empty.
+    pub fn why_empty(&self) -> String {
+        if self.points == 0 {
+            return "the scans hold no points".into();
+        }
+        let mut why = Vec::new();
+        if self.unknown_ids > 0 {
+            why.push(format!(
+                "{} have label ids that are not SemanticKITTI's (the first: {}; give a class table with --classes)",
+                self.unknown_ids,
+                self.first_unknown_id.unwrap_or_default()
+            ));
+        }
+        if self.no_class > 0 {
+            why.push(format!("{} are unlabeled or of no class (ids 0, 1, 52, 99)", self.no_class));
+        }
+        if self.moving > 0 {
+            why.push(format!("{} are moving objects (--keep-moving keeps them)", self.moving));
+        }
+        if self.beyond_max_range > 0 {
+            why.push(format!("{} lie beyond --max-range", self.beyond_max_range));
+        }
+        if self.out_of_range > 0 {
+            why.push(format!("{} lie beyond the map's key range", self.out_of_range));
+        }
+        if self.dropped > 0 {
+            why.push(format!("{} were dropped by the map's eviction", self.dropped));
+        }
+        format!("of {} points, {}", self.points, why.join("; "))
+    }
 }
 
 /// Fuses frames (already in the anchor frame) into `map`.
@@ -88,7 +155,10 @@ pub fn fuse_frames(map: &mut HostMap, frames: &[Frame], filter: &PointFilter) ->
     for f in frames {
         for (point, ((p, &r), &l)) in f.points.iter().zip(&f.ranges).zip(&f.labels).enumerate() {
             stats.points += 1;
-            let Some(class) = filter.keep(r, l) else { continue };
+            let Some(class) = filter.keep(r, l) else {
+                stats.count_left_out(filter, r, l);
+                continue;
+            };
             stats.kept += 1;
             // A network's probabilities, where given, instead of its argmax.
             let inserted = match f.evidence.as_ref().and_then(|e| e.get(point)).copied().flatten() {
@@ -117,6 +187,9 @@ pub fn build_map(
     let upper: usize = frames.iter().map(|f| f.points.len()).sum();
     let mut map = new_map(upper, config)?;
     let stats = fuse_frames(&mut map, frames, filter)?;
+    if map.is_empty() {
+        return Err(BuildError::Empty(stats.why_empty()));
+    }
     Ok((map, stats))
 }
 

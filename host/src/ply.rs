@@ -54,5 +54,5 @@ pub fn write(path: &Path, points: &[PlyPoint]) -> std::io::Result<()> {
         out.push(p.class);
         out.extend_from_slice(&p.label.to_le_bytes());
     }
-    std::fs::write(path, out)
+    crate::paths::write_file(path, out)
 }

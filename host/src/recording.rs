@@ -259,6 +259,18 @@ struct Tree {
 }
 
 impl Tree {
+    /// Adds a transform: a static one replaces the edge's, a dynamic one
+    /// joins its samples in stamp order.
+    fn add(&mut self, fixed: bool, edge: Edge, t: i64, iso: Isometry3<f64>) {
+        if fixed {
+            self.fixed.insert(edge, iso);
+        } else {
+            let samples = self.dynamic.entry(edge).or_default();
+            let i = samples.partition_point(|s| s.0 <= t);
+            samples.insert(i, (t, iso));
+        }
+    }
+
     /// The parent edge of `child`, if any.
     fn parent_of(&self, child: &str) -> Option<(String, bool)> {
         if let Some((p, _)) = self.fixed.keys().find(|(_, c)| c == child) {
@@ -335,56 +347,62 @@ pub struct RecordingScans<'a> {
 /// Reads scans from a recording and puts them into the first one's frame
 /// (as a SemanticKITTI folder's); returns the frames and the points
 /// skipped for a NaN coordinate.
+///
+/// The recording is read as a stream (see [`crate::mcap_read`]): with
+/// `frames` given, reading stops once those scans are in and every one's
+/// pose can be resolved, so the first scans of an hour-long recording cost
+/// what a recording of just those scans does.
 pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>, usize), RecordingError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordingError::Io { path: path.to_owned(), source })?;
-    let mcap_err = |e: mcap::McapError| RecordingError::Mcap { path: path.to_owned(), what: e.to_string() };
     let msg_err = |what: String| RecordingError::Message { path: path.to_owned(), what };
     let mut tree = Tree::default();
     let mut clouds: Vec<(usize, Vec<u8>)> = Vec::new();
+    // The stamp and frame of each cloud kept, to know when the poses are in.
+    let mut stamps: Vec<(i64, String)> = Vec::new();
     let mut seen = 0usize;
     let wanted =
         |i: usize| what.frames.is_none_or(|r| i >= r.start && i < r.end && (i - r.start).is_multiple_of(r.stride));
-    for m in mcap::MessageStream::new(&bytes).map_err(mcap_err)? {
-        let m = m.map_err(mcap_err)?;
+    let all_in = |seen: usize| what.frames.is_some_and(|r| seen >= r.end);
+    crate::mcap_read::read_messages(path, |m| {
         let topic = m.channel.topic.as_str();
+        let at = |e: String| format!("{topic} message at byte offset {} (log time {}): {e}", m.offset, m.log_time);
+        let is_cdr = m.channel.message_encoding == "cdr";
+        let mut new_pose = false;
         if topic == what.points {
             if wanted(seen) {
-                if m.channel.message_encoding != "cdr" {
-                    return Err(msg_err(format!("{topic}: encoding `{}`, not cdr", m.channel.message_encoding)));
+                if !is_cdr {
+                    return Err(format!("{topic}: encoding `{}`, not cdr", m.channel.message_encoding));
                 }
-                clouds.push((seen, m.data.into_owned()));
+                let header = crate::cdr_read::Cdr::new(m.data).and_then(|mut c| c.point_cloud()).map_err(at)?.header;
+                stamps.push((header.stamp.nanos(), header.frame_id));
+                clouds.push((seen, m.data.to_vec()));
             }
             seen += 1;
-        } else if Some(topic) == what.odom {
-            let o: Odometry = cdr::deserialize(&m.data)
-                .map_err(|e| msg_err(format!("{topic} message at log time {}: not an Odometry: {e}", m.log_time)))?;
-            let p = o.pose.pose;
-            let t = Transform { translation: p.position, rotation: p.orientation };
-            let iso = iso_of(&t).ok_or_else(|| msg_err(format!("{topic}: a pose is not a rigid transform")))?;
-            let key = (o.header.frame_id.clone(), o.child_frame_id.clone());
-            tree.dynamic.entry(key).or_default().push((o.header.stamp.nanos(), iso));
-        } else if topic == "/tf" || topic == "/tf_static" {
-            let tf: TfMessage = cdr::deserialize(&m.data)
-                .map_err(|e| msg_err(format!("{topic} message at log time {}: {e}", m.log_time)))?;
-            for t in tf.transforms {
+        } else if Some(topic) == what.odom && is_cdr {
+            let o = crate::cdr_read::Cdr::new(m.data).and_then(|mut c| c.odometry_pose()).map_err(at)?;
+            let iso = iso_of(&o.transform).ok_or_else(|| at("the pose is not a rigid transform".into()))?;
+            tree.add(false, (o.header.frame_id, o.child_frame_id), o.header.stamp.nanos(), iso);
+            new_pose = true;
+        } else if (topic == "/tf" || topic == "/tf_static") && is_cdr {
+            let transforms = crate::cdr_read::Cdr::new(m.data).and_then(|mut c| c.tf_message()).map_err(at)?;
+            for t in transforms {
                 let iso = iso_of(&t.transform).ok_or_else(|| {
-                    msg_err(format!(
-                        "{topic}: transform {} -> {} is not a rigid transform",
-                        t.header.frame_id, t.child_frame_id
-                    ))
+                    at(format!("transform {} -> {} is not a rigid transform", t.header.frame_id, t.child_frame_id))
                 })?;
-                let key = (t.header.frame_id.clone(), t.child_frame_id.clone());
-                if topic == "/tf_static" {
-                    tree.fixed.insert(key, iso);
-                } else {
-                    tree.dynamic.entry(key).or_default().push((t.header.stamp.nanos(), iso));
-                }
+                let edge = (t.header.frame_id, t.child_frame_id);
+                tree.add(topic == "/tf_static", edge, t.header.stamp.nanos(), iso);
             }
+            new_pose = true;
         }
-    }
-    for samples in tree.dynamic.values_mut() {
-        samples.sort_by_key(|s| s.0);
-    }
+        // With the scans asked for all in, stop once each has its pose.
+        if all_in(seen)
+            && (new_pose || topic == what.points)
+            && stamps.iter().all(|(t, frame)| tree.pose(what.pose_frame, frame, *t).is_ok())
+        {
+            return Ok(std::ops::ControlFlow::Break(()));
+        }
+        Ok(std::ops::ControlFlow::Continue(()))
+    })
+    .map_err(|e| RecordingError::Mcap { path: path.to_owned(), what: e.what })?;
     let asked = what.frames.map_or(1, |r| r.frames().count());
     if clouds.len() < asked {
         let frames = what.frames.map_or("all".into(), |r| r.to_string());
@@ -395,28 +413,11 @@ pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>,
     let mut anchor_inv: Option<Matrix4<f64>> = None;
     for (index, data) in clouds {
         let at = |what_: String| msg_err(format!("{} message {index}: {what_}", what.points));
-        let pc: PointCloud2 = cdr::deserialize(&data).map_err(|e| at(format!("not a PointCloud2: {e}")))?;
-        if pc.is_bigendian {
-            return Err(at("big-endian point data is not read".into()));
-        }
-        let mut fields = Vec::with_capacity(pc.fields.len());
-        for f in &pc.fields {
-            let s =
-                Scalar::of_ros(f.datatype).ok_or_else(|| at(format!("field `{}`: datatype {}", f.name, f.datatype)))?;
-            fields.push((f.name.clone(), s, f.count.max(1) as usize, f.offset as usize));
-        }
-        let layout = Layout::with_offsets(fields, pc.point_step as usize)
-            .ok_or_else(|| at(format!("a field lies beyond the point step of {} bytes", pc.point_step)))?;
-        let idx = layout.pick(what.label_field, path)?;
-        let n = pc.width as usize * pc.height as usize;
-        let mut cloud = Cloud::default();
-        // Rows may be padded: each row read on its own.
-        let row = pc.row_step as usize;
-        for r in 0..pc.height as usize {
-            let body = pc.data.get(r * row..).unwrap_or(&[]);
-            read_records(body, pc.width as usize, &layout, idx, path, ("point", r * row), &mut cloud)?;
-        }
-        debug_assert!(cloud.points.len() + cloud.skipped == n);
+        let pc = crate::cdr_read::Cdr::new(&data).and_then(|mut c| c.point_cloud()).map_err(at)?;
+        let cloud = cloud_points(&pc, what.label_field, path).map_err(|e| match e {
+            CloudRead::Message(m) => at(m),
+            CloudRead::Cloud(c) => RecordingError::Cloud(c),
+        })?;
         skipped += cloud.skipped;
         let t = pc.header.stamp.nanos();
         let pose = tree.pose(what.pose_frame, &pc.header.frame_id, t).map_err(at)?.to_homogeneous();
@@ -425,6 +426,57 @@ pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>,
         frames.push(frame_of(index, time, &(anchor * pose), cloud));
     }
     Ok((frames, skipped))
+}
+
+/// Why a PointCloud2's points could not be read.
+enum CloudRead {
+    /// The message's own fields disagree (named).
+    Message(String),
+    /// A point.
+    Cloud(crate::cloud::CloudError),
+}
+
+/// The points of a PointCloud2: its sizes checked against its data
+/// before any row is read.
+fn cloud_points(pc: &crate::cdr_read::CloudMsg<'_>, label_field: &str, path: &Path) -> Result<Cloud, CloudRead> {
+    let bad = CloudRead::Message;
+    if pc.is_bigendian {
+        return Err(bad("big-endian point data is not read".into()));
+    }
+    let mut fields = Vec::with_capacity(pc.fields.len());
+    for (name, offset, datatype, count) in &pc.fields {
+        let s = Scalar::of_ros(*datatype).ok_or_else(|| bad(format!("field `{name}`: datatype {datatype}")))?;
+        fields.push((name.clone(), s, (*count).max(1) as usize, *offset as usize));
+    }
+    let layout = Layout::with_offsets(fields, pc.point_step as usize)
+        .ok_or_else(|| bad(format!("a field lies beyond the point_step of {} bytes", pc.point_step)))?;
+    let idx = layout.pick(label_field, path).map_err(CloudRead::Cloud)?;
+    let mut cloud = Cloud::default();
+    let (width, height, step, row) =
+        (u64::from(pc.width), u64::from(pc.height), u64::from(pc.point_step), u64::from(pc.row_step));
+    if width == 0 || height == 0 {
+        return Ok(cloud);
+    }
+    if row < width * step {
+        return Err(bad(format!(
+            "row_step {row} is less than width {width} times point_step {step} ({}): rows would overlap",
+            width * step
+        )));
+    }
+    let need = (height - 1) * row + width * step;
+    if need > pc.data.len() as u64 {
+        return Err(bad(format!(
+            "data holds {} bytes; height {height} rows of row_step {row} (width {width}, point_step {step}) need {need}",
+            pc.data.len()
+        )));
+    }
+    // Rows may be padded: each row read on its own.
+    for r in 0..height as usize {
+        let start = r * row as usize;
+        let body = pc.data.get(start..).unwrap_or(&[]);
+        read_records(body, width as usize, &layout, idx, path, ("point", start), &mut cloud).map_err(CloudRead::Cloud)?;
+    }
+    Ok(cloud)
 }
 
 /// Writes a SemanticKITTI folder's scans as a ROS 2 recording (zstd
@@ -481,17 +533,15 @@ pub fn export(
 /// A ROS 2 recording being written (zstd chunks, `ros2msg` schemas, CDR
 /// messages), its errors naming the file.
 struct Out<'p> {
-    w: mcap::Writer<std::io::BufWriter<std::fs::File>>,
+    w: mcap::Writer<crate::paths::Output>,
     path: &'p Path,
 }
 
 impl<'p> Out<'p> {
     fn create(path: &'p Path) -> Result<Self, crate::Error> {
-        let file = std::fs::File::create(path).map_err(|source| crate::Error::Io { path: path.to_owned(), source })?;
-        let w = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Zstd))
-            .profile("ros2")
-            .create(std::io::BufWriter::new(file));
+        let file =
+            crate::paths::Output::create(path).map_err(|source| crate::Error::Io { path: path.to_owned(), source })?;
+        let w = mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)).profile("ros2").create(file);
         w.map(|w| Out { w, path }).map_err(|e| crate::Error::Invalid(format!("{}: {e}", path.display())))
     }
 
@@ -514,8 +564,12 @@ impl<'p> Out<'p> {
         self.w.write_to_known_channel(&header, &data).map_err(|e| self.err(e))
     }
 
+    /// Finishes the file and renames it into place (an error before this
+    /// leaves no file).
     fn finish(mut self) -> Result<(), crate::Error> {
-        self.w.finish().map(|_| ()).map_err(|e| self.err(e))
+        self.w.finish().map_err(|e| self.err(e))?;
+        let out = self.w.into_inner();
+        out.commit().map_err(|source| crate::Error::Io { path: self.path.to_owned(), source })
     }
 }
 

@@ -667,18 +667,18 @@ pub fn write_sequence(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesi
                 bin.extend_from_slice(&v.to_le_bytes());
             }
         }
-        std::fs::write(dir.join("velodyne").join(format!("{i:06}.bin")), bin)?;
+        crate::paths::write_file(dir.join("velodyne").join(format!("{i:06}.bin")), bin)?;
         let lab: Vec<u8> = s.labels.iter().flat_map(|l| l.to_le_bytes()).collect();
-        std::fs::write(dir.join("labels").join(format!("{i:06}.label")), lab)?;
+        crate::paths::write_file(dir.join("labels").join(format!("{i:06}.label")), lab)?;
         write_3x4(&mut poses, &(tr * pose * tr_inv))?;
         writeln!(times, "{:.6e}", i as f64 * 0.1)?;
     }
-    std::fs::write(dir.join("poses.txt"), poses)?;
-    std::fs::write(dir.join("times.txt"), times)?;
+    crate::paths::write_file(dir.join("poses.txt"), poses)?;
+    crate::paths::write_file(dir.join("times.txt"), times)?;
     let mut calib = CALIB_P.as_bytes().to_vec();
     calib.extend_from_slice(b"Tr: ");
     write_3x4(&mut calib, &tr)?;
-    std::fs::write(dir.join("calib.txt"), calib)?;
+    crate::paths::write_file(dir.join("calib.txt"), calib)?;
     let mut prov = Vec::new();
     writeln!(
         prov,
@@ -699,7 +699,7 @@ pub fn write_sequence(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesi
             if r.probabilities { "; NNNNNN.npy: per-pixel class probabilities" } else { "" }
         )?;
     }
-    std::fs::write(dir.join("PROVENANCE.md"), prov)?;
+    crate::paths::write_file(dir.join("PROVENANCE.md"), prov)?;
     if let Some(r) = cfg.seg {
         let seg_dir = dir.join(SEG_DIR);
         std::fs::create_dir_all(&seg_dir)?;

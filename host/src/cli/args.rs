@@ -96,6 +96,14 @@ pub fn positive(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A baud rate: a positive whole number of bits a second.
+pub fn baud(s: &str) -> Result<u32, String> {
+    match s.parse::<u32>() {
+        Ok(v) if v > 0 => Ok(v),
+        _ => Err(format!("`{s}`: expected a baud rate, a positive whole number (e.g. 115200)")),
+    }
+}
+
 /// A positive finite number as `f32`.
 pub fn positive_f32(s: &str) -> Result<f32, String> {
     positive(s).map(|v| v as f32)

@@ -100,7 +100,7 @@ pub struct LinkArgs {
     #[arg(long, default_value = "0,0.01,0.05", value_delimiter = ',')]
     error_rates: Vec<f64>,
     /// Line speed (baud, 8N1).
-    #[arg(long, default_value_t = 115_200)]
+    #[arg(long, default_value_t = 115_200, value_parser = super::args::baud)]
     baud: u32,
     /// Voxel size (m); the default makes a robot's map.
     #[arg(long, default_value = "0.5", value_parser = super::args::positive_f32)]

@@ -30,9 +30,14 @@ pub enum Format {
         /// File format.
         #[arg(long)]
         format: cosem_host::cloud::CloudFormat,
-        /// Output folder (created; never inside the input folder).
+        /// Output folder (created; never inside the input folder; a folder
+        /// that already holds scans or poses only with --force).
         #[arg(short, long)]
         output: PathBuf,
+        /// Write into a folder that already holds scans or poses (files of
+        /// the same names are replaced).
+        #[arg(long)]
+        force: bool,
     },
     /// A SemanticKITTI folder's scans as a ROS 2 recording (MCAP, zstd):
     /// PointCloud2 in frame `velodyne` (x, y, z, label) on --topic and the
@@ -65,9 +70,12 @@ pub fn run(f: Format) -> Result<(), Error> {
             println!("{}: {} points", output.display(), points.len());
             Ok(())
         }
-        Format::Scans { data, frames, format, output } => {
+        Format::Scans { data, frames, format, output, force } => {
             use cosem_host::cloud::{write_pcd, write_ply, write_poses, CloudFormat};
             cosem_host::paths::refuse_inside(&output, &[&data])?;
+            if !force {
+                refuse_used_folder(&output)?;
+            }
             let seq = cosem_host::kitti::Sequence::open(&data)?;
             std::fs::create_dir_all(&output).map_err(|e| format!("{}: {e}", output.display()))?;
             let mut poses = Vec::new();
@@ -91,10 +99,30 @@ pub fn run(f: Format) -> Result<(), Error> {
         }
         Format::Mcap { data, frames, topic, output } => {
             cosem_host::paths::refuse_inside(&output, &[&data])?;
+            if output.is_dir() {
+                return Err(format!("{}: is a folder; -o names the recording file to write", output.display()).into());
+            }
             let seq = cosem_host::kitti::Sequence::open(&data)?;
             let n = cosem_host::recording::export(&seq, frames, &topic, &output)?;
             println!("{}: {n} scans on {topic} and /tf", output.display());
             Ok(())
         }
+    }
+}
+
+/// Refuses an existing folder that holds scans or poses already (a
+/// SemanticKITTI folder, an earlier export): they would be replaced.
+fn refuse_used_folder(output: &std::path::Path) -> Result<(), Error> {
+    let Ok(entries) = std::fs::read_dir(output) else { return Ok(()) };
+    let held = entries.flatten().map(|e| e.file_name().to_string_lossy().into_owned()).find(|n| {
+        n == "poses.txt" || n == "velodyne" || n == "labels" || n.ends_with(".pcd") || n.ends_with(".ply")
+    });
+    match held {
+        Some(name) => Err(format!(
+            "{}: already holds {name}: scans and poses are not replaced without --force (or choose a new folder)",
+            output.display()
+        )
+        .into()),
+        None => Ok(()),
     }
 }

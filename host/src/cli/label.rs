@@ -43,6 +43,10 @@ pub struct Args {
     /// calib, poses and times, the new labels).
     #[arg(long)]
     out: PathBuf,
+    /// Copy the scans into the output folder instead of linking them
+    /// (relative symbolic links: the two folders may move together).
+    #[arg(long)]
+    copy_scans: bool,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -69,6 +73,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         image_size: a.image_size.as_deref().map(parse_size).transpose()?,
         frames: a.frames.map(|r| r.frames().collect()),
         out: a.out.clone(),
+        copy_scans: a.copy_scans,
     };
     let t = std::time::Instant::now();
     let s = label_sequence(&opts)?;

@@ -27,7 +27,7 @@ pub struct Args {
     serial: Option<String>,
     /// Baud rate: of the serial port; with TCP, our writes are paced to it
     /// as a UART would send (default: unpaced, line times reported at 115200).
-    #[arg(long)]
+    #[arg(long, value_parser = super::args::baud)]
     baud: Option<u32>,
     /// Give up after this long, whatever the state (s; long enough for a
     /// robot's map on a 115200-baud line with 5% byte errors).

@@ -82,10 +82,13 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<(), Error> {
     let t0 = Instant::now();
+    // Every file read is an input: the output is never one of them.
+    let mut inputs: Vec<&std::path::Path> = a.files.iter().map(PathBuf::as_path).collect();
+    inputs.extend([&a.poses, &a.mcap, &a.classes].into_iter().flatten().map(PathBuf::as_path));
+    cosem_host::paths::refuse_overwrite(&a.output, &inputs)?;
     let (mut frames, name, range) = match (&a.format, &a.poses, &a.data, a.frames) {
         (_, _, _, range) if a.mcap.is_some() => {
             let file = a.mcap.as_deref().unwrap_or(std::path::Path::new(""));
-            cosem_host::paths::refuse_overwrite(&a.output, &[file])?;
             let what = cosem_host::recording::RecordingScans {
                 points: &a.points,
                 label_field: &a.label_field,
@@ -104,9 +107,6 @@ pub fn run(a: Args) -> Result<(), Error> {
             if a.files.is_empty() {
                 return Err("--format needs the scans' files".into());
             }
-            let mut inputs: Vec<&std::path::Path> = a.files.iter().map(PathBuf::as_path).collect();
-            inputs.push(poses);
-            cosem_host::paths::refuse_overwrite(&a.output, &inputs)?;
             let (frames, skipped) = cosem_host::cloud::load_scans(*format, &a.files, poses, &a.label_field)?;
             if skipped > 0 {
                 eprintln!("{skipped} points with a NaN coordinate skipped");

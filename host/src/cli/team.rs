@@ -76,12 +76,17 @@ fn robot(s: &str) -> Result<RobotSpec, String> {
     Err(format!("`{s}`: expected DIR:START:END[:STRIDE]"))
 }
 
+/// The largest error of a prior (m): a prior a kilometre off is no prior.
+const MAX_PRIOR_METRES: f64 = 1000.0;
+
 fn pair_f64(s: &str) -> Result<(f64, f64), String> {
     let v: Vec<f64> =
         s.split(',').map(|x| x.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
     match v[..] {
-        [m, d] if m.is_finite() && d.is_finite() && m >= 0.0 && d >= 0.0 => Ok((m, d)),
-        _ => Err(format!("`{s}`: expected METRES,DEGREES, both finite and non-negative")),
+        [m, d] if (0.0..=MAX_PRIOR_METRES).contains(&m) && (0.0..=180.0).contains(&d) => Ok((m, d)),
+        _ => Err(format!(
+            "`{s}`: expected METRES,DEGREES: METRES from 0 to {MAX_PRIOR_METRES} (a prior further off is none: use --no-prior), DEGREES from 0 to 180"
+        )),
     }
 }
 
