@@ -189,7 +189,11 @@ impl Layout {
         let fields: Vec<Field> =
             fields.into_iter().map(|(name, scalar, count, offset)| Field { name, scalar, count, offset }).collect();
         let fits = fields.iter().all(|f| {
-            f.scalar.size().checked_mul(f.count.max(1)).and_then(|n| n.checked_add(f.offset)).is_some_and(|e| e <= stride)
+            f.scalar
+                .size()
+                .checked_mul(f.count.max(1))
+                .and_then(|n| n.checked_add(f.offset))
+                .is_some_and(|e| e <= stride)
         });
         fits.then_some(Layout { fields, stride })
     }
@@ -205,7 +209,9 @@ impl Layout {
                 .checked_mul(count)
                 .and_then(|size| offset.checked_add(size))
                 .filter(|&end| end <= MAX_RECORD_BYTES)
-                .ok_or_else(|| format!("field `{name}`: COUNT {count} makes a point larger than {MAX_RECORD_BYTES} bytes"))?;
+                .ok_or_else(|| {
+                    format!("field `{name}`: COUNT {count} makes a point larger than {MAX_RECORD_BYTES} bytes")
+                })?;
             out.push(Field { name, scalar, count, offset });
             offset = end;
         }
@@ -669,6 +675,25 @@ mod tests {
         let (_d, p) = tmp("b.ply", text.as_bytes());
         let c = read_ply(&p, "label").unwrap();
         assert_eq!((c.points, c.labels), (want.points, vec![40, 80]));
+    }
+
+    #[test]
+    fn sizes_that_would_wrap_are_refused_by_name() {
+        let head = |count: &str, size: &str| {
+            format!("VERSION 0.7\nFIELDS x y z label\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT {count}\n{size}DATA binary\n")
+        };
+        let (_d, p) = tmp("a.pcd", head("1 1 1 18446744073709551608", "WIDTH 1\nHEIGHT 1\nPOINTS 1\n").as_bytes());
+        let e = read_pcd(&p, "label").unwrap_err().to_string();
+        assert!(e.contains("COUNT 18446744073709551608") && e.contains("a.pcd"), "{e}");
+        let (_d, p) = tmp("b.pcd", head("1 1 1 1", "WIDTH 4294967296\nHEIGHT 4294967296\n").as_bytes());
+        let e = read_pcd(&p, "label").unwrap_err().to_string();
+        assert!(e.contains("WIDTH 4294967296 times HEIGHT 4294967296"), "{e}");
+        let (_d, p) = tmp("c.pcd", head("1 1 1 1", "WIDTH 4294967296\nHEIGHT 4294967296\nPOINTS 0\n").as_bytes());
+        let e = read_pcd(&p, "label").unwrap_err().to_string();
+        assert!(e.contains("WIDTH") && e.contains("HEIGHT"), "{e}");
+        let (_d, p) = tmp("d.pcd", head("1 1 1 1", "WIDTH 3\nHEIGHT 1\nPOINTS 2\n").as_bytes());
+        let e = read_pcd(&p, "label").unwrap_err().to_string();
+        assert!(e.contains("POINTS 2 is not WIDTH 3 times HEIGHT 1"), "{e}");
     }
 
     #[test]

@@ -193,8 +193,9 @@ fn chunk_records(body: &[u8]) -> Result<Vec<u8>, String> {
         "zstd" | "lz4" => {
             let mut out = Vec::new();
             let read = match compression.as_str() {
-                "zstd" => zstd::stream::read::Decoder::with_buffer(data)
-                    .and_then(|d| d.take(size + 1).read_to_end(&mut out)),
+                "zstd" => {
+                    zstd::stream::read::Decoder::with_buffer(data).and_then(|d| d.take(size + 1).read_to_end(&mut out))
+                }
                 _ => lz4::Decoder::new(data).and_then(|d| d.take(size + 1).read_to_end(&mut out)),
             };
             read.map_err(|e| format!("{compression} chunk does not decompress: {e}"))?;
@@ -258,7 +259,8 @@ fn record(
             let _sequence = b.u32("sequence")?;
             let log_time = b.u64("log time")?;
             let _publish = b.u64("publish time")?;
-            let channel = channels.get(&id).ok_or_else(|| format!("a message on channel {id}, which no record defined"))?;
+            let channel =
+                channels.get(&id).ok_or_else(|| format!("a message on channel {id}, which no record defined"))?;
             on(&Message { channel, log_time, data: b.rest(), offset: at })
         }
         _ => Ok(ControlFlow::Continue(())),

@@ -474,51 +474,109 @@ fn cloud_points(pc: &crate::cdr_read::CloudMsg<'_>, label_field: &str, path: &Pa
     for r in 0..height as usize {
         let start = r * row as usize;
         let body = pc.data.get(start..).unwrap_or(&[]);
-        read_records(body, width as usize, &layout, idx, path, ("point", start), &mut cloud).map_err(CloudRead::Cloud)?;
+        read_records(body, width as usize, &layout, idx, path, ("point", start), &mut cloud)
+            .map_err(CloudRead::Cloud)?;
     }
     Ok(cloud)
 }
 
-/// Writes a SemanticKITTI folder's scans as a ROS 2 recording (zstd
-/// chunks): on `topic` each scan as a PointCloud2 in frame `velodyne` (x,
-/// y, z float32, label uint32), on `/tf` its pose `world -> velodyne` at
-/// the same stamp (`times.txt`, else 0.1 s a frame). Returns the scans
-/// written.
+/// How a recording's chunks are written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum ChunkCompression {
+    /// Uncompressed chunks.
+    None,
+    /// zstd (rosbag2's default).
+    Zstd,
+    /// LZ4 frames.
+    Lz4,
+}
+
+/// One scan to write: points and label words in the sensor's frame, the
+/// sensor's pose in the world (4x4, rigid) and its stamp (s).
+pub struct ScanRecord<'a> {
+    /// x, y, z (m).
+    pub points: &'a [[f32; 3]],
+    /// Label words.
+    pub labels: &'a [u32],
+    /// `T_world_sensor`.
+    pub pose: Matrix4<f64>,
+    /// Stamp (s).
+    pub seconds: f64,
+}
+
+/// Writes a SemanticKITTI folder's scans as a ROS 2 recording (see
+/// [`write_scans`]; stamps from `times.txt`, else 0.1 s a frame). Returns
+/// the scans written.
 pub fn export(
     seq: &crate::kitti::Sequence,
     frames: crate::kitti::FrameRange,
     topic: &str,
+    compression: ChunkCompression,
     out: &Path,
 ) -> Result<usize, crate::Error> {
-    let mut w = Out::create(out)?;
+    let mut scans = Vec::new();
+    for i in frames.frames() {
+        let scan = seq.read_scan(i)?;
+        let seconds = seq.times.as_ref().and_then(|t| t.get(i).copied()).unwrap_or(0.1 * i as f64);
+        let points: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+        scans.push((points, scan.labels, seq.velodyne_matrix(i)?, seconds));
+    }
+    let records = scans.iter().map(|(points, labels, pose, seconds)| ScanRecord {
+        points,
+        labels,
+        pose: *pose,
+        seconds: *seconds,
+    });
+    write_scans(out, topic, compression, true, records)
+}
+
+/// Writes scans as a ROS 2 recording: on `topic` each scan as a
+/// PointCloud2 in frame `velodyne` (x, y, z float32, label uint32), on
+/// `/tf` its pose `world -> velodyne` at the same stamp; chunks compressed
+/// as asked, with their CRCs when `chunk_crcs`. Returns the scans written;
+/// the file appears only when whole.
+pub fn write_scans<'a>(
+    out: &Path,
+    topic: &str,
+    compression: ChunkCompression,
+    chunk_crcs: bool,
+    scans: impl Iterator<Item = ScanRecord<'a>>,
+) -> Result<usize, crate::Error> {
+    let compression = match compression {
+        ChunkCompression::None => None,
+        ChunkCompression::Zstd => Some(mcap::Compression::Zstd),
+        ChunkCompression::Lz4 => Some(mcap::Compression::Lz4),
+    };
+    let mut w =
+        Out::create_with(out, mcap::WriteOptions::new().compression(compression).calculate_chunk_crcs(chunk_crcs))?;
     let pc_schema = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA)?;
     let tf_schema = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA)?;
     let pc_channel = w.channel(pc_schema, topic)?;
     let tf_channel = w.channel(tf_schema, "/tf")?;
     let mut n = 0;
-    for (k, i) in frames.frames().enumerate() {
-        let scan = seq.read_scan(i)?;
-        let seconds = seq.times.as_ref().and_then(|t| t.get(i).copied()).unwrap_or(0.1 * i as f64);
-        let stamp = Time::of_seconds(seconds);
+    for (k, scan) in scans.enumerate() {
+        let stamp = Time::of_seconds(scan.seconds);
         let log_time = stamp.nanos().max(0) as u64;
         let header = |frame: &str| Header { stamp, frame_id: frame.to_owned() };
         let tf = TfMessage {
             transforms: vec![TransformStamped {
                 header: header("world"),
                 child_frame_id: "velodyne".into(),
-                transform: transform_of(&seq.velodyne_matrix(i)?),
+                transform: transform_of(&scan.pose),
             }],
         };
-        let data = crate::cloud::records(scan.points.iter().map(|p| [p[0], p[1], p[2]]), &scan.labels);
+        let count = scan.points.len().min(scan.labels.len());
+        let data = crate::cloud::records(scan.points.iter().copied(), scan.labels);
         let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
         let pc = PointCloud2 {
             header: header("velodyne"),
             height: 1,
-            width: scan.points.len() as u32,
+            width: count as u32,
             fields: vec![field("x", 0, 7), field("y", 4, 7), field("z", 8, 7), field("label", 12, 6)],
             is_bigendian: false,
             point_step: 16,
-            row_step: 16 * scan.points.len() as u32,
+            row_step: 16 * count as u32,
             data,
             is_dense: true,
         };
@@ -539,9 +597,13 @@ struct Out<'p> {
 
 impl<'p> Out<'p> {
     fn create(path: &'p Path) -> Result<Self, crate::Error> {
+        Self::create_with(path, mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)))
+    }
+
+    fn create_with(path: &'p Path, options: mcap::WriteOptions) -> Result<Self, crate::Error> {
         let file =
             crate::paths::Output::create(path).map_err(|source| crate::Error::Io { path: path.to_owned(), source })?;
-        let w = mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)).profile("ros2").create(file);
+        let w = options.profile("ros2").create(file);
         w.map(|w| Out { w, path }).map_err(|e| crate::Error::Invalid(format!("{}: {e}", path.display())))
     }
 
@@ -592,6 +654,89 @@ mod tests {
         assert_eq!(tree.pose("world", "lidar", 1_000).unwrap(), b * mount);
         assert!(tree.pose("world", "lidar", 2_000).unwrap_err().contains("around the stamp"));
         assert!(tree.pose("map", "lidar", 0).unwrap_err().contains("no chain"));
+    }
+
+    /// A recording of one PointCloud2 (as given) and its pose.
+    fn one_cloud(path: &Path, pc: &PointCloud2) {
+        let mut w = Out::create(path).unwrap();
+        let pcs = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA).unwrap();
+        let tfs = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA).unwrap();
+        let (pc_ch, tf_ch) = (w.channel(pcs, "/points").unwrap(), w.channel(tfs, "/tf").unwrap());
+        let tf = TfMessage {
+            transforms: vec![TransformStamped {
+                header: Header { stamp: pc.header.stamp, frame_id: "world".into() },
+                child_frame_id: pc.header.frame_id.clone(),
+                transform: transform_of(&Matrix4::identity()),
+            }],
+        };
+        w.write(tf_ch, 0, 0, &tf).unwrap();
+        w.write(pc_ch, 0, 0, pc).unwrap();
+        w.finish().unwrap();
+    }
+
+    fn read_one(path: &Path) -> Result<(Vec<Frame>, usize), RecordingError> {
+        let what =
+            RecordingScans { points: "/points", label_field: "label", pose_frame: "world", frames: None, odom: None };
+        read_scans(path, &what)
+    }
+
+    fn two_points() -> PointCloud2 {
+        let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
+        PointCloud2 {
+            header: Header { stamp: Time { sec: 1, nanosec: 0 }, frame_id: "lidar".into() },
+            height: 1,
+            width: 2,
+            fields: vec![field("x", 0, 7), field("y", 4, 7), field("z", 8, 7), field("label", 12, 6)],
+            is_bigendian: false,
+            point_step: 16,
+            row_step: 32,
+            data: crate::cloud::records([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]].into_iter(), &[40, 50]),
+            is_dense: true,
+        }
+    }
+
+    #[test]
+    fn a_cloud_whose_sizes_disagree_with_its_data_is_refused_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.mcap");
+        one_cloud(&p, &two_points());
+        let (frames, _) = read_one(&p).unwrap();
+        assert_eq!(frames[0].labels, vec![40, 50]);
+        // Rows that would overlap (row 1 read from row 0's bytes).
+        let pc = PointCloud2 { height: 2, width: 1, row_step: 8, ..two_points() };
+        one_cloud(&p, &pc);
+        let e = read_one(&p).unwrap_err().to_string();
+        assert!(e.contains("row_step 8") && e.contains("point_step 16"), "{e}");
+        // More rows than the data holds.
+        let pc = PointCloud2 { height: 3, width: 1, row_step: 16, ..two_points() };
+        one_cloud(&p, &pc);
+        let e = read_one(&p).unwrap_err().to_string();
+        assert!(e.contains("data holds 32 bytes") && e.contains("need 48"), "{e}");
+        // 4,294,967,295 empty rows: no points, read at once (no loop).
+        let pc = PointCloud2 { height: u32::MAX, width: 0, row_step: 0, data: Vec::new(), ..two_points() };
+        one_cloud(&p, &pc);
+        let (frames, _) = read_one(&p).unwrap();
+        assert!(frames[0].points.is_empty());
+    }
+
+    #[test]
+    fn a_flipped_byte_in_a_chunk_is_a_checksum_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.mcap");
+        let big = PointCloud2 {
+            width: 4000,
+            row_step: 16 * 4000,
+            data: crate::cloud::records((0..4000).map(|i| [i as f32, 0.5, 1.0]), &[40; 4000]),
+            ..two_points()
+        };
+        one_cloud(&p, &big);
+        let mut bytes = std::fs::read(&p).unwrap();
+        // Inside the compressed records of the chunk holding the cloud.
+        let at = bytes.len() / 3;
+        bytes[at] ^= 0x10;
+        std::fs::write(&p, &bytes).unwrap();
+        let e = read_one(&p).unwrap_err().to_string();
+        assert!(e.contains("byte offset") && (e.contains("CRC") || e.contains("decompress")), "{e}");
     }
 
     #[test]

@@ -185,3 +185,173 @@ fn info_refuses_a_device_at_once() {
         assert!(e.contains("bad magic"), "{e}");
     }
 }
+
+fn s(p: &Path) -> String {
+    p.display().to_string()
+}
+
+/// Scans as PCD files with their poses (`cosem export scans`).
+fn pcd_scans(tmp: &Path) -> (Vec<String>, std::path::PathBuf) {
+    let seq = fresh(tmp);
+    let scans = tmp.join("scans");
+    cosem_tests::cosem_ok(&[
+        "export",
+        "scans",
+        "--data",
+        &s(&seq),
+        "--frames",
+        "0:2",
+        "--format",
+        "pcd",
+        "-o",
+        &s(&scans),
+    ]);
+    ((0..2).map(|i| s(&scans.join(format!("{i:06}.pcd")))).collect(), scans.join("poses.txt"))
+}
+
+/// Labels that are not SemanticKITTI ids and no class table: an error
+/// saying why every point stayed out, not an empty map.
+#[test]
+fn a_map_that_would_be_empty_is_an_error_saying_why() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (files, poses) = pcd_scans(tmp.path());
+    for f in &files {
+        let mut text = fs::read(f).unwrap();
+        let at = text.windows(12).position(|w| w == b"DATA binary\n").unwrap() + 12;
+        for rec in text[at..].chunks_exact_mut(16) {
+            rec[12..16].copy_from_slice(&1000u32.to_le_bytes());
+        }
+        fs::write(f, text).unwrap();
+    }
+    let (out, poses) = (s(&tmp.path().join("m.cmap")), s(&poses));
+    let mut args = vec!["map", "--format", "pcd", "--poses", &poses, "-o", &out];
+    args.extend(files.iter().map(String::as_str));
+    let e = cosem_err(&args);
+    assert!(
+        e.contains("empty") && e.contains("not SemanticKITTI's") && e.contains("1000") && e.contains("--classes"),
+        "{e}"
+    );
+    assert!(!Path::new(&out).exists());
+}
+
+/// A pose scaled by 2 would make a map four times too large: refused.
+#[test]
+fn poses_that_are_not_rigid_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (files, poses) = pcd_scans(tmp.path());
+    let text = fs::read_to_string(&poses).unwrap();
+    let scaled: Vec<String> = text
+        .lines()
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            v.iter()
+                .enumerate()
+                .map(|(i, x)| if i % 4 == 3 { x.to_string() } else { (2.0 * x).to_string() })
+                .collect::<Vec<_>>()
+                .join(" ")
+        })
+        .collect();
+    fs::write(&poses, scaled.join("\n")).unwrap();
+    let (out, poses) = (s(&tmp.path().join("m.cmap")), s(&poses));
+    let mut args = vec!["map", "--format", "pcd", "--poses", &poses, "-o", &out];
+    args.extend(files.iter().map(String::as_str));
+    let e = cosem_err(&args);
+    assert!(e.contains("poses.txt") && e.contains("line 1") && e.contains("rigid"), "{e}");
+}
+
+/// No input is ever overwritten: not the class table, not a file reached
+/// through a hard link; a refused command leaves every file as it was.
+#[test]
+fn no_output_overwrites_an_input_by_any_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = fresh(tmp.path());
+    let table = tmp.path().join("classes.toml");
+    fs::write(&table, "[ids]\n40 = \"road\"\n50 = \"building\"\n0 = \"unlabeled\"\n").unwrap();
+    let before = fs::read(&table).unwrap();
+    let e = cosem_err(&["map", "--data", &s(&seq), "--frames", "0:2", "--classes", &s(&table), "-o", &s(&table)]);
+    assert!(e.contains("is the input"), "{e}");
+    assert_eq!(fs::read(&table).unwrap(), before);
+    // Through a hard link: map -o, match --mcap-out / --merged, export ply -o.
+    let (a, b) = (tmp.path().join("a.cmap"), tmp.path().join("b.cmap"));
+    cosem_tests::cosem_ok(&["map", "--data", &s(&seq), "--frames", "0:2", "--voxel", "0.5", "-o", &s(&a)]);
+    cosem_tests::cosem_ok(&["map", "--data", &s(&seq), "--frames", "1:3", "--voxel", "0.5", "-o", &s(&b)]);
+    let link = tmp.path().join("elsewhere.bin");
+    fs::hard_link(&a, &link).unwrap();
+    let a_bytes = fs::read(&a).unwrap();
+    let (a_s, b_s, link_s) = (s(&a), s(&b), s(&link));
+    for args in [
+        vec!["match", &a_s, &b_s, "--mcap-out", &link_s],
+        vec!["match", &a_s, &b_s, "--merged", &link_s],
+        vec!["export", "ply", &a_s, "-o", &link_s],
+    ] {
+        let e = cosem_err(&args);
+        assert!(e.contains("is the input"), "{args:?}: {e}");
+        assert_eq!(fs::read(&a).unwrap(), a_bytes, "{args:?}");
+    }
+    let (files, poses) = pcd_scans(&tmp.path().join("p"));
+    let plink = tmp.path().join("poses-link.txt");
+    fs::hard_link(&poses, &plink).unwrap();
+    let poses_bytes = fs::read(&poses).unwrap();
+    let (poses_s, plink_s) = (s(&poses), s(&plink));
+    let mut args = vec!["map", "--format", "pcd", "--poses", &poses_s, "-o", &plink_s];
+    args.extend(files.iter().map(String::as_str));
+    let e = cosem_err(&args);
+    assert!(e.contains("is the input"), "{e}");
+    assert_eq!(fs::read(&poses).unwrap(), poses_bytes);
+}
+
+/// Exports never replace scans or poses without --force, and a failed
+/// export leaves no partial file.
+#[test]
+fn exports_never_replace_scans_and_leave_nothing_when_they_fail() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = fresh(tmp.path());
+    let other = tmp.path().join("other");
+    synth(&other, 2, 9);
+    let poses = fs::read(other.join("poses.txt")).unwrap();
+    let e = cosem_err(&["export", "scans", "--data", &s(&seq), "--frames", "0:2", "--format", "ply", "-o", &s(&other)]);
+    assert!(e.contains("already holds") && e.contains("--force"), "{e}");
+    assert_eq!(fs::read(other.join("poses.txt")).unwrap(), poses);
+    let out = tmp.path().join("x");
+    cosem_tests::cosem_ok(&[
+        "export",
+        "scans",
+        "--data",
+        &s(&seq),
+        "--frames",
+        "0:2",
+        "--format",
+        "ply",
+        "-o",
+        &s(&out),
+    ]);
+    cosem_err(&["export", "scans", "--data", &s(&seq), "--frames", "0:2", "--format", "ply", "-o", &s(&out)]);
+    cosem_tests::cosem_ok(&[
+        "export",
+        "scans",
+        "--data",
+        &s(&seq),
+        "--frames",
+        "0:2",
+        "--format",
+        "ply",
+        "-o",
+        &s(&out),
+        "--force",
+    ]);
+    // Frame 7 does not exist: the recording is not left half written.
+    let bag = tmp.path().join("r.mcap");
+    cosem_err(&["export", "mcap", "--data", &s(&seq), "--frames", "0:8", "-o", &s(&bag)]);
+    assert!(!bag.exists());
+    assert!(fs::read_dir(tmp.path()).unwrap().flatten().all(|e| !e.file_name().to_string_lossy().ends_with(".tmp")));
+}
+
+/// Options that make no sense are usage errors naming the option.
+#[test]
+fn nonsense_options_are_usage_errors() {
+    let e = cosem_tests::cosem_usage_err(&["link", "--map", "x.cmap", "--listen", "0", "--baud", "0"]);
+    assert!(e.contains("--baud") && e.contains("baud rate"), "{e}");
+    let e =
+        cosem_tests::cosem_usage_err(&["team", "--robot", "a:0:1", "--robot", "b:0:1", "--prior-noise", "1e300,1e300"]);
+    assert!(e.contains("--prior-noise") && e.contains("METRES"), "{e}");
+}

@@ -148,7 +148,8 @@ fn negatives(a: &Args, pool: &rayon::ThreadPool) -> Result<(), Error> {
     bar.finish_and_clear();
     print!("{report}");
     if let Some(path) = &a.json {
-        cosem_host::paths::write_file(path, serde_json::to_string_pretty(&report)?).map_err(|e| format!("{}: {e}", path.display()))?;
+        cosem_host::paths::write_file(path, serde_json::to_string_pretty(&report)?)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
     }
     Ok(())
 }
@@ -235,8 +236,9 @@ fn print_report(a: &Args, report: &EvalReport) {
 }
 
 fn write_outputs(a: &Args, report: &EvalReport) -> Result<(), Error> {
-    let write =
-        |path: &PathBuf, text: String| cosem_host::paths::write_file(path, text).map_err(|e| format!("{}: {e}", path.display()));
+    let write = |path: &PathBuf, text: String| {
+        cosem_host::paths::write_file(path, text).map_err(|e| format!("{}: {e}", path.display()))
+    };
     if let Some(path) = &a.json {
         write(path, serde_json::to_string_pretty(report)?)?;
     }

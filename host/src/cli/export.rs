@@ -52,6 +52,9 @@ pub enum Format {
         /// The point cloud topic.
         #[arg(long, default_value = "/velodyne_points")]
         topic: String,
+        /// Chunk compression.
+        #[arg(long, value_enum, default_value = "zstd")]
+        compression: cosem_host::recording::ChunkCompression,
         /// Output MCAP file (never inside the input folder).
         #[arg(short, long)]
         output: PathBuf,
@@ -97,13 +100,13 @@ pub fn run(f: Format) -> Result<(), Error> {
             println!("{}: {} scans as {ext} and poses.txt", output.display(), poses.len());
             Ok(())
         }
-        Format::Mcap { data, frames, topic, output } => {
+        Format::Mcap { data, frames, topic, compression, output } => {
             cosem_host::paths::refuse_inside(&output, &[&data])?;
             if output.is_dir() {
                 return Err(format!("{}: is a folder; -o names the recording file to write", output.display()).into());
             }
             let seq = cosem_host::kitti::Sequence::open(&data)?;
-            let n = cosem_host::recording::export(&seq, frames, &topic, &output)?;
+            let n = cosem_host::recording::export(&seq, frames, &topic, compression, &output)?;
             println!("{}: {n} scans on {topic} and /tf", output.display());
             Ok(())
         }
@@ -114,9 +117,10 @@ pub fn run(f: Format) -> Result<(), Error> {
 /// SemanticKITTI folder, an earlier export): they would be replaced.
 fn refuse_used_folder(output: &std::path::Path) -> Result<(), Error> {
     let Ok(entries) = std::fs::read_dir(output) else { return Ok(()) };
-    let held = entries.flatten().map(|e| e.file_name().to_string_lossy().into_owned()).find(|n| {
-        n == "poses.txt" || n == "velodyne" || n == "labels" || n.ends_with(".pcd") || n.ends_with(".ply")
-    });
+    let held = entries
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .find(|n| n == "poses.txt" || n == "velodyne" || n == "labels" || n.ends_with(".pcd") || n.ends_with(".ply"));
     match held {
         Some(name) => Err(format!(
             "{}: already holds {name}: scans and poses are not replaced without --force (or choose a new folder)",
