@@ -236,6 +236,42 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
     Ok(TeamOutcome { robots, matches, exhaustive: c.exhaustive })
 }
 
+/// Which robots' placements a cycle verified: robot 0, and every robot
+/// joined to it by kept matches each of which lies on a cycle through at
+/// least three robots (a match that is a bridge of the graph of kept
+/// pairs, e.g. the only link of a two-robot team, nothing can check: both
+/// directions of one pair come from the same two maps). `kept` lists the
+/// kept matches as (estimating robot, estimated robot).
+pub fn verified_placements(robots: usize, kept: impl IntoIterator<Item = (usize, usize)>) -> Vec<bool> {
+    let mut pairs: Vec<(usize, usize)> =
+        kept.into_iter().filter(|(a, b)| a != b && *a < robots && *b < robots).map(|(a, b)| (a.min(b), a.max(b))).collect();
+    pairs.sort_unstable();
+    pairs.dedup();
+    // Whether `from` reaches `to` over `pairs` without pair `skip`.
+    let reaches = |from: usize, to: usize, skip: Option<usize>, only: &dyn Fn(usize) -> bool| {
+        let mut seen = vec![false; robots];
+        let mut stack = vec![from];
+        seen[from] = true;
+        while let Some(r) = stack.pop() {
+            if r == to {
+                return true;
+            }
+            for (k, &(a, b)) in pairs.iter().enumerate() {
+                if Some(k) == skip || !only(k) {
+                    continue;
+                }
+                let next = if a == r { b } else if b == r { a } else { continue };
+                if !std::mem::replace(&mut seen[next], true) {
+                    stack.push(next);
+                }
+            }
+        }
+        false
+    };
+    let on_cycle: Vec<bool> = pairs.iter().enumerate().map(|(k, &(a, b))| reaches(a, b, Some(k), &|_| true)).collect();
+    (0..robots).map(|r| robots > 0 && reaches(0, r, None, &|k| on_cycle[k])).collect()
+}
+
 /// `t` moved by a seeded shift of `metres` and a yaw of `degrees`, each with
 /// a random sign and direction.
 fn perturbed(t: &Isometry3<f64>, metres: f64, degrees: f64, rng: &mut Rng) -> Isometry3<f64> {
@@ -244,4 +280,21 @@ fn perturbed(t: &Isometry3<f64>, metres: f64, degrees: f64, rng: &mut Rng) -> Is
     let d =
         cosem_core::geometry::pose_deg(metres * heading.cos(), metres * heading.sin(), 0.0, 0.0, 0.0, sign * degrees);
     d * t
+}
+
+#[cfg(test)]
+mod verified_tests {
+    use super::verified_placements;
+
+    #[test]
+    fn only_placements_through_cycles_are_verified() {
+        // Two robots, both directions: no cycle.
+        assert_eq!(verified_placements(2, [(0, 1), (1, 0)]), vec![true, false]);
+        // A triangle and a robot hanging off it by one pair.
+        assert_eq!(verified_placements(4, [(0, 1), (1, 2), (2, 0), (2, 3), (3, 2)]), vec![true, true, true, false]);
+        // Disconnected: robot 2 is not placed at all.
+        assert_eq!(verified_placements(3, [(0, 1), (1, 0)]), vec![true, false, false]);
+        // A square: every pair on a cycle.
+        assert_eq!(verified_placements(4, [(0, 1), (1, 2), (2, 3), (3, 0)]), vec![true; 4]);
+    }
 }

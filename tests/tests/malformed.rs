@@ -355,3 +355,23 @@ fn nonsense_options_are_usage_errors() {
         cosem_tests::cosem_usage_err(&["team", "--robot", "a:0:1", "--robot", "b:0:1", "--prior-noise", "1e300,1e300"]);
     assert!(e.contains("--prior-noise") && e.contains("METRES"), "{e}");
 }
+
+/// With --json, a command that fails still prints a JSON object naming the
+/// error (exit 1), for scripts that read standard output.
+#[test]
+fn with_json_an_error_is_json_too() {
+    let tmp = tempfile::tempdir().unwrap();
+    let missing = s(&tmp.path().join("missing"));
+    let robot = format!("{missing}:0:2");
+    for args in [
+        vec!["team", "--robot", &robot, "--robot", &robot, "--json"],
+        vec!["link", "--map", &missing, "--listen", "0", "--json"],
+        vec!["match", &missing, &missing, "--json"],
+    ] {
+        let out = cosem_tests::cosem(&args);
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{args:?}: {e}"));
+        assert!(j["error"].as_str().is_some_and(|e| e.contains("missing")), "{args:?}: {j}");
+        assert_eq!(j["command"], args[0]);
+    }
+}

@@ -78,7 +78,28 @@ fn a_synthetic_team_of_four_is_placed_despite_a_false_match() {
         assert!(!accepted(&v, 1, 2));
         assert_eq!(accepted(&v, 2, 1), inject.len() == 1);
         assert_eq!(v["matches"].as_array().unwrap().len(), 12);
+        // Every pair of four robots lies on a cycle: every placement checked.
+        assert!((0..4).all(|i| v["robots"][i]["verified"] == true), "{}", v["robots"]);
     }
+}
+
+/// Two robots: no cycle can check a match, so a false match seen from both
+/// robots places robot 1 wrongly, and the output says it is unverified.
+#[test]
+fn a_two_robot_team_says_its_placement_is_unverified() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 6, 22);
+    let s = seq.display().to_string();
+    let (a, b) = (format!("{s}:0:3"), format!("{s}:3:6"));
+    let (v, code) = team(&["--robot", &a, "--robot", &b, "--inject-false-match", "0,1", "--inject-false-match", "1,0"]);
+    assert_eq!(code, Some(0));
+    assert_eq!(v["schema_version"], 2);
+    let r1 = &v["robots"][1];
+    assert_eq!((r1["placed"].as_bool(), r1["verified"].as_bool()), (Some(true), Some(false)), "{r1}");
+    assert!(r1["e_t"].as_f64().unwrap() > 1.0, "the injected match is 5 m off: {r1}");
+    let out = cosem_tests::cosem_ok(&["team", "--robot", &a, "--robot", &b]);
+    assert!(out.contains("verified by no cycle"), "{out}");
 }
 
 #[test]

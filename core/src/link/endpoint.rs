@@ -7,7 +7,7 @@ use crate::map::{LocalMap, VoxelSink, VoxelStorage};
 use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::frame::{Deframer, MAX_FRAME, MAX_PAYLOAD};
 use crate::wire::message::{
-    AbortReason, Ack, Hello, MapHeader, Message, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED, DATA_OVERHEAD,
+    AbortReason, Ack, Hello, MapHeader, Message, MessageError, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED, DATA_OVERHEAD,
     MAX_SACK, OFFSET_MODULUS,
 };
 use embedded_io::{Read, ReadReady, Write, WriteReady};
@@ -104,6 +104,11 @@ pub enum LinkError {
     },
     /// Different voxel size or class table.
     Incompatible,
+    /// The peer speaks another version of the link protocol (told apart at
+    /// its first intact frame).
+    Version(u8),
+    /// The peer's `Hello` holds a non-finite voxel size.
+    BadHello,
     /// A chunk passed its CRC but did not decode.
     Decode(DecodeError),
     /// The received map's digest differs from the announced one.
@@ -127,6 +132,12 @@ impl core::fmt::Display for LinkError {
             LinkError::PeerAborted(r) => write!(f, "peer aborted the transfer ({r:?})"),
             LinkError::TooLarge { voxels } => write!(f, "peer map of {voxels} voxels does not fit"),
             LinkError::Incompatible => f.write_str("peer uses another voxel size or class table"),
+            LinkError::Version(v) => write!(
+                f,
+                "the peer speaks link protocol version {v}, this robot version {}: run the same cosem release on both",
+                crate::wire::PROTOCOL_VERSION
+            ),
+            LinkError::BadHello => f.write_str("the peer's Hello is invalid: its voxel size (resolution) is not finite"),
             LinkError::Decode(e) => write!(f, "chunk did not decode: {e}"),
             LinkError::Digest => f.write_str("received map differs from the announced one (digest)"),
             LinkError::Setup => f.write_str("link set-up error"),
@@ -1089,7 +1100,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
                 LinkError::TooLarge { .. } => AbortReason::TooLarge,
                 LinkError::Decode(_) => AbortReason::BadChunk,
                 LinkError::Digest => AbortReason::Digest,
-                LinkError::Incompatible => AbortReason::Incompatible,
+                LinkError::Incompatible | LinkError::Version(_) | LinkError::BadHello => AbortReason::Incompatible,
                 _ => AbortReason::GaveUp,
             };
             if !matches!(e, LinkError::Io(_) | LinkError::PeerAborted(_)) {
@@ -1202,10 +1213,18 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
                 return Ok(());
             }
         };
-        let Ok(msg) = Message::decode(payload) else {
-            stats.bad_frames += 1;
-            line.frame(false, false);
-            return Ok(());
+        let msg = match Message::decode(payload) {
+            Ok(msg) => msg,
+            // An intact frame (its CRC-32 holds, nothing repaired) in another
+            // version, or a Hello with a non-finite field: the peer, not the
+            // line, says so, and waiting would only end at the deadline.
+            Err(MessageError::Version(v)) if !repaired => return Err(LinkError::Version(v)),
+            Err(MessageError::NonFinite) if !repaired => return Err(LinkError::BadHello),
+            Err(_) => {
+                stats.bad_frames += 1;
+                line.frame(false, false);
+                return Ok(());
+            }
         };
         line.frame(true, repaired);
         stats.repaired_frames += u32::from(repaired);

@@ -289,3 +289,51 @@ fn a_map_received_as_a_scene_is_the_received_map_reduced() {
     let (_, rb) = drive(&wire, (&mut a, &mut pa), (&mut b, &mut pb), 2_000_000);
     assert_eq!(rb, Err(LinkError::TooLarge { voxels: sent.len() as u32 }));
 }
+
+/// A peer speaking another protocol version, or sending a Hello whose
+/// voxel size is NaN, is named at its first intact frame, not left to the
+/// silence timeout.
+#[test]
+fn a_peer_of_another_version_or_with_a_bad_hello_is_named_at_once() {
+    use crate::wire::{encode_frame, Hello, Message, MAX_FRAME, PROTOCOL_VERSION};
+    use embedded_io::Write as _;
+    let resolution = crate::map::MapConfig::default().resolution;
+    for (version, res, want) in
+        [(3u8, resolution, LinkError::Version(3)), (PROTOCOL_VERSION, f32::NAN, LinkError::BadHello)]
+    {
+        let wire = line(9, 0.0, 0.0);
+        let (mut pa, mut pb) = Line::ports(&wire);
+        let mut staging = map(100);
+        let mut b =
+            Endpoint::<Heap, LocalMap<Heap>>::new(LinkConfig::default(), 1, 0, 0, None, Some(&mut staging), bufs())
+                .unwrap();
+        let hello = Hello {
+            robot_id: 0,
+            class_table: crate::classes::CLASS_TABLE_VERSION,
+            resolution: 1.0,
+            max_payload: 512,
+            takes_map: true,
+        };
+        let mut payload = [0u8; 64];
+        let n = Message::Hello(hello).encode(&mut payload).unwrap();
+        // The version bits, and the resolution (an f32 after the robot id
+        // and the class table's varint: found by its bytes).
+        payload[0] = (payload[0] & 0x0F) | (version << 4);
+        let at = payload[..n].windows(4).position(|w| w == 1.0f32.to_le_bytes()).unwrap();
+        payload[at..at + 4].copy_from_slice(&res.to_le_bytes());
+        let mut frame = [0u8; MAX_FRAME];
+        let len = encode_frame(&payload[..n], &mut frame).unwrap();
+        pa.write_all(&frame[..len]).unwrap();
+        let mut result = Ok(Progress::Busy);
+        for now in 0..100 {
+            wire.borrow_mut().tick(now);
+            result = b.step(&mut pb, now);
+            if result != Ok(Progress::Busy) {
+                break;
+            }
+        }
+        assert_eq!(result, Err(want));
+        let text = std::format!("{want}");
+        assert!(text.contains("version") || text.contains("resolution"), "{text}");
+    }
+}

@@ -12,7 +12,7 @@ pub struct Args {
     file: PathBuf,
     /// Print JSON.
     #[arg(long)]
-    json: bool,
+    pub(super) json: bool,
 }
 
 pub fn run(a: Args) -> Result<(), Error> {

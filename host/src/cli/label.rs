@@ -49,7 +49,7 @@ pub struct Args {
     copy_scans: bool,
     /// Print JSON.
     #[arg(long)]
-    json: bool,
+    pub(super) json: bool,
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {

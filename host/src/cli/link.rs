@@ -52,7 +52,7 @@ pub struct Args {
     half_duplex: bool,
     /// Print JSON.
     #[arg(long)]
-    json: bool,
+    pub(super) json: bool,
 }
 
 fn line(a: &Args) -> Line {

@@ -19,7 +19,7 @@ pub struct Args {
     opts: MatchOpts,
     /// Print JSON.
     #[arg(long)]
-    json: bool,
+    pub(super) json: bool,
     /// Write both maps in the model frame, coloured by robot, to this PLY.
     #[arg(long)]
     merged: Option<PathBuf>,

@@ -75,6 +75,25 @@ enum Command {
 /// codes": `match`, `link` and `robots` say the match's status, the others
 /// 0 when they did their job).
 pub fn run(cli: Cli) -> Result<u8, Error> {
+    // With --json, an error is JSON too (on standard output, beside the
+    // message on standard error): scripts always get an object to read.
+    let json = match &cli.command {
+        Command::Match(a) => a.json.then_some("match"),
+        Command::Link(a) => a.json.then_some("link"),
+        Command::Robots(a) => a.json.then_some("robots"),
+        Command::Team(a) => a.json.then_some("team"),
+        Command::Info(a) => a.json.then_some("info"),
+        Command::Label(a) => a.json.then_some("label"),
+        _ => None,
+    };
+    let r = run_command(cli);
+    if let (Err(e), Some(command)) = (&r, json) {
+        let _ = print_json(&serde_json::json!({ "command": command, "error": e.to_string() }));
+    }
+    r
+}
+
+fn run_command(cli: Cli) -> Result<u8, Error> {
     let done = |r: Result<(), Error>| r.map(|()| 0);
     match cli.command {
         Command::Map(a) => done(map::run(a)),

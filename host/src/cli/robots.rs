@@ -41,7 +41,7 @@ pub struct Args {
     no_prior: bool,
     /// Print JSON.
     #[arg(long)]
-    json: bool,
+    pub(super) json: bool,
     /// The firmware's robot binary for mps2-an386 boards (at the default
     /// path, built or brought up to date first).
     #[arg(long, default_value = DEFAULT_FIRMWARE)]

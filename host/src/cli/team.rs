@@ -103,6 +103,10 @@ fn pair_usize(s: &str) -> Result<(usize, usize), String> {
 pub(super) struct RobotJson {
     pub(super) index: usize,
     pub(super) placed: bool,
+    /// Whether a cycle of matches through at least three robots checked
+    /// the placement (false: it rests on matches nothing could check,
+    /// such as the only pair of a two-robot team).
+    pub(super) verified: bool,
     pub(super) group: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub(super) transform: Option<[f64; 16]>,
@@ -157,6 +161,8 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let out = run_team(&spec)?;
     let code = if out.robots.iter().all(|r| r.placed) { 0 } else { 5 };
     let members = |g: usize| out.robots.iter().filter(|r| r.group == g).count();
+    let kept = out.matches.iter().filter(|m| m.accepted).map(|m| (m.a, m.b));
+    let verified = cosem_host::team::verified_placements(out.robots.len(), kept);
     let robots = out.robots.iter().map(|r| {
         // Errors against the truth in the frame the robot is reported in.
         let in_group = !r.placed && members(r.group) > 1;
@@ -164,6 +170,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
         RobotJson {
             index: r.index,
             placed: r.placed,
+            verified: r.placed && verified.get(r.index).copied().unwrap_or(false),
             group: r.group,
             transform: r.placed.then(|| row_major(&r.transform)),
             covariance: r.placed.then(|| r.covariance.transpose().iter().copied().collect()),
@@ -190,12 +197,18 @@ pub fn run(a: Args) -> Result<u8, Error> {
             })
             .collect();
         let links = "mesh of point-to-point links (each map crosses each link once)";
-        print_json(&TeamJson { schema_version: 1, links, robots, matches, consistency_exhaustive: out.exhaustive })?;
+        print_json(&TeamJson { schema_version: 2, links, robots, matches, consistency_exhaustive: out.exhaustive })?;
         return Ok(code);
     }
     for r in &robots {
         let place = match (r.placed, r.transform) {
-            (true, Some(t)) => format!("placed at ({:.3}, {:.3}, {:.3}) m in robot 0's frame", t[3], t[7], t[11]),
+            (true, Some(t)) => format!(
+                "placed at ({:.3}, {:.3}, {:.3}) m in robot 0's frame{}",
+                t[3],
+                t[7],
+                t[11],
+                if r.verified || r.index == 0 { "" } else { " (verified by no cycle)" }
+            ),
             _ if r.group != r.index => match r.group_transform {
                 Some(t) => {
                     format!("unplaced; at ({:.3}, {:.3}, {:.3}) m in robot {}'s frame", t[3], t[7], t[11], r.group)

@@ -118,7 +118,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
         let m = &boards[i].reports.matched;
         (m.iter().map(|x| x.1.bytes_sent).sum::<u64>(), m.iter().map(|x| x.1.bytes_received).sum::<u64>())
     };
-    let robots: Vec<RobotJson> = lead
+    let mut robots: Vec<RobotJson> = lead
         .placed
         .iter()
         .map(|p| {
@@ -133,6 +133,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
             RobotJson {
                 index: i,
                 placed,
+                verified: false,
                 group: g,
                 transform: placed.then(|| row_major(&t.cast::<f64>())),
                 covariance: placed.then(|| cov.iter().flatten().map(|&v| f64::from(v)).collect()),
@@ -172,6 +173,11 @@ pub fn run(a: Args) -> Result<u8, Error> {
                 overlap: r.result.overlap,
             });
         }
+    }
+    let kept = matches.iter().filter(|m| m.accepted).map(|m| (m.a, m.b));
+    let verified = cosem_host::team::verified_placements(n, kept);
+    for r in &mut robots {
+        r.verified = r.placed && verified.get(r.index).copied().unwrap_or(false);
     }
     let mut host_difference: Option<f64> = None;
     let boards_json: Vec<BoardJson> = boards
@@ -218,7 +224,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
         5
     };
     let out = TeamBoardJson {
-        schema_version: 1,
+        schema_version: 2,
         links: "mesh of point-to-point UART links (each map crosses each link once)",
         on_board: true,
         robots,
@@ -239,7 +245,13 @@ pub fn run(a: Args) -> Result<u8, Error> {
 fn print_text(out: &TeamBoardJson) {
     for r in &out.robots {
         let place = match (r.placed, r.transform, r.group_transform) {
-            (true, Some(t), _) => format!("placed at ({:.3}, {:.3}, {:.3}) m in robot 0's frame", t[3], t[7], t[11]),
+            (true, Some(t), _) => format!(
+                "placed at ({:.3}, {:.3}, {:.3}) m in robot 0's frame{}",
+                t[3],
+                t[7],
+                t[11],
+                if r.verified || r.index == 0 { "" } else { " (verified by no cycle)" }
+            ),
             (_, _, Some(t)) => {
                 format!("unplaced; at ({:.3}, {:.3}, {:.3}) m in robot {}'s frame", t[3], t[7], t[11], r.group)
             }
