@@ -243,8 +243,11 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
 /// directions of one pair come from the same two maps). `kept` lists the
 /// kept matches as (estimating robot, estimated robot).
 pub fn verified_placements(robots: usize, kept: impl IntoIterator<Item = (usize, usize)>) -> Vec<bool> {
-    let mut pairs: Vec<(usize, usize)> =
-        kept.into_iter().filter(|(a, b)| a != b && *a < robots && *b < robots).map(|(a, b)| (a.min(b), a.max(b))).collect();
+    let mut pairs: Vec<(usize, usize)> = kept
+        .into_iter()
+        .filter(|(a, b)| a != b && *a < robots && *b < robots)
+        .map(|(a, b)| (a.min(b), a.max(b)))
+        .collect();
     pairs.sort_unstable();
     pairs.dedup();
     // Whether `from` reaches `to` over `pairs` without pair `skip`.
@@ -260,7 +263,13 @@ pub fn verified_placements(robots: usize, kept: impl IntoIterator<Item = (usize,
                 if Some(k) == skip || !only(k) {
                     continue;
                 }
-                let next = if a == r { b } else if b == r { a } else { continue };
+                let next = if a == r {
+                    b
+                } else if b == r {
+                    a
+                } else {
+                    continue;
+                };
                 if !std::mem::replace(&mut seen[next], true) {
                     stack.push(next);
                 }

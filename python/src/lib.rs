@@ -44,26 +44,31 @@ impl Map {
             .map_err(|e| PyIOError::new_err(e.to_string()))
     }
 
-    /// A map of labelled points: `xyz` an (N, 3) float array in the map's
-    /// frame (m), `labels` N SemanticKITTI ids (the low 16 bits of each),
-    /// voxels of `voxel` metres. Points without a class (unlabeled,
-    /// outliers, moving objects) are left out; NaN points are an error.
+    /// A map of labelled points: `xyz` an (N, 3) array of numbers in the
+    /// map's frame (m; any float or integer dtype, converted to float64),
+    /// `labels` N non-negative integers of any integer dtype, each holding
+    /// the SemanticKITTI id in its low 16 bits (an instance id may sit in
+    /// the bits above), voxels of `voxel` metres. Points without a class
+    /// (unlabeled, outliers, moving objects) are left out; a negative
+    /// label, a NaN coordinate, or a map left empty is a `ValueError`
+    /// saying why.
     #[staticmethod]
     #[pyo3(signature = (xyz, labels, voxel = 0.2))]
-    fn from_points(xyz: PyReadonlyArray2<'_, f64>, labels: PyReadonlyArray1<'_, i64>, voxel: f32) -> PyResult<Self> {
+    fn from_points(xyz: &Bound<'_, PyAny>, labels: &Bound<'_, PyAny>, voxel: f32) -> PyResult<Self> {
+        let xyz = float_array(xyz, "xyz", "(N, 3)")?;
+        let xyz: PyReadonlyArray2<'_, f64> = xyz.extract().map_err(|_| value_error(xyz_shape_error(&xyz)))?;
         let shape = xyz.shape();
-        if shape.len() != 2 || shape[1] != 3 {
-            return Err(value_error(format!("xyz must be (N, 3), got {shape:?}")));
+        if shape[1] != 3 {
+            return Err(value_error(format!("xyz must be an (N, 3) array, got shape {shape:?}")));
         }
-        let (xyz, labels) = (xyz.as_array(), labels.as_array());
-        if labels.len() != shape[0] {
-            return Err(value_error(format!("{} points but {} labels", shape[0], labels.len())));
-        }
+        let labels = label_words(labels, shape[0])?;
+        let xyz = xyz.as_array();
         let config = MapConfig { resolution: voxel, ..MapConfig::default() };
         let mut map = cosem_core::map::vec_map(shape[0].max(1), config).map_err(value_error)?;
+        let mut classless = 0usize;
         for (i, (p, &l)) in xyz.outer_iter().zip(labels.iter()).enumerate() {
-            let Some(class) = u32::try_from(l).ok().and_then(|l| Class::from_semantic_kitti(l, MovingObjects::Skip))
-            else {
+            let Some(class) = Class::from_semantic_kitti(l, MovingObjects::Skip) else {
+                classless += 1;
                 continue;
             };
             let point = [p[0] as f32, p[1] as f32, p[2] as f32];
@@ -72,12 +77,50 @@ impl Map {
                 Err(e) => return Err(value_error(format!("point {i} {point:?}: {e}"))),
             }
         }
+        if map.is_empty() {
+            return Err(value_error(if shape[0] == 0 {
+                "no points: the map would be empty".to_string()
+            } else {
+                format!(
+                    "the map is empty: all {classless} points have label ids without a class (unlabeled, outlier, moving, or not SemanticKITTI ids)"
+                )
+            }));
+        }
+        Ok(Map { map })
+    }
+
+    /// A map from voxels as [`Map.voxels`] gives them: `positions` an (N, 3)
+    /// array (m), `classes` N class indices (0-18, the positions in
+    /// `cosem.CLASSES`; not label ids). Each voxel is re-created holding
+    /// one observation at its position: the same voxels and classes, with
+    /// the observation counts and confidences of a fresh map.
+    #[staticmethod]
+    #[pyo3(signature = (positions, classes, voxel = 0.2))]
+    fn from_voxels(positions: &Bound<'_, PyAny>, classes: &Bound<'_, PyAny>, voxel: f32) -> PyResult<Self> {
+        let positions = float_array(positions, "positions", "(N, 3)")?;
+        let positions: PyReadonlyArray2<'_, f64> =
+            positions.extract().map_err(|_| value_error(xyz_shape_error(&positions)))?;
+        let shape = positions.shape();
+        if shape[1] != 3 {
+            return Err(value_error(format!("positions must be an (N, 3) array, got shape {shape:?}")));
+        }
+        let classes = integer_array(classes, "classes", shape[0])?;
+        let config = MapConfig { resolution: voxel, ..MapConfig::default() };
+        let mut map = cosem_core::map::vec_map(shape[0].max(1), config).map_err(value_error)?;
+        for (i, (p, &c)) in positions.as_array().outer_iter().zip(classes.iter()).enumerate() {
+            let class = u8::try_from(c).ok().and_then(Class::from_index).ok_or_else(|| {
+                value_error(format!("classes[{i}] = {c}: not a class index (0 to 18, see cosem.CLASSES)"))
+            })?;
+            let point = [p[0] as f32, p[1] as f32, p[2] as f32];
+            map.insert_point(point, class).map_err(|e| value_error(format!("voxel {i} {point:?}: {e}")))?;
+        }
         Ok(Map { map })
     }
 
     /// The voxels: their mean positions as an (N, 3) float32 array and
-    /// their classes as N uint8 class indices (255 without one; the names
-    /// are `cosem.CLASSES`).
+    /// their classes as N uint8 class indices into `cosem.CLASSES` (255
+    /// without one). These are class indices, not label ids: give them
+    /// back to `Map.from_voxels`, not to `Map.from_points`.
     fn voxels<'py>(&self, py: Python<'py>) -> (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<u8>>) {
         let r = self.map.resolution();
         let positions: Vec<Vec<f32>> = self.map.iter().map(|v| v.position(r).to_vec()).collect();
@@ -103,6 +146,66 @@ impl Map {
     fn __repr__(&self) -> String {
         format!("cosem.Map({} voxels of {} m)", self.map.len(), self.map.resolution())
     }
+}
+
+/// `obj` as a float64 numpy array: any float or integer dtype is
+/// converted; another is an error naming the expected dtype and shape.
+fn float_array<'py>(obj: &Bound<'py, PyAny>, name: &str, shape: &str) -> PyResult<Bound<'py, PyAny>> {
+    let np = obj.py().import("numpy")?;
+    let a = np.call_method1("asarray", (obj,))?;
+    let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
+    if !matches!(kind.as_str(), "f" | "i" | "u") {
+        let dtype = a.getattr("dtype")?.str()?.to_string();
+        return Err(value_error(format!(
+            "{name} must be a {shape} array of numbers (float64 or any float or integer dtype), got dtype {dtype}"
+        )));
+    }
+    let ndim: usize = a.getattr("ndim")?.extract()?;
+    if ndim != 2 {
+        let got: Vec<usize> = a.getattr("shape")?.extract()?;
+        return Err(value_error(format!("{name} must be a {shape} array, got shape {got:?}")));
+    }
+    a.call_method1("astype", ("float64",))
+}
+
+fn xyz_shape_error(a: &Bound<'_, PyAny>) -> String {
+    let got: Vec<usize> = a.getattr("shape").and_then(|s| s.extract()).unwrap_or_default();
+    format!("expected an (N, 3) float64 array, got shape {got:?}")
+}
+
+/// `obj` as `n` non-negative integers (any integer dtype).
+fn integer_array(obj: &Bound<'_, PyAny>, name: &str, n: usize) -> PyResult<Vec<u64>> {
+    let np = obj.py().import("numpy")?;
+    let a = np.call_method1("asarray", (obj,))?;
+    let dtype = a.getattr("dtype")?;
+    let kind: String = dtype.getattr("kind")?.extract()?;
+    let ndim: usize = a.getattr("ndim")?.extract()?;
+    let size: usize = a.getattr("size")?.extract()?;
+    if !matches!(kind.as_str(), "i" | "u") || ndim != 1 {
+        let got: Vec<usize> = a.getattr("shape")?.extract()?;
+        return Err(value_error(format!(
+            "{name} must be a 1-D array of N integers (any integer dtype), got dtype {} and shape {got:?}",
+            dtype.str()?
+        )));
+    }
+    if size != n {
+        return Err(value_error(format!("{n} points but {size} {name}")));
+    }
+    if kind == "i" && size > 0 {
+        let min: i64 = a.call_method0("min")?.extract()?;
+        if min < 0 {
+            let at: usize = a.call_method0("argmin")?.extract()?;
+            return Err(value_error(format!("{name}[{at}] = {min}: a label is never negative")));
+        }
+    }
+    let a = a.call_method1("astype", ("uint64",))?;
+    let a: PyReadonlyArray1<'_, u64> = a.extract()?;
+    Ok(a.as_array().to_vec())
+}
+
+/// Label words of `n` points: the SemanticKITTI id in the low 16 bits.
+fn label_words(obj: &Bound<'_, PyAny>, n: usize) -> PyResult<Vec<u32>> {
+    Ok(integer_array(obj, "labels", n)?.into_iter().map(|l| (l & 0xFFFF) as u32).collect())
 }
 
 /// What a match found.

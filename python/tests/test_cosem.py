@@ -117,3 +117,38 @@ def test_bad_input_is_a_python_error(tmp_path, maps):
     other = cosem.Map.from_points(np.zeros((1, 3)), np.array([40]), 0.2)
     with pytest.raises(ValueError):
         cosem.match(model, other)
+
+
+def test_any_number_dtype_is_taken_and_other_input_named(maps):
+    model, _, _ = maps
+    p, labels = corner(np.random.default_rng(7))
+    want = cosem.Map.from_points(p, labels, 0.5)
+    for xyz in (p.astype(np.float32), p.tolist()):
+        for lab in (labels.astype(np.uint16), labels.astype(np.int32), labels.astype(np.uint64), labels.tolist()):
+            got = cosem.Map.from_points(xyz, lab, 0.5)
+            # float32 coordinates may move a point across a voxel face.
+            assert abs(len(got) - len(want)) <= len(want) // 1000
+    # Instance ids above the low 16 bits keep the class; 2**32 + 40 is road.
+    big = labels.astype(np.uint64) + (np.uint64(7) << np.uint64(32))
+    assert len(cosem.Map.from_points(p, big, 0.5)) == len(want)
+    with pytest.raises(ValueError, match="never negative"):
+        cosem.Map.from_points(p[:3], np.array([40, -40, 50]), 0.5)
+    with pytest.raises(ValueError, match="integer"):
+        cosem.Map.from_points(p[:3], np.array([40.0, 40.0, 50.0]), 0.5)
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        cosem.Map.from_points(np.array(["a", "b", "c"]), np.array([40, 40, 50]), 0.5)
+    with pytest.raises(ValueError, match="empty"):
+        cosem.Map.from_points(p[:3], np.array([1000, 1000, 1000]), 0.5)
+
+
+def test_voxels_round_trip_through_from_voxels(maps):
+    model, _, _ = maps
+    pos, classes = model.voxels()
+    back = cosem.Map.from_voxels(pos, classes, model.resolution)
+    assert len(back) == len(model)
+    p2, c2 = back.voxels()
+    order = lambda p: np.lexsort(np.floor(p / 0.5).T)
+    assert np.array_equal(classes[order(pos)], c2[order(p2)])
+    assert np.allclose(pos[order(pos)], p2[order(p2)], atol=1e-5)
+    with pytest.raises(ValueError, match="class index"):
+        cosem.Map.from_voxels(pos[:2], np.array([0, 40]), 0.5)

@@ -7,8 +7,8 @@ use crate::map::{LocalMap, VoxelSink, VoxelStorage};
 use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::frame::{Deframer, MAX_FRAME, MAX_PAYLOAD};
 use crate::wire::message::{
-    AbortReason, Ack, Hello, MapHeader, Message, MessageError, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED, DATA_OVERHEAD,
-    MAX_SACK, OFFSET_MODULUS,
+    AbortReason, Ack, Hello, MapHeader, Message, MessageError, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED,
+    DATA_OVERHEAD, MAX_SACK, OFFSET_MODULUS,
 };
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
@@ -137,7 +137,9 @@ impl core::fmt::Display for LinkError {
                 "the peer speaks link protocol version {v}, this robot version {}: run the same cosem release on both",
                 crate::wire::PROTOCOL_VERSION
             ),
-            LinkError::BadHello => f.write_str("the peer's Hello is invalid: its voxel size (resolution) is not finite"),
+            LinkError::BadHello => {
+                f.write_str("the peer's Hello is invalid: its voxel size (resolution) is not finite")
+            }
             LinkError::Decode(e) => write!(f, "chunk did not decode: {e}"),
             LinkError::Digest => f.write_str("received map differs from the announced one (digest)"),
             LinkError::Setup => f.write_str("link set-up error"),
