@@ -425,6 +425,8 @@ fn label_options(
         frames,
         out,
         copy_scans: false,
+        void_channel: crate::label::VoidChannel::None,
+        scale_to_images: false,
     }
 }
 

@@ -238,6 +238,12 @@ pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap
         (a, b, false)
     } else if a == channels {
         (b, c, true)
+    } else if a == channels + 1 || c == channels + 1 {
+        return Err(format(format!(
+            "shape {shape:?}: {} channels, the class set has {channels}: a network's void (ignore) channel as well? \
+             say which with --void-channel last (or first)",
+            channels + 1
+        )));
     } else {
         return Err(format(format!("shape {shape:?}: no dimension of {channels} class channels")));
     };
@@ -278,6 +284,48 @@ pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap
         raw
     };
     Ok(ProbabilityMap { width: width as u32, height: height as u32, channels, values })
+}
+
+/// Where a probability map holds a void (ignore) channel beyond the class
+/// set's channels, as most Cityscapes networks output (19 classes and
+/// void).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum VoidChannel {
+    /// No void channel.
+    #[default]
+    None,
+    /// The first channel is void.
+    First,
+    /// The last channel is void.
+    Last,
+}
+
+/// Reads a probability map of `classes` plus a `void` channel, whose
+/// probability joins the channel of no class (Cityscapes' sky,
+/// SemanticKITTI's unlabeled): a pixel the network calls void leaves its
+/// points unlabelled, as one it calls sky does.
+pub fn read_probabilities_of(
+    path: &Path,
+    classes: SegClasses,
+    void: VoidChannel,
+) -> Result<ProbabilityMap, LabelError> {
+    let n = classes.channels();
+    if void == VoidChannel::None {
+        return read_probabilities(path, n);
+    }
+    let with = read_probabilities(path, n + 1)?;
+    let (skip, none) = (if void == VoidChannel::First { 0 } else { n }, usize::from(classes.id(None)));
+    let mut values = Vec::with_capacity(with.values.len() / (n + 1) * n);
+    for px in with.values.chunks_exact(n + 1) {
+        let v = px[skip];
+        let start = values.len();
+        values.extend(px.iter().enumerate().filter(|(k, _)| *k != skip).map(|(_, p)| *p));
+        if let Some(slot) = values.get_mut(start + none) {
+            *slot += v;
+        }
+    }
+    Ok(ProbabilityMap { width: with.width, height: with.height, channels: n, values })
 }
 
 /// Writes a `|u1` `(H, W, C)` `.npy` probability map (values scaled to 255).
@@ -324,6 +372,11 @@ pub struct LabelOptions {
     /// Copy the scans into the output instead of linking them (relative
     /// symbolic links by default).
     pub copy_scans: bool,
+    /// A void channel in the probability maps.
+    pub void_channel: VoidChannel,
+    /// Scale the camera's projection to segmentation images of another
+    /// size than the camera's (a network's output size).
+    pub scale_to_images: bool,
 }
 
 /// Counts of one labelling run.
@@ -345,6 +398,9 @@ pub struct LabelStats {
     pub compared: usize,
     /// Of those, points whose new class equals the existing one.
     pub agreeing: usize,
+    /// The camera's image size the projection was scaled from, when the
+    /// segmentation is of another size (`--scale-to-images`).
+    pub scaled_from: Option<(u32, u32)>,
     /// Of those, points whose new class equals the existing one as the
     /// class set can say it (Cityscapes has no trunk: a trunk seen as
     /// vegetation agrees here).
@@ -381,6 +437,9 @@ impl LabelStats {
             ),
             None => "(the input has no labels to compare with)\n".into(),
         };
+        if let Some((w, h)) = self.scaled_from {
+            out += &format!("the camera's projection was scaled from its {w}x{h} images to the segmentation's size\n");
+        }
         out + &format!("{:.1} M points labelled per second ({wall:.2} s in all with reading and writing)\n", rate / 1e6)
     }
 
@@ -425,11 +484,103 @@ fn check_size(path: &Path, got: (u32, u32), want: (u32, u32)) -> Result<(), Labe
     Ok(())
 }
 
+/// The size of a PNG image, from its header.
+fn png_size(path: &Path) -> Option<(u32, u32)> {
+    use std::io::Read;
+    let mut head = [0u8; 24];
+    std::fs::File::open(path).ok()?.read_exact(&mut head).ok()?;
+    let be = |b: &[u8]| u32::from_be_bytes([b[0], b[1], b[2], b[3]]);
+    (&head[..8] == b"\x89PNG\r\n\x1a\n" && &head[12..16] == b"IHDR").then(|| (be(&head[16..20]), be(&head[20..24])))
+}
+
+/// The camera for segmentation images of `size`: the camera's own image
+/// size is `--image-size`, else its images' (`image_<camera>/` beside the
+/// scans), else where the principal point lies (about twice it). Images of
+/// another size are refused, naming both, unless `scale_to_images` asks to
+/// scale the projection to them (returned: the size scaled from).
+fn camera_for(
+    o: &LabelOptions,
+    seq: &Sequence,
+    size: (u32, u32),
+    image: &Path,
+    frame: usize,
+) -> Result<(Camera, Option<(u32, u32)>), LabelError> {
+    let own = o.image_size.map(|s| (s, "--image-size")).or_else(|| {
+        png_size(&seq.dir.join(format!("image_{}/{frame:06}.png", o.camera))).map(|s| (s, "the camera's image"))
+    });
+    let mismatch = |camera: (u32, u32), from: &str| {
+        LabelError::Format {
+        path: image.to_path_buf(),
+        what: format!(
+            "segmentation of {}x{} pixels, but camera {}'s images are {}x{} ({from}): give segmentation at the camera's size, \
+             or --scale-to-images to scale the projection to it{}",
+            size.0,
+            size.1,
+            o.camera,
+            camera.0,
+            camera.1,
+            if from.starts_with("about") { " (with --image-size WxH of the camera's images)" } else { "" }
+        ),
+    }
+    };
+    match own {
+        Some((own, _)) if own == size => Ok((camera_of(seq, o.camera, size, image)?, None)),
+        Some((own, _)) if o.scale_to_images => {
+            let cam = scaled_camera(seq, o.camera, own, size, image)?;
+            Ok((cam, Some(own)))
+        }
+        Some((own, from)) => Err(mismatch(own, from)),
+        None => {
+            // No size to go by but the calibration: the principal point lies
+            // near the image's centre (KITTI: within 3%).
+            let p = seq.projection(o.camera)?;
+            let (cx, cy) = (p[(0, 2)], p[(1, 2)]);
+            let near = |c: f64, n: u32| (2.0 * c - f64::from(n)).abs() <= 0.1 * f64::from(n);
+            if near(cx, size.0) && near(cy, size.1) {
+                Ok((camera_of(seq, o.camera, size, image)?, None))
+            } else {
+                let about = ((2.0 * cx).round().max(0.0) as u32, (2.0 * cy).round().max(0.0) as u32);
+                Err(mismatch(about, &format!("about twice its principal point ({cx:.1}, {cy:.1}) in calib.txt")))
+            }
+        }
+    }
+}
+
+/// The camera of `seq` with its projection scaled from images of `from`
+/// pixels to images of `to` pixels (pixel centres kept).
+fn scaled_camera(
+    seq: &Sequence,
+    camera: u8,
+    from: (u32, u32),
+    to: (u32, u32),
+    image: &Path,
+) -> Result<Camera, LabelError> {
+    let p = seq.projection(camera)?;
+    let (sx, sy) = (f64::from(to.0) / f64::from(from.0), f64::from(to.1) / f64::from(from.1));
+    let mut q = p;
+    for c in 0..4 {
+        // u' = (u + 0.5) sx - 0.5, in homogeneous rows.
+        q[(0, c)] = p[(0, c)] * sx + (0.5 * sx - 0.5) * p[(2, c)];
+        q[(1, c)] = p[(1, c)] * sy + (0.5 * sy - 0.5) * p[(2, c)];
+    }
+    camera_from(seq, camera, &q, to, image)
+}
+
 /// The camera of `seq` for images of `size`: `P<camera>` after `Tr`. The
 /// principal point must lie in the image (else the image is not this
 /// camera's, or the size is wrong).
 pub fn camera_of(seq: &Sequence, camera: u8, size: (u32, u32), image: &Path) -> Result<Camera, LabelError> {
-    let p = seq.projection(camera)?;
+    camera_from(seq, camera, &seq.projection(camera)?, size, image)
+}
+
+fn camera_from(
+    seq: &Sequence,
+    camera: u8,
+    p: &nalgebra::Matrix4<f64>,
+    size: (u32, u32),
+    image: &Path,
+) -> Result<Camera, LabelError> {
+    let p = *p;
     let rows = |m: &nalgebra::Matrix4<f64>| -> [f32; 12] {
         let mut out = [0.0f32; 12];
         for r in 0..3 {
@@ -611,7 +762,7 @@ fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
         }
         // Either hard ids or probabilities, each checked whole.
         let (size, hard, probs) = if o.probabilities {
-            let p = read_probabilities(&npy_path, o.classes.channels())?;
+            let p = read_probabilities_of(&npy_path, o.classes, o.void_channel)?;
             ((p.width, p.height), None, Some(p))
         } else {
             let im = read_seg_png(&png_path)?;
@@ -619,8 +770,9 @@ fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
             ((im.width, im.height), Some(im), None)
         };
         if camera.is_none() {
-            let want = o.image_size.unwrap_or(size);
-            camera = Some((camera_of(&seq, o.camera, want, image_path)?, want));
+            let (cam, scaled) = camera_for(o, &seq, size, image_path, frame)?;
+            stats.scaled_from = scaled;
+            camera = Some((cam, size));
         }
         let Some((cam, want)) = &camera else { continue };
         check_size(image_path, size, *want)?;

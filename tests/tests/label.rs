@@ -59,6 +59,16 @@ fn perfect_images_label_the_lidar_like_the_ground_truth() {
     for f in ["calib.txt", "poses.txt", "times.txt", "velodyne/000003.bin", "PROVENANCE.md"] {
         assert!(out.join(f).exists(), "{f}");
     }
+    // Scans are relative links: the two folders may move together.
+    let link = std::fs::read_link(out.join("velodyne/000003.bin")).unwrap();
+    assert!(link.is_relative(), "{}", link.display());
+    let moved = tmp.path().join("moved");
+    std::fs::create_dir(&moved).unwrap();
+    std::fs::rename(&seq, moved.join("seq")).unwrap();
+    std::fs::rename(&out, moved.join("out")).unwrap();
+    assert!(moved.join("out/velodyne/000003.bin").metadata().is_ok());
+    std::fs::rename(moved.join("seq"), &seq).unwrap();
+    std::fs::rename(moved.join("out"), &out).unwrap();
     // Cityscapes ids (the paper's network): trunks become vegetation.
     let seq = tmp.path().join("cs");
     synth(&seq, "5", &[]);
@@ -218,4 +228,73 @@ fn label_never_writes_into_its_input() {
         cosem_ok(&["label", "--data", &seq.display().to_string(), "--seg", &seg, "--out", &out]);
     }
     assert!(snapshot(&seq) == before, "the input folder changed");
+}
+
+/// Segmentation at a network's output size (1024x512) instead of the
+/// camera's (1241x376): refused naming both sizes, or, asked, the
+/// projection scaled to it (said in the output) with about the agreement
+/// of full-size images.
+#[test]
+fn segmentation_of_another_size_is_refused_or_scaled_when_asked() {
+    use cosem_host::label::{read_seg_png, write_seg_png, SegImage};
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, "6", &[]);
+    let full = label(&seq, &tmp.path().join("full"), &[]);
+    // Nearest-neighbour resize of every image to 1024x512.
+    let (w, h) = (1024u32, 512u32);
+    for e in std::fs::read_dir(seq.join("seg_2")).unwrap().flatten() {
+        if e.path().extension().is_some_and(|x| x == "png") {
+            let im = read_seg_png(&e.path()).unwrap();
+            let mut ids = Vec::with_capacity((w * h) as usize);
+            for v in 0..h {
+                for u in 0..w {
+                    let (su, sv) = (
+                        ((u as f64 + 0.5) * im.width as f64 / w as f64) as u32,
+                        ((v as f64 + 0.5) * im.height as f64 / h as f64) as u32,
+                    );
+                    ids.push(im.ids[(sv * im.width + su) as usize]);
+                }
+            }
+            write_seg_png(&e.path(), &SegImage { width: w, height: h, ids }).unwrap();
+        }
+    }
+    let (d, s) = (seq.display().to_string(), seq.join("seg_2").display().to_string());
+    let o = tmp.path().join("small").display().to_string();
+    let e = cosem_err(&["label", "--data", &d, "--seg", &s, "--out", &o]);
+    assert!(e.contains("1024x512") && e.contains("--scale-to-images"), "{e}");
+    let e = cosem_err(&["label", "--data", &d, "--seg", &s, "--out", &o, "--image-size", "1241x376"]);
+    assert!(e.contains("1024x512") && e.contains("1241x376"), "{e}");
+    let scaled = label(&seq, &tmp.path().join("scaled"), &["--image-size", "1241x376", "--scale-to-images"]);
+    assert_eq!(scaled["scaled_from_image_size"], serde_json::json!([1241, 376]));
+    let (a, b) = (full["agreement_in_class_set"].as_f64().unwrap(), scaled["agreement_in_class_set"].as_f64().unwrap());
+    eprintln!("agreement: camera-size images {a:.4}, 1024x512 scaled {b:.4}");
+    assert!(b > a - 0.03, "scaled {b} vs full {a}");
+}
+
+/// Probability maps of 19 classes and a void channel: refused with what to
+/// say, read with --void-channel last (the same labels when void is 0).
+#[test]
+fn a_void_channel_is_taken_when_named() {
+    use cosem_host::label::{read_probabilities, write_probabilities, ProbabilityMap};
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, "7", &["--seg-probabilities"]);
+    let want = label(&seq, &tmp.path().join("a"), &["--probabilities"]);
+    for e in std::fs::read_dir(seq.join("seg_2")).unwrap().flatten() {
+        if e.path().extension().is_some_and(|x| x == "npy") {
+            let p = read_probabilities(&e.path(), 19).unwrap();
+            let values = p.values.chunks_exact(19).flat_map(|px| px.iter().copied().chain([0.0])).collect();
+            write_probabilities(&e.path(), &ProbabilityMap { channels: 20, values, ..p }).unwrap();
+        }
+    }
+    let (d, s) = (seq.display().to_string(), seq.join("seg_2").display().to_string());
+    let o = tmp.path().join("b").display().to_string();
+    let e = cosem_err(&["label", "--data", &d, "--seg", &s, "--out", &o, "--probabilities"]);
+    assert!(e.contains("--void-channel last"), "{e}");
+    let got = label(&seq, &tmp.path().join("c"), &["--probabilities", "--void-channel", "last"]);
+    assert_eq!(
+        (got["labelled"].clone(), got["agreeing"].clone()),
+        (want["labelled"].clone(), want["agreeing"].clone())
+    );
 }

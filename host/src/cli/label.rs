@@ -33,9 +33,21 @@ pub struct Args {
     /// unlabelled.
     #[arg(long)]
     keep_occluded: bool,
-    /// Expected image size WIDTHxHEIGHT; default: the first image's.
+    /// The camera's image size WIDTHxHEIGHT; default: its images'
+    /// (image_<camera>/ beside the scans), else about twice the principal
+    /// point. Segmentation of another size is refused unless
+    /// --scale-to-images.
     #[arg(long)]
     image_size: Option<String>,
+    /// Segmentation of another size than the camera's images (a network's
+    /// output, e.g. 1024x512): scale the projection to it.
+    #[arg(long)]
+    scale_to_images: bool,
+    /// With --probabilities: the maps hold a void (ignore) channel beyond
+    /// the class set's, first or last (most Cityscapes networks: 19
+    /// classes and void last); its probability counts as no class.
+    #[arg(long, value_enum, default_value = "none")]
+    void_channel: cosem_host::label::VoidChannel,
     /// Frames START:END[:STRIDE]; default: every scan in velodyne/.
     #[arg(long)]
     frames: Option<FrameRange>,
@@ -74,6 +86,8 @@ pub fn run(a: Args) -> Result<(), Error> {
         frames: a.frames.map(|r| r.frames().collect()),
         out: a.out.clone(),
         copy_scans: a.copy_scans,
+        void_channel: a.void_channel,
+        scale_to_images: a.scale_to_images,
     };
     let t = std::time::Instant::now();
     let s = label_sequence(&opts)?;
@@ -86,6 +100,7 @@ pub fn run(a: Args) -> Result<(), Error> {
             "agreement_in_class_set": s.agreement_in_set(),
             "points_per_second": rate, "label_seconds": s.label_seconds, "wall_seconds": wall,
             "classes": opts.classes.name(), "probabilities": a.probabilities, "out": a.out.display().to_string(),
+            "scaled_from_image_size": s.scaled_from.map(|(w, h)| [w, h]),
         });
         println!("{}", serde_json::to_string_pretty(&j)?);
         return Ok(());
