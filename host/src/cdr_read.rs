@@ -8,7 +8,7 @@ use crate::recording::{Header, Quaternion, Time, Transform, TransformStamped, Ve
 
 /// A CDR cursor: offsets (and alignment) count from after the 4-byte
 /// encapsulation header.
-pub(crate) struct Cdr<'a> {
+pub struct Cdr<'a> {
     b: &'a [u8],
     pos: usize,
     little: bool,
@@ -16,22 +16,29 @@ pub(crate) struct Cdr<'a> {
 
 /// A `sensor_msgs/msg/PointCloud2` whose data borrows the message.
 #[derive(Clone, Debug, PartialEq)]
-pub(crate) struct CloudMsg<'a> {
+pub struct CloudMsg<'a> {
+    /// Stamp and frame.
     pub header: Header,
+    /// Rows.
     pub height: u32,
+    /// Points a row.
     pub width: u32,
     /// name, offset, datatype, count.
     pub fields: Vec<(String, u32, u8, u32)>,
+    /// Big-endian data.
     pub is_bigendian: bool,
+    /// Bytes a point.
     pub point_step: u32,
+    /// Bytes a row.
     pub row_step: u32,
+    /// The points' bytes.
     pub data: &'a [u8],
 }
 
 impl<'a> Cdr<'a> {
     /// A message's payload after its encapsulation header (`CDR_BE` 0x0000
     /// or `CDR_LE` 0x0001; the options are ignored).
-    pub(crate) fn new(message: &'a [u8]) -> Result<Self, String> {
+    pub fn new(message: &'a [u8]) -> Result<Self, String> {
         match message {
             [0, kind @ (0 | 1), _, _, rest @ ..] => Ok(Cdr { b: rest, pos: 0, little: *kind == 1 }),
             [a, b, ..] => Err(format!("encapsulation 0x{a:02x}{b:02x} is not plain CDR (0x0000 or 0x0001)")),
@@ -131,7 +138,7 @@ impl<'a> Cdr<'a> {
     }
 
     /// A `sensor_msgs/msg/PointCloud2`.
-    pub(crate) fn point_cloud(&mut self) -> Result<CloudMsg<'a>, String> {
+    pub fn point_cloud(&mut self) -> Result<CloudMsg<'a>, String> {
         let header = self.header()?;
         let height = self.u32("height")?;
         let width = self.u32("width")?;
@@ -155,7 +162,7 @@ impl<'a> Cdr<'a> {
     }
 
     /// A `tf2_msgs/msg/TFMessage`.
-    pub(crate) fn tf_message(&mut self) -> Result<Vec<TransformStamped>, String> {
+    pub fn tf_message(&mut self) -> Result<Vec<TransformStamped>, String> {
         // A TransformStamped takes at least 69 bytes.
         let n = self.len("transforms", 69)?;
         let mut out = Vec::with_capacity(n);
@@ -171,7 +178,7 @@ impl<'a> Cdr<'a> {
 
     /// A `nav_msgs/msg/Odometry`'s header, child frame and pose (the
     /// covariance and twist after it are not read).
-    pub(crate) fn odometry_pose(&mut self) -> Result<TransformStamped, String> {
+    pub fn odometry_pose(&mut self) -> Result<TransformStamped, String> {
         let header = self.header()?;
         let child_frame_id = self.string("child_frame_id")?;
         let translation = self.vector3("pose.position")?;

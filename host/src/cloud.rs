@@ -334,7 +334,11 @@ fn header_lines(bytes: &[u8], path: &Path, done: impl Fn(&str) -> bool) -> Resul
 
 /// Reads a PCD file (ASCII or binary; `label` names the label field).
 pub fn read_pcd(path: &Path, label: &str) -> Result<Cloud, CloudError> {
-    let bytes = read_file(path)?;
+    parse_pcd(&read_file(path)?, path, label)
+}
+
+/// A PCD file's bytes (`path` names it in errors).
+pub fn parse_pcd(bytes: &[u8], path: &Path, label: &str) -> Result<Cloud, CloudError> {
     let (lines, data_at) = header_lines(&bytes, path, |l| l.starts_with("DATA"))?;
     let bad = |what: String| CloudError::Header { path: path.to_owned(), what };
     let mut keys: std::collections::HashMap<String, Vec<String>> = Default::default();
@@ -464,7 +468,11 @@ fn read_ascii(
 /// Reads a PLY file's `vertex` element (ASCII or binary little endian; the
 /// vertices must come first; `label` names the label property).
 pub fn read_ply(path: &Path, label: &str) -> Result<Cloud, CloudError> {
-    let bytes = read_file(path)?;
+    parse_ply(&read_file(path)?, path, label)
+}
+
+/// A PLY file's bytes (`path` names it in errors).
+pub fn parse_ply(bytes: &[u8], path: &Path, label: &str) -> Result<Cloud, CloudError> {
     let (lines, data_at) = header_lines(&bytes, path, |l| l.trim() == "end_header")?;
     let bad = |what: String| CloudError::Header { path: path.to_owned(), what };
     if lines.first().map(|l| l.trim()) != Some("ply") {
@@ -527,6 +535,11 @@ pub fn read(format: CloudFormat, path: &Path, label: &str) -> Result<Cloud, Clou
 /// (its 3x3 part a rotation: a scaled pose would scale the map).
 pub fn read_poses(path: &Path) -> Result<Vec<Matrix4<f64>>, CloudError> {
     let text = std::fs::read_to_string(path).map_err(|source| CloudError::Io { path: path.to_owned(), source })?;
+    parse_poses(&text, path)
+}
+
+/// A poses file's text (`path` names it in errors).
+pub fn parse_poses(text: &str, path: &Path) -> Result<Vec<Matrix4<f64>>, CloudError> {
     let mut poses = Vec::new();
     for (n, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
         // The folder reader's parser of poses.txt lines.

@@ -115,12 +115,23 @@ impl<'a> Body<'a> {
 /// it returns `Break` or the data section ends.
 pub fn read_messages(
     path: &Path,
-    mut on: impl FnMut(&Message<'_>) -> Result<ControlFlow<()>, String>,
+    on: impl FnMut(&Message<'_>) -> Result<ControlFlow<()>, String>,
 ) -> Result<(), McapError> {
     let err = |what: String| McapError { path: path.to_owned(), what };
     let file = std::fs::File::open(path).map_err(|e| err(e.to_string()))?;
     let size = file.metadata().map_err(|e| err(e.to_string()))?.len();
-    let mut r = std::io::BufReader::with_capacity(1 << 20, file);
+    read_messages_from(std::io::BufReader::with_capacity(1 << 20, file), size, path, on)
+}
+
+/// [`read_messages`] from any source of `size` bytes (`path` names it in
+/// errors).
+pub fn read_messages_from<R: Read + Seek>(
+    mut r: R,
+    size: u64,
+    path: &Path,
+    mut on: impl FnMut(&Message<'_>) -> Result<ControlFlow<()>, String>,
+) -> Result<(), McapError> {
+    let err = |what: String| McapError { path: path.to_owned(), what };
     let mut magic = [0u8; 8];
     if size < 8 || r.read_exact(&mut magic).is_err() || magic != MAGIC {
         return Err(err("not an MCAP file (no MCAP magic at its start)".into()));
