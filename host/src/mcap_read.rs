@@ -142,7 +142,7 @@ pub fn read_messages_from<R: Read + Seek>(
     loop {
         if size - pos < 9 {
             return Err(err(format!(
-                "ends at byte offset {pos} inside the data section (cut short? no data end record)"
+                "ends at byte offset {pos} inside the data section: cut short (no data end record); --frames reads the scans before the cut"
             )));
         }
         let mut head = [0u8; 9];
@@ -153,7 +153,7 @@ pub fn read_messages_from<R: Read + Seek>(
         pos += 9;
         if len > size - pos {
             return Err(err(format!(
-                "record 0x{opcode:02x} at byte offset {at} announces {len} bytes, the file has {} left",
+                "record 0x{opcode:02x} at byte offset {at} announces {len} bytes, the file has {} left (cut short or corrupt)",
                 size - pos
             )));
         }

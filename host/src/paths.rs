@@ -115,6 +115,10 @@ impl Output {
         }
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "output".into());
         let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        if !dir.is_dir() {
+            let what = format!("the folder {} does not exist", dir.display());
+            return Err(std::io::Error::new(std::io::ErrorKind::NotFound, what));
+        }
         static NEXT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
         let mut k = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         loop {

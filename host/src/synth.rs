@@ -651,8 +651,31 @@ fn write_3x4(out: &mut impl Write, t: &Isometry3<f64>) -> std::io::Result<()> {
     writeln!(out, "{}", v.join(" "))
 }
 
-/// Synthesises a sequence and writes it in SemanticKITTI layout to `dir`.
+/// The first line of the PROVENANCE.md `cosem synth` writes: a folder
+/// with it may be written over by a new run.
+const PROVENANCE_TITLE: &str = "# Synthetic sequence made by `cosem synth`";
+
+/// Refuses a folder that holds anything but an earlier synthetic sequence
+/// (a user's data would be replaced).
+fn refuse_foreign_folder(dir: &Path) -> std::io::Result<()> {
+    let Ok(mut entries) = std::fs::read_dir(dir) else { return Ok(()) };
+    if entries.next().is_none() {
+        return Ok(());
+    }
+    let ours = std::fs::read_to_string(dir.join("PROVENANCE.md")).is_ok_and(|t| t.starts_with(PROVENANCE_TITLE));
+    if ours {
+        return Ok(());
+    }
+    Err(std::io::Error::new(
+        std::io::ErrorKind::AlreadyExists,
+        "the folder holds files that are not an earlier `cosem synth` output: choose a new or empty folder",
+    ))
+}
+
+/// Synthesises a sequence and writes it in SemanticKITTI layout to `dir`
+/// (a new or empty folder, or an earlier synthetic sequence's).
 pub fn write_sequence(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesised> {
+    refuse_foreign_folder(dir)?;
     let seq = synthesise(cfg);
     std::fs::create_dir_all(dir.join("velodyne"))?;
     std::fs::create_dir_all(dir.join("labels"))?;
@@ -682,7 +705,7 @@ pub fn write_sequence(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesi
     let mut prov = Vec::new();
     writeln!(
         prov,
-        "# Synthetic sequence made by `cosem synth`\n\nframes: {}\nseed: {}\nrange noise (m): {}\nlabel noise: {}\nstep (m/frame): {}\n\n\
+        "{PROVENANCE_TITLE}\n\nframes: {}\nseed: {}\nrange noise (m): {}\nlabel noise: {}\nstep (m/frame): {}\n\n\
          A procedural street seen by a simulated 64-beam LiDAR; labels are exact \
          SemanticKITTI ids (before label noise). Generated data, no third-party content.",
         cfg.frames, cfg.seed, cfg.range_noise, cfg.label_noise, cfg.step

@@ -375,3 +375,21 @@ fn with_json_an_error_is_json_too() {
         assert_eq!(j["command"], args[0]);
     }
 }
+
+/// `cosem synth` and `cosem demo --out` never write over a folder holding
+/// other data (a user's SemanticKITTI folder); an earlier synthetic
+/// sequence may be replaced.
+#[test]
+fn synth_never_writes_over_other_data() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = fresh(tmp.path());
+    cosem_tests::cosem_ok(&["synth", "--out", &s(&seq), "--frames", "2"]);
+    let user = tmp.path().join("user");
+    fs::create_dir(&user).unwrap();
+    fs::write(user.join("poses.txt"), "1 0 0 0 0 1 0 0 0 0 1 0\n").unwrap();
+    let e = cosem_err(&["synth", "--out", &s(&user), "--frames", "2"]);
+    assert!(e.contains("not an earlier `cosem synth` output"), "{e}");
+    cosem_err(&["demo", "--frames", "4", "--out", &s(&user)]);
+    assert_eq!(fs::read_to_string(user.join("poses.txt")).unwrap(), "1 0 0 0 0 1 0 0 0 0 1 0\n");
+    assert_eq!(fs::read_dir(&user).unwrap().count(), 1);
+}

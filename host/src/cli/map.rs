@@ -147,6 +147,13 @@ pub fn run(a: Args) -> Result<(), Error> {
         LabelNoise::None => format!("{name} {range}"),
         n => format!("{name} {range} label noise {n:?} seed {} ({:.1}% changed)", a.seed, 100.0 * noise.rate()),
     };
+    if stats.unknown_ids > 0 {
+        eprintln!(
+            "warning: {} points have label ids that are not SemanticKITTI's (the first: {}) and were left out; a class table (--classes) maps a user's ids",
+            stats.unknown_ids,
+            stats.first_unknown_id.unwrap_or_default()
+        );
+    }
     if stats.out_of_range > 0 {
         eprintln!(
             "warning: {} points lie beyond the map's key range ({:.0} m from the anchor at {} m voxels) and were left out; --max-range drops far points by design",

@@ -87,7 +87,8 @@ pub fn run(cli: Cli) -> Result<u8, Error> {
         _ => None,
     };
     let r = run_command(cli);
-    if let (Err(e), Some(command)) = (&r, json) {
+    let printed = JSON_PRINTED.load(std::sync::atomic::Ordering::Relaxed);
+    if let (Err(e), Some(command), false) = (&r, json, printed) {
         let _ = print_json(&serde_json::json!({ "command": command, "error": e.to_string() }));
     }
     r
@@ -121,9 +122,14 @@ pub fn data_root() -> PathBuf {
     }
 }
 
+/// Whether the command printed its JSON already (an error after it, such
+/// as a robot that did not report, adds no second object).
+static JSON_PRINTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 /// Prints `value` as pretty JSON.
 pub fn print_json(value: &impl serde::Serialize) -> Result<(), Error> {
     println!("{}", serde_json::to_string_pretty(value)?);
+    JSON_PRINTED.store(true, std::sync::atomic::Ordering::Relaxed);
     Ok(())
 }
 
