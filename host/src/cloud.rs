@@ -339,7 +339,7 @@ pub fn read_pcd(path: &Path, label: &str) -> Result<Cloud, CloudError> {
 
 /// A PCD file's bytes (`path` names it in errors).
 pub fn parse_pcd(bytes: &[u8], path: &Path, label: &str) -> Result<Cloud, CloudError> {
-    let (lines, data_at) = header_lines(&bytes, path, |l| l.starts_with("DATA"))?;
+    let (lines, data_at) = header_lines(bytes, path, |l| l.starts_with("DATA"))?;
     let bad = |what: String| CloudError::Header { path: path.to_owned(), what };
     let mut keys: std::collections::HashMap<String, Vec<String>> = Default::default();
     for line in &lines {
@@ -473,7 +473,7 @@ pub fn read_ply(path: &Path, label: &str) -> Result<Cloud, CloudError> {
 
 /// A PLY file's bytes (`path` names it in errors).
 pub fn parse_ply(bytes: &[u8], path: &Path, label: &str) -> Result<Cloud, CloudError> {
-    let (lines, data_at) = header_lines(&bytes, path, |l| l.trim() == "end_header")?;
+    let (lines, data_at) = header_lines(bytes, path, |l| l.trim() == "end_header")?;
     let bad = |what: String| CloudError::Header { path: path.to_owned(), what };
     if lines.first().map(|l| l.trim()) != Some("ply") {
         return Err(bad("not a PLY file (no `ply` line)".into()));
