@@ -387,9 +387,10 @@ pub fn data_dir(given: Option<PathBuf>, root: &Path, frames: usize) -> Result<(P
     Ok((tmp.0.clone(), Some(tmp)))
 }
 
-/// The frames of a range of a folder.
+/// The frames of a range of a source of scans (a folder, a recording, a
+/// folder of PCD/PLY scans).
 pub fn frames(dir: &Path, range: FrameRange) -> Result<Vec<Frame>, Error> {
-    Ok(Sequence::open(dir)?.load_range(range)?)
+    Ok(crate::source::Source::open(dir, &Default::default())?.load(Some(range))?.0)
 }
 
 /// One row of `cosem bench label`.

@@ -650,17 +650,18 @@ pub fn run_negatives(
 ) -> Result<NegativeReport, Error> {
     let mut maps = Vec::new();
     for p in places {
-        let seq = crate::kitti::Sequence::open(&p.data)?;
-        let range = match p.frames {
-            Some(r) => r,
-            None => {
-                let first = seq
+        let seq = crate::source::Source::open(&p.data, &spec.source)?;
+        let range = match (p.frames, seq.folder()) {
+            (Some(r), _) => r,
+            (None, Some(folder)) => {
+                let first = folder
                     .scan_frames()?
                     .first()
                     .copied()
                     .ok_or_else(|| Error::Invalid(format!("{}: no scans", p.data.display())))?;
                 crate::kitti::FrameRange { start: first, end: first + 1, stride: 1 }
             }
+            (None, None) => crate::kitti::FrameRange { start: 0, end: 1, stride: 1 },
         };
         let (frames, _) = spec.frames(&seq, range)?;
         let (map, _) = build_map(&frames, spec.config, &spec.filter)?;
@@ -676,7 +677,9 @@ pub fn run_negatives(
             }
             // Folders of one sequence (the same poses) may hold one place.
             if a.0.same_trajectory(&b.0) {
-                let t = a.0.velodyne_pose(a.1.start)?.inverse() * b.0.velodyne_pose(b.1.start)?;
+                let t = crate::kitti::isometry(
+                    &(crate::kitti::rigid_inverse(&a.0.world_pose(a.1.start)?) * b.0.world_pose(b.1.start)?),
+                );
                 if cosem_core::map::overlap(&a.2, &b.2, &t.cast::<f32>()) >= 0.01 {
                     overlapping += 1;
                     continue;

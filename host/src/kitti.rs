@@ -476,22 +476,13 @@ impl Sequence {
             .frames()
             .map(|i| {
                 let m = anchor_inv * self.velodyne_matrix(i)?;
-                let pose = isometry(&m);
                 let scan = self.read_scan(i)?;
-                let mut points = Vec::with_capacity(scan.points.len());
-                let mut ranges = Vec::with_capacity(scan.points.len());
-                for p in &scan.points {
-                    let (x, y, z) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-                    ranges.push((x * x + y * y + z * z).sqrt() as f32);
-                    points.push([
-                        (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
-                        (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
-                        (m[(2, 0)] * x + m[(2, 1)] * y + m[(2, 2)] * z + m[(2, 3)]) as f32,
-                    ]);
-                }
+                let points = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+                let cloud = crate::cloud::Cloud { points, labels: scan.labels, skipped: 0 };
                 let time = self.times.as_ref().and_then(|t| t.get(i).copied());
-                let evidence = crate::label::read_evidence(&self.dir, i, points.len())?;
-                Ok(Frame { index: i, time, pose, points, ranges, labels: scan.labels, evidence })
+                let mut frame = crate::cloud::frame_of(i, time, &m, cloud);
+                frame.evidence = crate::label::read_evidence(&self.dir, i, frame.points.len())?;
+                Ok(frame)
             })
             .collect()
     }

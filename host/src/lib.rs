@@ -48,6 +48,7 @@ pub mod relay;
 pub mod report;
 pub mod rng;
 pub mod robots;
+pub mod source;
 pub mod stats;
 pub mod synth;
 pub mod team;

@@ -2,9 +2,10 @@
 //! what `eval`, `bench` and `robots` start from.
 
 use crate::error::Error;
-use crate::kitti::{Frame, FrameRange, Sequence};
+use crate::kitti::{Frame, FrameRange};
 use crate::mapping::{build_map, HostMap, PointFilter};
 use crate::noise::{corrupt_all, LabelNoise, NoiseStats};
+use crate::source::{Source, SourceOptions};
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::MapConfig;
 use std::path::{Path, PathBuf};
@@ -12,8 +13,11 @@ use std::path::{Path, PathBuf};
 /// Which frames of which folder make robot A's and robot B's maps.
 #[derive(Clone, Debug)]
 pub struct PairSpec {
-    /// SemanticKITTI-layout folder.
+    /// The scans: a SemanticKITTI-layout folder, a recording or a folder of
+    /// PCD/PLY scans ([`Source::open`]).
     pub data: PathBuf,
+    /// How a recording's or a user's scans are read.
+    pub source: SourceOptions,
     /// Robot A's frames (the model).
     pub a: FrameRange,
     /// Robot B's frames (the scene).
@@ -31,6 +35,7 @@ impl PairSpec {
     pub fn new(data: impl AsRef<Path>, a: FrameRange, b: FrameRange, voxel: f32) -> Self {
         PairSpec {
             data: data.as_ref().to_path_buf(),
+            source: SourceOptions::default(),
             a,
             b,
             config: MapConfig::with_resolution(voxel),
@@ -51,9 +56,20 @@ impl PairSpec {
         PairSpec { noise: (noise, seed), ..self }
     }
 
+    /// The same pair read with `options` (a recording's topic, a class
+    /// table, ...).
+    pub fn with_source(self, options: SourceOptions) -> Self {
+        PairSpec { source: options, ..self }
+    }
+
+    /// Opens the spec's source.
+    pub fn open(&self) -> Result<Source, Error> {
+        Source::open(&self.data, &self.source)
+    }
+
     /// Reads a range's frames with this spec's label noise.
-    pub fn frames(&self, seq: &Sequence, range: FrameRange) -> Result<(Vec<Frame>, NoiseStats), Error> {
-        let mut frames = seq.load_range(range)?;
+    pub fn frames(&self, source: &Source, range: FrameRange) -> Result<(Vec<Frame>, NoiseStats), Error> {
+        let (mut frames, _, _) = source.load(Some(range))?;
         let stats = corrupt_all(&mut frames, self.noise.0, self.noise.1);
         Ok((frames, stats))
     }
@@ -81,7 +97,7 @@ pub struct Pair {
 impl Pair {
     /// Reads both ranges and builds both maps.
     pub fn load(spec: &PairSpec) -> Result<Pair, Error> {
-        let seq = Sequence::open(&spec.data)?;
+        let seq = spec.open()?;
         let (frames_a, na) = spec.frames(&seq, spec.a)?;
         let (map_a, _) = build_map(&frames_a, spec.config, &spec.filter)?;
         let (frames_b, nb) = spec.frames(&seq, spec.b)?;

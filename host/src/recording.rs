@@ -353,6 +353,16 @@ pub struct RecordingScans<'a> {
 /// pose can be resolved, so the first scans of an hour-long recording cost
 /// what a recording of just those scans does.
 pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>, usize), RecordingError> {
+    read_scans_in_world(path, what).map(|(frames, skipped, _)| (frames, skipped))
+}
+
+/// Scans in the first one's frame, the points skipped for a NaN
+/// coordinate, and each scan's `T_world_sensor`.
+pub type ScansInWorld = (Vec<Frame>, usize, Vec<Matrix4<f64>>);
+
+/// [`read_scans`], and each scan's sensor pose in the pose frame
+/// (`T_world_sensor`, before the scans are put into the first one's frame).
+pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<ScansInWorld, RecordingError> {
     let msg_err = |what: String| RecordingError::Message { path: path.to_owned(), what };
     let mut tree = Tree::default();
     let mut clouds: Vec<(usize, Vec<u8>)> = Vec::new();
@@ -409,6 +419,7 @@ pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>,
         return Err(msg_err(format!("{}: {seen} messages, frames {frames} ask for {asked}", what.points)));
     }
     let mut frames = Vec::with_capacity(clouds.len());
+    let mut world = Vec::with_capacity(clouds.len());
     let mut skipped = 0;
     let mut anchor_inv: Option<Matrix4<f64>> = None;
     for (index, data) in clouds {
@@ -424,8 +435,9 @@ pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>,
         let anchor = *anchor_inv.get_or_insert_with(|| crate::kitti::rigid_inverse(&pose));
         let time = Some(t as f64 * 1e-9);
         frames.push(frame_of(index, time, &(anchor * pose), cloud));
+        world.push(pose);
     }
-    Ok((frames, skipped))
+    Ok((frames, skipped, world))
 }
 
 /// Why a PointCloud2's points could not be read.

@@ -10,7 +10,7 @@
 
 use crate::board::Board;
 use crate::error::Error;
-use crate::kitti::{Frame, FrameRange, Sequence};
+use crate::kitti::{Frame, FrameRange};
 use crate::mapping::{new_map, PointFilter};
 use cosem_core::classes::{Class, NUM_CLASSES};
 use cosem_core::geometry::{errors_of, from_rows, pose_deg, row_major, rows, Isometry3};
@@ -125,7 +125,7 @@ impl Feed {
 /// inverse (none: both without).
 #[allow(clippy::too_many_arguments)]
 pub fn feeds(
-    seq: &Sequence,
+    seq: &crate::source::Source,
     ranges: [FrameRange; 2],
     voxel: f32,
     crop: f32,
@@ -138,7 +138,7 @@ pub fn feeds(
     let priors = [prior_ab.copied(), prior_ab.map(Isometry3::inverse)];
     let mut out = Vec::new();
     for (id, (range, prior)) in ranges.into_iter().zip(priors).enumerate() {
-        let mut frames = seq.load_range(range)?;
+        let (mut frames, _, _) = seq.load(Some(range))?;
         crate::noise::corrupt_all(&mut frames, noise, seed.wrapping_add(id as u64));
         let scans = frames.iter().map(|f| thin_scan(f, voxel, crop, &filter)).collect();
         let prior = prior.map(|p| rows(&p.cast::<f32>()));

@@ -16,9 +16,10 @@
 use crate::align::{align, prepare, DEFAULT_LEVELS};
 use crate::bench::simulate_exchange;
 use crate::error::Error;
-use crate::kitti::{FrameRange, Sequence};
+use crate::kitti::FrameRange;
 use crate::mapping::{build_map, HostMap, PointFilter};
 use crate::rng::Rng;
+use crate::source::{Source, SourceOptions};
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::MapConfig;
 use cosem_core::matching::{MatchSettings, MatchStatus};
@@ -26,7 +27,8 @@ use cosem_core::team::{consistent_set, solve, RelativePose, MAX_ROBOTS};
 use nalgebra::Matrix6;
 use std::path::PathBuf;
 
-/// One robot: a SemanticKITTI-layout folder and its frames.
+/// One robot: a source of scans (a SemanticKITTI-layout folder, a
+/// recording, a folder of PCD/PLY scans) and its frames.
 #[derive(Clone, Debug)]
 pub struct RobotSpec {
     /// The folder.
@@ -50,6 +52,8 @@ pub struct TeamSpec {
     /// information. When both `(I, J)` and `(J, I)` are listed, the second
     /// is the inverse of the first: one false match, seen from both robots.
     pub inject_false_match: Vec<(usize, usize)>,
+    /// How the robots' recordings or scan files are read.
+    pub source: SourceOptions,
     /// Label noise on every robot's scans (robot i's seeded by `seed + i`).
     pub label_noise: crate::noise::LabelNoise,
     /// Seed of the prior and label noise.
@@ -128,8 +132,8 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
     let mut seqs = Vec::with_capacity(n);
     let mut maps: Vec<HostMap> = Vec::with_capacity(n);
     for r in &spec.robots {
-        let seq = Sequence::open(&r.data)?;
-        let mut frames = seq.load_range(r.frames)?;
+        let seq = Source::open(&r.data, &spec.source)?;
+        let (mut frames, _, _) = seq.load(Some(r.frames))?;
         crate::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(maps.len() as u64));
         maps.push(build_map(&frames, config, &PointFilter::default())?.0);
         seqs.push(seq);

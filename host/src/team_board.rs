@@ -354,8 +354,8 @@ pub fn team_feeds(spec: &crate::team::TeamSpec, crop: f32, silence_ms: u32) -> R
     let filter = crate::mapping::PointFilter::default();
     let mut out = Vec::new();
     for (i, r) in spec.robots.iter().enumerate() {
-        let seq = crate::kitti::Sequence::open(&r.data)?;
-        let mut frames = seq.load_range(r.frames)?;
+        let seq = crate::source::Source::open(&r.data, &spec.source)?;
+        let (mut frames, _, _) = seq.load(Some(r.frames))?;
         crate::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(i as u64));
         let scans = frames.iter().map(|f| crate::robots::thin_scan(f, spec.voxel, crop, &filter)).collect();
         let setup =
@@ -408,6 +408,7 @@ mod tests {
             voxel: 0.5,
             prior_noise: None,
             inject_false_match: Vec::new(),
+            source: Default::default(),
             label_noise: crate::noise::LabelNoise::None,
             seed: 1,
             settings: Default::default(),

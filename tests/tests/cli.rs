@@ -352,3 +352,49 @@ fn a_match_is_written_as_a_recording_to_view() {
         Err(e) => eprintln!("skipped the Python decoder: {e}"),
     }
 }
+
+/// Every command that reads scans takes a recording or a folder of scan
+/// files where it takes a SemanticKITTI folder: the same scans give the
+/// same evaluation (PLY files: to the bit; a recording, whose poses are
+/// quaternions, the same verdicts), and a team on one recording is placed
+/// against the recording's own poses.
+#[test]
+fn eval_and_team_read_recordings_and_scan_files_as_folders() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 10, 12);
+    let s = |p: &std::path::Path| p.display().to_string();
+    let (scans, bag) = (tmp.path().join("scans"), tmp.path().join("r.mcap"));
+    cosem_ok(&["export", "scans", "--data", &s(&seq), "--frames", "0:10", "--format", "ply", "-o", &s(&scans)]);
+    cosem_ok(&["export", "mcap", "--data", &s(&seq), "--frames", "0:10", "-o", &s(&bag)]);
+    let eval = |data: &std::path::Path, k: usize| -> serde_json::Value {
+        let json = tmp.path().join(format!("e{k}.json"));
+        let args = ["eval", "--data", &s(data), "--a", "0:5", "--b", "5:10", "--voxel", "0.5", "--grid", "corners"];
+        let mut args = args.to_vec();
+        let j = s(&json);
+        args.extend(["--json", &j]);
+        cosem_ok(&args);
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap()
+    };
+    let (folder, files, recording) = (eval(&seq, 0), eval(&scans, 1), eval(&bag, 2));
+    // Everything but the times.
+    let untimed = |v: &serde_json::Value| -> Vec<serde_json::Value> {
+        let mut r = v["results"].as_array().unwrap().clone();
+        r.iter_mut().for_each(|x| drop(x.as_object_mut().unwrap().remove("time_ms")));
+        r
+    };
+    assert_eq!(untimed(&folder), untimed(&files));
+    assert_eq!(folder["ground_truth"], files["ground_truth"]);
+    let rate = |v: &serde_json::Value| v["methods"]["cosem"]["success_strict"].as_f64().unwrap();
+    assert_eq!(rate(&folder), 1.0, "{}", folder["methods"]);
+    assert_eq!(rate(&recording), rate(&folder), "{}", recording["methods"]);
+    let (a, b) = (folder["maps"]["b_voxels"].as_f64().unwrap(), recording["maps"]["b_voxels"].as_f64().unwrap());
+    assert!((a - b).abs() <= 0.01 * a, "{a} vs {b} voxels");
+    // A team of two robots cut from one recording: the truth is its poses.
+    let (r0, r1) = (format!("{}:0:5", s(&bag)), format!("{}:5:10", s(&bag)));
+    let out = cosem_tests::cosem(&["team", "--robot", &r0, "--robot", &r1, "--voxel", "0.5", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let r = &v["robots"][1];
+    assert_eq!(r["placed"], true, "{v}");
+    assert!(r["e_t"].as_f64().unwrap() < 0.2 && r["e_r"].as_f64().unwrap() < 0.5, "{r}");
+}

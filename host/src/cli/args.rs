@@ -135,3 +135,39 @@ pub fn probability(s: &str) -> Result<f64, String> {
         _ => Err(format!("`{s}`: expected a probability in [0, 1]")),
     }
 }
+
+/// How scans are read from a recording or a user's files (`--data` may
+/// name a SemanticKITTI folder, a `.mcap` recording or a folder of PCD/PLY
+/// scans with poses.txt): shared by every command that reads scans.
+#[derive(clap::Args, Debug, Clone)]
+pub struct SourceArgs {
+    /// With a recording (.mcap): the point cloud topic.
+    #[arg(long, default_value = "/velodyne_points")]
+    pub points: String,
+    /// With a recording or PCD/PLY scans: the label field's name.
+    #[arg(long, default_value = "label")]
+    pub label_field: String,
+    /// With a recording: the frame the scans' poses are chained from.
+    #[arg(long, default_value = "world")]
+    pub pose_frame: String,
+    /// With a recording: an odometry topic (nav_msgs/msg/Odometry) whose
+    /// poses join /tf and /tf_static.
+    #[arg(long)]
+    pub odom: Option<String>,
+    /// A class table (TOML) mapping the scans' label ids to classes.
+    #[arg(long)]
+    pub classes: Option<std::path::PathBuf>,
+}
+
+impl SourceArgs {
+    /// The library's options.
+    pub fn options(&self) -> cosem_host::source::SourceOptions {
+        cosem_host::source::SourceOptions {
+            points: self.points.clone(),
+            label_field: self.label_field.clone(),
+            pose_frame: self.pose_frame.clone(),
+            odom: self.odom.clone(),
+            classes: self.classes.clone(),
+        }
+    }
+}

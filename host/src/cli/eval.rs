@@ -27,9 +27,13 @@ enum GridArg {
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// SemanticKITTI-layout folder.
+    /// The scans: a SemanticKITTI-layout folder, a ROS 2 recording (.mcap)
+    /// or a folder of PCD/PLY scans with poses.txt; the truth between A and
+    /// B is the source's own poses.
     #[arg(long, required_unless_present = "negatives")]
     data: Option<PathBuf>,
+    #[command(flatten)]
+    source: super::args::SourceArgs,
     /// Robot A's frames (the model).
     #[arg(long, required_unless_present = "negatives")]
     a: Option<FrameRange>,
@@ -121,6 +125,7 @@ fn progress_bar(len: usize) -> ProgressBar {
 fn check_outputs(a: &Args) -> Result<(), Error> {
     let mut inputs: Vec<&std::path::Path> = a.negatives.iter().map(|p| p.data.as_path()).collect();
     inputs.extend(a.data.as_deref());
+    inputs.extend(a.source.classes.as_deref());
     let outputs: Vec<&std::path::Path> = [&a.json, &a.plot].into_iter().flatten().map(|p| p.as_path()).collect();
     Ok(cosem_host::paths::check_outputs(&outputs, &inputs)?)
 }
@@ -135,11 +140,11 @@ fn spec(a: &Args) -> Result<PairSpec, Error> {
     let (Some(data), Some(ra), Some(rb)) = (&a.data, a.a, a.b) else {
         return Err("--data, --a and --b are required".into());
     };
-    Ok(PairSpec::new(data, ra, rb, a.voxel).with_noise(a.label_noise, a.seed))
+    Ok(PairSpec::new(data, ra, rb, a.voxel).with_noise(a.label_noise, a.seed).with_source(a.source.options()))
 }
 
 fn negatives(a: &Args, pool: &rayon::ThreadPool) -> Result<(), Error> {
-    let spec = PairSpec::places(a.voxel).with_noise(a.label_noise, a.seed);
+    let spec = PairSpec::places(a.voxel).with_noise(a.label_noise, a.seed).with_source(a.source.options());
     let s = verdict(a, settings(a.method.first().copied().unwrap_or(MethodArg::Cosem), a.dof));
     let n = a.negatives.len();
     let bar = progress_bar(n * (n - 1) * (2 + a.random_priors));

@@ -5,21 +5,25 @@
 use super::Error;
 use cosem_core::classes::MovingObjects;
 use cosem_core::map::{MapConfig, SensorModel};
-use cosem_host::kitti::{FrameRange, Sequence};
+use cosem_host::kitti::FrameRange;
 use cosem_host::mapping::{build_map, PointFilter};
 use cosem_host::noise::LabelNoise;
+use cosem_host::source::{Source, SourceOptions};
 use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// SemanticKITTI-layout folder (velodyne/, labels/, poses.txt, calib.txt).
+    /// The scans: a SemanticKITTI-layout folder (velodyne/, labels/,
+    /// poses.txt, calib.txt), a ROS 2 recording (.mcap, as --mcap), or a
+    /// folder of .pcd or .ply scans with poses.txt.
     #[arg(long, required_unless_present_any = ["format", "mcap"], conflicts_with_all = ["format", "mcap"])]
     data: Option<PathBuf>,
     /// Frames START:END[:STRIDE] (END exclusive); the first is the anchor.
-    /// With --mcap: 0-based indices among the topic's messages (default:
-    /// all of them).
-    #[arg(long, required_unless_present_any = ["format", "mcap"], conflicts_with = "format")]
+    /// Needed for a SemanticKITTI folder; of a recording, 0-based indices
+    /// among the topic's messages, of scan files, among the files in name
+    /// order (default: all of them).
+    #[arg(long, conflicts_with = "format")]
     frames: Option<FrameRange>,
     /// A ROS 2 recording (MCAP): PointCloud2 scans on --points, poses from
     /// /tf and /tf_static (zstd or lz4 chunks read).
@@ -31,9 +35,9 @@ pub struct Args {
     /// With --mcap: the frame the scans' poses are chained from.
     #[arg(long, default_value = "world")]
     pose_frame: String,
-    /// With --mcap: an odometry topic (nav_msgs/msg/Odometry) whose poses
-    /// (header.frame_id -> child_frame_id) join /tf and /tf_static.
-    #[arg(long, requires = "mcap")]
+    /// With a recording: an odometry topic (nav_msgs/msg/Odometry) whose
+    /// poses (header.frame_id -> child_frame_id) join /tf and /tf_static.
+    #[arg(long)]
     odom: Option<String>,
     /// Read scans from these files instead, one per scan in the sensor's
     /// frame, in order (the first is the anchor): labelled point clouds
@@ -86,54 +90,38 @@ pub fn run(a: Args) -> Result<(), Error> {
     let mut inputs: Vec<&std::path::Path> = a.files.iter().map(PathBuf::as_path).collect();
     inputs.extend([&a.poses, &a.mcap, &a.classes].into_iter().flatten().map(PathBuf::as_path));
     cosem_host::paths::refuse_overwrite(&a.output, &inputs)?;
-    let (mut frames, name, range) = match (&a.format, &a.poses, &a.data, a.frames) {
-        (_, _, _, range) if a.mcap.is_some() => {
-            let file = a.mcap.as_deref().unwrap_or(std::path::Path::new(""));
-            let what = cosem_host::recording::RecordingScans {
-                points: &a.points,
-                label_field: &a.label_field,
-                pose_frame: &a.pose_frame,
-                frames: range,
-                odom: a.odom.as_deref(),
-            };
-            let (frames, skipped) = cosem_host::recording::read_scans(file, &what)?;
-            if skipped > 0 {
-                eprintln!("{skipped} points with a NaN coordinate skipped");
-            }
-            let name = file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            (frames, format!("{name} {}", a.points), range.map_or("all".into(), |r| r.to_string()))
-        }
+    let options = SourceOptions {
+        points: a.points.clone(),
+        label_field: a.label_field.clone(),
+        pose_frame: a.pose_frame.clone(),
+        odom: a.odom.clone(),
+        classes: a.classes.clone(),
+    };
+    // Three spellings of one thing: a source of scans and a range of them.
+    let source = match (&a.format, &a.poses, &a.data, &a.mcap) {
+        (_, _, _, Some(file)) => Source::recording(file, &options)?,
         (Some(format), Some(poses), _, _) => {
             if a.files.is_empty() {
                 return Err("--format needs the scans' files".into());
             }
-            let (frames, skipped) = cosem_host::cloud::load_scans(*format, &a.files, poses, &a.label_field)?;
-            if skipped > 0 {
-                eprintln!("{skipped} points with a NaN coordinate skipped");
-            }
-            let first = a.files[0].display();
-            (frames, format!("{} {format:?} scans from {first}", a.files.len()), String::new())
+            Source::scans(*format, &a.files, poses, &options)?
         }
-        (_, _, Some(data), Some(range)) => {
+        (_, _, Some(data), _) => {
             cosem_host::paths::refuse_inside(&a.output, &[data])?;
-            let seq = Sequence::open(data)?;
-            let seq = if a.classes.is_some() { seq.with_user_ids() } else { seq };
-            let name = data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            (seq.load_range(range)?, name, range.to_string())
+            Source::open(data, &options)?
         }
-        _ => return Err("give --data and --frames, or --format, the files and --poses".into()),
+        _ => return Err("give --data and --frames, --mcap, or --format, the files and --poses".into()),
     };
-    if let Some(path) = &a.classes {
-        let table = cosem_host::class_table::ClassTable::read(path)?;
-        table.relabel(&mut frames).map_err(|(f, i, id)| {
-            let scan = match (&a.format, a.files.get(f)) {
-                (Some(_), Some(file)) => file.display().to_string(),
-                _ if a.mcap.is_some() => format!("{} message {}", a.points, frames[f].index),
-                _ => format!("frame {}", frames[f].index),
-            };
-            format!("{scan}: point {i}: label id {id} is not in the class table {}", path.display())
-        })?;
+    let (mut frames, _, skipped) = source.load(a.frames)?;
+    if skipped > 0 {
+        eprintln!("{skipped} points with a NaN coordinate skipped");
     }
+    let name = match (&a.mcap, &a.format) {
+        (Some(_), _) => format!("{} {}", source.name(), a.points),
+        (_, Some(format)) => format!("{} {format:?} scans from {}", a.files.len(), a.files[0].display()),
+        _ => source.name(),
+    };
+    let range = a.frames.map_or(if a.format.is_some() { String::new() } else { "all".into() }, |r| r.to_string());
     let noise = cosem_host::noise::corrupt_all(&mut frames, a.label_noise, a.seed);
     let filter = PointFilter {
         max_range: a.max_range,

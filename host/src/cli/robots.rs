@@ -6,7 +6,7 @@ use super::args::{pose, positive, positive_f32};
 use super::{print_json, Error};
 use cosem_core::geometry::Isometry3;
 use cosem_host::board::Board;
-use cosem_host::kitti::{FrameRange, Sequence};
+use cosem_host::kitti::FrameRange;
 use cosem_host::report::status_code;
 use cosem_host::robots::{
     default_prior, feeds, firmware, host_run, run_pair, summarise, LineFault, Outcome, DEFAULT_FIRMWARE,
@@ -16,9 +16,12 @@ use std::time::Duration;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// SemanticKITTI-layout folder.
+    /// The scans: a SemanticKITTI-layout folder, a ROS 2 recording (.mcap)
+    /// or a folder of PCD/PLY scans with poses.txt.
     #[arg(long)]
     data: PathBuf,
+    #[command(flatten)]
+    source: super::args::SourceArgs,
     /// Robot A's frames.
     #[arg(long)]
     a: FrameRange,
@@ -73,7 +76,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<u8, Error> {
-    let seq = Sequence::open(&a.data)?;
+    let seq = cosem_host::source::Source::open(&a.data, &a.source.options())?;
     let gt = seq.relative_pose(a.a.start, a.b.start)?;
     let prior = (!a.no_prior).then(|| a.prior.unwrap_or_else(|| default_prior(&gt)));
     let silence_ms = (a.silence * 1000.0).min(f64::from(u32::MAX)) as u32;

@@ -10,10 +10,13 @@ use serde::Serialize;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// A robot: a SemanticKITTI-layout folder and its frames,
-    /// DIR:START:END[:STRIDE]; robot i is the i-th (2 to 8).
+    /// A robot: a source of scans (a SemanticKITTI-layout folder, a ROS 2
+    /// recording .mcap, or a folder of PCD/PLY scans with poses.txt) and
+    /// its frames, PATH:START:END[:STRIDE]; robot i is the i-th (2 to 8).
     #[arg(long = "robot", required = true, value_parser = robot)]
     pub(super) robots: Vec<RobotSpec>,
+    #[command(flatten)]
+    pub(super) source: super::args::SourceArgs,
     /// Voxel size (m; default 0.2, or 0.5 with --on-board).
     #[arg(long, value_parser = super::args::positive_f32)]
     pub(super) voxel: Option<f32>,
@@ -154,6 +157,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
         voxel: a.voxel.unwrap_or(0.2),
         prior_noise: a.prior_noise,
         inject_false_match: a.inject_false_match,
+        source: a.source.options(),
         label_noise: a.label_noise,
         seed: a.seed,
         settings: MatchSettings::default(),

@@ -6,7 +6,6 @@ use super::{print_json, Error};
 use cosem_core::geometry::{errors_of, from_rows, row_major};
 use cosem_core::matching::{MatchSettings, MatchStatus};
 use cosem_core::wire::share::Estimate;
-use cosem_host::kitti::Sequence;
 use cosem_host::robots::firmware;
 use cosem_host::team::TeamSpec;
 use cosem_host::team_board::{host_team_run, placement_difference, run_boards, team_feeds, TeamReports, MAX_BOARDS};
@@ -83,6 +82,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
         voxel: a.voxel.unwrap_or(0.5),
         prior_noise: None,
         inject_false_match: Vec::new(),
+        source: a.source.options(),
         label_noise: a.label_noise,
         seed: a.seed,
         settings: MatchSettings::default(),
@@ -93,7 +93,11 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let elf = firmware(&a.firmware)?;
     let (boards, wall_s) = run_boards(&elf, &feeds, Duration::from_secs_f64(a.timeout.min(86_400.0)), true)?;
     // The truth T_i_j when both robots come from one trajectory.
-    let seqs = spec.robots.iter().map(|r| Sequence::open(&r.data)).collect::<Result<Vec<_>, _>>()?;
+    let seqs = spec
+        .robots
+        .iter()
+        .map(|r| cosem_host::source::Source::open(&r.data, &spec.source))
+        .collect::<Result<Vec<_>, _>>()?;
     let truth = |i: usize, j: usize| {
         seqs[i]
             .same_trajectory(&seqs[j])
