@@ -3,7 +3,7 @@
 //!
 //! The core matches in `f32`; hosts keep poses in `f64` (ground truth,
 //! error measures) and cast at the matcher. This module holds what every
-//! command, file and test must agree on (`../shared/docs/conventions.md`):
+//! command, file and test must agree on (`docs/conventions.md`):
 //! the pose syntax `x,y,z,roll,pitch,yaw` (metres, degrees,
 //! `R = Rz(yaw) * Ry(pitch) * Rx(roll)`), the 16-number row-major JSON form,
 //! the 12-number form messages carry, and the error measures `e_t`, `e_r`.

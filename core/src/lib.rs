@@ -5,7 +5,7 @@
 //! microcontroller and on a laptop, bit for bit.
 //!
 //! Data flows one way, and the modules follow it (the same stage numbers
-//! appear in each module's documentation and in the README):
+//! appear in each module's documentation and in docs/architecture.md):
 //!
 //! 1. [`classes`], [`camera`]: points get classes: SemanticKITTI's 19-class
 //!    table and raw ids, or labels from a camera's semantic segmentation

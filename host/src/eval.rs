@@ -1,4 +1,4 @@
-//! Evaluation, as `../shared/docs/conventions.md` counts it: the starts
+//! Evaluation, as `docs/conventions.md` counts it: the starts
 //! (the paper's grid, or prior-free headings and offsets), the success
 //! thresholds, one outcome per start and method, and summaries whose JSON
 //! field names are the same in every mode (`schema_version` 2).

@@ -98,7 +98,12 @@ impl Source {
         poses: &Path,
         options: &SourceOptions,
     ) -> Result<Source, Error> {
-        let kind = SourceKind::Scans { format, files: files.to_vec(), poses: crate::cloud::read_poses(poses)? };
+        let read = crate::cloud::read_poses(poses)?;
+        if read.len() < files.len() {
+            let what = format!("{} poses for {} scans", read.len(), files.len());
+            return Err(crate::cloud::CloudError::Poses { path: poses.to_owned(), what }.into());
+        }
+        let kind = SourceKind::Scans { format, files: files.to_vec(), poses: read };
         let first = files.first().map_or(poses, PathBuf::as_path);
         Self::with_kind(first, kind, options)
     }

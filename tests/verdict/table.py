@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The verdict's operating points (README, "The verdict").
+"""The verdict's operating points (docs/evaluation.md, "The verdict").
 
 Reads `cosem eval --json` files of true pairs (grid or --global) and
 `cosem eval --negatives --min-agreement 0 --json` files, and prints, for

@@ -109,7 +109,7 @@ pub struct MatchSettings {
     pub min_inliers: u32,
     /// Below this agreement of what both maps saw
     /// ([`super::MatchResult::agreement`]) the answer is `NoOverlap`
-    /// (default 0.40). Measured (README, "The verdict"): true pairs 0.58-0.94
+    /// (default 0.40). Measured (docs/evaluation.md, "The verdict"): true pairs 0.58-0.94
     /// (single scans, whole maps, loops, synthetic streets, with up to 30% of
     /// labels wrong) and 0.40-0.42 for two scans 30 m apart (22% overlap);
     /// pairs of different places at most 0.28 where the other checks pass,

@@ -71,7 +71,7 @@ enum Command {
     Demo(demo::Args),
 }
 
-/// Runs a parsed command line; returns the exit code (README, "Exit
+/// Runs a parsed command line; returns the exit code (docs/commands.md, "Exit
 /// codes": `match`, `link` and `robots` say the match's status, the others
 /// 0 when they did their job).
 pub fn run(cli: Cli) -> Result<u8, Error> {
