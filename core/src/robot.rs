@@ -648,7 +648,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         let (model, scene) = self.pyramids.take().ok_or(RobotError::Finished)?;
         let prior = setup.prior.as_ref().map(from_rows);
         let (result, located, marks) = PhaseMarks::align(own, received, prior.as_ref(), model, scene, meter)?;
-        let estimate = Estimate::of(setup.robot_id, 0, &result);
+        let estimate = result.estimate(setup.robot_id, 0);
         let mut report = RobotReport {
             result: result.report(setup.robot_id),
             points: self.fed.points,

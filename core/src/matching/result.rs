@@ -82,6 +82,20 @@ pub struct MatchResult {
 }
 
 impl MatchResult {
+    /// The match as robot `a`'s estimate of robot `b` (its map the scene),
+    /// as robots share it.
+    pub fn estimate(&self, a: u8, b: u8) -> crate::wire::share::Estimate {
+        let info: [[f32; 6]; 6] = core::array::from_fn(|r| core::array::from_fn(|c| self.information[(r, c)]));
+        crate::wire::share::Estimate::new(
+            a,
+            b,
+            self.status.code(),
+            crate::geometry::rows(&self.transform),
+            &info,
+            self.agreement,
+        )
+    }
+
     /// The result as robot `robot_id` reports it over a line: plain numbers
     /// ([`MatchReport`]).
     pub fn report(&self, robot_id: u8) -> MatchReport {

@@ -307,7 +307,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         let (result, located, marks) = PhaseMarks::align(own, received, None, &mut self.model, &mut self.scene, meter)?;
         let me = self.me();
         if let Some(slot) = self.estimates.get_mut(usize::from(peer)) {
-            *slot = Some(Estimate::of(me, peer, &result));
+            *slot = Some(result.estimate(me, peer));
         }
         let mut report = self.report_base(own, stats, link_ms, meter);
         report.result = result.report(me);

@@ -53,17 +53,11 @@ impl Estimate {
         Estimate { a, b, status: NO_EXCHANGE, transform, information: [0.0; 21], agreement: 0.0 }
     }
 
-    /// Robot `a`'s match of robot `b`'s map (as the scene) against its own.
-    pub fn of(a: u8, b: u8, result: &crate::matching::MatchResult) -> Self {
-        let info: [[f32; 6]; 6] = core::array::from_fn(|r| core::array::from_fn(|c| result.information[(r, c)]));
-        Estimate {
-            a,
-            b,
-            status: result.status.code(),
-            transform: crate::geometry::rows(&result.transform),
-            information: Estimate::upper(&info),
-            agreement: result.agreement,
-        }
+    /// An estimate of `T_a_b` with its status code, row-major transform,
+    /// information matrix (upper triangle) and agreement (the matcher's
+    /// side makes one from a match: `MatchResult::estimate`).
+    pub fn new(a: u8, b: u8, status: u8, transform: [f32; 12], information: &[[f32; 6]; 6], agreement: f32) -> Self {
+        Estimate { a, b, status, transform, information: Estimate::upper(information), agreement }
     }
 
     /// `T_a_b`.
