@@ -10,10 +10,13 @@ cd "$(dirname "$0")/.."
 DATA="${COSEM_DATA:-../shared/data}"
 BOARDS=0
 [ "${1:-}" = "--boards" ] && BOARDS=1
+COMMIT="$(git rev-parse --short HEAD)$(git diff --quiet HEAD -- core host || echo '+changes')"
 cargo build --release --locked -p cosem-host >/dev/null 2>&1
-C=./target/release/cosem
 OUT="$(mktemp -d)"
 trap 'rm -rf "$OUT"' EXIT
+# The binary of this commit, whatever is built while the runs go on.
+cp ./target/release/cosem "$OUT/cosem"
+C="$OUT/cosem"
 
 PAIRS=("kitti00 0:5 5:10" "kitti07 0:5 5:10" "kitti00-loop 52:53 4501:4502" "kitti08-loop 720:721 1500:1501")
 for p in "${PAIRS[@]}"; do
@@ -36,7 +39,6 @@ if [ "$BOARDS" = 1 ] && [ -d "$DATA/kitti00" ]; then
   $C robots --data "$DATA/kitti00" --a 0:5 --b 5:10 --no-prior --json >"$OUT/robots-noprior.json" || true
 fi
 
-COMMIT="$(git rev-parse --short HEAD)$(git diff --quiet || echo '+changes')"
 MACHINE="$(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(free -g | awk '/Mem/ {print $2}') GiB"
 python3 - "$OUT" "$COMMIT" "$MACHINE" "$(date -u +%Y-%m-%d)" >docs/results.md <<'PY'
 import json, os, sys
