@@ -3,6 +3,10 @@
 //! `default-features = false` the library alone builds (no clap, rayon,
 //! serial ports, PNG or JSON printing).
 //!
+//! The modules are grouped by layer in folders ([`sources`], [`maps`],
+//! [`evaluation`], [`lines`], [`boards`], [`reports`]), each also reachable
+//! by its own name:
+//!
 //! - Data in: [`kitti`] (SemanticKITTI layout; every error names its file),
 //!   [`synth`] (procedural streets, a simulated 64-beam LiDAR, camera
 //!   segmentation), [`label`] (LiDAR labels from camera segmentation),
@@ -23,36 +27,72 @@
 //! Transforms are nalgebra `Isometry3` throughout, with the conventions'
 //! pose syntax and error measures from [`cosem_core::geometry`].
 
-pub mod align;
-pub mod bench;
-pub mod board;
-pub mod boxplot;
-pub mod cdr_read;
-pub mod class_table;
-pub mod cloud;
-pub mod cmap;
-pub mod demo;
+/// Layer 1, scans in: every source of labelled scans and its readers.
+pub mod sources {
+    pub mod cdr_read;
+    pub mod class_table;
+    pub mod cloud;
+    pub mod kitti;
+    pub mod label;
+    pub mod mcap_read;
+    pub mod recording;
+    pub mod source;
+    pub mod synth;
+}
+
+/// Layer 2, maps: frames to maps on the heap, map files, exports, label
+/// noise.
+pub mod maps {
+    pub mod cmap;
+    pub mod mapping;
+    pub mod noise;
+    pub mod ply;
+}
+
+/// Layer 3, matching and evaluation: alignment, pairs and teams on the
+/// host, the protocols, benchmarks, the demo.
+pub mod evaluation {
+    pub mod align;
+    pub mod bench;
+    pub mod boxplot;
+    pub mod demo;
+    pub mod eval;
+    pub mod pair;
+    pub mod stats;
+    pub mod team;
+}
+
+/// Layer 4, lines: one robot's end of a map exchange, the paced lossy
+/// relay, TCP and serial ports behind embedded-io.
+pub mod lines {
+    pub mod link;
+    pub mod relay;
+    pub mod transport;
+}
+
+/// Layer 5, boards: the robots' pipelines on emulated boards (QEMU) and
+/// the host's twin runs.
+pub mod boards {
+    pub mod board;
+    pub mod robots;
+    pub mod team_board;
+}
+
+/// Output: the commands' JSON (stable field names).
+pub mod reports {
+    pub mod report;
+}
+
 pub mod error;
-pub mod eval;
-pub mod kitti;
-pub mod label;
-pub mod link;
-pub mod mapping;
-pub mod mcap_read;
-pub mod noise;
-pub mod pair;
 pub mod paths;
-pub mod ply;
-pub mod recording;
-pub mod relay;
-pub mod report;
 pub mod rng;
-pub mod robots;
-pub mod source;
-pub mod stats;
-pub mod synth;
-pub mod team;
-pub mod team_board;
-pub mod transport;
+
+// The modules by their own names too (the paths the crate has always had).
+pub use boards::{board, robots, team_board};
+pub use evaluation::{align, bench, boxplot, demo, eval, pair, stats, team};
+pub use lines::{link, relay, transport};
+pub use maps::{cmap, mapping, noise, ply};
+pub use reports::report;
+pub use sources::{cdr_read, class_table, cloud, kitti, label, mcap_read, recording, source, synth};
 
 pub use error::Error;
