@@ -11,6 +11,6 @@ model="$(realpath "$1")"; scene="$(realpath "$2")"
 work="$(mktemp -d)"; trap 'rm -rf "$work"' EXIT
 cp "$model" "$work/bench-a.cmap"; cp "$scene" "$work/bench-b.cmap"
 cd "$work"
-qemu-system-arm -machine mps2-an386 -cpu cortex-m4 -display none -icount shift=0 \
-  -semihosting-config enable=on,target=native \
-  -kernel "$here/target/thumbv7em-none-eabihf/release/bench"
+read -ra machine <"$here/qemu/mps2-an386.args"
+read -ra common <"$here/qemu/common.args"
+qemu-system-arm "${machine[@]}" "${common[@]}" -kernel "$here/target/thumbv7em-none-eabihf/release/bench"

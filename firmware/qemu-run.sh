@@ -6,9 +6,12 @@
 # feature logs binary defmt frames over semihosting: they are decoded with
 # defmt-print (`cargo install defmt-print`) when it is installed.
 set -euo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
 elf="$1"; shift
-qemu=(qemu-system-arm -machine mps2-an386 -cpu cortex-m4 -display none -icount shift=0
-  -semihosting-config enable=on,target=native -kernel "$elf" "$@")
+# The command line lives in firmware/qemu/ (the host reads the same files).
+read -ra machine <"$here/qemu/mps2-an386.args"
+read -ra common <"$here/qemu/common.args"
+qemu=(qemu-system-arm "${machine[@]}" "${common[@]}" -kernel "$elf" "$@")
 if readelf -S "$elf" 2>/dev/null | grep -q '\.defmt'; then
   if command -v defmt-print >/dev/null; then
     "${qemu[@]}" | defmt-print -e "$elf"

@@ -167,13 +167,8 @@ pub fn run_within(cmd: &mut Command, limit: std::time::Duration) -> Output {
     Output { status, stdout: out.join().unwrap_or_default(), stderr: err.join().unwrap_or_default() }
 }
 
-/// The QEMU command line of the firmware's runner (firmware/.cargo/config.toml)
-/// for `elf`, without `-serial` options.
+/// The mps2-an386 QEMU command line (firmware/qemu/, as the firmware's
+/// cargo runner and the host use it) for `elf`, without `-serial` options.
 pub fn qemu(elf: &Path) -> Command {
-    let mut cmd = Command::new("qemu-system-arm");
-    cmd.args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-icount", "shift=0"])
-        .args(["-semihosting-config", "enable=on,target=native"])
-        .arg("-kernel")
-        .arg(elf);
-    cmd
+    cosem_host::board::Board::Mps2An386.qemu_command(elf, &[])
 }

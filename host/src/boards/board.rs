@@ -61,34 +61,37 @@ impl Board {
         }
     }
 
+    /// The board's QEMU command line (`firmware/qemu/`: the one place it
+    /// is written) with `serials` as its serial ports in order (`None`:
+    /// `null`), the debugging options of [`crate::robots::debug_args`] and
+    /// `elf` as the kernel.
+    pub fn qemu_command(self, elf: &Path, serials: &[Option<u16>]) -> Command {
+        let machine = match self {
+            Board::Mps2An386 => include_str!("../../../firmware/qemu/mps2-an386.args"),
+            Board::Stm32f405 => include_str!("../../../firmware/qemu/stm32f405.args"),
+        };
+        let mut cmd = Command::new("qemu-system-arm");
+        cmd.args(machine.split_whitespace())
+            .args(include_str!("../../../firmware/qemu/common.args").split_whitespace())
+            .args(serials.iter().flat_map(|p| {
+                ["-serial".to_string(), p.map_or_else(|| "null".to_string(), |p| format!("tcp:127.0.0.1:{p}"))]
+            }))
+            .args(crate::robots::debug_args())
+            .arg("-kernel")
+            .arg(elf);
+        cmd
+    }
+
     /// Starts QEMU with `elf`, its feeder line and its link on TCP ports of
     /// this host (QEMU connects). The mps2 robot's link is UART0 and its
     /// feeder UART1; the STM32F405's feeder is USART1 (QEMU's first serial
     /// port) and its link USART2.
     pub fn qemu(self, elf: &Path, feed: u16, link: u16) -> std::io::Result<Child> {
-        let mut cmd = Command::new("qemu-system-arm");
         let serials = match self {
-            Board::Mps2An386 => {
-                cmd.args(["-machine", "mps2-an386", "-cpu", "cortex-m4"]);
-                [link, feed]
-            }
-            Board::Stm32f405 => {
-                cmd.args(["-machine", "netduinoplus2"]);
-                [feed, link]
-            }
+            Board::Mps2An386 => [Some(link), Some(feed)],
+            Board::Stm32f405 => [Some(feed), Some(link)],
         };
-        cmd.args(["-display", "none", "-icount", "shift=0", "-monitor", "none"])
-            .args(["-semihosting-config", "enable=on,target=native"]);
-        for p in serials {
-            cmd.arg("-serial").arg(format!("tcp:127.0.0.1:{p}"));
-        }
-        cmd.args(crate::robots::debug_args())
-            .arg("-kernel")
-            .arg(elf)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
+        self.qemu_command(elf, &serials).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::null()).spawn()
     }
 }
 

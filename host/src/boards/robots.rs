@@ -344,16 +344,11 @@ pub struct PairRun {
     pub wall_s: f64,
 }
 
+/// An mps2-an386 QEMU with `serials` as its UARTs, its standard error
+/// kept for the board's messages.
 pub(crate) fn qemu(elf: &Path, serials: &[Option<u16>]) -> std::io::Result<Child> {
-    Command::new("qemu-system-arm")
-        .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-icount", "shift=0"])
-        .args(["-semihosting-config", "enable=on,target=native", "-monitor", "none"])
-        .args(serials.iter().flat_map(|p| {
-            ["-serial".to_string(), p.map_or_else(|| "null".to_string(), |p| format!("tcp:127.0.0.1:{p}"))]
-        }))
-        .args(debug_args())
-        .arg("-kernel")
-        .arg(elf)
+    crate::board::Board::Mps2An386
+        .qemu_command(elf, serials)
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
