@@ -280,7 +280,7 @@ impl Match {
 /// or with no prior (`init=None`: every heading and offset searched).
 #[pyfunction(name = "match")]
 #[pyo3(signature = (model, scene, init = None))]
-fn match_maps(model: &Map, scene: &Map, init: Option<PyReadonlyArray2<'_, f64>>) -> PyResult<Match> {
+fn match_maps(model: &Map, scene: &Map, init: Option<&Bound<'_, PyAny>>) -> PyResult<Match> {
     if (model.map.resolution() - scene.map.resolution()).abs() > 1e-6 {
         return Err(value_error(format!(
             "resolutions differ: {} m and {} m",
@@ -290,14 +290,16 @@ fn match_maps(model: &Map, scene: &Map, init: Option<PyReadonlyArray2<'_, f64>>)
     }
     let prior = match init {
         None => None,
-        Some(a) => {
+        Some(obj) => {
+            let a = float_array(obj, "init", "4x4")?;
+            let a: PyReadonlyArray2<'_, f64> = a.extract()?;
             if a.shape() != [4, 4] {
-                return Err(value_error(format!("init must be 4x4, got {:?}", a.shape())));
+                return Err(value_error(format!("init must be a 4x4 array, got shape {:?}", a.shape())));
             }
             let a = a.as_array();
             let m = nalgebra::Matrix4::from_fn(|r, c| a[[r, c]]);
             let iso = cosem_core::geometry::rigid_from_matrix(&m)
-                .ok_or_else(|| value_error("init is not a rigid transform"))?;
+                .ok_or_else(|| value_error("init is not a rigid transform (its 3x3 part must be a rotation)"))?;
             Some(nalgebra::convert::<_, Isometry3<f32>>(iso))
         }
     };

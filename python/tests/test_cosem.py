@@ -152,3 +152,15 @@ def test_voxels_round_trip_through_from_voxels(maps):
     assert np.allclose(pos[order(pos)], p2[order(p2)], atol=1e-5)
     with pytest.raises(ValueError, match="class index"):
         cosem.Map.from_voxels(pos[:2], np.array([0, 40]), 0.5)
+
+
+def test_init_of_any_float_dtype_or_a_list(maps):
+    model, scene, truth = maps
+    start = truth @ rot_z(5.0, [1.0, -1.0, 0.0])
+    for init in (start.astype(np.float32), start.tolist()):
+        r = cosem.match(model, scene, init=init)
+        assert r.status == "Converged"
+    with pytest.raises(ValueError, match="4x4"):
+        cosem.match(model, scene, init=np.eye(3).tolist())
+    with pytest.raises(ValueError, match="4x4"):
+        cosem.match(model, scene, init=np.array(["a"] * 16).reshape(4, 4))
