@@ -42,6 +42,14 @@ use crate::wire::frame::{DeframeError, Deframer, MAX_FRAME};
 use crate::wire::share::Estimate;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
+/// Exit code of a robot's firmware that panicked: its panic handler ends
+/// the program at once with it (under QEMU, through semihosting), so the
+/// host tells a panic from a robot that reported.
+pub const EXIT_PANIC: u8 = 101;
+/// Exit code of a robot's firmware that took a hard fault (e.g. its stack
+/// ran into the statics).
+pub const EXIT_FAULT: u8 = 102;
+
 /// Voxels a robot's map holds (and the received map): 224 KiB for its own
 /// (28 bytes per voxel with 16-bit index slots), 64 KiB for the received
 /// one (a [`SceneMap`](crate::map::SceneMap): 8 bytes per voxel). When a map is full the voxels

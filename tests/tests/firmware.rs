@@ -139,7 +139,9 @@ fn firmware_matches_real_maps_in_the_budget() {
 #[test]
 fn a_panic_or_a_hard_fault_ends_qemu_at_once_with_its_own_code() {
     let Some(elves) = cosem_tests::firmware_elves() else { return };
-    for (what, code) in [("panic", 101), ("fault", 102), ("nothing", 0)] {
+    let (panic, fault) = (i32::from(cosem_core::robot::EXIT_PANIC), i32::from(cosem_core::robot::EXIT_FAULT));
+    assert_eq!((panic, fault), (101, 102), "the exit codes the docs give");
+    for (what, code) in [("panic", panic), ("fault", fault), ("nothing", 0)] {
         let out = cosem_tests::run_within(
             cosem_tests::qemu(&elves.join("crash")).args(["-append", what]),
             std::time::Duration::from_secs(60),

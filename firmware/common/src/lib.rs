@@ -124,11 +124,11 @@ pub fn exit(ok: bool) -> ! {
     }
 }
 
-/// Exit code of a firmware that panicked.
-pub const EXIT_PANIC: u32 = 101;
+/// Exit code of a firmware that panicked (the core's, which the host reads).
+pub const EXIT_PANIC: u32 = cosem_core::robot::EXIT_PANIC as u32;
 /// Exit code of a firmware that took a hard fault (e.g. its stack ran into
 /// the statics).
-pub const EXIT_FAULT: u32 = 102;
+pub const EXIT_FAULT: u32 = cosem_core::robot::EXIT_FAULT as u32;
 
 /// Ends the program with any exit code (semihosting `SYS_EXIT_EXTENDED`:
 /// `debug::exit` passes only 0 or 1).

@@ -570,9 +570,9 @@ fn run_pair_inner(
 
 /// Exit code of a firmware that panicked (its panic handler exits through
 /// semihosting at once).
-pub const EXIT_PANIC: i32 = 101;
+pub const EXIT_PANIC: i32 = cosem_core::robot::EXIT_PANIC as i32;
 /// Exit code of a firmware that took a hard fault.
-pub const EXIT_FAULT: i32 = 102;
+pub const EXIT_FAULT: i32 = cosem_core::robot::EXIT_FAULT as i32;
 
 /// The stage a robot that said nothing stopped at: the firmware itself
 /// when QEMU's exit code says it panicked or faulted, else the host.
