@@ -19,7 +19,10 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use cortex_m::interrupt::Mutex;
 
 /// A single-producer (interrupt handler), single-consumer (main loop)
-/// ring of received bytes. `N` must be a power of two.
+/// ring of received bytes. `N` must be a power of two. Only its
+/// [`IrqReceiver`] pushes and pops, each inside a critical section, so no
+/// second producer or consumer can exist in safe code; what others see are
+/// its counters.
 pub struct RxRing<const N: usize> {
     buf: UnsafeCell<[u8; N]>,
     /// Bytes pushed (written by the producer only).
@@ -30,9 +33,12 @@ pub struct RxRing<const N: usize> {
     high_water: AtomicU32,
 }
 
-// SAFETY: one producer writes `buf[head]` then publishes `head` (Release);
-// one consumer reads `buf[tail]` after loading `head` (Acquire) and then
-// publishes `tail`. A slot is never written and read at once.
+// SAFETY: `push` and `pop_into` are private, and their one caller
+// (`IrqReceiver`) runs each in a critical section: one producer writes
+// `buf[head]` then publishes `head` (Release); one consumer reads
+// `buf[tail]` after loading `head` (Acquire) and then publishes `tail`. A
+// slot is never written and read at once. Shared references reach only the
+// counters (atomics).
 unsafe impl<const N: usize> Sync for RxRing<N> {}
 
 impl<const N: usize> RxRing<N> {
@@ -52,9 +58,9 @@ impl<const N: usize> RxRing<N> {
         }
     }
 
-    /// Producer (the interrupt handler): appends a byte, or counts it
-    /// dropped when the ring is full.
-    pub fn push(&self, byte: u8) {
+    /// Producer (the interrupt handler, in a critical section): appends a
+    /// byte, or counts it dropped when the ring is full.
+    fn push(&self, byte: u8) {
         let head = self.head.load(Ordering::Relaxed);
         let tail = self.tail.load(Ordering::Acquire);
         let used = head.wrapping_sub(tail);
@@ -81,8 +87,9 @@ impl<const N: usize> RxRing<N> {
         self.len() == 0
     }
 
-    /// Consumer: moves waiting bytes into `out`; returns how many.
-    pub fn pop_into(&self, out: &mut [u8]) -> usize {
+    /// Consumer (in a critical section): moves waiting bytes into `out`;
+    /// returns how many.
+    fn pop_into(&self, out: &mut [u8]) -> usize {
         let head = self.head.load(Ordering::Acquire);
         let mut tail = self.tail.load(Ordering::Relaxed);
         let mut n = 0;
@@ -128,6 +135,10 @@ impl<const N: usize> Default for RxRing<N> {
 pub trait RxInterrupt: embedded_hal_nb::serial::Read<u8> {
     /// Raise the interrupt when a byte arrives (once, at start).
     fn listen(&mut self);
+    /// Acknowledge the interrupt before draining (a byte arriving while
+    /// the handler drains raises it again). Nothing by default: many UARTs
+    /// clear it by the read itself.
+    fn acknowledge(&mut self) {}
     /// Hold the interrupt off while the ring is full (e.g. mask it in the
     /// NVIC: a UART's interrupt line stays raised while a byte waits in it,
     /// so switching the UART's own enable may not lower it).
@@ -170,6 +181,7 @@ impl<R: RxInterrupt, const N: usize> IrqReceiver<R, N> {
         cortex_m::interrupt::free(|cs| {
             let mut cell = self.rx.borrow(cs).borrow_mut();
             let Some(rx) = cell.as_mut() else { return };
+            rx.acknowledge();
             while self.ring.len() < N - 1 {
                 match rx.read() {
                     Ok(b) => self.ring.push(b),
@@ -187,7 +199,9 @@ impl<R: RxInterrupt, const N: usize> IrqReceiver<R, N> {
     /// Main loop: moves waiting bytes into `out`, and listens again once
     /// there is room.
     pub fn read(&self, out: &mut [u8]) -> usize {
-        let n = self.ring.pop_into(out);
+        // One consumer at a time, whoever calls (the ring's tail is not
+        // shared between readers).
+        let n = cortex_m::interrupt::free(|_| self.ring.pop_into(out));
         if self.paused.load(Ordering::Acquire) && self.ring.len() < N / 2 {
             cortex_m::interrupt::free(|cs| {
                 if let Some(rx) = self.rx.borrow(cs).borrow_mut().as_mut() {
@@ -199,7 +213,8 @@ impl<R: RxInterrupt, const N: usize> IrqReceiver<R, N> {
         n
     }
 
-    /// The ring (its counters).
+    /// The ring (its counters: [`RxRing::len`], [`RxRing::pushed`],
+    /// [`RxRing::dropped`], [`RxRing::high_water`]).
     pub fn ring(&self) -> &RxRing<N> {
         &self.ring
     }

@@ -202,15 +202,6 @@ impl Uart {
     }
 }
 
-impl UartRx {
-    /// Acknowledges the receive interrupt (the interrupt handler, before
-    /// draining: a byte arriving while it drains raises it again).
-    pub fn clear(base: usize) {
-        // SAFETY: INTCLEAR of a CMSDK UART at `base` (the handler's own).
-        unsafe { write_volatile((base + INTCLEAR) as *mut u32, RX_INT) }
-    }
-}
-
 impl embedded_hal_nb::serial::ErrorType for UartRx {
     type Error = Infallible;
 }
@@ -227,6 +218,12 @@ impl embedded_hal_nb::serial::Read<u8> for UartRx {
 }
 
 impl cosem_firmware::serial::RxInterrupt for UartRx {
+    /// Clears the receive interrupt (INTCLEAR) of this UART.
+    fn acknowledge(&mut self) {
+        // SAFETY: INTCLEAR of the CMSDK UART this receiver owns (made by
+        // `Uart::split` from a UART taken with `Uart::new`).
+        unsafe { write_volatile((self.base + INTCLEAR) as *mut u32, RX_INT) }
+    }
     fn listen(&mut self) {
         let uart = Uart { base: self.base };
         // SAFETY: CTRL of this UART; the interrupt is unmasked by the board.

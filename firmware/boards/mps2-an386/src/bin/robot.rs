@@ -61,19 +61,13 @@ static mut OWN: OwnTurns = OwnTurns { map: ManuallyDrop::new(MapStorage::new()) 
 static FEED_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 static LINK_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 
-/// The UARTs' receive interrupts (lines 0 and 2): acknowledged, then the
-/// UART drained into its ring.
+/// The UARTs' receive interrupts (lines 0 and 2): each receiver
+/// acknowledges its interrupt and drains its UART into its ring.
 #[exception]
 unsafe fn DefaultHandler(irqn: i16) {
     match irqn {
-        0 => {
-            UartRx::clear(UART0);
-            LINK_RX.on_interrupt();
-        }
-        2 => {
-            UartRx::clear(UART1);
-            FEED_RX.on_interrupt();
-        }
+        0 => LINK_RX.on_interrupt(),
+        2 => FEED_RX.on_interrupt(),
         _ => {}
     }
 }

@@ -46,8 +46,7 @@ unsafe fn DefaultHandler(irqn: i16) {
         20 => 4,
         _ => return,
     };
-    if let (Some(&base), Some(rx)) = (UARTS.get(at), RX.get(at)) {
-        UartRx::clear(base);
+    if let Some(rx) = RX.get(at) {
         rx.on_interrupt();
     }
 }
