@@ -1,0 +1,341 @@
+//! The sending half of an endpoint: the map as a stream of records, a
+//! window of segments in flight, retransmission by selective repeat.
+
+use super::*;
+
+/// One frame's worth of the stream in flight.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Segment {
+    pub(super) start: u32,
+    pub(super) len: u16,
+    pub(super) sends: u8,
+    /// Known lost: waits for retransmission.
+    pub(super) lost: bool,
+    /// Transmission number of its last send (a later number acknowledged
+    /// while this one is not means this one was lost: the line keeps order).
+    pub(super) order: u32,
+    /// Milliseconds (wrapping) of its last send.
+    pub(super) sent_at: u32,
+}
+
+/// The sending half: the map as a stream of records (header, then codec
+/// chunks), kept from the first unacknowledged byte on.
+pub(super) struct Tx<'a, S: VoxelStorage> {
+    pub(super) encoder: MapEncoder<'a, S>,
+    pub(super) header: MapHeader,
+    pub(super) header_queued: bool,
+    pub(super) ring: &'a mut [u8; STREAM_BUFFER],
+    /// Stream offsets: everything before `acked` is held by the receiver,
+    /// before `sent_end` was sent at least once, before `produced` encoded.
+    pub(super) acked: u32,
+    pub(super) sent_end: u32,
+    pub(super) produced: u32,
+    pub(super) segs: &'a mut heapless::Vec<Segment, MAX_SEGMENTS>,
+    pub(super) order: u32,
+    pub(super) acked_order: u32,
+    /// The receiver said it holds the whole map.
+    pub(super) complete: bool,
+    /// Data bytes per frame, from the estimated byte error rate.
+    pub(super) size: usize,
+    pub(super) srtt: Option<u32>,
+    /// Shortest round trip seen (ms).
+    pub(super) min_rtt: u32,
+    /// Timeouts in a row with no progress at all.
+    pub(super) backoff: u32,
+    /// When an acknowledgement last took bytes off our hands.
+    pub(super) last_progress: u64,
+    /// When the stalled line was last probed.
+    pub(super) last_probe: u64,
+    /// Resends while nothing new can go (every fourth asks for an answer).
+    pub(super) idle_resends: u32,
+}
+
+impl<S: VoxelStorage> Tx<'_, S> {
+    /// Encodes records into the buffer while a whole record fits.
+    pub(super) fn fill(&mut self) -> Result<(), LinkError> {
+        loop {
+            if STREAM_BUFFER - (self.produced.wrapping_sub(self.acked) as usize) < MAX_RECORD {
+                return Ok(());
+            }
+            let mut rec = [0u8; MAX_RECORD];
+            let body = rec.get_mut(1..).ok_or(LinkError::Setup)?;
+            let n = if !self.header_queued {
+                self.header_queued = true;
+                self.header.encode(body).map_err(|_| LinkError::Setup)?
+            } else if self.encoder.is_done() {
+                return Ok(());
+            } else {
+                let chunk = body.get_mut(..RECORD_CHUNK).ok_or(LinkError::Setup)?;
+                self.encoder.next_chunk(chunk).map_err(|_| LinkError::Setup)?
+            };
+            rec[0] = u8::try_from(n).map_err(|_| LinkError::Setup)?;
+            for &b in rec.get(..=n).ok_or(LinkError::Setup)? {
+                self.ring[self.produced as usize % STREAM_BUFFER] = b;
+                self.produced = self.produced.wrapping_add(1);
+            }
+        }
+    }
+
+    pub(super) fn exhausted(&self) -> bool {
+        self.header_queued && self.encoder.is_done()
+    }
+
+    /// Bytes allowed in flight: 1 KiB until something came back (frames
+    /// sized before the line was known may all be lost, and must not fill
+    /// the window), then all the receiver can hold.
+    pub(super) fn window(&self) -> u32 {
+        if self.srtt.is_some() {
+            WINDOW
+        } else {
+            1024
+        }
+    }
+
+    pub(super) fn can_send_new(&self, config: &LinkConfig) -> bool {
+        self.sent_end != self.produced
+            && self.sent_end.wrapping_sub(self.acked) < self.window()
+            && self.segs.len() + CUT_RESERVE < MAX_SEGMENTS
+            && (!config.half_duplex || self.segs.is_empty())
+    }
+
+    /// How long bytes may go unacknowledged before they are sent again:
+    /// twice the smoothed round trip (before any, `timeout_ms`).
+    pub(super) fn rto(&self, config: &LinkConfig) -> u32 {
+        let base = match self.srtt {
+            Some(s) => (2 * s + 20).max(30),
+            None => config.timeout_ms,
+        };
+        base.min(config.max_timeout_ms)
+    }
+
+    /// Sizes frames for the most data per byte of line. A frame of `L`
+    /// bytes (`h` of them overhead) arrives whole with probability
+    /// `exp(-tL)` and is repaired with probability `cL exp(-tL)` (one error
+    /// of the repairable kind), so data per byte sent is `g(L) = (L - h) / L
+    /// * exp(-tL) * (1 + cL)`. `ln g` is concave: its peak is where the
+    /// derivative `h / (L (L - h)) - t + c / (1 + cL)` crosses zero, found
+    /// by bisection (without repair, `L = (h + sqrt(h^2 + 4h/t)) / 2`).
+    pub(super) fn resize(&mut self, line: LineModel, config: &LinkConfig) {
+        let h = DATA_OVERHEAD as f32;
+        let slope = |l: f32| h / (l * (l - h)) - line.rate + line.repairable / (1.0 + line.repairable * l);
+        let (mut lo, mut hi) = (h + f32::from(config.min_chunk), h + f32::from(config.max_chunk));
+        if slope(hi) >= 0.0 {
+            lo = hi;
+        }
+        for _ in 0..24 {
+            let mid = 0.5 * (lo + hi);
+            if slope(mid) > 0.0 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        self.size = ((lo - h) as usize).clamp(usize::from(config.min_chunk), usize::from(config.max_chunk));
+    }
+
+    /// Cuts segment `i` to the current frame size; the rest stays lost.
+    pub(super) fn cut(&mut self, i: usize) {
+        let Some(s) = self.segs.get(i).copied() else { return };
+        if usize::from(s.len) <= self.size || self.segs.is_full() {
+            return;
+        }
+        let keep = self.size as u16;
+        let rest = Segment { start: s.start.wrapping_add(u32::from(keep)), len: s.len - keep, ..s };
+        if self.segs.insert(i + 1, rest).is_ok() {
+            if let Some(first) = self.segs.get_mut(i) {
+                first.len = keep;
+            }
+        }
+    }
+
+    pub(super) fn transmit<IO: Write>(
+        &mut self,
+        i: usize,
+        poll: bool,
+        io: &mut IO,
+        now: u64,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
+        let seg = self.segs.get_mut(i).ok_or(LinkError::Setup)?;
+        let mut data = [0u8; MAX_PAYLOAD];
+        let len = usize::from(seg.len);
+        for (k, d) in data.iter_mut().take(len).enumerate() {
+            *d = self.ring[seg.start.wrapping_add(k as u32) as usize % STREAM_BUFFER];
+        }
+        self.order += 1;
+        seg.order = self.order;
+        seg.sends = seg.sends.saturating_add(1);
+        seg.sent_at = now as u32;
+        seg.lost = false;
+        let offset = (seg.start % OFFSET_MODULUS) as u16;
+        let msg = Message::Data { offset, poll, data: data.get(..len).unwrap_or(&[]) };
+        send_msg(io, &msg, stats)?;
+        Ok(())
+    }
+
+    /// Sends at most one data frame: a lost one first (cut to the current
+    /// size), else new bytes, else bytes unacknowledged for a while again.
+    /// The last uses a line that would idle: the oldest bytes hold the
+    /// window, so on a bad line they go out again and again until one copy
+    /// gets through. When not a byte came from the peer (`heard`) for four
+    /// timeouts the line may be down: then only the oldest bytes, at a
+    /// timeout that doubles.
+    pub(super) fn send_next<IO: Write>(
+        &mut self,
+        io: &mut IO,
+        now: u64,
+        heard: u64,
+        line: LineModel,
+        config: &LinkConfig,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
+        if self.complete {
+            return Ok(());
+        }
+        self.fill()?;
+        // Frames sized for the line as the peer's frames show it (after a
+        // stall, no larger than the probes were).
+        let probe = self.size;
+        self.resize(line, config);
+        if self.backoff > 0 {
+            self.size = self.size.min(probe);
+        }
+        if let Some(i) = self.segs.iter().position(|s| s.lost) {
+            self.cut(i);
+            let more = self.segs.iter().skip(i + 1).any(|s| s.lost);
+            let poll = !more && !self.can_send_new(config);
+            // One copy: since the deframer repairs single errors, extra
+            // copies of bytes lost again and again no longer paid (measured).
+            stats.retransmissions += 1;
+            return self.transmit(i, poll, io, now, stats);
+        }
+        if self.can_send_new(config) {
+            let room = self.window().saturating_sub(self.sent_end.wrapping_sub(self.acked)) as usize;
+            let len = self.size.min(self.produced.wrapping_sub(self.sent_end) as usize).min(room);
+            let seg =
+                Segment { start: self.sent_end, len: len as u16, sends: 0, lost: false, order: 0, sent_at: now as u32 };
+            if self.segs.is_empty() {
+                // The timers start with the first bytes in flight.
+                self.last_progress = now;
+            }
+            self.segs.push(seg).map_err(|_| LinkError::Setup)?;
+            self.sent_end = self.sent_end.wrapping_add(len as u32);
+            self.fill()?;
+            stats.chunk_bytes_sent += len as u64;
+            let poll = !self.can_send_new(config);
+            return self.transmit(self.segs.len() - 1, poll, io, now, stats);
+        }
+        if self.segs.is_empty() {
+            return Ok(());
+        }
+        let rto = self.rto(config);
+        if now >= self.last_progress.max(heard) + 4 * u64::from(rto) {
+            let wait = u64::from(rto.saturating_mul(1 << self.backoff.min(8)).min(config.max_timeout_ms.max(rto)));
+            if now < self.last_probe + wait {
+                return Ok(());
+            }
+            // Nothing heard: the line may have got worse. Size for what the
+            // frames that do arrive say, and at most half the last size.
+            if self.backoff >= u32::from(config.max_retries) {
+                return Err(LinkError::GaveUp { seq: self.acked });
+            }
+            self.backoff += 1;
+            self.last_probe = now;
+            let half = (self.size / 2).max(usize::from(config.min_chunk));
+            self.resize(line, config);
+            self.size = self.size.min(half);
+            self.cut(0);
+            stats.retransmissions += 1;
+            return self.transmit(0, true, io, now, stats);
+        }
+        // On a clean line, bytes not acknowledged in a timeout; on a lossy
+        // one, sooner (a round trip and a half): there the oldest bytes are
+        // likely lost again, and the line would idle meanwhile.
+        let wait = match self.srtt {
+            Some(s) if line.residual(self.size + DATA_OVERHEAD) > 0.005 => s + s / 2 + 5,
+            _ => rto,
+        };
+        let due = self.segs.iter().take(8).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);
+        if let Some(i) = due {
+            self.idle_resends += 1;
+            self.cut(i);
+            stats.retransmissions += 1;
+            return self.transmit(i, self.idle_resends.is_multiple_of(4), io, now, stats);
+        }
+        Ok(())
+    }
+
+    /// Takes an acknowledgement: drops what it covers, marks lost what was
+    /// sent before something it covers, measures the round trip.
+    pub(super) fn on_ack(&mut self, ack: &Ack, now: u64, config: &LinkConfig) {
+        let ahead = ack.cum.wrapping_sub(self.acked as u16) as u32;
+        if ahead > self.sent_end.wrapping_sub(self.acked) {
+            return; // stale or foreign
+        }
+        let cum = self.acked.wrapping_add(ahead);
+        let mut ranges = [(0u32, 0u32); MAX_SACK];
+        for (r, b) in ranges.iter_mut().zip(ack.blocks()) {
+            let from = cum.wrapping_add(u32::from(b.start));
+            *r = (from, from.wrapping_add(u32::from(b.len)));
+        }
+        let held = |s: &Segment| {
+            let end = s.start.wrapping_add(u32::from(s.len));
+            end.wrapping_sub(self.acked) <= ahead
+                || ranges
+                    .iter()
+                    .any(|&(a, b)| b != a && s.start.wrapping_sub(a) < 1 << 30 && b.wrapping_sub(end) < 1 << 30)
+        };
+        let mut progress = ahead > 0;
+        // The round trip of the last-sent bytes acknowledged now (sent once:
+        // older ones may have waited behind a gap, or for a lost ack).
+        let mut freshest: Option<Segment> = None;
+        let mut i = 0;
+        while let Some(s) = self.segs.get(i).copied() {
+            if held(&s) {
+                // An ack sooner than any round trip after a resend is for an
+                // earlier copy: its order says nothing.
+                let since = (now as u32).wrapping_sub(s.sent_at);
+                let ambiguous = s.sends > 1 && self.min_rtt != u32::MAX && since < self.min_rtt;
+                if !ambiguous {
+                    if freshest.is_none_or(|f| s.order > f.order) {
+                        freshest = Some(s);
+                    }
+                    self.acked_order = self.acked_order.max(s.order);
+                }
+                self.segs.remove(i);
+                progress = true;
+            } else {
+                i += 1;
+            }
+        }
+        if let Some(s) = freshest {
+            let sample = (now as u32).wrapping_sub(s.sent_at).min(config.max_timeout_ms);
+            self.min_rtt = self.min_rtt.min(sample);
+            self.srtt = Some(self.srtt.map_or(sample, |r| (7 * r + sample) / 8));
+        }
+        self.acked = cum;
+        // With all its blocks, the ack describes the whole stream: what it
+        // does not hold is missing. Otherwise it describes the stream up to
+        // the end of its next-to-last block; beyond, nothing is known.
+        let all = ack.flags & ACK_ALL_BLOCKS != 0;
+        let known = ranges.get(..usize::from(ack.blocks).saturating_sub(1)).unwrap_or(&[]).last().map_or(cum, |r| r.1);
+        // Only bytes out for a round trip: an ack for an earlier copy of
+        // what was resent since says nothing of what followed that copy.
+        let settled = self.srtt.unwrap_or(0);
+        for s in self.segs.iter_mut() {
+            let within = all || known.wrapping_sub(s.start.wrapping_add(u32::from(s.len))) < 1 << 30;
+            let out_long = (now as u32).wrapping_sub(s.sent_at) >= settled;
+            if !s.lost && s.order < self.acked_order && within && out_long {
+                s.lost = true;
+            }
+        }
+        if progress {
+            self.backoff = 0;
+            self.last_progress = now;
+        }
+        if ack.flags & ACK_COMPLETE != 0 && self.exhausted() && self.acked == self.produced {
+            self.complete = true;
+            self.segs.clear();
+        }
+    }
+}
