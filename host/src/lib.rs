@@ -81,6 +81,7 @@ pub mod boards {
 /// Output: the commands' JSON (stable field names).
 pub mod reports {
     pub mod report;
+    pub mod team;
 }
 
 pub mod error;

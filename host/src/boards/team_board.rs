@@ -382,6 +382,30 @@ pub fn placement_difference(a: &TeamReports, b: &TeamReports) -> Option<(f64, bo
     Some((worst, same))
 }
 
+/// A team on boards, end to end: each robot's feed, the host's run of the
+/// same robots, the boards under QEMU (`firmware`, killed after
+/// `timeout`), and the report.
+pub fn run_on_boards(
+    spec: &crate::team::TeamSpec,
+    crop: f32,
+    silence_ms: u32,
+    firmware: &Path,
+    timeout: Duration,
+) -> Result<crate::reports::team::TeamBoardJson, Error> {
+    let n = spec.robots.len();
+    if !(2..=MAX_BOARDS).contains(&n) {
+        return Err(Error::Invalid(format!(
+            "--on-board: 2 to {MAX_BOARDS} robots (each board has four peer UARTs), not {n}"
+        )));
+    }
+    let truth = crate::reports::team::Truth::of(spec)?;
+    let feeds = team_feeds(spec, crop, silence_ms)?;
+    let host = host_team_run(&feeds)?;
+    let elf = crate::robots::firmware(firmware)?;
+    let (boards, wall_s) = run_boards(&elf, &feeds, timeout, true)?;
+    crate::reports::team::TeamBoardJson::of(&boards, &host, &truth, wall_s)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -2,11 +2,10 @@
 //! `cosem_host::team`).
 
 use super::{print_json, Error};
-use cosem_core::geometry::{errors_of, row_major};
 use cosem_core::matching::MatchSettings;
 use cosem_host::kitti::FrameRange;
+use cosem_host::reports::team::TeamJson;
 use cosem_host::team::{run as run_team, RobotSpec, TeamSpec};
-use serde::Serialize;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -102,50 +101,6 @@ fn pair_usize(s: &str) -> Result<(usize, usize), String> {
     }
 }
 
-#[derive(Serialize)]
-pub(super) struct RobotJson {
-    pub(super) index: usize,
-    pub(super) placed: bool,
-    /// Whether a cycle of matches through at least three robots checked
-    /// the placement (false: it rests on matches nothing could check,
-    /// such as the only pair of a two-robot team).
-    pub(super) verified: bool,
-    pub(super) group: usize,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub(super) transform: Option<[f64; 16]>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub(super) covariance: Option<Vec<f64>>,
-    /// Robots of a group not connected to robot 0: `T_group_roboti`.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub(super) group_transform: Option<[f64; 16]>,
-    pub(super) voxels: usize,
-    pub(super) bytes_sent: u64,
-    pub(super) bytes_received: u64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub(super) e_t: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub(super) e_r: Option<f64>,
-}
-
-#[derive(Serialize)]
-pub(super) struct MatchJson {
-    pub(super) a: usize,
-    pub(super) b: usize,
-    pub(super) status: &'static str,
-    pub(super) accepted: bool,
-    pub(super) reason: &'static str,
-    pub(super) agreement: f32,
-}
-
-#[derive(Serialize)]
-struct TeamJson {
-    schema_version: u32,
-    links: &'static str,
-    pub(super) robots: Vec<RobotJson>,
-    matches: Vec<MatchJson>,
-    consistency_exhaustive: bool,
-}
-
 /// Exit code: 0 when every robot is placed in robot 0's frame, else 5
 /// (no overlap: some robot could not be placed).
 pub fn run(a: Args) -> Result<u8, Error> {
@@ -162,75 +117,11 @@ pub fn run(a: Args) -> Result<u8, Error> {
         seed: a.seed,
         settings: MatchSettings::default(),
     };
-    let out = run_team(&spec)?;
-    let code = if out.robots.iter().all(|r| r.placed) { 0 } else { 5 };
-    let members = |g: usize| out.robots.iter().filter(|r| r.group == g).count();
-    let kept = out.matches.iter().filter(|m| m.accepted).map(|m| (m.a, m.b));
-    let verified = cosem_host::team::verified_placements(out.robots.len(), kept);
-    let robots = out.robots.iter().map(|r| {
-        // Errors against the truth in the frame the robot is reported in.
-        let in_group = !r.placed && members(r.group) > 1;
-        let errors = r.truth.filter(|_| r.placed || in_group).map(|t| errors_of(&r.transform.cast::<f32>(), &t));
-        RobotJson {
-            index: r.index,
-            placed: r.placed,
-            verified: r.placed && verified.get(r.index).copied().unwrap_or(false),
-            group: r.group,
-            transform: r.placed.then(|| row_major(&r.transform)),
-            covariance: r.placed.then(|| r.covariance.transpose().iter().copied().collect()),
-            group_transform: in_group.then(|| row_major(&r.transform)),
-            voxels: r.voxels,
-            bytes_sent: r.bytes_sent,
-            bytes_received: r.bytes_received,
-            e_t: errors.map(|e| e.0),
-            e_r: errors.map(|e| e.1),
-        }
-    });
-    let robots: Vec<RobotJson> = robots.collect();
+    let out = TeamJson::of(&run_team(&spec)?);
     if a.json {
-        let matches = out
-            .matches
-            .iter()
-            .map(|m| MatchJson {
-                a: m.a,
-                b: m.b,
-                status: m.status.as_str(),
-                accepted: m.accepted,
-                reason: m.reason,
-                agreement: m.agreement,
-            })
-            .collect();
-        let links = "mesh of point-to-point links (each map crosses each link once)";
-        print_json(&TeamJson { schema_version: 2, links, robots, matches, consistency_exhaustive: out.exhaustive })?;
-        return Ok(code);
+        print_json(&out)?;
+    } else {
+        print!("{out}");
     }
-    for r in &robots {
-        let place = match (r.placed, r.transform) {
-            (true, Some(t)) => format!(
-                "placed at ({:.3}, {:.3}, {:.3}) m in robot 0's frame{}",
-                t[3],
-                t[7],
-                t[11],
-                if r.verified || r.index == 0 { "" } else { " (verified by no cycle)" }
-            ),
-            _ if r.group != r.index => match r.group_transform {
-                Some(t) => {
-                    format!("unplaced; at ({:.3}, {:.3}, {:.3}) m in robot {}'s frame", t[3], t[7], t[11], r.group)
-                }
-                None => format!("unplaced (in a group with robot {})", r.group),
-            },
-            _ if r.group_transform.is_some() => "unplaced; anchor of its own group".to_string(),
-            _ => "unplaced".to_string(),
-        };
-        let err = r.e_t.zip(r.e_r).map(|(t, d)| format!(", e_t {t:.3} m, e_r {d:.3} deg")).unwrap_or_default();
-        println!(
-            "robot {}: {place}{err}; {} voxels, {} bytes sent, {} received",
-            r.index, r.voxels, r.bytes_sent, r.bytes_received
-        );
-    }
-    for m in &out.matches {
-        let kept = if m.accepted { "kept" } else { "left out" };
-        println!("T_{}_{}: {}, agreement {:.2}, {kept} ({})", m.a, m.b, m.status.as_str(), m.agreement, m.reason);
-    }
-    Ok(code)
+    Ok(out.exit_code())
 }
