@@ -8,7 +8,7 @@ use cosem_core::map::{MapConfig, SensorModel};
 use cosem_host::kitti::FrameRange;
 use cosem_host::mapping::{build_map, PointFilter};
 use cosem_host::noise::LabelNoise;
-use cosem_host::source::{Source, SourceOptions};
+use cosem_host::source::Source;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -29,16 +29,6 @@ pub struct Args {
     /// /tf and /tf_static (zstd or lz4 chunks read).
     #[arg(long, conflicts_with = "format")]
     mcap: Option<PathBuf>,
-    /// With --mcap: the point cloud topic.
-    #[arg(long, default_value = "/velodyne_points")]
-    points: String,
-    /// With --mcap: the frame the scans' poses are chained from.
-    #[arg(long, default_value = "world")]
-    pose_frame: String,
-    /// With a recording: an odometry topic (nav_msgs/msg/Odometry) whose
-    /// poses (header.frame_id -> child_frame_id) join /tf and /tf_static.
-    #[arg(long)]
-    odom: Option<String>,
     /// Read scans from these files instead, one per scan in the sensor's
     /// frame, in order (the first is the anchor): labelled point clouds
     /// (fields x, y, z and an integer label holding the SemanticKITTI id in
@@ -52,14 +42,11 @@ pub struct Args {
     /// line each: 12 numbers, the row-major 3x4 pose in the map frame).
     #[arg(long, requires = "format")]
     poses: Option<PathBuf>,
-    /// With --format: the label field's name.
-    #[arg(long, default_value = "label")]
-    label_field: String,
-    /// A class table (TOML): the labels are a user's ids, mapped to classes
-    /// by its `[ids]` (`1 = "road"`, `0 = "unlabeled"`, ...) instead of
-    /// SemanticKITTI's; an id it does not name is an error.
-    #[arg(long)]
-    classes: Option<PathBuf>,
+    /// How a recording or scan files are read, and a class table for a
+    /// user's label ids (`[ids]`: `1 = "road"`, `0 = "unlabeled"`, ...;
+    /// an id it does not name is an error).
+    #[command(flatten)]
+    source: super::args::SourceArgs,
     /// Voxel size (m).
     #[arg(long, default_value = "0.2", value_parser = super::args::positive_f32)]
     voxel: f32,
@@ -88,15 +75,9 @@ pub fn run(a: Args) -> Result<(), Error> {
     let t0 = Instant::now();
     // Every file read is an input: the output is never one of them.
     let mut inputs: Vec<&std::path::Path> = a.files.iter().map(PathBuf::as_path).collect();
-    inputs.extend([&a.poses, &a.mcap, &a.classes].into_iter().flatten().map(PathBuf::as_path));
+    inputs.extend([&a.poses, &a.mcap, &a.source.classes].into_iter().flatten().map(PathBuf::as_path));
     cosem_host::paths::refuse_overwrite(&a.output, &inputs)?;
-    let options = SourceOptions {
-        points: a.points.clone(),
-        label_field: a.label_field.clone(),
-        pose_frame: a.pose_frame.clone(),
-        odom: a.odom.clone(),
-        classes: a.classes.clone(),
-    };
+    let options = a.source.options();
     // Three spellings of one thing: a source of scans and a range of them.
     let source = match (&a.format, &a.poses, &a.data, &a.mcap) {
         (_, _, _, Some(file)) => Source::recording(file, &options)?,
@@ -117,7 +98,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         eprintln!("{skipped} points with a NaN coordinate skipped");
     }
     let name = match (&a.mcap, &a.format) {
-        (Some(_), _) => format!("{} {}", source.name(), a.points),
+        (Some(_), _) => format!("{} {}", source.name(), a.source.points),
         (_, Some(format)) => format!("{} {format:?} scans from {}", a.files.len(), a.files[0].display()),
         _ => source.name(),
     };
@@ -135,20 +116,8 @@ pub fn run(a: Args) -> Result<(), Error> {
         LabelNoise::None => format!("{name} {range}"),
         n => format!("{name} {range} label noise {n:?} seed {} ({:.1}% changed)", a.seed, 100.0 * noise.rate()),
     };
-    if stats.unknown_ids > 0 {
-        eprintln!(
-            "warning: {} points have label ids that are not SemanticKITTI's (the first: {}) and were left out; a class table (--classes) maps a user's ids",
-            stats.unknown_ids,
-            stats.first_unknown_id.unwrap_or_default()
-        );
-    }
-    if stats.out_of_range > 0 {
-        eprintln!(
-            "warning: {} points lie beyond the map's key range ({:.0} m from the anchor at {} m voxels) and were left out; --max-range drops far points by design",
-            stats.out_of_range,
-            32_767.0 * a.voxel,
-            a.voxel
-        );
+    for w in stats.warnings(a.voxel) {
+        eprintln!("warning: {w}");
     }
     let bytes = cosem_host::cmap::write(&a.output, &map, anchor_time, Some(&source))?;
     println!(

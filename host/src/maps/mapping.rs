@@ -117,6 +117,27 @@ impl BuildStats {
         }
     }
 
+    /// What a user should know about the points left out of a map of
+    /// `voxel` metres that is not empty.
+    pub fn warnings(&self, voxel: f32) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.unknown_ids > 0 {
+            out.push(format!(
+                "{} points have label ids that are not SemanticKITTI's (the first: {}) and were left out; a class table (--classes) maps a user's ids",
+                self.unknown_ids,
+                self.first_unknown_id.unwrap_or_default()
+            ));
+        }
+        if self.out_of_range > 0 {
+            out.push(format!(
+                "{} points lie beyond the map's key range ({:.0} m from the anchor at {voxel} m voxels) and were left out; --max-range drops far points by design",
+                self.out_of_range,
+                32_767.0 * voxel,
+            ));
+        }
+        out
+    }
+
     /// Why a map built from these points is empty.
     pub fn why_empty(&self) -> String {
         if self.points == 0 {
