@@ -716,6 +716,54 @@ fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
             what: "no scans (NNNNNN.bin) to label".into(),
         });
     }
+    prepare_output(o)?;
+    let mut stats = LabelStats::default();
+    let mut camera: Option<(Camera, (u32, u32))> = None;
+    let mut depth_buffer: Vec<f32> = Vec::new();
+    for &frame in &frames {
+        // Existing labels, if any, are compared with the new ones.
+        let (points, truth) = if seq.label_path(frame).exists() {
+            let scan = seq.read_scan(frame)?;
+            (scan.points, Some(scan.labels))
+        } else {
+            (seq.read_points(frame)?, None)
+        };
+        let (seg, image_path) = read_segmentation(o, frame)?;
+        let size = seg.size();
+        if camera.is_none() {
+            let (cam, scaled) = camera_for(o, &seq, size, &image_path, frame)?;
+            stats.scaled_from = scaled;
+            camera = Some((cam, size));
+        }
+        let Some((cam, want)) = &camera else { continue };
+        check_size(&image_path, size, *want)?;
+        let t = std::time::Instant::now();
+        let projected: Vec<Projection> = points.iter().map(|p| cam.project([p[0], p[1], p[2]])).collect();
+        let grid = if o.occlusion {
+            depth_buffer.resize(DepthGrid::cells(cam), 0.0);
+            let mut g = DepthGrid::new(cam, &mut depth_buffer);
+            for pr in &projected {
+                if let (Some(g), Projection::Pixel { u, v, depth }) = (g.as_mut(), pr) {
+                    g.insert(*u, *v, *depth);
+                }
+            }
+            g
+        } else {
+            None
+        };
+        let frame_labels =
+            FrameLabels { o, seg: &seg, image: &image_path, grid: grid.as_ref(), truth: truth.as_deref() };
+        let (labels, evidence) = frame_labels.label(&projected, &mut stats)?;
+        stats.label_seconds += t.elapsed().as_secs_f64();
+        stats.points += points.len();
+        stats.frames += 1;
+        write_frame(o, &seq, frame, &labels, &evidence)?;
+    }
+    Ok(stats)
+}
+
+/// The output folder's layout and what it copies from the input.
+fn prepare_output(o: &LabelOptions) -> Result<(), LabelError> {
     for d in ["velodyne", "labels"] {
         let p = o.out.join(d);
         std::fs::create_dir_all(&p).map_err(io(&p))?;
@@ -741,91 +789,68 @@ fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
         if o.probabilities { ", per-pixel probabilities" } else { "" },
         o.camera
     );
-    crate::paths::write_file(o.out.join("PROVENANCE.md"), prov).map_err(io(&o.out))?;
-    let model = SensorModel::default();
-    let mut stats = LabelStats::default();
-    let mut camera: Option<(Camera, (u32, u32))> = None;
-    let mut depth_buffer: Vec<f32> = Vec::new();
-    for &frame in &frames {
-        // Existing labels, if any, are compared with the new ones.
-        let (points, truth) = if seq.label_path(frame).exists() {
-            let scan = seq.read_scan(frame)?;
-            (scan.points, Some(scan.labels))
-        } else {
-            (seq.read_points(frame)?, None)
-        };
-        let png_path = o.seg.join(format!("{frame:06}.png"));
-        let npy_path = o.seg.join(format!("{frame:06}.npy"));
-        let image_path = if o.probabilities { &npy_path } else { &png_path };
-        if !image_path.exists() {
-            return Err(LabelError::MissingImage { path: image_path.clone(), frame });
+    crate::paths::write_file(o.out.join("PROVENANCE.md"), prov).map_err(io(&o.out))
+}
+
+/// One frame's segmentation: hard class ids, or per-pixel probabilities.
+enum Segmentation {
+    Ids(SegImage),
+    Probabilities(ProbabilityMap),
+}
+
+impl Segmentation {
+    fn size(&self) -> (u32, u32) {
+        match self {
+            Segmentation::Ids(im) => (im.width, im.height),
+            Segmentation::Probabilities(p) => (p.width, p.height),
         }
-        // Either hard ids or probabilities, each checked whole.
-        let (size, hard, probs) = if o.probabilities {
-            let p = read_probabilities_of(&npy_path, o.classes, o.void_channel)?;
-            ((p.width, p.height), None, Some(p))
-        } else {
-            let im = read_seg_png(&png_path)?;
-            check_ids(&png_path, &im, o.classes)?;
-            ((im.width, im.height), Some(im), None)
-        };
-        if camera.is_none() {
-            let (cam, scaled) = camera_for(o, &seq, size, image_path, frame)?;
-            stats.scaled_from = scaled;
-            camera = Some((cam, size));
-        }
-        let Some((cam, want)) = &camera else { continue };
-        check_size(image_path, size, *want)?;
-        let t = std::time::Instant::now();
-        let projected: Vec<Projection> = points.iter().map(|p| cam.project([p[0], p[1], p[2]])).collect();
-        let grid = if o.occlusion {
-            depth_buffer.resize(DepthGrid::cells(cam), 0.0);
-            let mut g = DepthGrid::new(cam, &mut depth_buffer);
-            for pr in &projected {
-                if let (Some(g), Projection::Pixel { u, v, depth }) = (g.as_mut(), pr) {
-                    g.insert(*u, *v, *depth);
-                }
-            }
-            g
-        } else {
-            None
-        };
-        let mut labels = vec![0u32; points.len()];
+    }
+}
+
+/// Reads frame `frame`'s segmentation (checked whole) and names its file.
+fn read_segmentation(o: &LabelOptions, frame: usize) -> Result<(Segmentation, PathBuf), LabelError> {
+    let path = o.seg.join(format!("{frame:06}.{}", if o.probabilities { "npy" } else { "png" }));
+    if !path.exists() {
+        return Err(LabelError::MissingImage { path, frame });
+    }
+    let seg = if o.probabilities {
+        Segmentation::Probabilities(read_probabilities_of(&path, o.classes, o.void_channel)?)
+    } else {
+        let im = read_seg_png(&path)?;
+        check_ids(&path, &im, o.classes)?;
+        Segmentation::Ids(im)
+    };
+    Ok((seg, path))
+}
+
+/// What labels one frame's points.
+struct FrameLabels<'a> {
+    o: &'a LabelOptions,
+    seg: &'a Segmentation,
+    image: &'a Path,
+    grid: Option<&'a DepthGrid<'a>>,
+    /// The input's labels, to compare with.
+    truth: Option<&'a [u32]>,
+}
+
+impl FrameLabels<'_> {
+    /// Each projected point's SemanticKITTI id (0: unlabelled) and, with
+    /// probabilities, its label evidence; counts into `stats`.
+    fn label(&self, projected: &[Projection], stats: &mut LabelStats) -> Result<(Vec<u32>, Vec<u8>), LabelError> {
+        let mut labels = vec![0u32; projected.len()];
         let mut evidence: Vec<u8> = Vec::new();
         for (i, pr) in projected.iter().enumerate() {
             let mut slots = [0u16; LABEL_SLOTS];
             let class = match *pr {
-                Projection::Pixel { u, v, depth } if grid.as_ref().is_some_and(|g| g.occluded(u, v, depth)) => {
+                Projection::Pixel { u, v, depth } if self.grid.is_some_and(|g| g.occluded(u, v, depth)) => {
                     stats.occluded += 1;
                     None
                 }
                 Projection::Pixel { u, v, .. } => {
                     stats.in_view += 1;
-                    let c = match (&hard, &probs) {
-                        (Some(im), _) => im.at(u, v).and_then(|id| o.classes.class(id).ok().flatten()),
-                        (None, Some(pm)) => {
-                            let pv = pm.at(u, v).unwrap_or(&[]);
-                            let d = evidence_from_probabilities(o.classes, pv, &model).map_err(|e| {
-                                LabelError::Probability { path: npy_path.clone(), u, v, what: e.to_string() }
-                            })?;
-                            if let Some(d) = d {
-                                slots = d.raw();
-                            }
-                            d.and_then(|d| d.argmax())
-                        }
-                        (None, None) => None,
-                    };
+                    let c = self.class_at(u, v, &mut slots)?;
                     stats.labelled += usize::from(c.is_some());
-                    let gt = truth
-                        .as_ref()
-                        .and_then(|t| t.get(i))
-                        .and_then(|l| Class::from_semantic_kitti(*l, MovingObjects::AsStatic));
-                    if let Some(gt) = gt {
-                        stats.compared += 1;
-                        stats.agreeing += usize::from(c == Some(gt));
-                        let said = o.classes.class(o.classes.id(Some(gt))).ok().flatten();
-                        stats.agreeing_in_set += usize::from(c.is_some() && c == said);
-                    }
+                    self.compare(i, c, stats);
                     c
                 }
                 _ => None,
@@ -833,26 +858,63 @@ fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
             if let Some(c) = class {
                 labels[i] = u32::from(c.semantic_kitti_id());
             }
-            if o.probabilities {
+            if self.o.probabilities {
                 for s in slots {
                     evidence.extend_from_slice(&s.to_le_bytes());
                 }
             }
         }
-        stats.label_seconds += t.elapsed().as_secs_f64();
-        stats.points += points.len();
-        stats.frames += 1;
-        let name = format!("{frame:06}");
-        copy_or_link(&seq.scan_path(frame), &o.out.join("velodyne").join(format!("{name}.bin")), o.copy_scans)?;
-        let lpath = o.out.join("labels").join(format!("{name}.label"));
-        let bytes: Vec<u8> = labels.iter().flat_map(|l| l.to_le_bytes()).collect();
-        crate::paths::write_file(&lpath, bytes).map_err(io(&lpath))?;
-        if o.probabilities {
-            let epath = o.out.join("evidence").join(format!("{name}.bin"));
-            crate::paths::write_file(&epath, evidence).map_err(io(&epath))?;
+        Ok((labels, evidence))
+    }
+
+    /// The class at pixel (`u`, `v`), its evidence into `slots`.
+    fn class_at(&self, u: u32, v: u32, slots: &mut [u16; LABEL_SLOTS]) -> Result<Option<Class>, LabelError> {
+        Ok(match self.seg {
+            Segmentation::Ids(im) => im.at(u, v).and_then(|id| self.o.classes.class(id).ok().flatten()),
+            Segmentation::Probabilities(pm) => {
+                let pv = pm.at(u, v).unwrap_or(&[]);
+                let d = evidence_from_probabilities(self.o.classes, pv, &SensorModel::default()).map_err(|e| {
+                    LabelError::Probability { path: self.image.to_path_buf(), u, v, what: e.to_string() }
+                })?;
+                if let Some(d) = d {
+                    *slots = d.raw();
+                }
+                d.and_then(|d| d.argmax())
+            }
+        })
+    }
+
+    /// Counts point `i`'s new class `c` against the input's label.
+    fn compare(&self, i: usize, c: Option<Class>, stats: &mut LabelStats) {
+        let gt =
+            self.truth.and_then(|t| t.get(i)).and_then(|l| Class::from_semantic_kitti(*l, MovingObjects::AsStatic));
+        if let Some(gt) = gt {
+            stats.compared += 1;
+            stats.agreeing += usize::from(c == Some(gt));
+            let said = self.o.classes.class(self.o.classes.id(Some(gt))).ok().flatten();
+            stats.agreeing_in_set += usize::from(c.is_some() && c == said);
         }
     }
-    Ok(stats)
+}
+
+/// Writes a frame's scan link, labels and evidence into the output.
+fn write_frame(
+    o: &LabelOptions,
+    seq: &Sequence,
+    frame: usize,
+    labels: &[u32],
+    evidence: &[u8],
+) -> Result<(), LabelError> {
+    let name = format!("{frame:06}");
+    copy_or_link(&seq.scan_path(frame), &o.out.join("velodyne").join(format!("{name}.bin")), o.copy_scans)?;
+    let lpath = o.out.join("labels").join(format!("{name}.label"));
+    let bytes: Vec<u8> = labels.iter().flat_map(|l| l.to_le_bytes()).collect();
+    crate::paths::write_file(&lpath, bytes).map_err(io(&lpath))?;
+    if o.probabilities {
+        let epath = o.out.join("evidence").join(format!("{name}.bin"));
+        crate::paths::write_file(&epath, evidence).map_err(io(&epath))?;
+    }
+    Ok(())
 }
 
 /// Reads a frame's label evidence (`evidence/NNNNNN.bin`), if the folder has
