@@ -398,7 +398,7 @@ pub fn run_on_boards(
             "--on-board: 2 to {MAX_BOARDS} robots (each board has four peer UARTs), not {n}"
         )));
     }
-    let truth = crate::reports::team::Truth::of(spec)?;
+    let truth = crate::team::Truth::of(spec)?;
     let feeds = team_feeds(spec, crop, silence_ms)?;
     let host = host_team_run(&feeds)?;
     let elf = crate::robots::firmware(firmware)?;

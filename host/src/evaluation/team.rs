@@ -117,6 +117,26 @@ pub struct TeamOutcome {
     pub exhaustive: bool,
 }
 
+/// The truth `T_i_j` between robots of one trajectory (`None` otherwise).
+pub struct Truth {
+    sources: Vec<Source>,
+    starts: Vec<usize>,
+}
+
+impl Truth {
+    /// The robots' sources, to compare their poses.
+    pub fn of(spec: &TeamSpec) -> Result<Truth, Error> {
+        let sources = spec.robots.iter().map(|r| Source::open(&r.data, &spec.source)).collect::<Result<_, _>>()?;
+        Ok(Truth { sources, starts: spec.robots.iter().map(|r| r.frames.start).collect() })
+    }
+
+    /// `T_i_j`, when robots `i` and `j` share a trajectory.
+    pub fn between(&self, i: usize, j: usize) -> Option<Isometry3<f64>> {
+        let (a, b) = (self.sources.get(i)?, self.sources.get(j)?);
+        a.same_trajectory(b).then(|| a.relative_pose(self.starts[i], self.starts[j]).ok()).flatten()
+    }
+}
+
 /// Runs the team (see the module documentation).
 pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
     let n = spec.robots.len();
@@ -128,51 +148,113 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
             return Err(Error::Invalid(format!("--inject-false-match {i},{j}: two different robots of 0..{n}")));
         }
     }
-    let config = MapConfig::with_resolution(spec.voxel);
-    let mut seqs = Vec::with_capacity(n);
-    let mut maps: Vec<HostMap> = Vec::with_capacity(n);
-    for r in &spec.robots {
-        let seq = Source::open(&r.data, &spec.source)?;
-        let (mut frames, _, _) = seq.load(Some(r.frames))?;
-        crate::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(maps.len() as u64));
-        maps.push(build_map(&frames, config, &PointFilter::default())?.0);
-        seqs.push(seq);
-    }
-    // T_i_j from the poses, when both robots come from one trajectory.
-    let truth = |i: usize, j: usize| -> Option<Isometry3<f64>> {
-        let (si, sj) = (&seqs[i], &seqs[j]);
-        si.same_trajectory(sj)
-            .then(|| si.relative_pose(spec.robots[i].frames.start, spec.robots[j].frames.start).ok())?
-    };
-    // The mesh: every pair exchanges its maps once, both ways at once.
-    let mut received: Vec<Vec<Option<HostMap>>> = (0..n).map(|_| (0..n).map(|_| None).collect()).collect();
-    let (mut sent, mut got) = (vec![0u64; n], vec![0u64; n]);
-    for i in 0..n {
-        for j in i + 1..n {
-            let x = simulate_exchange(&maps[i], &maps[j], 0.0, 115_200, (i * n + j) as u64)?;
-            if !x.delivered {
-                return Err(Error::Invalid(format!("the link between robots {i} and {j} did not deliver both maps")));
-            }
-            let [at_i, at_j] = x.received;
-            received[i][j] = Some(at_i);
-            received[j][i] = Some(at_j);
-            let [si, sj] = x.stats;
-            sent[i] += si.bytes_sent;
-            got[i] += si.bytes_received;
-            sent[j] += sj.bytes_sent;
-            got[j] += sj.bytes_received;
+    let truth = Truth::of(spec)?;
+    let maps = robot_maps(spec, &truth)?;
+    let mesh = Mesh::exchange(&maps)?;
+    let (mut matches, candidates) = match_all(spec, &maps, &mesh, &truth)?;
+    let list: Vec<RelativePose> = candidates.iter().map(|c| c.1).collect();
+    let c = consistent_set(n, &list[..])?;
+    let mut kept = Vec::new();
+    for (k, (at, rel)) in candidates.iter().enumerate() {
+        let ok = c.kept & (1 << k) != 0;
+        matches[*at].accepted = ok;
+        matches[*at].reason = if ok { "consistent" } else { "inconsistent around a cycle" };
+        if ok {
+            kept.push(*rel);
         }
     }
-    // Every robot matches every peer, its own map the model.
+    let solution = solve(n, &kept[..], 50)?;
+    let robots = (0..n)
+        .map(|i| {
+            let p = solution.placements[i].ok_or_else(|| Error::Invalid(format!("robot {i} not solved")))?;
+            Ok(TeamRobot {
+                index: i,
+                placed: p.anchor == 0,
+                group: usize::from(p.anchor),
+                transform: p.pose,
+                covariance: p.covariance,
+                voxels: maps[i].len(),
+                bytes_sent: mesh.sent[i],
+                bytes_received: mesh.got[i],
+                truth: truth.between(usize::from(p.anchor), i),
+            })
+        })
+        .collect::<Result<Vec<_>, Error>>()?;
+    Ok(TeamOutcome { robots, matches, exhaustive: c.exhaustive })
+}
+
+/// Each robot's map from its frames (label noise seeded by `seed + i`).
+fn robot_maps(spec: &TeamSpec, truth: &Truth) -> Result<Vec<HostMap>, Error> {
+    let config = MapConfig::with_resolution(spec.voxel);
+    let mut maps = Vec::with_capacity(spec.robots.len());
+    for (i, r) in spec.robots.iter().enumerate() {
+        let (mut frames, _, _) = truth.sources[i].load(Some(r.frames))?;
+        crate::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(i as u64));
+        maps.push(build_map(&frames, config, &PointFilter::default())?.0);
+    }
+    Ok(maps)
+}
+
+/// The mesh: every pair exchanged its maps once, both ways at once.
+struct Mesh {
+    /// `received[i][j]`: robot j's map as robot i received it.
+    received: Vec<Vec<Option<HostMap>>>,
+    sent: Vec<u64>,
+    got: Vec<u64>,
+}
+
+impl Mesh {
+    fn exchange(maps: &[HostMap]) -> Result<Mesh, Error> {
+        let n = maps.len();
+        let mut mesh = Mesh {
+            received: (0..n).map(|_| (0..n).map(|_| None).collect()).collect(),
+            sent: vec![0; n],
+            got: vec![0; n],
+        };
+        for i in 0..n {
+            for j in i + 1..n {
+                let x = simulate_exchange(&maps[i], &maps[j], 0.0, 115_200, (i * n + j) as u64)?;
+                if !x.delivered {
+                    return Err(Error::Invalid(format!(
+                        "the link between robots {i} and {j} did not deliver both maps"
+                    )));
+                }
+                let [at_i, at_j] = x.received;
+                mesh.received[i][j] = Some(at_i);
+                mesh.received[j][i] = Some(at_j);
+                let [si, sj] = x.stats;
+                mesh.sent[i] += si.bytes_sent;
+                mesh.got[i] += si.bytes_received;
+                mesh.sent[j] += sj.bytes_sent;
+                mesh.got[j] += sj.bytes_received;
+            }
+        }
+        Ok(mesh)
+    }
+}
+
+/// The converged estimates, each with its place in the list of matches.
+type Candidates = Vec<(usize, RelativePose)>;
+
+/// Every robot matches every peer, its own map the model (injected false
+/// matches replacing the listed estimates); the converged ones are the
+/// candidates of the consistency check (with their place in the list).
+fn match_all(
+    spec: &TeamSpec,
+    maps: &[HostMap],
+    mesh: &Mesh,
+    truth: &Truth,
+) -> Result<(Vec<TeamMatch>, Candidates), Error> {
+    let n = maps.len();
     let mut rng = Rng::new(spec.seed);
     let mut matches = Vec::new();
     let mut candidates = Vec::new();
-    for a in 0..n {
-        let model = prepare(&maps[a], DEFAULT_LEVELS)?;
+    for (a, own) in maps.iter().enumerate() {
+        let model = prepare(own, DEFAULT_LEVELS)?;
         for b in (0..n).filter(|&b| b != a) {
-            let Some(scene_map) = received[a][b].as_ref() else { continue };
+            let Some(scene_map) = mesh.received[a][b].as_ref() else { continue };
             let scene = prepare(scene_map, DEFAULT_LEVELS)?;
-            let prior = match (spec.prior_noise, truth(a, b)) {
+            let prior = match (spec.prior_noise, truth.between(a, b)) {
                 (Some((m, deg)), Some(t)) => Some(perturbed(&t, m, deg, &mut rng).cast::<f32>()),
                 _ => None,
             };
@@ -199,45 +281,15 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
             }
             if m.status == MatchStatus::Converged {
                 let information = r.information.cast::<f64>();
-                candidates.push((
-                    matches.len(),
-                    RelativePose { a: a as u8, b: b as u8, transform: m.transform, information },
-                ));
+                let rel = RelativePose { a: a as u8, b: b as u8, transform: m.transform, information };
+                candidates.push((matches.len(), rel));
             } else {
                 m.reason = "not converged";
             }
             matches.push(m);
         }
     }
-    let list: Vec<RelativePose> = candidates.iter().map(|c| c.1).collect();
-    let c = consistent_set(n, &list[..])?;
-    let mut kept = Vec::new();
-    for (k, (at, rel)) in candidates.iter().enumerate() {
-        let ok = c.kept & (1 << k) != 0;
-        matches[*at].accepted = ok;
-        matches[*at].reason = if ok { "consistent" } else { "inconsistent around a cycle" };
-        if ok {
-            kept.push(*rel);
-        }
-    }
-    let solution = solve(n, &kept[..], 50)?;
-    let robots = (0..n)
-        .map(|i| {
-            let p = solution.placements[i].ok_or_else(|| Error::Invalid(format!("robot {i} not solved")))?;
-            Ok(TeamRobot {
-                index: i,
-                placed: p.anchor == 0,
-                group: usize::from(p.anchor),
-                transform: p.pose,
-                covariance: p.covariance,
-                voxels: maps[i].len(),
-                bytes_sent: sent[i],
-                bytes_received: got[i],
-                truth: truth(usize::from(p.anchor), i),
-            })
-        })
-        .collect::<Result<Vec<_>, Error>>()?;
-    Ok(TeamOutcome { robots, matches, exhaustive: c.exhaustive })
+    Ok((matches, candidates))
 }
 
 /// Which robots' placements a cycle verified: robot 0, and every robot

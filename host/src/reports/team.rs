@@ -5,13 +5,11 @@
 //! and prints.
 
 use crate::error::Error;
-use crate::source::Source;
-use crate::team::{verified_placements, TeamOutcome, TeamSpec};
+use crate::team::{verified_placements, TeamOutcome, Truth};
 use crate::team_board::{placement_difference, BoardRun, TeamReports};
 use cosem_core::geometry::{errors_of, from_rows, row_major};
 use cosem_core::matching::MatchStatus;
 use cosem_core::wire::share::Estimate;
-use nalgebra::Isometry3;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -167,26 +165,6 @@ pub struct TeamBoardJson {
     pub host_difference_m: Option<f64>,
     /// Wall time of the run (s).
     pub wall_time_s: f64,
-}
-
-/// The truth `T_i_j` between robots of one trajectory (`None` otherwise).
-pub struct Truth {
-    sources: Vec<Source>,
-    starts: Vec<usize>,
-}
-
-impl Truth {
-    /// The robots' sources, to compare their poses.
-    pub fn of(spec: &TeamSpec) -> Result<Truth, Error> {
-        let sources = spec.robots.iter().map(|r| Source::open(&r.data, &spec.source)).collect::<Result<_, _>>()?;
-        Ok(Truth { sources, starts: spec.robots.iter().map(|r| r.frames.start).collect() })
-    }
-
-    /// `T_i_j`, when robots `i` and `j` share a trajectory.
-    pub fn between(&self, i: usize, j: usize) -> Option<Isometry3<f64>> {
-        let (a, b) = (self.sources.get(i)?, self.sources.get(j)?);
-        a.same_trajectory(b).then(|| a.relative_pose(self.starts[i], self.starts[j]).ok()).flatten()
-    }
 }
 
 /// Marks the placements a cycle verified, from the kept matches.
