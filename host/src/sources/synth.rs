@@ -208,128 +208,141 @@ impl Scene {
             x += rng.range(60.0, 120.0);
         }
         let mut scene = Scene { objects: Vec::new(), cross };
-        let add = |scene: &mut Scene, shape: Shape, class: Class| scene.objects.push(Object::new(shape, class));
         for side in [-1.0f64, 1.0] {
-            // Sidewalk slabs, cut at cross streets.
-            let mut edges = vec![x_min];
-            for c in &scene.cross {
-                edges.push(c - ROAD_HALF);
-                edges.push(c + ROAD_HALF);
-            }
-            edges.push(x_max);
-            for pair in edges.chunks(2) {
-                if let [a, b] = *pair {
-                    if b > a {
-                        let (y0, y1) = (side * ROAD_HALF, side * (ROAD_HALF + SIDEWALK_WIDTH));
-                        add(
-                            &mut scene,
-                            Shape::Box { min: [a, y0.min(y1), 0.0], max: [b, y0.max(y1), CURB] },
-                            Class::Sidewalk,
-                        );
-                    }
-                }
-            }
-            // Buildings, with fences or bushes in some gaps.
-            let mut x = x_min;
-            while x < x_max {
-                let len = rng.range(8.0, 30.0);
-                let gap = rng.range(1.0, 9.0);
-                if !scene.in_cross_street(x, 3.0) && !scene.in_cross_street(x + len, 3.0) {
-                    let front = ROAD_HALF + SIDEWALK_WIDTH + rng.range(1.5, 7.0);
-                    let depth = rng.range(8.0, 15.0);
-                    let height = rng.range(5.0, 18.0);
-                    let (y0, y1) = (side * front, side * (front + depth));
-                    add(
-                        &mut scene,
-                        Shape::Box { min: [x, y0.min(y1), 0.0], max: [x + len, y0.max(y1), height] },
-                        Class::Building,
-                    );
-                    if rng.chance(0.4) {
-                        // Bushes along the facade.
-                        let yb = side * (front - 0.6);
-                        let h = rng.range(0.6, 1.5);
-                        add(
-                            &mut scene,
-                            Shape::Box {
-                                min: [x + 1.0, yb.min(yb - side * 0.8), 0.0],
-                                max: [x + len - 1.0, yb.max(yb - side * 0.8), h],
-                            },
-                            Class::Vegetation,
-                        );
-                    }
-                    if gap > 3.0 && rng.chance(0.5) {
-                        let yf = side * (front + 0.5);
-                        add(
-                            &mut scene,
-                            Shape::Box {
-                                min: [x + len, yf.min(yf + side * 0.08), 0.0],
-                                max: [x + len + gap, yf.max(yf + side * 0.08), rng.range(1.0, 2.0)],
-                            },
-                            Class::Fence,
-                        );
-                    }
-                }
-                x += len + gap;
-            }
-            // Trees on the terrain strip behind the sidewalk.
-            let mut x = x_min + rng.range(0.0, 10.0);
-            while x < x_max {
-                if !scene.in_cross_street(x, 2.0) && rng.chance(0.7) {
-                    let y = side * (ROAD_HALF + SIDEWALK_WIDTH + rng.range(0.6, 1.4));
-                    let r = rng.range(0.12, 0.3);
-                    let h = rng.range(1.8, 3.5);
-                    add(&mut scene, Shape::Cylinder { c: [x, y], r, z0: 0.0, z1: h }, Class::Trunk);
-                    let cr = rng.range(1.5, 3.0);
-                    add(&mut scene, Shape::Sphere { c: [x, y, h + 0.7 * cr], r: cr }, Class::Vegetation);
-                }
-                x += rng.range(7.0, 20.0);
-            }
-            // Poles at the curb, some carrying a traffic sign.
-            let mut x = x_min + rng.range(0.0, 15.0);
-            while x < x_max {
-                if !scene.in_cross_street(x, 0.5) {
-                    let y = side * (ROAD_HALF + 0.4);
-                    let h = rng.range(4.5, 9.0);
-                    add(
-                        &mut scene,
-                        Shape::Cylinder { c: [x, y], r: rng.range(0.08, 0.15), z0: 0.0, z1: h },
-                        Class::Pole,
-                    );
-                    if rng.chance(0.35) {
-                        let z = rng.range(2.0, 3.0);
-                        let (w, t) = (rng.range(0.5, 0.9), 0.05);
-                        let xs = x - side * 0.2;
-                        add(
-                            &mut scene,
-                            Shape::Box { min: [xs - t, y - w / 2.0, z], max: [xs + t, y + w / 2.0, z + w] },
-                            Class::TrafficSign,
-                        );
-                    }
-                }
-                x += rng.range(12.0, 35.0);
-            }
-            // Parked cars in the parking lane at the road's edge.
-            let mut x = x_min + rng.range(0.0, 6.0);
-            while x < x_max {
-                let len = rng.range(3.8, 4.9);
-                if !scene.in_cross_street(x, 1.0) && !scene.in_cross_street(x + len, 1.0) && rng.chance(0.55) {
-                    let yc = side * (ROAD_HALF - 1.1);
-                    let w = rng.range(1.7, 1.95) / 2.0;
-                    let h = rng.range(1.35, 1.7);
-                    add(&mut scene, Shape::Box { min: [x, yc - w, 0.2], max: [x + len, yc + w, h * 0.6] }, Class::Car);
-                    add(
-                        &mut scene,
-                        Shape::Box {
-                            min: [x + len * 0.25, yc - w * 0.85, h * 0.6],
-                            max: [x + len * 0.8, yc + w * 0.85, h],
-                        },
-                        Class::Car,
-                    );
-                }
-                x += len + rng.range(0.8, 10.0);
-            }
+            scene.sidewalks(side, x_min, x_max);
+            scene.buildings(rng, side, x_min, x_max);
+            scene.trees(rng, side, x_min, x_max);
+            scene.poles(rng, side, x_min, x_max);
+            scene.cars(rng, side, x_min, x_max);
         }
         scene
+    }
+
+    fn add(&mut self, shape: Shape, class: Class) {
+        self.objects.push(Object::new(shape, class));
+    }
+
+    /// Sidewalk slabs on one side, cut at cross streets.
+    fn sidewalks(&mut self, side: f64, x_min: f64, x_max: f64) {
+        let scene = self;
+        let mut edges = vec![x_min];
+        for c in &scene.cross {
+            edges.push(c - ROAD_HALF);
+            edges.push(c + ROAD_HALF);
+        }
+        edges.push(x_max);
+        for pair in edges.chunks(2) {
+            if let [a, b] = *pair {
+                if b > a {
+                    let (y0, y1) = (side * ROAD_HALF, side * (ROAD_HALF + SIDEWALK_WIDTH));
+                    scene.add(Shape::Box { min: [a, y0.min(y1), 0.0], max: [b, y0.max(y1), CURB] }, Class::Sidewalk);
+                }
+            }
+        }
+    }
+
+    /// Buildings on one side, with bushes and fences in some gaps.
+    fn buildings(&mut self, rng: &mut Rng, side: f64, x_min: f64, x_max: f64) {
+        let scene = self;
+        let mut x = x_min;
+        while x < x_max {
+            let len = rng.range(8.0, 30.0);
+            let gap = rng.range(1.0, 9.0);
+            if !scene.in_cross_street(x, 3.0) && !scene.in_cross_street(x + len, 3.0) {
+                let front = ROAD_HALF + SIDEWALK_WIDTH + rng.range(1.5, 7.0);
+                let depth = rng.range(8.0, 15.0);
+                let height = rng.range(5.0, 18.0);
+                let (y0, y1) = (side * front, side * (front + depth));
+                scene
+                    .add(Shape::Box { min: [x, y0.min(y1), 0.0], max: [x + len, y0.max(y1), height] }, Class::Building);
+                if rng.chance(0.4) {
+                    // Bushes along the facade.
+                    let yb = side * (front - 0.6);
+                    let h = rng.range(0.6, 1.5);
+                    scene.add(
+                        Shape::Box {
+                            min: [x + 1.0, yb.min(yb - side * 0.8), 0.0],
+                            max: [x + len - 1.0, yb.max(yb - side * 0.8), h],
+                        },
+                        Class::Vegetation,
+                    );
+                }
+                if gap > 3.0 && rng.chance(0.5) {
+                    let yf = side * (front + 0.5);
+                    scene.add(
+                        Shape::Box {
+                            min: [x + len, yf.min(yf + side * 0.08), 0.0],
+                            max: [x + len + gap, yf.max(yf + side * 0.08), rng.range(1.0, 2.0)],
+                        },
+                        Class::Fence,
+                    );
+                }
+            }
+            x += len + gap;
+        }
+    }
+
+    /// Trees on the terrain strip behind the sidewalk.
+    fn trees(&mut self, rng: &mut Rng, side: f64, x_min: f64, x_max: f64) {
+        let scene = self;
+        let mut x = x_min + rng.range(0.0, 10.0);
+        while x < x_max {
+            if !scene.in_cross_street(x, 2.0) && rng.chance(0.7) {
+                let y = side * (ROAD_HALF + SIDEWALK_WIDTH + rng.range(0.6, 1.4));
+                let r = rng.range(0.12, 0.3);
+                let h = rng.range(1.8, 3.5);
+                scene.add(Shape::Cylinder { c: [x, y], r, z0: 0.0, z1: h }, Class::Trunk);
+                let cr = rng.range(1.5, 3.0);
+                scene.add(Shape::Sphere { c: [x, y, h + 0.7 * cr], r: cr }, Class::Vegetation);
+            }
+            x += rng.range(7.0, 20.0);
+        }
+    }
+
+    /// Poles at the curb, some carrying a traffic sign.
+    fn poles(&mut self, rng: &mut Rng, side: f64, x_min: f64, x_max: f64) {
+        let scene = self;
+        let mut x = x_min + rng.range(0.0, 15.0);
+        while x < x_max {
+            if !scene.in_cross_street(x, 0.5) {
+                let y = side * (ROAD_HALF + 0.4);
+                let h = rng.range(4.5, 9.0);
+                scene.add(Shape::Cylinder { c: [x, y], r: rng.range(0.08, 0.15), z0: 0.0, z1: h }, Class::Pole);
+                if rng.chance(0.35) {
+                    let z = rng.range(2.0, 3.0);
+                    let (w, t) = (rng.range(0.5, 0.9), 0.05);
+                    let xs = x - side * 0.2;
+                    scene.add(
+                        Shape::Box { min: [xs - t, y - w / 2.0, z], max: [xs + t, y + w / 2.0, z + w] },
+                        Class::TrafficSign,
+                    );
+                }
+            }
+            x += rng.range(12.0, 35.0);
+        }
+    }
+
+    /// Parked cars in the parking lane at the road's edge.
+    fn cars(&mut self, rng: &mut Rng, side: f64, x_min: f64, x_max: f64) {
+        let scene = self;
+        let mut x = x_min + rng.range(0.0, 6.0);
+        while x < x_max {
+            let len = rng.range(3.8, 4.9);
+            if !scene.in_cross_street(x, 1.0) && !scene.in_cross_street(x + len, 1.0) && rng.chance(0.55) {
+                let yc = side * (ROAD_HALF - 1.1);
+                let w = rng.range(1.7, 1.95) / 2.0;
+                let h = rng.range(1.35, 1.7);
+                scene.add(Shape::Box { min: [x, yc - w, 0.2], max: [x + len, yc + w, h * 0.6] }, Class::Car);
+                scene.add(
+                    Shape::Box {
+                        min: [x + len * 0.25, yc - w * 0.85, h * 0.6],
+                        max: [x + len * 0.8, yc + w * 0.85, h],
+                    },
+                    Class::Car,
+                );
+            }
+            x += len + rng.range(0.8, 10.0);
+        }
     }
 }
 
