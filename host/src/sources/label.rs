@@ -199,38 +199,44 @@ impl ProbabilityMap {
     }
 }
 
-/// Reads a NumPy `.npy` probability map (`<f4`, or `|u1` read as value/255)
-/// of shape `(H, W, C)` or `(C, H, W)` with `C = channels`.
-pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap, LabelError> {
-    let format = |what: String| LabelError::Format { path: path.to_path_buf(), what };
-    let bytes = std::fs::read(path).map_err(io(path))?;
+/// A `.npy` file's header: its dtype, its shape and where its data start.
+fn npy_header(bytes: &[u8]) -> Result<(String, Vec<usize>, usize), String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        return Err(format("not a NumPy .npy file (bad magic at byte 0)".into()));
+        return Err("not a NumPy .npy file (bad magic at byte 0)".into());
     }
     let (header_len, start) = match bytes[6] {
         1 => (usize::from(u16::from_le_bytes([bytes[8], bytes[9]])), 10),
         2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
-        v => return Err(format(format!("unsupported .npy version {v} at byte 6"))),
+        v => return Err(format!("unsupported .npy version {v} at byte 6")),
     };
     let header = bytes
         .get(start..start + header_len)
         .and_then(|h| std::str::from_utf8(h).ok())
-        .ok_or_else(|| format(format!("header of {header_len} bytes at byte {start} is truncated or not text")))?;
+        .ok_or_else(|| format!("header of {header_len} bytes at byte {start} is truncated or not text"))?;
     let field = |name: &str| -> Option<&str> {
         let at = header.find(&format!("'{name}':"))? + name.len() + 3;
         Some(header[at..].trim_start())
     };
     let descr = field("descr")
         .and_then(|s| s.strip_prefix('\'')?.split('\'').next())
-        .ok_or_else(|| format("header has no 'descr'".into()))?;
+        .ok_or_else(|| "header has no 'descr'".to_string())?;
     if field("fortran_order").is_some_and(|s| s.starts_with("True")) {
-        return Err(format("Fortran-ordered arrays are not supported".into()));
+        return Err("Fortran-ordered arrays are not supported".into());
     }
     let shape: Vec<usize> = field("shape")
         .and_then(|s| s.strip_prefix('(')?.split(')').next())
         .map(|s| s.split(',').map(str::trim).filter(|t| !t.is_empty()).map(str::parse).collect::<Result<_, _>>())
         .and_then(Result::ok)
-        .ok_or_else(|| format("header has no readable 'shape'".into()))?;
+        .ok_or_else(|| "header has no readable 'shape'".to_string())?;
+    Ok((descr.to_owned(), shape, start + header_len))
+}
+
+/// Reads a NumPy `.npy` probability map (`<f4`, or `|u1` read as value/255)
+/// of shape `(H, W, C)` or `(C, H, W)` with `C = channels`.
+pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap, LabelError> {
+    let format = |what: String| LabelError::Format { path: path.to_path_buf(), what };
+    let bytes = std::fs::read(path).map_err(io(path))?;
+    let (descr, shape, data_at) = npy_header(&bytes).map_err(format)?;
     let [a, b, c] = shape[..] else {
         return Err(format(format!("shape {shape:?}: expected three dimensions (H, W, C) or (C, H, W)")));
     };
@@ -247,13 +253,13 @@ pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap
     } else {
         return Err(format(format!("shape {shape:?}: no dimension of {channels} class channels")));
     };
-    let data = &bytes[start + header_len..];
+    let data = bytes.get(data_at..).unwrap_or(&[]);
     let n = height
         .checked_mul(width)
         .and_then(|v| v.checked_mul(channels))
         .filter(|n| n.checked_mul(4).is_some())
         .ok_or_else(|| format(format!("shape {shape:?} is too large")))?;
-    let raw: Vec<f32> = match descr {
+    let raw: Vec<f32> = match descr.as_str() {
         "<f4" => {
             if data.len() != 4 * n {
                 return Err(format(format!(
