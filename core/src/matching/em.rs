@@ -175,7 +175,8 @@ impl Matcher {
     /// is within about that many metres: no search, and EM from the finest
     /// level whose cells are at least that large.
     // Not inlined: two inlined copies would share one frame with both
-    // copies' locals, and a robot's stack is small.
+    // copies' locals, and a robot's stack is small. Its stages are inlined
+    // into it (one frame, as when they were one function).
     #[inline(never)]
     fn align_once<A: PyramidStorage, B: PyramidStorage>(
         &self,
@@ -184,6 +185,26 @@ impl Matcher {
         init: &Isometry3<f32>,
         near: Option<f32>,
     ) -> Result<MatchResult, MatchError> {
+        let levels = self.check_pair(model, scene, init)?;
+        let (start, top) = self.start(model, scene, init, near, levels);
+        let mut refined = self.refine(model, scene, start, top);
+        if !finite_iso(&refined.transform) {
+            // Cannot happen with finite steps; guard the promise anyway.
+            refined.transform = *init;
+            refined.converged = false;
+        }
+        self.verdict(model, scene, refined)
+    }
+
+    /// The settings, the roles, `init` and the levels' resolutions checked;
+    /// the levels both pyramids have.
+    #[inline(always)]
+    fn check_pair<A: PyramidStorage, B: PyramidStorage>(
+        &self,
+        model: &Pyramid<'_, A>,
+        scene: &Pyramid<'_, B>,
+        init: &Isometry3<f32>,
+    ) -> Result<usize, MatchError> {
         self.check()?;
         if model.role() != Role::Model {
             return Err(MatchError::SceneAsModel);
@@ -191,7 +212,6 @@ impl Matcher {
         if !finite_iso(init) {
             return Err(MatchError::NonFiniteInit);
         }
-        let s = &self.settings;
         let levels = model.levels().min(scene.levels());
         for l in 0..levels {
             let (Some(m), Some(c)) = (model.level(l), scene.level(l)) else {
@@ -201,9 +221,23 @@ impl Matcher {
                 return Err(MatchError::ResolutionMismatch);
             }
         }
+        Ok(levels)
+    }
+
+    /// Where EM starts: the coarse search of the prior's window, then the
+    /// level of the footprint's cell size; without it, the coarsest level
+    /// (or, `near`, the finest level whose cells hold that error).
+    #[inline(always)]
+    fn start<A: PyramidStorage, B: PyramidStorage>(
+        &self,
+        model: &Pyramid<'_, A>,
+        scene: &Pyramid<'_, B>,
+        init: &Isometry3<f32>,
+        near: Option<f32>,
+        levels: usize,
+    ) -> (Isometry3<f32>, usize) {
+        let s = &self.settings;
         let mut t = *init;
-        // Coarse search of the prior's window, then EM from the level of the
-        // footprint's cell size; without it, EM from the coarsest level.
         let mut top = levels.saturating_sub(1);
         if let Some(err) = near {
             while top > 0 && model.level(top - 1).is_some_and(|lv| lv.resolution() >= err) {
@@ -219,6 +253,19 @@ impl Matcher {
                 }
             }
         }
+        (t, top)
+    }
+
+    /// Coarse-to-fine EM with annealing from level `top` down to level 0.
+    #[inline(always)]
+    fn refine<A: PyramidStorage, B: PyramidStorage>(
+        &self,
+        model: &Pyramid<'_, A>,
+        scene: &Pyramid<'_, B>,
+        mut t: Isometry3<f32>,
+        top: usize,
+    ) -> Refined {
+        let s = &self.settings;
         let mut used = 0u32;
         let mut per_level = [0u8; MAX_LEVELS];
         let mut converged = false;
@@ -260,12 +307,20 @@ impl Matcher {
                 }
             }
         }
-        if !finite_iso(&t) {
-            // Cannot happen with finite steps; guard the promise anyway.
-            t = *init;
-            converged = false;
-        }
-        // Figures at the solution, at the finest level.
+        Refined { transform: t, used, per_level, converged, last }
+    }
+
+    /// The figures at the solution, at the finest level (agreement, the
+    /// information matrix, degeneracy) and the verdict.
+    #[inline(always)]
+    fn verdict<A: PyramidStorage, B: PyramidStorage>(
+        &self,
+        model: &Pyramid<'_, A>,
+        scene: &Pyramid<'_, B>,
+        r: Refined,
+    ) -> Result<MatchResult, MatchError> {
+        let s = &self.settings;
+        let t = r.transform;
         let (Some(m0), Some(c0)) = (model.level(0), scene.level(0)) else {
             return Err(MatchError::ResolutionMismatch);
         };
@@ -276,8 +331,8 @@ impl Matcher {
         // The information at the solution: the last finest-level iteration's
         // normal equations (its update was below the tolerance, so they were
         // taken at the solution to within it), else a fresh pass.
-        let n = match last {
-            Some(found) if converged => found,
+        let n = match r.last {
+            Some(found) if r.converged => found,
             _ => {
                 let sampling = Sampling::balanced(&c0, s.max_scene_entries as usize);
                 let pass = Pass {
@@ -305,7 +360,7 @@ impl Matcher {
             MatchStatus::Degenerate
         } else if agree.agreement < s.min_agreement {
             MatchStatus::NoOverlap
-        } else if converged {
+        } else if r.converged {
             MatchStatus::Converged
         } else {
             MatchStatus::NotConverged
@@ -313,8 +368,8 @@ impl Matcher {
         Ok(MatchResult {
             transform: t,
             status,
-            iterations: used,
-            iterations_per_level: per_level,
+            iterations: r.used,
+            iterations_per_level: r.per_level,
             inliers: agree.inliers,
             overlap: agree.overlap,
             rmse: agree.rmse,
@@ -325,4 +380,15 @@ impl Matcher {
             degeneracy,
         })
     }
+}
+
+/// What EM refined: the transform, the iterations (in all and per level),
+/// whether it converged at level 0, and its last finest-level normal
+/// equations.
+struct Refined {
+    transform: Isometry3<f32>,
+    used: u32,
+    per_level: [u8; MAX_LEVELS],
+    converged: bool,
+    last: Option<Normal>,
 }
