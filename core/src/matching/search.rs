@@ -229,37 +229,76 @@ pub fn search(
     let rm = r.matrix();
     let t = prior.translation.vector;
     let p = [rm[(0, 0)], rm[(0, 1)], t.x, rm[(1, 0)], rm[(1, 1)], t.y];
-    // Yaw step: one cell of arc at the farthest scene cell, within [0.25, 3] degrees.
-    let mut r_max = 0.0f32;
-    for (q, _) in scene.occupied() {
-        let x = p[0] * q[0] + p[1] * q[1] + p[2];
-        let y = p[3] * q[0] + p[4] * q[1] + p[5];
-        r_max = r_max.max(libm::sqrtf(x * x + y * y));
-    }
-    let deg = core::f32::consts::PI / 180.0;
-    // One cell of arc at the farthest scene cell, between 1 and 3 degrees:
-    // the scene's cells are two model cells wide, so finer steps add nothing.
-    let mut step = (cell / r_max.max(cell)).clamp(1.0 * deg, 3.0 * deg);
-    let w = libm::ceilf(window.translation / cell) as i32;
-    let block = 1i32 << (POOL_LEVELS - 1);
-    let blocks = ((2 * w + 1) + block - 1) / block;
-    let mut n_yaw = libm::ceilf(window.yaw / step) as i32;
-    while ((2 * n_yaw + 1) * blocks * blocks) as usize > MAX_ROOTS {
-        step *= 1.5;
-        n_yaw = libm::ceilf(window.yaw / step) as i32;
-    }
+    let grid = WindowGrid::of(cell, &scene, &p, window);
     let stride = scene.occupied_len().div_ceil(MAX_POINTS);
-    let scorer = Scorer { model, scene, prior: p, step, stride, semantic };
+    let scorer = Scorer { model, scene, prior: p, step: grid.step, stride, semantic };
     let mut cells = YawCells::<MAX_POINTS>::new();
     let mut evaluations = 0u32;
+    let roots = window_roots(&scorer, &grid, &mut cells, &mut evaluations);
+    scorer.cells(0, &mut cells);
+    let prior_score = scorer.score(&cells, 0, 0, 0);
+    evaluations += 1;
+    // The prior itself is a candidate: nothing worse than it is accepted.
+    let start = (grid.w >= 0).then_some(Node { yaw: 0, i: 0, j: 0, h: 0, score: prior_score });
+    let best = branch_and_bound(&scorer, &roots, grid.w, start, &mut cells, &mut evaluations)?;
+    let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f32::from(best.yaw) * grid.step);
+    let shift = Isometry3::from_parts(Translation3::new(f32::from(best.i) * cell, f32::from(best.j) * cell, 0.0), yaw);
+    Some(SearchOutcome { transform: shift * prior, score: best.score, prior_score, evaluations })
+}
+
+/// The window's grid: the yaw step, the half-widths in cells and headings,
+/// and the blocks of the coarsest pooled level covering it.
+struct WindowGrid {
+    step: f32,
+    w: i32,
+    block: i32,
+    blocks: i32,
+    n_yaw: i32,
+}
+
+impl WindowGrid {
+    #[inline(always)]
+    fn of(cell: f32, scene: &Footprint<'_>, p: &[f32; 6], window: &SearchWindow) -> WindowGrid {
+        // Yaw step: one cell of arc at the farthest scene cell, within [0.25, 3] degrees.
+        let mut r_max = 0.0f32;
+        for (q, _) in scene.occupied() {
+            let x = p[0] * q[0] + p[1] * q[1] + p[2];
+            let y = p[3] * q[0] + p[4] * q[1] + p[5];
+            r_max = r_max.max(libm::sqrtf(x * x + y * y));
+        }
+        let deg = core::f32::consts::PI / 180.0;
+        // One cell of arc at the farthest scene cell, between 1 and 3 degrees:
+        // the scene's cells are two model cells wide, so finer steps add nothing.
+        let mut step = (cell / r_max.max(cell)).clamp(1.0 * deg, 3.0 * deg);
+        let w = libm::ceilf(window.translation / cell) as i32;
+        let block = 1i32 << (POOL_LEVELS - 1);
+        let blocks = ((2 * w + 1) + block - 1) / block;
+        let mut n_yaw = libm::ceilf(window.yaw / step) as i32;
+        while ((2 * n_yaw + 1) * blocks * blocks) as usize > MAX_ROOTS {
+            step *= 1.5;
+            n_yaw = libm::ceilf(window.yaw / step) as i32;
+        }
+        WindowGrid { step, w, block, blocks, n_yaw }
+    }
+}
+
+/// Every heading's blocks of the coarsest level, scored, best first (ties
+/// toward the prior's yaw).
+#[inline(always)]
+fn window_roots(
+    scorer: &Scorer<'_>,
+    g: &WindowGrid,
+    cells: &mut YawCells<MAX_POINTS>,
+    evaluations: &mut u32,
+) -> heapless::Vec<Node, MAX_ROOTS> {
     let mut roots: heapless::Vec<Node, MAX_ROOTS> = heapless::Vec::new();
-    for k in -n_yaw..=n_yaw {
-        scorer.cells(k as i16, &mut cells);
-        for a in 0..blocks {
-            for b in 0..blocks {
-                let (i, j) = (-w + a * block, -w + b * block);
-                let score = scorer.score(&cells, i, j, POOL_LEVELS - 1);
-                evaluations += 1;
+    for k in -g.n_yaw..=g.n_yaw {
+        scorer.cells(k as i16, cells);
+        for a in 0..g.blocks {
+            for b in 0..g.blocks {
+                let (i, j) = (-g.w + a * g.block, -g.w + b * g.block);
+                let score = scorer.score(cells, i, j, POOL_LEVELS - 1);
+                *evaluations += 1;
                 let node = Node { yaw: k as i16, i: i as i16, j: j as i16, h: (POOL_LEVELS - 1) as u8, score };
                 if roots.push(node).is_err() {
                     break;
@@ -267,7 +306,6 @@ pub fn search(
             }
         }
     }
-    // Best first; ties toward the prior's yaw.
     roots.sort_unstable_by(|x, y| {
         y.score
             .cmp(&x.score)
@@ -275,21 +313,27 @@ pub fn search(
             .then(x.yaw.cmp(&y.yaw))
             .then((x.i, x.j).cmp(&(y.i, y.j)))
     });
-    let mut best: Option<Node> = None;
-    scorer.cells(0, &mut cells);
-    let prior_score = scorer.score(&cells, 0, 0, 0);
-    evaluations += 1;
-    // The prior itself is a candidate: nothing worse than it is accepted.
-    if w >= 0 {
-        best = Some(Node { yaw: 0, i: 0, j: 0, h: 0, score: prior_score });
-    }
+    roots
+}
+
+/// Branch and bound from the roots (best first) down to single cells
+/// within `w` of the prior: the best placement that beats `best`.
+#[inline(always)]
+fn branch_and_bound(
+    scorer: &Scorer<'_>,
+    roots: &[Node],
+    w: i32,
+    mut best: Option<Node>,
+    cells: &mut YawCells<MAX_POINTS>,
+    evaluations: &mut u32,
+) -> Option<Node> {
     let beats = |n: &Node, best: &Option<Node>| best.is_none_or(|b| n.score > b.score);
     for root in roots.iter() {
         if !beats(root, &best) {
             break;
         }
         if cells.yaw != root.yaw {
-            scorer.cells(root.yaw, &mut cells);
+            scorer.cells(root.yaw, cells);
         }
         let mut stack: heapless::Vec<Node, STACK> = heapless::Vec::new();
         let _ = stack.push(*root);
@@ -311,8 +355,8 @@ pub fn search(
                     continue;
                 }
                 let floor = best.map_or(0, |b| b.score);
-                let score = scorer.score_above(&cells, i, j, usize::from(node.h - 1), floor);
-                evaluations += 1;
+                let score = scorer.score_above(cells, i, j, usize::from(node.h - 1), floor);
+                *evaluations += 1;
                 children[c] = Some(Node { yaw: node.yaw, i: i as i16, j: j as i16, h: node.h - 1, score });
             }
             // Push the lowest first so the highest is explored first.
@@ -327,10 +371,7 @@ pub fn search(
             }
         }
     }
-    let best = best?;
-    let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f32::from(best.yaw) * step);
-    let shift = Isometry3::from_parts(Translation3::new(f32::from(best.i) * cell, f32::from(best.j) * cell, 0.0), yaw);
-    Some(SearchOutcome { transform: shift * prior, score: best.score, prior_score, evaluations })
+    best
 }
 
 /// Settings of the prior-free coarse search ([`search_global`]).
