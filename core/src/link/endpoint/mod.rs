@@ -339,67 +339,20 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
                 if (m.resolution() - resolution).abs() > 1e-6 * resolution {
                     return Err(LinkError::Setup);
                 }
-                let bounds = m.bounds().map(|(lo, hi)| [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]).unwrap_or([0.0; 6]);
-                let encoder = MapEncoder::new(m, scratch, tx_model).map_err(|_| LinkError::Setup)?;
-                let header = MapHeader {
-                    map_id,
-                    robot_id,
-                    class_table: CLASS_TABLE_VERSION,
-                    anchor_time_us,
-                    voxel_count: m.len() as u32,
-                    resolution: m.resolution(),
-                    bounds,
-                    digest: encoder.digest(),
-                };
-                let mut tx = Tx {
-                    encoder,
-                    header,
-                    header_queued: false,
-                    ring: tx_ring,
-                    acked: 0,
-                    sent_end: 0,
-                    produced: 0,
-                    segs,
-                    order: 0,
-                    acked_order: 0,
-                    complete: false,
-                    size: usize::from(config.max_chunk),
-                    srtt: None,
-                    min_rtt: u32::MAX,
-                    backoff: 0,
-                    last_progress: 0,
-                    last_probe: 0,
-                    idle_resends: 0,
-                };
-                tx.resize(LineEstimate::default().model(), &config);
-                (Some(tx), None)
+                let ids = (map_id, robot_id, anchor_time_us);
+                (Some(Tx::new(m, scratch, (tx_ring, segs, tx_model), ids, &config)?), None)
             }
         };
         if let Some(s) = staging.as_mut() {
             s.clear();
         }
-        let receiving = staging.is_some();
         Ok(Endpoint {
             config,
             robot_id,
             resolution,
             tx,
             tx_spare,
-            rx: Rx {
-                map: staging,
-                ring: rx_ring,
-                have,
-                cum: 0,
-                consumed: 0,
-                highest: 0,
-                header: None,
-                model: Some(rx_model),
-                decoder: None,
-                done: !receiving,
-                latest: 0,
-                unacked: 0,
-                ack_now: false,
-            },
+            rx: Rx::new(staging, rx_ring, have, rx_model),
             deframer: Deframer::new(),
             line: LineEstimate::default(),
             started: false,

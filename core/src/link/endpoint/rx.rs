@@ -27,6 +27,34 @@ pub(super) struct Rx<'a, S: VoxelSink> {
     pub(super) ack_now: bool,
 }
 
+impl<'a, S: VoxelSink> Rx<'a, S> {
+    /// The receiving half: into `map` (`None`: receives nothing), working
+    /// in `ring`, `have` and `model`.
+    pub(super) fn new(
+        map: Option<&'a mut S>,
+        ring: &'a mut [u8; STREAM_BUFFER],
+        have: &'a mut [u32; STREAM_BUFFER / 32],
+        model: &'a mut CodecModel,
+    ) -> Self {
+        let done = map.is_none();
+        Rx {
+            map,
+            ring,
+            have,
+            cum: 0,
+            consumed: 0,
+            highest: 0,
+            header: None,
+            model: Some(model),
+            decoder: None,
+            done,
+            latest: 0,
+            unacked: 0,
+            ack_now: false,
+        }
+    }
+}
+
 impl<S: VoxelSink> Rx<'_, S> {
     pub(super) fn bit(&self, pos: u32) -> bool {
         let p = pos as usize % STREAM_BUFFER;

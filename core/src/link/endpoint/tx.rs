@@ -50,6 +50,54 @@ pub(super) struct Tx<'a, S: VoxelStorage> {
     pub(super) idle_resends: u32,
 }
 
+impl<'a, S: VoxelStorage> Tx<'a, S> {
+    /// The sending half of transfer `map_id` of robot `robot_id`'s `map`
+    /// (anchored at `anchor_time_us`), its Morton order prepared in
+    /// `scratch`, working in `parts`.
+    pub(super) fn new(
+        m: &'a LocalMap<S>,
+        scratch: &'a mut [u32],
+        (ring, segs, model): TxParts<'a>,
+        (map_id, robot_id, anchor_time_us): (u32, u8, u64),
+        config: &LinkConfig,
+    ) -> Result<Self, LinkError> {
+        let bounds = m.bounds().map(|(lo, hi)| [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]).unwrap_or([0.0; 6]);
+        let encoder = MapEncoder::new(m, scratch, model).map_err(|_| LinkError::Setup)?;
+        let header = MapHeader {
+            map_id,
+            robot_id,
+            class_table: CLASS_TABLE_VERSION,
+            anchor_time_us,
+            voxel_count: m.len() as u32,
+            resolution: m.resolution(),
+            bounds,
+            digest: encoder.digest(),
+        };
+        let mut tx = Tx {
+            encoder,
+            header,
+            header_queued: false,
+            ring,
+            acked: 0,
+            sent_end: 0,
+            produced: 0,
+            segs,
+            order: 0,
+            acked_order: 0,
+            complete: false,
+            size: usize::from(config.max_chunk),
+            srtt: None,
+            min_rtt: u32::MAX,
+            backoff: 0,
+            last_progress: 0,
+            last_probe: 0,
+            idle_resends: 0,
+        };
+        tx.resize(LineEstimate::default().model(), config);
+        Ok(tx)
+    }
+}
+
 impl<S: VoxelStorage> Tx<'_, S> {
     /// Encodes records into the buffer while a whole record fits.
     pub(super) fn fill(&mut self) -> Result<(), LinkError> {
