@@ -601,6 +601,52 @@ const MAX_YAWS: usize = 720;
 /// Roots of one heading sorted before descending (more go in grid order).
 const MAX_YAW_ROOTS: usize = 256;
 
+/// The centre of the scene's scored cells and their radius about it.
+#[inline(always)]
+fn scene_centre(scene: &Footprint<'_>, stride: usize) -> ([f32; 2], f32) {
+    let (mut c, mut n) = ([0.0f32; 2], 0.0f32);
+    for (q, _) in scene.occupied().step_by(stride) {
+        c = [c[0] + q[0], c[1] + q[1]];
+        n += 1.0;
+    }
+    let c = [c[0] / n.max(1.0), c[1] / n.max(1.0)];
+    let radius = scene
+        .occupied()
+        .step_by(stride)
+        .map(|(q, _)| libm::sqrtf((q[0] - c[0]) * (q[0] - c[0]) + (q[1] - c[1]) * (q[1] - c[1])))
+        .fold(0.0f32, f32::max);
+    (c, radius)
+}
+
+/// Every heading's best root bound, best first (ties to the lower
+/// heading): the order headings are searched in.
+#[inline(always)]
+fn heading_order(
+    scorer: &Scorer<'_>,
+    cells: &mut YawCells<MAX_GLOBAL_POINTS>,
+    bounds: &Bounds,
+    n_yaw: usize,
+    evaluations: &mut u32,
+) -> heapless::Vec<(u32, u16), MAX_YAWS> {
+    let top = POOL_LEVELS - 1;
+    let block = 1i32 << top;
+    let roots = |b: (i32, i32)| (b.0..=b.1).step_by(block as usize);
+    let mut order: heapless::Vec<(u32, u16), MAX_YAWS> = heapless::Vec::new();
+    for k in 0..n_yaw {
+        scorer.cells(k as i16, cells);
+        let mut best_root = 0;
+        for i in roots(bounds.i) {
+            for j in roots(bounds.j) {
+                best_root = best_root.max(scorer.score_above(cells, i, j, top, best_root));
+                *evaluations += 1;
+            }
+        }
+        let _ = order.push((best_root, k as u16));
+    }
+    order.sort_unstable_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+    order
+}
+
 /// Searches every heading and every offset at which the scene's footprint
 /// lands on the model's for the placements that agree best (class groups by
 /// cell when `semantic`, bare occupancy otherwise): with no prior, by branch
@@ -628,18 +674,7 @@ pub fn search_global(
     let step = 2.0 * core::f32::consts::PI / n_yaw as f32;
     let points = settings.points.clamp(1, MAX_GLOBAL_POINTS);
     let stride = scene.occupied_len().div_ceil(points);
-    // The scene's centre and radius about it (of the cells scored).
-    let (mut c, mut n) = ([0.0f32; 2], 0.0f32);
-    for (q, _) in scene.occupied().step_by(stride) {
-        c = [c[0] + q[0], c[1] + q[1]];
-        n += 1.0;
-    }
-    let c = [c[0] / n.max(1.0), c[1] / n.max(1.0)];
-    let radius = scene
-        .occupied()
-        .step_by(stride)
-        .map(|(q, _)| libm::sqrtf((q[0] - c[0]) * (q[0] - c[0]) + (q[1] - c[1]) * (q[1] - c[1])))
-        .fold(0.0f32, f32::max);
+    let (c, radius) = scene_centre(&scene, stride);
     let centre = Isometry3::from_parts(Translation3::new(-c[0], -c[1], 0.0), UnitQuaternion::identity());
     let scorer = Scorer { model, scene, prior: [1.0, 0.0, -c[0], 0.0, 1.0, -c[1]], step, stride, semantic };
     let margin = libm::ceilf(0.5 * radius / cell) as i32;
@@ -655,20 +690,7 @@ pub fn search_global(
     let roots = |b: (i32, i32)| (b.0..=b.1).step_by(block as usize);
     let mut cells = YawCells::<MAX_GLOBAL_POINTS>::new();
     let mut evaluations = 0u32;
-    // Each heading's best root bound.
-    let mut order: heapless::Vec<(u32, u16), MAX_YAWS> = heapless::Vec::new();
-    for k in 0..n_yaw {
-        scorer.cells(k as i16, &mut cells);
-        let mut best_root = 0;
-        for i in roots(bounds.i) {
-            for j in roots(bounds.j) {
-                best_root = best_root.max(scorer.score_above(&cells, i, j, top, best_root));
-                evaluations += 1;
-            }
-        }
-        let _ = order.push((best_root, k as u16));
-    }
-    order.sort_unstable_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+    let order = heading_order(&scorer, &mut cells, &bounds, n_yaw, &mut evaluations);
     let r = settings.exclusion.0 / cell;
     let sep =
         Separation { r2: (r * r) as i64, dyaw: libm::floorf(settings.exclusion.1 / step) as i32, turn: n_yaw as i32 };
