@@ -174,13 +174,9 @@ fn check<L: Matches + ?Sized>(robots: usize, matches: &L) -> Result<(), TeamErro
     Ok(())
 }
 
-/// Places every robot of a team of `robots` from the kept `matches` (see
-/// the module documentation). Deterministic. Never inlined: its normal
-/// equations (18 KiB) are on the stack only while it runs.
-#[inline(never)]
-pub fn solve<L: Matches + ?Sized>(robots: usize, matches: &L, max_iterations: u32) -> Result<TeamSolution, TeamError> {
-    check(robots, matches)?;
-    // Groups: each robot's anchor is the lowest index it is connected to.
+/// Each robot's anchor: the lowest index it is connected to by `matches`.
+#[inline(always)]
+fn anchors<L: Matches + ?Sized>(matches: &L) -> [usize; MAX_ROBOTS] {
     let mut anchor: [usize; MAX_ROBOTS] = core::array::from_fn(|i| i);
     loop {
         let mut changed = false;
@@ -195,7 +191,16 @@ pub fn solve<L: Matches + ?Sized>(robots: usize, matches: &L, max_iterations: u3
             break;
         }
     }
-    // First poses along a spanning tree from each anchor.
+    anchor
+}
+
+/// First poses along a spanning tree from each anchor.
+#[inline(always)]
+fn first_poses<L: Matches + ?Sized>(
+    robots: usize,
+    matches: &L,
+    anchor: &[usize; MAX_ROBOTS],
+) -> [Option<Isometry3<f64>>; MAX_ROBOTS] {
     let mut pose: [Option<Isometry3<f64>>; MAX_ROBOTS] = [None; MAX_ROBOTS];
     for (i, p) in pose.iter_mut().enumerate().take(robots) {
         if anchor[i] == i {
@@ -217,6 +222,17 @@ pub fn solve<L: Matches + ?Sized>(robots: usize, matches: &L, max_iterations: u3
             break;
         }
     }
+    pose
+}
+
+/// Places every robot of a team of `robots` from the kept `matches` (see
+/// the module documentation). Deterministic. Never inlined: its normal
+/// equations (18 KiB) are on the stack only while it runs.
+#[inline(never)]
+pub fn solve<L: Matches + ?Sized>(robots: usize, matches: &L, max_iterations: u32) -> Result<TeamSolution, TeamError> {
+    check(robots, matches)?;
+    let anchor = anchors(matches);
+    let pose = first_poses(robots, matches, &anchor);
     let mut x: [Isometry3<f64>; MAX_ROBOTS] = core::array::from_fn(|i| pose[i].unwrap_or_else(Isometry3::identity));
     let movable: [bool; MAX_ROBOTS] = core::array::from_fn(|i| i < robots && anchor[i] != i);
     let free = |i: usize| movable[i];
