@@ -14,6 +14,7 @@ use crate::link::{Endpoint, LinkBuffers, LinkConfig, LinkError, LinkStats, Progr
 use crate::map::{LocalMap, VoxelStorage};
 use crate::wire::feed::{FeedError, RobotMessage, RobotReport};
 use crate::wire::report::MatchReport;
+use crate::wire::share::Estimate;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
 #[allow(clippy::large_enum_variant)]
@@ -126,39 +127,42 @@ impl<'a, M: VoxelStorage> SenderRobot<'a, M> {
                         Ok(Poll::Busy)
                     }
                     Awaited::Silent => Err(RobotError::Link(LinkError::Silent)),
-                    Awaited::Told(e) => {
-                        let me = self.fed.setup.map_or(0, |s| s.robot_id);
-                        // The peer's T_peer_me, reported as T_me_peer.
-                        let transform = rows(&e.transform().inverse());
-                        Ok(Poll::Done(RobotReport {
-                            result: MatchReport {
-                                robot_id: me,
-                                status: e.status,
-                                transform,
-                                iterations: 0,
-                                inliers: 0,
-                                overlap: 0.0,
-                                rmse: 0.0,
-                            },
-                            points: self.fed.points,
-                            map_voxels: own.len() as u32,
-                            received_voxels: 0,
-                            bytes_sent: stats.bytes_sent,
-                            bytes_received: stats.bytes_received,
-                            retransmissions: stats.retransmissions,
-                            link_ms: self.link_ms,
-                            map_instructions: self.fed.map_instructions,
-                            prepare_instructions: 0,
-                            locate_instructions: 0,
-                            match_instructions: 0,
-                            global: None,
-                            peak_stack: meter.peak_stack(),
-                            link_bytes_while_matching: 0,
-                        }))
-                    }
+                    Awaited::Told(e) => Ok(Poll::Done(self.report(own.len(), &stats, &e, meter.peak_stack()))),
                 }
             }
             State::Done => Err(RobotError::Finished),
+        }
+    }
+
+    /// The report of a robot told the peer's result `e` (the peer's
+    /// `T_peer_me`, reported as `T_me_peer`).
+    fn report(&self, map_voxels: usize, stats: &LinkStats, e: &Estimate, peak_stack: u32) -> RobotReport {
+        let me = self.fed.setup.map_or(0, |s| s.robot_id);
+        let transform = rows(&e.transform().inverse());
+        RobotReport {
+            result: MatchReport {
+                robot_id: me,
+                status: e.status,
+                transform,
+                iterations: 0,
+                inliers: 0,
+                overlap: 0.0,
+                rmse: 0.0,
+            },
+            points: self.fed.points,
+            map_voxels: map_voxels as u32,
+            received_voxels: 0,
+            bytes_sent: stats.bytes_sent,
+            bytes_received: stats.bytes_received,
+            retransmissions: stats.retransmissions,
+            link_ms: self.link_ms,
+            map_instructions: self.fed.map_instructions,
+            prepare_instructions: 0,
+            locate_instructions: 0,
+            match_instructions: 0,
+            global: None,
+            peak_stack,
+            link_bytes_while_matching: 0,
         }
     }
 }
