@@ -601,6 +601,14 @@ const MAX_YAWS: usize = 720;
 /// Roots of one heading sorted before descending (more go in grid order).
 const MAX_YAW_ROOTS: usize = 256;
 
+/// A node of the lattice as a candidate placement: its heading and
+/// offset, after the scene's centre is moved to the origin.
+fn placement(n: &Node, step: f32, cell: f32, centre: &Isometry3<f32>) -> Candidate {
+    let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f32::from(n.yaw) * step);
+    let shift = Isometry3::from_parts(Translation3::new(f32::from(n.i) * cell, f32::from(n.j) * cell, 0.0), yaw);
+    Candidate { transform: shift * centre, score: n.score }
+}
+
 /// The centre of the scene's scored cells and their radius about it.
 #[inline(always)]
 fn scene_centre(scene: &Footprint<'_>, stride: usize) -> ([f32; 2], f32) {
@@ -726,15 +734,6 @@ pub fn search_global(
             break;
         }
     }
-    let candidates = kept
-        .nodes
-        .iter()
-        .map(|n| {
-            let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f32::from(n.yaw) * step);
-            let shift =
-                Isometry3::from_parts(Translation3::new(f32::from(n.i) * cell, f32::from(n.j) * cell, 0.0), yaw);
-            Candidate { transform: shift * centre, score: n.score }
-        })
-        .collect();
+    let candidates = kept.nodes.iter().map(|n| placement(n, step, cell, &centre)).collect();
     Some(GlobalSearchOutcome { candidates, evaluations, exhausted: evaluations >= budget })
 }

@@ -258,20 +258,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
             return self.transmit(i, poll, io, now, stats);
         }
         if self.can_send_new(config) {
-            let room = self.window().saturating_sub(self.sent_end.wrapping_sub(self.acked)) as usize;
-            let len = self.size.min(self.produced.wrapping_sub(self.sent_end) as usize).min(room);
-            let seg =
-                Segment { start: self.sent_end, len: len as u16, sends: 0, lost: false, order: 0, sent_at: now as u32 };
-            if self.segs.is_empty() {
-                // The timers start with the first bytes in flight.
-                self.last_progress = now;
-            }
-            self.segs.push(seg).map_err(|_| LinkError::Setup)?;
-            self.sent_end = self.sent_end.wrapping_add(len as u32);
-            self.fill()?;
-            stats.chunk_bytes_sent += len as u64;
-            let poll = !self.can_send_new(config);
-            return self.transmit(self.segs.len() - 1, poll, io, now, stats);
+            return self.send_new(io, now, config, stats);
         }
         if self.segs.is_empty() {
             return Ok(());
@@ -282,19 +269,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
             if now < self.last_probe + wait {
                 return Ok(());
             }
-            // Nothing heard: the line may have got worse. Size for what the
-            // frames that do arrive say, and at most half the last size.
-            if self.backoff >= u32::from(config.max_retries) {
-                return Err(LinkError::GaveUp { seq: self.acked });
-            }
-            self.backoff += 1;
-            self.last_probe = now;
-            let half = (self.size / 2).max(usize::from(config.min_chunk));
-            self.resize(line, config);
-            self.size = self.size.min(half);
-            self.cut(0);
-            stats.retransmissions += 1;
-            return self.transmit(0, true, io, now, stats);
+            return self.probe(io, now, line, config, stats);
         }
         // On a clean line, bytes not acknowledged in a timeout; on a lossy
         // one, sooner (a round trip and a half): there the oldest bytes are
@@ -311,6 +286,54 @@ impl<S: VoxelStorage> Tx<'_, S> {
             return self.transmit(i, self.idle_resends.is_multiple_of(4), io, now, stats);
         }
         Ok(())
+    }
+
+    /// Sends the next new bytes of the stream in a frame of its own.
+    fn send_new<IO: Write>(
+        &mut self,
+        io: &mut IO,
+        now: u64,
+        config: &LinkConfig,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
+        let room = self.window().saturating_sub(self.sent_end.wrapping_sub(self.acked)) as usize;
+        let len = self.size.min(self.produced.wrapping_sub(self.sent_end) as usize).min(room);
+        let seg =
+            Segment { start: self.sent_end, len: len as u16, sends: 0, lost: false, order: 0, sent_at: now as u32 };
+        if self.segs.is_empty() {
+            // The timers start with the first bytes in flight.
+            self.last_progress = now;
+        }
+        self.segs.push(seg).map_err(|_| LinkError::Setup)?;
+        self.sent_end = self.sent_end.wrapping_add(len as u32);
+        self.fill()?;
+        stats.chunk_bytes_sent += len as u64;
+        let poll = !self.can_send_new(config);
+        self.transmit(self.segs.len() - 1, poll, io, now, stats)
+    }
+
+    /// Nothing heard: the line may have got worse. Resends the oldest bytes
+    /// sized for what the frames that do arrive say, and at most half the
+    /// last size, asking for an answer; gives up after `max_retries`.
+    fn probe<IO: Write>(
+        &mut self,
+        io: &mut IO,
+        now: u64,
+        line: LineModel,
+        config: &LinkConfig,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
+        if self.backoff >= u32::from(config.max_retries) {
+            return Err(LinkError::GaveUp { seq: self.acked });
+        }
+        self.backoff += 1;
+        self.last_probe = now;
+        let half = (self.size / 2).max(usize::from(config.min_chunk));
+        self.resize(line, config);
+        self.size = self.size.min(half);
+        self.cut(0);
+        stats.retransmissions += 1;
+        self.transmit(0, true, io, now, stats)
     }
 
     /// Takes an acknowledgement: drops what it covers, marks lost what was
