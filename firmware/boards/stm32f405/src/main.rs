@@ -140,8 +140,9 @@ fn main() -> ! {
     let mut feed = RingSerial::new(&FEED_RX, feed_tx, sleep);
     let mut link = RingSerial::new(&LINK_RX, link_tx, sleep);
     // SAFETY: `main` runs once; each static is borrowed exactly once here,
-    // and the map's storage is all zeros before it is taken as one (the
-    // empty storage is all zeros: it lands in .bss where it is a static).
+    // and the map's storage is all zeros before it is taken as one (an
+    // empty storage is all zeros: tests/tests/zeroed.rs holds the core to
+    // it).
     let (own, scratch, buffers) = unsafe {
         let own = &mut *addr_of_mut!(OWN);
         core::ptr::write_bytes(own.as_mut_ptr(), 0, 1);
