@@ -663,9 +663,9 @@ pub fn run_negatives(
             }
             (None, None) => crate::kitti::FrameRange { start: 0, end: 1, stride: 1 },
         };
-        let (frames, _) = spec.frames(&seq, range)?;
+        let (frames, anchor, _) = spec.frames(&seq, range)?;
         let (map, _) = build_map(&frames, spec.config, &spec.filter)?;
-        maps.push((seq, range, map));
+        maps.push((seq, anchor, map));
     }
     let pyramids: Vec<_> = maps.iter().map(|m| prepare(&m.2, DEFAULT_LEVELS)).collect::<Result<_, _>>()?;
     let mut pairs = Vec::new();
@@ -677,9 +677,7 @@ pub fn run_negatives(
             }
             // Folders of one sequence (the same poses) may hold one place.
             if a.0.same_trajectory(&b.0) {
-                let t = crate::kitti::isometry(
-                    &(crate::kitti::rigid_inverse(&a.0.world_pose(a.1.start)?) * b.0.world_pose(b.1.start)?),
-                );
+                let t = crate::source::relative(&a.1, &b.1);
                 if cosem_core::map::overlap(&a.2, &b.2, &t.cast::<f32>()) >= 0.01 {
                     overlapping += 1;
                     continue;

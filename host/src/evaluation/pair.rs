@@ -8,6 +8,7 @@ use crate::noise::{corrupt_all, LabelNoise, NoiseStats};
 use crate::source::{Source, SourceOptions};
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::MapConfig;
+use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
 
 /// Which frames of which folder make robot A's and robot B's maps.
@@ -67,11 +68,12 @@ impl PairSpec {
         Source::open(&self.data, &self.source)
     }
 
-    /// Reads a range's frames with this spec's label noise.
-    pub fn frames(&self, source: &Source, range: FrameRange) -> Result<(Vec<Frame>, NoiseStats), Error> {
-        let (mut frames, _, _) = source.load(Some(range))?;
+    /// Reads a range's frames with this spec's label noise; with the
+    /// anchor's pose `T_world_anchor`.
+    pub fn frames(&self, source: &Source, range: FrameRange) -> Result<(Vec<Frame>, Matrix4<f64>, NoiseStats), Error> {
+        let (mut frames, anchor, _) = source.load(Some(range))?;
         let stats = corrupt_all(&mut frames, self.noise.0, self.noise.1);
-        Ok((frames, stats))
+        Ok((frames, anchor, stats))
     }
 
     /// The folder's last path component, for captions.
@@ -98,11 +100,12 @@ impl Pair {
     /// Reads both ranges and builds both maps.
     pub fn load(spec: &PairSpec) -> Result<Pair, Error> {
         let seq = spec.open()?;
-        let (frames_a, na) = spec.frames(&seq, spec.a)?;
+        let (frames_a, anchor_a, na) = spec.frames(&seq, spec.a)?;
         let (map_a, _) = build_map(&frames_a, spec.config, &spec.filter)?;
-        let (frames_b, nb) = spec.frames(&seq, spec.b)?;
+        let (frames_b, anchor_b, nb) = spec.frames(&seq, spec.b)?;
         let (map_b, _) = build_map(&frames_b, spec.config, &spec.filter)?;
-        let gt = seq.relative_pose(spec.a.start, spec.b.start)?;
+        // The truth from the anchors the loads gave (a recording is not read again).
+        let gt = crate::source::relative(&anchor_a, &anchor_b);
         let noise = NoiseStats { points: na.points + nb.points, changed: na.changed + nb.changed };
         Ok(Pair { map_a, map_b, frames_b, gt, noise })
     }

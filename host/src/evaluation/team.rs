@@ -120,20 +120,28 @@ pub struct TeamOutcome {
 /// The truth `T_i_j` between robots of one trajectory (`None` otherwise).
 pub struct Truth {
     sources: Vec<Source>,
-    starts: Vec<usize>,
+    /// `T_world_anchor` of each robot sharing its trajectory with another
+    /// (read once: a recording is not read again per pair).
+    anchors: Vec<Option<nalgebra::Matrix4<f64>>>,
 }
 
 impl Truth {
     /// The robots' sources, to compare their poses.
     pub fn of(spec: &TeamSpec) -> Result<Truth, Error> {
-        let sources = spec.robots.iter().map(|r| Source::open(&r.data, &spec.source)).collect::<Result<_, _>>()?;
-        Ok(Truth { sources, starts: spec.robots.iter().map(|r| r.frames.start).collect() })
+        let sources: Vec<Source> =
+            spec.robots.iter().map(|r| Source::open(&r.data, &spec.source)).collect::<Result<_, _>>()?;
+        let shared = |i: usize| (0..sources.len()).any(|j| j != i && sources[i].same_trajectory(&sources[j]));
+        let anchors = (0..sources.len())
+            .map(|i| shared(i).then(|| sources[i].world_pose(spec.robots[i].frames.start).ok()).flatten())
+            .collect();
+        Ok(Truth { sources, anchors })
     }
 
     /// `T_i_j`, when robots `i` and `j` share a trajectory.
     pub fn between(&self, i: usize, j: usize) -> Option<Isometry3<f64>> {
         let (a, b) = (self.sources.get(i)?, self.sources.get(j)?);
-        a.same_trajectory(b).then(|| a.relative_pose(self.starts[i], self.starts[j]).ok()).flatten()
+        let (wa, wb) = (self.anchors.get(i)?.as_ref()?, self.anchors.get(j)?.as_ref()?);
+        a.same_trajectory(b).then(|| crate::source::relative(wa, wb))
     }
 }
 

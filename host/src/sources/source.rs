@@ -249,8 +249,7 @@ impl Source {
     /// `T_a_b`: frame `b`'s sensor pose in frame `a`'s sensor frame, from
     /// the source's own poses.
     pub fn relative_pose(&self, a: usize, b: usize) -> Result<Isometry3<f64>, Error> {
-        let (wa, wb) = (self.world_pose(a)?, self.world_pose(b)?);
-        Ok(crate::kitti::isometry(&(crate::kitti::rigid_inverse(&wa) * wb)))
+        Ok(relative(&self.world_pose(a)?, &self.world_pose(b)?))
     }
 
     /// `T_world_sensor` of frame `i`.
@@ -278,4 +277,10 @@ impl Source {
             _ => false,
         }
     }
+}
+
+/// `T_a_b` from two sensor poses in one world, `inv(W_a) * W_b` (with the
+/// files' own numbers, as the folder reader moves points).
+pub fn relative(wa: &Matrix4<f64>, wb: &Matrix4<f64>) -> Isometry3<f64> {
+    crate::kitti::isometry(&(crate::kitti::rigid_inverse(wa) * wb))
 }
