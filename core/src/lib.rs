@@ -78,6 +78,8 @@ pub mod map;
 pub mod matching;
 pub mod robot;
 pub mod selftest;
+#[cfg(any(test, feature = "sim"))]
+pub mod sim;
 pub mod team;
 pub mod wire;
 

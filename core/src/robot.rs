@@ -1,8 +1,13 @@
-//! Stage 6: one robot of a team, end to end, as a poll-driven step machine
-//! ([`Robot::poll`], like smoltcp's interface poll): the firmware drives it
-//! with its UARTs and SysTick, a host drives the same machine with byte
-//! buffers and a simulated line, so the host's answer on the same data is
-//! the robot's, to the bit.
+//! Stage 6: one robot, end to end, as a poll-driven step machine
+//! ([`Machine::poll`], like smoltcp's interface poll): the firmware drives
+//! it with its UARTs and SysTick, a host drives the same machine with byte
+//! buffers and simulated lines (`crate::sim`, feature `sim`), so the host's
+//! answer on the same data is the robot's, to the bit. Every role is a
+//! [`Machine`]: the robot of a pair ([`Robot`]), which matches, or, on a
+//! board with no room for a second map, only sends its map and is told the
+//! result ([`Robot::sender`]); and the member of a team
+//! ([`team::TeamRobot`]). They share one reading of the feed and one
+//! report builder.
 //!
 //! The sequence: the feed ([`crate::wire::feed`]: a set-up, then labelled
 //! points already in the robot's anchor frame) is fused into the robot's
@@ -25,22 +30,18 @@
 //! the pyramids' other parts. The capacities a robot's firmware uses are
 //! the constants below.
 
-use crate::geometry::{from_rows, Isometry3};
-use crate::link::sim::{ScriptPort, SimLine};
-use crate::link::{Endpoint, LinkBuffers, LinkConfig, LinkError, LinkStats, Progress};
-use crate::map::{
-    ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, ScenePoint, VoxelSink, VoxelStorage,
-};
+use crate::geometry::Isometry3;
+use crate::link::LinkError;
+use crate::map::{ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, ScenePoint, VoxelStorage};
 use crate::matching::global::{align_searched, Searched};
 use crate::matching::search::GlobalSearch;
 use crate::matching::{
     ArrayPyramidStorage, ArraySceneStorage, CopiedLevel, MatchError, MatchResult, MatchSettings, Matcher, Pyramid,
     PyramidError, PyramidStorage, SceneSource,
 };
-use crate::wire::feed::{self, FeedError, FeedMessage, GlobalReport, RobotMessage, RobotReport, Setup, Stage};
-use crate::wire::frame::{DeframeError, Deframer, MAX_FRAME};
-use crate::wire::share::Estimate;
-use embedded_io::{Read, ReadReady, Write, WriteReady};
+use crate::wire::feed::{self, FeedError, RobotMessage, RobotReport, Stage};
+use crate::wire::frame::{DeframeError, MAX_FRAME};
+use embedded_io::Write;
 
 /// Exit code of a robot's firmware that panicked: its panic handler ends
 /// the program at once with it (under QEMU, through semihosting), so the
@@ -57,7 +58,7 @@ pub const EXIT_FAULT: u8 = 102;
 pub const VOXELS: usize = 8192;
 /// Voxels of a robot on a small board (an STM32F405: its 128 KiB of main
 /// SRAM hold this map, 28 bytes per voxel, and nothing else): a
-/// [`sender::SenderRobot`], which sends its map and takes none. A full map
+/// [`Robot::sender`], which sends its map and takes none. A full map
 /// evicts its farthest eighth (585 voxels) and keeps 4,096.
 pub const SMALL_VOXELS: usize = 4681;
 /// Coarse pyramid entries per map (0.5 m maps with [`LEVELS`] levels take
@@ -377,347 +378,28 @@ impl Default for RobotConfig {
 
 /// Where a robot stands after a poll.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Poll {
+pub enum Poll<R = RobotReport> {
     /// Still working: poll again.
     Busy,
     /// Finished; the report went out over the feed line too.
-    Done(RobotReport),
+    Done(R),
 }
 
-// The link's state (its frame buffer) is the large variant; without an
-// allocator there is nothing to box it in, and a robot holds one state.
-#[allow(clippy::large_enum_variant)]
-enum State<'a, M: VoxelStorage, R: VoxelSink + SceneSource> {
-    Feed {
-        own: &'a mut LocalMap<M>,
-        received: &'a mut R,
-        scratch: &'a mut [u32],
-        buffers: &'a mut LinkBuffers,
-    },
-    Link {
-        own: &'a LocalMap<M>,
-        endpoint: Endpoint<'a, M, R>,
-    },
-    Align {
-        own: &'a LocalMap<M>,
-        received: &'a R,
-        stats: LinkStats,
-    },
-    /// A one-sided exchange (the peer took no map): telling the peer the
-    /// result before reporting it.
-    Tell {
-        report: RobotReport,
-        teller: tell::Teller,
-    },
-    Done,
-}
+/// A robot: one poll-driven step machine over its feed line `F`, its ports
+/// to its peers `L` (in peer index order, itself skipped: a pair robot has
+/// one) and a platform's [`Meter`]. Every role implements it: the pair
+/// robot and the sender ([`Robot`]), the team member ([`team::TeamRobot`]);
+/// a board's main loop, the host's twin runs and the simulation drive them
+/// through it alone.
+pub trait Machine<F, L, T> {
+    /// What the robot reports when it is done (also sent to the feeder).
+    type Report;
 
-/// One robot: its maps, its link, its alignment, driven by [`Robot::poll`].
-pub struct Robot<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: PyramidStorage> {
-    state: State<'a, M, R>,
-    pyramids: Option<(P, Q)>,
-    fed: FeedIn,
-    link_started_ms: u64,
-    link_ms: u32,
-    /// The peer took no map: it is told the result (its robot id).
-    tell_peer: Option<u8>,
-    link_config: LinkConfig,
-}
-
-/// What a robot took from its feed line: the set-up, the points inserted,
-/// and the feed's framing and timing. Shared by the pair robot and the
-/// team robot ([`team`]).
-struct FeedIn {
-    config: RobotConfig,
-    deframer: Deframer,
-    setup: Option<Setup>,
-    /// Robots in the team (a team robot only).
-    team: Option<u8>,
-    points: u32,
-    map_instructions: u64,
-    last_fed_ms: Option<u64>,
-}
-
-impl FeedIn {
-    fn new(config: RobotConfig) -> Self {
-        FeedIn {
-            config,
-            deframer: Deframer::new(),
-            setup: None,
-            team: None,
-            points: 0,
-            map_instructions: 0,
-            last_fed_ms: None,
-        }
-    }
-
-    /// Reads what the feed line holds into `own` (both maps reconfigured by
-    /// the set-up; a robot that receives no map has no `received`); `true`
-    /// at the end of the feed. A team robot (`team`)
-    /// needs [`FeedMessage::Team`] after the set-up and no prior; a pair
-    /// robot refuses it.
-    fn read<F: Read + Write + ReadReady, M: VoxelStorage, R: VoxelSink, T: Meter>(
-        &mut self,
-        feed: &mut F,
-        own: &mut LocalMap<M>,
-        mut received: Option<&mut R>,
-        team: bool,
-        now_ms: u64,
-        meter: &T,
-    ) -> Result<bool, RobotError> {
-        if self.last_fed_ms.is_none() {
-            // First call: tell the feeder the robot listens.
-            send(feed, &RobotMessage::Ready);
-        }
-        let last = *self.last_fed_ms.get_or_insert(now_ms);
-        let mut buf = [0u8; 64];
-        while feed.read_ready().map_err(|_| RobotError::FeedIo)? {
-            let n = feed.read(&mut buf).map_err(|_| RobotError::FeedIo)?;
-            if n == 0 {
-                break;
-            }
-            self.last_fed_ms = Some(now_ms);
-            for &b in buf.get(..n).unwrap_or(&[]) {
-                let FeedIn { deframer, setup, points, map_instructions, team: robots, .. } = self;
-                let Some(payload) = deframer.push(b).map_err(RobotError::Frame)? else { continue };
-                let ready = setup.is_some() && robots.is_some() == team;
-                match FeedMessage::decode(payload).map_err(RobotError::Feed)? {
-                    FeedMessage::Setup(s) if setup.is_none() && !(team && s.prior.is_some()) => {
-                        let config = map_config(s.resolution);
-                        own.reset(config).map_err(RobotError::Config)?;
-                        if let Some(r) = received.as_deref_mut() {
-                            r.configure(config).map_err(RobotError::Config)?;
-                        }
-                        *setup = Some(s);
-                    }
-                    FeedMessage::Team { robots: n }
-                        if team && robots.is_none() && setup.is_some_and(|s| s.robot_id < n) =>
-                    {
-                        *robots = Some(n);
-                    }
-                    FeedMessage::Points { data, .. } if ready => {
-                        let t0 = meter.instructions();
-                        *points += insert_points(own, data).map_err(RobotError::Points)?;
-                        *map_instructions += meter.instructions().saturating_sub(t0);
-                    }
-                    FeedMessage::EndOfFeed { points: sent, .. } if ready => {
-                        if sent != *points {
-                            return Err(RobotError::PointCount { sent, received: *points });
-                        }
-                        return Ok(true);
-                    }
-                    _ => return Err(RobotError::Feed(FeedError::Order)),
-                }
-            }
-        }
-        if now_ms.saturating_sub(self.last_fed_ms.unwrap_or(last)) > self.config.feed_silence_ms {
-            return Err(RobotError::FeederSilent { points: self.points });
-        }
-        Ok(false)
-    }
-}
-
-impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: PyramidStorage> Robot<'a, M, R, P, Q> {
-    /// A robot over the caller's buffers: its own map and the received map
-    /// (reconfigured by the set-up), a scratch of one `u32` per voxel of the
-    /// larger map, the link's buffers, and the model's and scene's pyramid
-    /// storages.
-    pub fn new(
-        config: RobotConfig,
-        own: &'a mut LocalMap<M>,
-        received: &'a mut R,
-        scratch: &'a mut [u32],
-        buffers: &'a mut LinkBuffers,
-        model: P,
-        scene: Q,
-    ) -> Self {
-        Robot {
-            state: State::Feed { own, received, scratch, buffers },
-            pyramids: Some((model, scene)),
-            fed: FeedIn::new(config),
-            link_started_ms: 0,
-            link_ms: 0,
-            tell_peer: None,
-            link_config: LinkConfig::default(),
-        }
-    }
-
-    /// The set-up, once it arrived.
-    pub fn setup(&self) -> Option<&Setup> {
-        self.fed.setup.as_ref()
-    }
-
-    /// Does what can be done now: reads the feed, exchanges maps, aligns
-    /// (one long step), reports. On an error the robot tells its feeder
-    /// where and why, best effort, and stops.
-    pub fn poll<F, L, T>(&mut self, feed: &mut F, link: &mut L, now_ms: u64, meter: &T) -> Result<Poll, RobotError>
-    where
-        F: Read + Write + ReadReady,
-        L: Read + Write + ReadReady + WriteReady,
-        T: Meter,
-    {
-        let r = self.step(feed, link, now_ms, meter);
-        match &r {
-            Ok(Poll::Done(report)) => send(feed, &RobotMessage::Report(*report)),
-            Err(RobotError::Finished) | Ok(Poll::Busy) => {}
-            Err(e) => {
-                self.state = State::Done;
-                send_failure(feed, e);
-            }
-        }
-        r
-    }
-
-    fn step<F, L, T>(&mut self, feed: &mut F, link: &mut L, now_ms: u64, meter: &T) -> Result<Poll, RobotError>
-    where
-        F: Read + Write + ReadReady,
-        L: Read + Write + ReadReady + WriteReady,
-        T: Meter,
-    {
-        // The waiting states are polled in place: moving the state out and
-        // back (the link's endpoint is kilobytes) on every poll was most of
-        // a waiting robot's instructions.
-        match &mut self.state {
-            State::Feed { own, received, .. } => {
-                if self.fed.read(feed, own, Some(&mut **received), false, now_ms, meter)? {
-                    self.start_link(now_ms)?;
-                }
-                return Ok(Poll::Busy);
-            }
-            State::Link { endpoint, .. } => {
-                let progress = endpoint.step(link, now_ms).map_err(RobotError::Link)?;
-                if progress == Progress::Busy {
-                    return Ok(Poll::Busy);
-                }
-            }
-            _ => {}
-        }
-        match core::mem::replace(&mut self.state, State::Done) {
-            State::Feed { .. } => Err(RobotError::Finished),
-            State::Link { own, endpoint } => {
-                // The exchange is done (the step above said so).
-                self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
-                let stats = endpoint.stats();
-                if endpoint.peer_takes_map() == Some(false) {
-                    self.tell_peer = endpoint.peer_id();
-                }
-                let (_, received) = endpoint.into_parts();
-                let Some(received) = received else { return Err(RobotError::Link(LinkError::Setup)) };
-                self.state = State::Align { own, received, stats };
-                Ok(Poll::Busy)
-            }
-            State::Align { own, received, stats } => {
-                let (report, estimate) = self.align(own, received, &stats, meter)?;
-                match self.tell_peer {
-                    Some(peer) => {
-                        let estimate = Estimate { b: peer, ..estimate };
-                        self.state = State::Tell { report, teller: tell::Teller::new(estimate, now_ms) };
-                        Ok(Poll::Busy)
-                    }
-                    None => Ok(Poll::Done(report)),
-                }
-            }
-            State::Tell { report, mut teller } => {
-                let io = |_| RobotError::Link(LinkError::Io(embedded_io::ErrorKind::Other));
-                if teller.step(link, now_ms, &self.link_config).map_err(io)? {
-                    return Ok(Poll::Done(report));
-                }
-                self.state = State::Tell { report, teller };
-                Ok(Poll::Busy)
-            }
-            State::Done => Err(RobotError::Finished),
-        }
-    }
-
-    fn start_link(&mut self, now_ms: u64) -> Result<(), RobotError> {
-        let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
-        let State::Feed { own, received, scratch, buffers } = core::mem::replace(&mut self.state, State::Done) else {
-            return Err(RobotError::Feed(FeedError::Order));
-        };
-        let own: &'a LocalMap<M> = own;
-        let config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
-        self.link_config = config;
-        let id = setup.robot_id;
-        let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), Some(received), buffers)
-            .map_err(RobotError::Link)?;
-        self.link_started_ms = now_ms;
-        self.state = State::Link { own, endpoint };
-        Ok(())
-    }
-
-    fn align<T: Meter>(
-        &mut self,
-        own: &LocalMap<M>,
-        received: &R,
-        stats: &LinkStats,
-        meter: &T,
-    ) -> Result<(RobotReport, Estimate), RobotError> {
-        let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
-        let (model, scene) = self.pyramids.take().ok_or(RobotError::Finished)?;
-        let prior = setup.prior.as_ref().map(from_rows);
-        let (result, located, marks) = PhaseMarks::align(own, received, prior.as_ref(), model, scene, meter)?;
-        let estimate = result.estimate(setup.robot_id, 0);
-        let mut report = RobotReport {
-            result: result.report(setup.robot_id),
-            points: self.fed.points,
-            map_voxels: own.len() as u32,
-            received_voxels: received.len() as u32,
-            bytes_sent: stats.bytes_sent,
-            bytes_received: stats.bytes_received,
-            retransmissions: stats.retransmissions,
-            link_ms: self.link_ms,
-            map_instructions: self.fed.map_instructions,
-            prepare_instructions: 0,
-            locate_instructions: 0,
-            match_instructions: 0,
-            global: located.as_ref().map(GlobalReport::from),
-            peak_stack: meter.peak_stack(),
-            link_bytes_while_matching: 0,
-        };
-        marks.write_to(&mut report);
-        Ok((report, estimate))
-    }
-}
-
-/// Runs two robots to their end on one simulated line (the robots' UARTs
-/// joined through `line`), each fed `feeds[i]` (framed feed messages) from
-/// a [`ScriptPort`], in virtual time: one millisecond per round, the line
-/// ticked, each robot polled. This is how a host computes, on its own
-/// data, exactly what two boards compute. Stops after `limit_ms`.
-pub fn simulate_pair<M, R, P, Q, const N: usize>(
-    robots: [&mut Robot<'_, M, R, P, Q>; 2],
-    feeds: [&[u8]; 2],
-    line: &core::cell::RefCell<SimLine<N>>,
-    limit_ms: u64,
-) -> [Result<RobotReport, RobotError>; 2]
-where
-    M: VoxelStorage,
-    R: VoxelSink + SceneSource,
-    P: PyramidStorage,
-    Q: PyramidStorage,
-{
-    let [a, b] = robots;
-    let (mut la, mut lb) = SimLine::ports(line);
-    let mut fa = ScriptPort::<256>::new(feeds[0], 64);
-    let mut fb = ScriptPort::<256>::new(feeds[1], 64);
-    let mut out: [Option<Result<RobotReport, RobotError>>; 2] = [None, None];
-    let mut now = 0u64;
-    while out.iter().any(Option::is_none) && now <= limit_ms {
-        line.borrow_mut().tick(now);
-        for (i, (robot, feed, port)) in
-            [(&mut *a, &mut fa, &mut la), (&mut *b, &mut fb, &mut lb)].into_iter().enumerate()
-        {
-            if let Some(slot) = out.get_mut(i).filter(|o| o.is_none()) {
-                match robot.poll(feed, port, now, &()) {
-                    Ok(Poll::Busy) => {}
-                    Ok(Poll::Done(r)) => *slot = Some(Ok(r)),
-                    Err(e) => *slot = Some(Err(e)),
-                }
-            }
-        }
-        now += 1;
-    }
-    out.map(|o| o.unwrap_or(Err(RobotError::Link(LinkError::Silent))))
+    /// Does what can be done now (one long step at most: matching) and
+    /// says whether the robot is done. Once done or failed, every further
+    /// poll is [`RobotError::Finished`].
+    fn poll(&mut self, feed: &mut F, ports: &mut [L], now_ms: u64, meter: &T)
+        -> Result<Poll<Self::Report>, RobotError>;
 }
 
 /// Tells the feeder where and why the robot stopped, best effort.
@@ -737,9 +419,12 @@ fn send<F: Write>(feed: &mut F, msg: &RobotMessage<'_>) {
     }
 }
 
-pub mod sender;
+mod feed_in;
+mod pair;
 pub mod team;
 mod tell;
+
+pub use pair::{NoPyramid, NoScene, Robot, Sender};
 
 #[cfg(test)]
 mod tests;

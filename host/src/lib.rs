@@ -4,7 +4,7 @@
 //! serial ports, PNG or JSON printing).
 //!
 //! The modules are grouped by layer in folders ([`sources`], [`maps`],
-//! [`evaluation`], [`lines`], [`boards`], [`reports`]), each also reachable
+//! [`lines`], [`evaluation`], [`boards`], [`reports`]), each also reachable
 //! by its own name:
 //!
 //! - Data in: [`kitti`] (SemanticKITTI layout; every error names its file),
@@ -49,7 +49,17 @@ pub mod maps {
     pub mod ply;
 }
 
-/// Layer 3, matching and evaluation: alignment, pairs and teams on the
+/// Layer 3, lines: one robot's end of a map exchange, the paced lossy
+/// relay, TCP and serial ports behind embedded-io, two maps exchanged
+/// over a simulated line.
+pub mod lines {
+    pub mod exchange;
+    pub mod link;
+    pub mod relay;
+    pub mod transport;
+}
+
+/// Layer 4, matching and evaluation: alignment, pairs and teams on the
 /// host, the protocols, benchmarks, the demo.
 pub mod evaluation {
     pub mod align;
@@ -60,14 +70,6 @@ pub mod evaluation {
     pub mod pair;
     pub mod stats;
     pub mod team;
-}
-
-/// Layer 4, lines: one robot's end of a map exchange, the paced lossy
-/// relay, TCP and serial ports behind embedded-io.
-pub mod lines {
-    pub mod link;
-    pub mod relay;
-    pub mod transport;
 }
 
 /// Layer 5, boards: the robots' pipelines on emulated boards (QEMU) and
@@ -91,7 +93,7 @@ pub mod rng;
 // The modules by their own names too (the paths the crate has always had).
 pub use boards::{board, robots, team_board};
 pub use evaluation::{align, bench, boxplot, demo, eval, pair, stats, team};
-pub use lines::{link, relay, transport};
+pub use lines::{exchange, link, relay, transport};
 pub use maps::{cmap, mapping, noise, ply};
 pub use reports::report;
 pub use sources::{cdr_read, class_table, cloud, kitti, label, mcap_read, recording, source, synth};

@@ -19,6 +19,8 @@ const LAYERS: &[(&str, u32)] = &[
     ("team", 6),
     ("selftest", 7),
     ("robot", 8),
+    // Tests and hosts only (feature `sim`): lines and the driver of robots.
+    ("sim", 9),
 ];
 
 fn layer(module: &str) -> Option<u32> {

@@ -34,7 +34,6 @@
 //! they are finished (an acknowledgement flag), or after a linger time.
 
 mod endpoint;
-pub mod sim;
 
 pub use endpoint::{
     Endpoint, Finished, LinkBuffers, LinkConfig, LinkError, LinkParts, LinkStats, Progress, STREAM_BUFFER,

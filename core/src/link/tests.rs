@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::link::LinkBuffers;
+use crate::sim;
 
 /// Link buffers for one endpoint of a test (leaked: a test's lifetime).
 fn bufs() -> &'static mut LinkBuffers {

@@ -18,8 +18,9 @@
 //! table of estimates lives in the scratch once the maps have crossed
 //! (the scratch orders the robot's own map for the link only).
 
-use super::{FeedIn, Meter, PhaseMarks, RobotConfig, RobotError};
-use crate::geometry::{from_rows, rows, Isometry3};
+use super::feed_in::FeedIn;
+use super::{Machine, Meter, PhaseMarks, Poll, RobotConfig, RobotError};
+use crate::geometry::{from_rows, rows};
 use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkParts, LinkStats, Progress};
 use crate::map::{LocalMap, VoxelSink, VoxelStorage};
 use crate::matching::{MatchStatus, PyramidStorage, SceneSource};
@@ -157,38 +158,23 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         }
     }
 
-    /// Does what can be done now: reads the feed, exchanges maps with the
-    /// round's peer over `ports[port_of(me, peer)]`, matches (one long
-    /// step), shares estimates, solves. Every match and the placement go to
-    /// the feeder as they come. On an error the robot tells its feeder
-    /// where and why, best effort, and stops.
-    pub fn poll<F, L, T>(&mut self, feed: &mut F, ports: &mut [L], now_ms: u64, meter: &T) -> Result<bool, RobotError>
-    where
-        F: Read + Write + ReadReady,
-        L: Read + Write + ReadReady + WriteReady,
-        T: Meter,
-    {
-        let r = self.step(feed, ports, now_ms, meter);
-        if let Err(e) = &r {
-            if *e != RobotError::Finished {
-                self.phase = Phase::Done;
-                super::send_failure(feed, e);
-            }
-        }
-        r
-    }
-
     fn me(&self) -> u8 {
-        self.fed.setup.map(|s| s.robot_id).unwrap_or(0)
+        self.fed.me()
     }
 
     fn robots(&self) -> u8 {
         self.fed.team.unwrap_or(0)
     }
 
-    /// One step; `Ok(true)` when finished.
+    /// One step.
     #[inline(never)]
-    fn step<F, L, T>(&mut self, feed: &mut F, ports: &mut [L], now_ms: u64, meter: &T) -> Result<bool, RobotError>
+    fn step<F, L, T>(
+        &mut self,
+        feed: &mut F,
+        ports: &mut [L],
+        now_ms: u64,
+        meter: &T,
+    ) -> Result<Poll<TeamEnd>, RobotError>
     where
         F: Read + Write + ReadReady,
         L: Read + Write + ReadReady + WriteReady,
@@ -202,14 +188,14 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
             Phase::Feed { own, received, .. } => {
                 let ended = self.fed.read(feed, own, Some(&mut **received), true, now_ms, meter)?;
                 if !ended {
-                    return Ok(false);
+                    return Ok(Poll::Busy);
                 }
             }
             Phase::Link { peer, endpoint, .. } => {
                 let port = ports.get_mut(port_of(me, *peer)).ok_or(RobotError::Link(LinkError::Setup))?;
                 progress = endpoint.step(port, now_ms);
                 if progress == Ok(Progress::Busy) {
-                    return Ok(false);
+                    return Ok(Poll::Busy);
                 }
             }
             _ => {}
@@ -223,11 +209,11 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
                     return Err(RobotError::Link(LinkError::Setup));
                 }
                 self.phase = Phase::Ready { own, received, scratch, buffers };
-                Ok(false)
+                Ok(Poll::Busy)
             }
             Phase::Ready { own, received, scratch, buffers } => {
                 self.next_round(own, received, scratch, buffers, now_ms)?;
-                Ok(false)
+                Ok(Poll::Busy)
             }
             // The exchange ended (stepped above, `progress`).
             Phase::Link { own, peer, started, endpoint } => {
@@ -246,7 +232,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
                 super::send(feed, &RobotMessage::Matched { peer, report });
                 self.round += 1;
                 self.phase = Phase::Ready { own, received, scratch, buffers };
-                Ok(false)
+                Ok(Poll::Busy)
             }
             Phase::Share { scratch, with } => self.share(feed, ports, scratch, with, now_ms, meter),
             Phase::Done => Err(RobotError::Finished),
@@ -309,7 +295,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         if let Some(slot) = self.estimates.get_mut(usize::from(peer)) {
             *slot = Some(result.estimate(me, peer));
         }
-        let mut report = self.report_base(own, stats, link_ms, meter);
+        let mut report = self.fed.report(own.len(), stats, link_ms, meter.peak_stack());
         report.result = result.report(me);
         report.received_voxels = received.len() as u32;
         marks.write_to(&mut report);
@@ -330,38 +316,9 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         if let Some(slot) = self.estimates.get_mut(usize::from(peer)) {
             *slot = Some(none);
         }
-        let mut report = self.report_base(own, stats, link_ms, meter);
+        let mut report = self.fed.report(own.len(), stats, link_ms, meter.peak_stack());
         report.result.status = NO_EXCHANGE;
         report
-    }
-
-    fn report_base<T: Meter>(&self, own: &LocalMap<M>, stats: &LinkStats, link_ms: u32, meter: &T) -> RobotReport {
-        let me = self.me();
-        RobotReport {
-            result: crate::wire::report::MatchReport {
-                robot_id: me,
-                status: NO_EXCHANGE,
-                transform: rows(&Isometry3::identity()),
-                iterations: 0,
-                inliers: 0,
-                overlap: 0.0,
-                rmse: 0.0,
-            },
-            points: self.fed.points,
-            map_voxels: own.len() as u32,
-            received_voxels: 0,
-            bytes_sent: stats.bytes_sent,
-            bytes_received: stats.bytes_received,
-            retransmissions: stats.retransmissions,
-            link_ms,
-            map_instructions: self.fed.map_instructions,
-            prepare_instructions: 0,
-            locate_instructions: 0,
-            match_instructions: 0,
-            global: None,
-            peak_stack: meter.peak_stack(),
-            link_bytes_while_matching: 0,
-        }
     }
 
     /// The sharing rounds: with each peer in turn, send our estimates
@@ -375,7 +332,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         with: Option<ShareRound>,
         now_ms: u64,
         meter: &T,
-    ) -> Result<bool, RobotError>
+    ) -> Result<Poll<TeamEnd>, RobotError>
     where
         F: Read + Write + ReadReady,
         L: Read + Write + ReadReady + WriteReady,
@@ -401,9 +358,9 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
                         deframer: Deframer::new(),
                     },
                     None => {
-                        self.finish(feed, table, now_ms, meter)?;
+                        let end = self.finish(feed, table, now_ms, meter)?;
                         self.phase = Phase::Done;
-                        return Ok(true);
+                        return Ok(Poll::Done(end));
                     }
                 }
             }
@@ -416,7 +373,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         } else {
             self.phase = Phase::Share { scratch, with: Some(with) };
         }
-        Ok(false)
+        Ok(Poll::Busy)
     }
 
     /// Checks the table's converged estimates for consistency, solves the
@@ -430,7 +387,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         table: &[u32],
         now_ms: u64,
         meter: &T,
-    ) -> Result<(), RobotError> {
+    ) -> Result<TeamEnd, RobotError> {
         let n = self.robots();
         let t0 = meter.instructions();
         // The converged estimates, as (a, b), in the order a then b.
@@ -485,7 +442,36 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
             peak_stack: meter.peak_stack(),
         };
         super::send(feed, &RobotMessage::TeamEnd(end));
-        Ok(())
+        Ok(end)
+    }
+}
+
+impl<M, R, P, Q, F, L, T> Machine<F, L, T> for TeamRobot<'_, M, R, P, Q>
+where
+    M: VoxelStorage,
+    R: VoxelSink + SceneSource,
+    P: PyramidStorage,
+    Q: PyramidStorage,
+    F: Read + Write + ReadReady,
+    L: Read + Write + ReadReady + WriteReady,
+    T: Meter,
+{
+    type Report = TeamEnd;
+
+    /// Does what can be done now: reads the feed, exchanges maps with the
+    /// round's peer over `ports[port_of(me, peer)]`, matches (one long
+    /// step), shares estimates, solves. Every match and the placement go to
+    /// the feeder as they come. On an error the robot tells its feeder
+    /// where and why, best effort, and stops.
+    fn poll(&mut self, feed: &mut F, ports: &mut [L], now_ms: u64, meter: &T) -> Result<Poll<TeamEnd>, RobotError> {
+        let r = self.step(feed, ports, now_ms, meter);
+        if let Err(e) = &r {
+            if *e != RobotError::Finished {
+                self.phase = Phase::Done;
+                super::send_failure(feed, e);
+            }
+        }
+        r
     }
 }
 

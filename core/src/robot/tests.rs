@@ -2,9 +2,12 @@
 
 use super::*;
 use crate::classes::Class;
-use crate::link::sim::{SimConfig, SimLine};
+use crate::link::LinkBuffers;
+use crate::map::MapConfig;
+use crate::sim::{self, ScriptPort, SimConfig, SimLine, SimRobot, Wire};
 use crate::test_util::{heap_map, heap_pyramid};
 use crate::wire::feed::pack_point;
+use crate::wire::feed::{FeedMessage, RobotMessage, RobotReport, Setup};
 use std::vec::Vec;
 
 #[test]
@@ -61,15 +64,13 @@ fn two_robots_map_link_and_align() {
     let (mut la, mut lb) = (std::boxed::Box::new(LinkBuffers::new()), std::boxed::Box::new(LinkBuffers::new()));
     let mut a = Robot::new(RobotConfig::default(), &mut own_a, &mut rec_a, &mut sa, &mut la, pyr(), pyr());
     let mut b = Robot::new(RobotConfig::default(), &mut own_b, &mut rec_b, &mut sb, &mut lb, pyr(), pyr());
-    let line = std::boxed::Box::new(core::cell::RefCell::new(SimLine::<8192>::new(SimConfig {
-        seed: 3,
-        error_rate: 0.0,
-        stall_chance: 0.0,
-        bytes_per_ms: 11.52,
-        half_duplex: false,
-    })));
-    let [ra, rb] = simulate_pair([&mut a, &mut b], [&feeds[0], &feeds[1]], &line, 600_000);
-    let (ra, rb) = (ra.unwrap(), rb.unwrap());
+    let out = sim::run(
+        &mut [&mut a as &mut SimRobot<'_, '_, RobotReport>, &mut b],
+        &[&feeds[0], &feeds[1]],
+        &[Wire::clean(0, 1, 115_200, 3)],
+        600_000,
+    );
+    let [ra, rb] = [0, 1].map(|i| out[i].result.unwrap().unwrap());
     for (r, t) in [(ra, truth), (rb, truth.inverse())] {
         assert_eq!(r.result.status, crate::matching::MatchStatus::Converged.code());
         let d = r.result.transform() * t.inverse();
@@ -77,10 +78,18 @@ fn two_robots_map_link_and_align() {
         assert!(r.map_voxels > 800 && r.received_voxels > 800 && r.bytes_sent > 0);
     }
     assert_eq!((ra.map_voxels, ra.received_voxels), (rb.received_voxels, rb.map_voxels));
+    // Each told its feeder it listens, then its report.
+    for (ended, r) in out.iter().zip([ra, rb]) {
+        let mut d = crate::wire::Deframer::new();
+        let msgs: Vec<_> = ended.told.iter().filter_map(|&b| d.push(b).ok().flatten().map(|p| p.to_vec())).collect();
+        assert_eq!(msgs.len(), 2);
+        assert_eq!(RobotMessage::decode(&msgs[1]), Ok(RobotMessage::Report(r)));
+    }
     // Polled again, a finished robot says so.
     let mut feed = ScriptPort::<256>::new(&[], 1);
-    let (mut port, _) = SimLine::ports(&line);
-    assert_eq!(a.poll(&mut feed, &mut port, 0, &()), Err(RobotError::Finished));
+    let line = core::cell::RefCell::new(SimLine::<64>::new(SimConfig::clean(115_200, 1)));
+    let (port, _) = SimLine::ports(&line);
+    assert_eq!(a.poll(&mut feed, &mut [port], 0, &()), Err(RobotError::Finished));
 }
 
 /// A one-sided exchange over a line with byte errors: robot B takes no
@@ -100,34 +109,16 @@ fn a_robot_that_takes_no_map_is_told_the_result() {
     let pyr = || heap_pyramid(4096, 4096, 20_000);
     let (mut la, mut lb) = (std::boxed::Box::new(LinkBuffers::new()), std::boxed::Box::new(LinkBuffers::new()));
     let mut a = Robot::new(RobotConfig::default(), &mut own_a, &mut rec_a, &mut sa, &mut la, pyr(), pyr());
-    let mut b = sender::SenderRobot::new(RobotConfig::default(), &mut own_b, &mut sb, &mut lb);
+    let mut b = Robot::sender(RobotConfig::default(), &mut own_b, &mut sb, &mut lb);
     {
-        let line = std::boxed::Box::new(core::cell::RefCell::new(SimLine::<8192>::new(SimConfig {
-            seed: 5,
-            error_rate: 0.01,
-            stall_chance: 0.0,
-            bytes_per_ms: 11.52,
-            half_duplex: false,
-        })));
-        let (mut pa, mut pb) = SimLine::ports(&line);
-        let mut fa = ScriptPort::<256>::new(&feeds[0], 64);
-        let mut fb = ScriptPort::<256>::new(&feeds[1], 64);
-        let (mut ra, mut rb) = (None, None);
-        let mut now = 0u64;
-        while (ra.is_none() || rb.is_none()) && now < 600_000 {
-            line.borrow_mut().tick(now);
-            if ra.is_none() {
-                if let Poll::Done(r) = a.poll(&mut fa, &mut pa, now, &()).unwrap() {
-                    ra = Some(r);
-                }
-            }
-            if rb.is_none() {
-                if let Poll::Done(r) = b.poll(&mut fb, &mut pb, now, &()).unwrap() {
-                    rb = Some(r);
-                }
-            }
-            now += 1;
-        }
+        let wire = Wire { a: 0, b: 1, line: SimConfig { error_rate: 0.01, ..SimConfig::clean(115_200, 5) } };
+        let out = sim::run(
+            &mut [&mut a as &mut SimRobot<'_, '_, RobotReport>, &mut b],
+            &[&feeds[0], &feeds[1]],
+            &[wire],
+            600_000,
+        );
+        let [ra, rb] = [0, 1].map(|i| out[i].result.and_then(|r| r.ok()));
         let (ra, rb) = (ra.expect("robot A reported"), rb.expect("robot B reported"));
         assert_eq!(ra.result.status, crate::matching::MatchStatus::Converged.code());
         assert_eq!(rb.result.status, ra.result.status);
@@ -159,17 +150,12 @@ fn a_bad_feed_is_reported() {
     );
     let half = &feed[..feed.len() / 2];
     let mut port = ScriptPort::<256>::new(half, 64);
-    let line = core::cell::RefCell::new(SimLine::<64>::new(SimConfig {
-        seed: 1,
-        error_rate: 0.0,
-        stall_chance: 0.0,
-        bytes_per_ms: 1.0,
-        half_duplex: false,
-    }));
-    let (mut link, _) = SimLine::ports(&line);
+    let line = core::cell::RefCell::new(SimLine::<64>::new(SimConfig::clean(10_000, 1)));
+    let (link, _) = SimLine::ports(&line);
+    let mut links = [link];
     let mut now = 0;
     let err = loop {
-        match robot.poll(&mut port, &mut link, now, &()) {
+        match robot.poll(&mut port, &mut links, now, &()) {
             Ok(Poll::Busy) => now += 1,
             Ok(Poll::Done(_)) => panic!("finished on half a feed"),
             Err(e) => break e,

@@ -14,13 +14,11 @@ use crate::kitti::{Frame, FrameRange};
 use crate::mapping::{new_map, PointFilter};
 use cosem_core::classes::{Class, NUM_CLASSES};
 use cosem_core::geometry::{errors_of, from_rows, pose_deg, row_major, rows, Isometry3};
-use cosem_core::link::sim::ScriptPort;
-use cosem_core::link::sim::{SimConfig, SimLine};
 use cosem_core::link::LinkBuffers;
-use cosem_core::map::{SceneMap, ScenePoint, VecStorage};
+use cosem_core::map::{SceneMap, ScenePoint};
 use cosem_core::matching::{MatchStatus, PyramidCapacity, VecPyramidStorage};
-use cosem_core::robot::sender::SenderRobot;
-use cosem_core::robot::{self, Poll, Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
+use cosem_core::robot::{self, Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
+use cosem_core::sim::{self, SimRobot, Wire};
 use cosem_core::wire::feed::{
     self, FeedMessage, RobotMessage, RobotReport, Setup, MAX_POINTS_PER_MESSAGE, POINT_BYTES,
 };
@@ -168,19 +166,10 @@ pub(crate) fn board_pyramids() -> (impl Fn() -> VecPyramidStorage, impl Fn() -> 
     (model, scene)
 }
 
-/// A robot of a pair as the host runs it: the full robot, or one that
-/// sends its map and is told the result (a small board's). Two per run:
-/// their size does not matter.
-#[allow(clippy::large_enum_variant)]
-enum HostRobot<'a> {
-    Full(Robot<'a, VecStorage, Received, VecPyramidStorage, VecPyramidStorage>),
-    Sender(SenderRobot<'a, VecStorage>),
-}
-
 /// The two robots' pipeline run on this host, exactly as on the boards:
 /// the core's robot step machines with each board's capacities, the maps
-/// exchanged over a clean simulated 115200-baud line, one millisecond per
-/// round of polls. Returns each robot's report (`T_own_peer`).
+/// exchanged over a clean simulated 115200-baud line, in the core's
+/// simulation ([`sim::run`]). Returns each robot's report (`T_own_peer`).
 pub fn host_run(feeds: [&Feed; 2], boards: [Board; 2]) -> Result<[RobotReport; 2], Error> {
     if !boards.iter().any(|b| b.matches()) {
         return Err(Error::Invalid("neither robot's board can match: one must hold both maps".into()));
@@ -193,53 +182,26 @@ pub fn host_run(feeds: [&Feed; 2], boards: [Board; 2]) -> Result<[RobotReport; 2
     let mut links = [Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new())];
     let (model_storage, scene_storage) = board_pyramids();
     let robot_config = RobotConfig::default();
-    let mut robots: Vec<HostRobot<'_>> = Vec::new();
+    // Each robot in its board's role: the full robot, or one that sends
+    // its map and is told the result (a small board's).
+    let mut robots: Vec<Box<SimRobot<'_, '_, RobotReport>>> = Vec::new();
     for ((((board, own), received), scratch), link) in
         boards.iter().zip(&mut own).zip(&mut received).zip(&mut scratch).zip(&mut links)
     {
         robots.push(if board.matches() {
-            HostRobot::Full(Robot::new(robot_config, own, received, scratch, link, model_storage(), scene_storage()))
+            Box::new(Robot::new(robot_config, own, received, scratch, link, model_storage(), scene_storage()))
         } else {
-            HostRobot::Sender(SenderRobot::new(robot_config, own, scratch, link))
+            Box::new(Robot::sender(robot_config, own, scratch, link))
         });
     }
-    let line = Box::new(std::cell::RefCell::new(SimLine::<65536>::new(SimConfig {
-        seed: 1,
-        error_rate: 0.0,
-        stall_chance: 0.0,
-        bytes_per_ms: 11.52,
-        half_duplex: false,
-    })));
-    let (pa, pb) = SimLine::ports(&line);
-    let mut ports = [pa, pb];
-    let mut feeders = [ScriptPort::<256>::new(&bytes[0], 64), ScriptPort::<256>::new(&bytes[1], 64)];
-    let mut out: [Option<Result<RobotReport, robot::RobotError>>; 2] = [None, None];
-    let mut now = 0u64;
-    while out.iter().any(Option::is_none) && now <= 3_600_000 {
-        line.borrow_mut().tick(now);
-        for (i, robot) in robots.iter_mut().enumerate() {
-            if out[i].is_some() {
-                continue;
-            }
-            let polled = match robot {
-                HostRobot::Full(r) => r.poll(&mut feeders[i], &mut ports[i], now, &()),
-                HostRobot::Sender(r) => r.poll(&mut feeders[i], &mut ports[i], now, &()),
-            };
-            match polled {
-                Ok(Poll::Busy) => {}
-                Ok(Poll::Done(r)) => out[i] = Some(Ok(r)),
-                Err(e) => out[i] = Some(Err(e)),
-            }
-        }
-        now += 1;
-    }
-    let named = |i: usize, r: Option<Result<RobotReport, robot::RobotError>>| match r {
+    let mut polled: Vec<&mut SimRobot<'_, '_, RobotReport>> = robots.iter_mut().map(|r| &mut **r).collect();
+    let out = sim::run(&mut polled, &[&bytes[0], &bytes[1]], &[Wire::clean(0, 1, 115_200, 1)], 3_600_000);
+    let named = |i: usize| match out.get(i).and_then(|o| o.result) {
         Some(Ok(r)) => Ok(r),
         Some(Err(e)) => Err(Error::Invalid(format!("host run of robot {i}: {} stage: {e}", e.stage().as_str()))),
         None => Err(Error::Invalid(format!("host run of robot {i}: no report within an hour of robot time"))),
     };
-    let [ra, rb] = out;
-    Ok([named(0, ra)?, named(1, rb)?])
+    Ok([named(0)?, named(1)?])
 }
 
 /// Where `cargo build --release` in firmware/ puts the robot binary.

@@ -14,13 +14,12 @@
 use crate::error::Error;
 use crate::mapping::new_map;
 use crate::robots::{accept, board_pyramids, pump, qemu, Feed, FeederLine, LineFault};
-use cosem_core::link::sim::{ScriptPort, SimConfig, SimLine, SimPort};
 use cosem_core::link::LinkBuffers;
 use cosem_core::robot::team::{port_of, TeamRobot, TABLE_WORDS};
 use cosem_core::robot::{self, RobotConfig, VOXELS};
+use cosem_core::sim::{self, SimRobot, Wire};
 use cosem_core::wire::feed::{PlacedRobot, RobotMessage, RobotReport, TeamEnd};
 use cosem_core::wire::frame::Deframer;
-use std::cell::RefCell;
 use std::io::Read;
 use std::net::{TcpListener, TcpStream};
 use std::path::Path;
@@ -136,45 +135,12 @@ pub fn host_team_run(feeds: &[Feed]) -> Result<Vec<TeamReports>, Error> {
             )
         })
         .collect();
-    // One line per pair (i < j): side 0 is robot i's end.
-    let sim = |k: usize| SimConfig {
-        seed: k as u64 + 1,
-        error_rate: 0.0,
-        stall_chance: 0.0,
-        bytes_per_ms: 11.52,
-        half_duplex: false,
-    };
-    let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
-    let lines: Vec<RefCell<SimLine<65536>>> =
-        pairs.iter().enumerate().map(|(k, _)| RefCell::new(SimLine::new(sim(k)))).collect();
-    let mut ports: Vec<Vec<Option<SimPort<'_, 65536>>>> =
-        (0..n).map(|_| (0..n.max(2) - 1).map(|_| None).collect()).collect();
-    for (&(i, j), line) in pairs.iter().zip(&lines) {
-        let (a, b) = SimLine::ports(line);
-        ports[i][port_of(i as u8, j as u8)] = Some(a);
-        ports[j][port_of(j as u8, i as u8)] = Some(b);
-    }
-    let mut ports: Vec<Vec<SimPort<'_, 65536>>> =
-        ports.into_iter().map(|p| p.into_iter().flatten().collect()).collect();
-    let mut feeders: Vec<ScriptPort<'_, 16384>> = bytes.iter().map(|b| ScriptPort::new(b, 64)).collect();
-    let mut done = vec![false; n];
-    let limit_ms = 3_600_000u64;
-    let mut now = 0u64;
-    while done.iter().any(|d| !d) && now <= limit_ms {
-        for line in &lines {
-            line.borrow_mut().tick(now);
-        }
-        for i in 0..n {
-            if !done[i] {
-                match robots[i].poll(&mut feeders[i], &mut ports[i], now, &()) {
-                    Ok(false) => {}
-                    Ok(true) | Err(_) => done[i] = true,
-                }
-            }
-        }
-        now += 1;
-    }
-    Ok(feeders.iter().map(|f| TeamReports::from_bytes(&f.output)).collect())
+    let mut polled: Vec<&mut SimRobot<'_, '_, TeamEnd>> =
+        robots.iter_mut().map(|r| r as &mut SimRobot<'_, '_, _>).collect();
+    let feeds: Vec<&[u8]> = bytes.iter().map(Vec::as_slice).collect();
+    // One clean line per pair of robots, the boards' mesh.
+    let out = sim::run(&mut polled, &feeds, &Wire::mesh(n, 115_200), 3_600_000);
+    Ok(out.iter().map(|o| TeamReports::from_bytes(&o.told)).collect())
 }
 
 /// One board's run.

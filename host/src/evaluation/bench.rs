@@ -5,14 +5,13 @@
 use crate::align::{prepare, DEFAULT_LEVELS};
 use crate::error::Error;
 use crate::eval::{grid, STRICT};
+use crate::exchange::simulate_exchange;
 use crate::kitti::{Frame, FrameRange, Sequence};
 use crate::mapping::{new_map, HostMap, PointFilter};
 use crate::pair::{Pair, PairSpec};
 use crate::stats::median;
 use cosem_core::classes::Class;
 use cosem_core::geometry::errors_of;
-use cosem_core::link::sim::{SimConfig, SimLine};
-use cosem_core::link::{Endpoint, LinkBuffers, LinkConfig, Progress};
 use cosem_core::map::MapConfig;
 use cosem_core::matching::{MatchResult, MatchSettings, Matcher};
 use std::path::{Path, PathBuf};
@@ -152,64 +151,6 @@ pub struct LinkFigures {
     pub retransmissions: [u32; 2],
     /// Both maps arrived whole (digest checked) and both ends ended well.
     pub delivered: bool,
-}
-
-/// One simulated exchange of two maps, both ways at once.
-pub struct SimExchange {
-    /// What each side received: B's map at A, then A's map at B.
-    pub received: [HostMap; 2],
-    /// Each side's link figures.
-    pub stats: [cosem_core::link::LinkStats; 2],
-    /// Simulated seconds until A's map, then B's, was through (`None`: never).
-    pub through_s: [Option<f64>; 2],
-    /// Simulated seconds until both ends were over (closing included).
-    pub over_s: f64,
-    /// Both maps arrived whole (digest checked) and both ends ended well.
-    pub delivered: bool,
-}
-
-/// Maps `ma` and `mb` exchanged at once over a simulated line of `baud`
-/// with byte error `rate` (seeded by `seed`), in simulated time, by the
-/// core's link endpoints (robot ids 0 and 1).
-pub fn simulate_exchange(ma: &HostMap, mb: &HostMap, rate: f64, baud: u32, seed: u64) -> Result<SimExchange, Error> {
-    let line = Box::new(std::cell::RefCell::new(SimLine::<65536>::new(SimConfig {
-        seed,
-        error_rate: rate,
-        stall_chance: 0.0,
-        bytes_per_ms: f64::from(baud) / 10.0 / 1000.0,
-        half_duplex: false,
-    })));
-    let (mut p0, mut p1) = SimLine::ports(&line);
-    let (mut s0, mut s1) = (vec![0u32; ma.len()], vec![0u32; mb.len()]);
-    let (mut st0, mut st1) = (new_map(mb.len(), *ma.config())?, new_map(ma.len(), *ma.config())?);
-    let lc = LinkConfig::default();
-    let setup = |e| Error::Invalid(format!("link set-up: {e}"));
-    let (mut b0, mut b1) = (Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new()));
-    let mut e0 = Endpoint::new(lc, 0, 1, 0, Some((ma, &mut s0)), Some(&mut st0), &mut *b0).map_err(setup)?;
-    let mut e1 = Endpoint::new(lc, 1, 2, 0, Some((mb, &mut s1)), Some(&mut st1), &mut *b1).map_err(setup)?;
-    let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
-    let mut through = [None, None];
-    let mut now = 0u64;
-    while (r0 == Ok(Progress::Busy) || r1 == Ok(Progress::Busy)) && now < 3_600_000 {
-        line.borrow_mut().tick(now);
-        if r0 == Ok(Progress::Busy) {
-            r0 = e0.step(&mut p0, now);
-        }
-        if r1 == Ok(Progress::Busy) {
-            r1 = e1.step(&mut p1, now);
-        }
-        // When each map was through (before the closing).
-        for (slot, done) in through.iter_mut().zip([e1.received(), e0.received()]) {
-            if slot.is_none() && done {
-                *slot = Some(now as f64 / 1e3);
-            }
-        }
-        now += 1;
-    }
-    let stats = [e0.stats(), e1.stats()];
-    let whole = st1.len() == ma.len() && st0.len() == mb.len();
-    let delivered = r0 == Ok(Progress::Done) && r1 == Ok(Progress::Done) && whole;
-    Ok(SimExchange { received: [st0, st1], stats, through_s: through, over_s: now as f64 / 1e3, delivered })
 }
 
 /// Both maps of `pair` exchanged at once over a simulated line of `baud`

@@ -14,8 +14,8 @@
 //! to robot 0 are a separate group in the frame of their lowest index.
 
 use crate::align::{align, prepare, DEFAULT_LEVELS};
-use crate::bench::simulate_exchange;
 use crate::error::Error;
+use crate::exchange::simulate_exchange;
 use crate::kitti::FrameRange;
 use crate::mapping::{build_map, HostMap, PointFilter};
 use crate::rng::Rng;

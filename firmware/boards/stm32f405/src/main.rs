@@ -1,6 +1,6 @@
 //! Robot B on an STM32F405 (`cosem robots --board-b stm32f405`): 192 KiB of
 //! RAM cannot hold two maps and a matcher, so this robot is the core's
-//! [`SenderRobot`]: fed its thinned points over USART1, it builds its map
+//! [`Robot::sender`]: fed its thinned points over USART1, it builds its map
 //! (4,096 voxels, the main SRAM's 128 KiB), sends it over USART2 and takes
 //! none, then is told robot A's result and reports it as its own `T_B_A`.
 //! Everything else (link buffers, scratch, receive rings, stack) lives in
@@ -19,8 +19,7 @@ use cortex_m_rt::entry;
 use cosem_core::link::LinkBuffers;
 use cosem_core::map::LocalMap;
 use cosem_core::matching::MatchStatus;
-use cosem_core::robot::sender::SenderRobot;
-use cosem_core::robot::{map_config, Meter, Poll, RobotConfig, SmallMapStorage};
+use cosem_core::robot::{map_config, Machine, Meter, Poll, Robot, RobotConfig, SmallMapStorage};
 use cosem_firmware::serial::{IrqReceiver, RingSerial, RxInterrupt, RX_RING};
 use cosem_firmware::{exit, instructions_at, millis_at, peak_stack, start_clock};
 use stm32f4xx_hal::pac::{self, interrupt, Interrupt};
@@ -150,9 +149,10 @@ fn main() -> ! {
     };
     // The set-up names the voxel size; until then the map waits empty.
     let Ok(mut own) = LocalMap::new(own, map_config(0.5)) else { exit(false) };
-    let mut robot = SenderRobot::new(RobotConfig::default(), &mut own, scratch, buffers);
+    let mut robot = Robot::sender(RobotConfig::default(), &mut own, scratch, buffers);
+    let link = core::slice::from_mut(&mut link);
     loop {
-        match robot.poll(&mut feed, &mut link, millis_at(systick_hz()), &Board) {
+        match robot.poll(&mut feed, link, millis_at(systick_hz()), &Board) {
             Ok(Poll::Busy) => {}
             Ok(Poll::Done(report)) => exit(report.result.status == MatchStatus::Converged.code()),
             Err(_e) => {

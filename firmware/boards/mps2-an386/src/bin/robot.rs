@@ -21,7 +21,8 @@ use cosem_core::map::{LocalMap, SceneMap, ScenePoint};
 use cosem_core::matching::MatchStatus;
 use cosem_core::matching::SplitStorage;
 use cosem_core::robot::{
-    map_config, MapStorage, ModelLevel0, ModelRest, Poll, ReceivedStorage, Robot, RobotConfig, SceneStorage, VOXELS,
+    map_config, Machine, MapStorage, ModelLevel0, ModelRest, Poll, ReceivedStorage, Robot, RobotConfig, SceneStorage,
+    VOXELS,
 };
 use cosem_mps2_an386::serial::{IrqReceiver, RingSerial, RX_RING};
 use cosem_mps2_an386::turns::Later;
@@ -122,8 +123,9 @@ fn main() -> ! {
     };
     let mut robot = Robot::new(RobotConfig::default(), &mut own, &mut received, scratch, buffers, model, scene);
     let board = Board { link_bytes: || LINK_RX.ring().pushed() };
+    let link = core::slice::from_mut(&mut link);
     loop {
-        match robot.poll(&mut feed, &mut link, millis(), &board) {
+        match robot.poll(&mut feed, link, millis(), &board) {
             Ok(Poll::Busy) => {
                 // Nothing received: sleep until a byte or the clock's
                 // wrap (a guest that spins on memory alone starves QEMU's

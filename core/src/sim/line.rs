@@ -24,6 +24,19 @@ pub struct SimConfig {
     pub half_duplex: bool,
 }
 
+impl SimConfig {
+    /// A clean full-duplex line of `baud` (8N1: ten bits a byte).
+    pub fn clean(baud: u32, seed: u64) -> Self {
+        SimConfig {
+            seed,
+            error_rate: 0.0,
+            stall_chance: 0.0,
+            bytes_per_ms: f64::from(baud) / 10.0 / 1000.0,
+            half_duplex: false,
+        }
+    }
+}
+
 struct Ring<const N: usize> {
     buf: [u8; N],
     head: usize,
