@@ -22,6 +22,7 @@ use cosem_core::matching::MatchStatus;
 use cosem_core::robot::{map_config, Machine, Meter, Poll, Robot, RobotConfig, SmallMapStorage};
 use cosem_firmware::serial::{IrqReceiver, RingSerial, RxInterrupt, RX_RING};
 use cosem_firmware::{exit, instructions_at, millis_at, peak_stack, start_clock};
+use static_cell::ConstStaticCell;
 use stm32f4xx_hal::pac::{self, interrupt, Interrupt};
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
@@ -42,9 +43,11 @@ fn systick_hz() -> u32 {
 /// The map, in the main SRAM (cleared in `main`: the section is not
 /// zeroed at reset).
 #[link_section = ".sram"]
+/// A `static mut`, not a `ConstStaticCell` as the others: a cell's
+/// "taken" flag in this section would start as whatever the SRAM held.
 static mut OWN: MaybeUninit<SmallMapStorage> = MaybeUninit::uninit();
-static mut SCRATCH: [u32; VOXELS] = [0; VOXELS];
-static mut LINK: LinkBuffers = LinkBuffers::new();
+static SCRATCH: ConstStaticCell<[u32; VOXELS]> = ConstStaticCell::new([0; VOXELS]);
+static LINK: ConstStaticCell<LinkBuffers> = ConstStaticCell::new(LinkBuffers::new());
 
 /// A HAL receiver with its interrupt (embedded-hal has no interrupt
 /// traits): the UART's RXNE interrupt, held off in the NVIC while the ring
@@ -138,14 +141,15 @@ fn main() -> ! {
     }
     let mut feed = RingSerial::new(&FEED_RX, feed_tx, sleep);
     let mut link = RingSerial::new(&LINK_RX, link_tx, sleep);
-    // SAFETY: `main` runs once; each static is borrowed exactly once here,
-    // and the map's storage is all zeros before it is taken as one (an
-    // empty storage is all zeros: tests/tests/zeroed.rs holds the core to
-    // it).
-    let (own, scratch, buffers) = unsafe {
+    // Each cell taken once (a second take would panic: exit 101).
+    let (scratch, buffers) = (SCRATCH.take(), LINK.take());
+    // SAFETY: `main` runs once and is the only code that names `OWN`, here;
+    // the map's storage is all zeros before it is taken as one (an empty
+    // storage is all zeros: tests/tests/zeroed.rs holds the core to it).
+    let own = unsafe {
         let own = &mut *addr_of_mut!(OWN);
         core::ptr::write_bytes(own.as_mut_ptr(), 0, 1);
-        (own.assume_init_mut(), &mut *addr_of_mut!(SCRATCH), &mut *addr_of_mut!(LINK))
+        own.assume_init_mut()
     };
     // The set-up names the voxel size; until then the map waits empty.
     let Ok(mut own) = LocalMap::new(own, map_config(0.5)) else { exit(false) };

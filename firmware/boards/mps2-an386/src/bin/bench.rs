@@ -5,10 +5,10 @@
 #![no_std]
 #![no_main]
 
-use core::ptr::addr_of_mut;
 use cortex_m_rt::entry;
 use cosem_core::map::{LocalMap, MapConfig, SceneMap, ScenePoint, VoxelSink};
 use cosem_core::matching::{MatchSettings, Matcher, Pyramid};
+use static_cell::ConstStaticCell;
 // A robot's capacities: the bench matches what a robot can hold.
 use cosem_core::robot::{MapStorage, ModelStorage, ReceivedStorage, SceneStorage, FOOTPRINT_CELL, LEVELS, VOXELS};
 use cosem_core::wire::mapfile;
@@ -17,11 +17,11 @@ use cosem_mps2_an386::{exit, peak_stack, say, start_clock, ticks, INSTRUCTIONS_P
 
 const FILE_BYTES: usize = 32 * 1024;
 
-static mut FILE: [u8; FILE_BYTES] = [0; FILE_BYTES];
-static mut MAP_A: MapStorage = MapStorage::new();
-static mut MAP_B: ReceivedStorage = [ScenePoint::EMPTY; VOXELS];
-static mut PYR_A: ModelStorage = ModelStorage::new();
-static mut PYR_B: SceneStorage = SceneStorage::new();
+static FILE: ConstStaticCell<[u8; FILE_BYTES]> = ConstStaticCell::new([0; FILE_BYTES]);
+static MAP_A: ConstStaticCell<MapStorage> = ConstStaticCell::new(MapStorage::new());
+static MAP_B: ConstStaticCell<ReceivedStorage> = ConstStaticCell::new([ScenePoint::EMPTY; VOXELS]);
+static PYR_A: ConstStaticCell<ModelStorage> = ConstStaticCell::new(ModelStorage::new());
+static PYR_B: ConstStaticCell<SceneStorage> = ConstStaticCell::new(SceneStorage::new());
 
 #[entry]
 fn main() -> ! {
@@ -30,16 +30,8 @@ fn main() -> ! {
 
 /// Runs the benchmark; `true` when it ran.
 fn run() -> bool {
-    // SAFETY: called once from `main`; each static is borrowed once.
-    let (file, a, b, pa, pb) = unsafe {
-        (
-            &mut *addr_of_mut!(FILE),
-            &mut *addr_of_mut!(MAP_A),
-            &mut *addr_of_mut!(MAP_B),
-            &mut *addr_of_mut!(PYR_A),
-            &mut *addr_of_mut!(PYR_B),
-        )
-    };
+    // Each static taken once (a second take would panic: exit 101).
+    let (file, a, b, pa, pb) = (FILE.take(), MAP_A.take(), MAP_B.take(), PYR_A.take(), PYR_B.take());
     let config = MapConfig::with_resolution(0.5);
     // The scene as a robot holds a received map.
     let (Ok(mut ma), Ok(mut mb)) = (LocalMap::new(a, config), SceneMap::new(&mut b[..], config.resolution)) else {

@@ -28,8 +28,9 @@ use cosem_mps2_an386::serial::{IrqReceiver, RingSerial, RX_RING};
 use cosem_mps2_an386::turns::Later;
 use cosem_mps2_an386::uart::{unmask_rx, Uart, UartRx, UART0, UART1};
 use cosem_mps2_an386::{exit, millis, start_clock, Board, CLOCK_HZ};
+use static_cell::ConstStaticCell;
 
-static mut RECEIVED: ReceivedStorage = [ScenePoint::EMPTY; VOXELS];
+static RECEIVED: ConstStaticCell<ReceivedStorage> = ConstStaticCell::new([ScenePoint::EMPTY; VOXELS]);
 
 /// The link's turn: its buffers and the Morton order of the map it sends.
 struct LinkTurn {
@@ -57,8 +58,8 @@ union OwnTurns {
     pyramids: ManuallyDrop<PyramidTurn>,
 }
 
-static mut TURNS: Turns = Turns { level0: ManuallyDrop::new(ModelLevel0::new()) };
-static mut OWN: OwnTurns = OwnTurns { map: ManuallyDrop::new(MapStorage::new()) };
+static TURNS: ConstStaticCell<Turns> = ConstStaticCell::new(Turns { level0: ManuallyDrop::new(ModelLevel0::new()) });
+static OWN: ConstStaticCell<OwnTurns> = ConstStaticCell::new(OwnTurns { map: ManuallyDrop::new(MapStorage::new()) });
 static FEED_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 static LINK_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 
@@ -94,23 +95,26 @@ fn main() -> ! {
     }
     let mut feed = RingSerial::new(&FEED_RX, feed_tx, idle);
     let mut link = RingSerial::new(&LINK_RX, link_tx, idle);
-    // SAFETY: `main` runs once; each static is borrowed exactly once here.
-    // The link's turn is borrowed now; the copied level 0 is reached only
-    // when the robot prepares, after its link endpoint (and every borrow of
-    // the link's turn) is gone. The map is reached through a pointer until
-    // the model's level 0 has been copied out of it; the pyramids' other
-    // parts only after that (see `turns`).
-    let (own, received, scratch, buffers, model, scene) = unsafe {
-        let link = addr_of_mut!(TURNS.link).cast::<LinkTurn>();
-        let pyramids = addr_of_mut!(OWN.pyramids).cast::<PyramidTurn>();
+    // Each static taken once (a second take would panic: exit 101); the
+    // unions are then reached through pointers only, turn by turn.
+    let (turns, own_turns, received) = (TURNS.take(), OWN.take(), RECEIVED.take());
+    let (turns, own_turns): (*mut Turns, *mut OwnTurns) = (turns, own_turns);
+    // SAFETY: the pointers come from the two unions this `main` owns
+    // alone. The link's turn is borrowed now; the copied level 0 is reached
+    // only when the robot prepares, after its link endpoint (and every
+    // borrow of the link's turn) is gone. The map is reached through a
+    // pointer until the model's level 0 has been copied out of it; the
+    // pyramids' other parts only after that (see `turns`).
+    let (own, scratch, buffers, model, scene) = unsafe {
+        let link = addr_of_mut!((*turns).link).cast::<LinkTurn>();
+        let pyramids = addr_of_mut!((*own_turns).pyramids).cast::<PyramidTurn>();
         addr_of_mut!((*link).buffers).write(LinkBuffers::new());
         (
-            Later::new(addr_of_mut!(OWN.map).cast::<MapStorage>()),
-            &mut *addr_of_mut!(RECEIVED),
+            Later::new(addr_of_mut!((*own_turns).map).cast::<MapStorage>()),
             &mut *addr_of_mut!((*link).scratch),
             &mut *addr_of_mut!((*link).buffers),
             SplitStorage {
-                level0: Later::new(addr_of_mut!(TURNS.level0).cast::<ModelLevel0>()),
+                level0: Later::new(addr_of_mut!((*turns).level0).cast::<ModelLevel0>()),
                 rest: Later::new(addr_of_mut!((*pyramids).model)),
             },
             Later::new(addr_of_mut!((*pyramids).scene)),

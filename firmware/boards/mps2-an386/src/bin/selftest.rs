@@ -5,22 +5,22 @@
 #![no_main]
 
 use core::fmt::Write as _;
-use core::ptr::addr_of_mut;
 use cortex_m_rt::entry;
 use cosem_core::map::{ArrayStorage, LocalMap, MapConfig};
 use cosem_core::matching::ArrayPyramidStorage;
 use cosem_core::selftest::{self, FOOTPRINT_WORDS, MAP_VOXELS, PYRAMID_ENTRIES, RESOLUTION};
 use cosem_mps2_an386::{exit, peak_stack, say, start_clock, ticks, uart, CLOCK_HZ, INSTRUCTIONS_PER_TICK};
+use static_cell::ConstStaticCell;
 
 type MapStorage = ArrayStorage<MAP_VOXELS>;
 type PyrStorage = ArrayPyramidStorage<MAP_VOXELS, PYRAMID_ENTRIES, FOOTPRINT_WORDS>;
 
-static mut MAP_A: MapStorage = MapStorage::new();
-static mut MAP_B: MapStorage = MapStorage::new();
-static mut RECEIVED: MapStorage = MapStorage::new();
-static mut PYR_A: PyrStorage = PyrStorage::new();
-static mut PYR_B: PyrStorage = PyrStorage::new();
-static mut SCRATCH: [u32; MAP_VOXELS] = [0; MAP_VOXELS];
+static MAP_A: ConstStaticCell<MapStorage> = ConstStaticCell::new(MapStorage::new());
+static MAP_B: ConstStaticCell<MapStorage> = ConstStaticCell::new(MapStorage::new());
+static RECEIVED: ConstStaticCell<MapStorage> = ConstStaticCell::new(MapStorage::new());
+static PYR_A: ConstStaticCell<PyrStorage> = ConstStaticCell::new(PyrStorage::new());
+static PYR_B: ConstStaticCell<PyrStorage> = ConstStaticCell::new(PyrStorage::new());
+static SCRATCH: ConstStaticCell<[u32; MAP_VOXELS]> = ConstStaticCell::new([0; MAP_VOXELS]);
 
 #[entry]
 fn main() -> ! {
@@ -29,18 +29,9 @@ fn main() -> ! {
 
 /// Runs the self-test and prints its figures.
 fn run() -> Result<bool, ()> {
-    // SAFETY: `run` is called once, from `main`, before anything else could
-    // touch these statics; each is borrowed exactly once here.
-    let (a, b, r, pa, pb, scratch) = unsafe {
-        (
-            &mut *addr_of_mut!(MAP_A),
-            &mut *addr_of_mut!(MAP_B),
-            &mut *addr_of_mut!(RECEIVED),
-            &mut *addr_of_mut!(PYR_A),
-            &mut *addr_of_mut!(PYR_B),
-            &mut *addr_of_mut!(SCRATCH),
-        )
-    };
+    // Each static taken once (a second take would panic: exit 101).
+    let (a, b, r, pa, pb, scratch) =
+        (MAP_A.take(), MAP_B.take(), RECEIVED.take(), PYR_A.take(), PYR_B.take(), SCRATCH.take());
     let config = MapConfig::with_resolution(RESOLUTION);
     let mut map_a = LocalMap::new(a, config).map_err(|_| ())?;
     let mut map_b = LocalMap::new(b, config).map_err(|_| ())?;

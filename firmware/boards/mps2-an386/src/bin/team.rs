@@ -10,7 +10,6 @@
 #![no_std]
 #![no_main]
 
-use core::ptr::addr_of_mut;
 use cortex_m_rt::{entry, exception};
 use cosem_core::link::LinkBuffers;
 use cosem_core::map::{LocalMap, SceneMap, ScenePoint};
@@ -21,13 +20,14 @@ use cosem_core::robot::{
 use cosem_mps2_an386::serial::{IrqReceiver, RingSerial, RX_RING};
 use cosem_mps2_an386::uart::{unmask_rx, Uart, UartRx, UART0, UART1, UART2, UART3, UART4};
 use cosem_mps2_an386::{exit, millis, start_clock, Board, CLOCK_HZ};
+use static_cell::ConstStaticCell;
 
-static mut OWN: MapStorage = MapStorage::new();
-static mut RECEIVED: ReceivedStorage = [ScenePoint::EMPTY; VOXELS];
-static mut MODEL: ModelStorage = ModelStorage::new();
-static mut SCENE: SceneStorage = SceneStorage::new();
-static mut SCRATCH: [u32; VOXELS] = [0; VOXELS];
-static mut LINK: LinkBuffers = LinkBuffers::new();
+static OWN: ConstStaticCell<MapStorage> = ConstStaticCell::new(MapStorage::new());
+static RECEIVED: ConstStaticCell<ReceivedStorage> = ConstStaticCell::new([ScenePoint::EMPTY; VOXELS]);
+static MODEL: ConstStaticCell<ModelStorage> = ConstStaticCell::new(ModelStorage::new());
+static SCENE: ConstStaticCell<SceneStorage> = ConstStaticCell::new(SceneStorage::new());
+static SCRATCH: ConstStaticCell<[u32; VOXELS]> = ConstStaticCell::new([0; VOXELS]);
+static LINK: ConstStaticCell<LinkBuffers> = ConstStaticCell::new(LinkBuffers::new());
 
 /// Each UART's receive ring: UART1 the feeder's, UART0, 2, 3, 4 the peers'.
 type Receiver = IrqReceiver<UartRx, RX_RING>;
@@ -74,17 +74,9 @@ fn main() -> ! {
         exit(false)
     };
     let (mut feed, mut peers) = (feed, [p0, p1, p2, p3]);
-    // SAFETY: `main` runs once; each static is borrowed exactly once here.
-    let (own, received, model, scene, scratch, buffers) = unsafe {
-        (
-            &mut *addr_of_mut!(OWN),
-            &mut *addr_of_mut!(RECEIVED),
-            &mut *addr_of_mut!(MODEL),
-            &mut *addr_of_mut!(SCENE),
-            &mut *addr_of_mut!(SCRATCH),
-            &mut *addr_of_mut!(LINK),
-        )
-    };
+    // Each static taken once (a second take would panic: exit 101).
+    let (own, received, model, scene, scratch, buffers) =
+        (OWN.take(), RECEIVED.take(), MODEL.take(), SCENE.take(), SCRATCH.take(), LINK.take());
     // The set-up names the voxel size; until then the maps wait empty.
     let (Ok(mut own), Ok(mut received)) = (LocalMap::new(own, map_config(0.5)), SceneMap::new(&mut received[..], 0.5))
     else {
