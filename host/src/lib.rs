@@ -44,6 +44,7 @@ pub mod sources {
 /// noise.
 pub mod maps {
     pub mod cmap;
+    pub mod job;
     pub mod mapping;
     pub mod noise;
     pub mod ply;
@@ -94,7 +95,7 @@ pub mod rng;
 pub use boards::{board, robots, team_board};
 pub use evaluation::{align, bench, boxplot, demo, eval, pair, stats, team};
 pub use lines::{exchange, link, relay, transport};
-pub use maps::{cmap, mapping, noise, ply};
+pub use maps::{cmap, job, mapping, noise, ply};
 pub use reports::report;
 pub use sources::{cdr_read, class_table, cloud, kitti, label, mcap_read, recording, source, synth};
 

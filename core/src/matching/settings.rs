@@ -46,6 +46,16 @@ pub enum Dof {
     Four,
 }
 
+impl Dof {
+    /// How many: 6 or 4 (also its name on a command line).
+    pub fn count(self) -> u8 {
+        match self {
+            Dof::Six => 6,
+            Dof::Four => 4,
+        }
+    }
+}
+
 /// Residual of a correspondence.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -204,6 +204,75 @@ pub fn host_run(feeds: [&Feed; 2], boards: [Board; 2]) -> Result<[RobotReport; 2
     Ok([named(0)?, named(1)?])
 }
 
+/// What `cosem robots` runs: two robots' frames of one source, their
+/// boards, the line between them and how the feeds are made.
+#[derive(Clone, Debug)]
+pub struct RobotsSpec {
+    /// The source and its options.
+    pub source: crate::source::Source,
+    /// Robot A's frames, then B's.
+    pub ranges: [FrameRange; 2],
+    /// Voxel size (m).
+    pub voxel: f32,
+    /// Points farther than this from their sensor are not fed (m).
+    pub crop: f32,
+    /// `T_A_B` prior; `None`: the default prior (the truth moved 2 m and
+    /// 10 degrees) unless `no_prior`.
+    pub prior: Option<Isometry3<f64>>,
+    /// Prior-free on board.
+    pub no_prior: bool,
+    /// The mps2 robot's firmware (the STM32F405's is at its default path).
+    pub firmware: PathBuf,
+    /// Robot A's board, then B's.
+    pub boards: [Board; 2],
+    /// What the line between them does.
+    pub line: LineFault,
+    /// A robot gives up after this long without a valid frame (s).
+    pub silence_s: f64,
+    /// Kill the emulators after this long (s).
+    pub timeout_s: f64,
+    /// Label noise on the fed scans and its seed.
+    pub label_noise: (crate::noise::LabelNoise, u64),
+}
+
+/// Runs `spec`: the feeds made, the host's twin run, both boards under QEMU,
+/// all compared with the truth. Returns the report and the exit code (the
+/// worse status of the two robots; `None`: a robot did not report).
+pub fn run_robots(spec: &RobotsSpec) -> Result<(RobotsJson, Option<u8>), Error> {
+    if !spec.boards.iter().any(|b| b.matches()) {
+        return Err(Error::Invalid(
+            "--board-a and --board-b: one robot must be able to match (an mps2-an386 board)".into(),
+        ));
+    }
+    let [ra, rb] = spec.ranges;
+    let gt = spec.source.relative_pose(ra.start, rb.start)?;
+    let prior = (!spec.no_prior).then(|| spec.prior.unwrap_or_else(|| default_prior(&gt)));
+    let silence_ms = (spec.silence_s * 1000.0).min(f64::from(u32::MAX)) as u32;
+    let (noise, seed) = spec.label_noise;
+    let feeds = feeds(&spec.source, spec.ranges, spec.voxel, spec.crop, prior.as_ref(), silence_ms, noise, seed)?;
+    // The host runs both robots' pipeline too, as the boards do.
+    let t = std::time::Instant::now();
+    let host = host_run([&feeds[0], &feeds[1]], spec.boards)?;
+    let host_ms = t.elapsed().as_secs_f64() * 1e3;
+    let elf = |b: Board| match b {
+        Board::Mps2An386 => firmware(&spec.firmware),
+        Board::Stm32f405 => firmware(Path::new(b.default_firmware())),
+    };
+    let elves = [elf(spec.boards[0])?, elf(spec.boards[1])?];
+    let timeout = Duration::from_secs_f64(spec.timeout_s.min(86_400.0));
+    let run = run_pair([&elves[0], &elves[1]], spec.boards, [&feeds[0], &feeds[1]], spec.line, timeout)?;
+    let mut report = summarise(&run, feeds[0].setup.prior.as_ref(), &host, host_ms, &gt);
+    if noise != crate::noise::LabelNoise::None {
+        report.label_noise = Some(format!("{noise:?}, seed {seed} (+ robot id)"));
+    }
+    let statuses = run.robots.iter().map(|r| match &r.outcome {
+        Outcome::Report(rep) => Some(crate::report::status_code(rep.result.status)),
+        _ => None,
+    });
+    let code = statuses.collect::<Option<Vec<u8>>>().map(|c| c.into_iter().max().unwrap_or(0));
+    Ok((report, code))
+}
+
 /// Where `cargo build --release` in firmware/ puts the robot binary.
 pub const DEFAULT_FIRMWARE: &str = "firmware/target/thumbv7em-none-eabihf/release/robot";
 

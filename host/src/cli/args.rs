@@ -1,64 +1,27 @@
 //! Argument types shared by the subcommands: parsed by clap into typed
 //! values, never matched as strings later.
 
-use clap::ValueEnum;
 use cosem_core::geometry::{parse_pose, Isometry3};
 use cosem_core::matching::{Dof, MatchSettings, Method};
 
-/// Association method (`--method`).
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum MethodArg {
-    /// Soft semantic EM (default).
-    Cosem,
-    /// The paper's hard label rejection.
-    CosemHard,
-    /// Labels ignored.
-    Geometric,
+/// An association method by its name (`--method`): cosem, cosem-hard or
+/// geometric.
+pub fn method(s: &str) -> Result<Method, String> {
+    Method::from_name(s).ok_or_else(|| format!("`{s}`: expected cosem, cosem-hard or geometric"))
 }
 
-impl MethodArg {
-    /// The core's method.
-    pub fn method(self) -> Method {
-        match self {
-            MethodArg::Cosem => Method::Cosem,
-            MethodArg::CosemHard => Method::CosemHard,
-            MethodArg::Geometric => Method::Geometric,
-        }
-    }
-}
-
-/// Degrees of freedom (`--dof`).
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DofArg {
-    /// x, y, z, roll, pitch, yaw.
-    #[value(name = "6")]
-    Six,
-    /// x, y, z, yaw (both anchor frames level).
-    #[value(name = "4")]
-    Four,
-}
-
-impl DofArg {
-    /// The core's setting.
-    pub fn dof(self) -> Dof {
-        match self {
-            DofArg::Six => Dof::Six,
-            DofArg::Four => Dof::Four,
-        }
-    }
-
-    /// 6 or 4.
-    pub fn count(self) -> u8 {
-        match self {
-            DofArg::Six => 6,
-            DofArg::Four => 4,
-        }
+/// Degrees of freedom (`--dof`): 6, or 4 (x, y, z, yaw: level anchor frames).
+pub fn dof(s: &str) -> Result<Dof, String> {
+    match s {
+        "6" => Ok(Dof::Six),
+        "4" => Ok(Dof::Four),
+        _ => Err(format!("`{s}`: expected 6 or 4")),
     }
 }
 
 /// Match settings of a method and degrees of freedom.
-pub fn settings(method: MethodArg, dof: DofArg) -> MatchSettings {
-    MatchSettings { method: method.method(), dof: dof.dof(), ..MatchSettings::default() }
+pub fn settings(method: Method, dof: Dof) -> MatchSettings {
+    MatchSettings { method, dof, ..MatchSettings::default() }
 }
 
 /// Parses the conventions' pose `x,y,z,roll,pitch,yaw` (m, degrees).
@@ -73,12 +36,13 @@ pub struct MatchOpts {
     /// none (prior-free alignment).
     #[arg(long, allow_hyphen_values = true, value_parser = pose)]
     pub init: Option<Isometry3<f64>>,
-    /// Association method.
-    #[arg(long, value_enum, default_value = "cosem")]
-    pub method: MethodArg,
-    /// Degrees of freedom.
-    #[arg(long, value_enum, default_value = "6")]
-    pub dof: DofArg,
+    /// Association method: cosem, cosem-hard (the paper's hard label
+    /// rejection) or geometric (labels ignored).
+    #[arg(long, default_value = "cosem", value_parser = method)]
+    pub method: Method,
+    /// Degrees of freedom: 6, or 4 (x, y, z, yaw).
+    #[arg(long, default_value = "6", value_parser = dof)]
+    pub dof: Dof,
 }
 
 impl MatchOpts {
@@ -109,15 +73,19 @@ pub fn positive_f32(s: &str) -> Result<f32, String> {
     positive(s).map(|v| v as f32)
 }
 
-/// Segmentation images to render (`cosem synth --seg`).
-#[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SegArg {
-    /// Cityscapes training ids.
-    Cityscapes,
-    /// SemanticKITTI learning-map ids.
-    Semantickitti,
-    /// No images.
-    None,
+/// Segmentation images to render, or none (a type alias: clap takes it as
+/// one value, not as an optional argument).
+pub type SegChoice = Option<cosem_core::camera::SegClasses>;
+
+/// `--seg`: cityscapes, semantickitti or none.
+pub fn seg(s: &str) -> Result<SegChoice, String> {
+    use cosem_core::camera::SegClasses;
+    match s {
+        "cityscapes" => Ok(Some(SegClasses::Cityscapes)),
+        "semantickitti" => Ok(Some(SegClasses::SemanticKitti)),
+        "none" => Ok(None),
+        _ => Err(format!("`{s}`: expected cityscapes, semantickitti or none")),
+    }
 }
 
 /// A whole number of at least `N`.

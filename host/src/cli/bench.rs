@@ -1,7 +1,7 @@
 //! `cosem bench`: benchmarks that print numbers (the measuring is in
 //! `cosem_host::bench`).
 
-use super::{data_root, Error};
+use super::Error;
 use cosem_host::bench::{self, TempDir};
 use cosem_host::kitti::FrameRange;
 use cosem_host::pair::{Pair, PairSpec};
@@ -63,21 +63,23 @@ pub struct PairArgs {
 }
 
 impl PairArgs {
-    /// Loads the pair at `voxel` (the guard removes a synthetic folder).
-    fn load(&self, voxel: f32) -> Result<(Pair, PathBuf, Option<TempDir>), Error> {
-        self.load_within(voxel, None)
-    }
-
-    /// Loads the pair at `voxel`, points within `max_range` of their sensor.
-    fn load_within(&self, voxel: f32, max_range: Option<f32>) -> Result<(Pair, PathBuf, Option<TempDir>), Error> {
-        let (dir, tmp) = bench::data_dir(self.data.clone(), &data_root(), self.b.end)?;
-        if tmp.is_some() {
-            println!("(no kitti00 under {}: using a synthetic sequence)", data_root().display());
-        }
+    /// Loads the pair at `voxel`, points within `max_range` of their
+    /// sensor (the guard removes a synthetic folder).
+    fn load(&self, voxel: f32, max_range: Option<f32>) -> Result<(Pair, PathBuf, Option<TempDir>), Error> {
+        let (dir, tmp) = data(self.data.clone(), self.b.end)?;
         let mut spec = PairSpec::new(&dir, self.a, self.b, voxel);
         spec.filter.max_range = max_range;
         Ok((Pair::load(&spec)?, dir, tmp))
     }
+}
+
+/// The folder to run on ([`bench::data_dir`]), saying when it is synthetic.
+fn data(given: Option<PathBuf>, frames: usize) -> Result<(PathBuf, Option<TempDir>), Error> {
+    let (dir, tmp) = bench::data_dir(given, frames)?;
+    if tmp.is_some() {
+        println!("(no kitti00 under {}: using a synthetic sequence)", bench::data_root().display());
+    }
+    Ok((dir, tmp))
 }
 
 #[derive(clap::Args, Debug)]
@@ -141,7 +143,7 @@ pub fn run(w: What) -> Result<(), Error> {
 }
 
 fn bench_map(a: MapArgs) -> Result<(), Error> {
-    let (dir, _tmp) = bench::data_dir(a.data, &data_root(), a.frames.end)?;
+    let (dir, _tmp) = data(a.data, a.frames.end)?;
     let frames = bench::frames(&dir, a.frames)?;
     println!("bench map: {} frames {} of {}, {} m voxels", frames.len(), a.frames, dir.display(), a.voxel);
     print!("{}", bench::map(&frames, a.voxel, a.repeat)?);
@@ -150,7 +152,7 @@ fn bench_map(a: MapArgs) -> Result<(), Error> {
 }
 
 fn bench_wire(a: MapArgs) -> Result<(), Error> {
-    let (dir, _tmp) = bench::data_dir(a.data, &data_root(), a.frames.end)?;
+    let (dir, _tmp) = data(a.data, a.frames.end)?;
     let frames = bench::frames(&dir, a.frames)?;
     let config = cosem_core::map::MapConfig::with_resolution(a.voxel);
     let (map, _) = cosem_host::mapping::build_map(&frames, config, &cosem_host::mapping::PointFilter::default())?;
@@ -168,7 +170,7 @@ fn bench_wire(a: MapArgs) -> Result<(), Error> {
 }
 
 fn bench_link(a: LinkArgs) -> Result<(), Error> {
-    let (pair, dir, _tmp) = a.pair.load_within(a.voxel, Some(a.max_range))?;
+    let (pair, dir, _tmp) = a.pair.load(a.voxel, Some(a.max_range))?;
     let (na, nb) = (pair.map_a.len(), pair.map_b.len());
     let (ra, rb) = (a.pair.a, a.pair.b);
     println!(
@@ -191,7 +193,7 @@ fn bench_link(a: LinkArgs) -> Result<(), Error> {
 }
 
 fn bench_global(a: GlobalArgs) -> Result<(), Error> {
-    let (pair, dir, _tmp) = a.pair.load(a.voxel)?;
+    let (pair, dir, _tmp) = a.pair.load(a.voxel, None)?;
     let (na, nb, pa, pb) = (pair.map_a.len(), pair.map_b.len(), a.pair.a, a.pair.b);
     println!("bench global: A {na} voxels ({pa}), B {nb} voxels ({pb}) at {} m of {}", a.voxel, dir.display());
     print!("{}", bench::global(&pair, a.repeat)?);

@@ -1,6 +1,7 @@
 //! `cosem demo`: the main job on built-in data (`cosem_host::demo`).
 
-use super::{Error, TempDir};
+use super::Error;
+use cosem_host::bench::TempDir;
 use cosem_host::demo::{run as run_demo, Demo};
 use std::path::PathBuf;
 

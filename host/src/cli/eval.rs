@@ -1,20 +1,17 @@
 //! `cosem eval`: the paper's robustness protocol over a grid of starts, or
 //! the prior-free protocol (`--global`).
 
-use super::args::{settings, DofArg, MethodArg};
+use super::args::settings;
 use super::Error;
-use cosem_core::matching::MatchSettings;
-use cosem_host::align::{prepare, DEFAULT_LEVELS};
+use cosem_core::matching::{Dof, MatchSettings, Method};
 use cosem_host::eval::{
-    corners, global_starts, grid, run_global, run_grid, run_negatives, sample, EvalReport, MapsInfo, Outcome, Place,
-    Start,
+    corners, evaluate, global_starts, grid, run_negatives, sample, EvalReport, MapsInfo, Place, Protocol, Start,
 };
 use cosem_host::kitti::FrameRange;
 use cosem_host::noise::LabelNoise;
 use cosem_host::pair::{Pair, PairSpec};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
-use std::time::Instant;
 
 /// Which grid of starts.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -66,12 +63,12 @@ pub struct Args {
     /// --global: every n-th of its starts).
     #[arg(long, value_parser = super::args::at_least::<1>)]
     limit: Option<usize>,
-    /// Methods, comma-separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "cosem")]
-    method: Vec<MethodArg>,
-    /// Degrees of freedom.
-    #[arg(long, value_enum, default_value = "6")]
-    dof: DofArg,
+    /// Methods, comma-separated: cosem, cosem-hard, geometric.
+    #[arg(long, value_delimiter = ',', default_value = "cosem", value_parser = super::args::method)]
+    method: Vec<Method>,
+    /// Degrees of freedom: 6, or 4 (x, y, z, yaw).
+    #[arg(long, default_value = "6", value_parser = super::args::dof)]
+    dof: Dof,
     /// Worker threads (each match itself runs on one); default: all cores.
     #[arg(long)]
     threads: Option<usize>,
@@ -137,15 +134,13 @@ fn verdict(a: &Args, s: MatchSettings) -> MatchSettings {
 
 /// The pair the arguments name (clap requires them without --negatives).
 fn spec(a: &Args) -> Result<PairSpec, Error> {
-    let (Some(data), Some(ra), Some(rb)) = (&a.data, a.a, a.b) else {
-        return Err("--data, --a and --b are required".into());
-    };
+    let (Some(data), Some(ra), Some(rb)) = (&a.data, a.a, a.b) else { return Err("--data, --a and --b".into()) };
     Ok(PairSpec::new(data, ra, rb, a.voxel).with_noise(a.label_noise, a.seed).with_source(a.source.options()))
 }
 
 fn negatives(a: &Args, pool: &rayon::ThreadPool) -> Result<(), Error> {
     let spec = PairSpec::places(a.voxel).with_noise(a.label_noise, a.seed).with_source(a.source.options());
-    let s = verdict(a, settings(a.method.first().copied().unwrap_or(MethodArg::Cosem), a.dof));
+    let s = verdict(a, settings(a.method.first().copied().unwrap_or_default(), a.dof));
     let n = a.negatives.len();
     let bar = progress_bar(n * (n - 1) * (2 + a.random_priors));
     let tick = || bar.inc(1);
@@ -153,8 +148,7 @@ fn negatives(a: &Args, pool: &rayon::ThreadPool) -> Result<(), Error> {
     bar.finish_and_clear();
     print!("{report}");
     if let Some(path) = &a.json {
-        cosem_host::paths::write_file(path, serde_json::to_string_pretty(&report)?)
-            .map_err(|e| format!("{}: {e}", path.display()))?;
+        write(path, serde_json::to_string_pretty(&report)?)?;
     }
     Ok(())
 }
@@ -168,67 +162,37 @@ pub fn run(a: Args) -> Result<(), Error> {
     let spec = spec(&a)?;
     let mut pair = Pair::load(&spec)?;
     if a.label_noise != LabelNoise::None {
-        println!(
-            "label noise {:?} (seed {}): {:.1}% of labelled points changed",
-            a.label_noise,
-            a.seed,
-            100.0 * pair.noise.rate()
-        );
+        let (noise, seed, rate) = (a.label_noise, a.seed, 100.0 * pair.noise.rate());
+        println!("label noise {noise:?} (seed {seed}): {rate:.1}% of labelled points changed");
     }
     if a.through_encoding {
         pair.through_encoding()?;
         println!("maps passed through the wire encoding");
     }
-    let maps = MapsInfo { a_voxels: pair.map_a.len(), b_voxels: pair.map_b.len(), overlap: pair.overlap() };
-    let t0 = Instant::now();
-    let (pa, pb) = (prepare(&pair.map_a, DEFAULT_LEVELS)?, prepare(&pair.map_b, DEFAULT_LEVELS)?);
-    let prep_ms = t0.elapsed().as_secs_f64() * 1e3 / 2.0;
-    println!(
-        "maps: A {} voxels, B {} voxels at {} m, overlap {:.1}% under the ground truth; preparation {prep_ms:.1} ms per map",
-        maps.a_voxels,
-        maps.b_voxels,
-        a.voxel,
-        100.0 * maps.overlap,
-    );
-    let (mode, results) = if a.global {
-        ("global", pool.install(|| global(&a, &pair))?)
+    let protocol = if a.global {
+        let s = verdict(&a, settings(a.method.first().copied().unwrap_or_default(), a.dof));
+        let starts = global_starts(a.radius, a.limit);
+        let (n, r, threads) = (starts.len(), a.radius, pool.current_num_threads());
+        println!("prior-free: {n} starts (of 36 headings x 10 offsets up to {r} m) on {threads} thread(s)");
+        Protocol::Global { starts, settings: s }
     } else {
         let starts = starts(&a);
         println!("{} starts x {} method(s) on {} thread(s)", starts.len(), a.method.len(), pool.current_num_threads());
-        let bar = progress_bar(starts.len() * a.method.len());
-        let mut results = Vec::new();
-        for m in &a.method {
-            let s = verdict(&a, settings(*m, a.dof));
-            let tick = || bar.inc(1);
-            results.extend(pool.install(|| run_grid(s.method.name(), s, (&pa, &pb), &pair.gt, &starts, &tick))?);
-        }
-        bar.finish_and_clear();
-        ("grid", results)
+        Protocol::Grid { starts, methods: a.method.iter().map(|m| verdict(&a, settings(*m, a.dof))).collect() }
     };
-    let report = EvalReport::new(mode, maps, a.voxel, a.dof.count(), prep_ms, &pair.gt, results);
+    let bar = progress_bar(protocol.matches());
+    let prepared = |maps: &MapsInfo, prep_ms: f64| {
+        let (na, nb, overlap) = (maps.a_voxels, maps.b_voxels, 100.0 * maps.overlap);
+        println!(
+            "maps: A {na} voxels, B {nb} voxels at {} m, overlap {overlap:.1}% under the ground truth; preparation {prep_ms:.1} ms per map",
+            a.voxel
+        );
+    };
+    let tick = || bar.inc(1);
+    let report = pool.install(|| evaluate(&pair, &spec, &protocol, prepared, &tick))?;
+    bar.finish_and_clear();
     print_report(&a, &report);
     write_outputs(&a, &report)
-}
-
-/// `--global`: 36 headings x 10 seeded offsets up to 50 m, no prior.
-fn global(a: &Args, pair: &Pair) -> Result<Vec<Outcome>, Error> {
-    let method = a.method.first().copied().unwrap_or(MethodArg::Cosem);
-    let s = verdict(a, settings(method, a.dof));
-    let starts = global_starts(a.radius, a.limit);
-    println!(
-        "prior-free: {} starts (of 36 headings x 10 offsets up to {} m) on {} thread(s)",
-        starts.len(),
-        a.radius,
-        rayon::current_num_threads()
-    );
-    let bar = progress_bar(starts.len());
-    let spec = spec(a)?;
-    let tick = || bar.inc(1);
-    let frames = &pair.frames_b;
-    let out =
-        run_global(s.method.name(), s, &pair.map_a, frames, (spec.config, &spec.filter), &pair.gt, &starts, &tick);
-    bar.finish_and_clear();
-    Ok(out?)
 }
 
 fn print_report(a: &Args, report: &EvalReport) {
@@ -241,9 +205,6 @@ fn print_report(a: &Args, report: &EvalReport) {
 }
 
 fn write_outputs(a: &Args, report: &EvalReport) -> Result<(), Error> {
-    let write = |path: &PathBuf, text: String| {
-        cosem_host::paths::write_file(path, text).map_err(|e| format!("{}: {e}", path.display()))
-    };
     if let Some(path) = &a.json {
         write(path, serde_json::to_string_pretty(report)?)?;
     }
@@ -253,4 +214,8 @@ fn write_outputs(a: &Args, report: &EvalReport) -> Result<(), Error> {
         write(path, report.plot(&format!("{name} A={ra} B={rb}, {} starts, {} m voxels", report.starts, a.voxel)))?;
     }
     Ok(())
+}
+
+fn write(path: &std::path::Path, text: String) -> Result<(), Error> {
+    Ok(cosem_host::paths::write_file(path, text).map_err(|e| format!("{}: {e}", path.display()))?)
 }

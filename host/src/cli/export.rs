@@ -4,7 +4,6 @@
 //! same as a ROS 2 recording, the input `cosem map --mcap` reads.
 
 use super::Error;
-use cosem_host::ply::{self, PlyPoint};
 use std::path::PathBuf;
 
 #[derive(clap::Subcommand, Debug)]
@@ -64,41 +63,12 @@ pub enum Format {
 pub fn run(f: Format) -> Result<(), Error> {
     match f {
         Format::Ply { file, output } => {
-            cosem_host::paths::refuse_overwrite(&output, &[&file])?;
-            let (_, map) = cosem_host::cmap::read(&file)?;
-            let id = cosem_core::geometry::Isometry3::identity();
-            let colour = |v: &cosem_core::map::SemanticVoxel| v.class().map(|c| c.color()).unwrap_or([128; 3]);
-            let points: Vec<PlyPoint> = map.iter().map(|v| PlyPoint::of(v, map.resolution(), &id, colour(v))).collect();
-            ply::write(&output, &points).map_err(|e| format!("{}: {e}", output.display()))?;
-            println!("{}: {} points", output.display(), points.len());
-            Ok(())
+            let n = cosem_host::ply::export_map(&file, &output)?;
+            println!("{}: {n} points", output.display());
         }
         Format::Scans { data, frames, format, output, force } => {
-            use cosem_host::cloud::{write_pcd, write_ply, write_poses, CloudFormat};
-            cosem_host::paths::refuse_inside(&output, &[&data])?;
-            if !force {
-                refuse_used_folder(&output)?;
-            }
-            let seq = cosem_host::kitti::Sequence::open(&data)?;
-            std::fs::create_dir_all(&output).map_err(|e| format!("{}: {e}", output.display()))?;
-            let mut poses = Vec::new();
-            let ext = match format {
-                CloudFormat::Pcd => "pcd",
-                CloudFormat::Ply => "ply",
-            };
-            for i in frames.frames() {
-                let scan = seq.read_scan(i)?;
-                poses.push(seq.velodyne_matrix(i)?);
-                let points: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
-                let path = output.join(format!("{i:06}.{ext}"));
-                match format {
-                    CloudFormat::Pcd => write_pcd(&path, &points, &scan.labels)?,
-                    CloudFormat::Ply => write_ply(&path, &points, &scan.labels)?,
-                }
-            }
-            write_poses(&output.join("poses.txt"), &poses)?;
-            println!("{}: {} scans as {ext} and poses.txt", output.display(), poses.len());
-            Ok(())
+            let n = cosem_host::cloud::export_scans(&data, frames, format, &output, force)?;
+            println!("{}: {n} scans as {} and poses.txt", output.display(), format.extension());
         }
         Format::Mcap { data, frames, topic, compression, output } => {
             cosem_host::paths::refuse_inside(&output, &[&data])?;
@@ -108,25 +78,7 @@ pub fn run(f: Format) -> Result<(), Error> {
             let seq = cosem_host::kitti::Sequence::open(&data)?;
             let n = cosem_host::recording::export(&seq, frames, &topic, compression, &output)?;
             println!("{}: {n} scans on {topic} and /tf", output.display());
-            Ok(())
         }
     }
-}
-
-/// Refuses an existing folder that holds scans or poses already (a
-/// SemanticKITTI folder, an earlier export): they would be replaced.
-fn refuse_used_folder(output: &std::path::Path) -> Result<(), Error> {
-    let Ok(entries) = std::fs::read_dir(output) else { return Ok(()) };
-    let held = entries
-        .flatten()
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .find(|n| n == "poses.txt" || n == "velodyne" || n == "labels" || n.ends_with(".pcd") || n.ends_with(".ply"));
-    match held {
-        Some(name) => Err(format!(
-            "{}: already holds {name}: scans and poses are not replaced without --force (or choose a new folder)",
-            output.display()
-        )
-        .into()),
-        None => Ok(()),
-    }
+    Ok(())
 }

@@ -2,8 +2,8 @@
 
 use super::Error;
 use cosem_host::kitti::FrameRange;
-use cosem_host::label::{label_sequence, LabelOptions};
-use serde_json::json;
+use cosem_host::label::{label_sequence, parse_image_size, LabelOptions};
+use cosem_host::report::LabelJson;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -64,16 +64,6 @@ pub struct Args {
     pub(super) json: bool,
 }
 
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let bad = || format!("--image-size `{s}`: expected WIDTHxHEIGHT, e.g. 1241x376");
-    let (w, h) = s.split_once('x').ok_or_else(bad)?;
-    let (w, h) = (w.parse::<u32>().map_err(|_| bad())?, h.parse::<u32>().map_err(|_| bad())?);
-    if w == 0 || h == 0 {
-        return Err(bad());
-    }
-    Ok((w, h))
-}
-
 pub fn run(a: Args) -> Result<(), Error> {
     let opts = LabelOptions {
         data: a.data.clone(),
@@ -82,7 +72,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         classes: a.classes,
         probabilities: a.probabilities,
         occlusion: !a.keep_occluded,
-        image_size: a.image_size.as_deref().map(parse_size).transpose()?,
+        image_size: a.image_size.as_deref().map(parse_image_size).transpose()?,
         frames: a.frames.map(|r| r.frames().collect()),
         out: a.out.clone(),
         copy_scans: a.copy_scans,
@@ -92,18 +82,8 @@ pub fn run(a: Args) -> Result<(), Error> {
     let t = std::time::Instant::now();
     let s = label_sequence(&opts)?;
     let wall = t.elapsed().as_secs_f64();
-    let rate = s.points as f64 / s.label_seconds.max(1e-9);
     if a.json {
-        let j = json!({
-            "frames": s.frames, "points": s.points, "in_view": s.in_view, "occluded": s.occluded, "labelled": s.labelled,
-            "compared": s.compared, "agreeing": s.agreeing, "agreement": s.agreement(),
-            "agreement_in_class_set": s.agreement_in_set(),
-            "points_per_second": rate, "label_seconds": s.label_seconds, "wall_seconds": wall,
-            "classes": opts.classes.name(), "probabilities": a.probabilities, "out": a.out.display().to_string(),
-            "scaled_from_image_size": s.scaled_from.map(|(w, h)| [w, h]),
-        });
-        println!("{}", serde_json::to_string_pretty(&j)?);
-        return Ok(());
+        return super::print_json(&LabelJson::of(&s, &opts, wall));
     }
     print!("{}", s.text(&opts, wall));
     Ok(())

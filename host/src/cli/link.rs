@@ -2,11 +2,9 @@
 
 use super::args::MatchOpts;
 use super::{print_json, Error};
-use cosem_host::align::{align, prepare, DEFAULT_LEVELS};
+use cosem_host::align::prepare_and_align;
 use cosem_host::link::{exchange, Exchange, Line};
 use cosem_host::report::{exit_code, result_text, GlobalJson, LinkJson, MatchJson};
-use cosem_host::robots::line_seconds;
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -78,46 +76,18 @@ pub fn run(a: Args) -> Result<u8, Error> {
     };
     let (theirs, stats) = exchange(&line(&a), &ours, &how, |at| eprintln!("listening on {at}"))?;
     let link_s = started.elapsed().as_secs_f64();
-    let baud = a.baud.unwrap_or(115_200);
-    let t0 = Instant::now();
-    let pm = prepare(&ours, DEFAULT_LEVELS).map_err(|e| format!("our map {}: {e}", a.map.display()))?;
-    let ps = prepare(&theirs, DEFAULT_LEVELS).map_err(|e| format!("the peer's map: {e}"))?;
-    let prep_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let t1 = Instant::now();
-    let (r, global) = align(settings, prior.as_ref(), (&pm, &ps))?;
-    let match_ms = t1.elapsed().as_secs_f64() * 1e3;
-    let per_voxel = stats.chunk_bytes_sent as f64 / ours.len().max(1) as f64;
-    let (sent_s, received_s) = (line_seconds(stats.bytes_sent, baud), line_seconds(stats.bytes_received, baud));
+    let our_name = format!("our map {}", a.map.display());
+    let m = prepare_and_align(&ours, &theirs, [&our_name, "the peer's map"], settings, prior.as_ref())?;
+    let (r, global, match_ms, prep_ms) = (m.result, m.global, m.match_ms, m.prepare_ms);
+    let mut result = MatchJson::new(&r, match_ms, prep_ms);
+    result.global = global.as_ref().map(GlobalJson::from);
+    let figures =
+        LinkJson::new(robot_id, &stats, (ours.len(), theirs.len()), link_s, a.baud.unwrap_or(115_200), result);
     if a.json {
-        let mut result = MatchJson::new(&r, match_ms, prep_ms);
-        result.global = global.as_ref().map(GlobalJson::from);
-        print_json(&LinkJson {
-            robot_id,
-            bytes_sent: stats.bytes_sent,
-            bytes_received: stats.bytes_received,
-            frames: stats.frames_sent,
-            frames_received: stats.frames_received,
-            retransmissions: stats.retransmissions,
-            duplicates: stats.duplicates,
-            acks_sent: stats.acks_sent,
-            bad_frames: stats.bad_frames,
-            repaired_frames: stats.repaired_frames,
-            voxels_sent: ours.len(),
-            voxels_received: theirs.len(),
-            wire_bytes_per_voxel: per_voxel,
-            link_time_s: link_s,
-            baud,
-            line_time_s: BTreeMap::from([("sent", sent_s), ("received", received_s)]),
-            result,
-        })?;
+        print_json(&figures)?;
         return Ok(exit_code(r.status));
     }
-    let (n_out, n_in) = (ours.len(), theirs.len());
-    println!("robot {robot_id}: sent {n_out} voxels in {} bytes ({per_voxel:.2} bytes/voxel of encoding), received {n_in} voxels in {} bytes", stats.bytes_sent, stats.bytes_received);
-    println!(
-        "frames {} sent, {} received ({} repaired), {} retransmitted, {} broken; {link_s:.2} s here; at {baud} baud: {sent_s:.1} s out, {received_s:.1} s in",
-        stats.frames_sent, stats.frames_received, stats.repaired_frames, stats.retransmissions, stats.bad_frames
-    );
+    print!("{figures}");
     println!("match (ours = model, peer's = scene):");
     print!("{}", result_text(&r, global.as_ref()));
     println!("time        {match_ms:.1} ms (preparation {prep_ms:.1} ms)");

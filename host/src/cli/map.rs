@@ -5,8 +5,9 @@
 use super::Error;
 use cosem_core::classes::MovingObjects;
 use cosem_core::map::{MapConfig, SensorModel};
+use cosem_host::job::MapJob;
 use cosem_host::kitti::FrameRange;
-use cosem_host::mapping::{build_map, PointFilter};
+use cosem_host::mapping::PointFilter;
 use cosem_host::noise::LabelNoise;
 use cosem_host::source::Source;
 use std::path::PathBuf;
@@ -93,43 +94,37 @@ pub fn run(a: Args) -> Result<(), Error> {
         }
         _ => return Err("give --data and --frames, --mcap, or --format, the files and --poses".into()),
     };
-    let (mut frames, _, skipped) = source.load(a.frames)?;
-    if skipped > 0 {
-        eprintln!("{skipped} points with a NaN coordinate skipped");
-    }
     let name = match (&a.mcap, &a.format) {
         (Some(_), _) => format!("{} {}", source.name(), a.source.points),
         (_, Some(format)) => format!("{} {format:?} scans from {}", a.files.len(), a.files[0].display()),
         _ => source.name(),
     };
     let range = a.frames.map_or(if a.format.is_some() { String::new() } else { "all".into() }, |r| r.to_string());
-    let noise = cosem_host::noise::corrupt_all(&mut frames, a.label_noise, a.seed);
-    let filter = PointFilter {
-        max_range: a.max_range,
-        moving: if a.keep_moving { MovingObjects::AsStatic } else { MovingObjects::Skip },
+    let moving = if a.keep_moving { MovingObjects::AsStatic } else { MovingObjects::Skip };
+    let job = MapJob {
+        frames: a.frames,
+        config: MapConfig {
+            resolution: a.voxel,
+            sensor: SensorModel { accuracy: a.label_accuracy },
+            ..MapConfig::default()
+        },
+        filter: PointFilter { max_range: a.max_range, moving },
+        noise: (a.label_noise, a.seed),
     };
-    let config =
-        MapConfig { resolution: a.voxel, sensor: SensorModel { accuracy: a.label_accuracy }, ..MapConfig::default() };
-    let (map, stats) = build_map(&frames, config, &filter)?;
-    let anchor_time = frames.first().and_then(|f| f.time);
-    let source = match a.label_noise {
-        LabelNoise::None => format!("{name} {range}"),
-        n => format!("{name} {range} label noise {n:?} seed {} ({:.1}% changed)", a.seed, 100.0 * noise.rate()),
-    };
-    for w in stats.warnings(a.voxel) {
-        eprintln!("warning: {w}");
+    let w = job.run(&source, &format!("{name} {range}"), &a.output)?;
+    if w.skipped > 0 {
+        eprintln!("{} points with a NaN coordinate skipped", w.skipped);
     }
-    let bytes = cosem_host::cmap::write(&a.output, &map, anchor_time, Some(&source))?;
+    for warning in w.stats.warnings(a.voxel) {
+        eprintln!("warning: {warning}");
+    }
+    let (points, kept, voxels, bytes) = (w.stats.points, w.stats.kept, w.voxels, w.bytes);
     println!(
-        "{}: {} frames, {} points, {} kept, {} voxels at {} m, {} bytes ({:.1} bytes/voxel) in {:.2} s",
+        "{}: {} frames, {points} points, {kept} kept, {voxels} voxels at {} m, {bytes} bytes ({:.1} bytes/voxel) in {:.2} s",
         a.output.display(),
-        frames.len(),
-        stats.points,
-        stats.kept,
-        map.len(),
+        w.frames,
         a.voxel,
-        bytes,
-        bytes as f64 / map.len().max(1) as f64,
+        bytes as f64 / voxels.max(1) as f64,
         t0.elapsed().as_secs_f64()
     );
     Ok(())

@@ -2,12 +2,10 @@
 
 use super::args::MatchOpts;
 use super::{print_json, Error};
-use cosem_core::geometry::Isometry3;
-use cosem_host::align::{align, prepare, DEFAULT_LEVELS};
-use cosem_host::ply::{self, PlyPoint};
+use cosem_host::align::prepare_and_align;
+use cosem_host::ply;
 use cosem_host::report::{exit_code, result_text, GlobalJson, MatchJson};
 use std::path::PathBuf;
-use std::time::Instant;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -43,18 +41,11 @@ pub fn run(a: Args) -> Result<u8, Error> {
             format!("resolutions differ: {} m ({m}) vs {} m ({s})", model.resolution(), scene.resolution()).into()
         );
     }
-    let t_prep = Instant::now();
-    let pm = prepare(&model, DEFAULT_LEVELS).map_err(|e| format!("{}: {e}", a.model.display()))?;
-    let ps = prepare(&scene, DEFAULT_LEVELS).map_err(|e| format!("{}: {e}", a.scene.display()))?;
-    let prep_ms = t_prep.elapsed().as_secs_f64() * 1e3;
-    let t = Instant::now();
-    let (r, global) = align(settings, prior.as_ref(), (&pm, &ps))?;
-    let time_ms = t.elapsed().as_secs_f64() * 1e3;
+    let (model_name, scene_name) = (a.model.display().to_string(), a.scene.display().to_string());
+    let m = prepare_and_align(&model, &scene, [&model_name, &scene_name], settings, prior.as_ref())?;
+    let (r, global, time_ms, prep_ms) = (m.result, m.global, m.match_ms, m.prepare_ms);
     if let Some(path) = &a.merged {
-        let mut pts: Vec<PlyPoint> = Vec::with_capacity(model.len() + scene.len());
-        pts.extend(model.iter().map(|v| PlyPoint::of(v, model.resolution(), &Isometry3::identity(), [40, 110, 255])));
-        pts.extend(scene.iter().map(|v| PlyPoint::of(v, scene.resolution(), &r.transform, [255, 120, 30])));
-        ply::write(path, &pts).map_err(|e| format!("{}: {e}", path.display()))?;
+        ply::write_merged(path, &model, &scene, &r.transform)?;
     }
     let mut j = MatchJson::new(&r, time_ms, prep_ms);
     j.method = Some(settings.method.name());

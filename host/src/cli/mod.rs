@@ -18,7 +18,6 @@ mod team;
 mod team_board;
 
 use clap::{Parser, Subcommand};
-use std::path::PathBuf;
 
 /// Errors of the CLI: a message, possibly wrapping a typed error.
 pub type Error = Box<dyn std::error::Error + Send + Sync>;
@@ -113,15 +112,6 @@ fn run_command(cli: Cli) -> Result<u8, Error> {
     }
 }
 
-/// Where real data lives: `COSEM_DATA`, else `../shared/data` (relative to
-/// the repository root, where the commands are run from).
-pub fn data_root() -> PathBuf {
-    match std::env::var_os("COSEM_DATA") {
-        Some(d) => PathBuf::from(d),
-        None => PathBuf::from("../shared/data"),
-    }
-}
-
 /// Whether the command printed its JSON already (an error after it, such
 /// as a robot that did not report, adds no second object).
 static JSON_PRINTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
@@ -132,5 +122,3 @@ pub fn print_json(value: &impl serde::Serialize) -> Result<(), Error> {
     JSON_PRINTED.store(true, std::sync::atomic::Ordering::Relaxed);
     Ok(())
 }
-
-pub use cosem_host::bench::TempDir;

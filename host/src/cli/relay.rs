@@ -4,15 +4,6 @@ use super::Error;
 use cosem_host::relay::{run, Flip, LineModel};
 use std::time::Duration;
 
-/// What a flip does (`--flip`).
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-enum FlipArg {
-    /// One bit flipped.
-    Bit,
-    /// XOR with a random non-zero byte.
-    Byte,
-}
-
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The two ports on 127.0.0.1 the link processes connect to (0: any
@@ -30,8 +21,8 @@ pub struct Args {
     seed: u64,
     /// What a flip does: `bit` flips one bit, `byte` XORs a random non-zero
     /// byte.
-    #[arg(long, value_enum, default_value_t = FlipArg::Bit)]
-    flip: FlipArg,
+    #[arg(long, value_enum, default_value = "bit")]
+    flip: Flip,
     /// Give up when the two sides have not connected in this long (s).
     #[arg(long, default_value = "60", value_parser = super::args::positive)]
     accept_timeout: f64,
@@ -41,15 +32,7 @@ pub fn run_relay(a: Args) -> Result<(), Error> {
     let bind =
         |p: u16| std::net::TcpListener::bind(("127.0.0.1", p)).map_err(|e| format!("listen on 127.0.0.1:{p}: {e}"));
     let listeners = [bind(a.ports[0])?, bind(a.ports[1])?];
-    let model = LineModel {
-        baud: a.baud,
-        error_rate: a.error_rate,
-        seed: a.seed,
-        flip: match a.flip {
-            FlipArg::Bit => Flip::Bit,
-            FlipArg::Byte => Flip::Byte,
-        },
-    };
+    let model = LineModel { baud: a.baud, error_rate: a.error_rate, seed: a.seed, flip: a.flip };
     let wait = Duration::from_secs_f64(a.accept_timeout.min(86_400.0));
     let stats = run(listeners, model, wait, |[x, y]| eprintln!("relay on {x} {y}"))?;
     println!(

@@ -7,12 +7,8 @@ use super::{print_json, Error};
 use cosem_core::geometry::Isometry3;
 use cosem_host::board::Board;
 use cosem_host::kitti::FrameRange;
-use cosem_host::report::status_code;
-use cosem_host::robots::{
-    default_prior, feeds, firmware, host_run, run_pair, summarise, LineFault, Outcome, DEFAULT_FIRMWARE,
-};
+use cosem_host::robots::{run_robots, LineFault, RobotsSpec, DEFAULT_FIRMWARE};
 use std::path::PathBuf;
-use std::time::Duration;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -76,43 +72,25 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<u8, Error> {
-    let seq = cosem_host::source::Source::open(&a.data, &a.source.options())?;
-    let gt = seq.relative_pose(a.a.start, a.b.start)?;
-    let prior = (!a.no_prior).then(|| a.prior.unwrap_or_else(|| default_prior(&gt)));
-    let silence_ms = (a.silence * 1000.0).min(f64::from(u32::MAX)) as u32;
-    let feeds = feeds(&seq, [a.a, a.b], a.voxel, a.crop, prior.as_ref(), silence_ms, a.label_noise, a.seed)?;
-    // The host runs both robots' pipeline too, as the boards do.
-    let t = std::time::Instant::now();
-    let boards = [a.board_a, a.board_b];
-    if !boards.iter().any(|b| b.matches()) {
-        return Err("--board-a and --board-b: one robot must be able to match (an mps2-an386 board)".into());
-    }
-    let host = host_run([&feeds[0], &feeds[1]], boards)?;
-    let host_ms = t.elapsed().as_secs_f64() * 1e3;
-    let elf = |b: Board| match b {
-        Board::Mps2An386 => firmware(&a.firmware),
-        Board::Stm32f405 => firmware(std::path::Path::new(b.default_firmware())),
+    let spec = RobotsSpec {
+        source: cosem_host::source::Source::open(&a.data, &a.source.options())?,
+        ranges: [a.a, a.b],
+        voxel: a.voxel,
+        crop: a.crop,
+        prior: a.prior,
+        no_prior: a.no_prior,
+        firmware: a.firmware,
+        boards: [a.board_a, a.board_b],
+        line: a.line,
+        silence_s: a.silence,
+        timeout_s: a.timeout,
+        label_noise: (a.label_noise, a.seed),
     };
-    let elves = [elf(boards[0])?, elf(boards[1])?];
-    let timeout = Duration::from_secs_f64(a.timeout.min(86_400.0));
-    let run = run_pair([&elves[0], &elves[1]], boards, [&feeds[0], &feeds[1]], a.line, timeout)?;
-    let mut report = summarise(&run, feeds[0].setup.prior.as_ref(), &host, host_ms, &gt);
-    if a.label_noise != cosem_host::noise::LabelNoise::None {
-        report.label_noise = Some(format!("{:?}, seed {} (+ robot id)", a.label_noise, a.seed));
-    }
+    let (report, code) = run_robots(&spec)?;
     if a.json {
         print_json(&report)?;
     } else {
         print!("{report}");
     }
-    // The worse of the two robots: a robot that did not report is an
-    // error; else the worse status.
-    let mut code = 0;
-    for r in &run.robots {
-        match &r.outcome {
-            Outcome::Report(rep) => code = code.max(status_code(rep.result.status)),
-            _ => return Err("a robot did not report a match".into()),
-        }
-    }
-    Ok(code)
+    code.ok_or_else(|| "a robot did not report a match".into())
 }

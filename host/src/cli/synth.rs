@@ -1,6 +1,6 @@
 //! `cosem synth`: a synthetic sequence in SemanticKITTI layout.
 
-use super::args::SegArg;
+use super::args::SegChoice;
 use super::Error;
 use cosem_host::synth::{write_sequence, SegRender, SynthConfig};
 use std::path::PathBuf;
@@ -28,8 +28,8 @@ pub struct Args {
     /// Render camera 2's segmentation image per frame into seg_2/, with
     /// these ids: cityscapes (a Cityscapes-trained network's 19 training
     /// ids), semantickitti (learning-map ids, 0 unlabeled), or none.
-    #[arg(long, value_enum, default_value = "cityscapes")]
-    seg: SegArg,
+    #[arg(long, default_value = "cityscapes", value_parser = super::args::seg)]
+    seg: SegChoice,
     /// Corrupt the images as a real network would: displaced class
     /// borders, blobs of a confusable wrong class.
     #[arg(long)]
@@ -46,15 +46,10 @@ pub fn run(a: Args) -> Result<(), Error> {
     if !((0.0..=1.0).contains(&a.label_noise) && a.range_noise >= 0.0 && a.range_noise.is_finite()) {
         return Err("--label-noise must be in [0, 1] and --range-noise a finite number >= 0".into());
     }
-    let classes = match a.seg {
-        SegArg::None if a.seg_corrupt || a.seg_probabilities => {
-            return Err("--seg-corrupt and --seg-probabilities need --seg cityscapes|semantickitti".into());
-        }
-        SegArg::None => None,
-        SegArg::Cityscapes => Some(cosem_core::camera::SegClasses::Cityscapes),
-        SegArg::Semantickitti => Some(cosem_core::camera::SegClasses::SemanticKitti),
-    };
-    let seg = classes.map(|classes| SegRender { classes, corrupt: a.seg_corrupt, probabilities: a.seg_probabilities });
+    if a.seg.is_none() && (a.seg_corrupt || a.seg_probabilities) {
+        return Err("--seg-corrupt and --seg-probabilities need --seg cityscapes|semantickitti".into());
+    }
+    let seg = a.seg.map(|classes| SegRender { classes, corrupt: a.seg_corrupt, probabilities: a.seg_probabilities });
     let cfg = SynthConfig {
         seg,
         frames: a.frames,

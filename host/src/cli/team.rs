@@ -3,16 +3,15 @@
 
 use super::{print_json, Error};
 use cosem_core::matching::MatchSettings;
-use cosem_host::kitti::FrameRange;
 use cosem_host::reports::team::TeamJson;
-use cosem_host::team::{run as run_team, RobotSpec, TeamSpec};
+use cosem_host::team::{parse_prior_noise, parse_robot_pair, run as run_team, RobotSpec, TeamSpec};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// A robot: a source of scans (a SemanticKITTI-layout folder, a ROS 2
     /// recording .mcap, or a folder of PCD/PLY scans with poses.txt) and
     /// its frames, PATH:START:END[:STRIDE]; robot i is the i-th (2 to 8).
-    #[arg(long = "robot", required = true, value_parser = robot)]
+    #[arg(long = "robot", required = true)]
     pub(super) robots: Vec<RobotSpec>,
     #[command(flatten)]
     pub(super) source: super::args::SourceArgs,
@@ -24,12 +23,12 @@ pub struct Args {
     pub(super) no_prior: bool,
     /// A prior for robots of one trajectory: the true relative pose moved
     /// by METRES and DEGREES (seeded): METRES,DEGREES.
-    #[arg(long, value_parser = pair_f64)]
+    #[arg(long, value_parser = parse_prior_noise)]
     pub(super) prior_noise: Option<(f64, f64)>,
     /// Replace robot I's estimate of robot J (only that direction) with one
     /// 5 m and 20 degrees off, Converged: I,J. Repeatable; given as I,J and
     /// J,I, one false match seen from both robots.
-    #[arg(long, value_parser = pair_usize)]
+    #[arg(long, value_parser = parse_robot_pair)]
     pub(super) inject_false_match: Vec<(usize, usize)>,
     /// Label noise on every scan: none, network[:SEVERITY] or iid:P (see
     /// `cosem eval --help`).
@@ -64,59 +63,25 @@ pub struct Args {
     pub(super) timeout: f64,
 }
 
-fn robot(s: &str) -> Result<RobotSpec, String> {
-    // The frames are the last two or three colon-separated fields.
-    for fields in [3, 2] {
-        let parts: Vec<&str> = s.rsplitn(fields + 1, ':').collect();
-        if parts.len() == fields + 1 {
-            let frames = parts[..fields].iter().rev().copied().collect::<Vec<_>>().join(":");
-            if let Ok(r) = frames.parse::<FrameRange>() {
-                return Ok(RobotSpec { data: parts[fields].into(), frames: r });
-            }
-        }
-    }
-    Err(format!("`{s}`: expected DIR:START:END[:STRIDE]"))
-}
-
-/// The largest error of a prior (m): a prior a kilometre off is no prior.
-const MAX_PRIOR_METRES: f64 = 1000.0;
-
-fn pair_f64(s: &str) -> Result<(f64, f64), String> {
-    let v: Vec<f64> =
-        s.split(',').map(|x| x.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
-    match v[..] {
-        [m, d] if (0.0..=MAX_PRIOR_METRES).contains(&m) && (0.0..=180.0).contains(&d) => Ok((m, d)),
-        _ => Err(format!(
-            "`{s}`: expected METRES,DEGREES: METRES from 0 to {MAX_PRIOR_METRES} (a prior further off is none: use --no-prior), DEGREES from 0 to 180"
-        )),
-    }
-}
-
-fn pair_usize(s: &str) -> Result<(usize, usize), String> {
-    let v: Vec<usize> =
-        s.split(',').map(|x| x.trim().parse::<usize>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
-    match v[..] {
-        [i, j] => Ok((i, j)),
-        _ => Err(format!("`{s}`: expected I,J")),
-    }
-}
-
-/// Exit code: 0 when every robot is placed in robot 0's frame, else 5
-/// (no overlap: some robot could not be placed).
-pub fn run(a: Args) -> Result<u8, Error> {
-    if a.on_board {
-        return super::team_board::run(a);
-    }
-    let spec = TeamSpec {
-        robots: a.robots,
-        voxel: a.voxel.unwrap_or(0.2),
+/// The team the arguments name (`default_voxel` without --voxel).
+pub(super) fn spec(a: &Args, default_voxel: f32) -> TeamSpec {
+    TeamSpec {
+        robots: a.robots.clone(),
+        voxel: a.voxel.unwrap_or(default_voxel),
         prior_noise: a.prior_noise,
-        inject_false_match: a.inject_false_match,
+        inject_false_match: a.inject_false_match.clone(),
         source: a.source.options(),
         label_noise: a.label_noise,
         seed: a.seed,
         settings: MatchSettings::default(),
-    };
+    }
+}
+
+pub fn run(a: Args) -> Result<u8, Error> {
+    if a.on_board {
+        return super::team_board::run(a);
+    }
+    let spec = spec(&a, 0.2);
     let out = TeamJson::of(&run_team(&spec)?);
     if a.json {
         print_json(&out)?;

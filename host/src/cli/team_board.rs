@@ -3,23 +3,13 @@
 
 use super::team::Args;
 use super::{print_json, Error};
-use cosem_core::matching::MatchSettings;
-use cosem_host::team::TeamSpec;
 use std::time::Duration;
 
 /// Exit code: 0 when every board finished and placed every robot in robot
 /// 0's frame; 5 when a robot is unplaced; 1 when a board stopped.
 pub fn run(a: Args) -> Result<u8, Error> {
-    let spec = TeamSpec {
-        robots: a.robots.clone(),
-        voxel: a.voxel.unwrap_or(0.5),
-        prior_noise: None,
-        inject_false_match: Vec::new(),
-        source: a.source.options(),
-        label_noise: a.label_noise,
-        seed: a.seed,
-        settings: MatchSettings::default(),
-    };
+    // No prior and no injected match on board (clap refuses them).
+    let spec = super::team::spec(&a, 0.5);
     let silence_ms = (a.silence * 1000.0).min(f64::from(u32::MAX)) as u32;
     let timeout = Duration::from_secs_f64(a.timeout.min(86_400.0));
     let out = cosem_host::team_board::run_on_boards(&spec, a.crop, silence_ms, &a.firmware, timeout)?;

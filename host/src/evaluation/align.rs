@@ -72,3 +72,35 @@ pub fn align(
         }
     }
 }
+
+/// Two maps prepared and matched, with the times it took: what `cosem
+/// match` and `cosem link` report.
+pub struct TimedMatch {
+    /// The match (`T_model_scene`).
+    pub result: MatchResult,
+    /// What the prior-free search found (no prior only).
+    pub global: Option<Searched>,
+    /// Milliseconds preparing both maps.
+    pub prepare_ms: f64,
+    /// Milliseconds matching.
+    pub match_ms: f64,
+}
+
+/// Prepares `model` and `scene` (an error names the map by `names`) and
+/// aligns them as [`align`] does, timing both steps.
+pub fn prepare_and_align(
+    model: &HostMap,
+    scene: &HostMap,
+    names: [&str; 2],
+    settings: MatchSettings,
+    prior: Option<&Isometry3<f32>>,
+) -> Result<TimedMatch, crate::Error> {
+    let named = |name: &str, e: crate::Error| crate::Error::Invalid(format!("{name}: {e}"));
+    let t0 = std::time::Instant::now();
+    let pm = prepare(model, DEFAULT_LEVELS).map_err(|e| named(names[0], e))?;
+    let ps = prepare(scene, DEFAULT_LEVELS).map_err(|e| named(names[1], e))?;
+    let prepare_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let t1 = std::time::Instant::now();
+    let (result, global) = align(settings, prior, (&pm, &ps))?;
+    Ok(TimedMatch { result, global, prepare_ms, match_ms: t1.elapsed().as_secs_f64() * 1e3 })
+}

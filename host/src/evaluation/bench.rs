@@ -311,14 +311,20 @@ pub fn strict_success(dir: &Path, a: FrameRange, b: FrameRange, stride: usize) -
     Ok((ok as f64 / starts.len().max(1) as f64, pair.map_a.len()))
 }
 
+/// Where real data lives: `COSEM_DATA`, else `../shared/data` (relative to
+/// the repository root, where the commands are run from).
+pub fn data_root() -> PathBuf {
+    std::env::var_os("COSEM_DATA").map_or_else(|| PathBuf::from("../shared/data"), PathBuf::from)
+}
+
 /// The sequence to benchmark on: `given`, else `$COSEM_DATA/kitti00`
 /// (`root`), else a fresh synthetic one of `frames` frames (removed when
 /// the returned guard drops; `true` says it is synthetic).
-pub fn data_dir(given: Option<PathBuf>, root: &Path, frames: usize) -> Result<(PathBuf, Option<TempDir>), Error> {
+pub fn data_dir(given: Option<PathBuf>, frames: usize) -> Result<(PathBuf, Option<TempDir>), Error> {
     if let Some(d) = given {
         return Ok((d, None));
     }
-    let kitti = root.join("kitti00");
+    let kitti = data_root().join("kitti00");
     if kitti.join("poses.txt").exists() {
         return Ok((kitti, None));
     }

@@ -438,6 +438,68 @@ pub fn for_each_start<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync 
     }
 }
 
+/// What `cosem eval` runs on a pair.
+pub enum Protocol {
+    /// The paper's: each method (its settings) from each start of a grid.
+    Grid {
+        /// The starts.
+        starts: Vec<Start>,
+        /// The methods' settings.
+        methods: Vec<MatchSettings>,
+    },
+    /// Prior-free: the scene's map moved by each start (rebuilt from its
+    /// moved frames) and matched with no prior.
+    Global {
+        /// The starts.
+        starts: Vec<GlobalStart>,
+        /// The method's settings.
+        settings: MatchSettings,
+    },
+}
+
+impl Protocol {
+    /// The matches it runs.
+    pub fn matches(&self) -> usize {
+        match self {
+            Protocol::Grid { starts, methods } => starts.len() * methods.len(),
+            Protocol::Global { starts, .. } => starts.len(),
+        }
+    }
+}
+
+/// Runs `protocol` on `pair` (loaded from `spec`): both maps prepared
+/// (`on_prepared` is told the maps and the milliseconds per map), then
+/// every match (`progress` after each); the report of it all.
+pub fn evaluate(
+    pair: &crate::pair::Pair,
+    spec: &crate::pair::PairSpec,
+    protocol: &Protocol,
+    on_prepared: impl FnOnce(&MapsInfo, f64),
+    progress: &(dyn Fn() + Sync),
+) -> Result<EvalReport, Error> {
+    let maps = MapsInfo { a_voxels: pair.map_a.len(), b_voxels: pair.map_b.len(), overlap: pair.overlap() };
+    let t0 = Instant::now();
+    let (pa, pb) = (prepare(&pair.map_a, DEFAULT_LEVELS)?, prepare(&pair.map_b, DEFAULT_LEVELS)?);
+    let prep_ms = t0.elapsed().as_secs_f64() * 1e3 / 2.0;
+    on_prepared(&maps, prep_ms);
+    let (mode, dof, results) = match protocol {
+        Protocol::Grid { starts, methods } => {
+            let mut results = Vec::new();
+            for s in methods {
+                results.extend(run_grid(s.method.name(), *s, (&pa, &pb), &pair.gt, starts, progress)?);
+            }
+            ("grid", methods.first().map_or(6, |s| s.dof.count()), results)
+        }
+        Protocol::Global { starts, settings: s } => {
+            let config = (spec.config, &spec.filter);
+            let results =
+                run_global(s.method.name(), *s, &pair.map_a, &pair.frames_b, config, &pair.gt, starts, progress)?;
+            ("global", s.dof.count(), results)
+        }
+    };
+    Ok(EvalReport::new(mode, maps, spec.config.resolution, dof, prep_ms, &pair.gt, results))
+}
+
 /// Matches the prepared maps from every grid start with `settings` (one
 /// untimed warm-up match first, so short runs time the steady state);
 /// `progress` is called after each match.

@@ -37,6 +37,50 @@ pub struct RobotSpec {
     pub frames: FrameRange,
 }
 
+/// `PATH:START:END[:STRIDE]` (`--robot`).
+impl std::str::FromStr for RobotSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        // The frames are the last two or three colon-separated fields.
+        for fields in [3, 2] {
+            let parts: Vec<&str> = s.rsplitn(fields + 1, ':').collect();
+            if parts.len() == fields + 1 {
+                let frames = parts[..fields].iter().rev().copied().collect::<Vec<_>>().join(":");
+                if let Ok(r) = frames.parse::<FrameRange>() {
+                    return Ok(RobotSpec { data: parts[fields].into(), frames: r });
+                }
+            }
+        }
+        Err(format!("`{s}`: expected DIR:START:END[:STRIDE]"))
+    }
+}
+
+/// The largest `--prior-noise` offset (m): a prior further off is none.
+pub const MAX_PRIOR_METRES: f64 = 1000.0;
+
+/// `METRES,DEGREES` of a prior's noise (`--prior-noise`): metres from 0 to
+/// [`MAX_PRIOR_METRES`], degrees from 0 to 180.
+pub fn parse_prior_noise(s: &str) -> Result<(f64, f64), String> {
+    let v: Vec<f64> =
+        s.split(',').map(|x| x.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+    match v[..] {
+        [m, d] if (0.0..=MAX_PRIOR_METRES).contains(&m) && (0.0..=180.0).contains(&d) => Ok((m, d)),
+        _ => Err(format!(
+            "`{s}`: expected METRES,DEGREES: METRES from 0 to {MAX_PRIOR_METRES} (a prior further off is none: use --no-prior), DEGREES from 0 to 180"
+        )),
+    }
+}
+
+/// `I,J`: robot I's estimate of robot J (`--inject-false-match`).
+pub fn parse_robot_pair(s: &str) -> Result<(usize, usize), String> {
+    let v: Vec<usize> =
+        s.split(',').map(|x| x.trim().parse::<usize>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+    match v[..] {
+        [i, j] => Ok((i, j)),
+        _ => Err(format!("`{s}`: expected I,J")),
+    }
+}
+
 /// What `cosem team` runs.
 #[derive(Clone, Debug)]
 pub struct TeamSpec {

@@ -30,6 +30,7 @@ pub struct LineModel {
 /// What a flip does to a byte: a UART's bit error flips one bit; noise
 /// across a whole character (or a clock slip) garbles it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Flip {
     /// One bit flipped.
     #[default]

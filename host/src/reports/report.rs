@@ -186,6 +186,72 @@ pub struct LinkJson {
     pub result: MatchJson,
 }
 
+impl LinkJson {
+    /// The figures of an exchange: what moved (`stats`), the voxels of our
+    /// map and the peer's, its wall time (s), the baud rate its line times
+    /// are given at, and our match.
+    pub fn new(
+        robot_id: u8,
+        stats: &cosem_core::link::LinkStats,
+        voxels: (usize, usize),
+        link_time_s: f64,
+        baud: u32,
+        result: MatchJson,
+    ) -> Self {
+        let line = |bytes| crate::robots::line_seconds(bytes, baud);
+        LinkJson {
+            robot_id,
+            bytes_sent: stats.bytes_sent,
+            bytes_received: stats.bytes_received,
+            frames: stats.frames_sent,
+            frames_received: stats.frames_received,
+            retransmissions: stats.retransmissions,
+            bad_frames: stats.bad_frames,
+            repaired_frames: stats.repaired_frames,
+            duplicates: stats.duplicates,
+            acks_sent: stats.acks_sent,
+            voxels_sent: voxels.0,
+            voxels_received: voxels.1,
+            wire_bytes_per_voxel: stats.chunk_bytes_sent as f64 / voxels.0.max(1) as f64,
+            link_time_s,
+            baud,
+            line_time_s: std::collections::BTreeMap::from([
+                ("sent", line(stats.bytes_sent)),
+                ("received", line(stats.bytes_received)),
+            ]),
+            result,
+        }
+    }
+}
+
+/// The exchange's figures in two lines (the match is printed apart).
+impl std::fmt::Display for LinkJson {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (sent_s, received_s) = (self.line_time_s["sent"], self.line_time_s["received"]);
+        writeln!(
+            f,
+            "robot {}: sent {} voxels in {} bytes ({:.2} bytes/voxel of encoding), received {} voxels in {} bytes",
+            self.robot_id,
+            self.voxels_sent,
+            self.bytes_sent,
+            self.wire_bytes_per_voxel,
+            self.voxels_received,
+            self.bytes_received
+        )?;
+        writeln!(
+            f,
+            "frames {} sent, {} received ({} repaired), {} retransmitted, {} broken; {:.2} s here; at {} baud: {sent_s:.1} s out, {received_s:.1} s in",
+            self.frames,
+            self.frames_received,
+            self.repaired_frames,
+            self.retransmissions,
+            self.bad_frames,
+            self.link_time_s,
+            self.baud
+        )
+    }
+}
+
 /// `cosem info --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct InfoJson {
@@ -213,6 +279,119 @@ pub struct InfoJson {
     pub source: Option<String>,
     /// Sensor model accuracy.
     pub label_accuracy: f32,
+    /// The classes in the histogram's order (for the text).
+    #[serde(skip)]
+    pub histogram: Vec<(&'static str, usize)>,
+}
+
+impl InfoJson {
+    /// What the map file `file` holds.
+    pub fn of(file: &std::path::Path) -> Result<Self, crate::Error> {
+        let (header, map) = crate::cmap::read(file)?;
+        let bytes = std::fs::metadata(file).map_err(|source| crate::Error::Io { path: file.into(), source })?.len();
+        let voxels = map.len();
+        let histogram: Vec<(&'static str, usize)> =
+            crate::mapping::class_histogram(&map).iter().map(|(c, n)| (c.name(), *n)).collect();
+        let (lo, hi) = map.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
+        Ok(InfoJson {
+            file: file.display().to_string(),
+            voxels,
+            resolution: map.resolution(),
+            bounds: std::collections::BTreeMap::from([("min", lo), ("max", hi)]),
+            bytes,
+            bytes_per_voxel: bytes as f64 / voxels.max(1) as f64,
+            memory_bytes_per_voxel: cosem_core::map::BYTES_PER_VOXEL,
+            wire_bytes_per_voxel: crate::cmap::wire_bytes_per_voxel(&map, cosem_core::wire::mapfile::FILE_CHUNK),
+            classes: histogram.iter().copied().collect(),
+            anchor_time: header.anchor_time,
+            // Text from the file: escaped, so no control byte reaches a terminal.
+            source: header.source.as_ref().map(|s| s.escape_debug().to_string()),
+            label_accuracy: header.label_accuracy,
+            histogram,
+        })
+    }
+}
+
+impl std::fmt::Display for InfoJson {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "{}", self.file)?;
+        if let Some(s) = &self.source {
+            writeln!(f, "  source:      {s}")?;
+        }
+        writeln!(f, "  voxels:      {} at {} m", self.voxels, self.resolution)?;
+        let (lo, hi) = (self.bounds["min"], self.bounds["max"]);
+        let b = format!("[{:.1}, {:.1}, {:.1}] .. [{:.1}, {:.1}, {:.1}]", lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]);
+        writeln!(f, "  bounds:      {b} m")?;
+        writeln!(f, "  file:        {} bytes, {:.2} bytes/voxel", self.bytes, self.bytes_per_voxel)?;
+        writeln!(f, "  encoding:    {:.2} bytes/voxel (as on the link)", self.wire_bytes_per_voxel)?;
+        writeln!(f, "  memory:      {} bytes/voxel (index included)", self.memory_bytes_per_voxel)?;
+        writeln!(f, "  classes:")?;
+        for (c, n) in &self.histogram {
+            writeln!(f, "    {:<14} {:>8}  {:5.1}%", c, n, 100.0 * *n as f64 / self.voxels.max(1) as f64)?;
+        }
+        Ok(())
+    }
+}
+
+/// `cosem label --json` (fields in name order, as they always were).
+#[derive(Clone, Debug, Serialize)]
+pub struct LabelJson {
+    /// In-view points whose new class equals the existing one.
+    pub agreeing: usize,
+    /// `agreeing / compared` (none without labels to compare with).
+    pub agreement: Option<f64>,
+    /// The agreement as the class set can say it.
+    pub agreement_in_class_set: Option<f64>,
+    /// The segmentation's class set.
+    pub classes: &'static str,
+    /// In-view points whose existing label has a class.
+    pub compared: usize,
+    /// Frames labelled.
+    pub frames: usize,
+    /// Points projecting into the image and seen by the camera.
+    pub in_view: usize,
+    /// Seconds projecting and labelling.
+    pub label_seconds: f64,
+    /// In-view points given a class.
+    pub labelled: usize,
+    /// Points hidden behind nearer points.
+    pub occluded: usize,
+    /// The output folder.
+    pub out: String,
+    /// Points read.
+    pub points: usize,
+    /// Points labelled per second.
+    pub points_per_second: f64,
+    /// Whether the segmentation gave probabilities.
+    pub probabilities: bool,
+    /// The camera's image size the projection was scaled from.
+    pub scaled_from_image_size: Option<[u32; 2]>,
+    /// Seconds in all, reading and writing included.
+    pub wall_seconds: f64,
+}
+
+impl LabelJson {
+    /// The figures of a labelling run with `opts`, `wall` seconds in all.
+    pub fn of(s: &crate::label::LabelStats, opts: &crate::label::LabelOptions, wall: f64) -> Self {
+        LabelJson {
+            agreeing: s.agreeing,
+            agreement: s.agreement(),
+            agreement_in_class_set: s.agreement_in_set(),
+            classes: opts.classes.name(),
+            compared: s.compared,
+            frames: s.frames,
+            in_view: s.in_view,
+            label_seconds: s.label_seconds,
+            labelled: s.labelled,
+            occluded: s.occluded,
+            out: opts.out.display().to_string(),
+            points: s.points,
+            points_per_second: s.points as f64 / s.label_seconds.max(1e-9),
+            probabilities: opts.probabilities,
+            scaled_from_image_size: s.scaled_from.map(|(w, h)| [w, h]),
+            wall_seconds: wall,
+        }
+    }
 }
 
 /// A match result in words, as `cosem match` and `cosem link` print it.

@@ -63,6 +63,16 @@ pub enum CloudFormat {
     Ply,
 }
 
+impl CloudFormat {
+    /// The files' extension.
+    pub fn extension(self) -> &'static str {
+        match self {
+            CloudFormat::Pcd => "pcd",
+            CloudFormat::Ply => "ply",
+        }
+    }
+}
+
 /// One scan read from a file: points in the sensor's frame and their raw
 /// label words.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -606,6 +616,55 @@ pub fn write_ply(path: &Path, points: &[[f32; 3]], labels: &[u32]) -> Result<(),
     .into_bytes();
     out.extend(records(points.iter().copied(), labels));
     crate::paths::write_file(path, out).map_err(|source| CloudError::Io { path: path.to_owned(), source })
+}
+
+/// `cosem export scans`: frames `frames` of the SemanticKITTI folder
+/// `data` written as PCD or PLY scans (x, y, z, label) named by frame, and
+/// their poses (`poses.txt`), into `output`: the input `cosem map --format`
+/// reads. A folder that already holds scans or poses is refused unless
+/// `force`; `output` never lies inside `data`. Returns the scans written.
+pub fn export_scans(
+    data: &Path,
+    frames: crate::kitti::FrameRange,
+    format: CloudFormat,
+    output: &Path,
+    force: bool,
+) -> Result<usize, crate::Error> {
+    crate::paths::refuse_inside(output, &[data])?;
+    if !force {
+        refuse_used_folder(output)?;
+    }
+    let seq = crate::kitti::Sequence::open(data)?;
+    std::fs::create_dir_all(output).map_err(|e| crate::Error::Invalid(format!("{}: {e}", output.display())))?;
+    let mut poses = Vec::new();
+    for i in frames.frames() {
+        let scan = seq.read_scan(i)?;
+        poses.push(seq.velodyne_matrix(i)?);
+        let points: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+        let path = output.join(format!("{i:06}.{}", format.extension()));
+        match format {
+            CloudFormat::Pcd => write_pcd(&path, &points, &scan.labels)?,
+            CloudFormat::Ply => write_ply(&path, &points, &scan.labels)?,
+        }
+    }
+    write_poses(&output.join("poses.txt"), &poses)?;
+    Ok(poses.len())
+}
+
+/// Refuses a folder that holds scans or poses already.
+fn refuse_used_folder(output: &Path) -> Result<(), crate::Error> {
+    let Ok(entries) = std::fs::read_dir(output) else { return Ok(()) };
+    let held = entries
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .find(|n| n == "poses.txt" || n == "velodyne" || n == "labels" || n.ends_with(".pcd") || n.ends_with(".ply"));
+    match held {
+        Some(name) => Err(crate::Error::Invalid(format!(
+            "{}: already holds {name}: scans and poses are not replaced without --force (or choose a new folder)",
+            output.display()
+        ))),
+        None => Ok(()),
+    }
 }
 
 /// Reads scans (one file each, in order) with their sensor poses and puts

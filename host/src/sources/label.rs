@@ -460,6 +460,17 @@ impl LabelStats {
     }
 }
 
+/// `WIDTHxHEIGHT` of an image (`--image-size`), both positive.
+pub fn parse_image_size(s: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("--image-size `{s}`: expected WIDTHxHEIGHT, e.g. 1241x376");
+    let (w, h) = s.split_once('x').ok_or_else(bad)?;
+    let (w, h) = (w.parse::<u32>().map_err(|_| bad())?, h.parse::<u32>().map_err(|_| bad())?);
+    if w == 0 || h == 0 {
+        return Err(bad());
+    }
+    Ok((w, h))
+}
+
 /// Checks every pixel of an image holds an id of the class set.
 fn check_ids(path: &Path, image: &SegImage, classes: SegClasses) -> Result<(), LabelError> {
     for (i, &id) in image.ids.iter().enumerate() {
