@@ -34,9 +34,39 @@ done
 if [ "${#NEG[@]}" -ge 2 ]; then
   $C eval --negatives "${NEG[@]}" --voxel 0.5 --label-noise network --seed 4 --json "$OUT/negatives.json" >/dev/null
 fi
-if [ "$BOARDS" = 1 ] && [ -d "$DATA/kitti00" ]; then
-  $C robots --data "$DATA/kitti00" --a 0:5 --b 5:10 --json >"$OUT/robots-prior.json" || true
-  $C robots --data "$DATA/kitti00" --a 0:5 --b 5:10 --no-prior --json >"$OUT/robots-noprior.json" || true
+# Teams on the host (exit code 5 when a robot is unplaced: expected here).
+K0="$DATA/kitti00"
+if [ -d "$K0" ] && [ -d "$DATA/kitti07" ]; then
+  MIXED=(--robot "$K0:0:3" --robot "$K0:3:6" --robot "$K0:6:10" --robot "$DATA/kitti07:0:3")
+  $C team "${MIXED[@]}" --json >"$OUT/team-mixed.json" || true
+  $C team "${MIXED[@]}" --inject-false-match 0,1 --json >"$OUT/team-injected.json" || true
+fi
+if [ -d "$K0" ] && [ -d "$DATA/kitti08-loop" ]; then
+  L8="$DATA/kitti08-loop"
+  $C team --robot "$K0:0:3" --robot "$K0:3:6" --robot "$L8:720:721" --robot "$L8:1500:1501" --json \
+    >"$OUT/team-groups.json" || true
+fi
+# A team on data the project makes itself: a synthetic street cut in eight.
+$C synth --seed 21 --frames 24 --out "$OUT/street" >/dev/null
+EIGHT=()
+for k in 0 3 6 9 12 15 18 21; do EIGHT+=(--robot "$OUT/street:$k:$((k + 3))"); done
+$C team "${EIGHT[@]}" --json >"$OUT/team-street8.json" || true
+if [ "$BOARDS" = 1 ] && [ -d "$K0" ]; then
+  $C robots --data "$K0" --a 0:5 --b 5:10 --json >"$OUT/robots-prior.json" || true
+  $C robots --data "$K0" --a 0:5 --b 5:10 --no-prior --json >"$OUT/robots-noprior.json" || true
+  $C robots --data "$K0" --a 0:5 --b 5:10 --board-b stm32f405 --json >"$OUT/robots-stm32f405.json" || true
+  $C team --on-board --robot "$K0:0:3" --robot "$K0:3:6" --robot "$K0:6:10" --json >"$OUT/team-boards.json" || true
+  # The onboard pipeline per robot, no prior: overlapping pairs, the pair
+  # that shares nothing, and a network's labels.
+  $C robots --data "$K0" --a 0:5 --b 5:10 --no-prior --label-noise network --json >"$OUT/pipeline-kitti00-network.json" || true
+  L0="$DATA/kitti00-loop"
+  if [ -d "$L0" ]; then
+    $C robots --data "$L0" --a 52:53 --b 4501:4502 --no-prior --json >"$OUT/pipeline-loop00.json" || true
+    $C robots --data "$L0" --a 88:89 --b 850:851 --no-prior --json >"$OUT/pipeline-apart.json" || true
+    $C robots --data "$L0" --a 88:89 --b 850:851 --no-prior --label-noise network --json >"$OUT/pipeline-apart-network.json" || true
+  fi
+  [ -d "$DATA/kitti08-loop" ] && { $C robots --data "$DATA/kitti08-loop" --a 720:721 --b 1500:1501 --no-prior --json \
+    >"$OUT/pipeline-loop08.json" || true; }
 fi
 
 MACHINE="$(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(free -g | awk '/Mem/ {print $2}') GiB"
@@ -78,16 +108,92 @@ if n:
     print("`cosem eval --negatives ... --voxel 0.5 --label-noise network --seed 4 --json`\n")
     print(f"{len(n['places'])} places, {n['pairs']} ordered pairs, {n['cases']} matches (no prior, identity, random priors): "
           f"**{n['false_accepts']} false accepts**, largest agreement {n['agreement_max']:.3f} (the verdict's threshold: 0.40).")
-for kind in ["prior", "noprior"]:
+TITLES = {
+    "prior": ("a prior", "`cosem robots --data kitti00 --a 0:5 --b 5:10 --json`"),
+    "noprior": ("no prior", "`cosem robots --data kitti00 --a 0:5 --b 5:10 --no-prior --json`"),
+    "stm32f405": ("a prior, robot B on an STM32F405 (it sends its map and is told the result)",
+                  "`cosem robots --data kitti00 --a 0:5 --b 5:10 --board-b stm32f405 --json`"),
+}
+for kind in ["prior", "noprior", "stm32f405"]:
     r = load(f"robots-{kind}.json")
     if not r:
         continue
-    print(f"\n## Two robots on emulated boards, kitti00 0:5 / 5:10, {'a prior' if kind == 'prior' else 'no prior'}\n")
-    print("| robot | status | e_t | e_r | voxels | instructions (map + prepare + locate + match) | static RAM + peak stack |")
-    print("|---|---|---|---|---|---|---|")
+    title, command = TITLES[kind]
+    print(f"\n## Two robots on emulated boards, kitti00 0:5 / 5:10, {title}\n")
+    print(f"{command}\n")
+    print("| robot | status | e_t | e_r | voxels | bytes sent / received | instructions (map + prepare + locate + match) | static RAM + peak stack |")
+    print("|---|---|---|---|---|---|---|---|")
     for x in r["robots"]:
         total = x.get("map_instructions", 0) + x.get("prepare_instructions", 0) + x.get("locate_instructions", 0) + x.get("match_instructions", 0)
         print(f"| {x['id']} ({x['board']}) | {x['status']} | {x['e_t']:.3f} m | {x['e_r']:.3f} deg | {x['map_voxels']:,} | "
+              f"{x['bytes_sent']:,} / {x['bytes_received']:,} | "
               f"{total/1e6:.0f} M | {x['static_ram_bytes']:,} + {x['peak_stack_bytes']:,} B |")
+
+PIPELINES = [
+    ("robots-noprior", "kitti00 0:5 / 5:10"),
+    ("pipeline-kitti00-network", "kitti00 0:5 / 5:10, network labels"),
+    ("pipeline-loop08", "kitti08-loop 720 / 1500 (opposite directions)"),
+    ("pipeline-loop00", "kitti00-loop 52 / 4501"),
+    ("pipeline-apart", "kitti00-loop 88 / 850 (308 m apart: no overlap)"),
+    ("pipeline-apart-network", "kitti00-loop 88 / 850, network labels"),
+]
+rows = [(label, load(f"{name}.json")) for name, label in PIPELINES]
+if any(r for _, r in rows):
+    print("\n## The onboard pipeline per robot, no prior, emulated boards\n")
+    print("`cosem robots --data D --a A --b B --no-prior [--label-noise network] --json`; instructions per robot A / B "
+          "(the budget: 3e8 per robot; the search's budget: 40,000 nodes)\n")
+    print("| pair | status A / B | map | prepare | locate | match | total | search nodes |")
+    print("|---|---|---|---|---|---|---|---|")
+    for label, r in rows:
+        if not r:
+            continue
+        xs = r["robots"]
+        st = " / ".join(x["status"] for x in xs)
+        col = lambda k: " / ".join(f"{x.get(k, 0)/1e6:.0f} M" for x in xs)
+        tot = " / ".join(f"{sum(x.get(k, 0) for k in ('map_instructions', 'prepare_instructions', 'locate_instructions', 'match_instructions'))/1e6:.0f} M" for x in xs)
+        nodes = " / ".join(f"{(x.get('global') or {}).get('evaluations', 0):,}" for x in xs)
+        print(f"| {label} | {st} | {col('map_instructions')} | {col('prepare_instructions')} | {col('locate_instructions')} | "
+              f"{col('match_instructions')} | {tot} | {nodes} |")
+
+def placed(t):
+    """Placed robots with their errors, unplaced ones, matches left out."""
+    ok = [f"{r['index']} ({r['e_t']:.3f} m, {r['e_r']:.2f} deg)" for r in t["robots"]
+          if r["index"] > 0 and r.get("placed") and r.get("group", 0) == 0 and "e_t" in r]
+    other = [f"{r['index']}" + (f" (group {r['group']})" if r.get("placed") else "") for r in t["robots"]
+             if r["index"] > 0 and not (r.get("placed") and r.get("group", 0) == 0)]
+    out = [m for m in t.get("matches", []) if not m.get("accepted")]
+    reasons = {}
+    for m in out:
+        reasons[m.get("reason", m.get("status"))] = reasons.get(m.get("reason", m.get("status")), 0) + 1
+    left = ", ".join(f"{n} {why}" for why, n in sorted(reasons.items())) or "none"
+    return ", ".join(ok) or "none", ", ".join(other) or "none", left
+TEAMS = [
+    ("team-mixed", "kitti00 0:3, 3:6, 6:10 + kitti07 0:3"),
+    ("team-injected", "the same, `--inject-false-match 0,1`"),
+    ("team-groups", "kitti00 0:3, 3:6 + kitti08-loop 720, 1500"),
+    ("team-street8", "synthetic street (`cosem synth --seed 21 --frames 24`) cut in eight"),
+]
+rows = [(label, load(f"{name}.json")) for name, label in TEAMS]
+if any(t for _, t in rows):
+    print("\n## Teams on the host, no prior, 0.2 m\n")
+    print("`cosem team --robot PATH:START:END ... [--inject-false-match I,J] --json` (robot 0 is the frame every robot is placed in)\n")
+    print("| team | placed in robot 0's frame (e_t, e_r) | not in robot 0's group | matches left out (why) |")
+    print("|---|---|---|---|")
+    for label, t in rows:
+        if t:
+            print("| " + label + " | " + " | ".join(placed(t)) + " |")
+t = load("team-boards.json")
+if t:
+    print("\n## A team on emulated boards, kitti00 0:3, 3:6, 6:10, no prior, 0.5 m\n")
+    print("`cosem team --on-board --robot kitti00:0:3 --robot kitti00:3:6 --robot kitti00:6:10 --json`\n")
+    p, o, left = placed(t)
+    print(f"Placed: {p}; not placed: {o}; matches left out: {left}; every board as the host: "
+          f"{t['host_difference_m']:.1e} m apart at most; {t['wall_time_s']:.0f} s of wall time.\n")
+    print("| board | map voxels | instructions: map / prepare / search / match / consistency and pose graph | peak stack |")
+    print("|---|---|---|---|")
+    for b in t["boards"]:
+        m = lambda k: f"{b[k]/1e6:.0f} M"
+        print(f"| {b['index']} | {b['map_voxels']:,} | {m('map_instructions')} / {m('prepare_instructions')} / "
+              f"{m('locate_instructions')} / {m('match_instructions')} / {m('solve_instructions')} | {b['peak_stack_bytes']:,} B |")
 PY
 echo "docs/results.md written"
