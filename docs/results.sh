@@ -159,7 +159,7 @@ def placed(t):
     """Placed robots with their errors, unplaced ones, matches left out."""
     ok = [f"{r['index']} ({r['e_t']:.3f} m, {r['e_r']:.2f} deg)" for r in t["robots"]
           if r["index"] > 0 and r.get("placed") and r.get("group", 0) == 0 and "e_t" in r]
-    other = [f"{r['index']}" + (f" (group {r['group']})" if r.get("placed") else "") for r in t["robots"]
+    other = [f"{r['index']}" + (f" (group {r['group']})" if r.get("group", 0) != 0 else " (unplaced)") for r in t["robots"]
              if r["index"] > 0 and not (r.get("placed") and r.get("group", 0) == 0)]
     out = [m for m in t.get("matches", []) if not m.get("accepted")]
     reasons = {}

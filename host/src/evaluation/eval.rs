@@ -699,6 +699,52 @@ impl std::fmt::Display for NegativeReport {
     }
 }
 
+/// A place's map (default: its first scan), its source and anchor pose.
+fn place_map(
+    p: &Place,
+    spec: &crate::pair::PairSpec,
+) -> Result<(crate::source::Source, nalgebra::Matrix4<f64>, HostMap), Error> {
+    let seq = crate::source::Source::open(&p.data, &spec.source)?;
+    let range = match (p.frames, seq.folder()) {
+        (Some(r), _) => r,
+        (None, Some(folder)) => {
+            let first = folder
+                .scan_frames()?
+                .first()
+                .copied()
+                .ok_or_else(|| Error::Invalid(format!("{}: no scans", p.data.display())))?;
+            crate::kitti::FrameRange { start: first, end: first + 1, stride: 1 }
+        }
+        (None, None) => crate::kitti::FrameRange { start: 0, end: 1, stride: 1 },
+    };
+    let (frames, anchor, _) = spec.frames(&seq, range)?;
+    let (map, _) = build_map(&frames, spec.config, &spec.filter)?;
+    Ok((seq, anchor, map))
+}
+
+/// The ordered pairs of different places, and how many pairs were left
+/// out for overlapping (folders of one sequence may hold one place).
+fn negative_pairs(maps: &[(crate::source::Source, nalgebra::Matrix4<f64>, HostMap)]) -> (Vec<(usize, usize)>, usize) {
+    let mut pairs = Vec::new();
+    let mut overlapping = 0;
+    for (i, a) in maps.iter().enumerate() {
+        for (j, b) in maps.iter().enumerate() {
+            if i == j {
+                continue;
+            }
+            if a.0.same_trajectory(&b.0) {
+                let t = crate::source::relative(&a.1, &b.1);
+                if cosem_core::map::overlap(&a.2, &b.2, &t.cast::<f32>()) >= 0.01 {
+                    overlapping += 1;
+                    continue;
+                }
+            }
+            pairs.push((i, j));
+        }
+    }
+    (pairs, overlapping)
+}
+
 /// Matches every ordered pair of maps of different places (of one sequence:
 /// only when they overlap by under 1% under the truth) with no prior, the
 /// identity prior and `random_priors` seeded random priors (+-20 m, any
@@ -710,44 +756,9 @@ pub fn run_negatives(
     random_priors: usize,
     progress: &(dyn Fn() + Sync),
 ) -> Result<NegativeReport, Error> {
-    let mut maps = Vec::new();
-    for p in places {
-        let seq = crate::source::Source::open(&p.data, &spec.source)?;
-        let range = match (p.frames, seq.folder()) {
-            (Some(r), _) => r,
-            (None, Some(folder)) => {
-                let first = folder
-                    .scan_frames()?
-                    .first()
-                    .copied()
-                    .ok_or_else(|| Error::Invalid(format!("{}: no scans", p.data.display())))?;
-                crate::kitti::FrameRange { start: first, end: first + 1, stride: 1 }
-            }
-            (None, None) => crate::kitti::FrameRange { start: 0, end: 1, stride: 1 },
-        };
-        let (frames, anchor, _) = spec.frames(&seq, range)?;
-        let (map, _) = build_map(&frames, spec.config, &spec.filter)?;
-        maps.push((seq, anchor, map));
-    }
+    let maps = places.iter().map(|p| place_map(p, spec)).collect::<Result<Vec<_>, _>>()?;
     let pyramids: Vec<_> = maps.iter().map(|m| prepare(&m.2, DEFAULT_LEVELS)).collect::<Result<_, _>>()?;
-    let mut pairs = Vec::new();
-    let mut overlapping = 0;
-    for (i, a) in maps.iter().enumerate() {
-        for (j, b) in maps.iter().enumerate() {
-            if i == j {
-                continue;
-            }
-            // Folders of one sequence (the same poses) may hold one place.
-            if a.0.same_trajectory(&b.0) {
-                let t = crate::source::relative(&a.1, &b.1);
-                if cosem_core::map::overlap(&a.2, &b.2, &t.cast::<f32>()) >= 0.01 {
-                    overlapping += 1;
-                    continue;
-                }
-            }
-            pairs.push((i, j));
-        }
-    }
+    let (pairs, overlapping) = negative_pairs(&maps);
     let matcher = Matcher::new(settings);
     let mut rng = crate::rng::Rng::new(0x0E6A_7105);
     let mut jobs = Vec::new();

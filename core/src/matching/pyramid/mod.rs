@@ -42,6 +42,22 @@ pub use storage::*;
 
 pub use index::NARROW_LIMIT;
 use index::*;
+/// A map base's per-voxel extras (class, confidence; normals come later)
+/// written into `extras`; a scene or copied base has none.
+fn base_extras<'e>(base: &Base<'_>, extras: &'e mut [VoxelExtra]) -> Result<&'e [VoxelExtra], PyramidError> {
+    match base {
+        Base::Map { voxels, .. } => {
+            let extras = extras.get_mut(..voxels.len()).ok_or(PyramidError::Full)?;
+            for (x, v) in extras.iter_mut().zip(voxels.iter()) {
+                let (class, confidence) = class_and_confidence(v);
+                *x = VoxelExtra { normal: PackedNormal::NONE, class, confidence };
+            }
+            Ok(extras)
+        }
+        Base::Scene { .. } | Base::Copied { .. } => Ok(&[]),
+    }
+}
+
 #[cfg(test)]
 pub(crate) use normals::fit_normal_for_tests;
 use normals::*;
@@ -659,17 +675,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
             {
                 return Err(PyramidError::Full);
             }
-            let extras: &[VoxelExtra] = match base {
-                Base::Map { voxels, .. } => {
-                    let extras = extras.get_mut(..voxels.len()).ok_or(PyramidError::Full)?;
-                    for (x, v) in extras.iter_mut().zip(voxels) {
-                        let (class, confidence) = class_and_confidence(v);
-                        *x = VoxelExtra { normal: PackedNormal::NONE, class, confidence };
-                    }
-                    extras
-                }
-                Base::Scene { .. } | Base::Copied { .. } => &[],
-            };
+            let extras = base_extras(&base, extras)?;
             let level0 = base.level0(extras, points, point_slots);
             // Coarse levels: each merged from the one below, then indexed
             // (a model's).
