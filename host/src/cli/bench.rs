@@ -5,7 +5,7 @@ use super::Error;
 use cosem_host::bench::{self, TempDir};
 use cosem_host::kitti::FrameRange;
 use cosem_host::pair::{Pair, PairSpec};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Subcommand, Debug)]
 pub enum What {
@@ -132,64 +132,62 @@ pub struct MapArgs {
     repeat: usize,
 }
 
-pub fn run(w: What) -> Result<(), Error> {
+pub fn run(w: What, json: Option<&Path>) -> Result<(), Error> {
     match w {
-        What::Map(a) => bench_map(a),
-        What::Wire(a) => bench_wire(a),
-        What::Link(a) => bench_link(a),
+        What::Map(a) => bench_map(a, json),
+        What::Wire(a) => bench_wire(a, json),
+        What::Link(a) => bench_link(a, json),
         What::Global(a) => bench_global(a),
         What::Label(a) => bench_label(a),
     }
 }
 
-fn bench_map(a: MapArgs) -> Result<(), Error> {
+/// Writes `figures` as JSON to `path`, if given.
+fn save(path: Option<&Path>, figures: &impl serde::Serialize) -> Result<(), Error> {
+    let Some(path) = path else { return Ok(()) };
+    Ok(cosem_host::paths::write_file(path, serde_json::to_string_pretty(figures)?)?)
+}
+
+fn bench_map(a: MapArgs, json: Option<&Path>) -> Result<(), Error> {
     let (dir, _tmp) = data(a.data, a.frames.end)?;
     let frames = bench::frames(&dir, a.frames)?;
     println!("bench map: {} frames {} of {}, {} m voxels", frames.len(), a.frames, dir.display(), a.voxel);
-    print!("{}", bench::map(&frames, a.voxel, a.repeat)?);
+    let figures = bench::map(&frames, a.voxel, a.repeat)?;
+    print!("{figures}");
     println!("  (median of {} runs, single thread)", a.repeat.max(1));
-    Ok(())
+    save(json, &figures)
 }
 
-fn bench_wire(a: MapArgs) -> Result<(), Error> {
+fn bench_wire(a: MapArgs, json: Option<&Path>) -> Result<(), Error> {
     let (dir, _tmp) = data(a.data, a.frames.end)?;
     let frames = bench::frames(&dir, a.frames)?;
     let config = cosem_core::map::MapConfig::with_resolution(a.voxel);
     let (map, _) = cosem_host::mapping::build_map(&frames, config, &cosem_host::mapping::PointFilter::default())?;
-    println!(
-        "bench wire: {} voxels at {} m from {} frames {} of {}",
-        map.len(),
-        a.voxel,
-        frames.len(),
-        a.frames,
-        dir.display()
-    );
-    print!("{}", bench::wire(&map, a.repeat)?);
+    let (n, range, d) = (frames.len(), a.frames, dir.display());
+    println!("bench wire: {} voxels at {} m from {n} frames {range} of {d}", map.len(), a.voxel);
+    let figures = bench::wire(&map, a.repeat)?;
+    print!("{figures}");
     println!("  (median of {} runs, single thread, chunk size as on the link)", a.repeat.max(1));
-    Ok(())
+    save(json, &figures)
 }
 
-fn bench_link(a: LinkArgs) -> Result<(), Error> {
+fn bench_link(a: LinkArgs, json: Option<&Path>) -> Result<(), Error> {
     let (pair, dir, _tmp) = a.pair.load(a.voxel, Some(a.max_range))?;
     let (na, nb) = (pair.map_a.len(), pair.map_b.len());
     let (ra, rb) = (a.pair.a, a.pair.b);
-    println!(
-        "bench link: A {na} voxels ({ra}), B {nb} voxels ({rb}) of {} at {} m within {} m; both ways at once, {} baud (8N1), simulated time, {} seeds",
-        dir.display(),
-        a.voxel,
-        a.max_range,
-        a.baud,
-        a.seeds
-    );
+    let (d, voxel, range, baud, seeds) = (dir.display(), a.voxel, a.max_range, a.baud, a.seeds);
+    println!("bench link: A {na} voxels ({ra}), B {nb} voxels ({rb}) of {d} at {voxel} m within {range} m; both ways at once, {baud} baud (8N1), simulated time, {seeds} seeds");
+    let mut summaries = Vec::new();
     for &rate in &a.error_rates {
         let runs =
-            (1..=a.seeds.max(1)).map(|seed| bench::link(&pair, rate, a.baud, seed)).collect::<Result<Vec<_>, _>>()?;
-        println!("{}", bench::LinkSummary::of(&runs, a.baud));
+            (1..=seeds.max(1)).map(|seed| bench::link(&pair, rate, baud, seed)).collect::<Result<Vec<_>, _>>()?;
+        summaries.push(bench::LinkSummary::of(&runs, baud));
+        println!("{}", summaries[summaries.len() - 1]);
     }
     println!("  goodput: map bytes per direction over the line's bytes in the time until that map was through;");
     println!("  bounds: the best a retransmission scheme can do with this frame overhead, max over L of (L-h)/L (1-p)^L without FEC;");
     println!("  with repair, frames whose one error is repairable count too (here the duplicated bytes, a third: the simulator's flips garble whole bytes)");
-    Ok(())
+    save(json, &summaries)
 }
 
 fn bench_global(a: GlobalArgs) -> Result<(), Error> {

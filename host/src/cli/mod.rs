@@ -63,6 +63,9 @@ enum Command {
     Synth(synth::Args),
     /// Benchmarks that print numbers.
     Bench {
+        /// Also write the figures as JSON to this file (map, wire, link).
+        #[arg(long, global = true)]
+        json: Option<std::path::PathBuf>,
         #[command(subcommand)]
         what: bench::What,
     },
@@ -107,7 +110,7 @@ fn run_command(cli: Cli) -> Result<u8, Error> {
         Command::Export { format } => done(export::run(format)),
         Command::Label(a) => done(label::run(a)),
         Command::Synth(a) => done(synth::run(a)),
-        Command::Bench { what } => done(bench::run(what)),
+        Command::Bench { json, what } => done(bench::run(what, json.as_deref())),
         Command::Demo(a) => done(demo::run(a)),
     }
 }

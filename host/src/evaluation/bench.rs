@@ -48,7 +48,7 @@ pub fn timed<T>(repeat: usize, mut f: impl FnMut() -> Result<T, Error>) -> Resul
 }
 
 /// Figures of `cosem bench map`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize)]
 pub struct MapFigures {
     /// Points read.
     pub points: usize,
@@ -104,7 +104,7 @@ pub fn map(frames: &[Frame], voxel: f32, repeat: usize) -> Result<MapFigures, Er
 }
 
 /// Figures of `cosem bench wire`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize)]
 pub struct WireFigures {
     /// Voxels encoded.
     pub voxels: usize,
@@ -191,7 +191,7 @@ pub fn goodput_bound(p: f64, overhead: usize, repairable: f64) -> f64 {
 pub const SIM_REPAIRABLE: f64 = 1.0 / 3.0;
 
 /// Many seeded exchanges at one error rate, summarised.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize)]
 pub struct LinkSummary {
     /// Byte error rate.
     pub rate: f64,
@@ -317,9 +317,9 @@ pub fn data_root() -> PathBuf {
     std::env::var_os("COSEM_DATA").map_or_else(|| PathBuf::from("../shared/data"), PathBuf::from)
 }
 
-/// The sequence to benchmark on: `given`, else `$COSEM_DATA/kitti00`
-/// (`root`), else a fresh synthetic one of `frames` frames (removed when
-/// the returned guard drops; `true` says it is synthetic).
+/// The sequence to benchmark on: `given`, else `kitti00` under
+/// [`data_root`], else a fresh synthetic one of `frames` frames (removed
+/// when the returned guard drops: its presence says it is synthetic).
 pub fn data_dir(given: Option<PathBuf>, frames: usize) -> Result<(PathBuf, Option<TempDir>), Error> {
     if let Some(d) = given {
         return Ok((d, None));
