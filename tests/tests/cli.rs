@@ -70,6 +70,31 @@ fn bench_map_prints_numbers() {
     assert!(out.contains("M points/s") && out.contains("memory per voxel"), "{out}");
 }
 
+/// `cosem bench --json FILE` writes the figures it printed (what
+/// docs/results.sh reads): the map's voxels and file size agree with
+/// `cosem map`'s, and a clean simulated line delivers both maps.
+#[test]
+fn bench_writes_its_figures_as_json() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 10, 4);
+    let s = |p: &std::path::Path| p.display().to_string();
+    let read =
+        |p: &std::path::Path| -> serde_json::Value { serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap() };
+    let (map_json, link_json, cmap) = (tmp.path().join("m.json"), tmp.path().join("l.json"), tmp.path().join("a.cmap"));
+    let out =
+        cosem_ok(&["bench", "map", "--data", &s(&seq), "--frames", "0:3", "--repeat", "1", "--json", &s(&map_json)]);
+    cosem_ok(&["map", "--data", &s(&seq), "--frames", "0:3", "-o", &s(&cmap)]);
+    let (_, map) = cosem_host::cmap::read(&cmap).unwrap();
+    let m = read(&map_json);
+    assert_eq!(m["voxels"].as_u64(), Some(map.len() as u64), "{m}");
+    assert!(out.contains(&format!("({} bytes)", m["file_bytes"])), "{out}\n{m}");
+    cosem_ok(&["bench", "link", "--data", &s(&seq), "--seeds", "1", "--error-rates", "0", "--json", &s(&link_json)]);
+    let l = read(&link_json);
+    assert_eq!(l[0]["delivered"], serde_json::json!([1, 1]), "{l}");
+    assert!(l[0]["goodput"].as_f64().unwrap() > 0.5, "{l}");
+}
+
 /// A user's scans as PCD or PLY files with their poses (`cosem export
 /// scans` writes a folder's) give the folder's map, to the voxel; on the
 /// synthetic street and, where present, on real KITTI scans.
