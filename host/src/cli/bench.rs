@@ -50,8 +50,8 @@ pub struct LabelArgs {
 /// Two robots' frames of one sequence.
 #[derive(clap::Args, Debug)]
 pub struct PairArgs {
-    /// SemanticKITTI-layout folder; default `$COSEM_DATA/kitti00`, else a
-    /// synthetic sequence.
+    /// The scans (a SemanticKITTI folder, a .mcap recording, PCD/PLY scans
+    /// with poses.txt); default `$COSEM_DATA/kitti00`, else a synthetic one.
     #[arg(long)]
     data: Option<PathBuf>,
     /// Robot A's frames (the model).
@@ -60,6 +60,8 @@ pub struct PairArgs {
     /// Robot B's frames (the scene).
     #[arg(long, default_value = "5:10")]
     b: FrameRange,
+    #[command(flatten)]
+    source: super::args::SourceArgs,
 }
 
 impl PairArgs {
@@ -67,7 +69,7 @@ impl PairArgs {
     /// sensor (the guard removes a synthetic folder).
     fn load(&self, voxel: f32, max_range: Option<f32>) -> Result<(Pair, PathBuf, Option<TempDir>), Error> {
         let (dir, tmp) = data(self.data.clone(), self.b.end)?;
-        let mut spec = PairSpec::new(&dir, self.a, self.b, voxel);
+        let mut spec = PairSpec::new(&dir, self.a, self.b, voxel).with_source(self.source.options());
         spec.filter.max_range = max_range;
         Ok((Pair::load(&spec)?, dir, tmp))
     }
@@ -117,13 +119,15 @@ pub struct LinkArgs {
 
 #[derive(clap::Args, Debug)]
 pub struct MapArgs {
-    /// SemanticKITTI-layout folder; default `$COSEM_DATA/kitti00`, else a
-    /// synthetic sequence.
+    /// The scans (a SemanticKITTI folder, a .mcap recording, PCD/PLY scans
+    /// with poses.txt); default `$COSEM_DATA/kitti00`, else a synthetic one.
     #[arg(long)]
     data: Option<PathBuf>,
     /// Frames START:END[:STRIDE].
     #[arg(long, default_value = "0:10")]
     frames: FrameRange,
+    #[command(flatten)]
+    source: super::args::SourceArgs,
     /// Voxel size (m).
     #[arg(long, default_value = "0.2", value_parser = super::args::positive_f32)]
     voxel: f32,
@@ -150,7 +154,7 @@ fn save(path: Option<&Path>, figures: &impl serde::Serialize) -> Result<(), Erro
 
 fn bench_map(a: MapArgs, json: Option<&Path>) -> Result<(), Error> {
     let (dir, _tmp) = data(a.data, a.frames.end)?;
-    let frames = bench::frames(&dir, a.frames)?;
+    let frames = bench::frames(&dir, a.frames, &a.source.options())?;
     println!("bench map: {} frames {} of {}, {} m voxels", frames.len(), a.frames, dir.display(), a.voxel);
     let figures = bench::map(&frames, a.voxel, a.repeat)?;
     print!("{figures}");
@@ -160,7 +164,7 @@ fn bench_map(a: MapArgs, json: Option<&Path>) -> Result<(), Error> {
 
 fn bench_wire(a: MapArgs, json: Option<&Path>) -> Result<(), Error> {
     let (dir, _tmp) = data(a.data, a.frames.end)?;
-    let frames = bench::frames(&dir, a.frames)?;
+    let frames = bench::frames(&dir, a.frames, &a.source.options())?;
     let config = cosem_core::map::MapConfig::with_resolution(a.voxel);
     let (map, _) = cosem_host::mapping::build_map(&frames, config, &cosem_host::mapping::PointFilter::default())?;
     let (n, range, d) = (frames.len(), a.frames, dir.display());

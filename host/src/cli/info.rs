@@ -1,6 +1,6 @@
 //! `cosem info`: what a map file holds.
 
-use super::{print_json, Error};
+use super::Error;
 use cosem_host::report::InfoJson;
 use std::path::PathBuf;
 
@@ -14,10 +14,5 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
-    let info = InfoJson::of(&a.file)?;
-    if a.json {
-        return print_json(&info);
-    }
-    print!("{info}");
-    Ok(())
+    super::show(a.json, &InfoJson::of(&a.file)?)
 }

@@ -119,6 +119,15 @@ fn run_command(cli: Cli) -> Result<u8, Error> {
 /// as a robot that did not report, adds no second object).
 static JSON_PRINTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
+/// Prints `value` as JSON with `json`, else as its text.
+pub fn show(json: bool, value: &(impl serde::Serialize + std::fmt::Display)) -> Result<(), Error> {
+    if json {
+        return print_json(value);
+    }
+    print!("{value}");
+    Ok(())
+}
+
 /// Prints `value` as pretty JSON.
 pub fn print_json(value: &impl serde::Serialize) -> Result<(), Error> {
     println!("{}", serde_json::to_string_pretty(value)?);

@@ -3,7 +3,7 @@
 //! run of the same pipeline on the same fed data and the ground truth.
 
 use super::args::{pose, positive, positive_f32};
-use super::{print_json, Error};
+use super::{show, Error};
 use cosem_core::geometry::Isometry3;
 use cosem_host::board::Board;
 use cosem_host::kitti::FrameRange;
@@ -87,10 +87,6 @@ pub fn run(a: Args) -> Result<u8, Error> {
         label_noise: (a.label_noise, a.seed),
     };
     let (report, code) = run_robots(&spec)?;
-    if a.json {
-        print_json(&report)?;
-    } else {
-        print!("{report}");
-    }
+    show(a.json, &report)?;
     code.ok_or_else(|| "a robot did not report a match".into())
 }

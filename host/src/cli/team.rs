@@ -1,7 +1,7 @@
 //! `cosem team`: N robots placed in robot 0's frame (see
 //! `cosem_host::team`).
 
-use super::{print_json, Error};
+use super::{show, Error};
 use cosem_core::matching::MatchSettings;
 use cosem_host::reports::team::TeamJson;
 use cosem_host::team::{parse_prior_noise, parse_robot_pair, run as run_team, RobotSpec, TeamSpec};
@@ -83,10 +83,6 @@ pub fn run(a: Args) -> Result<u8, Error> {
     }
     let spec = spec(&a, 0.2);
     let out = TeamJson::of(&run_team(&spec)?);
-    if a.json {
-        print_json(&out)?;
-    } else {
-        print!("{out}");
-    }
+    show(a.json, &out)?;
     Ok(out.exit_code())
 }

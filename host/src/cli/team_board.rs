@@ -2,7 +2,7 @@
 //! `cosem_host::team_board`), beside the host's run of the same robots.
 
 use super::team::Args;
-use super::{print_json, Error};
+use super::{show, Error};
 use std::time::Duration;
 
 /// Exit code: 0 when every board finished and placed every robot in robot
@@ -13,10 +13,6 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let silence_ms = (a.silence * 1000.0).min(f64::from(u32::MAX)) as u32;
     let timeout = Duration::from_secs_f64(a.timeout.min(86_400.0));
     let out = cosem_host::team_board::run_on_boards(&spec, a.crop, silence_ms, &a.firmware, timeout)?;
-    if a.json {
-        print_json(&out)?;
-    } else {
-        print!("{out}");
-    }
+    show(a.json, &out)?;
     Ok(out.exit_code())
 }

@@ -336,8 +336,8 @@ pub fn data_dir(given: Option<PathBuf>, frames: usize) -> Result<(PathBuf, Optio
 
 /// The frames of a range of a source of scans (a folder, a recording, a
 /// folder of PCD/PLY scans).
-pub fn frames(dir: &Path, range: FrameRange) -> Result<Vec<Frame>, Error> {
-    Ok(crate::source::Source::open(dir, &Default::default())?.load(Some(range))?.0)
+pub fn frames(dir: &Path, range: FrameRange, options: &crate::source::SourceOptions) -> Result<Vec<Frame>, Error> {
+    Ok(crate::source::Source::open(dir, options)?.load(Some(range))?.0)
 }
 
 /// One row of `cosem bench label`.
