@@ -42,6 +42,38 @@ done
 if [ "${#NEG[@]}" -ge 2 ]; then
   $C eval --negatives "${NEG[@]}" --voxel 0.5 --label-noise network --seed 4 --json "$OUT/negatives.json" >/dev/null
 fi
+# The verdict's operating points (tests/verdict/table.py): true pairs and
+# pairs that cannot match, all with the agreement check off, so the table
+# can say what each threshold keeps and lets through.
+V="$OUT/verdict"
+mkdir -p "$V"
+$C synth --seed 21 --frames 10 --out "$OUT/street10" >/dev/null
+POS=("kitti00 0:5 5:10" "kitti07 0:5 5:10" "kitti00 0:1 5:6" "kitti00-loop 52:53 4501:4502"
+     "kitti08-loop 720:721 1500:1501" "kitti00-loop 52:53 88:89")
+k=0
+for p in "${POS[@]}" "street10 0:5 5:10"; do
+  set -- $p
+  d="$DATA/$1"; [ "$1" = street10 ] && d="$OUT/street10"
+  [ -d "$d" ] || continue
+  for noise in none network network:2; do
+    k=$((k + 1))
+    $C eval --data "$d" --a "$2" --b "$3" --voxel 0.2 --grid-stride 2 --min-agreement 0 --label-noise "$noise" \
+      --json "$V/pos-grid-$k.json" >/dev/null
+    $C eval --data "$d" --a "$2" --b "$3" --voxel 0.2 --global --min-agreement 0 --label-noise "$noise" \
+      --json "$V/pos-global-$k.json" >/dev/null
+  done
+done
+PLACES=("${NEG[@]}")
+for seed in 31 32 33 34 35 36; do
+  $C synth --seed "$seed" --frames 1 --out "$OUT/place$seed" >/dev/null
+  PLACES+=("$OUT/place$seed:0:1")
+done
+for noise in none network; do
+  $C eval --negatives "${PLACES[@]}" --voxel 0.2 --min-agreement 0 --label-noise "$noise" \
+    --json "$V/neg-$noise.json" >/dev/null
+done
+python3 tests/verdict/table.py --positives "$V"/pos-*.json --negatives "$V"/neg-*.json \
+  --thresholds 0.25,0.3,0.35,0.4,0.45,0.5,0.6,0.7 >"$OUT/verdict.md"
 # Teams on the host (exit code 5 when a robot is unplaced: expected here).
 K0="$DATA/kitti00"
 if [ -d "$K0" ] && [ -d "$DATA/kitti07" ]; then
@@ -114,6 +146,15 @@ for name in ["kitti00", "kitti07", "kitti00-loop", "kitti08-loop"]:
         agree = f"{m['agreement_median']:.3f}" if m.get("agreement_median") is not None else "-"
         print(f"| {name} | {labels} | {m['starts']} | {100*m['success_strict']:.1f}% | {m['et_median_m']:.3f} m | "
               f"{m['er_median_deg']:.3f} deg | {agree} |")
+if os.path.exists(os.path.join(out, "verdict.md")):
+    print("\n## The verdict's operating points, 0.2 m, the agreement check off\n")
+    print("True pairs: every strict success of `cosem eval --grid-stride 2` (216 starts) and `--global` (360) on kitti00 "
+          "0:5/5:10, kitti07 0:5/5:10, kitti00 single scans 0/5, kitti00-loop 52/4501, kitti08-loop 720/1500, "
+          "kitti00-loop 52/88 (30 m apart) and a synthetic street, each with ground-truth labels, `--label-noise network` "
+          "and `network:2`, all with `--min-agreement 0`. Pairs that cannot match: `cosem eval --negatives --min-agreement 0` "
+          "over the shared data's places that do not overlap and six synthetic streets (alike by construction), "
+          "with and without network noise. `tests/verdict/table.py` over those JSON files:\n")
+    print(open(os.path.join(out, "verdict.md")).read().rstrip())
 b = load("bench-map.json")
 if b:
     print("\n## Mapping and the map file, kitti00 frames 0:10, 0.2 m, one thread\n")
