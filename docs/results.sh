@@ -158,7 +158,10 @@ if os.path.exists(os.path.join(out, "verdict.md")):
           "with and without network noise. `tests/verdict/table.py` over those JSON files (a start that is no strict "
           "success without the check counts as not kept at any threshold: the 30 m pair with a network's labels is "
           "NoOverlap from every start):\n")
-    print(open(os.path.join(out, "verdict.md")).read().rstrip())
+    lines = open(os.path.join(out, "verdict.md")).read().rstrip().split("\n")
+    table = [l for l in lines if l.startswith("|")]
+    print("\n".join(l for l in lines if not l.startswith("|")) + "\n")
+    print("\n".join(table))
 b = load("bench-map.json")
 if b:
     print("\n## Mapping and the map file, kitti00 frames 0:10, 0.2 m, one thread\n")
