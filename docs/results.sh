@@ -112,6 +112,7 @@ fi
 MACHINE="$(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), $(free -g | awk '/Mem/ {print $2}') GiB"
 python3 - "$OUT" "$COMMIT" "$MACHINE" "$(date -u +%Y-%m-%d)" >docs/results.md <<'PY'
 import json, os, sys
+from collections import Counter
 out, commit, machine, day = sys.argv[1:5]
 def load(name):
     p = os.path.join(out, name)
@@ -192,6 +193,10 @@ if n:
     print("`cosem eval --negatives ... --voxel 0.5 --label-noise network --seed 4 --json`\n")
     print(f"{len(n['places'])} places, {n['pairs']} ordered pairs, {n['cases']} matches (no prior, identity, random priors): "
           f"**{n['false_accepts']} false accepts**, largest agreement {n['agreement_max']:.3f} (the verdict's threshold: 0.40).")
+STAGES = ("map_instructions", "prepare_instructions", "locate_instructions", "match_instructions")
+def total(x):
+    """A robot's instructions over the whole onboard pipeline."""
+    return sum(x.get(k, 0) for k in STAGES)
 TITLES = {
     "prior": ("a prior", "`cosem robots --data kitti00 --a 0:5 --b 5:10 --json`"),
     "noprior": ("no prior", "`cosem robots --data kitti00 --a 0:5 --b 5:10 --no-prior --json`"),
@@ -208,10 +213,9 @@ for kind in ["prior", "noprior", "stm32f405"]:
     print("| robot | status | e_t | e_r | voxels | bytes sent / received | instructions (map + prepare + locate + match) | static RAM + peak stack |")
     print("|---|---|---|---|---|---|---|---|")
     for x in r["robots"]:
-        total = x.get("map_instructions", 0) + x.get("prepare_instructions", 0) + x.get("locate_instructions", 0) + x.get("match_instructions", 0)
         print(f"| {x['id']} ({x['board']}) | {x['status']} | {x['e_t']:.3f} m | {x['e_r']:.3f} deg | {x['map_voxels']:,} | "
               f"{x['bytes_sent']:,} / {x['bytes_received']:,} | "
-              f"{total/1e6:.0f} M | {x['static_ram_bytes']:,} + {x['peak_stack_bytes']:,} B |")
+              f"{total(x)/1e6:.0f} M | {x['static_ram_bytes']:,} + {x['peak_stack_bytes']:,} B |")
 
 PIPELINES = [
     ("robots-noprior", "kitti00 0:5 / 5:10"),
@@ -234,7 +238,7 @@ if any(r for _, r in rows):
         xs = r["robots"]
         st = " / ".join(x["status"] for x in xs)
         col = lambda k: " / ".join(f"{x.get(k, 0)/1e6:.0f} M" for x in xs)
-        tot = " / ".join(f"{sum(x.get(k, 0) for k in ('map_instructions', 'prepare_instructions', 'locate_instructions', 'match_instructions'))/1e6:.0f} M" for x in xs)
+        tot = " / ".join(f"{total(x)/1e6:.0f} M" for x in xs)
         nodes = " / ".join(f"{(x.get('global') or {}).get('evaluations', 0):,}" for x in xs)
         print(f"| {label} | {st} | {col('map_instructions')} | {col('prepare_instructions')} | {col('locate_instructions')} | "
               f"{col('match_instructions')} | {tot} | {nodes} |")
@@ -245,10 +249,7 @@ def placed(t):
           if r["index"] > 0 and r.get("placed") and r.get("group", 0) == 0 and "e_t" in r]
     other = [f"{r['index']}" + (f" (group {r['group']})" if r.get("group", 0) != 0 else " (unplaced)") for r in t["robots"]
              if r["index"] > 0 and not (r.get("placed") and r.get("group", 0) == 0)]
-    out = [m for m in t.get("matches", []) if not m.get("accepted")]
-    reasons = {}
-    for m in out:
-        reasons[m.get("reason", m.get("status"))] = reasons.get(m.get("reason", m.get("status")), 0) + 1
+    reasons = Counter(m.get("reason", m.get("status")) for m in t.get("matches", []) if not m.get("accepted"))
     left = ", ".join(f"{n} {why}" for why, n in sorted(reasons.items())) or "none"
     return ", ".join(ok) or "none", ", ".join(other) or "none", left
 TEAMS = [

@@ -132,6 +132,11 @@ fn verdict(a: &Args, s: MatchSettings) -> MatchSettings {
     MatchSettings { min_agreement: a.min_agreement.unwrap_or(s.min_agreement), ..s }
 }
 
+/// The settings of the first method (negatives and the prior-free protocol run one).
+fn first_method(a: &Args) -> MatchSettings {
+    verdict(a, settings(a.method.first().copied().unwrap_or_default(), a.dof))
+}
+
 /// The pair the arguments name (clap requires them without --negatives).
 fn spec(a: &Args) -> Result<PairSpec, Error> {
     let (Some(data), Some(ra), Some(rb)) = (&a.data, a.a, a.b) else { return Err("--data, --a and --b".into()) };
@@ -140,7 +145,7 @@ fn spec(a: &Args) -> Result<PairSpec, Error> {
 
 fn negatives(a: &Args, pool: &rayon::ThreadPool) -> Result<(), Error> {
     let spec = PairSpec::places(a.voxel).with_noise(a.label_noise, a.seed).with_source(a.source.options());
-    let s = verdict(a, settings(a.method.first().copied().unwrap_or_default(), a.dof));
+    let s = first_method(a);
     let n = a.negatives.len();
     let bar = progress_bar(n * (n - 1) * (2 + a.random_priors));
     let tick = || bar.inc(1);
@@ -170,7 +175,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         println!("maps passed through the wire encoding");
     }
     let protocol = if a.global {
-        let s = verdict(&a, settings(a.method.first().copied().unwrap_or_default(), a.dof));
+        let s = first_method(&a);
         let starts = global_starts(a.radius, a.limit);
         let (n, r, threads) = (starts.len(), a.radius, pool.current_num_threads());
         println!("prior-free: {n} starts (of 36 headings x 10 offsets up to {r} m) on {threads} thread(s)");
