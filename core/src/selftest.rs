@@ -203,13 +203,13 @@ pub fn run<S: VoxelStorage, P: PyramidStorage>(
     let mut decoder = MapDecoder::new(b.len(), &mut receiving);
     let mut wire_bytes = 0u32;
     loop {
-        let n = encoder.next_chunk(chunk).map_err(|_| SelfTestError::Buffer)?;
+        let n = encoder.next_chunk(&mut sending, chunk).map_err(|_| SelfTestError::Buffer)?;
         if n == 0 {
             break;
         }
         wire_bytes += n as u32;
         let part = chunk.get(..n).ok_or(SelfTestError::Buffer)?;
-        decoder.decode_chunk(part, received).map_err(|_| SelfTestError::Buffer)?;
+        decoder.decode_chunk(&mut receiving, part, received).map_err(|_| SelfTestError::Buffer)?;
     }
     let mut wire_ok = decoder.is_complete() && decoder.digest() == digest_b;
     // Every message type's golden bytes, as in the wire tests.

@@ -21,7 +21,7 @@
 use super::feed_in::FeedIn;
 use super::{Machine, Meter, PhaseMarks, Poll, RobotConfig, RobotError};
 use crate::geometry::{from_rows, rows};
-use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkParts, LinkStats, Progress};
+use crate::link::{Endpoint, Finished, LinkBuffers, LinkConfig, LinkError, LinkStats, Progress};
 use crate::map::{LocalMap, VoxelSink, VoxelStorage};
 use crate::matching::{MatchStatus, PyramidStorage, SceneSource};
 use crate::team::{consistent_set, solve, RelativePose, MAX_ROBOTS};
@@ -83,14 +83,14 @@ enum Phase<'a, M: VoxelStorage, R: VoxelSink + SceneSource> {
         own: &'a mut LocalMap<M>,
         received: &'a mut R,
         scratch: &'a mut [u32],
-        buffers: LinkParts<'a>,
+        buffers: &'a mut LinkBuffers,
     },
     /// Between rounds: everything free for the next one.
     Ready {
         own: &'a LocalMap<M>,
         received: &'a mut R,
         scratch: &'a mut [u32],
-        buffers: LinkParts<'a>,
+        buffers: &'a mut LinkBuffers,
     },
     Link {
         own: &'a LocalMap<M>,
@@ -142,12 +142,12 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         own: &'a mut LocalMap<M>,
         received: &'a mut R,
         scratch: &'a mut [u32],
-        buffers: impl Into<LinkParts<'a>>,
+        buffers: &'a mut LinkBuffers,
         model: P,
         scene: Q,
     ) -> Self {
         TeamRobot {
-            phase: Phase::Feed { own, received, scratch, buffers: buffers.into() },
+            phase: Phase::Feed { own, received, scratch, buffers },
             model,
             scene,
             fed: FeedIn::new(config),
@@ -218,9 +218,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
             // The exchange ended (stepped above, `progress`).
             Phase::Link { own, peer, started, endpoint } => {
                 let stats = endpoint.stats();
-                let Finished { scratch: Some(scratch), staging: Some(received), buffers } =
-                    endpoint.finish().ok_or(RobotError::Link(LinkError::Setup))?
-                else {
+                let Finished { scratch: Some(scratch), staging: Some(received), buffers } = endpoint.finish() else {
                     return Err(RobotError::Link(LinkError::Setup));
                 };
                 let link_ms = now_ms.saturating_sub(started).min(u64::from(u32::MAX)) as u32;
@@ -245,7 +243,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         own: &'a LocalMap<M>,
         received: &'a mut R,
         scratch: &'a mut [u32],
-        buffers: LinkParts<'a>,
+        buffers: &'a mut LinkBuffers,
         now_ms: u64,
     ) -> Result<(), RobotError> {
         let (me, n) = (self.me(), self.robots());

@@ -224,7 +224,10 @@ fn rebuild(key: VoxelKey, q: &Quantised) -> Result<SemanticVoxel, DecodeError> {
 /// The probabilities of the range coder, per field and context: what the
 /// encoder and the decoder of one map learn as it goes (about 3.6 KiB).
 /// Kept by the caller, so a robot can keep it with its other buffers.
-#[derive(Clone)]
+/// Plain integers, any value valid (a zeroed one is reset before use), so
+/// it may be carved out of a robot's memory.
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct CodecModel {
     gap_len: [[u16; 64]; 8],
     gap_top: [[u16; 4]; 50],
@@ -232,8 +235,8 @@ pub struct CodecModel {
     confidence: [[u16; 8]; CLASS_SYMBOLS],
     occupancy: [[u16; 4]; CLASS_SYMBOLS],
     position: [[[u16; 1 << POSITION_BITS]; POSITION_CONTEXTS]; 3],
-    prev_class: usize,
-    prev_len: usize,
+    prev_class: u32,
+    prev_len: u32,
 }
 
 /// Contexts of a position: ground or not (the previous voxel's position as
@@ -264,7 +267,7 @@ impl CodecModel {
             confidence: [[PROB_INIT; 8]; CLASS_SYMBOLS],
             occupancy: [[PROB_INIT; 4]; CLASS_SYMBOLS],
             position: [[[PROB_INIT; 1 << POSITION_BITS]; POSITION_CONTEXTS]; 3],
-            prev_class: NUM_CLASSES,
+            prev_class: NUM_CLASSES as u32,
             prev_len: 0,
         }
     }
@@ -285,7 +288,7 @@ impl CodecModel {
         for axis in &mut self.position {
             fill(axis);
         }
-        self.prev_class = NUM_CLASSES;
+        self.prev_class = NUM_CLASSES as u32;
         self.prev_len = 0;
     }
 }
@@ -323,15 +326,15 @@ fn encode_voxel(
     if coded {
         let g = gap;
         let (len, top_bits, top, rest_bits, rest) = gap_parts(g);
-        let ctx = m.prev_len.min(7);
+        let ctx = m.prev_len.min(7) as usize;
         e.tree(m.gap_len.get_mut(ctx).ok_or(Full)?, len - 1, 6)?;
         e.tree(m.gap_top.get_mut(len as usize).ok_or(Full)?, top_bits, top)?;
         e.direct(rest_bits, rest)?;
-        m.prev_len = len as usize;
+        m.prev_len = len;
     }
     let cls = class_symbol(q.class);
-    e.tree(m.class.get_mut(m.prev_class).ok_or(Full)?, cls as u32, 5)?;
-    m.prev_class = cls;
+    e.tree(m.class.get_mut(m.prev_class as usize).ok_or(Full)?, cls as u32, 5)?;
+    m.prev_class = cls as u32;
     e.tree(m.confidence.get_mut(cls).ok_or(Full)?, q.confidence, 3)?;
     e.tree(m.occupancy.get_mut(cls).ok_or(Full)?, q.occupancy, 2)?;
     for (axis, &p) in q.position.iter().enumerate() {
@@ -345,7 +348,7 @@ fn encode_voxel(
 /// `None` for a class symbol beyond the table.
 fn decode_voxel(d: &mut RangeDecoder<'_>, m: &mut CodecModel, mut gap: u64, coded: bool) -> Option<(u64, Quantised)> {
     if coded {
-        let ctx = m.prev_len.min(7);
+        let ctx = m.prev_len.min(7) as usize;
         let len = d.tree(m.gap_len.get_mut(ctx)?, 6)? + 1;
         let below = len - 1;
         let top = below.min(2);
@@ -354,13 +357,13 @@ fn decode_voxel(d: &mut RangeDecoder<'_>, m: &mut CodecModel, mut gap: u64, code
         let rest_bits = d.direct(rest);
         let v = (1u64 << below) | (u64::from(top_bits) << rest) | rest_bits;
         gap = v - 1;
-        m.prev_len = len as usize;
+        m.prev_len = len;
     }
-    let cls = d.tree(m.class.get_mut(m.prev_class)?, 5)? as usize;
+    let cls = d.tree(m.class.get_mut(m.prev_class as usize)?, 5)? as usize;
     if cls >= CLASS_SYMBOLS {
         return None;
     }
-    m.prev_class = cls;
+    m.prev_class = cls as u32;
     let confidence = d.tree(m.confidence.get_mut(cls)?, 3)?;
     let occupancy = d.tree(m.occupancy.get_mut(cls)?, 2)?;
     let mut position = [0u32; 3];
@@ -412,22 +415,22 @@ fn read_varint(input: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, De
     Err(DecodeError::Varint)
 }
 
-/// Streams a map out as chunks.
+/// Streams a map out as chunks, learning in a [`CodecModel`] the caller
+/// keeps and passes to each chunk (the same one throughout).
 pub struct MapEncoder<'a, S: VoxelStorage> {
     map: &'a LocalMap<S>,
     /// The caller's scratch; its first `map.len()` entries hold the order.
     scratch: &'a mut [u32],
-    model: &'a mut CodecModel,
     next: usize,
 }
 
 impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
     /// Prepares the Morton order of `map` in `scratch` (at least one `u32`
-    /// per voxel); codes with `model` (reset first).
-    pub fn new(map: &'a LocalMap<S>, scratch: &'a mut [u32], model: &'a mut CodecModel) -> Result<Self, EncodeError> {
+    /// per voxel); resets `model`, which codes every chunk.
+    pub fn new(map: &'a LocalMap<S>, scratch: &'a mut [u32], model: &mut CodecModel) -> Result<Self, EncodeError> {
         stream_order(map, scratch)?;
         model.reset();
-        Ok(MapEncoder { map, scratch, model, next: 0 })
+        Ok(MapEncoder { map, scratch, next: 0 })
     }
 
     /// The voxel indices in stream (Morton) order.
@@ -439,11 +442,6 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
     /// the next stage of a robot that reuses it.
     pub fn into_scratch(self) -> &'a mut [u32] {
         self.scratch
-    }
-
-    /// Gives back the scratch and the model (e.g. for the next map).
-    pub fn into_parts(self) -> (&'a mut [u32], &'a mut CodecModel) {
-        (self.scratch, self.model)
     }
 
     /// Digest of the whole map's encoded content (all voxels, in stream
@@ -468,8 +466,9 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
     }
 
     /// Writes the next chunk (as many voxels as surely fit in `out`, at
-    /// least [`MIN_CHUNK`] bytes) and returns its length; 0 when done.
-    pub fn next_chunk(&mut self, out: &mut [u8]) -> Result<usize, EncodeError> {
+    /// least [`MIN_CHUNK`] bytes), coded with `model` (the one given to
+    /// [`MapEncoder::new`]), and returns its length; 0 when done.
+    pub fn next_chunk(&mut self, model: &mut CodecModel, out: &mut [u8]) -> Result<usize, EncodeError> {
         if self.is_done() {
             return Ok(0);
         }
@@ -496,7 +495,7 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
             }
             let code = morton(v.key);
             let gap = if n > 0 { code - prev_code - 1 } else { lead };
-            encode_voxel(&mut e, self.model, gap, n > 0, &quantise(v)).map_err(|_| EncodeError::Buffer)?;
+            encode_voxel(&mut e, model, gap, n > 0, &quantise(v)).map_err(|_| EncodeError::Buffer)?;
             prev_code = code;
             n += 1;
         }
@@ -541,26 +540,21 @@ pub fn map_digest<S: VoxelStorage>(map: &LocalMap<S>, scratch: &mut [u32]) -> Re
     Ok(digest_in_order(map, order))
 }
 
-/// Rebuilds a map from its chunks, in order.
-pub struct MapDecoder<'a> {
+/// Rebuilds a map from its chunks, in order, learning in a [`CodecModel`]
+/// the caller keeps and passes to each chunk (the same one throughout).
+pub struct MapDecoder {
     expected: usize,
     decoded: usize,
     last: Option<u64>,
     digest: Crc32,
-    model: &'a mut CodecModel,
 }
 
-impl<'a> MapDecoder<'a> {
-    /// A decoder for a map of `voxels` voxels, learning in `model` (reset
-    /// first).
-    pub fn new(voxels: usize, model: &'a mut CodecModel) -> Self {
+impl MapDecoder {
+    /// A decoder for a map of `voxels` voxels; resets `model`, which
+    /// decodes every chunk.
+    pub fn new(voxels: usize, model: &mut CodecModel) -> Self {
         model.reset();
-        MapDecoder { expected: voxels, decoded: 0, last: None, digest: Crc32::new(), model }
-    }
-
-    /// Gives back the model (e.g. for the next map).
-    pub fn into_model(self) -> &'a mut CodecModel {
-        self.model
+        MapDecoder { expected: voxels, decoded: 0, last: None, digest: Crc32::new() }
     }
 
     /// Voxels decoded so far.
@@ -579,8 +573,14 @@ impl<'a> MapDecoder<'a> {
         self.decoded == self.expected
     }
 
-    /// Decodes one chunk into `map`; returns the voxels it held.
-    pub fn decode_chunk<K: VoxelSink + ?Sized>(&mut self, chunk: &[u8], map: &mut K) -> Result<usize, DecodeError> {
+    /// Decodes one chunk into `map` with `model` (the one given to
+    /// [`MapDecoder::new`]); returns the voxels it held.
+    pub fn decode_chunk<K: VoxelSink + ?Sized>(
+        &mut self,
+        model: &mut CodecModel,
+        chunk: &[u8],
+        map: &mut K,
+    ) -> Result<usize, DecodeError> {
         let mut at = 0;
         let n = read_varint(chunk, &mut at, 5)?;
         if n == 0 {
@@ -597,7 +597,7 @@ impl<'a> MapDecoder<'a> {
         };
         let mut d = RangeDecoder::new(chunk.get(at..).unwrap_or(&[]));
         for i in 0..n {
-            let (gap, q) = decode_voxel(&mut d, self.model, lead, i > 0).ok_or(DecodeError::Class)?;
+            let (gap, q) = decode_voxel(&mut d, model, lead, i > 0).ok_or(DecodeError::Class)?;
             if i > 0 {
                 code = code.checked_add(gap).and_then(|c| c.checked_add(1)).ok_or(DecodeError::Range)?;
             }

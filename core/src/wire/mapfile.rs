@@ -328,7 +328,7 @@ impl MapFile<'_> {
             let chunk_err = |error| MapFileError::Chunk { offset: (base + start) as u32, error };
             let n = leb128(body, &mut at).ok_or(chunk_err(DecodeError::Truncated))?;
             let end = at.checked_add(n).filter(|&e| e <= body.len()).ok_or(chunk_err(DecodeError::Truncated))?;
-            decoder.decode_chunk(body.get(at..end).unwrap_or(&[]), map).map_err(chunk_err)?;
+            decoder.decode_chunk(&mut model, body.get(at..end).unwrap_or(&[]), map).map_err(chunk_err)?;
             at = end;
         }
         if decoder.is_complete() {
@@ -405,7 +405,7 @@ pub fn write<S: VoxelStorage>(
     let mut model = CodecModel::new();
     let mut encoder = MapEncoder::new(map, scratch, &mut model).map_err(|_: EncodeError| MapFileError::Write)?;
     loop {
-        let n = encoder.next_chunk(chunk).map_err(|_| MapFileError::Write)?;
+        let n = encoder.next_chunk(&mut model, chunk).map_err(|_| MapFileError::Write)?;
         if n == 0 {
             break;
         }

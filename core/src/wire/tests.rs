@@ -9,16 +9,55 @@ use crate::test_util::{map, Heap};
 use proptest::prelude::*;
 use std::vec;
 
-/// A codec model for one encoder or decoder of a test (leaked: a test's lifetime).
-fn model() -> &'static mut CodecModel {
-    std::boxed::Box::leak(std::boxed::Box::new(CodecModel::new()))
+/// An encoder with its own codec model.
+struct Enc<'a> {
+    e: MapEncoder<'a, Heap>,
+    m: std::boxed::Box<CodecModel>,
+}
+
+impl<'a> Enc<'a> {
+    fn new(map: &'a LocalMap<Heap>, scratch: &'a mut [u32]) -> Result<Self, EncodeError> {
+        let mut m = std::boxed::Box::new(CodecModel::new());
+        Ok(Enc { e: MapEncoder::new(map, scratch, &mut m)?, m })
+    }
+    fn next_chunk(&mut self, out: &mut [u8]) -> Result<usize, EncodeError> {
+        self.e.next_chunk(&mut self.m, out)
+    }
+    fn digest(&self) -> u32 {
+        self.e.digest()
+    }
+}
+
+/// A decoder with its own codec model.
+struct Dec {
+    d: MapDecoder,
+    m: std::boxed::Box<CodecModel>,
+}
+
+impl Dec {
+    fn new(voxels: usize) -> Self {
+        let mut m = std::boxed::Box::new(CodecModel::new());
+        Dec { d: MapDecoder::new(voxels, &mut m), m }
+    }
+    fn decode_chunk(&mut self, chunk: &[u8], map: &mut LocalMap<Heap>) -> Result<usize, DecodeError> {
+        self.d.decode_chunk(&mut self.m, chunk, map)
+    }
+    fn is_complete(&self) -> bool {
+        self.d.is_complete()
+    }
+    fn decoded(&self) -> usize {
+        self.d.decoded()
+    }
+    fn digest(&self) -> u32 {
+        self.d.digest()
+    }
 }
 use std::vec::Vec;
 
 /// Encodes a whole map into chunks of at most `chunk` bytes.
 fn encode_all(m: &LocalMap<Heap>, chunk: usize) -> Vec<Vec<u8>> {
     let mut scratch = vec![0u32; m.len()];
-    let mut enc = MapEncoder::new(m, &mut scratch, model()).unwrap();
+    let mut enc = Enc::new(m, &mut scratch).unwrap();
     let mut out = Vec::new();
     let mut buf = vec![0u8; chunk];
     loop {
@@ -34,7 +73,7 @@ fn encode_all(m: &LocalMap<Heap>, chunk: usize) -> Vec<Vec<u8>> {
 
 fn decode_all(chunks: &[Vec<u8>], voxels: usize) -> Result<LocalMap<Heap>, DecodeError> {
     let mut m = map(voxels);
-    let mut dec = MapDecoder::new(voxels, model());
+    let mut dec = Dec::new(voxels);
     for c in chunks {
         dec.decode_chunk(c, &mut m)?;
     }
@@ -105,9 +144,9 @@ fn decoder_rejects_disorder_duplicates_and_overruns() {
     // Chunks continue from the previous one: a replayed chunk decodes to
     // other keys, which the map digest exposes (the link also numbers chunks).
     let mut scratch = vec![0u32; m.len()];
-    let digest = MapEncoder::new(&m, &mut scratch, model()).unwrap().digest();
+    let digest = Enc::new(&m, &mut scratch).unwrap().digest();
     let mut target = map(m.len() * 2);
-    let mut dec = MapDecoder::new(m.len() * 2, model());
+    let mut dec = Dec::new(m.len() * 2);
     dec.decode_chunk(&chunks[0], &mut target).unwrap();
     let _ = dec.decode_chunk(&chunks[0], &mut target);
     for c in &chunks[1..] {
@@ -115,31 +154,31 @@ fn decoder_rejects_disorder_duplicates_and_overruns() {
     }
     assert_ne!(dec.digest(), digest);
     // More voxels than announced.
-    let mut dec = MapDecoder::new(1, model());
+    let mut dec = Dec::new(1);
     assert_eq!(dec.decode_chunk(&chunks[0], &mut map(10)), Err(DecodeError::TooMany));
     // A full map.
-    let mut dec = MapDecoder::new(m.len(), model());
+    let mut dec = Dec::new(m.len());
     let mut small = map(3);
     assert_eq!(dec.decode_chunk(&chunks[0], &mut small), Err(DecodeError::Full));
     // Empty and trailing.
-    assert_eq!(MapDecoder::new(9, model()).decode_chunk(&[0], &mut map(9)), Err(DecodeError::Empty));
+    assert_eq!(Dec::new(9).decode_chunk(&[0], &mut map(9)), Err(DecodeError::Empty));
     let mut long = chunks[0].clone();
     long.push(0);
-    assert_eq!(MapDecoder::new(m.len(), model()).decode_chunk(&long, &mut map(m.len())), Err(DecodeError::Trailing));
+    assert_eq!(Dec::new(m.len()).decode_chunk(&long, &mut map(m.len())), Err(DecodeError::Trailing));
     let short = &chunks[0][..chunks[0].len() - 1];
-    assert_eq!(MapDecoder::new(m.len(), model()).decode_chunk(short, &mut map(m.len())), Err(DecodeError::Truncated));
-    assert_eq!(MapDecoder::new(m.len(), model()).decode_chunk(&[0x80; 9], &mut map(9)), Err(DecodeError::Varint));
+    assert_eq!(Dec::new(m.len()).decode_chunk(short, &mut map(m.len())), Err(DecodeError::Truncated));
+    assert_eq!(Dec::new(m.len()).decode_chunk(&[0x80; 9], &mut map(9)), Err(DecodeError::Varint));
 }
 
 #[test]
 fn digest_is_independent_of_chunking() {
     let m = street(200);
     let mut scratch = vec![0u32; m.len()];
-    let digest = MapEncoder::new(&m, &mut scratch, model()).unwrap().digest();
+    let digest = Enc::new(&m, &mut scratch).unwrap().digest();
     for chunk in [MIN_CHUNK, 100, 4096] {
         let chunks = encode_all(&m, chunk);
         let mut d = map(m.len());
-        let mut dec = MapDecoder::new(m.len(), model());
+        let mut dec = Dec::new(m.len());
         for c in &chunks {
             dec.decode_chunk(c, &mut d).unwrap();
         }
@@ -148,7 +187,7 @@ fn digest_is_independent_of_chunking() {
     // A different map has a different digest.
     let other = street(201);
     let mut scratch = vec![0u32; other.len()];
-    assert_ne!(MapEncoder::new(&other, &mut scratch, model()).unwrap().digest(), digest);
+    assert_ne!(Enc::new(&other, &mut scratch).unwrap().digest(), digest);
 }
 
 /// Golden bytes of every message type: a change of the format must be a
@@ -260,9 +299,9 @@ fn hundred_thousand_frames_without_a_panic() {
 fn encoder_needs_room() {
     let m = street(10);
     let mut scratch = vec![0u32; 2];
-    assert!(matches!(MapEncoder::new(&m, &mut scratch, model()), Err(EncodeError::Scratch)));
+    assert!(matches!(Enc::new(&m, &mut scratch), Err(EncodeError::Scratch)));
     let mut scratch = vec![0u32; m.len()];
-    let mut enc = MapEncoder::new(&m, &mut scratch, model()).unwrap();
+    let mut enc = Enc::new(&m, &mut scratch).unwrap();
     assert_eq!(enc.next_chunk(&mut [0u8; MIN_CHUNK - 1]), Err(EncodeError::Buffer));
     assert!(enc.next_chunk(&mut [0u8; MIN_CHUNK]).unwrap() > 0);
 }
@@ -294,7 +333,7 @@ proptest! {
         flips in prop::collection::vec((any::<usize>(), any::<u8>()), 0..8),
     ) {
         let mut m = map(64);
-        let _ = MapDecoder::new(64, model()).decode_chunk(&bytes, &mut m);
+        let _ = Dec::new(64).decode_chunk(&bytes, &mut m);
         prop_assert!(m.len() <= 64);
         let good = encode_all(&street(40), 300);
         let mut c = good[0].clone();
@@ -303,7 +342,7 @@ proptest! {
             c[i % n] ^= x;
         }
         let mut m = map(500);
-        let mut dec = MapDecoder::new(500, model());
+        let mut dec = Dec::new(500);
         if dec.decode_chunk(&c, &mut m).is_ok() {
             prop_assert_eq!(m.len(), dec.decoded());
         }
@@ -332,7 +371,7 @@ fn golden_chunk_and_map_file() {
     assert_eq!(check_golden(&mut a, &mut b), Ok(()));
     assert_eq!(encode_all(&a, 64), vec![GOLDEN_CHUNK.to_vec()]);
     let mut c = crate::test_util::heap_map(8, crate::map::MapConfig::with_resolution(0.5));
-    let mut dec = MapDecoder::new(3, model());
+    let mut dec = Dec::new(3);
     assert_eq!(dec.decode_chunk(GOLDEN_CHUNK, &mut c), Ok(3));
     for v in a.iter() {
         let w = c.get(v.key).unwrap();

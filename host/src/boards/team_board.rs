@@ -129,7 +129,7 @@ pub fn host_team_run(feeds: &[Feed]) -> Result<Vec<TeamReports>, Error> {
                 &mut b.own,
                 &mut b.received,
                 &mut b.scratch,
-                &mut *b.link,
+                &mut b.link,
                 model_storage(),
                 scene_storage(),
             )

@@ -124,7 +124,7 @@ pub fn wire(map: &HostMap, repeat: usize) -> Result<WireFigures, Error> {
         let mut model = Box::new(cosem_core::wire::CodecModel::new());
         let mut d = cosem_core::wire::MapDecoder::new(map.len(), &mut model);
         for c in &chunks {
-            d.decode_chunk(c, &mut out).map_err(|e| Error::Invalid(e.to_string()))?;
+            d.decode_chunk(&mut model, c, &mut out).map_err(|e| Error::Invalid(e.to_string()))?;
         }
         Ok(out)
     })?;

@@ -62,7 +62,7 @@ pub fn encode_chunks(map: &HostMap, chunk: usize) -> Vec<Vec<u8>> {
     let mut model = Box::new(CodecModel::new());
     if let Ok(mut enc) = MapEncoder::new(map, &mut scratch, &mut model) {
         let mut buf = vec![0u8; chunk.max(cosem_core::wire::codec::MIN_CHUNK)];
-        while let Ok(n) = enc.next_chunk(&mut buf) {
+        while let Ok(n) = enc.next_chunk(&mut model, &mut buf) {
             if n == 0 {
                 break;
             }

@@ -18,7 +18,7 @@ mod tx;
 
 use line::{LineEstimate, LineModel};
 use rx::Rx;
-use tx::{Segment, Tx};
+use tx::{SegList, Tx};
 
 /// Bytes of map stream each side buffers: the sender what is not yet
 /// acknowledged, the receiver what arrived ahead of a gap.
@@ -197,14 +197,19 @@ pub enum Progress {
 }
 
 /// The memory a link works in: the stream buffers of both directions, the
-/// bookkeeping of frames in flight and the codec's models (about 14 KiB). Apart from the
-/// [`Endpoint`], so that a robot keeps it in a static while the endpoint,
-/// which moves between a robot's stages, stays small.
+/// bookkeeping of frames in flight and the codec's models (about 14 KiB).
+/// Apart from the [`Endpoint`], so that a robot keeps it in a static while
+/// the endpoint, which moves between a robot's stages, stays small. Plain
+/// integers, any value valid (an endpoint resets what it reads), so a
+/// robot may carve it out of memory that serves other stages before and
+/// after (see [`LinkMemory`]).
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct LinkBuffers {
     tx: [u8; STREAM_BUFFER],
     rx: [u8; STREAM_BUFFER],
     have: [u32; STREAM_BUFFER / 32],
-    segs: heapless::Vec<Segment, MAX_SEGMENTS>,
+    segs: SegList,
     tx_model: CodecModel,
     rx_model: CodecModel,
 }
@@ -216,40 +221,17 @@ impl LinkBuffers {
             tx: [0; STREAM_BUFFER],
             rx: [0; STREAM_BUFFER],
             have: [0; STREAM_BUFFER / 32],
-            segs: heapless::Vec::new(),
+            segs: SegList::new(),
             tx_model: CodecModel::new(),
             rx_model: CodecModel::new(),
         }
     }
-}
 
-/// A link's buffers borrowed piece by piece: what an [`Endpoint`] works
-/// in, and gives back at its end ([`Endpoint::finish`]) so that one set
-/// of buffers serves several exchanges in a row (a team robot's peers).
-pub struct LinkParts<'a> {
-    tx: &'a mut [u8; STREAM_BUFFER],
-    rx: &'a mut [u8; STREAM_BUFFER],
-    have: &'a mut [u32; STREAM_BUFFER / 32],
-    segs: &'a mut heapless::Vec<Segment, MAX_SEGMENTS>,
-    tx_model: &'a mut CodecModel,
-    rx_model: &'a mut CodecModel,
-}
-
-impl<'a> From<&'a mut LinkBuffers> for LinkParts<'a> {
-    fn from(b: &'a mut LinkBuffers) -> Self {
-        let LinkBuffers { tx, rx, have, segs, tx_model, rx_model } = b;
-        LinkParts { tx, rx, have, segs, tx_model, rx_model }
+    /// The sending half's and the receiving half's parts.
+    fn split(&mut self) -> (TxBufs<'_>, RxBufs<'_>) {
+        let LinkBuffers { tx, rx, have, segs, tx_model, rx_model } = self;
+        (TxBufs { ring: tx, segs, model: tx_model }, RxBufs { ring: rx, have, model: rx_model })
     }
-}
-
-/// What an ended [`Endpoint`] gives back.
-pub struct Finished<'a, R: VoxelSink> {
-    /// The scratch its map was ordered in (`None`: it sent no map).
-    pub scratch: Option<&'a mut [u32]>,
-    /// The staging map, holding the peer's map when it arrived whole.
-    pub staging: Option<&'a mut R>,
-    /// The link's buffers, for the next endpoint.
-    pub buffers: LinkParts<'a>,
 }
 
 impl Default for LinkBuffers {
@@ -258,16 +240,57 @@ impl Default for LinkBuffers {
     }
 }
 
-type TxParts<'a> = (&'a mut [u8; STREAM_BUFFER], &'a mut heapless::Vec<Segment, MAX_SEGMENTS>, &'a mut CodecModel);
+/// Where an [`Endpoint`] finds its [`LinkBuffers`]: it holds this owner
+/// whole for its life and gives it back whole ([`Endpoint::finish`]), so
+/// memory lent to a link returns to its owner in one piece.
+pub trait LinkMemory {
+    /// The buffers.
+    fn buffers(&mut self) -> &mut LinkBuffers;
+}
 
-/// One robot's end of the link: sends its map, receives the peer's.
-pub struct Endpoint<'a, M: VoxelStorage, R: VoxelSink> {
+impl LinkMemory for &mut LinkBuffers {
+    fn buffers(&mut self) -> &mut LinkBuffers {
+        self
+    }
+}
+
+/// The sending half's buffers, for one step.
+pub(super) struct TxBufs<'b> {
+    pub(super) ring: &'b mut [u8; STREAM_BUFFER],
+    pub(super) segs: &'b mut SegList,
+    pub(super) model: &'b mut CodecModel,
+}
+
+/// The receiving half's buffers, for one step.
+pub(super) struct RxBufs<'b> {
+    pub(super) ring: &'b mut [u8; STREAM_BUFFER],
+    pub(super) have: &'b mut [u32; STREAM_BUFFER / 32],
+    pub(super) model: &'b mut CodecModel,
+}
+
+/// What an ended [`Endpoint`] gives back.
+pub struct Finished<'a, R: VoxelSink, B> {
+    /// The scratch its map was ordered in (`None`: it sent no map).
+    pub scratch: Option<&'a mut [u32]>,
+    /// The staging map, holding the peer's map when it arrived whole.
+    pub staging: Option<&'a mut R>,
+    /// The link's buffers, whole, for the next endpoint or another use.
+    pub buffers: B,
+}
+
+/// One robot's end of the link: sends its map, receives the peer's,
+/// working in the buffers of `B`.
+pub struct Endpoint<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory = &'a mut LinkBuffers> {
+    buffers: B,
+    session: Session<'a, M, R>,
+}
+
+/// An endpoint's state apart from its buffers.
+struct Session<'a, M: VoxelStorage, R: VoxelSink> {
     config: LinkConfig,
     robot_id: u8,
     resolution: f32,
     tx: Option<Tx<'a, M>>,
-    /// The sending half's buffers when there is no map to send.
-    tx_spare: Option<TxParts<'a>>,
     rx: Rx<'a, R>,
     deframer: Deframer,
     line: LineEstimate,
@@ -303,12 +326,12 @@ fn io_error<E: embedded_io::Error>(e: E) -> LinkError {
     LinkError::Io(e.kind())
 }
 
-impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
+impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory> Endpoint<'a, M, R, B> {
     /// An endpoint that will send `map` (Morton order prepared in `scratch`,
     /// one `u32` per voxel; `None`: send nothing) as transfer `map_id`, and
     /// receive the peer's map into `staging` (cleared first; `None`: receive
-    /// nothing), working in `buffers`. At least one of the two maps must be
-    /// given.
+    /// nothing), working in `buffers` (held whole until
+    /// [`Endpoint::finish`]). At least one of the two maps must be given.
     pub fn new(
         config: LinkConfig,
         robot_id: u8,
@@ -316,11 +339,11 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
         anchor_time_us: u64,
         map: Option<(&'a LocalMap<M>, &'a mut [u32])>,
         mut staging: Option<&'a mut R>,
-        buffers: impl Into<LinkParts<'a>>,
+        mut buffers: B,
     ) -> Result<Self, LinkError> {
-        let LinkParts { tx: tx_ring, rx: rx_ring, have, segs, tx_model, rx_model } = buffers.into();
-        segs.clear();
-        have.fill(0);
+        let b = buffers.buffers();
+        b.segs.clear();
+        b.have.fill(0);
         if config.max_chunk < config.min_chunk.max(1)
             || usize::from(config.max_chunk) > MAX_PAYLOAD - 4
             || config.max_retries == 0
@@ -333,26 +356,25 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
             (None, Some((m, _))) => m.resolution(),
             (None, None) => return Err(LinkError::Setup),
         };
-        let (tx, tx_spare) = match map {
-            None => (None, Some((tx_ring, segs, tx_model))),
+        let tx = match map {
+            None => None,
             Some((m, scratch)) => {
                 if (m.resolution() - resolution).abs() > 1e-6 * resolution {
                     return Err(LinkError::Setup);
                 }
                 let ids = (map_id, robot_id, anchor_time_us);
-                (Some(Tx::new(m, scratch, (tx_ring, segs, tx_model), ids, &config)?), None)
+                Some(Tx::new(m, scratch, &mut b.tx_model, ids, &config)?)
             }
         };
         if let Some(s) = staging.as_mut() {
             s.clear();
         }
-        Ok(Endpoint {
+        let session = Session {
             config,
             robot_id,
             resolution,
             tx,
-            tx_spare,
-            rx: Rx::new(staging, rx_ring, have, rx_model),
+            rx: Rx::new(staging),
             deframer: Deframer::new(),
             line: LineEstimate::default(),
             started: false,
@@ -364,23 +386,24 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
             peer_id: None,
             failed: None,
             stats: LinkStats::default(),
-        })
+        };
+        Ok(Endpoint { buffers, session })
     }
 
     /// What moved so far.
     pub fn stats(&self) -> LinkStats {
-        self.stats
+        self.session.stats
     }
 
     /// Whether the peer's map arrived whole (its digest checked), or this
     /// endpoint receives nothing.
     pub fn received(&self) -> bool {
-        self.rx.done
+        self.session.rx.done
     }
 
     /// Whether the peer said it holds our whole map.
     pub fn sent(&self) -> bool {
-        self.tx.as_ref().is_none_or(|t| t.complete) || self.peer_takes_map == Some(false)
+        self.session.sent()
     }
 
     /// Whether the peer takes our map, from its `Hello` (`None`: not heard
@@ -388,40 +411,27 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
     /// a robot then tells the peer its match result instead
     /// ([`crate::wire::share`]).
     pub fn peer_takes_map(&self) -> Option<bool> {
-        self.peer_takes_map
+        self.session.peer_takes_map
     }
 
     /// The peer's robot id, from its `Hello` (`None`: not heard yet).
     pub fn peer_id(&self) -> Option<u8> {
-        self.peer_id
+        self.session.peer_id
     }
 
-    /// Ends the endpoint and gives back what it borrowed mutably: the
-    /// scratch its map was ordered in and the staging map (which holds the
-    /// peer's map when [`Endpoint::received`] is true).
+    /// Ends the endpoint and gives back the scratch its map was ordered in
+    /// and the staging map (which holds the peer's map when
+    /// [`Endpoint::received`] is true).
     pub fn into_parts(self) -> (Option<&'a mut [u32]>, Option<&'a mut R>) {
-        (self.tx.map(|t| t.encoder.into_scratch()), self.rx.map)
+        let f = self.finish();
+        (f.scratch, f.staging)
     }
 
     /// Ends the endpoint and gives back everything it borrowed mutably,
-    /// the link's buffers included (`None` only if they were lost, which
-    /// does not happen: each part is always held somewhere).
-    pub fn finish(self) -> Option<Finished<'a, R>> {
-        let (scratch, (tx, segs, tx_model)) = match (self.tx, self.tx_spare) {
-            (Some(t), _) => {
-                let (scratch, model) = t.encoder.into_parts();
-                (Some(scratch), (t.ring, t.segs, model))
-            }
-            (None, Some(spare)) => (None, spare),
-            (None, None) => return None,
-        };
-        let rx_model = match (self.rx.decoder, self.rx.model) {
-            (Some(d), _) => d.into_model(),
-            (None, Some(m)) => m,
-            (None, None) => return None,
-        };
-        let buffers = LinkParts { tx, rx: self.rx.ring, have: self.rx.have, segs, tx_model, rx_model };
-        Some(Finished { scratch, staging: self.rx.map, buffers })
+    /// its buffers whole.
+    pub fn finish(self) -> Finished<'a, R, B> {
+        let s = self.session;
+        Finished { scratch: s.tx.map(|t| t.encoder.into_scratch()), staging: s.rx.map, buffers: self.buffers }
     }
 
     /// Runs the link until done or failed, calling `idle` between steps
@@ -434,7 +444,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
     ) -> Result<LinkStats, LinkError> {
         loop {
             if self.step(io, clock.now_ms())? == Progress::Done {
-                return Ok(self.stats);
+                return Ok(self.session.stats);
             }
             idle();
         }
@@ -447,10 +457,25 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
         io: &mut IO,
         now: u64,
     ) -> Result<Progress, LinkError> {
+        self.session.step(io, now, self.buffers.buffers())
+    }
+}
+
+impl<M: VoxelStorage, R: VoxelSink> Session<'_, M, R> {
+    fn sent(&self) -> bool {
+        self.tx.as_ref().is_none_or(|t| t.complete) || self.peer_takes_map == Some(false)
+    }
+
+    fn step<IO: Read + Write + ReadReady + WriteReady>(
+        &mut self,
+        io: &mut IO,
+        now: u64,
+        buffers: &mut LinkBuffers,
+    ) -> Result<Progress, LinkError> {
         if let Some(e) = self.failed {
             return Err(e);
         }
-        let r = self.step_inner(io, now);
+        let r = self.step_inner(io, now, buffers);
         // Lingering only serves the peer: if it hung up, we are done.
         if matches!(r, Err(LinkError::Io(_))) && self.finished_at.is_some() {
             return Ok(Progress::Done);
@@ -475,11 +500,11 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
     }
 
     fn finished(&self) -> bool {
-        self.sent() && self.received()
+        self.sent() && self.rx.done
     }
 
-    fn send_ack<IO: Write>(&mut self, io: &mut IO) -> Result<(), LinkError> {
-        let ack = self.rx.ack(self.finished());
+    fn send_ack<IO: Write>(&mut self, io: &mut IO, have: &[u32; STREAM_BUFFER / 32]) -> Result<(), LinkError> {
+        let ack = self.rx.ack(have, self.finished());
         send_msg(io, &Message::Ack(ack), &mut self.stats)?;
         self.stats.acks_sent += 1;
         self.rx.unacked = 0;
@@ -491,7 +516,9 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
         &mut self,
         io: &mut IO,
         now: u64,
+        buffers: &mut LinkBuffers,
     ) -> Result<Progress, LinkError> {
+        let (mut tb, mut rb) = buffers.split();
         if !self.started {
             self.started = true;
             self.last_heard = now;
@@ -514,11 +541,11 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
             self.stats.bytes_received += n as u64;
             self.last_byte = now;
             for &b in buf.get(..n).unwrap_or(&[]) {
-                self.on_byte(b, now)?;
+                self.on_byte(b, now, &mut tb, &mut rb)?;
             }
         }
         if self.rx.ack_now && self.rx.map.is_some() {
-            self.send_ack(io)?;
+            self.send_ack(io, rb.have)?;
         }
         // Our map goes out now, or (half duplex, not robot 0) once the peer's
         // is in.
@@ -529,14 +556,15 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
             && io.write_ready().map_err(io_error)?;
         if let (Some(tx), true) = (self.tx.as_mut(), may_send) {
             let line = self.line.model();
-            tx.send_next(io, now, self.last_byte.max(self.last_heard), line, &self.config, &mut self.stats)?;
+            let heard = self.last_byte.max(self.last_heard);
+            tx.send_next(&mut tb, io, (now, heard), line, &self.config, &mut self.stats)?;
         }
         if self.finished() {
             if self.finished_at.is_none() {
                 // Say so twice: the peer may be waiting for exactly this.
                 self.finished_at = Some(now);
-                self.send_ack(io)?;
-                self.send_ack(io)?;
+                self.send_ack(io, rb.have)?;
+                self.send_ack(io, rb.have)?;
             }
             let lingered = self.finished_at.is_some_and(|t| now >= t + u64::from(self.config.linger_ms));
             if self.peer_finished || lingered {
@@ -548,8 +576,8 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
         Ok(Progress::Busy)
     }
 
-    fn on_byte(&mut self, b: u8, now: u64) -> Result<(), LinkError> {
-        let Endpoint {
+    fn on_byte(&mut self, b: u8, now: u64, tb: &mut TxBufs<'_>, rb: &mut RxBufs<'_>) -> Result<(), LinkError> {
+        let Session {
             deframer,
             rx,
             tx,
@@ -600,13 +628,13 @@ impl<'a, M: VoxelStorage, R: VoxelSink> Endpoint<'a, M, R> {
                 *peer_takes_map = Some(h.takes_map);
                 *peer_id = Some(h.robot_id);
             }
-            Message::Data { offset, poll, data } => rx.on_data(offset, poll, data, *resolution, stats)?,
+            Message::Data { offset, poll, data } => rx.on_data(rb, offset, poll, data, *resolution, stats)?,
             Message::Ack(ack) => {
                 if ack.flags & ACK_FINISHED != 0 {
                     *peer_finished = true;
                 }
                 if let Some(t) = tx.as_mut() {
-                    t.on_ack(&ack, now, config);
+                    t.on_ack(tb.segs, &ack, now, config);
                 }
             }
             Message::Abort { map_id, reason } => {

@@ -8,17 +8,14 @@ use super::*;
 pub(super) struct Rx<'a, S: VoxelSink> {
     /// `None`: this endpoint receives nothing.
     pub(super) map: Option<&'a mut S>,
-    pub(super) ring: &'a mut [u8; STREAM_BUFFER],
-    pub(super) have: &'a mut [u32; STREAM_BUFFER / 32],
     /// Everything before `cum` arrived; before `consumed` was decoded;
     /// `highest` is one past the last byte that arrived.
     pub(super) cum: u32,
     pub(super) consumed: u32,
     pub(super) highest: u32,
     pub(super) header: Option<MapHeader>,
-    /// The codec's model, until the header names the map; then the decoder's.
-    pub(super) model: Option<&'a mut CodecModel>,
-    pub(super) decoder: Option<MapDecoder<'a>>,
+    /// Decodes the map once its header arrived.
+    pub(super) decoder: Option<MapDecoder>,
     pub(super) done: bool,
     /// Last stream byte that arrived new.
     pub(super) latest: u32,
@@ -28,24 +25,15 @@ pub(super) struct Rx<'a, S: VoxelSink> {
 }
 
 impl<'a, S: VoxelSink> Rx<'a, S> {
-    /// The receiving half: into `map` (`None`: receives nothing), working
-    /// in `ring`, `have` and `model`.
-    pub(super) fn new(
-        map: Option<&'a mut S>,
-        ring: &'a mut [u8; STREAM_BUFFER],
-        have: &'a mut [u32; STREAM_BUFFER / 32],
-        model: &'a mut CodecModel,
-    ) -> Self {
+    /// The receiving half: into `map` (`None`: receives nothing).
+    pub(super) fn new(map: Option<&'a mut S>) -> Self {
         let done = map.is_none();
         Rx {
             map,
-            ring,
-            have,
             cum: 0,
             consumed: 0,
             highest: 0,
             header: None,
-            model: Some(model),
             decoder: None,
             done,
             latest: 0,
@@ -55,25 +43,27 @@ impl<'a, S: VoxelSink> Rx<'a, S> {
     }
 }
 
-impl<S: VoxelSink> Rx<'_, S> {
-    pub(super) fn bit(&self, pos: u32) -> bool {
-        let p = pos as usize % STREAM_BUFFER;
-        self.have.get(p / 32).is_some_and(|w| w & (1 << (p % 32)) != 0)
-    }
+/// Whether stream byte `pos` is held.
+fn bit(have: &[u32; STREAM_BUFFER / 32], pos: u32) -> bool {
+    let p = pos as usize % STREAM_BUFFER;
+    have.get(p / 32).is_some_and(|w| w & (1 << (p % 32)) != 0)
+}
 
-    pub(super) fn set_bit(&mut self, pos: u32, on: bool) {
-        let p = pos as usize % STREAM_BUFFER;
-        if let Some(w) = self.have.get_mut(p / 32) {
-            if on {
-                *w |= 1 << (p % 32);
-            } else {
-                *w &= !(1 << (p % 32));
-            }
+fn set_bit(have: &mut [u32; STREAM_BUFFER / 32], pos: u32, on: bool) {
+    let p = pos as usize % STREAM_BUFFER;
+    if let Some(w) = have.get_mut(p / 32) {
+        if on {
+            *w |= 1 << (p % 32);
+        } else {
+            *w &= !(1 << (p % 32));
         }
     }
+}
 
+impl<S: VoxelSink> Rx<'_, S> {
     pub(super) fn on_data(
         &mut self,
+        b: &mut RxBufs<'_>,
         offset: u16,
         poll: bool,
         data: &[u8],
@@ -89,7 +79,7 @@ impl<S: VoxelSink> Rx<'_, S> {
         let start = i64::from(self.cum) + delta;
         let limit = i64::from(self.consumed) + STREAM_BUFFER as i64;
         let mut fresh = false;
-        for (k, &b) in data.iter().enumerate() {
+        for (k, &byte) in data.iter().enumerate() {
             let pos = start + k as i64;
             if pos < i64::from(self.cum) || pos < 0 {
                 continue;
@@ -98,9 +88,9 @@ impl<S: VoxelSink> Rx<'_, S> {
                 break;
             }
             let pos = pos as u32;
-            fresh |= !self.bit(pos);
-            self.ring[pos as usize % STREAM_BUFFER] = b;
-            self.set_bit(pos, true);
+            fresh |= !bit(b.have, pos);
+            b.ring[pos as usize % STREAM_BUFFER] = byte;
+            set_bit(b.have, pos, true);
             self.latest = pos;
         }
         let end = (start + data.len() as i64).clamp(0, limit) as u32;
@@ -108,20 +98,25 @@ impl<S: VoxelSink> Rx<'_, S> {
             stats.duplicates += 1;
         }
         self.highest = self.highest.max(end);
-        while i64::from(self.cum) < limit && self.bit(self.cum) {
+        while i64::from(self.cum) < limit && bit(b.have, self.cum) {
             self.cum += 1;
         }
         self.unacked = self.unacked.saturating_add(1);
         if poll || self.unacked >= ACK_EVERY {
             self.ack_now = true;
         }
-        self.take_records(resolution, stats)
+        self.take_records(b, resolution, stats)
     }
 
     /// Decodes every whole record before the first gap.
-    pub(super) fn take_records(&mut self, resolution: f32, stats: &mut LinkStats) -> Result<(), LinkError> {
+    pub(super) fn take_records(
+        &mut self,
+        b: &mut RxBufs<'_>,
+        resolution: f32,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
         while self.cum > self.consumed && !self.done {
-            let len = usize::from(self.ring[self.consumed as usize % STREAM_BUFFER]);
+            let len = usize::from(b.ring[self.consumed as usize % STREAM_BUFFER]);
             if len == 0 {
                 return Err(LinkError::Decode(DecodeError::Empty));
             }
@@ -130,18 +125,24 @@ impl<S: VoxelSink> Rx<'_, S> {
             }
             let mut rec = [0u8; MAX_RECORD];
             for (k, r) in rec.iter_mut().take(len).enumerate() {
-                *r = self.ring[(self.consumed as usize + 1 + k) % STREAM_BUFFER];
+                *r = b.ring[(self.consumed as usize + 1 + k) % STREAM_BUFFER];
             }
             for k in 0..=len as u32 {
-                self.set_bit(self.consumed + k, false);
+                set_bit(b.have, self.consumed + k, false);
             }
             self.consumed += 1 + len as u32;
-            self.record(rec.get(..len).unwrap_or(&[]), resolution, stats)?;
+            self.record(b.model, rec.get(..len).unwrap_or(&[]), resolution, stats)?;
         }
         Ok(())
     }
 
-    pub(super) fn record(&mut self, rec: &[u8], resolution: f32, stats: &mut LinkStats) -> Result<(), LinkError> {
+    pub(super) fn record(
+        &mut self,
+        model: &mut CodecModel,
+        rec: &[u8],
+        resolution: f32,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
         let Some(map) = self.map.as_mut() else { return Ok(()) };
         match (self.header, self.decoder.as_mut()) {
             (None, _) => {
@@ -154,11 +155,10 @@ impl<S: VoxelSink> Rx<'_, S> {
                 }
                 map.clear();
                 self.header = Some(h);
-                let model = self.model.take().ok_or(LinkError::Setup)?;
                 self.decoder = Some(MapDecoder::new(h.voxel_count as usize, model));
             }
             (Some(_), Some(dec)) => {
-                let n = dec.decode_chunk(rec, map).map_err(LinkError::Decode)?;
+                let n = dec.decode_chunk(model, rec, map).map_err(LinkError::Decode)?;
                 stats.voxels_received += n as u32;
             }
             (Some(_), None) => return Err(LinkError::Setup),
@@ -176,7 +176,7 @@ impl<S: VoxelSink> Rx<'_, S> {
     }
 
     /// What we hold, as an acknowledgement.
-    pub(super) fn ack(&self, finished: bool) -> Ack {
+    pub(super) fn ack(&self, have: &[u32; STREAM_BUFFER / 32], finished: bool) -> Ack {
         let mut ack = Ack { cum: self.cum as u16, ..Ack::default() };
         if self.done {
             ack.flags |= ACK_COMPLETE;
@@ -190,12 +190,12 @@ impl<S: VoxelSink> Rx<'_, S> {
         let mut found = 0;
         let mut pos = self.cum;
         while pos < self.highest && found < runs.len() {
-            if !self.bit(pos) {
+            if !bit(have, pos) {
                 pos += 1;
                 continue;
             }
             let from = pos;
-            while pos < self.highest && self.bit(pos) {
+            while pos < self.highest && bit(have, pos) {
                 pos += 1;
             }
             runs[found] = (from, pos);
@@ -204,10 +204,10 @@ impl<S: VoxelSink> Rx<'_, S> {
         if found > MAX_SACK {
             let latest = self.latest.max(self.cum);
             let (mut from, mut to) = (latest, latest);
-            while from > self.cum && self.bit(from - 1) {
+            while from > self.cum && bit(have, from - 1) {
                 from -= 1;
             }
-            while to < self.highest && self.bit(to) {
+            while to < self.highest && bit(have, to) {
                 to += 1;
             }
             if from > runs[MAX_SACK - 2].1 && to > from {

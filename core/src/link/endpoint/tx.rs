@@ -4,18 +4,102 @@
 use super::*;
 
 /// One frame's worth of the stream in flight.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub(super) struct Segment {
     pub(super) start: u32,
     pub(super) len: u16,
     pub(super) sends: u8,
-    /// Known lost: waits for retransmission.
-    pub(super) lost: bool,
+    /// Known lost (1): waits for retransmission.
+    pub(super) lost: u8,
     /// Transmission number of its last send (a later number acknowledged
     /// while this one is not means this one was lost: the line keeps order).
     pub(super) order: u32,
     /// Milliseconds (wrapping) of its last send.
     pub(super) sent_at: u32,
+}
+
+/// The frames in flight, oldest first: a list of fixed capacity in plain
+/// integers (part of [`LinkBuffers`]).
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub(crate) struct SegList {
+    len: u32,
+    items: [Segment; MAX_SEGMENTS],
+}
+
+impl SegList {
+    pub(super) const fn new() -> Self {
+        const EMPTY: Segment = Segment { start: 0, len: 0, sends: 0, lost: 0, order: 0, sent_at: 0 };
+        SegList { len: 0, items: [EMPTY; MAX_SEGMENTS] }
+    }
+
+    fn live(&self) -> &[Segment] {
+        self.items.get(..self.len as usize).unwrap_or(&[])
+    }
+
+    fn live_mut(&mut self) -> &mut [Segment] {
+        self.items.get_mut(..self.len as usize).unwrap_or(&mut [])
+    }
+
+    pub(super) fn len(&self) -> usize {
+        self.live().len()
+    }
+
+    pub(super) fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    fn is_full(&self) -> bool {
+        self.len() >= MAX_SEGMENTS
+    }
+
+    pub(super) fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    fn get(&self, i: usize) -> Option<&Segment> {
+        self.live().get(i)
+    }
+
+    fn get_mut(&mut self, i: usize) -> Option<&mut Segment> {
+        self.live_mut().get_mut(i)
+    }
+
+    fn iter(&self) -> core::slice::Iter<'_, Segment> {
+        self.live().iter()
+    }
+
+    fn iter_mut(&mut self) -> core::slice::IterMut<'_, Segment> {
+        self.live_mut().iter_mut()
+    }
+
+    /// Appends `s`; `Err` when full.
+    fn push(&mut self, s: Segment) -> Result<(), ()> {
+        self.insert(self.len(), s)
+    }
+
+    /// Puts `s` at `i`, the later ones one on; `Err` when full or `i` is
+    /// past the end.
+    fn insert(&mut self, i: usize, s: Segment) -> Result<(), ()> {
+        let n = self.len();
+        if n >= MAX_SEGMENTS || i > n {
+            return Err(());
+        }
+        let tail = self.items.get_mut(i..=n).ok_or(())?;
+        tail.rotate_right(1);
+        *tail.first_mut().ok_or(())? = s;
+        self.len += 1;
+        Ok(())
+    }
+
+    /// Takes out the segment at `i`, the later ones one back.
+    fn remove(&mut self, i: usize) {
+        if let Some(tail) = self.live_mut().get_mut(i..) {
+            tail.rotate_left(1);
+            self.len -= 1;
+        }
+    }
 }
 
 /// The sending half: the map as a stream of records (header, then codec
@@ -24,13 +108,11 @@ pub(super) struct Tx<'a, S: VoxelStorage> {
     pub(super) encoder: MapEncoder<'a, S>,
     pub(super) header: MapHeader,
     pub(super) header_queued: bool,
-    pub(super) ring: &'a mut [u8; STREAM_BUFFER],
     /// Stream offsets: everything before `acked` is held by the receiver,
     /// before `sent_end` was sent at least once, before `produced` encoded.
     pub(super) acked: u32,
     pub(super) sent_end: u32,
     pub(super) produced: u32,
-    pub(super) segs: &'a mut heapless::Vec<Segment, MAX_SEGMENTS>,
     pub(super) order: u32,
     pub(super) acked_order: u32,
     /// The receiver said it holds the whole map.
@@ -53,11 +135,11 @@ pub(super) struct Tx<'a, S: VoxelStorage> {
 impl<'a, S: VoxelStorage> Tx<'a, S> {
     /// The sending half of transfer `map_id` of robot `robot_id`'s `map`
     /// (anchored at `anchor_time_us`), its Morton order prepared in
-    /// `scratch`, working in `parts`.
+    /// `scratch`, coding with `model` (reset).
     pub(super) fn new(
         m: &'a LocalMap<S>,
         scratch: &'a mut [u32],
-        (ring, segs, model): TxParts<'a>,
+        model: &mut CodecModel,
         (map_id, robot_id, anchor_time_us): (u32, u8, u64),
         config: &LinkConfig,
     ) -> Result<Self, LinkError> {
@@ -77,11 +159,9 @@ impl<'a, S: VoxelStorage> Tx<'a, S> {
             encoder,
             header,
             header_queued: false,
-            ring,
             acked: 0,
             sent_end: 0,
             produced: 0,
-            segs,
             order: 0,
             acked_order: 0,
             complete: false,
@@ -100,7 +180,7 @@ impl<'a, S: VoxelStorage> Tx<'a, S> {
 
 impl<S: VoxelStorage> Tx<'_, S> {
     /// Encodes records into the buffer while a whole record fits.
-    pub(super) fn fill(&mut self) -> Result<(), LinkError> {
+    pub(super) fn fill(&mut self, b: &mut TxBufs<'_>) -> Result<(), LinkError> {
         loop {
             if STREAM_BUFFER - (self.produced.wrapping_sub(self.acked) as usize) < MAX_RECORD {
                 return Ok(());
@@ -114,11 +194,11 @@ impl<S: VoxelStorage> Tx<'_, S> {
                 return Ok(());
             } else {
                 let chunk = body.get_mut(..RECORD_CHUNK).ok_or(LinkError::Setup)?;
-                self.encoder.next_chunk(chunk).map_err(|_| LinkError::Setup)?
+                self.encoder.next_chunk(b.model, chunk).map_err(|_| LinkError::Setup)?
             };
             rec[0] = u8::try_from(n).map_err(|_| LinkError::Setup)?;
-            for &b in rec.get(..=n).ok_or(LinkError::Setup)? {
-                self.ring[self.produced as usize % STREAM_BUFFER] = b;
+            for &byte in rec.get(..=n).ok_or(LinkError::Setup)? {
+                b.ring[self.produced as usize % STREAM_BUFFER] = byte;
                 self.produced = self.produced.wrapping_add(1);
             }
         }
@@ -139,11 +219,11 @@ impl<S: VoxelStorage> Tx<'_, S> {
         }
     }
 
-    pub(super) fn can_send_new(&self, config: &LinkConfig) -> bool {
+    pub(super) fn can_send_new(&self, segs: &SegList, config: &LinkConfig) -> bool {
         self.sent_end != self.produced
             && self.sent_end.wrapping_sub(self.acked) < self.window()
-            && self.segs.len() + CUT_RESERVE < MAX_SEGMENTS
-            && (!config.half_duplex || self.segs.is_empty())
+            && segs.len() + CUT_RESERVE < MAX_SEGMENTS
+            && (!config.half_duplex || segs.is_empty())
     }
 
     /// How long bytes may go unacknowledged before they are sent again:
@@ -182,15 +262,15 @@ impl<S: VoxelStorage> Tx<'_, S> {
     }
 
     /// Cuts segment `i` to the current frame size; the rest stays lost.
-    pub(super) fn cut(&mut self, i: usize) {
-        let Some(s) = self.segs.get(i).copied() else { return };
-        if usize::from(s.len) <= self.size || self.segs.is_full() {
+    pub(super) fn cut(&mut self, segs: &mut SegList, i: usize) {
+        let Some(s) = segs.get(i).copied() else { return };
+        if usize::from(s.len) <= self.size || segs.is_full() {
             return;
         }
         let keep = self.size as u16;
         let rest = Segment { start: s.start.wrapping_add(u32::from(keep)), len: s.len - keep, ..s };
-        if self.segs.insert(i + 1, rest).is_ok() {
-            if let Some(first) = self.segs.get_mut(i) {
+        if segs.insert(i + 1, rest).is_ok() {
+            if let Some(first) = segs.get_mut(i) {
                 first.len = keep;
             }
         }
@@ -198,23 +278,24 @@ impl<S: VoxelStorage> Tx<'_, S> {
 
     pub(super) fn transmit<IO: Write>(
         &mut self,
+        b: &mut TxBufs<'_>,
         i: usize,
         poll: bool,
         io: &mut IO,
         now: u64,
         stats: &mut LinkStats,
     ) -> Result<(), LinkError> {
-        let seg = self.segs.get_mut(i).ok_or(LinkError::Setup)?;
+        let seg = b.segs.get_mut(i).ok_or(LinkError::Setup)?;
         let mut data = [0u8; MAX_PAYLOAD];
         let len = usize::from(seg.len);
         for (k, d) in data.iter_mut().take(len).enumerate() {
-            *d = self.ring[seg.start.wrapping_add(k as u32) as usize % STREAM_BUFFER];
+            *d = b.ring[seg.start.wrapping_add(k as u32) as usize % STREAM_BUFFER];
         }
         self.order += 1;
         seg.order = self.order;
         seg.sends = seg.sends.saturating_add(1);
         seg.sent_at = now as u32;
-        seg.lost = false;
+        seg.lost = 0;
         let offset = (seg.start % OFFSET_MODULUS) as u16;
         let msg = Message::Data { offset, poll, data: data.get(..len).unwrap_or(&[]) };
         send_msg(io, &msg, stats)?;
@@ -225,14 +306,14 @@ impl<S: VoxelStorage> Tx<'_, S> {
     /// size), else new bytes, else bytes unacknowledged for a while again.
     /// The last uses a line that would idle: the oldest bytes hold the
     /// window, so on a bad line they go out again and again until one copy
-    /// gets through. When not a byte came from the peer (`heard`) for four
-    /// timeouts the line may be down: then only the oldest bytes, at a
-    /// timeout that doubles.
+    /// gets through. When not a byte came from the peer (`heard`, of
+    /// `(now, heard)`) for four timeouts the line may be down: then only
+    /// the oldest bytes, at a timeout that doubles.
     pub(super) fn send_next<IO: Write>(
         &mut self,
+        b: &mut TxBufs<'_>,
         io: &mut IO,
-        now: u64,
-        heard: u64,
+        (now, heard): (u64, u64),
         line: LineModel,
         config: &LinkConfig,
         stats: &mut LinkStats,
@@ -240,7 +321,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
         if self.complete {
             return Ok(());
         }
-        self.fill()?;
+        self.fill(b)?;
         // Frames sized for the line as the peer's frames show it (after a
         // stall, no larger than the probes were).
         let probe = self.size;
@@ -248,19 +329,19 @@ impl<S: VoxelStorage> Tx<'_, S> {
         if self.backoff > 0 {
             self.size = self.size.min(probe);
         }
-        if let Some(i) = self.segs.iter().position(|s| s.lost) {
-            self.cut(i);
-            let more = self.segs.iter().skip(i + 1).any(|s| s.lost);
-            let poll = !more && !self.can_send_new(config);
+        if let Some(i) = b.segs.iter().position(|s| s.lost != 0) {
+            self.cut(b.segs, i);
+            let more = b.segs.iter().skip(i + 1).any(|s| s.lost != 0);
+            let poll = !more && !self.can_send_new(b.segs, config);
             // One copy: since the deframer repairs single errors, extra
             // copies of bytes lost again and again no longer paid (measured).
             stats.retransmissions += 1;
-            return self.transmit(i, poll, io, now, stats);
+            return self.transmit(b, i, poll, io, now, stats);
         }
-        if self.can_send_new(config) {
-            return self.send_new(io, now, config, stats);
+        if self.can_send_new(b.segs, config) {
+            return self.send_new(b, io, now, config, stats);
         }
-        if self.segs.is_empty() {
+        if b.segs.is_empty() {
             return Ok(());
         }
         let rto = self.rto(config);
@@ -269,7 +350,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
             if now < self.last_probe + wait {
                 return Ok(());
             }
-            return self.probe(io, now, line, config, stats);
+            return self.probe(b, io, now, line, config, stats);
         }
         // On a clean line, bytes not acknowledged in a timeout; on a lossy
         // one, sooner (a round trip and a half): there the oldest bytes are
@@ -278,12 +359,12 @@ impl<S: VoxelStorage> Tx<'_, S> {
             Some(s) if line.residual(self.size + DATA_OVERHEAD) > 0.005 => s + s / 2 + 5,
             _ => rto,
         };
-        let due = self.segs.iter().take(8).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);
+        let due = b.segs.iter().take(8).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);
         if let Some(i) = due {
             self.idle_resends += 1;
-            self.cut(i);
+            self.cut(b.segs, i);
             stats.retransmissions += 1;
-            return self.transmit(i, self.idle_resends.is_multiple_of(4), io, now, stats);
+            return self.transmit(b, i, self.idle_resends.is_multiple_of(4), io, now, stats);
         }
         Ok(())
     }
@@ -291,6 +372,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
     /// Sends the next new bytes of the stream in a frame of its own.
     fn send_new<IO: Write>(
         &mut self,
+        b: &mut TxBufs<'_>,
         io: &mut IO,
         now: u64,
         config: &LinkConfig,
@@ -299,17 +381,17 @@ impl<S: VoxelStorage> Tx<'_, S> {
         let room = self.window().saturating_sub(self.sent_end.wrapping_sub(self.acked)) as usize;
         let len = self.size.min(self.produced.wrapping_sub(self.sent_end) as usize).min(room);
         let seg =
-            Segment { start: self.sent_end, len: len as u16, sends: 0, lost: false, order: 0, sent_at: now as u32 };
-        if self.segs.is_empty() {
+            Segment { start: self.sent_end, len: len as u16, sends: 0, lost: 0, order: 0, sent_at: now as u32 };
+        if b.segs.is_empty() {
             // The timers start with the first bytes in flight.
             self.last_progress = now;
         }
-        self.segs.push(seg).map_err(|_| LinkError::Setup)?;
+        b.segs.push(seg).map_err(|_| LinkError::Setup)?;
         self.sent_end = self.sent_end.wrapping_add(len as u32);
-        self.fill()?;
+        self.fill(b)?;
         stats.chunk_bytes_sent += len as u64;
-        let poll = !self.can_send_new(config);
-        self.transmit(self.segs.len() - 1, poll, io, now, stats)
+        let poll = !self.can_send_new(b.segs, config);
+        self.transmit(b, b.segs.len() - 1, poll, io, now, stats)
     }
 
     /// Nothing heard: the line may have got worse. Resends the oldest bytes
@@ -317,6 +399,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
     /// last size, asking for an answer; gives up after `max_retries`.
     fn probe<IO: Write>(
         &mut self,
+        b: &mut TxBufs<'_>,
         io: &mut IO,
         now: u64,
         line: LineModel,
@@ -331,14 +414,14 @@ impl<S: VoxelStorage> Tx<'_, S> {
         let half = (self.size / 2).max(usize::from(config.min_chunk));
         self.resize(line, config);
         self.size = self.size.min(half);
-        self.cut(0);
+        self.cut(b.segs, 0);
         stats.retransmissions += 1;
-        self.transmit(0, true, io, now, stats)
+        self.transmit(b, 0, true, io, now, stats)
     }
 
     /// Takes an acknowledgement: drops what it covers, marks lost what was
     /// sent before something it covers, measures the round trip.
-    pub(super) fn on_ack(&mut self, ack: &Ack, now: u64, config: &LinkConfig) {
+    pub(super) fn on_ack(&mut self, segs: &mut SegList, ack: &Ack, now: u64, config: &LinkConfig) {
         let ahead = ack.cum.wrapping_sub(self.acked as u16) as u32;
         if ahead > self.sent_end.wrapping_sub(self.acked) {
             return; // stale or foreign
@@ -361,7 +444,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
         // older ones may have waited behind a gap, or for a lost ack).
         let mut freshest: Option<Segment> = None;
         let mut i = 0;
-        while let Some(s) = self.segs.get(i).copied() {
+        while let Some(s) = segs.get(i).copied() {
             if held(&s) {
                 // An ack sooner than any round trip after a resend is for an
                 // earlier copy: its order says nothing.
@@ -373,7 +456,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
                     }
                     self.acked_order = self.acked_order.max(s.order);
                 }
-                self.segs.remove(i);
+                segs.remove(i);
                 progress = true;
             } else {
                 i += 1;
@@ -393,11 +476,11 @@ impl<S: VoxelStorage> Tx<'_, S> {
         // Only bytes out for a round trip: an ack for an earlier copy of
         // what was resent since says nothing of what followed that copy.
         let settled = self.srtt.unwrap_or(0);
-        for s in self.segs.iter_mut() {
+        for s in segs.iter_mut() {
             let within = all || known.wrapping_sub(s.start.wrapping_add(u32::from(s.len))) < 1 << 30;
             let out_long = (now as u32).wrapping_sub(s.sent_at) >= settled;
-            if !s.lost && s.order < self.acked_order && within && out_long {
-                s.lost = true;
+            if s.lost == 0 && s.order < self.acked_order && within && out_long {
+                s.lost = 1;
             }
         }
         if progress {
@@ -406,7 +489,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
         }
         if ack.flags & ACK_COMPLETE != 0 && self.exhausted() && self.acked == self.produced {
             self.complete = true;
-            self.segs.clear();
+            segs.clear();
         }
     }
 }
