@@ -33,7 +33,8 @@
 //!    robot in one frame (a small pose graph, with covariances).
 //!
 //! [`geometry`] (rigid transforms, the conventions' pose syntax and error
-//! measures) underlies them all. [`selftest`] runs a fixed mapping, wire and
+//! measures) and [`region`] (memory that serves stages in turn, handed over
+//! by ownership) underlie them all. [`selftest`] runs a fixed mapping, wire and
 //! matching case whose figures must agree to the bit on the chip and on a
 //! host.
 //!
@@ -76,6 +77,7 @@ pub mod geometry;
 pub mod link;
 pub mod map;
 pub mod matching;
+pub mod region;
 pub mod robot;
 pub mod selftest;
 #[cfg(any(test, feature = "sim"))]

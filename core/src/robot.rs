@@ -17,18 +17,17 @@
 //! from the maps alone ([`align`]), and reports a
 //! [`RobotReport`] over its feed line (or where and why it stopped).
 //!
-//! Every buffer belongs to the caller: its own map, what it receives the
-//! peer's map into (a [`SceneMap`](crate::map::SceneMap) on a board: only
-//! what matching it as a scene reads), a scratch of one `u32` per voxel
-//! (the link's Morton order), the link's buffers and two pyramid storages.
-//! In this pair robot the link's memory and the pyramids' are never used
-//! at once: the link's endpoint is dropped before preparing starts, so a
-//! board may overlay them; and with a model storage that has room for a
-//! copied level 0 ([`ModelLevel0`] in a
-//! [`SplitStorage`](crate::matching::SplitStorage)) the own map is read for
-//! the last time when the model is built (first), so its memory may hold
-//! the pyramids' other parts. The capacities a robot's firmware uses are
-//! the constants below.
+//! Every buffer belongs to the caller. A pair robot takes two regions of
+//! words and what it receives the peer's map into (a
+//! [`SceneMap`](crate::map::SceneMap): only what matching it as a scene
+//! reads); it carves its map, the link's scratch and buffers, and later
+//! the pyramids out of the regions itself, each stage handing its buffers
+//! to the next by ownership ([`memory`]: the map's words become the
+//! pyramids', the link's become the model's copied level 0), so a board
+//! declares two zeroed statics and nothing of it depends on call order. A
+//! team robot takes its map, scratch, link buffers and pyramid storages
+//! apart. The capacities a robot's firmware uses are the constants below
+//! ([`Capacity::BOARD`]).
 
 use crate::geometry::Isometry3;
 use crate::link::LinkError;
@@ -36,8 +35,8 @@ use crate::map::{ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, M
 use crate::matching::global::{align_searched, Searched};
 use crate::matching::search::GlobalSearch;
 use crate::matching::{
-    ArrayPyramidStorage, ArraySceneStorage, CopiedLevel, MatchError, MatchResult, MatchSettings, Matcher, Pyramid,
-    PyramidError, PyramidStorage, SceneSource,
+    ArrayPyramidStorage, ArraySceneStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError,
+    PyramidStorage, SceneSource,
 };
 use crate::wire::feed::{self, FeedError, RobotMessage, RobotReport, Stage};
 use crate::wire::frame::{DeframeError, MAX_FRAME};
@@ -98,20 +97,10 @@ pub const LEVELS: usize = 3;
 /// First footprint cell tried (m); doubled until the grids fit.
 pub const FOOTPRINT_CELL: f32 = 1.0;
 
-/// A robot's map storage (16-bit index slots).
+/// A robot's map storage (16-bit index slots): a team robot's.
 pub type MapStorage = ArrayStorage<VOXELS, u16>;
-/// A small board's map storage (16-bit index slots).
-pub type SmallMapStorage = ArrayStorage<SMALL_VOXELS, u16>;
 /// Pyramid storage of a robot's own map (the model).
 pub type ModelStorage = ArrayPyramidStorage<VOXELS, COARSE, MODEL_WORDS>;
-/// Room for the model's level 0 copied out of the robot's map (176 KiB: 22
-/// bytes per voxel): with it, the model's other parts and the scene's
-/// pyramid may lie over the map's memory ([`align`] builds the model
-/// first, and reads the map no more once it is copied).
-pub type ModelLevel0 = CopiedLevel<VOXELS>;
-/// The model's coarse levels, normals, index and footprint beside a copied
-/// level 0 ([`ModelLevel0`]): no extras.
-pub type ModelRest = ArrayPyramidStorage<0, COARSE, MODEL_WORDS>;
 /// Pyramid storage of the received map (the scene) kept as a
 /// [`SceneMap`](crate::map::SceneMap): no extras, no index slots.
 pub type SceneStorage = ArraySceneStorage<COARSE, SCENE_WORDS>;
@@ -194,21 +183,28 @@ pub fn align<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: Pyr
     mut on_phase: impl FnMut(u8),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
     on_phase(0);
-    // The model first: with room for a copied level 0 in its storage the
-    // own map is read for the last time here (a board reuses its memory for
-    // the pyramids' other parts).
     let model = Pyramid::build_model(own, LEVELS, FOOTPRINT_CELL, model_storage).map_err(AlignError::Pyramid)?;
     let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene_storage).map_err(AlignError::Pyramid)?;
     on_phase(1);
+    align_prepared(&model, &scene, prior, on_phase)
+}
+
+/// [`align`] of maps already prepared; `on_phase` runs at phases 2 and 3.
+fn align_prepared<P: PyramidStorage, Q: PyramidStorage>(
+    model: &Pyramid<'_, P>,
+    scene: &Pyramid<'_, Q>,
+    prior: Option<&Isometry3<f32>>,
+    mut on_phase: impl FnMut(u8),
+) -> Result<(MatchResult, Option<Searched>), AlignError> {
     let matcher = Matcher::new(MatchSettings { max_iterations: EM_ITERATIONS, ..MatchSettings::default() });
     let r = match prior {
         Some(p) => {
             on_phase(2);
-            (matcher.align(&model, &scene, p).map_err(AlignError::Match)?, None)
+            (matcher.align(model, scene, p).map_err(AlignError::Match)?, None)
         }
         None => {
             let search = GlobalSearch { max_evaluations: SEARCH_NODES, ..GlobalSearch::default() };
-            align_searched(&matcher, &model, &scene, &search, || on_phase(2))
+            align_searched(&matcher, model, scene, &search, || on_phase(2))
         }
         .map_err(AlignError::Match)?,
     };
@@ -242,15 +238,18 @@ impl PhaseMarks {
         T: Meter,
     {
         let mut marks = PhaseMarks::default();
-        let (result, located) = align(own, received, prior, model, scene, |k| {
-            let k = usize::from(k);
-            if let (Some(m), Some(b)) = (marks.instructions.get_mut(k), marks.link.get_mut(k)) {
-                *m = meter.instructions();
-                *b = meter.link_bytes();
-            }
-        })
-        .map_err(RobotError::Align)?;
+        let (result, located) =
+            align(own, received, prior, model, scene, |k| marks.mark(k, meter)).map_err(RobotError::Align)?;
         Ok((result, located, marks))
+    }
+
+    /// Reads `meter` at phase `k`.
+    fn mark<T: Meter>(&mut self, k: u8, meter: &T) {
+        let k = usize::from(k);
+        if let (Some(m), Some(b)) = (self.instructions.get_mut(k), self.link.get_mut(k)) {
+            *m = meter.instructions();
+            *b = meter.link_bytes();
+        }
     }
 
     /// Puts each phase's instructions, and the bytes that came in on the
@@ -316,6 +315,8 @@ pub enum RobotError {
     Link(LinkError),
     /// Preparing or matching failed.
     Align(AlignError),
+    /// The robot's memory regions are too small for its capacities.
+    Memory(crate::region::RegionError),
     /// `poll` was called after the robot finished.
     Finished,
     /// The team's consistency check or pose graph refused its input.
@@ -331,7 +332,7 @@ impl RobotError {
             | RobotError::Feed(_)
             | RobotError::FeederSilent { .. }
             | RobotError::PointCount { .. } => Stage::Feed,
-            RobotError::Config(_) | RobotError::Points(_) => Stage::Map,
+            RobotError::Config(_) | RobotError::Points(_) | RobotError::Memory(_) => Stage::Map,
             RobotError::Link(_) => Stage::Link,
             RobotError::Align(_) | RobotError::Team(_) | RobotError::Finished => Stage::Match,
         }
@@ -353,6 +354,7 @@ impl core::fmt::Display for RobotError {
             RobotError::Link(e) => write!(f, "{e}"),
             RobotError::Align(e) => write!(f, "{e}"),
             RobotError::Team(e) => write!(f, "team: {e}"),
+            RobotError::Memory(e) => write!(f, "{e}"),
             RobotError::Finished => f.write_str("the robot has finished"),
         }
     }
@@ -420,11 +422,13 @@ fn send<F: Write>(feed: &mut F, msg: &RobotMessage<'_>) {
 }
 
 mod feed_in;
+pub mod memory;
 mod pair;
 pub mod team;
 mod tell;
 
-pub use pair::{NoPyramid, NoScene, Robot, Sender};
+pub use memory::Capacity;
+pub use pair::{Robot, Sender};
 
 #[cfg(test)]
 mod tests;

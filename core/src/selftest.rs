@@ -197,7 +197,7 @@ pub fn run<S: VoxelStorage, P: PyramidStorage>(
     // Wire: encode B chunk by chunk, decode into `received`.
     let digest_a = map_digest(a, scratch).map_err(|_| SelfTestError::Buffer)?;
     let (mut sending, mut receiving) = (CodecModel::new(), CodecModel::new());
-    let mut encoder = MapEncoder::new(b, scratch, &mut sending).map_err(|_| SelfTestError::Buffer)?;
+    let mut encoder = MapEncoder::new(&*b, scratch, &mut sending).map_err(|_| SelfTestError::Buffer)?;
     let digest_b = encoder.digest();
     received.clear();
     let mut decoder = MapDecoder::new(b.len(), &mut receiving);

@@ -9,6 +9,7 @@ use std::path::Path;
 /// The layers, lowest first: a module may import those of lower layers.
 const LAYERS: &[(&str, u32)] = &[
     ("geometry", 0),
+    ("region", 0),
     ("classes", 1),
     ("map", 2),
     // Camera labels become a map's label evidence.

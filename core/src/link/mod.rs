@@ -36,7 +36,7 @@
 mod endpoint;
 
 pub use endpoint::{
-    Endpoint, Finished, LinkBuffers, LinkConfig, LinkError, LinkMemory, LinkStats, Progress, STREAM_BUFFER,
+    Endpoint, Finished, LinkBuffers, LinkConfig, LinkError, LinkMemory, LinkStats, Progress, LINK_WORDS, STREAM_BUFFER,
 };
 
 /// Milliseconds from a monotonic source: a SysTick counter on the chip, a

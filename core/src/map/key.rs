@@ -44,8 +44,23 @@ pub fn floor_f32(v: f32) -> f32 {
 /// Integer cell of a voxel: `floor(p / resolution)` per axis, in the map's
 /// anchor frame. Sixteen bits per axis keep a stored voxel small; a local map
 /// spans at most ±32767 cells.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Default, Serialize, Deserialize)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    PartialEq,
+    Eq,
+    PartialOrd,
+    Ord,
+    Hash,
+    Default,
+    Serialize,
+    Deserialize,
+    bytemuck::Pod,
+    bytemuck::Zeroable,
+)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(C)]
 pub struct VoxelKey {
     /// Cell index along x.
     pub x: i16,

@@ -96,8 +96,9 @@ impl core::error::Error for LabelError {}
 /// The top classes of a voxel with their scores, canonically ordered:
 /// highest score first, ties by class index. Slot 0 holds the most probable
 /// class.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(C)]
 pub struct LabelDistribution {
     slots: [u16; LABEL_SLOTS],
 }

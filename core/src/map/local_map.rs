@@ -311,6 +311,12 @@ impl<S: VoxelStorage> LocalMap<S> {
         self.len == 0
     }
 
+    /// Ends the map and gives its storage back (e.g. for a robot's next
+    /// stage to carve other buffers out of).
+    pub fn into_storage(self) -> S {
+        self.storage
+    }
+
     /// Maximum number of voxels.
     pub fn capacity(&self) -> usize {
         self.storage.voxels().len()

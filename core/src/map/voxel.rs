@@ -15,8 +15,9 @@ pub const POSITION_UNITS: f32 = 65536.0;
 /// kept as a 16-bit fraction of the cell per axis (1/65536 of a voxel, 3 µm
 /// at 0.2 m): the matcher aligns means, not cell centres, which is what makes
 /// sub-voxel accuracy possible.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(C)]
 pub struct SemanticVoxel {
     /// The cell.
     pub key: VoxelKey,

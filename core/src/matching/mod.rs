@@ -53,9 +53,9 @@ pub mod solve;
 pub use em::{MatchError, Matcher};
 pub use footprint::Footprint;
 pub use pyramid::{
-    ArrayPyramidStorage, ArraySceneStorage, CoarseEntry, CopiedLevel, CopiedRoom, Entry, Level, ModelPoint,
-    PackedNormal, Pyramid, PyramidCapacity, PyramidError, PyramidParts, PyramidPartsMut, PyramidStorage, Role,
-    SceneSource, SplitStorage, VoxelExtra, MAX_FOOTPRINT_CELLS, MAX_LEVELS,
+    ArrayPyramidStorage, ArraySceneStorage, CoarseEntry, CopiedBase, CopiedLevel, CopiedRoom, CopiedSlices, Entry,
+    Level, ModelPoint, PackedNormal, Pyramid, PyramidCapacity, PyramidError, PyramidParts, PyramidPartsMut,
+    PyramidStorage, Role, SceneSource, SplitStorage, VoxelExtra, MAX_FOOTPRINT_CELLS, MAX_LEVELS,
 };
 #[cfg(any(test, feature = "alloc"))]
 pub use pyramid::{VecPyramid, VecPyramidStorage};

@@ -5,43 +5,45 @@
 //! gives it (a received map and pyramid storages, or none) decides.
 
 use super::feed_in::FeedIn;
+use super::memory::{carve_level0, carve_map, carve_pyramids, Capacity, OwnMap, Spare};
 use super::tell::{Awaited, Awaiter, Teller};
-use super::{Machine, Meter, PhaseMarks, Poll, RobotConfig, RobotError};
+use super::{
+    align_prepared, map_config, AlignError, Machine, Meter, PhaseMarks, Poll, RobotConfig, RobotError, FOOTPRINT_CELL,
+    LEVELS,
+};
 use crate::geometry::{from_rows, rows};
-use crate::link::{Endpoint, LinkBuffers, LinkConfig, LinkError, LinkStats, Progress};
-use crate::map::{LocalMap, SceneMap, ScenePoint, VoxelSink, VoxelStorage};
-use crate::matching::{ArrayPyramidStorage, PyramidStorage, SceneSource};
+use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkStats, Progress};
+use crate::map::{LocalMap, SceneMap, ScenePoint, SliceStorage, VoxelSink};
+use crate::matching::{CopiedBase, CopiedSlices, Pyramid, PyramidError, SceneSource, SplitStorage};
 use crate::wire::feed::{FeedError, GlobalReport, RobotMessage, RobotReport, Setup};
 use crate::wire::share::Estimate;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
-/// A received map that is never there: a sender's.
-pub type NoScene = SceneMap<[ScenePoint; 0]>;
-
-/// A pyramid storage that is never used: a sender's.
-pub type NoPyramid = ArrayPyramidStorage<0, 0, 0>;
-
 /// A robot that sends its map and is told the result.
-pub type Sender<'a, M> = Robot<'a, M, NoScene, NoPyramid, NoPyramid>;
+pub type Sender<'a> = Robot<'a, [ScenePoint; 0]>;
+
+/// The link's endpoint of a pair robot: it owns the robot's map while it
+/// sends it, and its buffers are the turn region's words.
+type PairEndpoint<'a, P> = Endpoint<'a, SliceStorage<'a, u16>, SceneMap<P>, &'a mut [u32], OwnMap<'a>>;
 
 // The link's state (its frame buffer) is the large variant; without an
 // allocator there is nothing to box it in, and a robot holds one state.
 #[allow(clippy::large_enum_variant)]
-enum State<'a, M: VoxelStorage, R: VoxelSink + SceneSource> {
+enum State<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> {
     Feed {
-        own: &'a mut LocalMap<M>,
-        received: Option<&'a mut R>,
-        scratch: &'a mut [u32],
-        buffers: &'a mut LinkBuffers,
+        own: OwnMap<'a>,
+        received: Option<&'a mut SceneMap<P>>,
+        spare: Spare<'a>,
     },
     Link {
-        own: &'a LocalMap<M>,
-        endpoint: Endpoint<'a, M, R>,
+        endpoint: PairEndpoint<'a, P>,
+        beyond: &'a mut [u32],
     },
     Align {
-        own: &'a LocalMap<M>,
-        received: &'a R,
+        own: OwnMap<'a>,
+        received: &'a SceneMap<P>,
         stats: LinkStats,
+        spare: Spare<'a>,
     },
     /// A one-sided exchange (the peer took no map): telling the peer the
     /// result before reporting it.
@@ -59,10 +61,11 @@ enum State<'a, M: VoxelStorage, R: VoxelSink + SceneSource> {
 }
 
 /// One robot of a pair: its maps, its link, its alignment, driven by
-/// [`Machine::poll`] (the link is `ports[0]`).
-pub struct Robot<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: PyramidStorage> {
-    state: State<'a, M, R>,
-    pyramids: Option<(P, Q)>,
+/// [`Machine::poll`] (the link is `ports[0]`), in memory the caller
+/// declares once ([`super::memory`]).
+pub struct Robot<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> {
+    state: State<'a, P>,
+    capacity: Capacity,
     fed: FeedIn,
     link_started_ms: u64,
     link_ms: u32,
@@ -71,29 +74,40 @@ pub struct Robot<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStor
     link_config: LinkConfig,
 }
 
-impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: PyramidStorage> Robot<'a, M, R, P, Q> {
-    /// A robot over the caller's buffers: its own map and the received map
-    /// (reconfigured by the set-up), a scratch of one `u32` per voxel of the
-    /// larger map, the link's buffers, and the model's and scene's pyramid
-    /// storages.
+impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
+    /// A robot that matches, in its two regions of words (`own`: at least
+    /// [`Capacity::own_words`], `turn`: [`Capacity::turn_words`]; any
+    /// contents) and receiving the peer's map into `received`
+    /// (reconfigured by the set-up).
     pub fn new(
         config: RobotConfig,
-        own: &'a mut LocalMap<M>,
-        received: &'a mut R,
-        scratch: &'a mut [u32],
-        buffers: &'a mut LinkBuffers,
-        model: P,
-        scene: Q,
-    ) -> Self {
-        Robot {
-            state: State::Feed { own, received: Some(received), scratch, buffers },
-            pyramids: Some((model, scene)),
+        own: &'a mut [u32],
+        turn: &'a mut [u32],
+        capacity: Capacity,
+        received: &'a mut SceneMap<P>,
+    ) -> Result<Self, RobotError> {
+        Self::in_memory(config, own, turn, capacity, Some(received))
+    }
+
+    fn in_memory(
+        config: RobotConfig,
+        own: &'a mut [u32],
+        turn: &'a mut [u32],
+        capacity: Capacity,
+        received: Option<&'a mut SceneMap<P>>,
+    ) -> Result<Self, RobotError> {
+        let (storage, spare) = carve_map(own, turn, &capacity).map_err(RobotError::Memory)?;
+        // The set-up names the voxel size; until then the map waits empty.
+        let own = LocalMap::new(storage, map_config(0.5)).map_err(RobotError::Config)?;
+        Ok(Robot {
+            state: State::Feed { own, received, spare },
+            capacity,
             fed: FeedIn::new(config),
             link_started_ms: 0,
             link_ms: 0,
             tell_peer: None,
             link_config: LinkConfig::default(),
-        }
+        })
     }
 
     /// The set-up, once it arrived.
@@ -128,7 +142,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         let io = |_| RobotError::Link(LinkError::Io(embedded_io::ErrorKind::Other));
         match core::mem::replace(&mut self.state, State::Done) {
             State::Feed { .. } => Err(RobotError::Finished),
-            State::Link { own, endpoint } => {
+            State::Link { endpoint, beyond } => {
                 // The exchange is done (the step above said so).
                 self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
                 let stats = endpoint.stats();
@@ -136,18 +150,22 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
                 if endpoint.peer_takes_map() == Some(false) {
                     self.tell_peer = peer;
                 }
-                self.state = match endpoint.into_parts() {
-                    (_, Some(received)) => State::Align { own, received, stats },
+                let Finished { map: Some(own), scratch: Some(scratch), staging, buffers: link } = endpoint.finish()
+                else {
+                    return Err(RobotError::Link(LinkError::Setup));
+                };
+                self.state = match staging {
+                    Some(received) => State::Align { own, received, stats, spare: Spare { scratch, link, beyond } },
                     // A sender: no received map; the peer tells the result.
-                    (_, None) => {
+                    None => {
                         let peer = peer.ok_or(RobotError::Link(LinkError::Silent))?;
                         State::Await { voxels: own.len(), stats, awaiter: Awaiter::new(self.fed.me(), peer, now_ms) }
                     }
                 };
                 Ok(Poll::Busy)
             }
-            State::Align { own, received, stats } => {
-                let (report, estimate) = self.align(own, received, &stats, meter)?;
+            State::Align { own, received, stats, spare } => {
+                let (report, estimate) = self.align(own, received, &stats, spare, meter)?;
                 match self.tell_peer {
                     Some(peer) => {
                         let estimate = Estimate { b: peer, ..estimate };
@@ -180,33 +198,52 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
 
     fn start_link(&mut self, now_ms: u64) -> Result<(), RobotError> {
         let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
-        let State::Feed { own, received, scratch, buffers } = core::mem::replace(&mut self.state, State::Done) else {
+        let State::Feed { own, received, spare } = core::mem::replace(&mut self.state, State::Done) else {
             return Err(RobotError::Feed(FeedError::Order));
         };
-        let own: &'a LocalMap<M> = own;
         let config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
         self.link_config = config;
         let id = setup.robot_id;
-        let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), received, buffers)
+        let Spare { scratch, link, beyond } = spare;
+        let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), received, link)
             .map_err(RobotError::Link)?;
         self.link_started_ms = now_ms;
-        self.state = State::Link { own, endpoint };
+        self.state = State::Link { endpoint, beyond };
         Ok(())
     }
 
+    /// Prepares both maps and aligns them. The own map is read for the
+    /// last time when the model's level 0 is copied out of it (into the
+    /// turn region's words, which the link gave back); then it gives its
+    /// storage back and the pyramids' other parts are carved out of it.
     fn align<T: Meter>(
         &mut self,
-        own: &LocalMap<M>,
-        received: &R,
+        own: OwnMap<'a>,
+        received: &SceneMap<P>,
         stats: &LinkStats,
+        spare: Spare<'a>,
         meter: &T,
     ) -> Result<(RobotReport, Estimate), RobotError> {
         let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
-        let (model, scene) = self.pyramids.take().ok_or(RobotError::Finished)?;
         let prior = setup.prior.as_ref().map(from_rows);
-        let (result, located, marks) = PhaseMarks::align(own, received, prior.as_ref(), model, scene, meter)?;
+        let voxels = own.len();
+        let mut marks = PhaseMarks::default();
+        marks.mark(0, meter);
+        let c = self.capacity;
+        let Spare { scratch, link, beyond } = spare;
+        let (points, slots) = carve_level0(scratch, link, &c).map_err(RobotError::Memory)?;
+        let empty = if own.is_empty() { PyramidError::EmptyMap } else { PyramidError::Full };
+        let copied = CopiedBase::copy(&own, points, slots).ok_or(RobotError::Align(AlignError::Pyramid(empty)))?;
+        let (model, scene) = carve_pyramids(own.into_storage(), beyond, &c).map_err(RobotError::Memory)?;
+        let model = SplitStorage { level0: CopiedSlices { points, slots }, rest: model };
+        let pyramid = |e| RobotError::Align(AlignError::Pyramid(e));
+        let model = Pyramid::build_copied(copied, LEVELS, FOOTPRINT_CELL, model).map_err(pyramid)?;
+        let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene).map_err(pyramid)?;
+        marks.mark(1, meter);
+        let (result, located) =
+            align_prepared(&model, &scene, prior.as_ref(), |k| marks.mark(k, meter)).map_err(RobotError::Align)?;
         let estimate = result.estimate(setup.robot_id, 0);
-        let mut report = self.fed.report(own.len(), stats, self.link_ms, meter.peak_stack());
+        let mut report = self.fed.report(voxels, stats, self.link_ms, meter.peak_stack());
         report.result = result.report(setup.robot_id);
         report.received_voxels = received.len() as u32;
         report.global = located.as_ref().map(GlobalReport::from);
@@ -224,35 +261,23 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
     }
 }
 
-impl<'a, M: VoxelStorage> Sender<'a, M> {
+impl<'a> Sender<'a> {
     /// A robot that sends its map and is told the result (a board with no
-    /// room for a second map): over the caller's buffers, its map
-    /// (reconfigured by the set-up), a scratch of one `u32` per voxel, the
-    /// link's buffers.
+    /// room for a second map), in its two regions of words (sized by
+    /// [`Capacity::sender`]).
     pub fn sender(
         config: RobotConfig,
-        own: &'a mut LocalMap<M>,
-        scratch: &'a mut [u32],
-        buffers: &'a mut LinkBuffers,
-    ) -> Self {
-        Robot {
-            state: State::Feed { own, received: None, scratch, buffers },
-            pyramids: None,
-            fed: FeedIn::new(config),
-            link_started_ms: 0,
-            link_ms: 0,
-            tell_peer: None,
-            link_config: LinkConfig::default(),
-        }
+        own: &'a mut [u32],
+        turn: &'a mut [u32],
+        capacity: Capacity,
+    ) -> Result<Self, RobotError> {
+        Self::in_memory(config, own, turn, capacity, None)
     }
 }
 
-impl<M, R, P, Q, F, L, T> Machine<F, L, T> for Robot<'_, M, R, P, Q>
+impl<P, F, L, T> Machine<F, L, T> for Robot<'_, P>
 where
-    M: VoxelStorage,
-    R: VoxelSink + SceneSource,
-    P: PyramidStorage,
-    Q: PyramidStorage,
+    P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>,
     F: Read + Write + ReadReady,
     L: Read + Write + ReadReady + WriteReady,
     T: Meter,

@@ -218,7 +218,8 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
             // The exchange ended (stepped above, `progress`).
             Phase::Link { own, peer, started, endpoint } => {
                 let stats = endpoint.stats();
-                let Finished { scratch: Some(scratch), staging: Some(received), buffers } = endpoint.finish() else {
+                let Finished { scratch: Some(scratch), staging: Some(received), buffers, .. } = endpoint.finish()
+                else {
                     return Err(RobotError::Link(LinkError::Setup));
                 };
                 let link_ms = now_ms.saturating_sub(started).min(u64::from(u32::MAX)) as u32;

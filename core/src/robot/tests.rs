@@ -2,10 +2,9 @@
 
 use super::*;
 use crate::classes::Class;
-use crate::link::LinkBuffers;
-use crate::map::MapConfig;
+use crate::map::{SceneMap, ScenePoint};
 use crate::sim::{self, ScriptPort, SimConfig, SimLine, SimRobot, Wire};
-use crate::test_util::{heap_map, heap_pyramid};
+use crate::test_util::heap_map;
 use crate::wire::feed::pack_point;
 use crate::wire::feed::{FeedMessage, RobotMessage, RobotReport, Setup};
 use std::vec::Vec;
@@ -44,6 +43,55 @@ fn feed_of(id: u8, prior: Option<[f32; 12]>) -> Vec<u8> {
     out
 }
 
+/// The test robots' capacities.
+const CAP: Capacity = Capacity { voxels: 4096, coarse: 4096, model_words: 20_000, scene_words: 20_000 };
+
+/// What a robot receives its peer's map into, as on a board.
+fn received_points() -> Vec<ScenePoint> {
+    std::vec![ScenePoint::EMPTY; 4096]
+}
+
+/// A robot's two regions of words for `c`.
+fn memory(c: Capacity) -> (Vec<u32>, Vec<u32>) {
+    filled(c, 0)
+}
+
+/// A robot's two regions of words for `c`, every word `fill`.
+fn filled(c: Capacity, fill: u32) -> (Vec<u32>, Vec<u32>) {
+    (std::vec![fill; c.own_words()], std::vec![fill; c.turn_words()])
+}
+
+/// A robot's memory need not be zeroed (a board's may hold whatever the
+/// RAM held): every buffer carved from it is plain integers, and each
+/// stage writes what it reads. The same reports from any contents.
+#[test]
+fn a_robot_runs_the_same_in_memory_of_any_contents() {
+    let truth = crate::selftest::truth();
+    let prior = crate::geometry::from_xyz_rpy(1.0, 0.5, 0.0, 0.0, 0.0, 0.05) * truth;
+    let feeds =
+        [feed_of(0, Some(crate::geometry::rows(&prior))), feed_of(1, Some(crate::geometry::rows(&prior.inverse())))];
+    let run = |fill: u32| {
+        let (mut pa, mut pb) = (std::vec![ScenePoint::EMPTY; 4096], std::vec![ScenePoint::EMPTY; 4096]);
+        let (mut rec_a, mut rec_b) =
+            (SceneMap::new(&mut pa[..], 0.5).unwrap(), SceneMap::new(&mut pb[..], 0.5).unwrap());
+        let ((mut oa, mut ta), (mut ob, mut tb)) = (filled(CAP, fill), filled(CAP, fill.rotate_left(7)));
+        let mut a = Robot::new(RobotConfig::default(), &mut oa, &mut ta, CAP, &mut rec_a).unwrap();
+        let mut b = Robot::new(RobotConfig::default(), &mut ob, &mut tb, CAP, &mut rec_b).unwrap();
+        let out = sim::run(
+            &mut [&mut a as &mut SimRobot<'_, '_, RobotReport>, &mut b],
+            &[&feeds[0], &feeds[1]],
+            &[Wire::clean(0, 1, 115_200, 3)],
+            600_000,
+        );
+        [0, 1].map(|i| out[i].result.unwrap().unwrap())
+    };
+    let zeroed = run(0);
+    assert_eq!(zeroed[0].result.status, crate::matching::MatchStatus::Converged.code());
+    for fill in [u32::MAX, 0xDEAD_BEEF, 0x7FC0_0001] {
+        assert_eq!(run(fill), zeroed, "memory filled with {fill:#x}");
+    }
+}
+
 /// Two robots, stepped as on boards over a simulated 115200-baud line,
 /// each end to end: both converge on the truth from a prior, in opposite
 /// directions.
@@ -53,17 +101,11 @@ fn two_robots_map_link_and_align() {
     let prior = crate::geometry::from_xyz_rpy(1.5, -1.0, 0.0, 0.0, 0.0, 0.1) * truth;
     let feeds =
         [feed_of(0, Some(crate::geometry::rows(&prior))), feed_of(1, Some(crate::geometry::rows(&prior.inverse())))];
-    let (mut own_a, mut rec_a, mut own_b, mut rec_b) = (
-        heap_map(4096, MapConfig::default()),
-        heap_map(4096, MapConfig::default()),
-        heap_map(4096, MapConfig::default()),
-        heap_map(4096, MapConfig::default()),
-    );
-    let (mut sa, mut sb) = (std::vec![0u32; 4096], std::vec![0u32; 4096]);
-    let pyr = || heap_pyramid(4096, 4096, 20_000);
-    let (mut la, mut lb) = (std::boxed::Box::new(LinkBuffers::new()), std::boxed::Box::new(LinkBuffers::new()));
-    let mut a = Robot::new(RobotConfig::default(), &mut own_a, &mut rec_a, &mut sa, &mut la, pyr(), pyr());
-    let mut b = Robot::new(RobotConfig::default(), &mut own_b, &mut rec_b, &mut sb, &mut lb, pyr(), pyr());
+    let (mut pa, mut pb) = (received_points(), received_points());
+    let (mut rec_a, mut rec_b) = (SceneMap::new(&mut pa[..], 0.5).unwrap(), SceneMap::new(&mut pb[..], 0.5).unwrap());
+    let ((mut oa, mut ta), (mut ob, mut tb)) = (memory(CAP), memory(CAP));
+    let mut a = Robot::new(RobotConfig::default(), &mut oa, &mut ta, CAP, &mut rec_a).unwrap();
+    let mut b = Robot::new(RobotConfig::default(), &mut ob, &mut tb, CAP, &mut rec_b).unwrap();
     let out = sim::run(
         &mut [&mut a as &mut SimRobot<'_, '_, RobotReport>, &mut b],
         &[&feeds[0], &feeds[1]],
@@ -100,16 +142,11 @@ fn a_robot_that_takes_no_map_is_told_the_result() {
     let truth = crate::selftest::truth();
     let prior = crate::geometry::from_xyz_rpy(1.5, -1.0, 0.0, 0.0, 0.0, 0.1) * truth;
     let feeds = [feed_of(0, Some(crate::geometry::rows(&prior))), feed_of(1, None)];
-    let (mut own_a, mut rec_a, mut own_b) = (
-        heap_map(4096, MapConfig::default()),
-        heap_map(4096, MapConfig::default()),
-        heap_map(4096, MapConfig::default()),
-    );
-    let (mut sa, mut sb) = (std::vec![0u32; 4096], std::vec![0u32; 4096]);
-    let pyr = || heap_pyramid(4096, 4096, 20_000);
-    let (mut la, mut lb) = (std::boxed::Box::new(LinkBuffers::new()), std::boxed::Box::new(LinkBuffers::new()));
-    let mut a = Robot::new(RobotConfig::default(), &mut own_a, &mut rec_a, &mut sa, &mut la, pyr(), pyr());
-    let mut b = Robot::sender(RobotConfig::default(), &mut own_b, &mut sb, &mut lb);
+    let mut pa = received_points();
+    let mut rec_a = SceneMap::new(&mut pa[..], 0.5).unwrap();
+    let ((mut oa, mut ta), (mut ob, mut tb)) = (memory(CAP), memory(Capacity::sender(4096)));
+    let mut a = Robot::new(RobotConfig::default(), &mut oa, &mut ta, CAP, &mut rec_a).unwrap();
+    let mut b = Robot::sender(RobotConfig::default(), &mut ob, &mut tb, Capacity::sender(4096)).unwrap();
     {
         let wire = Wire { a: 0, b: 1, line: SimConfig { error_rate: 0.01, ..SimConfig::clean(115_200, 5) } };
         let out = sim::run(
@@ -136,18 +173,10 @@ fn a_robot_that_takes_no_map_is_told_the_result() {
 #[test]
 fn a_bad_feed_is_reported() {
     let feed = feed_of(0, None);
-    let (mut own, mut rec) = (heap_map(4096, MapConfig::default()), heap_map(4096, MapConfig::default()));
-    let mut scratch = std::vec![0u32; 4096];
-    let mut buffers = std::boxed::Box::new(LinkBuffers::new());
-    let mut robot = Robot::new(
-        RobotConfig { feed_silence_ms: 100 },
-        &mut own,
-        &mut rec,
-        &mut scratch,
-        &mut buffers,
-        heap_pyramid(1, 1, 1),
-        heap_pyramid(1, 1, 1),
-    );
+    let mut points = received_points();
+    let mut rec = SceneMap::new(&mut points[..], 0.5).unwrap();
+    let (mut own, mut turn) = memory(CAP);
+    let mut robot = Robot::new(RobotConfig { feed_silence_ms: 100 }, &mut own, &mut turn, CAP, &mut rec).unwrap();
     let half = &feed[..feed.len() / 2];
     let mut port = ScriptPort::<256>::new(half, 64);
     let line = core::cell::RefCell::new(SimLine::<64>::new(SimConfig::clean(10_000, 1)));

@@ -43,6 +43,8 @@ use crate::classes::{Class, NUM_CLASSES};
 use crate::map::labels::{LabelDistribution, SCORE_MAX, SCORE_UNITS_PER_NAT};
 use crate::map::voxel::LOGODDS_UNITS;
 use crate::map::{InsertError, LocalMap, SemanticVoxel, VoxelKey, VoxelSink, VoxelStorage};
+use core::borrow::Borrow;
+use core::marker::PhantomData;
 
 /// Probabilities a voxel's class confidence is rounded to.
 pub const CONFIDENCE_LEVELS: [f32; 8] = [0.15, 0.35, 0.55, 0.7, 0.82, 0.91, 0.97, 0.995];
@@ -416,26 +418,33 @@ fn read_varint(input: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, De
 }
 
 /// Streams a map out as chunks, learning in a [`CodecModel`] the caller
-/// keeps and passes to each chunk (the same one throughout).
-pub struct MapEncoder<'a, S: VoxelStorage> {
-    map: &'a LocalMap<S>,
+/// keeps and passes to each chunk (the same one throughout). The map is
+/// borrowed (`O = &LocalMap`) or owned for the stream's life and given back
+/// ([`MapEncoder::into_parts`]).
+pub struct MapEncoder<'a, S: VoxelStorage, O: Borrow<LocalMap<S>> = &'a LocalMap<S>> {
+    map: O,
     /// The caller's scratch; its first `map.len()` entries hold the order.
     scratch: &'a mut [u32],
     next: usize,
+    _storage: PhantomData<S>,
 }
 
-impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
+impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
     /// Prepares the Morton order of `map` in `scratch` (at least one `u32`
     /// per voxel); resets `model`, which codes every chunk.
-    pub fn new(map: &'a LocalMap<S>, scratch: &'a mut [u32], model: &mut CodecModel) -> Result<Self, EncodeError> {
-        stream_order(map, scratch)?;
+    pub fn new(map: O, scratch: &'a mut [u32], model: &mut CodecModel) -> Result<Self, EncodeError> {
+        stream_order(map.borrow(), scratch)?;
         model.reset();
-        Ok(MapEncoder { map, scratch, next: 0 })
+        Ok(MapEncoder { map, scratch, next: 0, _storage: PhantomData })
+    }
+
+    fn map(&self) -> &LocalMap<S> {
+        self.map.borrow()
     }
 
     /// The voxel indices in stream (Morton) order.
     fn order(&self) -> &[u32] {
-        self.scratch.get(..self.map.len()).unwrap_or(&[])
+        self.scratch.get(..self.map().len()).unwrap_or(&[])
     }
 
     /// Gives the scratch back (its contents are the stream order), e.g. for
@@ -444,10 +453,15 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
         self.scratch
     }
 
+    /// Gives back the map and the scratch.
+    pub fn into_parts(self) -> (O, &'a mut [u32]) {
+        (self.map, self.scratch)
+    }
+
     /// Digest of the whole map's encoded content (all voxels, in stream
     /// order): what [`MapDecoder::digest`] gives after the last chunk.
     pub fn digest(&self) -> u32 {
-        digest_in_order(self.map, self.order())
+        digest_in_order(self.map(), self.order())
     }
 
     /// Index (in stream order) of the next voxel to encode.
@@ -457,12 +471,12 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
 
     /// Voxels not yet encoded.
     pub fn remaining(&self) -> usize {
-        self.map.len() - self.next
+        self.map().len() - self.next
     }
 
     /// Whether every voxel went out.
     pub fn is_done(&self) -> bool {
-        self.next >= self.map.len()
+        self.next >= self.map().len()
     }
 
     /// Writes the next chunk (as many voxels as surely fit in `out`, at
@@ -475,7 +489,8 @@ impl<'a, S: VoxelStorage> MapEncoder<'a, S> {
         if out.len() < MIN_CHUNK {
             return Err(EncodeError::Buffer);
         }
-        let (map, order, start) = (self.map, self.scratch.get(..self.map.len()).unwrap_or(&[]), self.next);
+        let map: &LocalMap<S> = self.map.borrow();
+        let (order, start) = (self.scratch.get(..map.len()).unwrap_or(&[]), self.next);
         let voxel = |i: usize| order.get(i).and_then(|&v| map.voxel(v as usize));
         let first = voxel(start).ok_or(EncodeError::Buffer)?;
         // The first code as a gap from the previous chunk's last one.

@@ -10,8 +10,7 @@
 //! - [`serial`]: receive rings that interrupt handlers fill, and the one
 //!   adapter from `embedded-hal-nb` serial to the `embedded-io` traits of
 //!   the core's link;
-//! - [`hostfs`]: semihosting file reads and the command line;
-//! - [`turns`]: memory the link and the pyramids take in turns.
+//! - [`hostfs`]: semihosting file reads and the command line.
 #![no_std]
 
 use core::sync::atomic::{AtomicU32, Ordering};
@@ -22,7 +21,6 @@ use cortex_m_semihosting::debug;
 
 pub mod hostfs;
 pub mod serial;
-pub mod turns;
 
 #[cfg(feature = "defmt")]
 use defmt_semihosting as _;

@@ -53,6 +53,15 @@ impl Board {
         self == Board::Mps2An386
     }
 
+    /// Its robot's capacities (the sizes of the memory its firmware
+    /// declares).
+    pub fn capacity(self) -> cosem_core::robot::Capacity {
+        match self {
+            Board::Mps2An386 => cosem_core::robot::Capacity::BOARD,
+            Board::Stm32f405 => cosem_core::robot::Capacity::sender(cosem_core::robot::SMALL_VOXELS),
+        }
+    }
+
     /// Voxels its robot's map holds.
     pub fn voxels(self) -> usize {
         match self {

@@ -11,13 +11,12 @@
 use crate::board::Board;
 use crate::error::Error;
 use crate::kitti::{Frame, FrameRange};
-use crate::mapping::{new_map, PointFilter};
+use crate::mapping::PointFilter;
 use cosem_core::classes::{Class, NUM_CLASSES};
 use cosem_core::geometry::{errors_of, from_rows, pose_deg, row_major, rows, Isometry3};
-use cosem_core::link::LinkBuffers;
 use cosem_core::map::{SceneMap, ScenePoint};
 use cosem_core::matching::{MatchStatus, PyramidCapacity, VecPyramidStorage};
-use cosem_core::robot::{self, Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
+use cosem_core::robot::{Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
 use cosem_core::sim::{self, SimRobot, Wire};
 use cosem_core::wire::feed::{
     self, FeedMessage, RobotMessage, RobotReport, Setup, MAX_POINTS_PER_MESSAGE, POINT_BYTES,
@@ -175,23 +174,29 @@ pub fn host_run(feeds: [&Feed; 2], boards: [Board; 2]) -> Result<[RobotReport; 2
         return Err(Error::Invalid("neither robot's board can match: one must hold both maps".into()));
     }
     let bytes = [feeds[0].bytes()?, feeds[1].bytes()?];
-    let config = robot::map_config(feeds[0].setup.resolution);
-    let mut own = [new_map(boards[0].voxels(), config)?, new_map(boards[1].voxels(), config)?];
-    let mut received = [received_scene(config.resolution)?, received_scene(config.resolution)?];
-    let mut scratch = [vec![0u32; VOXELS], vec![0u32; VOXELS]];
-    let mut links = [Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new())];
-    let (model_storage, scene_storage) = board_pyramids();
+    let resolution = feeds[0].setup.resolution;
+    // Each board's memory, as its firmware declares it: two regions of
+    // words sized by its capacities.
+    let capacity = boards.map(Board::capacity);
+    let mut own = capacity.map(|c| vec![0u32; c.own_words()]);
+    let mut turn = capacity.map(|c| vec![0u32; c.turn_words()]);
+    let mut points = [vec![ScenePoint::EMPTY; VOXELS], vec![ScenePoint::EMPTY; VOXELS]];
+    let mut received = Vec::new();
+    for p in &mut points {
+        received
+            .push(SceneMap::new(&mut p[..], resolution).map_err(|e| Error::Invalid(format!("received map: {e:?}")))?);
+    }
     let robot_config = RobotConfig::default();
     // Each robot in its board's role: the full robot, or one that sends
     // its map and is told the result (a small board's).
     let mut robots: Vec<Box<SimRobot<'_, '_, RobotReport>>> = Vec::new();
-    for ((((board, own), received), scratch), link) in
-        boards.iter().zip(&mut own).zip(&mut received).zip(&mut scratch).zip(&mut links)
-    {
+    let memory = |e: cosem_core::robot::RobotError| Error::Invalid(format!("host run: {e}"));
+    for (((board, own), turn), received) in boards.iter().zip(&mut own).zip(&mut turn).zip(&mut received) {
+        let c = board.capacity();
         robots.push(if board.matches() {
-            Box::new(Robot::new(robot_config, own, received, scratch, link, model_storage(), scene_storage()))
+            Box::new(Robot::new(robot_config, own, turn, c, received).map_err(memory)?)
         } else {
-            Box::new(Robot::sender(robot_config, own, scratch, link))
+            Box::new(Robot::sender(robot_config, own, turn, c).map_err(memory)?)
         });
     }
     let mut polled: Vec<&mut SimRobot<'_, '_, RobotReport>> = robots.iter_mut().map(|r| &mut **r).collect();

@@ -10,6 +10,7 @@ use crate::wire::message::{
     AbortReason, Ack, Hello, MapHeader, Message, MessageError, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED,
     DATA_OVERHEAD, MAX_SACK, OFFSET_MODULUS,
 };
+use core::borrow::Borrow;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
 mod line;
@@ -244,15 +245,29 @@ impl Default for LinkBuffers {
 /// whole for its life and gives it back whole ([`Endpoint::finish`]), so
 /// memory lent to a link returns to its owner in one piece.
 pub trait LinkMemory {
-    /// The buffers.
-    fn buffers(&mut self) -> &mut LinkBuffers;
+    /// The buffers (`None`: the memory cannot hold them).
+    fn buffers(&mut self) -> Option<&mut LinkBuffers>;
 }
 
 impl LinkMemory for &mut LinkBuffers {
-    fn buffers(&mut self) -> &mut LinkBuffers {
-        self
+    fn buffers(&mut self) -> Option<&mut LinkBuffers> {
+        Some(self)
     }
 }
+
+/// A region of words ([`crate::region`]) holds the buffers at its start
+/// (at least [`LINK_WORDS`] words); the rest serves the owner's next stage
+/// once the endpoint gives the region back.
+impl LinkMemory for &mut [u32] {
+    fn buffers(&mut self) -> Option<&mut LinkBuffers> {
+        let head = self.get_mut(..LINK_WORDS)?;
+        let raw: &mut [u8] = bytemuck::cast_slice_mut(head);
+        bytemuck::try_from_bytes_mut(raw.get_mut(..core::mem::size_of::<LinkBuffers>())?).ok()
+    }
+}
+
+/// Words of a region that [`LinkBuffers`] take.
+pub const LINK_WORDS: usize = crate::region::words_for::<LinkBuffers>(1);
 
 /// The sending half's buffers, for one step.
 pub(super) struct TxBufs<'b> {
@@ -269,7 +284,9 @@ pub(super) struct RxBufs<'b> {
 }
 
 /// What an ended [`Endpoint`] gives back.
-pub struct Finished<'a, R: VoxelSink, B> {
+pub struct Finished<'a, R: VoxelSink, B, O> {
+    /// The map it sent (`None`: it sent no map).
+    pub map: Option<O>,
     /// The scratch its map was ordered in (`None`: it sent no map).
     pub scratch: Option<&'a mut [u32]>,
     /// The staging map, holding the peer's map when it arrived whole.
@@ -278,19 +295,25 @@ pub struct Finished<'a, R: VoxelSink, B> {
     pub buffers: B,
 }
 
-/// One robot's end of the link: sends its map, receives the peer's,
-/// working in the buffers of `B`.
-pub struct Endpoint<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory = &'a mut LinkBuffers> {
+/// One robot's end of the link: sends its map (borrowed, or owned as `O`
+/// and given back), receives the peer's, working in the buffers of `B`.
+pub struct Endpoint<
+    'a,
+    M: VoxelStorage,
+    R: VoxelSink,
+    B: LinkMemory = &'a mut LinkBuffers,
+    O: Borrow<LocalMap<M>> = &'a LocalMap<M>,
+> {
     buffers: B,
-    session: Session<'a, M, R>,
+    session: Session<'a, M, R, O>,
 }
 
 /// An endpoint's state apart from its buffers.
-struct Session<'a, M: VoxelStorage, R: VoxelSink> {
+struct Session<'a, M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> {
     config: LinkConfig,
     robot_id: u8,
     resolution: f32,
-    tx: Option<Tx<'a, M>>,
+    tx: Option<Tx<'a, M, O>>,
     rx: Rx<'a, R>,
     deframer: Deframer,
     line: LineEstimate,
@@ -326,7 +349,7 @@ fn io_error<E: embedded_io::Error>(e: E) -> LinkError {
     LinkError::Io(e.kind())
 }
 
-impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory> Endpoint<'a, M, R, B> {
+impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory, O: Borrow<LocalMap<M>>> Endpoint<'a, M, R, B, O> {
     /// An endpoint that will send `map` (Morton order prepared in `scratch`,
     /// one `u32` per voxel; `None`: send nothing) as transfer `map_id`, and
     /// receive the peer's map into `staging` (cleared first; `None`: receive
@@ -337,11 +360,11 @@ impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory> Endpoint<'a, M, R, B> {
         robot_id: u8,
         map_id: u32,
         anchor_time_us: u64,
-        map: Option<(&'a LocalMap<M>, &'a mut [u32])>,
+        map: Option<(O, &'a mut [u32])>,
         mut staging: Option<&'a mut R>,
         mut buffers: B,
     ) -> Result<Self, LinkError> {
-        let b = buffers.buffers();
+        let b = buffers.buffers().ok_or(LinkError::Setup)?;
         b.segs.clear();
         b.have.fill(0);
         if config.max_chunk < config.min_chunk.max(1)
@@ -353,13 +376,13 @@ impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory> Endpoint<'a, M, R, B> {
         let config = LinkConfig { min_chunk: config.min_chunk.max(1), ..config };
         let resolution = match (&staging, &map) {
             (Some(s), _) => s.resolution(),
-            (None, Some((m, _))) => m.resolution(),
+            (None, Some((m, _))) => m.borrow().resolution(),
             (None, None) => return Err(LinkError::Setup),
         };
         let tx = match map {
             None => None,
             Some((m, scratch)) => {
-                if (m.resolution() - resolution).abs() > 1e-6 * resolution {
+                if (m.borrow().resolution() - resolution).abs() > 1e-6 * resolution {
                     return Err(LinkError::Setup);
                 }
                 let ids = (map_id, robot_id, anchor_time_us);
@@ -429,9 +452,10 @@ impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory> Endpoint<'a, M, R, B> {
 
     /// Ends the endpoint and gives back everything it borrowed mutably,
     /// its buffers whole.
-    pub fn finish(self) -> Finished<'a, R, B> {
+    pub fn finish(self) -> Finished<'a, R, B, O> {
         let s = self.session;
-        Finished { scratch: s.tx.map(|t| t.encoder.into_scratch()), staging: s.rx.map, buffers: self.buffers }
+        let (map, scratch) = s.tx.map(|t| t.encoder.into_parts()).unzip();
+        Finished { map, scratch, staging: s.rx.map, buffers: self.buffers }
     }
 
     /// Runs the link until done or failed, calling `idle` between steps
@@ -457,11 +481,14 @@ impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory> Endpoint<'a, M, R, B> {
         io: &mut IO,
         now: u64,
     ) -> Result<Progress, LinkError> {
-        self.session.step(io, now, self.buffers.buffers())
+        match self.buffers.buffers() {
+            Some(b) => self.session.step(io, now, b),
+            None => Err(LinkError::Setup),
+        }
     }
 }
 
-impl<M: VoxelStorage, R: VoxelSink> Session<'_, M, R> {
+impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O> {
     fn sent(&self) -> bool {
         self.tx.as_ref().is_none_or(|t| t.complete) || self.peer_takes_map == Some(false)
     }

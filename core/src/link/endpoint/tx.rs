@@ -104,8 +104,8 @@ impl SegList {
 
 /// The sending half: the map as a stream of records (header, then codec
 /// chunks), kept from the first unacknowledged byte on.
-pub(super) struct Tx<'a, S: VoxelStorage> {
-    pub(super) encoder: MapEncoder<'a, S>,
+pub(super) struct Tx<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> {
+    pub(super) encoder: MapEncoder<'a, S, O>,
     pub(super) header: MapHeader,
     pub(super) header_queued: bool,
     /// Stream offsets: everything before `acked` is held by the receiver,
@@ -132,26 +132,28 @@ pub(super) struct Tx<'a, S: VoxelStorage> {
     pub(super) idle_resends: u32,
 }
 
-impl<'a, S: VoxelStorage> Tx<'a, S> {
+impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
     /// The sending half of transfer `map_id` of robot `robot_id`'s `map`
     /// (anchored at `anchor_time_us`), its Morton order prepared in
     /// `scratch`, coding with `model` (reset).
     pub(super) fn new(
-        m: &'a LocalMap<S>,
+        map: O,
         scratch: &'a mut [u32],
         model: &mut CodecModel,
         (map_id, robot_id, anchor_time_us): (u32, u8, u64),
         config: &LinkConfig,
     ) -> Result<Self, LinkError> {
+        let m: &LocalMap<S> = map.borrow();
         let bounds = m.bounds().map(|(lo, hi)| [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]).unwrap_or([0.0; 6]);
-        let encoder = MapEncoder::new(m, scratch, model).map_err(|_| LinkError::Setup)?;
+        let (voxel_count, resolution) = (m.len() as u32, m.resolution());
+        let encoder = MapEncoder::new(map, scratch, model).map_err(|_| LinkError::Setup)?;
         let header = MapHeader {
             map_id,
             robot_id,
             class_table: CLASS_TABLE_VERSION,
             anchor_time_us,
-            voxel_count: m.len() as u32,
-            resolution: m.resolution(),
+            voxel_count,
+            resolution,
             bounds,
             digest: encoder.digest(),
         };
@@ -178,7 +180,7 @@ impl<'a, S: VoxelStorage> Tx<'a, S> {
     }
 }
 
-impl<S: VoxelStorage> Tx<'_, S> {
+impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
     /// Encodes records into the buffer while a whole record fits.
     pub(super) fn fill(&mut self, b: &mut TxBufs<'_>) -> Result<(), LinkError> {
         loop {
@@ -380,8 +382,7 @@ impl<S: VoxelStorage> Tx<'_, S> {
     ) -> Result<(), LinkError> {
         let room = self.window().saturating_sub(self.sent_end.wrapping_sub(self.acked)) as usize;
         let len = self.size.min(self.produced.wrapping_sub(self.sent_end) as usize).min(room);
-        let seg =
-            Segment { start: self.sent_end, len: len as u16, sends: 0, lost: 0, order: 0, sent_at: now as u32 };
+        let seg = Segment { start: self.sent_end, len: len as u16, sends: 0, lost: 0, order: 0, sent_at: now as u32 };
         if b.segs.is_empty() {
             // The timers start with the first bytes in flight.
             self.last_progress = now;

@@ -68,7 +68,8 @@ pub const MAX_LEVELS: usize = 8;
 /// A unit surface normal in 32 bits (octahedral mapping, 16 bits per
 /// coordinate: about 0.003 degrees), or none where the neighbourhood is not
 /// planar.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct PackedNormal([i16; 2]);
 
 fn sign(v: f32) -> f32 {
@@ -165,7 +166,8 @@ impl Default for VoxelExtra {
 /// voxel's cell, mean, normal, class and confidence in 18 bytes, the 24-byte
 /// voxel and its 6-byte extra less what matching never reads (occupancy,
 /// hit count, label distribution).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct ModelPoint {
     key: VoxelKey,
     mean: [u16; 3],
@@ -195,7 +197,8 @@ impl Default for ModelPoint {
 /// 16-bit fraction of the cell, like a voxel's mean. A model's entries
 /// have their normals beside them (a storage's `normals`), a scene's none:
 /// the matcher reads no scene normal.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct CoarseEntry {
     key: VoxelKey,
     fraction: [u16; 3],
@@ -554,6 +557,39 @@ impl<'a> Level<'a> {
     }
 }
 
+/// A map's level 0 copied out of it (its points and index), for
+/// [`Pyramid::build_copied`]: what is left to know of the map.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CopiedBase {
+    len: usize,
+    slots: usize,
+    resolution: f32,
+}
+
+impl CopiedBase {
+    /// Copies `map`'s level 0 into `points` and its index into `slots`
+    /// (the first half of [`Pyramid::build_model`]); `None` when the map
+    /// is empty or the room does not hold them.
+    pub fn copy<V: VoxelStorage>(map: &LocalMap<V>, points: &mut [ModelPoint], slots: &mut [u16]) -> Option<Self> {
+        let len = map.len();
+        let index = map.index_slots();
+        let index_len = match index {
+            MapIndex::Wide(s) => s.len(),
+            MapIndex::Narrow(s) => s.len(),
+        };
+        let (points, slots) = (points.get_mut(..len)?, slots.get_mut(..index_len)?);
+        if len == 0 || !copy_index(index, slots) {
+            return None;
+        }
+        for (p, v) in points.iter_mut().zip(map.voxels()) {
+            let (class, confidence) = class_and_confidence(v);
+            let mean = v.mean_raw();
+            *p = ModelPoint { key: v.key, mean, normal: PackedNormal::NONE, class, confidence };
+        }
+        Some(CopiedBase { len, slots: index_len, resolution: map.resolution() })
+    }
+}
+
 /// Normals fitted per chunk, so no buffer of the level's size is needed.
 const NORMAL_CHUNK: usize = 256;
 
@@ -601,35 +637,26 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         footprint_cell: f32,
         mut storage: S,
     ) -> Result<Self, PyramidError> {
-        let (len, resolution) = (map.len(), map.resolution());
-        let index = map.index_slots();
-        let index_len = match index {
-            MapIndex::Wide(s) => s.len(),
-            MapIndex::Narrow(s) => s.len(),
-        };
-        let copied = {
-            let (points, slots) = storage.copied_mut();
-            match (points.get_mut(..len), slots.get_mut(..index_len)) {
-                (Some(points), Some(slots)) if len > 0 => {
-                    let fits = copy_index(index, slots);
-                    if fits {
-                        for (p, v) in points.iter_mut().zip(map.voxels()) {
-                            let (class, confidence) = class_and_confidence(v);
-                            let mean = v.mean_raw();
-                            *p = ModelPoint { key: v.key, mean, normal: PackedNormal::NONE, class, confidence };
-                        }
-                    }
-                    fits
-                }
-                _ => false,
-            }
-        };
-        if !copied {
-            return Self::build_as(map, levels, footprint_cell, Role::Model, storage);
+        let (points, slots) = storage.copied_mut();
+        match CopiedBase::copy(map, points, slots) {
+            // The map is not read from here on.
+            Some(copied) => Self::build_copied(copied, levels, footprint_cell, storage),
+            None => Self::build_as(map, levels, footprint_cell, Role::Model, storage),
         }
-        // The map is not read from here on.
-        let base = Base::Copied { len, slots: index_len };
-        Self::build_base(base, resolution, levels, footprint_cell, Role::Model, storage)
+    }
+
+    /// The second half of [`Pyramid::build_model`]: a model over a level 0
+    /// copied into `storage`'s room for it ([`CopiedBase::copy`]), with no
+    /// map in sight: the map's memory may already serve the other parts of
+    /// `storage`, handed over by ownership.
+    pub fn build_copied(
+        copied: CopiedBase,
+        levels: usize,
+        footprint_cell: f32,
+        storage: S,
+    ) -> Result<Self, PyramidError> {
+        let base = Base::Copied { len: copied.len, slots: copied.slots };
+        Self::build_base(base, copied.resolution, levels, footprint_cell, Role::Model, storage)
     }
 
     /// Prepares a received [`SceneMap`] as a scene ([`Role::Scene`]): the

@@ -52,6 +52,24 @@ impl<T: CopiedRoom + ?Sized> CopiedRoom for &mut T {
     }
 }
 
+/// Room for a copied level 0 in buffers the caller owns (e.g. carved out
+/// of a robot's memory, [`crate::region`]).
+pub struct CopiedSlices<'a> {
+    /// One point per voxel.
+    pub points: &'a mut [ModelPoint],
+    /// The map's index slots (two per voxel of its capacity).
+    pub slots: &'a mut [u16],
+}
+
+impl CopiedRoom for CopiedSlices<'_> {
+    fn room(&self) -> (&[ModelPoint], &[u16]) {
+        (self.points, self.slots)
+    }
+    fn room_mut(&mut self) -> (&mut [ModelPoint], &mut [u16]) {
+        (self.points, self.slots)
+    }
+}
+
 /// A model's storage in two parts that may live apart: room for the copied
 /// level 0 (`level0`) and everything else (`rest`: coarse entries, normals,
 /// index, footprint; its extras unused). While the map is copied only
@@ -114,6 +132,33 @@ pub struct PyramidPartsMut<'a> {
     pub points: &'a mut [ModelPoint],
     /// A copied level 0's index slots.
     pub point_slots: &'a mut [u16],
+}
+
+/// Buffers the caller owns are a storage as they are (e.g. carved out of a
+/// robot's memory, [`crate::region`]).
+impl PyramidStorage for PyramidPartsMut<'_> {
+    fn parts(&self) -> PyramidParts<'_> {
+        PyramidParts {
+            extras: self.extras,
+            entries: self.entries,
+            normals: self.normals,
+            slots: self.slots,
+            words: self.words,
+            points: self.points,
+            point_slots: self.point_slots,
+        }
+    }
+    fn parts_mut(&mut self) -> PyramidPartsMut<'_> {
+        PyramidPartsMut {
+            extras: self.extras,
+            entries: self.entries,
+            normals: self.normals,
+            slots: self.slots,
+            words: self.words,
+            points: self.points,
+            point_slots: self.point_slots,
+        }
+    }
 }
 
 /// Where a pyramid keeps its buffers.

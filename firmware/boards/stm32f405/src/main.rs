@@ -16,10 +16,8 @@ use core::ptr::addr_of_mut;
 use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::NVIC;
 use cortex_m_rt::entry;
-use cosem_core::link::LinkBuffers;
-use cosem_core::map::LocalMap;
 use cosem_core::matching::MatchStatus;
-use cosem_core::robot::{map_config, Machine, Meter, Poll, Robot, RobotConfig, SmallMapStorage};
+use cosem_core::robot::{Capacity, Machine, Meter, Poll, Robot, RobotConfig};
 use cosem_firmware::serial::{IrqReceiver, RingSerial, RxInterrupt, RX_RING};
 use cosem_firmware::{exit, instructions_at, millis_at, peak_stack, start_clock};
 use static_cell::ConstStaticCell;
@@ -28,8 +26,9 @@ use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::Config;
 use stm32f4xx_hal::serial::{Instance, Rx, RxListen};
 
-/// Voxels of the robot's map: 28 bytes each, the main SRAM's 128 KiB.
-const VOXELS: usize = cosem_core::robot::SMALL_VOXELS;
+/// The robot's capacities: a map of 28 bytes per voxel in the main SRAM's
+/// 128 KiB, and nothing to match with.
+const CAPACITY: Capacity = Capacity::sender(cosem_core::robot::SMALL_VOXELS);
 /// SysTick's rate under QEMU's netduinoplus2 (fixed, whatever the clock
 /// tree says); with `-icount shift=0` its count is an instruction count.
 /// On hardware (`--features hardware`) it is the core clock the HAL set.
@@ -40,14 +39,14 @@ fn systick_hz() -> u32 {
     SYSTICK_HZ.load(Ordering::Relaxed)
 }
 
-/// The map, in the main SRAM (cleared in `main`: the section is not
-/// zeroed at reset).
+/// The robot's own region (its map), in the main SRAM (cleared in `main`:
+/// the section is not zeroed at reset).
 #[link_section = ".sram"]
 /// A `static mut`, not a `ConstStaticCell` as the others: a cell's
 /// "taken" flag in this section would start as whatever the SRAM held.
-static mut OWN: MaybeUninit<SmallMapStorage> = MaybeUninit::uninit();
-static SCRATCH: ConstStaticCell<[u32; VOXELS]> = ConstStaticCell::new([0; VOXELS]);
-static LINK: ConstStaticCell<LinkBuffers> = ConstStaticCell::new(LinkBuffers::new());
+static mut OWN: MaybeUninit<[u32; CAPACITY.own_words()]> = MaybeUninit::uninit();
+/// The robot's turn region: the link's Morton scratch and buffers.
+static TURN: ConstStaticCell<[u32; CAPACITY.turn_words()]> = ConstStaticCell::new([0; CAPACITY.turn_words()]);
 
 /// A HAL receiver with its interrupt (embedded-hal has no interrupt
 /// traits): the UART's RXNE interrupt, held off in the NVIC while the ring
@@ -142,18 +141,15 @@ fn main() -> ! {
     let mut feed = RingSerial::new(&FEED_RX, feed_tx, sleep);
     let mut link = RingSerial::new(&LINK_RX, link_tx, sleep);
     // Each cell taken once (a second take would panic: exit 101).
-    let (scratch, buffers) = (SCRATCH.take(), LINK.take());
+    let turn = TURN.take();
     // SAFETY: `main` runs once and is the only code that names `OWN`, here;
-    // the map's storage is all zeros before it is taken as one (an empty
-    // storage is all zeros: tests/tests/zeroed.rs holds the core to it).
+    // its words are written (zeros) before they are taken as initialised.
     let own = unsafe {
         let own = &mut *addr_of_mut!(OWN);
         core::ptr::write_bytes(own.as_mut_ptr(), 0, 1);
         own.assume_init_mut()
     };
-    // The set-up names the voxel size; until then the map waits empty.
-    let Ok(mut own) = LocalMap::new(own, map_config(0.5)) else { exit(false) };
-    let mut robot = Robot::sender(RobotConfig::default(), &mut own, scratch, buffers);
+    let Ok(mut robot) = Robot::sender(RobotConfig::default(), own, turn, CAPACITY) else { exit(false) };
     let link = core::slice::from_mut(&mut link);
     loop {
         match robot.poll(&mut feed, link, millis_at(systick_hz()), &Board) {
