@@ -35,6 +35,36 @@ if [ -d "$DATA/kitti00" ]; then
   COSEM_DATA="$DATA" $C bench wire --json "$OUT/bench-wire.json" >/dev/null
   COSEM_DATA="$DATA" $C bench link --seeds 10 --json "$OUT/bench-link.json" >/dev/null
 fi
+# Camera labels on synthetic streets (perfect, corrupted, probabilities).
+$C bench label --seeds 1,2,3,4,5,6,7,8,9,10 --json "$OUT/bench-label.json" >/dev/null
+# Two `cosem link` processes through `cosem relay` (each direction paced to
+# 115200 baud, seeded errors), kitti00's robot maps: wall time from start
+# to the exit of both, match included.
+relay_run() { # tag error-rate flip seed
+  local log="$OUT/relay-$1-$4.log" a0 a1 t0 t1 rp lp
+  $C relay --baud 115200 --error-rate "$2" --flip "$3" --seed "$4" >"$log" 2>&1 &
+  rp=$!
+  for _ in $(seq 200); do grep -q "relay on" "$log" 2>/dev/null && break; sleep 0.05; done
+  read -r _ _ a0 a1 <"$log"
+  t0=$(date +%s.%N)
+  $C link --map "$OUT/robot-a.cmap" --tcp "$a0" --robot-id 0 --baud 115200 --json >"$OUT/relay-$1-$4-a.json" &
+  lp=$!
+  $C link --map "$OUT/robot-b.cmap" --tcp "$a1" --robot-id 1 --baud 115200 --json >"$OUT/relay-$1-$4-b.json" || true
+  wait "$lp" || true
+  t1=$(date +%s.%N)
+  wait "$rp" || true
+  echo "{\"tag\": \"$1\", \"error_rate\": $2, \"flip\": \"$3\", \"seed\": $4, \"wall_s\": $(awk "BEGIN {print $t1 - $t0}")}" \
+    >"$OUT/relay-$1-$4.json"
+}
+if [ -d "$DATA/kitti00" ]; then
+  $C map --data "$DATA/kitti00" --frames 0:5 --voxel 0.5 --max-range 25 -o "$OUT/robot-a.cmap" >/dev/null
+  $C map --data "$DATA/kitti00" --frames 5:10 --voxel 0.5 --max-range 25 -o "$OUT/robot-b.cmap" >/dev/null
+  for s in 1 2 3; do relay_run clean 0 bit "$s"; done
+  for s in 1 2 3 4 5; do
+    relay_run bit1 0.01 bit "$s"; relay_run bit5 0.05 bit "$s"
+    relay_run byte1 0.01 byte "$s"; relay_run byte5 0.05 byte "$s"
+  done
+fi
 NEG=()
 for n in kitti00-loop:88:89 kitti00-loop:850:851 kitti07:0:1 kitti08-loop:720:721 kitti00-loop:4501:4502; do
   [ -d "$DATA/${n%%:*}" ] && NEG+=("$DATA/$n")
@@ -187,6 +217,55 @@ if l:
     for r in l:
         print(f"| {100 * r['rate']:.0f}% | {r['delivered'][0]}/{r['delivered'][1]} | {r['median_s'][0]:.2f} s, {r['worst_s']:.2f} s | "
               f"{100 * r['goodput']:.0f}% | {100 * r['bound'][0]:.0f}% | {100 * r['bound'][1]:.0f}% | {r['retransmissions']:.0f} |")
+rl = {}
+for f in sorted(os.listdir(out)):
+    if f.startswith("relay-") and f.count("-") == 2 and f.endswith(".json"):
+        r = load(f)
+        side = [load(f[:-5] + "-a.json"), load(f[:-5] + "-b.json")]
+        rl.setdefault(r["tag"], []).append((r, side))
+if rl:
+    print("\n## Two link processes through a paced lossy relay, kitti00 robot maps, 115200 baud\n")
+    print("`cosem relay --error-rate P [--flip byte] --seed S` between two `cosem link --baud 115200 --json` (0:5 and 5:10 "
+          "at 0.5 m within 25 m); wall time from start to the exit of both, match included. Each byte is flipped, "
+          "dropped or duplicated with the rate's probability, a third each; a flip is one bit, or a whole byte "
+          "with `--flip byte`.\n")
+    print("| byte errors | flips | wall time per seed | vs clean (median) | delivered whole | the clean line's transforms |")
+    print("|---|---|---|---|---|---|")
+    def tf(x):
+        return [round(v, 4) for v in ((x or {}).get("match") or {}).get("transform", [])]
+    clean = rl.get("clean", [])
+    base = sorted(r["wall_s"] for r, _ in clean)[len(clean) // 2] if clean else None
+    ref = [tf(s) for s in clean[0][1]] if clean else None
+    for tag, rate, flip in (("clean", "0", ""), ("bit1", "1%", "one bit"), ("bit5", "5%", "one bit"),
+                            ("byte1", "1%", "whole byte"), ("byte5", "5%", "whole byte")):
+        runs = rl.get(tag)
+        if not runs:
+            continue
+        walls = [r["wall_s"] for r, _ in runs]
+        whole = sum(1 for _, s in runs if all(x and x.get("voxels_received") == y.get("voxels_sent")
+                                             for x, y in ((s[0], s[1]), (s[1], s[0])) if x and y) and all(s))
+        same = sum(1 for _, s in runs if ref and [tf(x) for x in s] == ref)
+        ratio = f"{sorted(walls)[len(walls) // 2] / base:.1f}x" if base else "-"
+        print(f"| {rate} | {flip} | {', '.join(f'{w:.1f}' for w in walls)} s | {ratio} | {whole}/{len(runs)} | {same}/{len(runs)} |")
+bl = load("bench-label.json")
+if bl:
+    print("\n## Camera labels on synthetic streets, Cityscapes ids\n")
+    seeds = sorted({r["seq"] for r in bl})
+    print(f"`cosem bench label --seeds 1..{len(seeds)} --json` (synthetic streets of 10 frames, A = 0:5, B = 5:10, "
+          "125 starts of the paper's grid); agreement over the points camera 2 sees, in brackets as Cityscapes' "
+          "classes can say it (a trunk seen as vegetation agrees)\n")
+    print("| labels | agreement with the truth | strict success | labelling (M points/s) |")
+    print("|---|---|---|---|")
+    for name in dict.fromkeys(r["labels"] for r in bl):
+        rows = [r for r in bl if r["labels"] == name]
+        rng = lambda k: (f"{100 * min(r[k] for r in rows):.1f}-{100 * max(r[k] for r in rows):.1f}%"
+                         if rows[0][k] is not None else "-")
+        strict = ("100% on every seed" if all(r["strict"] == 1.0 for r in rows)
+                  else f"{100 * min(r['strict'] for r in rows):.1f}-{100 * max(r['strict'] for r in rows):.1f}%")
+        rate = (f"{min(r['points_per_s'] for r in rows) / 1e6:.0f}-{max(r['points_per_s'] for r in rows) / 1e6:.0f}"
+                if rows[0]["points_per_s"] else "-")
+        agree = f"{rng('agreement')} ({rng('agreement_in_set')})" if rows[0]["agreement"] is not None else "-"
+        print(f"| {name} | {agree} | {strict} | {rate} |")
 n = load("negatives.json")
 if n:
     print("\n## Pairs that cannot match (network labels), 0.5 m\n")

@@ -142,7 +142,7 @@ pub fn run(w: What, json: Option<&Path>) -> Result<(), Error> {
         What::Wire(a) => bench_wire(a, json),
         What::Link(a) => bench_link(a, json),
         What::Global(a) => bench_global(a),
-        What::Label(a) => bench_label(a),
+        What::Label(a) => bench_label(a, json),
     }
 }
 
@@ -203,7 +203,7 @@ fn bench_global(a: GlobalArgs) -> Result<(), Error> {
     Ok(())
 }
 
-fn bench_label(a: LabelArgs) -> Result<(), Error> {
+fn bench_label(a: LabelArgs, json: Option<&Path>) -> Result<(), Error> {
     let tmp = TempDir::new("cosem-bench-label");
     let starts = cosem_host::eval::grid(a.grid_stride).len();
     println!("bench label: camera 2, Cityscapes ids; strict success over {starts} starts of the paper's grid");
@@ -221,5 +221,5 @@ fn bench_label(a: LabelArgs) -> Result<(), Error> {
     rows.iter().for_each(|r| println!("{r}"));
     println!("  (M pts/s: projection and lookup of every point of a scan, single thread; agreement over the");
     println!("   points camera 2 sees; 'in set': as Cityscapes ids can say it, trunks being vegetation there)");
-    Ok(())
+    save(json, &rows.iter().map(bench::LabelRow::figures).collect::<Vec<_>>())
 }

@@ -63,7 +63,7 @@ enum Command {
     Synth(synth::Args),
     /// Benchmarks that print numbers.
     Bench {
-        /// Also write the figures as JSON to this file (map, wire, link).
+        /// Also write the figures as JSON to this file (map, wire, link, label).
         #[arg(long, global = true)]
         json: Option<std::path::PathBuf>,
         #[command(subcommand)]

@@ -510,6 +510,41 @@ impl std::fmt::Display for GlobalFigures {
     }
 }
 
+/// One row of `cosem bench label` as JSON (`--json`).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct LabelFigures {
+    /// The sequence.
+    pub seq: String,
+    /// Where its labels came from.
+    pub labels: &'static str,
+    /// Points projected and looked up per second (camera rows).
+    pub points_per_s: Option<f64>,
+    /// Share of the camera's points whose class is the truth's (camera rows).
+    pub agreement: Option<f64>,
+    /// The same, as Cityscapes' classes can say it.
+    pub agreement_in_set: Option<f64>,
+    /// Robot A's voxels.
+    pub voxels: usize,
+    /// Strict success over the grid.
+    pub strict: f64,
+}
+
+impl LabelRow {
+    /// The row's figures for JSON.
+    pub fn figures(&self) -> LabelFigures {
+        let s = self.figures.as_ref();
+        LabelFigures {
+            seq: self.seq.clone(),
+            labels: self.labels,
+            points_per_s: s.map(|s| s.points as f64 / s.label_seconds.max(1e-9)),
+            agreement: s.and_then(|s| s.agreement()),
+            agreement_in_set: s.and_then(|s| s.agreement_in_set()),
+            voxels: self.voxels,
+            strict: self.strict,
+        }
+    }
+}
+
 impl std::fmt::Display for LabelRow {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let pct = |v: Option<f64>| v.map(|v| format!("{:.2}%", 100.0 * v)).unwrap_or_else(|| "-".into());
