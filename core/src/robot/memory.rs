@@ -4,24 +4,25 @@
 //! another's buffers:
 //!
 //! - the **own** region holds the robot's map (voxels, then index slots)
-//!   while it maps and sends; once the model's level 0 is copied out of the
-//!   map, the map gives its storage back ([`LocalMap::into_storage`]) and
-//!   its words hold the model's coarse levels, normals, index and
-//!   footprint, and the scene's pyramid;
+//!   while it maps and sends; then its voxels become the model's level 0
+//!   where they lie ([`CopiedBase::compact`]: an 18-byte point in place of
+//!   each 24-byte voxel; the index stays), and what the points leave free
+//!   holds pyramid buffers;
 //! - the **turn** region holds the link's Morton scratch (one word per
-//!   voxel) and the link's buffers while maps are exchanged; the endpoint
-//!   gives both back whole ([`crate::link::Endpoint::finish`]) and they hold
-//!   the model's copied level 0 (the scratch its index, the buffers' words
-//!   its points).
+//!   voxel) and, after it, the link's words (its buffers at their start)
+//!   while maps are exchanged; the endpoint gives both back whole
+//!   ([`crate::link::Endpoint::finish`]) and they hold the rest of the
+//!   model's and the scene's pyramids.
 //!
-//! The sizes follow from a [`Capacity`]; [`Capacity::own_words`] and
-//! [`Capacity::turn_words`] are `const`, so a board sizes its statics with
-//! them.
+//! Where each pyramid buffer goes is planned once, for a full map, by
+//! [`Capacity::plan`] (the smallest link region that takes what the other
+//! two places cannot); the sizes are `const`, so a board sizes its statics
+//! with [`Capacity::own_words`] and [`Capacity::turn_words`].
 
 use crate::link::LINK_WORDS;
 use crate::map::{LocalMap, SemanticVoxel, SliceStorage};
-use crate::matching::{CoarseEntry, ModelPoint, PackedNormal, PyramidPartsMut};
-use crate::region::{words_for, words_of, Region, RegionError};
+use crate::matching::{CoarseEntry, CopiedBase, CopiedSlices, ModelPoint, PackedNormal, PyramidPartsMut};
+use crate::region::{words_for, Region, RegionError};
 use bytemuck::Pod;
 
 /// A robot's map: voxels and 16-bit index slots carved out of its own
@@ -71,7 +72,7 @@ impl Capacity {
     /// Words of the pyramids' buffers, in the order they are carved
     /// ([`carve_pyramids`]): the model's entries, the scene's entries, the
     /// model's and the scene's footprint, the model's normals and index.
-    const fn pyramid_words(&self) -> [usize; 6] {
+    const fn pyramid_words(&self) -> [usize; PYRAMID_BUFFERS] {
         let e = self.coarse;
         [
             words_for::<CoarseEntry>(e),
@@ -83,45 +84,69 @@ impl Capacity {
         ]
     }
 
-    /// Words of the own region: the map, and beyond it whatever of the
-    /// pyramids does not fit in the map's two buffers (first fit, in
-    /// carving order).
-    pub const fn own_words(&self) -> usize {
-        let [voxels, slots] = self.map_words();
-        let mut free = [voxels, slots];
-        let mut beyond = 0;
-        let need = self.pyramid_words();
-        let mut i = 0;
-        while i < need.len() {
-            let n = need[i];
-            if free[0] >= n {
-                free[0] -= n;
-            } else if free[1] >= n {
-                free[1] -= n;
-            } else {
-                beyond += n;
-            }
-            i += 1;
-        }
-        voxels + slots + beyond
+    /// Words a full map's level 0 leaves free in its voxels' words.
+    const fn level0_leaves(&self) -> usize {
+        self.map_words()[0] - words_for::<ModelPoint>(self.voxels)
     }
 
-    /// Words of the turn region: the Morton scratch (a word per voxel, then
-    /// the copied level 0's index), and the larger of the link's buffers
-    /// and the copied level 0's points.
+    /// Where each pyramid buffer goes: 0 the words the level 0 leaves in
+    /// the own region, 1 the link's scratch, 2 the link's words; with the
+    /// link's words that plan needs (at least the link's buffers). Of
+    /// every placement (3^6), the one with the fewest link words.
+    pub const fn plan(&self) -> Plan {
+        let need = self.pyramid_words();
+        let room = [self.level0_leaves(), self.voxels];
+        let mut best = Plan { place: [2; PYRAMID_BUFFERS], link_words: usize::MAX };
+        let mut code = 0;
+        while code < 729 {
+            let (mut used, mut place, mut c, mut i) = ([0usize; 3], [0u8; PYRAMID_BUFFERS], code, 0);
+            while i < PYRAMID_BUFFERS {
+                place[i] = (c % 3) as u8;
+                used[c % 3] += need[i];
+                c /= 3;
+                i += 1;
+            }
+            let link = if used[2] > LINK_WORDS { used[2] } else { LINK_WORDS };
+            if used[0] <= room[0] && used[1] <= room[1] && link < best.link_words {
+                best = Plan { place, link_words: link };
+            }
+            code += 1;
+        }
+        best
+    }
+
+    /// Words of the own region: the map (its voxels, then its index).
+    pub const fn own_words(&self) -> usize {
+        let [voxels, slots] = self.map_words();
+        voxels + slots
+    }
+
+    /// Words of the turn region: the Morton scratch (a word per voxel),
+    /// then the link's words ([`Capacity::plan`]; a sender's: its buffers).
     pub const fn turn_words(&self) -> usize {
-        let points = if self.matches() { words_for::<ModelPoint>(self.voxels) } else { 0 };
-        self.voxels + if points > LINK_WORDS { points } else { LINK_WORDS }
+        self.voxels + if self.matches() { self.plan().link_words } else { LINK_WORDS }
     }
 }
 
-/// What the robot keeps of its regions while it maps and sends: the
-/// Morton scratch, the link's words (its buffers at their start) and the
-/// own region beyond the map.
+/// Pyramid buffers a robot carves: the model's entries, normals, index and
+/// footprint, the scene's entries and footprint.
+const PYRAMID_BUFFERS: usize = 6;
+
+/// Where a robot's pyramid buffers go ([`Capacity::plan`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Plan {
+    /// Per buffer, in carving order: 0 the own region's words the level 0
+    /// leaves, 1 the link's scratch, 2 the link's words.
+    pub place: [u8; PYRAMID_BUFFERS],
+    /// Words of the link region (after the scratch).
+    pub link_words: usize,
+}
+
+/// What the robot keeps of its turn region while it maps and sends: the
+/// Morton scratch and the link's words (its buffers at their start).
 pub(super) struct Spare<'a> {
     pub(super) scratch: &'a mut [u32],
     pub(super) link: &'a mut [u32],
-    pub(super) beyond: &'a mut [u32],
 }
 
 /// Carves the map and the spare buffers out of the two regions (checked
@@ -143,55 +168,45 @@ pub(super) fn carve_map<'a>(
     let slots = own.take::<u16>(2 * capacity.voxels)?;
     let mut turn = Region::new(turn);
     let scratch = turn.take_words(capacity.voxels)?;
-    Ok((SliceStorage { voxels, slots }, Spare { scratch, link: turn.into_words(), beyond: own.into_words() }))
+    Ok((SliceStorage { voxels, slots }, Spare { scratch, link: turn.into_words() }))
 }
 
-/// Room for the model's copied level 0 in the turn region's buffers, given
-/// back by the link: its points in the link's words, its index in the
-/// scratch.
-pub(super) fn carve_level0<'a>(
-    scratch: &'a mut [u32],
-    link: &'a mut [u32],
-    capacity: &Capacity,
-) -> Result<(&'a mut [ModelPoint], &'a mut [u16]), RegionError> {
-    let points = Region::new(link).take::<ModelPoint>(capacity.voxels)?;
-    let slots = Region::new(scratch).take::<u16>(2 * capacity.voxels)?;
-    Ok((points, slots))
+/// The model's level 0 where the map's voxels were ([`CopiedBase::compact`]),
+/// and the words it leaves free.
+pub(super) fn compact_level0(map: OwnMap<'_>) -> Option<(CopiedBase, CopiedSlices<'_>, &mut [u32])> {
+    CopiedBase::compact(map)
 }
 
-/// Takes `n` values of `T` from the first of `pool` with room (the order
-/// [`Capacity::own_words`] plans with).
-fn take_fit<'a, T: Pod>(pool: &mut [Region<'a>; 3], n: usize) -> Result<&'a mut [T], RegionError> {
-    let words = words_for::<T>(n);
-    let [a, b, c] = pool;
-    let region = if a.len() >= words {
-        a
-    } else if b.len() >= words {
-        b
-    } else {
-        c
-    };
-    region.take(n)
+/// Takes `n` values of `T` from the region `plan` puts buffer `k` in.
+fn take_planned<'a, T: Pod>(
+    pool: &mut [Region<'a>; 3],
+    plan: &Plan,
+    k: usize,
+    n: usize,
+) -> Result<&'a mut [T], RegionError> {
+    let at = plan.place.get(k).map_or(2, |&p| usize::from(p));
+    pool.get_mut(at).ok_or(RegionError::Layout)?.take(n)
 }
 
 /// The model's (coarse levels, normals, index, footprint) and the scene's
-/// pyramid storages, carved out of the map's storage once it is free and
-/// the own region beyond it.
+/// pyramid storages, carved as [`Capacity::plan`] says out of what the
+/// level 0 leaves in the own region and the turn region's words the link
+/// gave back.
 pub(super) fn carve_pyramids<'a>(
-    map: SliceStorage<'a, u16>,
-    beyond: &'a mut [u32],
+    leaves: &'a mut [u32],
+    spare: Spare<'a>,
     capacity: &Capacity,
 ) -> Result<(PyramidPartsMut<'a>, PyramidPartsMut<'a>), RegionError> {
-    let SliceStorage { voxels, slots } = map;
-    let mut pool = [Region::new(words_of(voxels)), Region::new(words_of(slots)), Region::new(beyond)];
+    let plan = capacity.plan();
+    let mut pool = [Region::new(leaves), Region::new(spare.scratch), Region::new(spare.link)];
     let e = capacity.coarse;
     // The order of `Capacity::pyramid_words`.
-    let model_entries = take_fit::<CoarseEntry>(&mut pool, e)?;
-    let scene_entries = take_fit::<CoarseEntry>(&mut pool, e)?;
-    let model_words = take_fit::<u32>(&mut pool, capacity.model_words)?;
-    let scene_words = take_fit::<u32>(&mut pool, capacity.scene_words)?;
-    let normals = take_fit::<PackedNormal>(&mut pool, e)?;
-    let model_slots = take_fit::<u32>(&mut pool, e)?;
+    let model_entries = take_planned::<CoarseEntry>(&mut pool, &plan, 0, e)?;
+    let scene_entries = take_planned::<CoarseEntry>(&mut pool, &plan, 1, e)?;
+    let model_words = take_planned::<u32>(&mut pool, &plan, 2, capacity.model_words)?;
+    let scene_words = take_planned::<u32>(&mut pool, &plan, 3, capacity.scene_words)?;
+    let normals = take_planned::<PackedNormal>(&mut pool, &plan, 4, e)?;
+    let model_slots = take_planned::<u32>(&mut pool, &plan, 5, e)?;
     let model = PyramidPartsMut {
         extras: &mut [],
         entries: model_entries,
@@ -216,41 +231,54 @@ pub(super) fn carve_pyramids<'a>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::map::LocalMap;
     use std::vec;
 
-    /// The board's regions are today's statics (the own map's 224 KiB, the
-    /// copied level 0's 176 KiB), and every buffer is carved from them with
-    /// not a word to spare where the plan says so.
+    /// The board's regions: the map's 224 KiB, and the turn region a little
+    /// over today's 176 KiB; every stage's buffers are carved from them,
+    /// and a word short of either region is an error, not a smaller robot.
     #[test]
     fn board_regions_carve_every_stage() {
         let c = Capacity::BOARD;
         assert_eq!(c.own_words() * 4, 229_376);
-        assert_eq!(c.turn_words() * 4, 180_224);
+        let plan = c.plan();
+        assert!(plan.link_words >= LINK_WORDS);
+        assert!(c.turn_words() * 4 <= 184_320, "turn region {} B", c.turn_words() * 4);
         let (mut own, mut turn) = (vec![0u32; c.own_words()], vec![0u32; c.turn_words()]);
-        let (map, spare) = carve_map(&mut own, &mut turn, &c).unwrap();
-        assert_eq!((map.voxels.len(), map.slots.len()), (c.voxels, 2 * c.voxels));
+        let (storage, spare) = carve_map(&mut own, &mut turn, &c).unwrap();
+        assert_eq!((storage.voxels.len(), storage.slots.len()), (c.voxels, 2 * c.voxels));
         assert!(spare.link.len() >= LINK_WORDS);
-        let (points, slots) = carve_level0(spare.scratch, spare.link, &c).unwrap();
-        assert_eq!((points.len(), slots.len()), (c.voxels, 2 * c.voxels));
-        let (model, scene) = carve_pyramids(map, spare.beyond, &c).unwrap();
+        let mut map = LocalMap::new(storage, super::super::map_config(0.5)).unwrap();
+        map.insert_point([1.0, 2.0, 0.5], crate::classes::Class::Pole).unwrap();
+        let (copied, level0, leaves) = compact_level0(map).unwrap();
+        assert_eq!((level0.points.len(), level0.slots.len()), (c.voxels, 2 * c.voxels));
+        let _ = copied;
+        let (model, scene) = carve_pyramids(leaves, spare, &c).unwrap();
         assert_eq!((model.entries.len(), model.normals.len(), model.slots.len()), (c.coarse, c.coarse, c.coarse));
-        assert_eq!((model.words.len(), scene.words.len()), (c.model_words, c.scene_words));
-        // A word short of either region is an error, not a smaller robot.
+        assert_eq!((model.words.len(), scene.words.len()), (c.model_words, scene.words.len()));
+        assert_eq!((scene.entries.len(), scene.words.len()), (c.coarse, c.scene_words));
         let (mut own, mut turn) = (vec![0u32; c.own_words() - 1], vec![0u32; c.turn_words()]);
         assert!(carve_map(&mut own, &mut turn, &c).is_err());
         let (mut own, mut turn) = (vec![0u32; c.own_words()], vec![0u32; c.turn_words() - 1]);
         assert!(carve_map(&mut own, &mut turn, &c).is_err());
     }
 
-    /// Pyramids larger than the map's buffers spill beyond the map, as the
-    /// plan sizes the region.
+    /// The plan puts no more in a place than it holds, and no placement
+    /// needs fewer link words.
     #[test]
-    fn pyramids_that_outgrow_the_map_spill_beyond_it() {
-        let c = Capacity { voxels: 1000, coarse: 900, model_words: 3000, scene_words: 2000 };
-        assert!(c.own_words() > 7 * c.voxels);
-        let (mut own, mut turn) = (vec![0u32; c.own_words()], vec![0u32; c.turn_words()]);
-        let (map, spare) = carve_map(&mut own, &mut turn, &c).unwrap();
-        assert!(carve_pyramids(map, spare.beyond, &c).is_ok());
+    fn the_plan_is_the_smallest_that_fits() {
+        for c in [Capacity::BOARD, Capacity { voxels: 3200, coarse: 1500, model_words: 3300, scene_words: 2600 }] {
+            let plan = c.plan();
+            let need = c.pyramid_words();
+            let mut used = [0usize; 3];
+            for (k, &p) in plan.place.iter().enumerate() {
+                used[usize::from(p)] += need[k];
+            }
+            assert!(used[0] <= c.level0_leaves() && used[1] <= c.voxels);
+            assert_eq!(plan.link_words, used[2].max(LINK_WORDS));
+            // Everything in the link's words is never better.
+            assert!(plan.link_words <= need.iter().sum::<usize>().max(LINK_WORDS));
+        }
         let s = Capacity::sender(1000);
         assert_eq!(s.own_words(), 7000);
         assert_eq!(s.turn_words(), 1000 + LINK_WORDS);

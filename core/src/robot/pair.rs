@@ -5,7 +5,7 @@
 //! gives it (a received map and pyramid storages, or none) decides.
 
 use super::feed_in::FeedIn;
-use super::memory::{carve_level0, carve_map, carve_pyramids, Capacity, OwnMap, Spare};
+use super::memory::{carve_map, carve_pyramids, compact_level0, Capacity, OwnMap, Spare};
 use super::tell::{Awaited, Awaiter, Teller};
 use super::{
     align_prepared, map_config, AlignError, Machine, Meter, PhaseMarks, Poll, RobotConfig, RobotError, FOOTPRINT_CELL,
@@ -14,7 +14,7 @@ use super::{
 use crate::geometry::{from_rows, rows};
 use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkStats, Progress};
 use crate::map::{LocalMap, SceneMap, ScenePoint, SliceStorage, VoxelSink};
-use crate::matching::{CopiedBase, CopiedSlices, Pyramid, PyramidError, SceneSource, SplitStorage};
+use crate::matching::{Pyramid, PyramidError, SceneSource, SplitStorage};
 use crate::wire::feed::{FeedError, GlobalReport, RobotMessage, RobotReport, Setup};
 use crate::wire::share::Estimate;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
@@ -37,7 +37,6 @@ enum State<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> {
     },
     Link {
         endpoint: PairEndpoint<'a, P>,
-        beyond: &'a mut [u32],
     },
     Align {
         own: OwnMap<'a>,
@@ -142,7 +141,7 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         let io = |_| RobotError::Link(LinkError::Io(embedded_io::ErrorKind::Other));
         match core::mem::replace(&mut self.state, State::Done) {
             State::Feed { .. } => Err(RobotError::Finished),
-            State::Link { endpoint, beyond } => {
+            State::Link { endpoint } => {
                 // The exchange is done (the step above said so).
                 self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
                 let stats = endpoint.stats();
@@ -155,7 +154,7 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
                     return Err(RobotError::Link(LinkError::Setup));
                 };
                 self.state = match staging {
-                    Some(received) => State::Align { own, received, stats, spare: Spare { scratch, link, beyond } },
+                    Some(received) => State::Align { own, received, stats, spare: Spare { scratch, link } },
                     // A sender: no received map; the peer tells the result.
                     None => {
                         let peer = peer.ok_or(RobotError::Link(LinkError::Silent))?;
@@ -204,18 +203,18 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         let config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
         self.link_config = config;
         let id = setup.robot_id;
-        let Spare { scratch, link, beyond } = spare;
+        let Spare { scratch, link } = spare;
         let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), received, link)
             .map_err(RobotError::Link)?;
         self.link_started_ms = now_ms;
-        self.state = State::Link { endpoint, beyond };
+        self.state = State::Link { endpoint };
         Ok(())
     }
 
-    /// Prepares both maps and aligns them. The own map is read for the
-    /// last time when the model's level 0 is copied out of it (into the
-    /// turn region's words, which the link gave back); then it gives its
-    /// storage back and the pyramids' other parts are carved out of it.
+    /// Prepares both maps and aligns them. The own map's voxels become the
+    /// model's level 0 where they lie; the pyramids' other parts are carved
+    /// out of what that leaves and of the turn region's words, which the
+    /// link gave back.
     fn align<T: Meter>(
         &mut self,
         own: OwnMap<'a>,
@@ -229,13 +228,10 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         let voxels = own.len();
         let mut marks = PhaseMarks::default();
         marks.mark(0, meter);
-        let c = self.capacity;
-        let Spare { scratch, link, beyond } = spare;
-        let (points, slots) = carve_level0(scratch, link, &c).map_err(RobotError::Memory)?;
-        let empty = if own.is_empty() { PyramidError::EmptyMap } else { PyramidError::Full };
-        let copied = CopiedBase::copy(&own, points, slots).ok_or(RobotError::Align(AlignError::Pyramid(empty)))?;
-        let (model, scene) = carve_pyramids(own.into_storage(), beyond, &c).map_err(RobotError::Memory)?;
-        let model = SplitStorage { level0: CopiedSlices { points, slots }, rest: model };
+        let empty = RobotError::Align(AlignError::Pyramid(PyramidError::EmptyMap));
+        let (copied, level0, leaves) = compact_level0(own).ok_or(empty)?;
+        let (model, scene) = carve_pyramids(leaves, spare, &self.capacity).map_err(RobotError::Memory)?;
+        let model = SplitStorage { level0, rest: model };
         let pyramid = |e| RobotError::Align(AlignError::Pyramid(e));
         let model = Pyramid::build_copied(copied, LEVELS, FOOTPRINT_CELL, model).map_err(pyramid)?;
         let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene).map_err(pyramid)?;

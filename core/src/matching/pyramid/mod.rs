@@ -31,8 +31,11 @@ use super::footprint::{self, Footprint, FootprintInfo};
 use crate::map::table::{probe_index, probe_keys, walk, walk_by, MapIndex, Probe, Slot};
 use crate::map::voxel::{mean_position, quantise_fraction};
 use crate::map::{
-    class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage,
+    class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, SliceStorage, VoxelKey,
+    VoxelStorage,
 };
+use crate::region::{words_of, Region};
+use core::mem::size_of;
 
 mod index;
 mod normals;
@@ -177,6 +180,13 @@ pub struct ModelPoint {
 }
 
 impl ModelPoint {
+    /// A voxel's point: its cell, mean, class and confidence (no normal
+    /// yet).
+    fn of(v: &SemanticVoxel) -> Self {
+        let (class, confidence) = class_and_confidence(v);
+        ModelPoint { key: v.key, mean: v.mean_raw(), normal: PackedNormal::NONE, class, confidence }
+    }
+
     /// Zeroed (a `static` of them lands in `.bss`).
     pub const EMPTY: ModelPoint =
         ModelPoint { key: VoxelKey::new(0, 0, 0), mean: [0; 3], normal: PackedNormal([0, 0]), class: 0, confidence: 0 };
@@ -582,11 +592,39 @@ impl CopiedBase {
             return None;
         }
         for (p, v) in points.iter_mut().zip(map.voxels()) {
-            let (class, confidence) = class_and_confidence(v);
-            let mean = v.mean_raw();
-            *p = ModelPoint { key: v.key, mean, normal: PackedNormal::NONE, class, confidence };
+            *p = ModelPoint::of(v);
         }
         Some(CopiedBase { len, slots: index_len, resolution: map.resolution() })
+    }
+
+    /// Turns `map`'s voxels into model points where they lie (a point is
+    /// smaller than a voxel, so point `i` is written over bytes of voxels
+    /// `..=i` only, each read before), keeping its index as the level's
+    /// index: the map's memory holds its level 0 with no room for a copy.
+    /// Gives back the level (room for the map's capacity of points, the
+    /// first `len` written) and the whole words after it; `None` when the
+    /// map is empty.
+    pub fn compact(map: LocalMap<SliceStorage<'_, u16>>) -> Option<(Self, CopiedSlices<'_>, &mut [u32])> {
+        const { assert!(size_of::<ModelPoint>() <= size_of::<SemanticVoxel>()) };
+        let (len, resolution) = (map.len(), map.resolution());
+        if len == 0 {
+            return None;
+        }
+        let SliceStorage { voxels, slots } = map.into_storage();
+        let capacity = voxels.len();
+        let words = words_of(voxels);
+        {
+            let bytes: &mut [u8] = bytemuck::cast_slice_mut(words);
+            let (vs, ps) = (size_of::<SemanticVoxel>(), size_of::<ModelPoint>());
+            for i in 0..len {
+                let v: SemanticVoxel = bytemuck::pod_read_unaligned(bytes.get(i * vs..(i + 1) * vs)?);
+                bytes.get_mut(i * ps..(i + 1) * ps)?.copy_from_slice(bytemuck::bytes_of(&ModelPoint::of(&v)));
+            }
+        }
+        let mut region = Region::new(words);
+        let points = region.take::<ModelPoint>(capacity).ok()?;
+        let copied = CopiedBase { len, slots: slots.len(), resolution };
+        Some((copied, CopiedSlices { points, slots }, region.into_words()))
     }
 }
 
