@@ -22,8 +22,9 @@
 //! [`SceneMap`](crate::map::SceneMap): only what matching it as a scene
 //! reads); it carves its map, the link's scratch and buffers, and later
 //! the pyramids out of the regions itself, each stage handing its buffers
-//! to the next by ownership ([`memory`]: the map's words become the
-//! pyramids', the link's become the model's copied level 0), so a board
+//! to the next by ownership ([`memory`]: the map's voxels become the
+//! model's level 0 where they lie, the link's words and what the level 0
+//! leaves hold the pyramids), so a board
 //! declares two zeroed statics and nothing of it depends on call order. A
 //! team robot takes its map, scratch, link buffers and pyramid storages
 //! apart. The capacities a robot's firmware uses are the constants below
