@@ -35,7 +35,7 @@ pub type OwnMap<'a> = LocalMap<SliceStorage<'a, u16>>;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Capacity {
-    /// Voxels of the robot's map (and of the model's copied level 0).
+    /// Voxels of the robot's map (and of the model's level 0).
     pub voxels: usize,
     /// Coarse entries of each pyramid (model and scene).
     pub coarse: usize,
