@@ -5,7 +5,7 @@
 //!
 //! - the **own** region holds the robot's map (voxels, then index slots)
 //!   while it maps and sends; then its voxels become the model's level 0
-//!   where they lie ([`CopiedBase::compact`]: an 18-byte point in place of
+//!   where they lie ([`CopiedBase::compact`](crate::matching::CopiedBase::compact): an 18-byte point in place of
 //!   each 24-byte voxel; the index stays), and what the points leave free
 //!   holds pyramid buffers;
 //! - the **turn** region holds the link's Morton scratch (one word per
@@ -21,7 +21,7 @@
 
 use crate::link::LINK_WORDS;
 use crate::map::{LocalMap, SemanticVoxel, SliceStorage};
-use crate::matching::{CoarseEntry, CopiedBase, CopiedSlices, ModelPoint, PackedNormal, PyramidPartsMut};
+use crate::matching::{CoarseEntry, ModelPoint, PackedNormal, PyramidPartsMut};
 use crate::region::{words_for, Region, RegionError};
 use bytemuck::Pod;
 
@@ -171,12 +171,6 @@ pub(super) fn carve_map<'a>(
     Ok((SliceStorage { voxels, slots }, Spare { scratch, link: turn.into_words() }))
 }
 
-/// The model's level 0 where the map's voxels were ([`CopiedBase::compact`]),
-/// and the words it leaves free.
-pub(super) fn compact_level0(map: OwnMap<'_>) -> Option<(CopiedBase, CopiedSlices<'_>, &mut [u32])> {
-    CopiedBase::compact(map)
-}
-
 /// Takes `n` values of `T` from the region `plan` puts buffer `k` in.
 fn take_planned<'a, T: Pod>(
     pool: &mut [Region<'a>; 3],
@@ -250,7 +244,7 @@ mod tests {
         assert!(spare.link.len() >= LINK_WORDS);
         let mut map = LocalMap::new(storage, super::super::map_config(0.5)).unwrap();
         map.insert_point([1.0, 2.0, 0.5], crate::classes::Class::Pole).unwrap();
-        let (copied, level0, leaves) = compact_level0(map).unwrap();
+        let (copied, level0, leaves) = crate::matching::CopiedBase::compact(map).unwrap();
         assert_eq!((level0.points.len(), level0.slots.len()), (c.voxels, 2 * c.voxels));
         let _ = copied;
         let (model, scene) = carve_pyramids(leaves, spare, &c).unwrap();

@@ -5,7 +5,7 @@
 //! gives it (a received map and pyramid storages, or none) decides.
 
 use super::feed_in::FeedIn;
-use super::memory::{carve_map, carve_pyramids, compact_level0, Capacity, OwnMap, Spare};
+use super::memory::{carve_map, carve_pyramids, Capacity, OwnMap, Spare};
 use super::tell::{Awaited, Awaiter, Teller};
 use super::{
     align_prepared, map_config, AlignError, Machine, Meter, PhaseMarks, Poll, RobotConfig, RobotError, FOOTPRINT_CELL,
@@ -14,7 +14,7 @@ use super::{
 use crate::geometry::{from_rows, rows};
 use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkStats, Progress};
 use crate::map::{LocalMap, SceneMap, ScenePoint, SliceStorage, VoxelSink};
-use crate::matching::{Pyramid, PyramidError, SceneSource, SplitStorage};
+use crate::matching::{CopiedBase, Pyramid, PyramidError, SceneSource, SplitStorage};
 use crate::wire::feed::{FeedError, GlobalReport, RobotMessage, RobotReport, Setup};
 use crate::wire::share::Estimate;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
@@ -229,7 +229,7 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         let mut marks = PhaseMarks::default();
         marks.mark(0, meter);
         let empty = RobotError::Align(AlignError::Pyramid(PyramidError::EmptyMap));
-        let (copied, level0, leaves) = compact_level0(own).ok_or(empty)?;
+        let (copied, level0, leaves) = CopiedBase::compact(own).ok_or(empty)?;
         let (model, scene) = carve_pyramids(leaves, spare, &self.capacity).map_err(RobotError::Memory)?;
         let model = SplitStorage { level0, rest: model };
         let pyramid = |e| RobotError::Align(AlignError::Pyramid(e));
