@@ -68,12 +68,14 @@ struct Scorer<'a> {
 
 /// Scene points' model cells at one yaw and zero translation, with masks.
 /// Cells as `i16` (a footprint is far narrower; cells beyond are clamped
-/// and stay outside the grid at every offset): the cache is the largest
-/// thing on a board's stack.
+/// and stay outside the grid at every offset) and masks as bytes (five
+/// group bits) apart, five bytes a point: the cache is the largest thing on
+/// a board's stack.
 struct YawCells<const N: usize> {
     yaw: i16,
     len: usize,
-    cells: [(i16, i16, u32); N],
+    cells: [[i16; 2]; N],
+    masks: [u8; N],
     /// The most each [`CHUNK`] of cells can add to a score (their class
     /// groups), for scoring that stops once a floor is out of reach.
     most: [u16; MAX_CHUNKS],
@@ -83,7 +85,7 @@ struct YawCells<const N: usize> {
 
 impl<const N: usize> YawCells<N> {
     fn new() -> Self {
-        YawCells { yaw: 0, len: 0, cells: [(0, 0, 0); N], most: [0; MAX_CHUNKS], most_total: 0 }
+        YawCells { yaw: 0, len: 0, cells: [[0; 2]; N], masks: [0; N], most: [0; MAX_CHUNKS], most_total: 0 }
     }
 }
 
@@ -125,11 +127,14 @@ impl Scorer<'_> {
         out.len = 0;
         out.most = [0; MAX_CHUNKS];
         out.most_total = 0;
-        for ((q, mask), slot) in self.scene.occupied().step_by(self.stride).zip(out.cells.iter_mut()) {
+        let slots = out.cells.iter_mut().zip(out.masks.iter_mut());
+        for ((q, mask), (slot, slot_mask)) in self.scene.occupied().step_by(self.stride).zip(slots) {
             let x = m[0] * q[0] + m[1] * q[1] + o[0];
             let y = m[2] * q[0] + m[3] * q[1] + o[1];
             let (ci, cj) = self.model.cell_of(x, y);
-            *slot = (narrow(ci), narrow(cj), mask);
+            *slot = [narrow(ci), narrow(cj)];
+            // Footprint masks are one byte (the five group bits).
+            *slot_mask = mask as u8;
             if let Some(most) = out.most.get_mut(out.len / CHUNK) {
                 let add = if self.semantic { mask.count_ones() } else { 1 };
                 *most = most.saturating_add(add as u16);
@@ -152,10 +157,11 @@ impl Scorer<'_> {
     fn score_above<const N: usize>(&self, cells: &YawCells<N>, i0: i32, j0: i32, h: usize, floor: u32) -> u32 {
         let Some(grid) = self.model.grid(h) else { return 0 };
         let points = cells.cells.get(..cells.len).unwrap_or(&[]);
+        let masks = cells.masks.get(..cells.len).unwrap_or(&[]);
         let mut left = cells.most_total;
         let mut total = 0;
-        for (chunk, &most) in points.chunks(CHUNK).zip(cells.most.iter()) {
-            total += score_points(chunk, &grid, i0, j0, self.semantic);
+        for ((chunk, chunk_masks), &most) in points.chunks(CHUNK).zip(masks.chunks(CHUNK)).zip(cells.most.iter()) {
+            total += score_points(chunk, chunk_masks, &grid, i0, j0, self.semantic);
             left -= u32::from(most);
             if total + left <= floor {
                 return total + left;
@@ -171,19 +177,20 @@ impl Scorer<'_> {
 /// for "inside, or a window reaching into the grid from below"), its
 /// common class groups counted (bare occupancy unless `semantic`).
 #[inline(never)]
-fn score_points(points: &[(i16, i16, u32)], grid: &Grid<'_>, i0: i32, j0: i32, semantic: bool) -> u32 {
+fn score_points(points: &[[i16; 2]], masks: &[u8], grid: &Grid<'_>, i0: i32, j0: i32, semantic: bool) -> u32 {
     let (words, shift, width, height, span) = grid.parts();
     if semantic {
-        score_cells::<true>(points, words, shift, (width, height, span), i0, j0)
+        score_cells::<true>(points, masks, words, shift, (width, height, span), i0, j0)
     } else {
-        score_cells::<false>(points, words, shift, (width, height, span), i0, j0)
+        score_cells::<false>(points, masks, words, shift, (width, height, span), i0, j0)
     }
 }
 
 /// [`score_points`] for one kind of score (class groups, or occupancy).
 #[inline(always)]
 fn score_cells<const SEMANTIC: bool>(
-    points: &[(i16, i16, u32)],
+    points: &[[i16; 2]],
+    masks: &[u8],
     words: &[u32],
     shift: u32,
     (width, height, span): (i32, i32, i32),
@@ -194,8 +201,8 @@ fn score_cells<const SEMANTIC: bool>(
     let (ri, rj) = ((width + span - 1) as u32, (height + span - 1) as u32);
     let (si, sj) = (i0 + span - 1, j0 + span - 1);
     let mut total = 0u32;
-    for &(ci, cj, mask) in points {
-        let (i, j) = (i32::from(ci), i32::from(cj));
+    for (&[ci, cj], &mask) in points.iter().zip(masks) {
+        let (i, j, mask) = (i32::from(ci), i32::from(cj), u32::from(mask));
         if ((i + si) as u32) >= ri || ((j + sj) as u32) >= rj {
             continue;
         }

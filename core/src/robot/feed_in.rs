@@ -42,7 +42,9 @@ impl FeedIn {
     /// the set-up; a robot that receives no map has no `received`); `true`
     /// at the end of the feed. A team robot (`team`)
     /// needs [`FeedMessage::Team`] after the set-up and no prior; a pair
-    /// robot refuses it.
+    /// robot refuses it. Never inlined: its frame (a feed frame) stays out
+    /// of the matcher's stack.
+    #[inline(never)]
     pub(super) fn read<F: Read + Write + ReadReady, M: VoxelStorage, R: VoxelSink, T: Meter>(
         &mut self,
         feed: &mut F,

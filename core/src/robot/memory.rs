@@ -43,6 +43,13 @@ pub struct Capacity {
     pub model_words: usize,
     /// Footprint words of the scene's pyramid.
     pub scene_words: usize,
+    /// Pyramid levels (level 0 the map): fewer levels, fewer coarse
+    /// entries.
+    pub levels: usize,
+    /// Words of the own region after the map, for pyramid buffers: a board
+    /// whose memories are split (an STM32F405's SRAM and CCM) fills the one
+    /// that holds the map with them.
+    pub spare_words: usize,
 }
 
 impl Capacity {
@@ -52,11 +59,13 @@ impl Capacity {
         coarse: super::COARSE,
         model_words: super::MODEL_WORDS,
         scene_words: super::SCENE_WORDS,
+        levels: super::LEVELS,
+        spare_words: 0,
     };
 
     /// A robot that only sends its map ([`super::Robot::sender`]).
     pub const fn sender(voxels: usize) -> Capacity {
-        Capacity { voxels, coarse: 0, model_words: 0, scene_words: 0 }
+        Capacity { voxels, coarse: 0, model_words: 0, scene_words: 0, levels: 0, spare_words: 0 }
     }
 
     /// Whether the robot builds pyramids and matches.
@@ -90,24 +99,25 @@ impl Capacity {
     }
 
     /// Where each pyramid buffer goes: 0 the words the level 0 leaves in
-    /// the own region, 1 the link's scratch, 2 the link's words; with the
-    /// link's words that plan needs (at least the link's buffers). Of
-    /// every placement (3^6), the one with the fewest link words.
+    /// the own region, 1 the own region's spare words, 2 the link's
+    /// scratch, 3 the link's words; with the link's words that plan needs
+    /// (at least the link's buffers). Of every placement (4^6), the one
+    /// with the fewest link words.
     pub const fn plan(&self) -> Plan {
         let need = self.pyramid_words();
-        let room = [self.level0_leaves(), self.voxels];
-        let mut best = Plan { place: [2; PYRAMID_BUFFERS], link_words: usize::MAX };
+        let room = [self.level0_leaves(), self.spare_words, self.voxels];
+        let mut best = Plan { place: [LINK_ROOM; PYRAMID_BUFFERS], link_words: usize::MAX };
         let mut code = 0;
-        while code < 729 {
-            let (mut used, mut place, mut c, mut i) = ([0usize; 3], [0u8; PYRAMID_BUFFERS], code, 0);
+        while code < ROOMS.pow(PYRAMID_BUFFERS as u32) {
+            let (mut used, mut place, mut c, mut i) = ([0usize; ROOMS], [0u8; PYRAMID_BUFFERS], code, 0);
             while i < PYRAMID_BUFFERS {
-                place[i] = (c % 3) as u8;
-                used[c % 3] += need[i];
-                c /= 3;
+                place[i] = (c % ROOMS) as u8;
+                used[c % ROOMS] += need[i];
+                c /= ROOMS;
                 i += 1;
             }
-            let link = if used[2] > LINK_WORDS { used[2] } else { LINK_WORDS };
-            if used[0] <= room[0] && used[1] <= room[1] && link < best.link_words {
+            let link = if used[3] > LINK_WORDS { used[3] } else { LINK_WORDS };
+            if used[0] <= room[0] && used[1] <= room[1] && used[2] <= room[2] && link < best.link_words {
                 best = Plan { place, link_words: link };
             }
             code += 1;
@@ -115,10 +125,11 @@ impl Capacity {
         best
     }
 
-    /// Words of the own region: the map (its voxels, then its index).
+    /// Words of the own region: the map (its voxels, then its index), then
+    /// the spare words.
     pub const fn own_words(&self) -> usize {
         let [voxels, slots] = self.map_words();
-        voxels + slots
+        voxels + slots + self.spare_words
     }
 
     /// Words of the turn region: the Morton scratch (a word per voxel),
@@ -131,20 +142,27 @@ impl Capacity {
 /// Pyramid buffers a robot carves: the model's entries, normals, index and
 /// footprint, the scene's entries and footprint.
 const PYRAMID_BUFFERS: usize = 6;
+/// Places a pyramid buffer may go ([`Plan::place`]).
+const ROOMS: usize = 4;
+/// The place that grows to take what the others cannot: the link's words.
+const LINK_ROOM: u8 = 3;
 
 /// Where a robot's pyramid buffers go ([`Capacity::plan`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Plan {
     /// Per buffer, in carving order: 0 the own region's words the level 0
-    /// leaves, 1 the link's scratch, 2 the link's words.
+    /// leaves, 1 the own region's spare words, 2 the link's scratch, 3 the
+    /// link's words.
     pub place: [u8; PYRAMID_BUFFERS],
     /// Words of the link region (after the scratch).
     pub link_words: usize,
 }
 
-/// What the robot keeps of its turn region while it maps and sends: the
-/// Morton scratch and the link's words (its buffers at their start).
+/// What the robot keeps besides its map while it maps and sends: the own
+/// region's spare words, and of its turn region the Morton scratch and the
+/// link's words (its buffers at their start).
 pub(super) struct Spare<'a> {
+    pub(super) own: &'a mut [u32],
     pub(super) scratch: &'a mut [u32],
     pub(super) link: &'a mut [u32],
 }
@@ -168,17 +186,17 @@ pub(super) fn carve_map<'a>(
     let slots = own.take::<u16>(2 * capacity.voxels)?;
     let mut turn = Region::new(turn);
     let scratch = turn.take_words(capacity.voxels)?;
-    Ok((SliceStorage { voxels, slots }, Spare { scratch, link: turn.into_words() }))
+    Ok((SliceStorage { voxels, slots }, Spare { own: own.into_words(), scratch, link: turn.into_words() }))
 }
 
 /// Takes `n` values of `T` from the region `plan` puts buffer `k` in.
 fn take_planned<'a, T: Pod>(
-    pool: &mut [Region<'a>; 3],
+    pool: &mut [Region<'a>; ROOMS],
     plan: &Plan,
     k: usize,
     n: usize,
 ) -> Result<&'a mut [T], RegionError> {
-    let at = plan.place.get(k).map_or(2, |&p| usize::from(p));
+    let at = plan.place.get(k).map_or(usize::from(LINK_ROOM), |&p| usize::from(p));
     pool.get_mut(at).ok_or(RegionError::Layout)?.take(n)
 }
 
@@ -192,7 +210,7 @@ pub(super) fn carve_pyramids<'a>(
     capacity: &Capacity,
 ) -> Result<(PyramidPartsMut<'a>, PyramidPartsMut<'a>), RegionError> {
     let plan = capacity.plan();
-    let mut pool = [Region::new(leaves), Region::new(spare.scratch), Region::new(spare.link)];
+    let mut pool = [Region::new(leaves), Region::new(spare.own), Region::new(spare.scratch), Region::new(spare.link)];
     let e = capacity.coarse;
     // The order of `Capacity::pyramid_words`.
     let model_entries = take_planned::<CoarseEntry>(&mut pool, &plan, 0, e)?;
@@ -261,15 +279,17 @@ mod tests {
     /// needs fewer link words.
     #[test]
     fn the_plan_is_the_smallest_that_fits() {
-        for c in [Capacity::BOARD, Capacity { voxels: 3200, coarse: 1500, model_words: 3300, scene_words: 2600 }] {
+        let small =
+            Capacity { voxels: 3200, coarse: 1500, model_words: 3300, scene_words: 2600, levels: 2, spare_words: 0 };
+        for c in [Capacity::BOARD, small, Capacity { spare_words: 4000, ..small }] {
             let plan = c.plan();
             let need = c.pyramid_words();
-            let mut used = [0usize; 3];
+            let mut used = [0usize; ROOMS];
             for (k, &p) in plan.place.iter().enumerate() {
                 used[usize::from(p)] += need[k];
             }
-            assert!(used[0] <= c.level0_leaves() && used[1] <= c.voxels);
-            assert_eq!(plan.link_words, used[2].max(LINK_WORDS));
+            assert!(used[0] <= c.level0_leaves() && used[1] <= c.spare_words && used[2] <= c.voxels);
+            assert_eq!(plan.link_words, used[3].max(LINK_WORDS));
             // Everything in the link's words is never better.
             assert!(plan.link_words <= need.iter().sum::<usize>().max(LINK_WORDS));
         }

@@ -9,7 +9,6 @@ use super::memory::{carve_map, carve_pyramids, Capacity, OwnMap, Spare};
 use super::tell::{Awaited, Awaiter, Teller};
 use super::{
     align_prepared, map_config, AlignError, Machine, Meter, PhaseMarks, Poll, RobotConfig, RobotError, FOOTPRINT_CELL,
-    LEVELS,
 };
 use crate::geometry::{from_rows, rows};
 use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkStats, Progress};
@@ -26,17 +25,17 @@ pub type Sender<'a> = Robot<'a, [ScenePoint; 0]>;
 /// sends it, and its buffers are the turn region's words.
 type PairEndpoint<'a, P> = Endpoint<'a, SliceStorage<'a, u16>, SceneMap<P>, &'a mut [u32], OwnMap<'a>>;
 
-// The link's state (its frame buffer) is the large variant; without an
-// allocator there is nothing to box it in, and a robot holds one state.
-#[allow(clippy::large_enum_variant)]
 enum State<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> {
     Feed {
         own: OwnMap<'a>,
         received: Option<&'a mut SceneMap<P>>,
         spare: Spare<'a>,
     },
+    /// Exchanging maps (the endpoint is [`Robot`]'s, outside the state:
+    /// moving a state moves no kilobytes).
     Link {
-        endpoint: PairEndpoint<'a, P>,
+        /// The own region's spare words, for the pyramids.
+        spare_own: &'a mut [u32],
     },
     Align {
         own: OwnMap<'a>,
@@ -64,6 +63,8 @@ enum State<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> {
 /// declares once ([`super::memory`]).
 pub struct Robot<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> {
     state: State<'a, P>,
+    /// The link's endpoint while maps are exchanged.
+    endpoint: Option<PairEndpoint<'a, P>>,
     capacity: Capacity,
     fed: FeedIn,
     link_started_ms: u64,
@@ -100,6 +101,7 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         let own = LocalMap::new(storage, map_config(0.5)).map_err(RobotError::Config)?;
         Ok(Robot {
             state: State::Feed { own, received, spare },
+            endpoint: None,
             capacity,
             fed: FeedIn::new(config),
             link_started_ms: 0,
@@ -130,7 +132,8 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
                 }
                 return Ok(Poll::Busy);
             }
-            State::Link { endpoint, .. } => {
+            State::Link { .. } => {
+                let endpoint = self.endpoint.as_mut().ok_or(RobotError::Finished)?;
                 let progress = endpoint.step(link, now_ms).map_err(RobotError::Link)?;
                 if progress == Progress::Busy {
                     return Ok(Poll::Busy);
@@ -138,63 +141,97 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
             }
             _ => {}
         }
-        let io = |_| RobotError::Link(LinkError::Io(embedded_io::ErrorKind::Other));
-        match core::mem::replace(&mut self.state, State::Done) {
-            State::Feed { .. } => Err(RobotError::Finished),
-            State::Link { endpoint } => {
-                // The exchange is done (the step above said so).
-                self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
-                let stats = endpoint.stats();
-                let peer = endpoint.peer_id();
-                if endpoint.peer_takes_map() == Some(false) {
-                    self.tell_peer = peer;
-                }
-                let Finished { map: Some(own), scratch: Some(scratch), staging, buffers: link } = endpoint.finish()
-                else {
-                    return Err(RobotError::Link(LinkError::Setup));
-                };
-                self.state = match staging {
-                    Some(received) => State::Align { own, received, stats, spare: Spare { scratch, link } },
-                    // A sender: no received map; the peer tells the result.
-                    None => {
-                        let peer = peer.ok_or(RobotError::Link(LinkError::Silent))?;
-                        State::Await { voxels: own.len(), stats, awaiter: Awaiter::new(self.fed.me(), peer, now_ms) }
-                    }
-                };
-                Ok(Poll::Busy)
-            }
-            State::Align { own, received, stats, spare } => {
-                let (report, estimate) = self.align(own, received, &stats, spare, meter)?;
-                match self.tell_peer {
-                    Some(peer) => {
-                        let estimate = Estimate { b: peer, ..estimate };
-                        self.state = State::Tell { report, teller: Teller::new(estimate, now_ms) };
-                        Ok(Poll::Busy)
-                    }
-                    None => Ok(Poll::Done(report)),
-                }
-            }
-            State::Tell { report, mut teller } => {
-                if teller.step(link, now_ms, &self.link_config).map_err(io)? {
-                    return Ok(Poll::Done(report));
-                }
-                self.state = State::Tell { report, teller };
-                Ok(Poll::Busy)
-            }
-            State::Await { voxels, stats, mut awaiter } => {
-                match awaiter.step(link, now_ms, &self.link_config).map_err(io)? {
-                    Awaited::Busy => {
-                        self.state = State::Await { voxels, stats, awaiter };
-                        Ok(Poll::Busy)
-                    }
-                    Awaited::Silent => Err(RobotError::Link(LinkError::Silent)),
-                    Awaited::Told(e) => Ok(Poll::Done(self.told(voxels, &stats, &e, meter.peak_stack()))),
-                }
-            }
-            State::Done => Err(RobotError::Finished),
+        match self.state {
+            State::Link { .. } => self.finish_link(now_ms),
+            State::Align { .. } => self.run_align(now_ms, meter),
+            _ => self.step_told(link, now_ms, meter),
         }
     }
 
+    /// The exchange is done (the step before said so): the robot aligns,
+    /// or, a sender, awaits the peer's result. Apart from [`Robot::step`]
+    /// (never inlined), as each stage below: a stage's moved state stays
+    /// out of the frames under the matcher, the deepest stack.
+    #[inline(never)]
+    fn finish_link(&mut self, now_ms: u64) -> Result<Poll, RobotError> {
+        let State::Link { spare_own } = core::mem::replace(&mut self.state, State::Done) else {
+            return Err(RobotError::Finished);
+        };
+        let endpoint = self.endpoint.take().ok_or(RobotError::Finished)?;
+        self.link_ms = now_ms.saturating_sub(self.link_started_ms).min(u64::from(u32::MAX)) as u32;
+        let stats = endpoint.stats();
+        let peer = endpoint.peer_id();
+        if endpoint.peer_takes_map() == Some(false) {
+            self.tell_peer = peer;
+        }
+        let Finished { map: Some(own), scratch: Some(scratch), staging, buffers: link } = endpoint.finish() else {
+            return Err(RobotError::Link(LinkError::Setup));
+        };
+        self.state = match staging {
+            Some(received) => State::Align { own, received, stats, spare: Spare { own: spare_own, scratch, link } },
+            // A sender: no received map; the peer tells the result.
+            None => {
+                let peer = peer.ok_or(RobotError::Link(LinkError::Silent))?;
+                State::Await { voxels: own.len(), stats, awaiter: Awaiter::new(self.fed.me(), peer, now_ms) }
+            }
+        };
+        Ok(Poll::Busy)
+    }
+
+    /// Aligns; then reports, or tells a peer that took no map first.
+    #[inline(never)]
+    fn run_align<T: Meter>(&mut self, now_ms: u64, meter: &T) -> Result<Poll, RobotError> {
+        let State::Align { own, received, stats, spare } = core::mem::replace(&mut self.state, State::Done) else {
+            return Err(RobotError::Finished);
+        };
+        let (report, estimate) = self.align(own, received, &stats, spare, meter)?;
+        match self.tell_peer {
+            Some(peer) => {
+                let estimate = Estimate { b: peer, ..estimate };
+                self.state = State::Tell { report, teller: Teller::new(estimate, now_ms) };
+                Ok(Poll::Busy)
+            }
+            None => Ok(Poll::Done(report)),
+        }
+    }
+
+    /// Telling the peer the result, or awaiting the peer's.
+    #[inline(never)]
+    fn step_told<L, T>(&mut self, link: &mut L, now_ms: u64, meter: &T) -> Result<Poll, RobotError>
+    where
+        L: Read + Write + ReadReady + WriteReady,
+        T: Meter,
+    {
+        let io = |_| RobotError::Link(LinkError::Io(embedded_io::ErrorKind::Other));
+        match &mut self.state {
+            State::Tell { report, teller } => {
+                if teller.step(link, now_ms, &self.link_config).map_err(io)? {
+                    let report = *report;
+                    self.state = State::Done;
+                    return Ok(Poll::Done(report));
+                }
+                Ok(Poll::Busy)
+            }
+            State::Await { voxels, stats, awaiter } => {
+                match awaiter.step(link, now_ms, &self.link_config).map_err(io)? {
+                    Awaited::Busy => Ok(Poll::Busy),
+                    Awaited::Silent => {
+                        self.state = State::Done;
+                        Err(RobotError::Link(LinkError::Silent))
+                    }
+                    Awaited::Told(e) => {
+                        let (voxels, stats) = (*voxels, *stats);
+                        let report = self.told(voxels, &stats, &e, meter.peak_stack());
+                        self.state = State::Done;
+                        Ok(Poll::Done(report))
+                    }
+                }
+            }
+            _ => Err(RobotError::Finished),
+        }
+    }
+
+    #[inline(never)]
     fn start_link(&mut self, now_ms: u64) -> Result<(), RobotError> {
         let setup = self.fed.setup.ok_or(RobotError::Feed(FeedError::Order))?;
         let State::Feed { own, received, spare } = core::mem::replace(&mut self.state, State::Done) else {
@@ -203,11 +240,12 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         let config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
         self.link_config = config;
         let id = setup.robot_id;
-        let Spare { scratch, link } = spare;
+        let Spare { own: spare_own, scratch, link } = spare;
         let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), received, link)
             .map_err(RobotError::Link)?;
         self.link_started_ms = now_ms;
-        self.state = State::Link { endpoint };
+        self.endpoint = Some(endpoint);
+        self.state = State::Link { spare_own };
         Ok(())
     }
 
@@ -233,8 +271,9 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         let (model, scene) = carve_pyramids(leaves, spare, &self.capacity).map_err(RobotError::Memory)?;
         let model = SplitStorage { level0, rest: model };
         let pyramid = |e| RobotError::Align(AlignError::Pyramid(e));
-        let model = Pyramid::build_copied(copied, LEVELS, FOOTPRINT_CELL, model).map_err(pyramid)?;
-        let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene).map_err(pyramid)?;
+        let levels = self.capacity.levels;
+        let model = Pyramid::build_copied(copied, levels, FOOTPRINT_CELL, model).map_err(pyramid)?;
+        let scene = received.prepare_scene(levels, FOOTPRINT_CELL, scene).map_err(pyramid)?;
         marks.mark(1, meter);
         let (result, located) =
             align_prepared(&model, &scene, prior.as_ref(), |k| marks.mark(k, meter)).map_err(RobotError::Align)?;

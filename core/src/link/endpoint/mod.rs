@@ -476,6 +476,8 @@ impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory, O: Borrow<LocalMap<M>>> E
 
     /// One step: read what is there, acknowledge, and, if the line is ready
     /// to take it at once, send one data frame (new, lost, or timed out).
+    /// Never inlined: a robot's other stages do not carry its frame.
+    #[inline(never)]
     pub fn step<IO: Read + Write + ReadReady + WriteReady>(
         &mut self,
         io: &mut IO,

@@ -786,7 +786,9 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         Ok(pyramid)
     }
 
-    /// Fits the normals of a model's levels (see [`NormalSweep`]).
+    /// Fits the normals of a model's levels (see [`NormalSweep`]). Never
+    /// inlined: its frame stays out of the matcher's.
+    #[inline(never)]
     fn fit_normals(&mut self) -> Result<(), PyramidError> {
         let base = self.base;
         for l in 0..self.count {
