@@ -124,7 +124,22 @@ $C team "${EIGHT[@]}" --json >"$OUT/team-street8.json" || true
 if [ "$BOARDS" = 1 ] && [ -d "$K0" ]; then
   $C robots --data "$K0" --a 0:5 --b 5:10 --json >"$OUT/robots-prior.json" || true
   $C robots --data "$K0" --a 0:5 --b 5:10 --no-prior --json >"$OUT/robots-noprior.json" || true
-  $C robots --data "$K0" --a 0:5 --b 5:10 --board-b stm32f405 --json >"$OUT/robots-stm32f405.json" || true
+  $C robots --data "$K0" --a 0:5 --b 5:10 --board-b stm32f405-sender --json >"$OUT/robots-stm32f405.json" || true
+  # Both robots on the STM32F405 (192 KiB, 0.7 m voxels): every pair of the
+  # pipeline table.
+  S2=(--board-a stm32f405 --board-b stm32f405)
+  $C robots --data "$K0" --a 0:5 --b 5:10 "${S2[@]}" --json >"$OUT/robots-stm32-prior.json" || true
+  $C robots --data "$K0" --a 0:5 --b 5:10 --no-prior "${S2[@]}" --json >"$OUT/stm32-kitti00.json" || true
+  $C robots --data "$K0" --a 0:5 --b 5:10 --no-prior --label-noise network "${S2[@]}" --json \
+    >"$OUT/stm32-kitti00-network.json" || true
+  if [ -d "$DATA/kitti00-loop" ]; then
+    $C robots --data "$DATA/kitti00-loop" --a 52:53 --b 4501:4502 --no-prior "${S2[@]}" --json >"$OUT/stm32-loop00.json" || true
+    $C robots --data "$DATA/kitti00-loop" --a 88:89 --b 850:851 --no-prior "${S2[@]}" --json >"$OUT/stm32-apart.json" || true
+    $C robots --data "$DATA/kitti00-loop" --a 88:89 --b 850:851 --no-prior --label-noise network "${S2[@]}" --json \
+      >"$OUT/stm32-apart-network.json" || true
+  fi
+  [ -d "$DATA/kitti08-loop" ] && { $C robots --data "$DATA/kitti08-loop" --a 720:721 --b 1500:1501 --no-prior "${S2[@]}" \
+    --json >"$OUT/stm32-loop08.json" || true; }
   $C team --on-board --robot "$K0:0:3" --robot "$K0:3:6" --robot "$K0:6:10" --json >"$OUT/team-boards.json" || true
   # The onboard pipeline per robot, no prior: overlapping pairs, the pair
   # that shares nothing, and a network's labels.
@@ -279,10 +294,12 @@ def total(x):
 TITLES = {
     "prior": ("a prior", "`cosem robots --data kitti00 --a 0:5 --b 5:10 --json`"),
     "noprior": ("no prior", "`cosem robots --data kitti00 --a 0:5 --b 5:10 --no-prior --json`"),
-    "stm32f405": ("a prior, robot B on an STM32F405 (it sends its map and is told the result)",
-                  "`cosem robots --data kitti00 --a 0:5 --b 5:10 --board-b stm32f405 --json`"),
+    "stm32f405": ("a prior, robot B on an STM32F405 as a sender (it sends its map and is told the result)",
+                  "`cosem robots --data kitti00 --a 0:5 --b 5:10 --board-b stm32f405-sender --json`"),
+    "stm32-prior": ("a prior, both robots on STM32F405s (192 KiB each, 0.7 m voxels)",
+                    "`cosem robots --data kitti00 --a 0:5 --b 5:10 --board-a stm32f405 --board-b stm32f405 --json`"),
 }
-for kind in ["prior", "noprior", "stm32f405"]:
+for kind in ["prior", "noprior", "stm32f405", "stm32-prior"]:
     r = load(f"robots-{kind}.json")
     if not r:
         continue
@@ -304,23 +321,44 @@ PIPELINES = [
     ("pipeline-apart", "kitti00-loop 88 / 850 (308 m apart: no overlap)"),
     ("pipeline-apart-network", "kitti00-loop 88 / 850, network labels"),
 ]
-rows = [(label, load(f"{name}.json")) for name, label in PIPELINES]
-if any(r for _, r in rows):
-    print("\n## The onboard pipeline per robot, no prior, emulated boards\n")
-    print("`cosem robots --data D --a A --b B --no-prior [--label-noise network] --json`; instructions per robot A / B "
+def pipeline_table(rows, title, command):
+    """A table of the onboard pipeline per robot, one row per pair."""
+    if not any(r for _, r in rows):
+        return
+    print(f"\n## {title}\n")
+    print(f"{command}; instructions per robot A / B "
           "(the budget: 3e8 per robot; the search's budget: 40,000 nodes)\n")
-    print("| pair | status A / B | map | prepare | locate | match | total | search nodes |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| pair | status A / B | e_t A / B | e_r A / B | voxels | map | prepare | locate | match | total | search nodes |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for label, r in rows:
         if not r:
             continue
         xs = r["robots"]
         st = " / ".join(x["status"] for x in xs)
         col = lambda k: " / ".join(f"{x.get(k, 0)/1e6:.0f} M" for x in xs)
+        err = lambda k, unit: " / ".join(f"{x[k]:.3f}" if x["status"] == "Converged" else "-" for x in xs) + unit
+        vox = " / ".join(f"{x['map_voxels']:,}" for x in xs)
         tot = " / ".join(f"{total(x)/1e6:.0f} M" for x in xs)
         nodes = " / ".join(f"{(x.get('global') or {}).get('evaluations', 0):,}" for x in xs)
-        print(f"| {label} | {st} | {col('map_instructions')} | {col('prepare_instructions')} | {col('locate_instructions')} | "
+        print(f"| {label} | {st} | {err('e_t', ' m')} | {err('e_r', ' deg')} | {vox} | {col('map_instructions')} | "
+              f"{col('prepare_instructions')} | {col('locate_instructions')} | "
               f"{col('match_instructions')} | {tot} | {nodes} |")
+
+pipeline_table([(label, load(f"{name}.json")) for name, label in PIPELINES],
+               "The onboard pipeline per robot, no prior, emulated boards",
+               "`cosem robots --data D --a A --b B --no-prior [--label-noise network] --json`")
+STM32 = [
+    ("stm32-kitti00", "kitti00 0:5 / 5:10"),
+    ("stm32-kitti00-network", "kitti00 0:5 / 5:10, network labels"),
+    ("stm32-loop08", "kitti08-loop 720 / 1500 (opposite directions)"),
+    ("stm32-loop00", "kitti00-loop 52 / 4501"),
+    ("stm32-apart", "kitti00-loop 88 / 850 (308 m apart: no overlap)"),
+    ("stm32-apart-network", "kitti00-loop 88 / 850, network labels"),
+]
+pipeline_table([(label, load(f"{name}.json")) for name, label in STM32],
+               "Both robots on STM32F405s (192 KiB, 2,496 voxels of 0.7 m), no prior",
+               "`cosem robots --data D --a A --b B --no-prior [--label-noise network] "
+               "--board-a stm32f405 --board-b stm32f405 --json`")
 
 def placed(t):
     """Placed robots with their errors, unplaced ones, matches left out."""

@@ -248,7 +248,7 @@ fn check_one_sided(json: &Value) {
         assert!(robot["static_ram_bytes"].as_u64().unwrap() > 0 && robot["peak_stack_bytes"].as_u64().unwrap() > 0);
         check_budget(i, robot);
     }
-    assert_eq!((r[0]["board"].as_str(), r[1]["board"].as_str()), (Some("mps2-an386"), Some("stm32f405")));
+    assert_eq!((r[0]["board"].as_str(), r[1]["board"].as_str()), (Some("mps2-an386"), Some("stm32f405-sender")));
     assert_eq!(r[0]["received_voxels"], r[1]["map_voxels"]);
     assert_eq!(r[1]["received_voxels"], 0, "robot B takes no map");
     assert_eq!(r[1]["match_instructions"], 0, "robot B does not match");
@@ -266,7 +266,7 @@ fn robot_b_on_an_stm32f405_sends_its_map_and_is_told_the_result() {
         return;
     }
     let (json, ok) =
-        robots(&["--data", &data.display().to_string(), "--a", "0:5", "--b", "5:10", "--board-b", "stm32f405"]);
+        robots(&["--data", &data.display().to_string(), "--a", "0:5", "--b", "5:10", "--board-b", "stm32f405-sender"]);
     assert!(ok, "{json}");
     check_one_sided(&json);
 }
@@ -278,7 +278,68 @@ fn robot_b_on_an_stm32f405_matches_a_synthetic_street_with_no_prior() {
     }
     let tmp = synthetic(10);
     let seq = tmp.path().join("seq").display().to_string();
-    let (json, ok) = robots(&["--data", &seq, "--a", "0:5", "--b", "5:10", "--no-prior", "--board-b", "stm32f405"]);
+    let (json, ok) =
+        robots(&["--data", &seq, "--a", "0:5", "--b", "5:10", "--no-prior", "--board-b", "stm32f405-sender"]);
     assert!(ok, "{json}");
     check_one_sided(&json);
+}
+
+/// Both robots on STM32F405s, each within its 192 KiB (statics and peak
+/// stack), at its own voxel size (0.7 m), with maps of its capacity.
+fn check_stm32f405_pair(json: &Value) {
+    for (i, r) in json["robots"].as_array().unwrap().iter().enumerate() {
+        assert_eq!(r["board"], "stm32f405", "robot {i}: {r}");
+        let ram = r["static_ram_bytes"].as_u64().unwrap() + r["peak_stack_bytes"].as_u64().unwrap();
+        assert!(ram <= 192 * 1024, "robot {i} takes {ram} bytes of RAM with its stack");
+        let voxels = r["map_voxels"].as_u64().unwrap();
+        assert!(voxels > 2000 && voxels <= cosem_core::robot::Capacity::STM32F405.voxels as u64, "robot {i}: {r}");
+    }
+}
+
+const STM32: [&str; 4] = ["--board-a", "stm32f405", "--board-b", "stm32f405"];
+
+#[test]
+fn two_stm32f405_robots_match_kitti00_on_board_with_and_without_a_prior() {
+    let Some(data) = cosem_tests::real_data("kitti00") else { return };
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let data = data.display().to_string();
+    for extra in [&[][..], &["--no-prior"][..], &["--no-prior", "--label-noise", "network"][..]] {
+        let mut args = vec!["--data", &data, "--a", "0:5", "--b", "5:10"];
+        args.extend_from_slice(&STM32);
+        args.extend_from_slice(extra);
+        let (json, ok) = robots(&args);
+        assert!(ok, "{extra:?}: {json}");
+        check_pair(&json);
+        check_stm32f405_pair(&json);
+    }
+}
+
+#[test]
+fn two_stm32f405_robots_align_the_opposite_direction_loop_and_refuse_a_pair_that_shares_nothing() {
+    let Some(loop08) = cosem_tests::real_data("kitti08-loop") else { return };
+    let Some(loop00) = cosem_tests::real_data("kitti00-loop") else { return };
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let loop08 = loop08.display().to_string();
+    let mut args = vec!["--data", &loop08, "--a", "720:721", "--b", "1500:1501", "--no-prior"];
+    args.extend_from_slice(&STM32);
+    let (json, ok) = robots(&args);
+    assert!(ok, "{json}");
+    check_pair(&json);
+    check_stm32f405_pair(&json);
+    let loop00 = loop00.display().to_string();
+    for noise in ["none", "network"] {
+        let mut args = vec!["--data", &loop00, "--a", "88:89", "--b", "850:851", "--no-prior", "--label-noise", noise];
+        args.extend_from_slice(&STM32);
+        let (json, ok) = robots(&args);
+        assert!(!ok, "{json}");
+        check_stm32f405_pair(&json);
+        for (i, r) in json["robots"].as_array().unwrap().iter().enumerate() {
+            assert_eq!(r["status"], "NoOverlap", "{noise}: robot {i}: {r}");
+            check_budget(i, r);
+        }
+    }
 }

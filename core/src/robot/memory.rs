@@ -63,6 +63,26 @@ impl Capacity {
         spare_words: 0,
     };
 
+    /// The matching robot of an STM32F405 (128 KiB of SRAM and 64 KiB of
+    /// core-coupled memory, each a region of its own): 0.7 m voxels
+    /// ([`SMALL_VOXEL_M`]), 2,496 of them (28 bytes each in the map, 8 in
+    /// the received one), pyramids of 3 levels with 0.65 coarse entries
+    /// per voxel (a network's labels on maps that share nothing took up to
+    /// 0.63), footprints of 2 m cells. The own region (map, then
+    /// [`Self::spare_words`]) and the received map fill the SRAM; the turn
+    /// region (link, then pyramid buffers), the receive rings and the
+    /// stack share the CCM. See `firmware/boards/stm32f405/README.md`.
+    pub const STM32F405: Capacity = Capacity {
+        voxels: SMALL_MATCHING_VOXELS,
+        coarse: 1624,
+        model_words: 1536,
+        scene_words: 2048,
+        levels: super::LEVELS,
+        // The SRAM's 128 KiB less the map (28 B a voxel) and the received
+        // map (8 B a voxel).
+        spare_words: (128 * 1024 - 36 * SMALL_MATCHING_VOXELS) / 4,
+    };
+
     /// A robot that only sends its map ([`super::Robot::sender`]).
     pub const fn sender(voxels: usize) -> Capacity {
         Capacity { voxels, coarse: 0, model_words: 0, scene_words: 0, levels: 0, spare_words: 0 }
@@ -138,6 +158,13 @@ impl Capacity {
         self.voxels + if self.matches() { self.plan().link_words } else { LINK_WORDS }
     }
 }
+
+/// Voxels of [`Capacity::STM32F405`]'s maps.
+pub const SMALL_MATCHING_VOXELS: usize = 2496;
+/// The voxel size (m) a robot of [`Capacity::STM32F405`] maps at: its few
+/// voxels cover the 25 m a sensor sees around it (at 0.5 m they would
+/// cover half as far, and its maps match worse).
+pub const SMALL_VOXEL_M: f32 = 0.7;
 
 /// Pyramid buffers a robot carves: the model's entries, normals, index and
 /// footprint, the scene's entries and footprint.
@@ -277,11 +304,23 @@ mod tests {
 
     /// The plan puts no more in a place than it holds, and no placement
     /// needs fewer link words.
+    /// The STM32F405's regions fit its memories: the own region and the
+    /// received map its SRAM, the turn region its CCM with 28 KiB left for
+    /// the receive rings and the stack.
+    #[test]
+    fn the_stm32f405_regions_fit_its_memories() {
+        let c = Capacity::STM32F405;
+        let received = c.voxels * core::mem::size_of::<crate::map::ScenePoint>();
+        assert!(c.own_words() * 4 + received <= 128 * 1024, "SRAM {} B", c.own_words() * 4 + received);
+        assert!(c.turn_words() * 4 <= 36 * 1024, "turn region {} B", c.turn_words() * 4);
+        assert!(c.plan().link_words >= LINK_WORDS);
+    }
+
     #[test]
     fn the_plan_is_the_smallest_that_fits() {
         let small =
             Capacity { voxels: 3200, coarse: 1500, model_words: 3300, scene_words: 2600, levels: 2, spare_words: 0 };
-        for c in [Capacity::BOARD, small, Capacity { spare_words: 4000, ..small }] {
+        for c in [Capacity::BOARD, small, Capacity { spare_words: 4000, ..small }, Capacity::STM32F405] {
             let plan = c.plan();
             let need = c.pyramid_words();
             let mut used = [0usize; ROOMS];

@@ -1,5 +1,5 @@
-//! The memory layout (memory.x) for QEMU or for hardware, and the main
-//! SRAM's section.
+//! The memory layout (memory.x) for QEMU or for hardware, the main SRAM's
+//! section, and the matching robot's stack budget.
 use std::{env, fs, path::PathBuf};
 
 fn main() {
@@ -9,7 +9,10 @@ fn main() {
     fs::copy("sram.x", out.join("sram.x")).expect("copy the SRAM section");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rustc-link-arg=-Tsram.x");
-    for f in ["memory-qemu.x", "memory-hardware.x", "sram.x"] {
+    // The matching robot: statics and stack within 192 KiB.
+    fs::copy("robot-budget.x", out.join("robot-budget.x")).expect("copy the robot's budget");
+    println!("cargo:rustc-link-arg-bin=stm32f405-robot=-Trobot-budget.x");
+    for f in ["memory-qemu.x", "memory-hardware.x", "sram.x", "robot-budget.x"] {
         println!("cargo:rerun-if-changed={f}");
     }
     if env::var_os("CARGO_FEATURE_DEFMT").is_some() {

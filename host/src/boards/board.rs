@@ -14,9 +14,12 @@ pub enum Board {
     /// maps and the matcher.
     Mps2An386,
     /// An STM32F405 (QEMU `netduinoplus2`: 128 KiB SRAM + 64 KiB CCM,
-    /// through stm32f4xx-hal): it maps and sends, and is told the result
-    /// (a one-sided exchange).
+    /// through stm32f4xx-hal): the matching robot in 192 KiB, with fewer
+    /// voxels of 0.7 m (`Capacity::STM32F405`).
     Stm32f405,
+    /// The same chip as a sender: it maps and sends, and is told the
+    /// result (a one-sided exchange).
+    Stm32f405Sender,
 }
 
 impl std::str::FromStr for Board {
@@ -25,7 +28,8 @@ impl std::str::FromStr for Board {
         match s {
             "mps2-an386" => Ok(Board::Mps2An386),
             "stm32f405" => Ok(Board::Stm32f405),
-            _ => Err(format!("unknown board `{s}`: mps2-an386 or stm32f405")),
+            "stm32f405-sender" => Ok(Board::Stm32f405Sender),
+            _ => Err(format!("unknown board `{s}`: mps2-an386, stm32f405 or stm32f405-sender")),
         }
     }
 }
@@ -36,6 +40,7 @@ impl Board {
         match self {
             Board::Mps2An386 => "mps2-an386",
             Board::Stm32f405 => "stm32f405",
+            Board::Stm32f405Sender => "stm32f405-sender",
         }
     }
 
@@ -44,13 +49,14 @@ impl Board {
         match self {
             Board::Mps2An386 => "firmware/target/thumbv7em-none-eabihf/release/robot",
             Board::Stm32f405 => "firmware/target/thumbv7em-none-eabihf/release/stm32f405-robot",
+            Board::Stm32f405Sender => "firmware/target/thumbv7em-none-eabihf/release/stm32f405-sender",
         }
     }
 
     /// Whether its robot holds the peer's map and matches (else it sends
     /// its own and is told the result).
     pub fn matches(self) -> bool {
-        self == Board::Mps2An386
+        self != Board::Stm32f405Sender
     }
 
     /// Its robot's capacities (the sizes of the memory its firmware
@@ -58,15 +64,23 @@ impl Board {
     pub fn capacity(self) -> cosem_core::robot::Capacity {
         match self {
             Board::Mps2An386 => cosem_core::robot::Capacity::BOARD,
-            Board::Stm32f405 => cosem_core::robot::Capacity::sender(cosem_core::robot::SMALL_VOXELS),
+            Board::Stm32f405 => cosem_core::robot::Capacity::STM32F405,
+            Board::Stm32f405Sender => cosem_core::robot::Capacity::sender(cosem_core::robot::SMALL_VOXELS),
         }
     }
 
     /// Voxels its robot's map holds.
     pub fn voxels(self) -> usize {
+        self.capacity().voxels
+    }
+
+    /// The voxel size (m) its robot maps at by default: its capacity's
+    /// voxels cover a sensor's 25 m (the mps2 robot's 8,192 at 0.5 m, the
+    /// STM32F405's 2,496 at 0.7 m).
+    pub fn default_voxel(self) -> f32 {
         match self {
-            Board::Mps2An386 => cosem_core::robot::VOXELS,
-            Board::Stm32f405 => cosem_core::robot::SMALL_VOXELS,
+            Board::Stm32f405 => cosem_core::robot::memory::SMALL_VOXEL_M,
+            Board::Mps2An386 | Board::Stm32f405Sender => 0.5,
         }
     }
 
@@ -77,7 +91,7 @@ impl Board {
     pub fn qemu_command(self, elf: &Path, serials: &[Option<u16>]) -> Command {
         let machine = match self {
             Board::Mps2An386 => include_str!("../../../firmware/qemu/mps2-an386.args"),
-            Board::Stm32f405 => include_str!("../../../firmware/qemu/stm32f405.args"),
+            Board::Stm32f405 | Board::Stm32f405Sender => include_str!("../../../firmware/qemu/stm32f405.args"),
         };
         let mut cmd = Command::new("qemu-system-arm");
         cmd.args(machine.split_whitespace())
@@ -98,7 +112,7 @@ impl Board {
     pub fn qemu(self, elf: &Path, feed: u16, link: u16) -> std::io::Result<Child> {
         let serials = match self {
             Board::Mps2An386 => [Some(link), Some(feed)],
-            Board::Stm32f405 => [Some(feed), Some(link)],
+            Board::Stm32f405 | Board::Stm32f405Sender => [Some(feed), Some(link)],
         };
         self.qemu_command(elf, &serials).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::null()).spawn()
     }

@@ -180,7 +180,7 @@ pub fn host_run(feeds: [&Feed; 2], boards: [Board; 2]) -> Result<[RobotReport; 2
     let capacity = boards.map(Board::capacity);
     let mut own = capacity.map(|c| vec![0u32; c.own_words()]);
     let mut turn = capacity.map(|c| vec![0u32; c.turn_words()]);
-    let mut points = [vec![ScenePoint::EMPTY; VOXELS], vec![ScenePoint::EMPTY; VOXELS]];
+    let mut points = capacity.map(|c| vec![ScenePoint::EMPTY; c.voxels]);
     let mut received = Vec::new();
     for p in &mut points {
         received
@@ -261,7 +261,7 @@ pub fn run_robots(spec: &RobotsSpec) -> Result<(RobotsJson, Option<u8>), Error> 
     let host_ms = t.elapsed().as_secs_f64() * 1e3;
     let elf = |b: Board| match b {
         Board::Mps2An386 => firmware(&spec.firmware),
-        Board::Stm32f405 => firmware(Path::new(b.default_firmware())),
+        Board::Stm32f405 | Board::Stm32f405Sender => firmware(Path::new(b.default_firmware())),
     };
     let elves = [elf(spec.boards[0])?, elf(spec.boards[1])?];
     let timeout = Duration::from_secs_f64(spec.timeout_s.min(86_400.0));
@@ -289,7 +289,8 @@ pub fn firmware(path: &Path) -> Result<PathBuf, Error> {
     // A binary at the default place (robot, team) is built first.
     let built_here = Path::new(DEFAULT_FIRMWARE).parent();
     let bin = path.file_name().and_then(|b| b.to_str()).unwrap_or("robot");
-    let default = path.parent() == built_here && matches!(bin, "robot" | "team" | "stm32f405-robot");
+    let default =
+        path.parent() == built_here && matches!(bin, "robot" | "team" | "stm32f405-robot" | "stm32f405-sender");
     if !default || !dir.join("Cargo.toml").exists() {
         return if path.exists() {
             Ok(path.to_path_buf())

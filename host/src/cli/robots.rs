@@ -25,8 +25,10 @@ pub struct Args {
     #[arg(long)]
     b: FrameRange,
     /// Voxel size on board (m); each scan is fed as one point per voxel.
-    #[arg(long, default_value = "0.5", value_parser = positive_f32)]
-    voxel: f32,
+    /// Default: the boards' own (0.5 on mps2-an386, 0.7 on stm32f405; the
+    /// larger of the two).
+    #[arg(long, value_parser = positive_f32)]
+    voxel: Option<f32>,
     /// Points farther than this from their sensor are not fed (m).
     #[arg(long, default_value = "25", value_parser = positive_f32)]
     crop: f32,
@@ -45,8 +47,9 @@ pub struct Args {
     /// path, built or brought up to date first).
     #[arg(long, default_value = DEFAULT_FIRMWARE)]
     firmware: PathBuf,
-    /// Robot A's board: mps2-an386 (the full robot) or stm32f405 (192 KiB:
-    /// it maps and sends its map, and is told the other robot's result).
+    /// Robot A's board: mps2-an386 (512 KiB: 8,192 voxels), stm32f405
+    /// (192 KiB: 2,496 voxels of 0.7 m) or stm32f405-sender (it maps and
+    /// sends its map, and is told the other robot's result).
     #[arg(long, default_value = "mps2-an386")]
     board_a: Board,
     /// Robot B's board (see --board-a).
@@ -75,7 +78,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let spec = RobotsSpec {
         source: cosem_host::source::Source::open(&a.data, &a.source.options())?,
         ranges: [a.a, a.b],
-        voxel: a.voxel,
+        voxel: a.voxel.unwrap_or(a.board_a.default_voxel().max(a.board_b.default_voxel())),
         crop: a.crop,
         prior: a.prior,
         no_prior: a.no_prior,
