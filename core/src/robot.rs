@@ -33,8 +33,8 @@
 use crate::geometry::Isometry3;
 use crate::link::LinkError;
 use crate::map::{ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, ScenePoint, VoxelStorage};
-use crate::matching::global::{align_searched, Searched};
-use crate::matching::search::GlobalSearch;
+use crate::matching::global::{align_searched_in, Searched};
+use crate::matching::search::{GlobalSearch, SearchScratch};
 use crate::matching::{
     ArrayPyramidStorage, ArraySceneStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError,
     PyramidStorage, SceneSource,
@@ -187,25 +187,28 @@ pub fn align<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: Pyr
     let model = Pyramid::build_model(own, LEVELS, FOOTPRINT_CELL, model_storage).map_err(AlignError::Pyramid)?;
     let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene_storage).map_err(AlignError::Pyramid)?;
     on_phase(1);
-    align_prepared(&model, &scene, prior, on_phase)
+    let mut words = [0u32; SearchScratch::WINDOWED];
+    align_prepared(&model, &scene, prior, &mut SearchScratch::new(&mut words), on_phase)
 }
 
-/// [`align`] of maps already prepared; `on_phase` runs at phases 2 and 3.
+/// [`align`] of maps already prepared, the searches' caches in `scratch`;
+/// `on_phase` runs at phases 2 and 3.
 fn align_prepared<P: PyramidStorage, Q: PyramidStorage>(
     model: &Pyramid<'_, P>,
     scene: &Pyramid<'_, Q>,
     prior: Option<&Isometry3<f32>>,
+    scratch: &mut SearchScratch<'_>,
     mut on_phase: impl FnMut(u8),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
     let matcher = Matcher::new(MatchSettings { max_iterations: EM_ITERATIONS, ..MatchSettings::default() });
     let r = match prior {
         Some(p) => {
             on_phase(2);
-            (matcher.align(model, scene, p).map_err(AlignError::Match)?, None)
+            (matcher.align_in(model, scene, p, scratch).map_err(AlignError::Match)?, None)
         }
         None => {
             let search = GlobalSearch { max_evaluations: SEARCH_NODES, ..GlobalSearch::default() };
-            align_searched(&matcher, model, scene, &search, || on_phase(2))
+            align_searched_in(&matcher, model, scene, &search, || on_phase(2), scratch)
         }
         .map_err(AlignError::Match)?,
     };

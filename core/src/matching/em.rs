@@ -4,7 +4,7 @@
 use super::associate::{accumulate, agreement, standing_agreement, Normal, Pass, Sampling};
 use super::pyramid::{Level, Pyramid, PyramidStorage, Role, MAX_LEVELS};
 use super::result::{MatchResult, MatchStatus};
-use super::search::search;
+use super::search::{search_in, SearchScratch};
 use super::settings::{MatchSettings, Method};
 use super::solve::{apply, min_eigenvalue, normalised_min_eigenvalue, step};
 use nalgebra::{Isometry3, Matrix6};
@@ -101,20 +101,38 @@ impl Matcher {
     /// at least 0.25 m, up to [`LOOK_ALIKE_RANGE`]); when one scores higher
     /// than the answer, EM refines it too, and the better-agreeing
     /// converged answer is kept.
+    ///
+    /// The windowed search's cache of scene cells is on the stack
+    /// ([`SearchScratch::WINDOWED`] words); [`Matcher::align_in`] takes it
+    /// from the caller.
     pub fn align<A: PyramidStorage, B: PyramidStorage>(
         &self,
         model: &Pyramid<'_, A>,
         scene: &Pyramid<'_, B>,
         init: &Isometry3<f32>,
     ) -> Result<MatchResult, MatchError> {
-        let first = self.align_once(model, scene, init, None)?;
+        let mut words = [0u32; SearchScratch::WINDOWED];
+        self.align_in(model, scene, init, &mut SearchScratch::new(&mut words))
+    }
+
+    /// [`Matcher::align`] with the windowed search's cache in `scratch`
+    /// (fewer words than [`SearchScratch::WINDOWED`]: a scene of more
+    /// cells than the cache holds is thinned by a stride).
+    pub fn align_in<A: PyramidStorage, B: PyramidStorage>(
+        &self,
+        model: &Pyramid<'_, A>,
+        scene: &Pyramid<'_, B>,
+        init: &Isometry3<f32>,
+        scratch: &mut SearchScratch<'_>,
+    ) -> Result<MatchResult, MatchError> {
+        let first = self.align_once(model, scene, init, None, scratch)?;
         if first.status != MatchStatus::Converged {
             return Ok(first);
         }
         let Some((shifted, step)) = self.look_alike(model, scene, &first) else { return Ok(first) };
         // EM from the level whose cells hold the shift's error (half a step),
         // not from the coarsest, which would blur the two apart again.
-        let second = self.align_once(model, scene, &shifted, Some(step))?;
+        let second = self.align_once(model, scene, &shifted, Some(step), scratch)?;
         if second.status == MatchStatus::Converged && second.agreement > first.agreement + LOOK_ALIKE_MARGIN {
             return Ok(MatchResult { iterations: first.iterations + second.iterations, ..second });
         }
@@ -184,9 +202,10 @@ impl Matcher {
         scene: &Pyramid<'_, B>,
         init: &Isometry3<f32>,
         near: Option<f32>,
+        scratch: &mut SearchScratch<'_>,
     ) -> Result<MatchResult, MatchError> {
         let levels = self.check_pair(model, scene, init)?;
-        let (start, top) = self.start(model, scene, init, near, levels);
+        let (start, top) = self.start(model, scene, init, near, levels, scratch);
         let mut refined = self.refine(model, scene, start, top);
         if !finite_iso(&refined.transform) {
             // Cannot happen with finite steps; guard the promise anyway.
@@ -235,6 +254,7 @@ impl Matcher {
         init: &Isometry3<f32>,
         near: Option<f32>,
         levels: usize,
+        scratch: &mut SearchScratch<'_>,
     ) -> (Isometry3<f32>, usize) {
         let s = &self.settings;
         let mut t = *init;
@@ -244,7 +264,7 @@ impl Matcher {
                 top -= 1;
             }
         } else if let (Some(window), Some(fm), Some(fs)) = (s.search, model.footprint(), scene.footprint()) {
-            if let Some(found) = search(fm, fs, init, &window, s.method != Method::Geometric) {
+            if let Some(found) = search_in(fm, fs, init, &window, s.method != Method::Geometric, scratch) {
                 t = found.transform;
                 // The finest level whose cells hold the search's error (about one
                 // footprint cell).

@@ -1,12 +1,12 @@
 //! Prior-free alignment: no prior, the maps alone. The coarse search over
-//! every heading and offset ([`search_global`], branch and bound over the
+//! every heading and offset ([`search_global`](super::search::search_global), branch and bound over the
 //! footprints' class groups) proposes a few distinct placements, best
 //! first; the matcher refines them in turn until one passes its verdict
 //! (`Converged`: the maps agree where both saw standing structure, see
 //! `MatchSettings::min_agreement`). None passing is an honest `NoOverlap`,
 //! never a guess.
 
-use super::search::{search_global, Candidate, GlobalSearch, GlobalSearchOutcome, SearchWindow};
+use super::search::{search_global_in, Candidate, GlobalSearch, GlobalSearchOutcome, SearchScratch, SearchWindow};
 use super::{MatchError, MatchResult, MatchSettings, MatchStatus, Matcher, Method, Pyramid, PyramidStorage};
 
 /// What the prior-free alignment tried.
@@ -35,7 +35,7 @@ impl From<&Searched> for crate::wire::feed::GlobalReport {
 }
 
 /// Aligns two prepared maps with no prior: the coarse search over every
-/// heading and offset ([`search_global`]) gives a few distinct candidates,
+/// heading and offset ([`search_global`](super::search::search_global)) gives a few distinct candidates,
 /// best first; each is refined by the matcher (a narrow search window
 /// around it, then EM) until one passes the matcher's verdict
 /// (`Converged`). None passing: the best candidate's result, whatever its
@@ -48,7 +48,22 @@ pub fn align_searched<A: PyramidStorage, B: PyramidStorage>(
     model: &Pyramid<'_, A>,
     scene: &Pyramid<'_, B>,
     settings: &GlobalSearch,
+    searched: impl FnMut(),
+) -> Result<(MatchResult, Option<Searched>), MatchError> {
+    let mut words = [0u32; SearchScratch::WINDOWED];
+    align_searched_in(matcher, model, scene, settings, searched, &mut SearchScratch::new(&mut words))
+}
+
+/// [`align_searched`] with the searches' caches in `scratch` (at least
+/// [`SearchScratch::global`] words for `settings`: fewer, no search and
+/// `NoOverlap`; see [`Matcher::align_in`] for the windowed searches').
+pub fn align_searched_in<A: PyramidStorage, B: PyramidStorage>(
+    matcher: &Matcher,
+    model: &Pyramid<'_, A>,
+    scene: &Pyramid<'_, B>,
+    settings: &GlobalSearch,
     mut searched: impl FnMut(),
+    scratch: &mut SearchScratch<'_>,
 ) -> Result<(MatchResult, Option<Searched>), MatchError> {
     let semantic = matcher.settings.method != Method::Geometric;
     let (Some(fm), Some(fs)) = (model.footprint(), scene.footprint()) else {
@@ -68,16 +83,19 @@ pub fn align_searched<A: PyramidStorage, B: PyramidStorage>(
     // do (they prune little; their best placements are no better than
     // their runner-ups).
     let one = GlobalSearch { candidates: 1, ..*settings };
-    let Some(search) = search_global(fm, fs, &one, semantic) else { return Ok((MatchResult::no_overlap(), None)) };
+    let Some(search) = search_global_in(fm, fs, &one, semantic, scratch) else {
+        return Ok((MatchResult::no_overlap(), None));
+    };
     searched();
     let Some(best) = search.candidates.first().copied() else { return Ok((MatchResult::no_overlap(), None)) };
-    let first = local.align(model, scene, &best.transform)?;
+    let first = local.align_in(model, scene, &best.transform, scratch)?;
     let left = settings.max_evaluations.saturating_sub(search.evaluations);
     if first.status == MatchStatus::Converged || settings.candidates <= 1 || left <= search.evaluations {
         return Ok((first, Some(Searched { search, chosen: 0, refined: 1 })));
     }
     let spent = search.evaluations;
-    let Some(mut more) = search_global(fm, fs, &GlobalSearch { max_evaluations: left, ..*settings }, semantic) else {
+    let more = search_global_in(fm, fs, &GlobalSearch { max_evaluations: left, ..*settings }, semantic, scratch);
+    let Some(mut more) = more else {
         return Ok((first, Some(Searched { search, chosen: 0, refined: 1 })));
     };
     more.evaluations = more.evaluations.saturating_add(spent);
@@ -93,7 +111,7 @@ pub fn align_searched<A: PyramidStorage, B: PyramidStorage>(
             continue;
         }
         refined += 1;
-        let r = local.align(model, scene, &c.transform)?;
+        let r = local.align_in(model, scene, &c.transform, scratch)?;
         if r.status == MatchStatus::Converged {
             return Ok((r, Some(Searched { search: more.clone(), chosen: k, refined })));
         }
@@ -103,6 +121,7 @@ pub fn align_searched<A: PyramidStorage, B: PyramidStorage>(
 
 #[cfg(test)]
 mod tests {
+    use super::super::search::search_global;
     use super::*;
     use crate::classes::Class;
     use crate::geometry::from_xyz_rpy;

@@ -12,6 +12,7 @@
 //! deterministic order (ties go to the candidate nearest the prior).
 
 use super::footprint::{Footprint, Grid, POOL_LEVELS};
+use crate::region::{words_for, Region};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 /// The region around the prior that the coarse search covers.
@@ -30,7 +31,7 @@ pub struct SearchWindow {
 /// 1 m or more; a wider window coarsens its heading step to fit.
 const MAX_ROOTS: usize = 128;
 /// Scene points whose cells are cached per yaw; more are thinned by stride.
-const MAX_POINTS: usize = 2048;
+pub const MAX_POINTS: usize = 2048;
 const STACK: usize = 4 * POOL_LEVELS + 4;
 
 #[derive(Clone, Copy, Debug)]
@@ -69,30 +70,91 @@ struct Scorer<'a> {
 /// Scene points' model cells at one yaw and zero translation, with masks.
 /// Cells as `i16` (a footprint is far narrower; cells beyond are clamped
 /// and stay outside the grid at every offset) and masks as bytes (five
-/// group bits) apart, five bytes a point: the cache is the largest thing on
-/// a board's stack.
-struct YawCells<const N: usize> {
+/// group bits) apart, five bytes a point, in words the caller gives
+/// ([`SearchScratch`]): the cache is the largest thing a search keeps.
+struct YawCells<'s> {
     yaw: i16,
     len: usize,
-    cells: [[i16; 2]; N],
-    masks: [u8; N],
+    cells: &'s mut [[i16; 2]],
+    masks: &'s mut [u8],
     /// The most each [`CHUNK`] of cells can add to a score (their class
     /// groups), for scoring that stops once a floor is out of reach.
-    most: [u16; MAX_CHUNKS],
+    most: &'s mut [u16],
     /// The sum of `most`: the most the whole cache can score.
     most_total: u32,
 }
 
-impl<const N: usize> YawCells<N> {
-    fn new() -> Self {
-        YawCells { yaw: 0, len: 0, cells: [[0; 2]; N], masks: [0; N], most: [0; MAX_CHUNKS], most_total: 0 }
+impl<'s> YawCells<'s> {
+    /// Words a cache of `points` cells takes.
+    const fn words(points: usize) -> usize {
+        words_for::<[i16; 2]>(points) + words_for::<u8>(points) + words_for::<u16>(points.div_ceil(CHUNK))
+    }
+
+    /// The most cells (at most `limit`) a cache in `words` words holds.
+    fn fitting(words: usize, limit: usize) -> usize {
+        // Five bytes and a sixteenth a cell, less rounding.
+        let mut n = limit.min(words.saturating_mul(64) / 81);
+        while n > 0 && Self::words(n) > words {
+            n -= 1;
+        }
+        n
+    }
+
+    /// A cache of `points` cells carved out of `region`.
+    fn carve(region: &mut Region<'s>, points: usize) -> Option<Self> {
+        let cells = region.take::<[i16; 2]>(points).ok()?;
+        let masks = region.take::<u8>(points).ok()?;
+        let most = region.take::<u16>(points.div_ceil(CHUNK)).ok()?;
+        Some(YawCells { yaw: 0, len: 0, cells, masks, most, most_total: 0 })
+    }
+
+    /// Cells it holds at most.
+    fn capacity(&self) -> usize {
+        self.cells.len()
+    }
+}
+
+/// Words a search works in, the caller's: the windowed search's cache of
+/// scene cells ([`SearchScratch::WINDOWED`] words hold [`MAX_POINTS`] of
+/// them; fewer words, fewer cells, thinned by a stride) or the prior-free
+/// search's cache and heading order. A robot carves them out of memory
+/// that is idle while it searches; [`Matcher::align`](super::Matcher::align)
+/// and [`search_global`] take them from the stack.
+pub struct SearchScratch<'s> {
+    words: &'s mut [u32],
+}
+
+impl<'s> SearchScratch<'s> {
+    /// Words that hold the windowed search's whole cache.
+    pub const WINDOWED: usize = YawCells::words(MAX_POINTS);
+    /// Words of a windowed search's cache of `points` cells.
+    pub const fn windowed(points: usize) -> usize {
+        YawCells::words(points)
+    }
+    /// Words a prior-free search with `points` cells per candidate and
+    /// `headings` headings needs.
+    pub const fn global(points: usize, headings: usize) -> usize {
+        YawCells::words(points) + words_for::<[u32; 2]>(headings)
+    }
+
+    /// Scratch in `words` (any contents).
+    pub fn new(words: &'s mut [u32]) -> Self {
+        SearchScratch { words }
+    }
+
+    /// The scene cells a windowed search caches: all of them up to what the
+    /// words hold (at most [`MAX_POINTS`]).
+    pub fn windowed_points(&self) -> usize {
+        YawCells::fitting(self.words.len(), MAX_POINTS)
+    }
+
+    fn region(&mut self) -> Region<'_> {
+        Region::new(&mut *self.words)
     }
 }
 
 /// Cells scored between two checks of the floor.
 const CHUNK: usize = 32;
-/// Chunks of the largest cache.
-const MAX_CHUNKS: usize = MAX_POINTS.div_ceil(CHUNK);
 
 /// Set bits of a class mask: a table for the footprint's five group bits
 /// (a Cortex-M4 has no population count instruction), else counted.
@@ -117,7 +179,7 @@ fn narrow(v: i32) -> i16 {
 
 impl Scorer<'_> {
     /// Fills `out` with the model cell of every (strided) scene point at `yaw`.
-    fn cells<const N: usize>(&self, yaw: i16, out: &mut YawCells<N>) {
+    fn cells(&self, yaw: i16, out: &mut YawCells<'_>) {
         let (s, c) = libm::sincosf(f32::from(yaw) * self.step);
         let p = &self.prior;
         // Rz(theta) * [a b; d e] and Rz(theta) * [tx; ty].
@@ -125,7 +187,7 @@ impl Scorer<'_> {
         let o = [c * p[2] - s * p[5], s * p[2] + c * p[5]];
         out.yaw = yaw;
         out.len = 0;
-        out.most = [0; MAX_CHUNKS];
+        out.most.fill(0);
         out.most_total = 0;
         let slots = out.cells.iter_mut().zip(out.masks.iter_mut());
         for ((q, mask), (slot, slot_mask)) in self.scene.occupied().step_by(self.stride).zip(slots) {
@@ -146,7 +208,7 @@ impl Scorer<'_> {
 
     /// Score of a block of translations at the yaw of `cells`.
     #[inline]
-    fn score<const N: usize>(&self, cells: &YawCells<N>, i0: i32, j0: i32, h: usize) -> u32 {
+    fn score(&self, cells: &YawCells<'_>, i0: i32, j0: i32, h: usize) -> u32 {
         self.score_above(cells, i0, j0, h, 0)
     }
 
@@ -154,7 +216,7 @@ impl Scorer<'_> {
     /// `floor` (scoring stops once the cells left cannot lift it above).
     /// Branch and bound discards such a node whatever its exact score.
     #[inline]
-    fn score_above<const N: usize>(&self, cells: &YawCells<N>, i0: i32, j0: i32, h: usize, floor: u32) -> u32 {
+    fn score_above(&self, cells: &YawCells<'_>, i0: i32, j0: i32, h: usize, floor: u32) -> u32 {
         let Some(grid) = self.model.grid(h) else { return 0 };
         let points = cells.cells.get(..cells.len).unwrap_or(&[]);
         let masks = cells.masks.get(..cells.len).unwrap_or(&[]);
@@ -216,13 +278,28 @@ fn score_cells<const SEMANTIC: bool>(
 
 /// Searches `window` around `prior` (a `T_model_scene`) for the placement of
 /// the scene's footprint that best agrees with the model's: class by class
-/// when `semantic`, by bare occupancy otherwise.
+/// when `semantic`, by bare occupancy otherwise; its cache of scene cells on
+/// the stack.
 pub fn search(
     model: Footprint<'_>,
     scene: Footprint<'_>,
     prior: &Isometry3<f32>,
     window: &SearchWindow,
     semantic: bool,
+) -> Option<SearchOutcome> {
+    let mut words = [0u32; SearchScratch::WINDOWED];
+    search_in(model, scene, prior, window, semantic, &mut SearchScratch::new(&mut words))
+}
+
+/// [`search`] with its cache in `scratch` (a cache smaller than
+/// [`MAX_POINTS`] cells thins the scene's cells by a stride).
+pub fn search_in(
+    model: Footprint<'_>,
+    scene: Footprint<'_>,
+    prior: &Isometry3<f32>,
+    window: &SearchWindow,
+    semantic: bool,
+    scratch: &mut SearchScratch<'_>,
 ) -> Option<SearchOutcome> {
     let cell = model.cell();
     let usable = |v: f32| v.is_finite() && v >= 0.0;
@@ -237,9 +314,11 @@ pub fn search(
     let t = prior.translation.vector;
     let p = [rm[(0, 0)], rm[(0, 1)], t.x, rm[(1, 0)], rm[(1, 1)], t.y];
     let grid = WindowGrid::of(cell, &scene, &p, window);
-    let stride = scene.occupied_len().div_ceil(MAX_POINTS);
+    let points = scratch.windowed_points();
+    let mut region = scratch.region();
+    let mut cells = YawCells::carve(&mut region, points).filter(|c| c.capacity() > 0)?;
+    let stride = scene.occupied_len().div_ceil(cells.capacity());
     let scorer = Scorer { model, scene, prior: p, step: grid.step, stride, semantic };
-    let mut cells = YawCells::<MAX_POINTS>::new();
     let mut evaluations = 0u32;
     let roots = window_roots(&scorer, &grid, &mut cells, &mut evaluations);
     scorer.cells(0, &mut cells);
@@ -295,7 +374,7 @@ impl WindowGrid {
 fn window_roots(
     scorer: &Scorer<'_>,
     g: &WindowGrid,
-    cells: &mut YawCells<MAX_POINTS>,
+    cells: &mut YawCells<'_>,
     evaluations: &mut u32,
 ) -> heapless::Vec<Node, MAX_ROOTS> {
     let mut roots: heapless::Vec<Node, MAX_ROOTS> = heapless::Vec::new();
@@ -331,7 +410,7 @@ fn branch_and_bound(
     roots: &[Node],
     w: i32,
     mut best: Option<Node>,
-    cells: &mut YawCells<MAX_POINTS>,
+    cells: &mut YawCells<'_>,
     evaluations: &mut u32,
 ) -> Option<Node> {
     let beats = |n: &Node, best: &Option<Node>| best.is_none_or(|b| n.score > b.score);
@@ -554,9 +633,9 @@ impl Kept {
 
 /// Branch and bound from `root` (a block at one yaw), offering every leaf
 /// within `bounds` that may matter to `kept`.
-fn descend<const N: usize>(
+fn descend(
     scorer: &Scorer<'_>,
-    cells: &YawCells<N>,
+    cells: &YawCells<'_>,
     root: Node,
     bounds: &Bounds,
     kept: &mut Kept,
@@ -605,6 +684,8 @@ fn descend<const N: usize>(
 
 /// Most headings a prior-free search tries.
 const MAX_YAWS: usize = 720;
+// The windowed search's words serve any prior-free search too.
+const _: () = assert!(SearchScratch::WINDOWED >= SearchScratch::global(MAX_GLOBAL_POINTS, MAX_YAWS));
 /// Roots of one heading sorted before descending (more go in grid order).
 const MAX_YAW_ROOTS: usize = 256;
 
@@ -636,18 +717,19 @@ fn scene_centre(scene: &Footprint<'_>, stride: usize) -> ([f32; 2], f32) {
 /// Every heading's best root bound, best first (ties to the lower
 /// heading): the order headings are searched in.
 #[inline(always)]
+/// Fills `order` (one entry per heading) with each heading's best bound
+/// and the heading, best first (ties toward the lower heading).
 fn heading_order(
     scorer: &Scorer<'_>,
-    cells: &mut YawCells<MAX_GLOBAL_POINTS>,
+    cells: &mut YawCells<'_>,
     bounds: &Bounds,
-    n_yaw: usize,
+    order: &mut [[u32; 2]],
     evaluations: &mut u32,
-) -> heapless::Vec<(u32, u16), MAX_YAWS> {
+) {
     let top = POOL_LEVELS - 1;
     let block = 1i32 << top;
     let roots = |b: (i32, i32)| (b.0..=b.1).step_by(block as usize);
-    let mut order: heapless::Vec<(u32, u16), MAX_YAWS> = heapless::Vec::new();
-    for k in 0..n_yaw {
+    for (k, slot) in order.iter_mut().enumerate() {
         scorer.cells(k as i16, cells);
         let mut best_root = 0;
         for i in roots(bounds.i) {
@@ -656,10 +738,9 @@ fn heading_order(
                 *evaluations += 1;
             }
         }
-        let _ = order.push((best_root, k as u16));
+        *slot = [best_root, k as u32];
     }
-    order.sort_unstable_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
-    order
+    order.sort_unstable_by(|a, b| b[0].cmp(&a[0]).then(a[1].cmp(&b[1])));
 }
 
 /// Searches every heading and every offset at which the scene's footprint
@@ -676,6 +757,19 @@ pub fn search_global(
     scene: Footprint<'_>,
     settings: &GlobalSearch,
     semantic: bool,
+) -> Option<GlobalSearchOutcome> {
+    let mut words = [0u32; SearchScratch::global(MAX_GLOBAL_POINTS, MAX_YAWS)];
+    search_global_in(model, scene, settings, semantic, &mut SearchScratch::new(&mut words))
+}
+
+/// [`search_global`] with its cache and heading order in `scratch`
+/// ([`SearchScratch::global`] words; `None` in fewer).
+pub fn search_global_in(
+    model: Footprint<'_>,
+    scene: Footprint<'_>,
+    settings: &GlobalSearch,
+    semantic: bool,
+    scratch: &mut SearchScratch<'_>,
 ) -> Option<GlobalSearchOutcome> {
     let cell = model.cell();
     let step = settings.yaw_step;
@@ -703,9 +797,11 @@ pub fn search_global(
     let top = POOL_LEVELS - 1;
     let block = 1i32 << top;
     let roots = |b: (i32, i32)| (b.0..=b.1).step_by(block as usize);
-    let mut cells = YawCells::<MAX_GLOBAL_POINTS>::new();
+    let mut region = scratch.region();
+    let mut cells = YawCells::carve(&mut region, points)?;
+    let order = region.take::<[u32; 2]>(n_yaw).ok()?;
     let mut evaluations = 0u32;
-    let order = heading_order(&scorer, &mut cells, &bounds, n_yaw, &mut evaluations);
+    heading_order(&scorer, &mut cells, &bounds, order, &mut evaluations);
     let r = settings.exclusion.0 / cell;
     let sep =
         Separation { r2: (r * r) as i64, dyaw: libm::floorf(settings.exclusion.1 / step) as i32, turn: n_yaw as i32 };
@@ -713,7 +809,7 @@ pub fn search_global(
         Kept { nodes: heapless::Vec::new(), capacity: settings.candidates.clamp(1, MAX_GLOBAL_CANDIDATES), sep };
     let mut yaw_roots: heapless::Vec<Node, MAX_YAW_ROOTS> = heapless::Vec::new();
     let budget = settings.max_evaluations;
-    for &(bound, k) in order.iter() {
+    for &[bound, k] in order.iter() {
         if bound <= kept.threshold() || bound == 0 {
             break;
         }

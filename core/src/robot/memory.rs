@@ -50,6 +50,12 @@ pub struct Capacity {
     /// whose memories are split (an STM32F405's SRAM and CCM) fills the one
     /// that holds the map with them.
     pub spare_words: usize,
+    /// Words of the searches' caches
+    /// ([`SearchScratch`](crate::matching::search::SearchScratch)), carved
+    /// with the pyramids; 0: on the stack
+    /// ([`SearchScratch::WINDOWED`](crate::matching::search::SearchScratch::WINDOWED)
+    /// words).
+    pub search_words: usize,
 }
 
 impl Capacity {
@@ -61,6 +67,7 @@ impl Capacity {
         scene_words: super::SCENE_WORDS,
         levels: super::LEVELS,
         spare_words: 0,
+        search_words: 0,
     };
 
     /// The matching robot of an STM32F405 (128 KiB of SRAM and 64 KiB of
@@ -81,11 +88,14 @@ impl Capacity {
         // The SRAM's 128 KiB less the map (28 B a voxel) and the received
         // map (8 B a voxel).
         spare_words: (128 * 1024 - 36 * SMALL_MATCHING_VOXELS) / 4,
+        // A cache for every cell a scene's footprint can list (three words
+        // each): a windowed search never thins them.
+        search_words: crate::matching::search::SearchScratch::windowed(2048_usize.div_ceil(3)),
     };
 
     /// A robot that only sends its map ([`super::Robot::sender`]).
     pub const fn sender(voxels: usize) -> Capacity {
-        Capacity { voxels, coarse: 0, model_words: 0, scene_words: 0, levels: 0, spare_words: 0 }
+        Capacity { voxels, coarse: 0, model_words: 0, scene_words: 0, levels: 0, spare_words: 0, search_words: 0 }
     }
 
     /// Whether the robot builds pyramids and matches.
@@ -100,7 +110,8 @@ impl Capacity {
 
     /// Words of the pyramids' buffers, in the order they are carved
     /// ([`carve_pyramids`]): the model's entries, the scene's entries, the
-    /// model's and the scene's footprint, the model's normals and index.
+    /// model's and the scene's footprint, the model's normals and index,
+    /// the searches' caches.
     const fn pyramid_words(&self) -> [usize; PYRAMID_BUFFERS] {
         let e = self.coarse;
         [
@@ -110,6 +121,7 @@ impl Capacity {
             self.scene_words,
             words_for::<PackedNormal>(e),
             words_for::<u32>(e),
+            self.search_words,
         ]
     }
 
@@ -121,7 +133,7 @@ impl Capacity {
     /// Where each pyramid buffer goes: 0 the words the level 0 leaves in
     /// the own region, 1 the own region's spare words, 2 the link's
     /// scratch, 3 the link's words; with the link's words that plan needs
-    /// (at least the link's buffers). Of every placement (4^6), the one
+    /// (at least the link's buffers). Of every placement (4^7), the one
     /// with the fewest link words.
     pub const fn plan(&self) -> Plan {
         let need = self.pyramid_words();
@@ -166,9 +178,10 @@ pub const SMALL_MATCHING_VOXELS: usize = 2496;
 /// cover half as far, and its maps match worse).
 pub const SMALL_VOXEL_M: f32 = 0.7;
 
-/// Pyramid buffers a robot carves: the model's entries, normals, index and
-/// footprint, the scene's entries and footprint.
-const PYRAMID_BUFFERS: usize = 6;
+/// Buffers a robot carves when it aligns: the model's entries, normals,
+/// index and footprint, the scene's entries and footprint, the searches'
+/// caches.
+const PYRAMID_BUFFERS: usize = 7;
 /// Places a pyramid buffer may go ([`Plan::place`]).
 const ROOMS: usize = 4;
 /// The place that grows to take what the others cannot: the link's words.
@@ -227,15 +240,23 @@ fn take_planned<'a, T: Pod>(
     pool.get_mut(at).ok_or(RegionError::Layout)?.take(n)
 }
 
-/// The model's (coarse levels, normals, index, footprint) and the scene's
-/// pyramid storages, carved as [`Capacity::plan`] says out of what the
-/// level 0 leaves in the own region and the turn region's words the link
-/// gave back.
+/// What a robot aligns in: the model's pyramid storage (coarse levels,
+/// normals, index, footprint), the scene's, and the searches' words.
+pub(super) struct AlignParts<'a> {
+    pub(super) model: PyramidPartsMut<'a>,
+    pub(super) scene: PyramidPartsMut<'a>,
+    pub(super) search: &'a mut [u32],
+}
+
+/// The pyramid storages and the searches' words, carved as
+/// [`Capacity::plan`] says out of what the level 0 leaves in the own
+/// region, the own region's spare words and the turn region's words the
+/// link gave back.
 pub(super) fn carve_pyramids<'a>(
     leaves: &'a mut [u32],
     spare: Spare<'a>,
     capacity: &Capacity,
-) -> Result<(PyramidPartsMut<'a>, PyramidPartsMut<'a>), RegionError> {
+) -> Result<AlignParts<'a>, RegionError> {
     let plan = capacity.plan();
     let mut pool = [Region::new(leaves), Region::new(spare.own), Region::new(spare.scratch), Region::new(spare.link)];
     let e = capacity.coarse;
@@ -246,6 +267,7 @@ pub(super) fn carve_pyramids<'a>(
     let scene_words = take_planned::<u32>(&mut pool, &plan, 3, capacity.scene_words)?;
     let normals = take_planned::<PackedNormal>(&mut pool, &plan, 4, e)?;
     let model_slots = take_planned::<u32>(&mut pool, &plan, 5, e)?;
+    let search = take_planned::<u32>(&mut pool, &plan, 6, capacity.search_words)?;
     let model = PyramidPartsMut {
         extras: &mut [],
         entries: model_entries,
@@ -264,7 +286,7 @@ pub(super) fn carve_pyramids<'a>(
         points: &mut [],
         point_slots: &mut [],
     };
-    Ok((model, scene))
+    Ok(AlignParts { model, scene, search })
 }
 
 #[cfg(test)]
@@ -292,7 +314,8 @@ mod tests {
         let (copied, level0, leaves) = crate::matching::CopiedBase::compact(map).unwrap();
         assert_eq!((level0.points.len(), level0.slots.len()), (c.voxels, 2 * c.voxels));
         let _ = copied;
-        let (model, scene) = carve_pyramids(leaves, spare, &c).unwrap();
+        let AlignParts { model, scene, search } = carve_pyramids(leaves, spare, &c).unwrap();
+        assert!(search.is_empty());
         assert_eq!((model.entries.len(), model.normals.len(), model.slots.len()), (c.coarse, c.coarse, c.coarse));
         assert_eq!((model.words.len(), scene.words.len()), (c.model_words, scene.words.len()));
         assert_eq!((scene.entries.len(), scene.words.len()), (c.coarse, c.scene_words));
@@ -319,7 +342,7 @@ mod tests {
     #[test]
     fn the_plan_is_the_smallest_that_fits() {
         let small =
-            Capacity { voxels: 3200, coarse: 1500, model_words: 3300, scene_words: 2600, levels: 2, spare_words: 0 };
+            Capacity { voxels: 3200, coarse: 1500, model_words: 3300, scene_words: 2600, levels: 2, ..Capacity::BOARD };
         for c in [Capacity::BOARD, small, Capacity { spare_words: 4000, ..small }, Capacity::STM32F405] {
             let plan = c.plan();
             let need = c.pyramid_words();

@@ -5,7 +5,7 @@
 //! gives it (a received map and pyramid storages, or none) decides.
 
 use super::feed_in::FeedIn;
-use super::memory::{carve_map, carve_pyramids, Capacity, OwnMap, Spare};
+use super::memory::{carve_map, carve_pyramids, AlignParts, Capacity, OwnMap, Spare};
 use super::tell::{Awaited, Awaiter, Teller};
 use super::{
     align_prepared, map_config, AlignError, Machine, Meter, PhaseMarks, Poll, RobotConfig, RobotError, FOOTPRINT_CELL,
@@ -13,6 +13,7 @@ use super::{
 use crate::geometry::{from_rows, rows};
 use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkStats, Progress};
 use crate::map::{LocalMap, SceneMap, ScenePoint, SliceStorage, VoxelSink};
+use crate::matching::search::SearchScratch;
 use crate::matching::{CopiedBase, Pyramid, PyramidError, SceneSource, SplitStorage};
 use crate::wire::feed::{FeedError, GlobalReport, RobotMessage, RobotReport, Setup};
 use crate::wire::share::Estimate;
@@ -268,15 +269,21 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         marks.mark(0, meter);
         let empty = RobotError::Align(AlignError::Pyramid(PyramidError::EmptyMap));
         let (copied, level0, leaves) = CopiedBase::compact(own).ok_or(empty)?;
-        let (model, scene) = carve_pyramids(leaves, spare, &self.capacity).map_err(RobotError::Memory)?;
+        let AlignParts { model, scene, search } =
+            carve_pyramids(leaves, spare, &self.capacity).map_err(RobotError::Memory)?;
         let model = SplitStorage { level0, rest: model };
         let pyramid = |e| RobotError::Align(AlignError::Pyramid(e));
         let levels = self.capacity.levels;
         let model = Pyramid::build_copied(copied, levels, FOOTPRINT_CELL, model).map_err(pyramid)?;
         let scene = received.prepare_scene(levels, FOOTPRINT_CELL, scene).map_err(pyramid)?;
         marks.mark(1, meter);
-        let (result, located) =
-            align_prepared(&model, &scene, prior.as_ref(), |k| marks.mark(k, meter)).map_err(RobotError::Align)?;
+        let on_phase = |k| marks.mark(k, meter);
+        let (result, located) = if search.is_empty() {
+            align_on_stack(&model, &scene, prior.as_ref(), on_phase)
+        } else {
+            align_prepared(&model, &scene, prior.as_ref(), &mut SearchScratch::new(search), on_phase)
+        }
+        .map_err(RobotError::Align)?;
         let estimate = result.estimate(setup.robot_id, 0);
         let mut report = self.fed.report(voxels, stats, self.link_ms, meter.peak_stack());
         report.result = result.report(setup.robot_id);
@@ -294,6 +301,20 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         report.result.transform = rows(&e.transform().inverse());
         report
     }
+}
+
+/// [`align_prepared`] with the searches' caches on the stack (a robot
+/// whose capacity plans no words for them). Never inlined: a robot that
+/// plans them carries no such frame.
+#[inline(never)]
+fn align_on_stack<P: crate::matching::PyramidStorage, Q: crate::matching::PyramidStorage>(
+    model: &Pyramid<'_, P>,
+    scene: &Pyramid<'_, Q>,
+    prior: Option<&crate::geometry::Isometry3<f32>>,
+    on_phase: impl FnMut(u8),
+) -> Result<(crate::matching::MatchResult, Option<crate::matching::global::Searched>), AlignError> {
+    let mut words = [0u32; SearchScratch::WINDOWED];
+    align_prepared(model, scene, prior, &mut SearchScratch::new(&mut words), on_phase)
 }
 
 impl<'a> Sender<'a> {

@@ -45,7 +45,7 @@ fn feed_of(id: u8, prior: Option<[f32; 12]>) -> Vec<u8> {
 
 /// The test robots' capacities.
 const CAP: Capacity =
-    Capacity { voxels: 4096, coarse: 4096, model_words: 20_000, scene_words: 20_000, levels: LEVELS, spare_words: 0 };
+    Capacity { voxels: 4096, coarse: 4096, model_words: 20_000, scene_words: 20_000, ..Capacity::BOARD };
 
 /// What a robot receives its peer's map into, as on a board.
 fn received_points() -> Vec<ScenePoint> {
