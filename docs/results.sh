@@ -356,7 +356,7 @@ STM32 = [
     ("stm32-apart-network", "kitti00-loop 88 / 850, network labels"),
 ]
 pipeline_table([(label, load(f"{name}.json")) for name, label in STM32],
-               "Both robots on STM32F405s (192 KiB, 2,496 voxels of 0.7 m), no prior",
+               "Both robots on STM32F405s (192 KiB, 3,008 voxels of 0.7 m), no prior",
                "`cosem robots --data D --a A --b B --no-prior [--label-noise network] "
                "--board-a stm32f405 --board-b stm32f405 --json`")
 

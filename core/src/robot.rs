@@ -171,7 +171,8 @@ impl core::error::Error for AlignError {}
 
 /// Prepares both maps (own as model, received as scene) and aligns them:
 /// from `prior` (`T_own_peer`) when there is one, else with none
-/// ([`align_searched`]: every heading and offset, then the matcher).
+/// ([`align_searched`](crate::matching::global::align_searched): every
+/// heading and offset, then the matcher).
 /// `on_phase(k)` runs before preparation (0), before the prior-free search
 /// (1), before the match (2) and after it (3), e.g. to read an instruction
 /// counter. Returns the match and, without a prior, what the search found.
@@ -188,19 +189,21 @@ pub fn align<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: Pyr
     let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene_storage).map_err(AlignError::Pyramid)?;
     on_phase(1);
     let mut words = [0u32; SearchScratch::WINDOWED];
-    align_prepared(&model, &scene, prior, &mut SearchScratch::new(&mut words), on_phase)
+    align_prepared(&model, &scene, prior, EM_ITERATIONS, &mut SearchScratch::new(&mut words), on_phase)
 }
 
-/// [`align`] of maps already prepared, the searches' caches in `scratch`;
-/// `on_phase` runs at phases 2 and 3.
+/// [`align`] of maps already prepared, in at most `iterations` EM
+/// iterations, the searches' caches in `scratch`; `on_phase` runs at phases
+/// 2 and 3.
 fn align_prepared<P: PyramidStorage, Q: PyramidStorage>(
     model: &Pyramid<'_, P>,
     scene: &Pyramid<'_, Q>,
     prior: Option<&Isometry3<f32>>,
+    iterations: u32,
     scratch: &mut SearchScratch<'_>,
     mut on_phase: impl FnMut(u8),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
-    let matcher = Matcher::new(MatchSettings { max_iterations: EM_ITERATIONS, ..MatchSettings::default() });
+    let matcher = Matcher::new(MatchSettings { max_iterations: iterations, ..MatchSettings::default() });
     let r = match prior {
         Some(p) => {
             on_phase(2);

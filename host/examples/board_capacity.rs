@@ -5,7 +5,7 @@
 //! none), kitti08-loop 720 / 1500, kitti00-loop 88 / 850 (no overlap) and
 //! 52 / 4501, with ground-truth and a network's labels.
 //!
-//!     cargo run --release --example board_capacity -- VOXELS COARSE MODEL_WORDS SCENE_WORDS VOXEL_M CROP_M [LEVELS SPARE_WORDS SEARCH_WORDS]
+//!     cargo run --release --example board_capacity -- VOXELS COARSE MODEL_WORDS SCENE_WORDS VOXEL_M CROP_M [LEVELS SPARE_WORDS SEARCH_WORDS EM_ITERATIONS]
 //!
 //! Data from `$COSEM_DATA` (default `../shared/data`).
 use cosem_core::map::{SceneMap, ScenePoint};
@@ -22,7 +22,17 @@ fn main() {
         (num(1, 8192.0) as usize, num(2, 3840.0) as usize, num(3, 9216.0) as usize, num(4, 6656.0) as usize);
     let (voxel, crop) = (num(5, 0.5) as f32, num(6, 25.0) as f32);
     let (levels, spare_words, search_words) = (num(7, 3.0) as usize, num(8, 0.0) as usize, num(9, 0.0) as usize);
-    let cap = Capacity { voxels: v, coarse: e, model_words: mw, scene_words: sw, levels, spare_words, search_words };
+    let em_iterations = num(10, 40.0) as u32;
+    let cap = Capacity {
+        voxels: v,
+        coarse: e,
+        model_words: mw,
+        scene_words: sw,
+        levels,
+        spare_words,
+        search_words,
+        em_iterations,
+    };
     println!(
         "capacity {cap:?}: own region {} B, turn region {} B, received map {} B; {voxel} m voxels within {crop} m",
         cap.own_words() * 4,

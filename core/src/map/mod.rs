@@ -24,7 +24,9 @@ pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS, SCORE_
 pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertion, LocalMap, MapConfig, Neighbours};
 pub use overlap::overlap;
 pub use scene::{class_and_confidence, SceneMap, ScenePoint, VoxelSink};
-pub use table::{ArrayStorage, MapIndex, SliceStorage, SlotInt, VoxelStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL};
+pub use table::{
+    ArrayStorage, MapIndex, SliceStorage, SlotInt, VoxelStorage, WordStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL,
+};
 pub use voxel::SemanticVoxel;
 
 #[cfg(any(test, feature = "alloc"))]

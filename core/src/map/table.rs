@@ -164,6 +164,58 @@ impl<T: SlotInt> VoxelStorage for SliceStorage<'_, T> {
     }
 }
 
+/// Storage in words the caller owns: `voxels` voxels at the start of
+/// `words`, the words after them kept with them (a robot's: what follows
+/// its map is handed on whole with what the map leaves, see
+/// [`CopiedBase::compact`](crate::matching::CopiedBase::compact)), and
+/// 16-bit index slots.
+pub struct WordStorage<'a> {
+    words: &'a mut [u32],
+    voxels: usize,
+    slots: &'a mut [u16],
+}
+
+impl<'a> WordStorage<'a> {
+    /// `voxels` voxels at the start of `words` (any contents: the map
+    /// clears its index), indexed by `slots`; `None` when `words` holds
+    /// fewer.
+    pub fn new(words: &'a mut [u32], voxels: usize, slots: &'a mut [u16]) -> Option<Self> {
+        (words.len() >= crate::region::words_for::<SemanticVoxel>(voxels)).then_some(WordStorage {
+            words,
+            voxels,
+            slots,
+        })
+    }
+
+    /// The words (the voxels first), the capacity in voxels and the slots.
+    pub fn into_parts(self) -> (&'a mut [u32], usize, &'a mut [u16]) {
+        (self.words, self.voxels, self.slots)
+    }
+
+    fn voxel_words(&self) -> usize {
+        crate::region::words_for::<SemanticVoxel>(self.voxels)
+    }
+}
+
+impl VoxelStorage for WordStorage<'_> {
+    type Slot = u16;
+    fn voxels(&self) -> &[SemanticVoxel] {
+        let words = self.words.get(..self.voxel_words()).unwrap_or(&[]);
+        bytemuck::try_cast_slice(words).unwrap_or(&[])
+    }
+    fn slots(&self) -> &[u16] {
+        self.slots
+    }
+    fn parts_mut(&mut self) -> (&mut [SemanticVoxel], &mut [u16]) {
+        let n = self.voxel_words();
+        let words = match self.words.get_mut(..n) {
+            Some(w) => w,
+            None => &mut [],
+        };
+        (bytemuck::try_cast_slice_mut(words).unwrap_or(&mut []), self.slots)
+    }
+}
+
 /// Storage on the heap, sized at run time (feature `alloc`): what a host
 /// gives a map whose size it learns from its data.
 #[cfg(any(test, feature = "alloc"))]

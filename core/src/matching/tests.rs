@@ -226,7 +226,7 @@ fn packed_normals_round_trip() {
 #[test]
 fn storage_sizes() {
     assert_eq!(core::mem::size_of::<VoxelExtra>(), 6);
-    assert_eq!(core::mem::size_of::<CoarseEntry>(), 16);
+    assert_eq!(core::mem::size_of::<CoarseEntry>(), 12);
     assert_eq!(core::mem::size_of::<super::ModelPoint>(), 18);
     assert_eq!(core::mem::size_of::<super::CopiedLevel<8>>(), 8 * 22);
 }

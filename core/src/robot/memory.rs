@@ -20,14 +20,14 @@
 //! with [`Capacity::own_words`] and [`Capacity::turn_words`].
 
 use crate::link::LINK_WORDS;
-use crate::map::{LocalMap, SemanticVoxel, SliceStorage};
+use crate::map::{LocalMap, SemanticVoxel, WordStorage};
 use crate::matching::{CoarseEntry, ModelPoint, PackedNormal, PyramidPartsMut};
 use crate::region::{words_for, Region, RegionError};
 use bytemuck::Pod;
 
-/// A robot's map: voxels and 16-bit index slots carved out of its own
-/// region.
-pub type OwnMap<'a> = LocalMap<SliceStorage<'a, u16>>;
+/// A robot's map: 16-bit index slots and voxels carved out of its own
+/// region, the region's spare words kept after the voxels.
+pub type OwnMap<'a> = LocalMap<WordStorage<'a>>;
 
 /// The capacities of a pair robot: its map's voxels and, for a robot that
 /// matches, its pyramids' coarse entries and footprint words (a sender's
@@ -56,6 +56,9 @@ pub struct Capacity {
     /// ([`SearchScratch::WINDOWED`](crate::matching::search::SearchScratch::WINDOWED)
     /// words).
     pub search_words: usize,
+    /// EM iterations its refinement may take: its compute budget
+    /// ([`super::EM_ITERATIONS`] on the 512 KiB board).
+    pub em_iterations: u32,
 }
 
 impl Capacity {
@@ -68,34 +71,50 @@ impl Capacity {
         levels: super::LEVELS,
         spare_words: 0,
         search_words: 0,
+        em_iterations: super::EM_ITERATIONS,
     };
 
     /// The matching robot of an STM32F405 (128 KiB of SRAM and 64 KiB of
     /// core-coupled memory, each a region of its own): 0.7 m voxels
-    /// ([`SMALL_VOXEL_M`]), 2,496 of them (28 bytes each in the map, 8 in
-    /// the received one), pyramids of 3 levels with 0.65 coarse entries
+    /// ([`SMALL_VOXEL_M`]), 3,008 of them (28 bytes each in the map, 8 in
+    /// the received one), pyramids of 3 levels with 0.66 coarse entries
     /// per voxel (a network's labels on maps that share nothing took up to
-    /// 0.63), footprints of 2 m cells. The own region (map, then
-    /// [`Self::spare_words`]) and the received map fill the SRAM; the turn
-    /// region (link, then pyramid buffers), the receive rings and the
-    /// stack share the CCM. See `firmware/boards/stm32f405/README.md`.
+    /// 0.632), footprints of about 2 m cells, the searches' caches planned
+    /// with the pyramids and 40 EM iterations. The own region (the map's
+    /// index, its voxels, then [`Self::spare_words`]) and the received map
+    /// fill the SRAM; the turn region (link, then pyramid buffers), the
+    /// receive rings and the stack share the CCM. See
+    /// `firmware/boards/stm32f405/README.md`.
     pub const STM32F405: Capacity = Capacity {
         voxels: SMALL_MATCHING_VOXELS,
-        coarse: 1624,
-        model_words: 1536,
-        scene_words: 2048,
+        coarse: 1986,
+        model_words: 1872,
+        scene_words: SMALL_SCENE_WORDS,
         levels: super::LEVELS,
         // The SRAM's 128 KiB less the map (28 B a voxel) and the received
         // map (8 B a voxel).
         spare_words: (128 * 1024 - 36 * SMALL_MATCHING_VOXELS) / 4,
         // A cache for every cell a scene's footprint can list (three words
         // each): a windowed search never thins them.
-        search_words: crate::matching::search::SearchScratch::windowed(2048_usize.div_ceil(3)),
+        search_words: crate::matching::search::SearchScratch::windowed(SMALL_SCENE_WORDS.div_ceil(3)),
+        // Its maps' refinements took up to 36 (kitti00 0:5 / 5:10, a
+        // straight street, with a network's labels: 30 stopped one of them
+        // short of the tolerance at the right answer); the others 11-23.
+        em_iterations: 40,
     };
 
     /// A robot that only sends its map ([`super::Robot::sender`]).
     pub const fn sender(voxels: usize) -> Capacity {
-        Capacity { voxels, coarse: 0, model_words: 0, scene_words: 0, levels: 0, spare_words: 0, search_words: 0 }
+        Capacity {
+            voxels,
+            coarse: 0,
+            model_words: 0,
+            scene_words: 0,
+            levels: 0,
+            spare_words: 0,
+            search_words: 0,
+            em_iterations: 0,
+        }
     }
 
     /// Whether the robot builds pyramids and matches.
@@ -125,19 +144,19 @@ impl Capacity {
         ]
     }
 
-    /// Words a full map's level 0 leaves free in its voxels' words.
+    /// Words a full map's level 0 leaves free in the own region: what the
+    /// points leave of the voxels' words, and the spare words after them.
     const fn level0_leaves(&self) -> usize {
-        self.map_words()[0] - words_for::<ModelPoint>(self.voxels)
+        self.map_words()[0] - words_for::<ModelPoint>(self.voxels) + self.spare_words
     }
 
-    /// Where each pyramid buffer goes: 0 the words the level 0 leaves in
-    /// the own region, 1 the own region's spare words, 2 the link's
-    /// scratch, 3 the link's words; with the link's words that plan needs
-    /// (at least the link's buffers). Of every placement (4^7), the one
-    /// with the fewest link words.
+    /// Where each buffer goes: 0 the words the level 0 leaves in the own
+    /// region, 1 the link's scratch, 2 the link's words; with the link's
+    /// words that plan needs (at least the link's buffers). Of every
+    /// placement (3^7), the one with the fewest link words.
     pub const fn plan(&self) -> Plan {
         let need = self.pyramid_words();
-        let room = [self.level0_leaves(), self.spare_words, self.voxels];
+        let room = [self.level0_leaves(), self.voxels];
         let mut best = Plan { place: [LINK_ROOM; PYRAMID_BUFFERS], link_words: usize::MAX };
         let mut code = 0;
         while code < ROOMS.pow(PYRAMID_BUFFERS as u32) {
@@ -148,8 +167,8 @@ impl Capacity {
                 c /= ROOMS;
                 i += 1;
             }
-            let link = if used[3] > LINK_WORDS { used[3] } else { LINK_WORDS };
-            if used[0] <= room[0] && used[1] <= room[1] && used[2] <= room[2] && link < best.link_words {
+            let link = if used[2] > LINK_WORDS { used[2] } else { LINK_WORDS };
+            if used[0] <= room[0] && used[1] <= room[1] && link < best.link_words {
                 best = Plan { place, link_words: link };
             }
             code += 1;
@@ -172,7 +191,9 @@ impl Capacity {
 }
 
 /// Voxels of [`Capacity::STM32F405`]'s maps.
-pub const SMALL_MATCHING_VOXELS: usize = 2496;
+pub const SMALL_MATCHING_VOXELS: usize = 3008;
+/// Footprint words of [`Capacity::STM32F405`]'s scene.
+const SMALL_SCENE_WORDS: usize = 2256;
 /// The voxel size (m) a robot of [`Capacity::STM32F405`] maps at: its few
 /// voxels cover the 25 m a sensor sees around it (at 0.5 m they would
 /// cover half as far, and its maps match worse).
@@ -183,26 +204,23 @@ pub const SMALL_VOXEL_M: f32 = 0.7;
 /// caches.
 const PYRAMID_BUFFERS: usize = 7;
 /// Places a pyramid buffer may go ([`Plan::place`]).
-const ROOMS: usize = 4;
+const ROOMS: usize = 3;
 /// The place that grows to take what the others cannot: the link's words.
-const LINK_ROOM: u8 = 3;
+const LINK_ROOM: u8 = 2;
 
 /// Where a robot's pyramid buffers go ([`Capacity::plan`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Plan {
     /// Per buffer, in carving order: 0 the own region's words the level 0
-    /// leaves, 1 the own region's spare words, 2 the link's scratch, 3 the
-    /// link's words.
+    /// leaves, 1 the link's scratch, 2 the link's words.
     pub place: [u8; PYRAMID_BUFFERS],
     /// Words of the link region (after the scratch).
     pub link_words: usize,
 }
 
-/// What the robot keeps besides its map while it maps and sends: the own
-/// region's spare words, and of its turn region the Morton scratch and the
-/// link's words (its buffers at their start).
+/// What the robot keeps of its turn region while it maps and sends: the
+/// Morton scratch and the link's words (its buffers at their start).
 pub(super) struct Spare<'a> {
-    pub(super) own: &'a mut [u32],
     pub(super) scratch: &'a mut [u32],
     pub(super) link: &'a mut [u32],
 }
@@ -213,7 +231,7 @@ pub(super) fn carve_map<'a>(
     own: &'a mut [u32],
     turn: &'a mut [u32],
     capacity: &Capacity,
-) -> Result<(SliceStorage<'a, u16>, Spare<'a>), RegionError> {
+) -> Result<(WordStorage<'a>, Spare<'a>), RegionError> {
     let (need_own, need_turn) = (capacity.own_words(), capacity.turn_words());
     if own.len() < need_own {
         return Err(RegionError::Short { need: need_own, have: own.len() });
@@ -221,12 +239,14 @@ pub(super) fn carve_map<'a>(
     if turn.len() < need_turn {
         return Err(RegionError::Short { need: need_turn, have: turn.len() });
     }
+    // The slots first: the voxels, and the spare words after them, are
+    // one run of words, which the level 0 leaves whole.
     let mut own = Region::new(own);
-    let voxels = own.take::<SemanticVoxel>(capacity.voxels)?;
     let slots = own.take::<u16>(2 * capacity.voxels)?;
+    let map = WordStorage::new(own.into_words(), capacity.voxels, slots).ok_or(RegionError::Layout)?;
     let mut turn = Region::new(turn);
     let scratch = turn.take_words(capacity.voxels)?;
-    Ok((SliceStorage { voxels, slots }, Spare { own: own.into_words(), scratch, link: turn.into_words() }))
+    Ok((map, Spare { scratch, link: turn.into_words() }))
 }
 
 /// Takes `n` values of `T` from the region `plan` puts buffer `k` in.
@@ -250,15 +270,15 @@ pub(super) struct AlignParts<'a> {
 
 /// The pyramid storages and the searches' words, carved as
 /// [`Capacity::plan`] says out of what the level 0 leaves in the own
-/// region, the own region's spare words and the turn region's words the
-/// link gave back.
+/// region (with its spare words) and the turn region's words the link
+/// gave back.
 pub(super) fn carve_pyramids<'a>(
     leaves: &'a mut [u32],
     spare: Spare<'a>,
     capacity: &Capacity,
 ) -> Result<AlignParts<'a>, RegionError> {
     let plan = capacity.plan();
-    let mut pool = [Region::new(leaves), Region::new(spare.own), Region::new(spare.scratch), Region::new(spare.link)];
+    let mut pool = [Region::new(leaves), Region::new(spare.scratch), Region::new(spare.link)];
     let e = capacity.coarse;
     // The order of `Capacity::pyramid_words`.
     let model_entries = take_planned::<CoarseEntry>(&mut pool, &plan, 0, e)?;
@@ -292,7 +312,7 @@ pub(super) fn carve_pyramids<'a>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::LocalMap;
+    use crate::map::{LocalMap, VoxelStorage};
     use std::vec;
 
     /// The board's regions: the map's 224 KiB, and the turn region a little
@@ -307,7 +327,7 @@ mod tests {
         assert!(c.turn_words() * 4 <= 184_320, "turn region {} B", c.turn_words() * 4);
         let (mut own, mut turn) = (vec![0u32; c.own_words()], vec![0u32; c.turn_words()]);
         let (storage, spare) = carve_map(&mut own, &mut turn, &c).unwrap();
-        assert_eq!((storage.voxels.len(), storage.slots.len()), (c.voxels, 2 * c.voxels));
+        assert_eq!((storage.voxels().len(), storage.slots().len()), (c.voxels, 2 * c.voxels));
         assert!(spare.link.len() >= LINK_WORDS);
         let mut map = LocalMap::new(storage, super::super::map_config(0.5)).unwrap();
         map.insert_point([1.0, 2.0, 0.5], crate::classes::Class::Pole).unwrap();
@@ -335,7 +355,8 @@ mod tests {
         let c = Capacity::STM32F405;
         let received = c.voxels * core::mem::size_of::<crate::map::ScenePoint>();
         assert!(c.own_words() * 4 + received <= 128 * 1024, "SRAM {} B", c.own_words() * 4 + received);
-        assert!(c.turn_words() * 4 <= 36 * 1024, "turn region {} B", c.turn_words() * 4);
+        // The CCM less the stack's 17 KiB and the rings' 3 KiB and more.
+        assert!(c.turn_words() * 4 <= 64 * 1024 - 17 * 1024 - 3200, "turn region {} B", c.turn_words() * 4);
         assert!(c.plan().link_words >= LINK_WORDS);
     }
 
@@ -350,8 +371,8 @@ mod tests {
             for (k, &p) in plan.place.iter().enumerate() {
                 used[usize::from(p)] += need[k];
             }
-            assert!(used[0] <= c.level0_leaves() && used[1] <= c.spare_words && used[2] <= c.voxels);
-            assert_eq!(plan.link_words, used[3].max(LINK_WORDS));
+            assert!(used[0] <= c.level0_leaves() && used[1] <= c.voxels);
+            assert_eq!(plan.link_words, used[2].max(LINK_WORDS));
             // Everything in the link's words is never better.
             assert!(plan.link_words <= need.iter().sum::<usize>().max(LINK_WORDS));
         }

@@ -12,7 +12,7 @@ use super::{
 };
 use crate::geometry::{from_rows, rows};
 use crate::link::{Endpoint, Finished, LinkConfig, LinkError, LinkStats, Progress};
-use crate::map::{LocalMap, SceneMap, ScenePoint, SliceStorage, VoxelSink};
+use crate::map::{LocalMap, SceneMap, ScenePoint, VoxelSink, WordStorage};
 use crate::matching::search::SearchScratch;
 use crate::matching::{CopiedBase, Pyramid, PyramidError, SceneSource, SplitStorage};
 use crate::wire::feed::{FeedError, GlobalReport, RobotMessage, RobotReport, Setup};
@@ -24,7 +24,7 @@ pub type Sender<'a> = Robot<'a, [ScenePoint; 0]>;
 
 /// The link's endpoint of a pair robot: it owns the robot's map while it
 /// sends it, and its buffers are the turn region's words.
-type PairEndpoint<'a, P> = Endpoint<'a, SliceStorage<'a, u16>, SceneMap<P>, &'a mut [u32], OwnMap<'a>>;
+type PairEndpoint<'a, P> = Endpoint<'a, WordStorage<'a>, SceneMap<P>, &'a mut [u32], OwnMap<'a>>;
 
 enum State<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> {
     Feed {
@@ -34,10 +34,7 @@ enum State<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> {
     },
     /// Exchanging maps (the endpoint is [`Robot`]'s, outside the state:
     /// moving a state moves no kilobytes).
-    Link {
-        /// The own region's spare words, for the pyramids.
-        spare_own: &'a mut [u32],
-    },
+    Link,
     Align {
         own: OwnMap<'a>,
         received: &'a SceneMap<P>,
@@ -133,7 +130,7 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
                 }
                 return Ok(Poll::Busy);
             }
-            State::Link { .. } => {
+            State::Link => {
                 let endpoint = self.endpoint.as_mut().ok_or(RobotError::Finished)?;
                 let progress = endpoint.step(link, now_ms).map_err(RobotError::Link)?;
                 if progress == Progress::Busy {
@@ -143,7 +140,7 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
             _ => {}
         }
         match self.state {
-            State::Link { .. } => self.finish_link(now_ms),
+            State::Link => self.finish_link(now_ms),
             State::Align { .. } => self.run_align(now_ms, meter),
             _ => self.step_told(link, now_ms, meter),
         }
@@ -155,7 +152,7 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
     /// out of the frames under the matcher, the deepest stack.
     #[inline(never)]
     fn finish_link(&mut self, now_ms: u64) -> Result<Poll, RobotError> {
-        let State::Link { spare_own } = core::mem::replace(&mut self.state, State::Done) else {
+        let State::Link = core::mem::replace(&mut self.state, State::Done) else {
             return Err(RobotError::Finished);
         };
         let endpoint = self.endpoint.take().ok_or(RobotError::Finished)?;
@@ -169,7 +166,7 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
             return Err(RobotError::Link(LinkError::Setup));
         };
         self.state = match staging {
-            Some(received) => State::Align { own, received, stats, spare: Spare { own: spare_own, scratch, link } },
+            Some(received) => State::Align { own, received, stats, spare: Spare { scratch, link } },
             // A sender: no received map; the peer tells the result.
             None => {
                 let peer = peer.ok_or(RobotError::Link(LinkError::Silent))?;
@@ -241,12 +238,12 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         let config = LinkConfig { silence_ms: setup.silence_ms, ..LinkConfig::default() };
         self.link_config = config;
         let id = setup.robot_id;
-        let Spare { own: spare_own, scratch, link } = spare;
+        let Spare { scratch, link } = spare;
         let endpoint = Endpoint::new(config, id, u32::from(id), 0, Some((own, scratch)), received, link)
             .map_err(RobotError::Link)?;
         self.link_started_ms = now_ms;
         self.endpoint = Some(endpoint);
-        self.state = State::Link { spare_own };
+        self.state = State::Link;
         Ok(())
     }
 
@@ -279,9 +276,10 @@ impl<'a, P: AsRef<[ScenePoint]> + AsMut<[ScenePoint]>> Robot<'a, P> {
         marks.mark(1, meter);
         let on_phase = |k| marks.mark(k, meter);
         let (result, located) = if search.is_empty() {
-            align_on_stack(&model, &scene, prior.as_ref(), on_phase)
+            align_on_stack(&model, &scene, prior.as_ref(), self.capacity.em_iterations, on_phase)
         } else {
-            align_prepared(&model, &scene, prior.as_ref(), &mut SearchScratch::new(search), on_phase)
+            let scratch = &mut SearchScratch::new(search);
+            align_prepared(&model, &scene, prior.as_ref(), self.capacity.em_iterations, scratch, on_phase)
         }
         .map_err(RobotError::Align)?;
         let estimate = result.estimate(setup.robot_id, 0);
@@ -311,10 +309,11 @@ fn align_on_stack<P: crate::matching::PyramidStorage, Q: crate::matching::Pyrami
     model: &Pyramid<'_, P>,
     scene: &Pyramid<'_, Q>,
     prior: Option<&crate::geometry::Isometry3<f32>>,
+    iterations: u32,
     on_phase: impl FnMut(u8),
 ) -> Result<(crate::matching::MatchResult, Option<crate::matching::global::Searched>), AlignError> {
     let mut words = [0u32; SearchScratch::WINDOWED];
-    align_prepared(model, scene, prior, &mut SearchScratch::new(&mut words), on_phase)
+    align_prepared(model, scene, prior, iterations, &mut SearchScratch::new(&mut words), on_phase)
 }
 
 impl<'a> Sender<'a> {

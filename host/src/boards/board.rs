@@ -76,7 +76,7 @@ impl Board {
 
     /// The voxel size (m) its robot maps at by default: its capacity's
     /// voxels cover a sensor's 25 m (the mps2 robot's 8,192 at 0.5 m, the
-    /// STM32F405's 2,496 at 0.7 m).
+    /// STM32F405's 3,008 at 0.7 m).
     pub fn default_voxel(self) -> f32 {
         match self {
             Board::Stm32f405 => cosem_core::robot::memory::SMALL_VOXEL_M,

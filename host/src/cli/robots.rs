@@ -48,7 +48,7 @@ pub struct Args {
     #[arg(long, default_value = DEFAULT_FIRMWARE)]
     firmware: PathBuf,
     /// Robot A's board: mps2-an386 (512 KiB: 8,192 voxels), stm32f405
-    /// (192 KiB: 2,496 voxels of 0.7 m) or stm32f405-sender (it maps and
+    /// (192 KiB: 3,008 voxels of 0.7 m) or stm32f405-sender (it maps and
     /// sends its map, and is told the other robot's result).
     #[arg(long, default_value = "mps2-an386")]
     board_a: Board,

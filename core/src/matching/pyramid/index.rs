@@ -123,13 +123,8 @@ pub(super) fn merge_level(
         match walk_by(n, |k| get(table, k), hash, same) {
             Slot::Vacant(s) => {
                 let fresh = dst.get_mut(out).ok_or(PyramidError::Full)?;
-                *fresh = CoarseEntry {
-                    key,
-                    fraction: [0; 3],
-                    weight: libm::roundf(e.weight.min(65535.0)) as u16,
-                    class: e.class,
-                    confidence: e.confidence,
-                };
+                *fresh = CoarseEntry { key, class: e.class, confidence: e.confidence, ..CoarseEntry::EMPTY };
+                fresh.set_weight(e.weight);
                 fresh.set_position(e.position, resolution);
                 out += 1;
                 if narrow {
@@ -140,8 +135,8 @@ pub(super) fn merge_level(
             }
             Slot::Found { value, .. } => {
                 let acc = dst.get_mut((value - 1) as usize).ok_or(PyramidError::Full)?;
-                // Running weighted mean (weights saturate at 65535 voxels).
-                let wa = f32::from(acc.weight);
+                // Running weighted mean (weights as coded).
+                let wa = acc.weight();
                 let w = wa + e.weight;
                 let mut p = acc.position(resolution);
                 for (a, q) in p.iter_mut().zip(e.position) {
@@ -150,7 +145,7 @@ pub(super) fn merge_level(
                 acc.set_position(p, resolution);
                 let conf = (f32::from(acc.confidence) * wa + f32::from(e.confidence) * e.weight) / w;
                 acc.confidence = (conf + 0.5) as u8;
-                acc.weight = libm::roundf(w.min(65535.0)) as u16;
+                acc.set_weight(w);
             }
             Slot::Full => return Err(PyramidError::Full),
         }

@@ -6,7 +6,7 @@
 //! ([`Pyramid::build_model`]), a copy of what matching reads of it (18-byte
 //! [`ModelPoint`]s and the map's index), after which the map's memory may
 //! serve other uses. Level `l >= 1` groups the entries of level `l - 1`
-//! by (cell twice as large, class) into 16-byte [`CoarseEntry`]s: a pole
+//! by (cell twice as large, class) into 12-byte [`CoarseEntry`]s: a pole
 //! stays a pole at 3.2 m instead of dissolving into the building next to it,
 //! which is what lets the coarse levels associate semantically. Entries of
 //! one coarse cell are contiguous and an open-addressing index finds a
@@ -29,12 +29,11 @@
 
 use super::footprint::{self, Footprint, FootprintInfo};
 use crate::map::table::{probe_index, probe_keys, walk, walk_by, MapIndex, Probe, Slot};
-use crate::map::voxel::{mean_position, quantise_fraction};
+use crate::map::voxel::mean_position;
 use crate::map::{
-    class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, SliceStorage, VoxelKey,
-    VoxelStorage,
+    class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage, WordStorage,
 };
-use crate::region::{words_of, Region};
+use crate::region::Region;
 use core::mem::size_of;
 
 mod index;
@@ -203,24 +202,61 @@ impl Default for ModelPoint {
     }
 }
 
-/// A stored entry of a coarse level: 16 bytes. The position is kept as a
-/// 16-bit fraction of the cell, like a voxel's mean. A model's entries
-/// have their normals beside them (a storage's `normals`), a scene's none:
-/// the matcher reads no scene normal.
+/// A stored entry of a coarse level: 12 bytes. The position is kept as an
+/// 8-bit fraction of the cell (1/256 of a cell: 8 mm at 2 m; a running mean
+/// of its entries, each step rounded, stays within about a step of the
+/// exact one: coarse levels only guide EM to level 0), the weight (level-0
+/// voxels merged) exactly to 127 and then in steps of 2^(1/16) (4.4%) up to
+/// about 31,000. A model's entries have their normals beside them (a
+/// storage's `normals`), a scene's none: the matcher reads no scene normal.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct CoarseEntry {
     key: VoxelKey,
-    fraction: [u16; 3],
-    weight: u16,
+    fraction: [u8; 3],
     class: u8,
     confidence: u8,
+    weight: u8,
+}
+
+/// Weights coded above the exact range: `WEIGHT_STEPS[k]` = 128 * 2^(k/16).
+const WEIGHT_STEPS: [f32; 128] = {
+    let mut t = [128.0f32; 128];
+    let mut k = 1;
+    while k < 128 {
+        // 2^(1/16)
+        t[k] = t[k - 1] * 1.044_273_8;
+        k += 1;
+    }
+    t
+};
+
+/// A weight's code: exact to 127, then the nearest step of [`WEIGHT_STEPS`]
+/// (saturating).
+fn encode_weight(w: f32) -> u8 {
+    if w.is_nan() || w <= 0.0 {
+        return 0;
+    }
+    if w < 127.5 {
+        return libm::roundf(w) as u8;
+    }
+    let k = libm::roundf(16.0 * libm::log2f(w / 128.0)).clamp(0.0, 127.0);
+    128 + k as u8
+}
+
+#[inline]
+fn decode_weight(c: u8) -> f32 {
+    if c < 128 {
+        f32::from(c)
+    } else {
+        WEIGHT_STEPS.get(usize::from(c - 128)).copied().unwrap_or(0.0)
+    }
 }
 
 impl CoarseEntry {
     /// Zeroed (a `static` of them lands in `.bss`).
     pub const EMPTY: CoarseEntry =
-        CoarseEntry { key: VoxelKey::new(0, 0, 0), fraction: [0; 3], weight: 0, class: 0, confidence: 0 };
+        CoarseEntry { key: VoxelKey::new(0, 0, 0), fraction: [0; 3], class: 0, confidence: 0, weight: 0 };
 
     fn order(&self) -> (u64, u8) {
         (self.key.sweep(), self.class)
@@ -228,15 +264,28 @@ impl CoarseEntry {
 
     #[inline]
     fn position(&self, resolution: f32) -> [f32; 3] {
-        mean_position(self.key, self.fraction, resolution)
+        let c = self.key.corner(resolution);
+        let f = self.fraction.map(|q| (f32::from(q) + 0.5) * (1.0 / 256.0));
+        [c[0] + f[0] * resolution, c[1] + f[1] * resolution, c[2] + f[2] * resolution]
     }
 
     fn set_position(&mut self, p: [f32; 3], resolution: f32) {
         let c = self.key.corner(resolution);
         let inv = 1.0 / resolution;
         for a in 0..3 {
-            self.fraction[a] = quantise_fraction((p[a] - c[a]) * inv);
+            let q = libm::floorf((p[a] - c[a]) * inv * 256.0);
+            self.fraction[a] = if q >= 0.0 { q.min(255.0) as u8 } else { 0 };
         }
+    }
+
+    /// Level-0 voxels merged into it.
+    #[inline]
+    fn weight(&self) -> f32 {
+        decode_weight(self.weight)
+    }
+
+    fn set_weight(&mut self, w: f32) {
+        self.weight = encode_weight(w);
     }
 }
 
@@ -486,7 +535,7 @@ impl<'a> Level<'a> {
                 Some(Entry {
                     position: c.position(self.resolution),
                     normal: normals.get(i).copied().unwrap_or(PackedNormal::NONE),
-                    weight: f32::from(c.weight),
+                    weight: c.weight(),
                     key: c.key,
                     class: c.class,
                     confidence: c.confidence,
@@ -503,9 +552,7 @@ impl<'a> Level<'a> {
             LevelData::Voxels { voxels, .. } => voxels.get(i).map(|v| (v.position(self.resolution), 1.0)),
             LevelData::Points { points } => points.get(i).map(|p| (p.position(self.resolution), 1.0)),
             LevelData::Copied { points, .. } => points.get(i).map(|p| (p.position(self.resolution), 1.0)),
-            LevelData::Coarse { entries, .. } => {
-                entries.get(i).map(|c| (c.position(self.resolution), f32::from(c.weight)))
-            }
+            LevelData::Coarse { entries, .. } => entries.get(i).map(|c| (c.position(self.resolution), c.weight())),
         }
     }
 
@@ -602,19 +649,18 @@ impl CopiedBase {
     /// `..=i` only, each read before), keeping its index as the level's
     /// index: the map's memory holds its level 0 with no room for a copy.
     /// Gives back the level (room for the map's capacity of points, the
-    /// first `len` written) and the whole words after it; `None` when the
-    /// map is empty.
-    pub fn compact(map: LocalMap<SliceStorage<'_, u16>>) -> Option<(Self, CopiedSlices<'_>, &mut [u32])> {
+    /// first `len` written) and the words after it, whole: what the points
+    /// leave of the voxels' words and the words the storage kept after
+    /// them; `None` when the map is empty.
+    pub fn compact(map: LocalMap<WordStorage<'_>>) -> Option<(Self, CopiedSlices<'_>, &mut [u32])> {
         const { assert!(size_of::<ModelPoint>() <= size_of::<SemanticVoxel>()) };
         let (len, resolution) = (map.len(), map.resolution());
         if len == 0 {
             return None;
         }
-        let SliceStorage { voxels, slots } = map.into_storage();
-        let capacity = voxels.len();
-        let words = words_of(voxels);
+        let (words, capacity, slots) = map.into_storage().into_parts();
         {
-            let bytes: &mut [u8] = bytemuck::cast_slice_mut(words);
+            let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut *words);
             let (vs, ps) = (size_of::<SemanticVoxel>(), size_of::<ModelPoint>());
             for i in 0..len {
                 let v: SemanticVoxel = bytemuck::pod_read_unaligned(bytes.get(i * vs..(i + 1) * vs)?);
