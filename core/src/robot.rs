@@ -182,14 +182,32 @@ pub fn align<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: Pyr
     prior: Option<&Isometry3<f32>>,
     model_storage: P,
     scene_storage: Q,
+    on_phase: impl FnMut(u8),
+) -> Result<(MatchResult, Option<Searched>), AlignError> {
+    let mut words = [0u32; SearchScratch::WINDOWED];
+    let scratch = &mut SearchScratch::new(&mut words);
+    align_in(own, received, prior, model_storage, scene_storage, EM_ITERATIONS, scratch, on_phase)
+}
+
+/// [`align`] in at most `iterations` EM iterations, the searches' caches
+/// in `scratch` (a team robot's: the words that order its map for the
+/// link, idle while it matches).
+#[allow(clippy::too_many_arguments)]
+pub fn align_in<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: PyramidStorage>(
+    own: &LocalMap<A>,
+    received: &B,
+    prior: Option<&Isometry3<f32>>,
+    model_storage: P,
+    scene_storage: Q,
+    iterations: u32,
+    scratch: &mut SearchScratch<'_>,
     mut on_phase: impl FnMut(u8),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
     on_phase(0);
     let model = Pyramid::build_model(own, LEVELS, FOOTPRINT_CELL, model_storage).map_err(AlignError::Pyramid)?;
     let scene = received.prepare_scene(LEVELS, FOOTPRINT_CELL, scene_storage).map_err(AlignError::Pyramid)?;
     on_phase(1);
-    let mut words = [0u32; SearchScratch::WINDOWED];
-    align_prepared(&model, &scene, prior, EM_ITERATIONS, &mut SearchScratch::new(&mut words), on_phase)
+    align_prepared(&model, &scene, prior, iterations, scratch, on_phase)
 }
 
 /// [`align`] of maps already prepared, in at most `iterations` EM
@@ -228,13 +246,13 @@ struct PhaseMarks {
 }
 
 impl PhaseMarks {
-    /// [`align`] with `meter` read at each phase.
+    /// [`align_in`] (no prior) with `meter` read at each phase.
     fn align<A, B, P, Q, T>(
         own: &LocalMap<A>,
         received: &B,
-        prior: Option<&Isometry3<f32>>,
-        model: P,
-        scene: Q,
+        (model, scene): (P, Q),
+        iterations: u32,
+        scratch: &mut SearchScratch<'_>,
         meter: &T,
     ) -> Result<(MatchResult, Option<Searched>, PhaseMarks), RobotError>
     where
@@ -245,8 +263,9 @@ impl PhaseMarks {
         T: Meter,
     {
         let mut marks = PhaseMarks::default();
+        let on_phase = |k| marks.mark(k, meter);
         let (result, located) =
-            align(own, received, prior, model, scene, |k| marks.mark(k, meter)).map_err(RobotError::Align)?;
+            align_in(own, received, None, model, scene, iterations, scratch, on_phase).map_err(RobotError::Align)?;
         Ok((result, located, marks))
     }
 

@@ -181,6 +181,45 @@ fn a_drive_cut_in_three_is_placed_on_boards_and_a_robot_from_elsewhere_is_not() 
 }
 
 #[test]
+fn a_drive_cut_in_three_is_placed_on_stm32f405_boards_and_a_robot_from_elsewhere_is_not() {
+    let (Some(k00), Some(k07)) = (real_data("kitti00"), real_data("kitti07")) else { return };
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let (a, b) = (k00.display().to_string(), k07.display().to_string());
+    let on = ["--on-board", "--board", "stm32f405"];
+    let robots = [format!("{a}:0:3"), format!("{a}:3:6"), format!("{a}:6:10")];
+    let mut args: Vec<&str> = robots.iter().flat_map(|r| ["--robot", r.as_str()]).collect();
+    args.extend_from_slice(&on);
+    let (v, code) = {
+        let _one = BOARDS.lock().unwrap_or_else(|e| e.into_inner());
+        team(&args)
+    };
+    assert_boards_agree(&v, 3);
+    for i in 0..3 {
+        assert_placed(&v, i);
+    }
+    assert_eq!(code, Some(0));
+    // The team robot within the chip's 192 KiB: its statics leave this
+    // stack (the link checks it), and its map holds 1,760 voxels.
+    for board in v["boards"].as_array().unwrap() {
+        assert!(board["peak_stack_bytes"].as_u64().unwrap() <= 47_104, "{board}");
+        assert!(board["map_voxels"].as_u64().unwrap() <= 1760, "{board}");
+    }
+    let robots = [format!("{a}:0:3"), format!("{a}:3:6"), format!("{b}:0:3")];
+    let mut args: Vec<&str> = robots.iter().flat_map(|r| ["--robot", r.as_str()]).collect();
+    args.extend_from_slice(&on);
+    let (v, code) = {
+        let _one = BOARDS.lock().unwrap_or_else(|e| e.into_inner());
+        team(&args)
+    };
+    assert_boards_agree(&v, 3);
+    assert_placed(&v, 1);
+    assert_eq!(v["robots"][2]["placed"], false, "{v}");
+    assert_eq!(code, Some(5), "a robot unplaced");
+}
+
+#[test]
 fn a_synthetic_street_cut_in_three_is_placed_on_boards() {
     if cosem_tests::firmware_elves().is_none() {
         return;

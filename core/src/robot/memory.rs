@@ -103,6 +103,25 @@ impl Capacity {
         em_iterations: 40,
     };
 
+    /// A team robot of an STM32F405 ([`super::team::TeamRobot`]): it keeps
+    /// its map through every round (the model's level 0 is the map and 6
+    /// bytes a voxel of extras, not a copy) and solves the pose graph on
+    /// its stack (44 KiB deep), so it holds fewer voxels than the pair
+    /// robot: 1,760 (at 1 m, what a few scans' 25 m give). Its map, both pyramid storages, the
+    /// received map and the scratch (the searches' caches while it
+    /// matches) fill the SRAM; the link's buffers, the receive rings and
+    /// the stack the CCM.
+    pub const STM32F405_TEAM: Capacity = Capacity {
+        voxels: 1760,
+        coarse: 1162,
+        model_words: 1100,
+        scene_words: 1320,
+        levels: super::LEVELS,
+        spare_words: 0,
+        search_words: 0,
+        em_iterations: 40,
+    };
+
     /// A robot that only sends its map ([`super::Robot::sender`]).
     pub const fn sender(voxels: usize) -> Capacity {
         Capacity {

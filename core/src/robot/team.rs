@@ -23,6 +23,7 @@ use super::{Machine, Meter, PhaseMarks, Poll, RobotConfig, RobotError};
 use crate::geometry::{from_rows, rows};
 use crate::link::{Endpoint, Finished, LinkBuffers, LinkConfig, LinkError, LinkStats, Progress};
 use crate::map::{LocalMap, VoxelSink, VoxelStorage};
+use crate::matching::search::SearchScratch;
 use crate::matching::{MatchStatus, PyramidStorage, SceneSource};
 use crate::team::{consistent_set, solve, RelativePose, MAX_ROBOTS};
 use crate::wire::feed::{FeedError, PlacedRobot, RobotMessage, RobotReport, TeamEnd};
@@ -132,6 +133,7 @@ pub struct TeamRobot<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: Pyramid
     estimates: [Option<Estimate>; MAX_ROBOTS],
     share_started: u64,
     link_config: LinkConfig,
+    em_iterations: u32,
 }
 
 impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: PyramidStorage> TeamRobot<'a, M, R, P, Q> {
@@ -155,7 +157,16 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
             estimates: [None; MAX_ROBOTS],
             share_started: 0,
             link_config: LinkConfig::default(),
+            em_iterations: super::EM_ITERATIONS,
         }
+    }
+
+    /// The same robot refining in at most `n` EM iterations (a capacity's
+    /// [`em_iterations`](super::Capacity::em_iterations); default
+    /// [`super::EM_ITERATIONS`]).
+    pub fn with_em_iterations(mut self, n: u32) -> Self {
+        self.em_iterations = n;
+        self
     }
 
     fn me(&self) -> u8 {
@@ -224,7 +235,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
                 };
                 let link_ms = now_ms.saturating_sub(started).min(u64::from(u32::MAX)) as u32;
                 let report = match progress {
-                    Ok(_) => self.match_peer(own, received, peer, &stats, link_ms, meter)?,
+                    Ok(_) => self.match_peer(own, received, scratch, peer, &stats, link_ms, meter)?,
                     // The maps never met: no estimate of this peer.
                     Err(_) => self.unmatched(own, peer, &stats, link_ms, meter),
                 };
@@ -280,16 +291,22 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
         Ok(())
     }
 
+    /// Matches the peer's map to ours; the searches' caches in `scratch`
+    /// (it ordered our map for the link, and is idle until the next).
+    #[allow(clippy::too_many_arguments)]
     fn match_peer<T: Meter>(
         &mut self,
         own: &LocalMap<M>,
         received: &R,
+        scratch: &mut [u32],
         peer: u8,
         stats: &LinkStats,
         link_ms: u32,
         meter: &T,
     ) -> Result<RobotReport, RobotError> {
-        let (result, located, marks) = PhaseMarks::align(own, received, None, &mut self.model, &mut self.scene, meter)?;
+        let storages = (&mut self.model, &mut self.scene);
+        let search = &mut SearchScratch::new(scratch);
+        let (result, located, marks) = PhaseMarks::align(own, received, storages, self.em_iterations, search, meter)?;
         let me = self.me();
         if let Some(slot) = self.estimates.get_mut(usize::from(peer)) {
             *slot = Some(result.estimate(me, peer));

@@ -1,5 +1,5 @@
 //! The memory layout (memory.x) for QEMU or for hardware, the main SRAM's
-//! section, and the matching robot's stack budget.
+//! section, and the matching and team robots' stack budgets.
 use std::{env, fs, path::PathBuf};
 
 fn main() {
@@ -12,7 +12,10 @@ fn main() {
     // The matching robot: statics and stack within 192 KiB.
     fs::copy("robot-budget.x", out.join("robot-budget.x")).expect("copy the robot's budget");
     println!("cargo:rustc-link-arg-bin=stm32f405-robot=-Trobot-budget.x");
-    for f in ["memory-qemu.x", "memory-hardware.x", "sram.x", "robot-budget.x"] {
+    // The team robot: its statics leave the pose graph's stack.
+    fs::copy("team-budget.x", out.join("team-budget.x")).expect("copy the team robot's budget");
+    println!("cargo:rustc-link-arg-bin=stm32f405-team=-Tteam-budget.x");
+    for f in ["memory-qemu.x", "memory-hardware.x", "sram.x", "robot-budget.x", "team-budget.x"] {
         println!("cargo:rerun-if-changed={f}");
     }
     if env::var_os("CARGO_FEATURE_DEFMT").is_some() {

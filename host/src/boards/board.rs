@@ -69,6 +69,43 @@ impl Board {
         }
     }
 
+    /// The capacities of its team robot (`cosem team --on-board`).
+    pub fn team_capacity(self) -> cosem_core::robot::Capacity {
+        match self {
+            Board::Stm32f405 | Board::Stm32f405Sender => cosem_core::robot::Capacity::STM32F405_TEAM,
+            Board::Mps2An386 => cosem_core::robot::Capacity::BOARD,
+        }
+    }
+
+    /// The voxel size (m) its team robot maps at by default: its capacity's
+    /// voxels hold a few scans' 25 m without eviction (the STM32F405
+    /// team robot's 1,760 at 1 m; at 0.7 m they kept a 15 m radius).
+    pub fn default_team_voxel(self) -> f32 {
+        match self {
+            Board::Stm32f405 | Board::Stm32f405Sender => 1.0,
+            Board::Mps2An386 => 0.5,
+        }
+    }
+
+    /// Where `cargo build --release` in firmware/ puts its team binary.
+    pub fn team_firmware(self) -> &'static str {
+        match self {
+            Board::Stm32f405 | Board::Stm32f405Sender => "firmware/target/thumbv7em-none-eabihf/release/stm32f405-team",
+            Board::Mps2An386 => "firmware/target/thumbv7em-none-eabihf/release/team",
+        }
+    }
+
+    /// Its team robot's serial ports, in QEMU's order: the feeder's and
+    /// the peers' (in peer index order). The mps2 board's feeder is UART1,
+    /// its peers UART0, 2, 3, 4; the STM32F405's feeder USART1, its peers
+    /// USART2 and USART3.
+    pub fn team_ports(self) -> (usize, &'static [usize]) {
+        match self {
+            Board::Stm32f405 | Board::Stm32f405Sender => (0, &[1, 2]),
+            Board::Mps2An386 => (1, &[0, 2, 3, 4]),
+        }
+    }
+
     /// Voxels its robot's map holds.
     pub fn voxels(self) -> usize {
         self.capacity().voxels

@@ -16,7 +16,7 @@ use cosem_core::classes::{Class, NUM_CLASSES};
 use cosem_core::geometry::{errors_of, from_rows, pose_deg, row_major, rows, Isometry3};
 use cosem_core::map::{SceneMap, ScenePoint};
 use cosem_core::matching::{MatchStatus, PyramidCapacity, VecPyramidStorage};
-use cosem_core::robot::{Robot, RobotConfig, COARSE, MODEL_WORDS, SCENE_WORDS, VOXELS};
+use cosem_core::robot::{Capacity, Robot, RobotConfig};
 use cosem_core::sim::{self, SimRobot, Wire};
 use cosem_core::wire::feed::{
     self, FeedMessage, RobotMessage, RobotReport, Setup, MAX_POINTS_PER_MESSAGE, POINT_BYTES,
@@ -146,22 +146,29 @@ pub fn feeds(
     Ok([a, b])
 }
 
-/// A received map as a board holds it: a scene of [`VOXELS`] points.
+/// A received map as a board holds it: a scene of its capacity's points.
 pub(crate) type Received = SceneMap<Vec<ScenePoint>>;
 
-/// An empty received map as a board's (voxels of `resolution` m).
-pub(crate) fn received_scene(resolution: f32) -> Result<Received, Error> {
-    SceneMap::new(vec![ScenePoint::EMPTY; VOXELS], resolution)
+/// An empty received map of `voxels` points (voxels of `resolution` m).
+pub(crate) fn received_scene(voxels: usize, resolution: f32) -> Result<Received, Error> {
+    SceneMap::new(vec![ScenePoint::EMPTY; voxels], resolution)
         .map_err(|e| Error::Invalid(format!("received map: {e:?}")))
 }
 
-/// A board's pyramid storages (model, scene) on the heap: the firmware's
-/// capacities.
-pub(crate) fn board_pyramids() -> (impl Fn() -> VecPyramidStorage, impl Fn() -> VecPyramidStorage) {
-    let model = || {
-        VecPyramidStorage::new(PyramidCapacity { voxels: VOXELS, entries: COARSE, slots: COARSE, words: MODEL_WORDS })
+/// A team robot's pyramid storages (model, scene) on the heap, of a board's
+/// capacities (the model's level 0 is its map, with extras).
+pub(crate) fn board_pyramids(c: Capacity) -> (impl Fn() -> VecPyramidStorage, impl Fn() -> VecPyramidStorage) {
+    let model = move || {
+        VecPyramidStorage::new(PyramidCapacity {
+            voxels: c.voxels,
+            entries: c.coarse,
+            slots: c.coarse,
+            words: c.model_words,
+        })
     };
-    let scene = || VecPyramidStorage::new(PyramidCapacity { voxels: 0, entries: COARSE, slots: 0, words: SCENE_WORDS });
+    let scene = move || {
+        VecPyramidStorage::new(PyramidCapacity { voxels: 0, entries: c.coarse, slots: 0, words: c.scene_words })
+    };
     (model, scene)
 }
 
@@ -289,8 +296,8 @@ pub fn firmware(path: &Path) -> Result<PathBuf, Error> {
     // A binary at the default place (robot, team) is built first.
     let built_here = Path::new(DEFAULT_FIRMWARE).parent();
     let bin = path.file_name().and_then(|b| b.to_str()).unwrap_or("robot");
-    let default =
-        path.parent() == built_here && matches!(bin, "robot" | "team" | "stm32f405-robot" | "stm32f405-sender");
+    let default = path.parent() == built_here
+        && matches!(bin, "robot" | "team" | "stm32f405-robot" | "stm32f405-sender" | "stm32f405-team");
     if !default || !dir.join("Cargo.toml").exists() {
         return if path.exists() {
             Ok(path.to_path_buf())
@@ -383,13 +390,8 @@ pub struct PairRun {
 
 /// An mps2-an386 QEMU with `serials` as its UARTs, its standard error
 /// kept for the board's messages.
-pub(crate) fn qemu(elf: &Path, serials: &[Option<u16>]) -> std::io::Result<Child> {
-    crate::board::Board::Mps2An386
-        .qemu_command(elf, serials)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
+pub(crate) fn qemu(board: Board, elf: &Path, serials: &[Option<u16>]) -> std::io::Result<Child> {
+    board.qemu_command(elf, serials).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::piped()).spawn()
 }
 
 /// Waits for every QEMU to exit, killing those still running at

@@ -1,22 +1,26 @@
 //! `cosem team --on-board`: each robot of a team on its own emulated board
-//! (QEMU `mps2-an386`, the firmware's `team` binary), beside the host's run
-//! of the same robots on the same fed points.
+//! (QEMU `mps2-an386` and the firmware's `team` binary, or an STM32F405 and
+//! its `stm32f405-team`), beside the host's run of the same robots on the
+//! same fed points.
 //!
-//! Board i's UART1 is its feeder line (a TCP listener of this process: its
-//! thinned scans in, its messages out). Its other four UARTs are its peer
-//! lines, in peer index order (UART0, 2, 3, 4), so a team on boards has at
-//! most five robots. Every pair of boards has its own line: this process
+//! Board i's feeder line is a TCP listener of this process (its thinned
+//! scans in, its messages out); its peer lines are its other UARTs, in
+//! peer index order ([`Board::team_ports`]: the mps2 board's UART1 feeds
+//! it, UART0, 2, 3, 4 join its peers, so a team of those has at most five
+//! robots; the STM32F405's USART1 feeds it, USART2 and 3 join its peers:
+//! three robots). Every pair of boards has its own line: this process
 //! joins the two UARTs byte for byte, a mesh of point-to-point links like
 //! the host's `cosem team`. The host's run drives the core's
 //! [`TeamRobot`] with the same feeds over simulated clean lines, so the
 //! boards' placements must be the host's.
 
+use crate::board::Board;
 use crate::error::Error;
 use crate::mapping::new_map;
 use crate::robots::{accept, board_pyramids, pump, qemu, Feed, FeederLine, LineFault};
 use cosem_core::link::LinkBuffers;
 use cosem_core::robot::team::{port_of, TeamRobot, TABLE_WORDS};
-use cosem_core::robot::{self, RobotConfig, VOXELS};
+use cosem_core::robot::{self, RobotConfig};
 use cosem_core::sim::{self, SimRobot, Wire};
 use cosem_core::wire::feed::{PlacedRobot, RobotMessage, RobotReport, TeamEnd};
 use cosem_core::wire::frame::Deframer;
@@ -27,11 +31,10 @@ use std::sync::atomic::AtomicU64;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-/// Most robots of a team on boards: one feeder UART and four peer UARTs.
-pub const MAX_BOARDS: usize = 5;
-
-/// Where the firmware's `team` binary is built.
-pub const DEFAULT_TEAM_FIRMWARE: &str = "firmware/target/thumbv7em-none-eabihf/release/team";
+/// Most robots of a team on `board`: one more than its peer UARTs.
+pub fn max_boards(board: Board) -> usize {
+    board.team_ports().1.len() + 1
+}
 
 /// What one team robot said over its feeder line.
 #[derive(Clone, Debug, Default)]
@@ -98,9 +101,10 @@ pub fn team_feed_bytes(feeds: &[Feed]) -> Result<Vec<Vec<u8>>, Error> {
 }
 
 /// The team run on this host, exactly as on the boards: the core's team
-/// robot with the firmware's capacities, each pair joined by a clean
+/// robot with `board`'s team capacities, each pair joined by a clean
 /// simulated 115200-baud line, one millisecond per round of polls.
-pub fn host_team_run(feeds: &[Feed]) -> Result<Vec<TeamReports>, Error> {
+pub fn host_team_run(feeds: &[Feed], board: Board) -> Result<Vec<TeamReports>, Error> {
+    let c = board.team_capacity();
     let n = feeds.len();
     let bytes = team_feed_bytes(feeds)?;
     let config = robot::map_config(feeds.first().map_or(0.5, |f| f.setup.resolution));
@@ -113,14 +117,14 @@ pub fn host_team_run(feeds: &[Feed]) -> Result<Vec<TeamReports>, Error> {
     let mut buffers = (0..n)
         .map(|_| {
             Ok(Buffers {
-                own: new_map(VOXELS, config)?,
-                received: crate::robots::received_scene(config.resolution)?,
-                scratch: vec![0u32; VOXELS.max(TABLE_WORDS)],
+                own: new_map(c.voxels, config)?,
+                received: crate::robots::received_scene(c.voxels, config.resolution)?,
+                scratch: vec![0u32; c.voxels.max(TABLE_WORDS)],
                 link: Box::new(LinkBuffers::new()),
             })
         })
         .collect::<Result<Vec<_>, Error>>()?;
-    let (model_storage, scene_storage) = board_pyramids();
+    let (model_storage, scene_storage) = board_pyramids(c);
     let mut robots: Vec<_> = buffers
         .iter_mut()
         .map(|b| {
@@ -133,6 +137,7 @@ pub fn host_team_run(feeds: &[Feed]) -> Result<Vec<TeamReports>, Error> {
                 model_storage(),
                 scene_storage(),
             )
+            .with_em_iterations(c.em_iterations)
         })
         .collect();
     let mut polled: Vec<&mut SimRobot<'_, '_, TeamEnd>> =
@@ -226,23 +231,26 @@ fn describe(payload: &[u8]) -> String {
 /// QEMU is killed at `timeout`. With `progress`, each board's messages are
 /// told on stderr as they come.
 pub fn run_boards(
+    board: Board,
     elf: &Path,
     feeds: &[Feed],
     timeout: Duration,
     progress: bool,
 ) -> Result<(Vec<BoardRun>, f64), Error> {
-    run_boards_inner(elf, feeds, timeout, progress).map_err(Error::Invalid)
+    run_boards_inner(board, elf, feeds, timeout, progress).map_err(Error::Invalid)
 }
 
 fn run_boards_inner(
+    board: Board,
     elf: &Path,
     feeds: &[Feed],
     timeout: Duration,
     progress: bool,
 ) -> Result<(Vec<BoardRun>, f64), String> {
     let n = feeds.len();
-    if !(2..=MAX_BOARDS).contains(&n) {
-        return Err(format!("a team on boards has 2 to {MAX_BOARDS} robots (four peer UARTs each), not {n}"));
+    let most = max_boards(board);
+    if !(2..=most).contains(&n) {
+        return Err(format!("a team on {} boards has 2 to {most} robots, not {n}", board.as_str()));
     }
     let started = Instant::now();
     let deadline = started + timeout;
@@ -252,21 +260,21 @@ fn run_boards_inner(
     let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
     let links = pairs.iter().map(|_| bind()).collect::<Result<Vec<_>, _>>()?;
     let feeders = (0..n).map(|_| bind()).collect::<Result<Vec<_>, _>>()?;
-    // Board i's serial ports: UART0, 2, 3, 4 are its peers in order, UART1 its feeder.
-    const PEER_UARTS: [usize; 4] = [0, 2, 3, 4];
+    // Board i's serial ports: its feeder's, its peers' in order.
+    let (feeder_port, peer_ports) = board.team_ports();
     let mut children = Vec::new();
     for (i, f) in feeders.iter().enumerate() {
-        let mut serials: Vec<Option<u16>> = vec![None; 5];
-        serials[1] = Some(port(f)?);
+        let mut serials: Vec<Option<u16>> = vec![None; peer_ports.len() + 1];
+        serials[feeder_port] = Some(port(f)?);
         for (&(a, b), l) in pairs.iter().zip(&links) {
             if a == i || b == i {
                 let peer = if a == i { b } else { a };
-                serials[PEER_UARTS[port_of(i as u8, peer as u8)]] = Some(port(l)?);
+                serials[peer_ports[port_of(i as u8, peer as u8)]] = Some(port(l)?);
             }
         }
         // QEMU connects its serial ports in order; unused ones go nowhere.
-        let last = serials.iter().rposition(Option::is_some).unwrap_or(1);
-        let child = qemu(elf, &serials[..=last]).map_err(|e| format!("qemu-system-arm: {e}"))?;
+        let last = serials.iter().rposition(Option::is_some).unwrap_or(feeder_port);
+        let child = qemu(board, elf, &serials[..=last]).map_err(|e| format!("qemu-system-arm: {e}"))?;
         children.push(child);
     }
     let connect_by = Instant::now() + Duration::from_secs(30);
@@ -348,27 +356,28 @@ pub fn placement_difference(a: &TeamReports, b: &TeamReports) -> Option<(f64, bo
     Some((worst, same))
 }
 
-/// A team on boards, end to end: each robot's feed, the host's run of the
-/// same robots, the boards under QEMU (`firmware`, killed after
-/// `timeout`), and the report.
+/// A team on `board`s, end to end: each robot's feed, the host's run of
+/// the same robots, the boards under QEMU (`firmware`, default the board's
+/// team binary; killed after `timeout`), and the report.
 pub fn run_on_boards(
     spec: &crate::team::TeamSpec,
     crop: f32,
     silence_ms: u32,
-    firmware: &Path,
+    (board, firmware): (Board, Option<&Path>),
     timeout: Duration,
 ) -> Result<crate::reports::team::TeamBoardJson, Error> {
-    let n = spec.robots.len();
-    if !(2..=MAX_BOARDS).contains(&n) {
+    let (n, most) = (spec.robots.len(), max_boards(board));
+    if !(2..=most).contains(&n) {
         return Err(Error::Invalid(format!(
-            "--on-board: 2 to {MAX_BOARDS} robots (each board has four peer UARTs), not {n}"
+            "--on-board: 2 to {most} robots on {} boards (one per peer UART and one), not {n}",
+            board.as_str()
         )));
     }
     let truth = crate::team::Truth::of(spec)?;
     let feeds = team_feeds(spec, crop, silence_ms)?;
-    let host = host_team_run(&feeds)?;
-    let elf = crate::robots::firmware(firmware)?;
-    let (boards, wall_s) = run_boards(&elf, &feeds, timeout, true)?;
+    let host = host_team_run(&feeds, board)?;
+    let elf = crate::robots::firmware(firmware.unwrap_or(Path::new(board.team_firmware())))?;
+    let (boards, wall_s) = run_boards(board, &elf, &feeds, timeout, true)?;
     crate::reports::team::TeamBoardJson::of(&boards, &host, &truth, wall_s)
 }
 
@@ -404,7 +413,7 @@ mod tests {
             settings: Default::default(),
         };
         let feeds = team_feeds(&spec, 25.0, 60_000).unwrap();
-        let reports = host_team_run(&feeds).unwrap();
+        let reports = host_team_run(&feeds, Board::Mps2An386).unwrap();
         for r in &reports {
             assert!(r.end.is_some(), "{:?}", r.failed);
             assert_eq!(r.matched.len(), 2, "{r:?}");

@@ -15,7 +15,6 @@ mod relay;
 mod robots;
 mod synth;
 mod team;
-mod team_board;
 
 use clap::{Parser, Subcommand};
 

@@ -15,7 +15,7 @@ pub struct Args {
     pub(super) robots: Vec<RobotSpec>,
     #[command(flatten)]
     pub(super) source: super::args::SourceArgs,
-    /// Voxel size (m; default 0.2, or 0.5 with --on-board).
+    /// Voxel size (m; default 0.2; on board the board's: 0.5 or 1).
     #[arg(long, value_parser = super::args::positive_f32)]
     pub(super) voxel: Option<f32>,
     /// No prior: every robot searches every heading and offset (the default).
@@ -40,20 +40,25 @@ pub struct Args {
     /// JSON on standard output.
     #[arg(long)]
     pub(super) json: bool,
-    /// Run each robot on an emulated board (QEMU mps2-an386, 2 to 5
-    /// robots, no prior): fed its thinned scans, it maps, exchanges,
-    /// matches, checks consistency and solves the pose graph on board;
-    /// shown beside the host's run of the same robots on the same points.
+    /// Run each robot on an emulated board (2 to 5 robots on mps2-an386, 2
+    /// or 3 on stm32f405; no prior): fed its thinned scans, it maps,
+    /// exchanges, matches, checks consistency and solves the pose graph on
+    /// board; shown beside the host's run of the same robots on the same
+    /// points.
     #[arg(long, conflicts_with_all = ["prior_noise", "inject_false_match"])]
     pub(super) on_board: bool,
     /// With --on-board: points farther than this from their sensor are not
     /// fed (m).
     #[arg(long, default_value = "25", value_parser = super::args::positive_f32)]
     pub(super) crop: f32,
-    /// With --on-board: the firmware's team binary (at the default path,
+    /// With --on-board: the boards, mps2-an386 or stm32f405 (voxels of 0.5
+    /// or 1 m by default).
+    #[arg(long, default_value = "mps2-an386")]
+    pub(super) board: cosem_host::board::Board,
+    /// With --on-board: the firmware's team binary (default: the board's,
     /// built or brought up to date first).
-    #[arg(long, default_value = cosem_host::team_board::DEFAULT_TEAM_FIRMWARE)]
-    pub(super) firmware: std::path::PathBuf,
+    #[arg(long)]
+    pub(super) firmware: Option<std::path::PathBuf>,
     /// With --on-board: a robot gives up on a peer after this long without a
     /// valid frame (s).
     #[arg(long, default_value = "60", value_parser = super::args::positive)]
@@ -77,9 +82,19 @@ pub(super) fn spec(a: &Args, default_voxel: f32) -> TeamSpec {
     }
 }
 
+/// Exit code: 0 when every robot is placed in robot 0's frame; 5 when one
+/// is not; 1 when a board stopped (`--on-board`: each robot on its own
+/// emulated board, see `cosem_host::team_board`, beside the host's run).
 pub fn run(a: Args) -> Result<u8, Error> {
     if a.on_board {
-        return super::team_board::run(a);
+        // No prior and no injected match on board (clap refuses them).
+        let spec = spec(&a, a.board.default_team_voxel());
+        let silence_ms = (a.silence * 1000.0).min(f64::from(u32::MAX)) as u32;
+        let timeout = std::time::Duration::from_secs_f64(a.timeout.min(86_400.0));
+        let board = (a.board, a.firmware.as_deref());
+        let out = cosem_host::team_board::run_on_boards(&spec, a.crop, silence_ms, board, timeout)?;
+        show(a.json, &out)?;
+        return Ok(out.exit_code());
     }
     let spec = spec(&a, 0.2);
     let out = TeamJson::of(&run_team(&spec)?);

@@ -80,8 +80,30 @@ where
 
 /// The feeder's receiver (USART1).
 pub type FeedRx = IrqReceiver<HalRx<pac::USART1>, FEED_RING>;
-/// The link's receiver (USART2).
+/// The link's receiver (USART2; a team robot's first peer).
 pub type LinkRx = IrqReceiver<HalRx<pac::USART2>, LINK_RING>;
+/// A team robot's second peer's receiver (USART3).
+pub type Link3Rx = IrqReceiver<HalRx<pac::USART3>, LINK_RING>;
+
+/// A line a robot talks over, whichever USART is under it: a team robot's
+/// peers are USARTs of different types, reached as `&mut dyn Port`.
+pub trait Port:
+    embedded_io::Read
+    + embedded_io::Write
+    + embedded_io::ReadReady
+    + embedded_io::WriteReady
+    + embedded_io::ErrorType<Error = cosem_firmware::serial::SerialError>
+{
+}
+
+impl<T> Port for T where
+    T: embedded_io::Read
+        + embedded_io::Write
+        + embedded_io::ReadReady
+        + embedded_io::WriteReady
+        + embedded_io::ErrorType<Error = cosem_firmware::serial::SerialError>
+{
+}
 
 /// This board's measures.
 pub struct Board;
@@ -100,12 +122,39 @@ pub fn sleep() {
     cortex_m::asm::wfi();
 }
 
-/// Starts the clock and both USARTs at 115200 baud, installs their
+/// Starts the clock and USART1 and USART2 at 115200 baud, installs their
 /// receivers in `feed_rx` and `link_rx` and unmasks their interrupts;
 /// the transmit halves, feeder's first. `None` if a peripheral is missing.
 pub fn start(feed_rx: &'static FeedRx, link_rx: &'static LinkRx) -> Option<(Tx<pac::USART1>, Tx<pac::USART2>)> {
     start_clock()?;
-    let dp = pac::Peripherals::take()?;
+    start_with(pac::Peripherals::take()?, feed_rx, link_rx).map(|(feed, link, _)| (feed, link))
+}
+
+/// [`start`], and USART3 (PB10/PB11) with its receiver in `link3_rx`: a
+/// team robot's lines (feeder, first peer, second peer).
+pub fn start_team(
+    feed_rx: &'static FeedRx,
+    link_rx: &'static LinkRx,
+    link3_rx: &'static Link3Rx,
+) -> Option<(Tx<pac::USART1>, Tx<pac::USART2>, Tx<pac::USART3>)> {
+    start_clock()?;
+    let (feed, link, (usart3, gpiob, mut rcc)) = start_with(pac::Peripherals::take()?, feed_rx, link_rx)?;
+    let link3 = usart3.serial((gpiob.pb10, gpiob.pb11), 115_200.bps(), &mut rcc).ok()?;
+    let (link3_tx, link3_rx_half) = link3.split();
+    link3_rx.install(HalRx { rx: link3_rx_half, irq: Interrupt::USART3 });
+    // SAFETY: the handler only touches its receiver, installed above.
+    unsafe { NVIC::unmask(Interrupt::USART3) };
+    Some((feed, link, link3_tx))
+}
+
+/// What [`start_with`] leaves for a third USART.
+type Rest = (pac::USART3, stm32f4xx_hal::gpio::gpiob::Parts, stm32f4xx_hal::rcc::Rcc);
+
+fn start_with(
+    dp: pac::Peripherals,
+    feed_rx: &'static FeedRx,
+    link_rx: &'static LinkRx,
+) -> Option<(Tx<pac::USART1>, Tx<pac::USART2>, Rest)> {
     // The internal oscillator: QEMU models no PLL or HSE ready bits.
     let mut rcc = dp.RCC.freeze(Config::hsi());
     if cfg!(feature = "hardware") {
@@ -123,5 +172,6 @@ pub fn start(feed_rx: &'static FeedRx, link_rx: &'static LinkRx) -> Option<(Tx<p
         NVIC::unmask(Interrupt::USART1);
         NVIC::unmask(Interrupt::USART2);
     }
-    Some((feed_tx, link_tx))
+    let gpiob = dp.GPIOB.split(&mut rcc);
+    Some((feed_tx, link_tx, (dp.USART3, gpiob, rcc)))
 }
