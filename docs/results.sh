@@ -141,6 +141,8 @@ if [ "$BOARDS" = 1 ] && [ -d "$K0" ]; then
   [ -d "$DATA/kitti08-loop" ] && { $C robots --data "$DATA/kitti08-loop" --a 720:721 --b 1500:1501 --no-prior "${S2[@]}" \
     --json >"$OUT/stm32-loop08.json" || true; }
   $C team --on-board --robot "$K0:0:3" --robot "$K0:3:6" --robot "$K0:6:10" --json >"$OUT/team-boards.json" || true
+  $C team --on-board --board stm32f405 --robot "$K0:0:3" --robot "$K0:3:6" --robot "$K0:6:10" --json \
+    >"$OUT/team-stm32.json" || true
   # The onboard pipeline per robot, no prior: overlapping pairs, the pair
   # that shares nothing, and a network's labels.
   $C robots --data "$K0" --a 0:5 --b 5:10 --no-prior --label-noise network --json >"$OUT/pipeline-kitti00-network.json" || true
@@ -384,10 +386,17 @@ if any(t for _, t in rows):
     for label, t in rows:
         if t:
             print("| " + label + " | " + " | ".join(placed(t)) + " |")
-t = load("team-boards.json")
-if t:
-    print("\n## A team on emulated boards, kitti00 0:3, 3:6, 6:10, no prior, 0.5 m\n")
-    print("`cosem team --on-board --robot kitti00:0:3 --robot kitti00:3:6 --robot kitti00:6:10 --json`\n")
+for name, title, command in [
+    ("team-boards", "A team on emulated boards, kitti00 0:3, 3:6, 6:10, no prior, 0.5 m",
+     "`cosem team --on-board --robot kitti00:0:3 --robot kitti00:3:6 --robot kitti00:6:10 --json`"),
+    ("team-stm32", "A team of STM32F405s, kitti00 0:3, 3:6, 6:10, no prior, 1 m",
+     "`cosem team --on-board --board stm32f405 --robot kitti00:0:3 --robot kitti00:3:6 --robot kitti00:6:10 --json`"),
+]:
+    t = load(f"{name}.json")
+    if not t:
+        continue
+    print(f"\n## {title}\n")
+    print(f"{command}\n")
     p, o, left = placed(t)
     print(f"Placed: {p}; not placed: {o}; matches left out: {left}; every board as the host: "
           f"{t['host_difference_m']:.1e} m apart at most; {t['wall_time_s']:.0f} s of wall time.\n")
