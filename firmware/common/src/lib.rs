@@ -122,6 +122,41 @@ pub fn exit(ok: bool) -> ! {
     }
 }
 
+/// Runs `robot` to its end, as every board's robot does: polls it with the
+/// time of `now_ms`, sleeps (`wfi`, interrupts masked while it checks)
+/// whenever it is busy and `quiet` says no byte waits in any ring (a guest
+/// that spins on memory alone starves QEMU's I/O thread; a real chip saves
+/// power), and exits with `ok(report)` when it is done, 1 when it stops
+/// (it told its feeder why).
+pub fn drive<F, L, T, M>(
+    robot: &mut M,
+    feed: &mut F,
+    ports: &mut [L],
+    meter: &T,
+    now_ms: impl Fn() -> u64,
+    quiet: impl Fn() -> bool,
+    ok: impl Fn(&M::Report) -> bool,
+) -> !
+where
+    M: cosem_core::robot::Machine<F, L, T>,
+{
+    loop {
+        match robot.poll(feed, ports, now_ms(), meter) {
+            Ok(cosem_core::robot::Poll::Busy) => cortex_m::interrupt::free(|_| {
+                if quiet() {
+                    cortex_m::asm::wfi();
+                }
+            }),
+            Ok(cosem_core::robot::Poll::Done(report)) => exit(ok(&report)),
+            Err(_e) => {
+                #[cfg(feature = "defmt")]
+                defmt::error!("robot stopped at {}: {}", _e.stage(), _e);
+                exit(false)
+            }
+        }
+    }
+}
+
 /// Exit code of a firmware that panicked (the core's, which the host reads).
 pub const EXIT_PANIC: u32 = cosem_core::robot::EXIT_PANIC as u32;
 /// Exit code of a firmware that took a hard fault (e.g. its stack ran into

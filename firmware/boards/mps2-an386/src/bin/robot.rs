@@ -16,7 +16,9 @@
 use cortex_m_rt::{entry, exception};
 use cosem_core::map::{SceneMap, ScenePoint};
 use cosem_core::matching::MatchStatus;
-use cosem_core::robot::{Capacity, Machine, Poll, ReceivedStorage, Robot, RobotConfig, VOXELS};
+use cosem_core::robot::{Capacity, ReceivedStorage, Robot, RobotConfig, VOXELS};
+use cosem_core::wire::feed::RobotReport;
+use cosem_firmware::drive;
 use cosem_mps2_an386::serial::{IrqReceiver, RingSerial, RX_RING};
 use cosem_mps2_an386::uart::{unmask_rx, Uart, UartRx, UART0, UART1};
 use cosem_mps2_an386::{exit, millis, start_clock, Board, CLOCK_HZ};
@@ -75,34 +77,11 @@ fn main() -> ! {
     };
     let board = Board { link_bytes: || LINK_RX.ring().pushed() };
     let link = core::slice::from_mut(&mut link);
-    loop {
-        match robot.poll(&mut feed, link, millis(), &board) {
-            Ok(Poll::Busy) => {
-                // Nothing received: sleep until a byte or the clock's
-                // wrap (a guest that spins on memory alone starves QEMU's
-                // I/O thread: bytes arrived 2.6 times slower; a real chip
-                // saves power).
-                cortex_m::interrupt::free(|_| {
-                    if FEED_RX.ring().is_empty() && LINK_RX.ring().is_empty() {
-                        cortex_m::asm::wfi();
-                    }
-                });
-            }
-            Ok(Poll::Done(report)) => {
-                #[cfg(feature = "defmt")]
-                defmt::info!(
-                    "robot {=u8}: {} after {=u32} ms of link",
-                    report.result.robot_id,
-                    report.result,
-                    report.link_ms
-                );
-                exit(report.result.status == MatchStatus::Converged.code())
-            }
-            Err(_e) => {
-                #[cfg(feature = "defmt")]
-                defmt::error!("robot stopped at {}: {}", _e.stage(), _e);
-                exit(false)
-            }
-        }
-    }
+    let quiet = || FEED_RX.ring().is_empty() && LINK_RX.ring().is_empty();
+    let converged = |report: &RobotReport| {
+        #[cfg(feature = "defmt")]
+        defmt::info!("robot {=u8}: {} after {=u32} ms of link", report.result.robot_id, report.result, report.link_ms);
+        report.result.status == MatchStatus::Converged.code()
+    };
+    drive(&mut robot, &mut feed, link, &board, millis, quiet, converged)
 }

@@ -14,9 +14,8 @@ use cortex_m_rt::{entry, exception};
 use cosem_core::link::LinkBuffers;
 use cosem_core::map::{LocalMap, SceneMap, ScenePoint};
 use cosem_core::robot::team::TeamRobot;
-use cosem_core::robot::{
-    map_config, Machine, MapStorage, ModelStorage, Poll, ReceivedStorage, RobotConfig, SceneStorage, VOXELS,
-};
+use cosem_core::robot::{map_config, MapStorage, ModelStorage, ReceivedStorage, RobotConfig, SceneStorage, VOXELS};
+use cosem_firmware::drive;
 use cosem_mps2_an386::serial::{IrqReceiver, RingSerial, RX_RING};
 use cosem_mps2_an386::uart::{unmask_rx, Uart, UartRx, UART0, UART1, UART2, UART3, UART4};
 use cosem_mps2_an386::{exit, millis, start_clock, Board, CLOCK_HZ};
@@ -85,24 +84,6 @@ fn main() -> ! {
     let mut robot = TeamRobot::new(RobotConfig::default(), &mut own, &mut received, scratch, buffers, model, scene);
     // The peers' rings (all but the feeder's).
     let board = Board { link_bytes: || RX.iter().skip(1).fold(0u32, |n, rx| n.wrapping_add(rx.ring().pushed())) };
-    loop {
-        match robot.poll(&mut feed, &mut peers, millis(), &board) {
-            Ok(Poll::Busy) => {
-                // Nothing received: sleep until a byte or the clock's wrap
-                // (a guest spinning on memory starves QEMU's I/O thread; a
-                // real chip saves power).
-                cortex_m::interrupt::free(|_| {
-                    if RX.iter().all(|r| r.ring().is_empty()) {
-                        cortex_m::asm::wfi();
-                    }
-                });
-            }
-            Ok(Poll::Done(_)) => exit(true),
-            Err(_e) => {
-                #[cfg(feature = "defmt")]
-                defmt::error!("team robot stopped at {}: {}", _e.stage(), _e);
-                exit(false)
-            }
-        }
-    }
+    let quiet = || RX.iter().all(|r| r.ring().is_empty());
+    drive(&mut robot, &mut feed, &mut peers, &board, millis, quiet, |_| true)
 }

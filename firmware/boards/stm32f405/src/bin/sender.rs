@@ -12,7 +12,9 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 use cortex_m_rt::entry;
 use cosem_core::matching::MatchStatus;
-use cosem_core::robot::{Capacity, Machine, Poll, Robot, RobotConfig};
+use cosem_core::robot::{Capacity, Robot, RobotConfig};
+use cosem_core::wire::feed::RobotReport;
+use cosem_firmware::drive;
 use cosem_firmware::serial::RingSerial;
 use cosem_stm32f405::{exit, millis_at, sleep, start, systick_hz, Board, FeedRx, LinkRx};
 use static_cell::ConstStaticCell;
@@ -60,15 +62,7 @@ fn main() -> ! {
     };
     let Ok(mut robot) = Robot::sender(RobotConfig::default(), own, turn, CAPACITY) else { exit(false) };
     let link = core::slice::from_mut(&mut link);
-    loop {
-        match robot.poll(&mut feed, link, millis_at(systick_hz()), &Board) {
-            Ok(Poll::Busy) => {}
-            Ok(Poll::Done(report)) => exit(report.result.status == MatchStatus::Converged.code()),
-            Err(_e) => {
-                #[cfg(feature = "defmt")]
-                defmt::error!("robot stopped at {}: {}", _e.stage(), _e);
-                exit(false)
-            }
-        }
-    }
+    let quiet = || FEED_RX.ring().is_empty() && LINK_RX.ring().is_empty();
+    let converged = |r: &RobotReport| r.result.status == MatchStatus::Converged.code();
+    drive(&mut robot, &mut feed, link, &Board, || millis_at(systick_hz()), quiet, converged)
 }

@@ -21,7 +21,8 @@ use cosem_core::link::LinkBuffers;
 use cosem_core::map::{ArrayStorage, LocalMap, SceneMap, ScenePoint};
 use cosem_core::matching::{ArrayPyramidStorage, ArraySceneStorage};
 use cosem_core::robot::team::{TeamRobot, TABLE_WORDS};
-use cosem_core::robot::{map_config, Capacity, Machine, Poll, RobotConfig};
+use cosem_core::robot::{map_config, Capacity, RobotConfig};
+use cosem_firmware::drive;
 use cosem_firmware::serial::RingSerial;
 use cosem_stm32f405::{exit, millis_at, sleep, start_team, systick_hz, Board, FeedRx, Link3Rx, LinkRx, Port};
 use static_cell::ConstStaticCell;
@@ -95,22 +96,6 @@ fn main() -> ! {
     let mut robot = TeamRobot::new(RobotConfig::default(), &mut own, &mut received, scratch, buffers, model, scene)
         .with_em_iterations(C.em_iterations);
     let mut peers: [&mut dyn Port; 2] = [&mut peer0, &mut peer1];
-    loop {
-        match robot.poll(&mut feed, &mut peers, millis_at(systick_hz()), &Board) {
-            Ok(Poll::Busy) => {
-                // Nothing received: sleep until a byte or the clock's wrap.
-                cortex_m::interrupt::free(|_| {
-                    if FEED_RX.ring().is_empty() && LINK_RX.ring().is_empty() && LINK3_RX.ring().is_empty() {
-                        cortex_m::asm::wfi();
-                    }
-                });
-            }
-            Ok(Poll::Done(_)) => exit(true),
-            Err(_e) => {
-                #[cfg(feature = "defmt")]
-                defmt::error!("team robot stopped at {}: {}", _e.stage(), _e);
-                exit(false)
-            }
-        }
-    }
+    let quiet = || FEED_RX.ring().is_empty() && LINK_RX.ring().is_empty() && LINK3_RX.ring().is_empty();
+    drive(&mut robot, &mut feed, &mut peers, &Board, || millis_at(systick_hz()), quiet, |_| true)
 }
