@@ -15,12 +15,12 @@ use cosem_core::wire::feed::RobotReport;
 use cosem_host::robots::feeds;
 use std::path::Path;
 
-fn main() {
+/// The capacity, voxel size and crop the arguments name.
+fn capacity() -> (Capacity, f32, f32) {
     let args: Vec<String> = std::env::args().collect();
     let num = |i: usize, default: f64| args.get(i).and_then(|a| a.parse::<f64>().ok()).unwrap_or(default);
     let (v, e, mw, sw) =
         (num(1, 8192.0) as usize, num(2, 3840.0) as usize, num(3, 9216.0) as usize, num(4, 6656.0) as usize);
-    let (voxel, crop) = (num(5, 0.5) as f32, num(6, 25.0) as f32);
     let (levels, spare_words, search_words) = (num(7, 3.0) as usize, num(8, 0.0) as usize, num(9, 0.0) as usize);
     let em_iterations = num(10, 40.0) as u32;
     let cap = Capacity {
@@ -33,11 +33,16 @@ fn main() {
         search_words,
         em_iterations,
     };
+    (cap, num(5, 0.5) as f32, num(6, 25.0) as f32)
+}
+
+fn main() {
+    let (cap, voxel, crop) = capacity();
     println!(
         "capacity {cap:?}: own region {} B, turn region {} B, received map {} B; {voxel} m voxels within {crop} m",
         cap.own_words() * 4,
         cap.turn_words() * 4,
-        v * core::mem::size_of::<ScenePoint>()
+        cap.voxels * core::mem::size_of::<ScenePoint>()
     );
     let root = std::env::var_os("COSEM_DATA").unwrap_or_else(|| "../shared/data".into());
     let data = Path::new(&root);
@@ -66,7 +71,7 @@ fn main() {
         let bytes = [f[0].bytes().unwrap(), f[1].bytes().unwrap()];
         let mut own = [vec![0u32; cap.own_words()], vec![0u32; cap.own_words()]];
         let mut turn = [vec![0u32; cap.turn_words()], vec![0u32; cap.turn_words()]];
-        let mut pts = [vec![ScenePoint::EMPTY; v], vec![ScenePoint::EMPTY; v]];
+        let mut pts = [vec![ScenePoint::EMPTY; cap.voxels], vec![ScenePoint::EMPTY; cap.voxels]];
         let [p0, p1] = &mut pts;
         let mut r0 = SceneMap::new(&mut p0[..], voxel).unwrap();
         let mut r1 = SceneMap::new(&mut p1[..], voxel).unwrap();

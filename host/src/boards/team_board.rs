@@ -260,21 +260,10 @@ fn run_boards_inner(
     let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
     let links = pairs.iter().map(|_| bind()).collect::<Result<Vec<_>, _>>()?;
     let feeders = (0..n).map(|_| bind()).collect::<Result<Vec<_>, _>>()?;
-    // Board i's serial ports: its feeder's, its peers' in order.
-    let (feeder_port, peer_ports) = board.team_ports();
     let mut children = Vec::new();
     for (i, f) in feeders.iter().enumerate() {
-        let mut serials: Vec<Option<u16>> = vec![None; peer_ports.len() + 1];
-        serials[feeder_port] = Some(port(f)?);
-        for (&(a, b), l) in pairs.iter().zip(&links) {
-            if a == i || b == i {
-                let peer = if a == i { b } else { a };
-                serials[peer_ports[port_of(i as u8, peer as u8)]] = Some(port(l)?);
-            }
-        }
-        // QEMU connects its serial ports in order; unused ones go nowhere.
-        let last = serials.iter().rposition(Option::is_some).unwrap_or(feeder_port);
-        let child = qemu(board, elf, &serials[..=last]).map_err(|e| format!("qemu-system-arm: {e}"))?;
+        let serials = serial_ports(board, i, port(f)?, &pairs, &links)?;
+        let child = qemu(board, elf, &serials).map_err(|e| format!("qemu-system-arm: {e}"))?;
         children.push(child);
     }
     let connect_by = Instant::now() + Duration::from_secs(30);
@@ -320,6 +309,31 @@ fn run_boards_inner(
         })
         .collect();
     Ok((runs, started.elapsed().as_secs_f64()))
+}
+
+/// Board `i`'s serial ports in QEMU's order ([`Board::team_ports`]): its
+/// feeder's TCP port `feeder`, and for each pair of boards it is in, the
+/// pair's line; up to the last one used (QEMU connects them in order).
+fn serial_ports(
+    board: Board,
+    i: usize,
+    feeder: u16,
+    pairs: &[(usize, usize)],
+    links: &[TcpListener],
+) -> Result<Vec<Option<u16>>, String> {
+    let (feeder_port, peer_ports) = board.team_ports();
+    let mut serials: Vec<Option<u16>> = vec![None; peer_ports.len() + 1];
+    serials[feeder_port] = Some(feeder);
+    for (&(a, b), l) in pairs.iter().zip(links) {
+        if a == i || b == i {
+            let peer = if a == i { b } else { a };
+            let at = peer_ports.get(port_of(i as u8, peer as u8)).ok_or("more peers than UARTs")?;
+            serials[*at] = Some(l.local_addr().map_err(|e| e.to_string())?.port());
+        }
+    }
+    let last = serials.iter().rposition(Option::is_some).unwrap_or(feeder_port);
+    serials.truncate(last + 1);
+    Ok(serials)
 }
 
 /// Each robot's feed: its frames (label noise applied, robot i's seeded by
