@@ -69,14 +69,15 @@ struct Scorer<'a> {
 
 /// Scene points' model cells at one yaw and zero translation, with masks.
 /// Cells as `i16` (a footprint is far narrower; cells beyond are clamped
-/// and stay outside the grid at every offset) and masks as bytes (five
-/// group bits) apart, five bytes a point, in words the caller gives
-/// ([`SearchScratch`]): the cache is the largest thing a search keeps.
+/// and stay outside the grid at every offset) and the mask (five group
+/// bits) beside them, six bytes a point, in words the caller gives
+/// ([`SearchScratch`]): the cache is the largest thing a search keeps, and
+/// its loop reads one stream.
 struct YawCells<'s> {
     yaw: i16,
     len: usize,
-    cells: &'s mut [[i16; 2]],
-    masks: &'s mut [u8],
+    /// Cell i, cell j, mask.
+    cells: &'s mut [[i16; 3]],
     /// The most each [`CHUNK`] of cells can add to a score (their class
     /// groups), for scoring that stops once a floor is out of reach.
     most: &'s mut [u16],
@@ -87,13 +88,13 @@ struct YawCells<'s> {
 impl<'s> YawCells<'s> {
     /// Words a cache of `points` cells takes.
     const fn words(points: usize) -> usize {
-        words_for::<[i16; 2]>(points) + words_for::<u8>(points) + words_for::<u16>(points.div_ceil(CHUNK))
+        words_for::<[i16; 3]>(points) + words_for::<u16>(points.div_ceil(CHUNK))
     }
 
     /// The most cells (at most `limit`) a cache in `words` words holds.
     fn fitting(words: usize, limit: usize) -> usize {
-        // Five bytes and a sixteenth a cell, less rounding.
-        let mut n = limit.min(words.saturating_mul(64) / 81);
+        // Six bytes and a sixteenth a cell, less rounding.
+        let mut n = limit.min(words.saturating_mul(64) / 97);
         while n > 0 && Self::words(n) > words {
             n -= 1;
         }
@@ -102,10 +103,9 @@ impl<'s> YawCells<'s> {
 
     /// A cache of `points` cells carved out of `region`.
     fn carve(region: &mut Region<'s>, points: usize) -> Option<Self> {
-        let cells = region.take::<[i16; 2]>(points).ok()?;
-        let masks = region.take::<u8>(points).ok()?;
+        let cells = region.take::<[i16; 3]>(points).ok()?;
         let most = region.take::<u16>(points.div_ceil(CHUNK)).ok()?;
-        Some(YawCells { yaw: 0, len: 0, cells, masks, most, most_total: 0 })
+        Some(YawCells { yaw: 0, len: 0, cells, most, most_total: 0 })
     }
 
     /// Cells it holds at most.
@@ -189,14 +189,12 @@ impl Scorer<'_> {
         out.len = 0;
         out.most.fill(0);
         out.most_total = 0;
-        let slots = out.cells.iter_mut().zip(out.masks.iter_mut());
-        for ((q, mask), (slot, slot_mask)) in self.scene.occupied().step_by(self.stride).zip(slots) {
+        for ((q, mask), slot) in self.scene.occupied().step_by(self.stride).zip(out.cells.iter_mut()) {
             let x = m[0] * q[0] + m[1] * q[1] + o[0];
             let y = m[2] * q[0] + m[3] * q[1] + o[1];
             let (ci, cj) = self.model.cell_of(x, y);
-            *slot = [narrow(ci), narrow(cj)];
             // Footprint masks are one byte (the five group bits).
-            *slot_mask = mask as u8;
+            *slot = [narrow(ci), narrow(cj), (mask & 0xFF) as i16];
             if let Some(most) = out.most.get_mut(out.len / CHUNK) {
                 let add = if self.semantic { mask.count_ones() } else { 1 };
                 *most = most.saturating_add(add as u16);
@@ -219,11 +217,10 @@ impl Scorer<'_> {
     fn score_above(&self, cells: &YawCells<'_>, i0: i32, j0: i32, h: usize, floor: u32) -> u32 {
         let Some(grid) = self.model.grid(h) else { return 0 };
         let points = cells.cells.get(..cells.len).unwrap_or(&[]);
-        let masks = cells.masks.get(..cells.len).unwrap_or(&[]);
         let mut left = cells.most_total;
         let mut total = 0;
-        for ((chunk, chunk_masks), &most) in points.chunks(CHUNK).zip(masks.chunks(CHUNK)).zip(cells.most.iter()) {
-            total += score_points(chunk, chunk_masks, &grid, i0, j0, self.semantic);
+        for (chunk, &most) in points.chunks(CHUNK).zip(cells.most.iter()) {
+            total += score_points(chunk, &grid, i0, j0, self.semantic);
             left -= u32::from(most);
             if total + left <= floor {
                 return total + left;
@@ -239,20 +236,19 @@ impl Scorer<'_> {
 /// for "inside, or a window reaching into the grid from below"), its
 /// common class groups counted (bare occupancy unless `semantic`).
 #[inline(never)]
-fn score_points(points: &[[i16; 2]], masks: &[u8], grid: &Grid<'_>, i0: i32, j0: i32, semantic: bool) -> u32 {
+fn score_points(points: &[[i16; 3]], grid: &Grid<'_>, i0: i32, j0: i32, semantic: bool) -> u32 {
     let (words, shift, width, height, span) = grid.parts();
     if semantic {
-        score_cells::<true>(points, masks, words, shift, (width, height, span), i0, j0)
+        score_cells::<true>(points, words, shift, (width, height, span), i0, j0)
     } else {
-        score_cells::<false>(points, masks, words, shift, (width, height, span), i0, j0)
+        score_cells::<false>(points, words, shift, (width, height, span), i0, j0)
     }
 }
 
 /// [`score_points`] for one kind of score (class groups, or occupancy).
 #[inline(always)]
 fn score_cells<const SEMANTIC: bool>(
-    points: &[[i16; 2]],
-    masks: &[u8],
+    points: &[[i16; 3]],
     words: &[u32],
     shift: u32,
     (width, height, span): (i32, i32, i32),
@@ -263,8 +259,8 @@ fn score_cells<const SEMANTIC: bool>(
     let (ri, rj) = ((width + span - 1) as u32, (height + span - 1) as u32);
     let (si, sj) = (i0 + span - 1, j0 + span - 1);
     let mut total = 0u32;
-    for (&[ci, cj], &mask) in points.iter().zip(masks) {
-        let (i, j, mask) = (i32::from(ci), i32::from(cj), u32::from(mask));
+    for &[ci, cj, mask] in points {
+        let (i, j, mask) = (i32::from(ci), i32::from(cj), mask as u32);
         if ((i + si) as u32) >= ri || ((j + sj) as u32) >= rj {
             continue;
         }

@@ -94,9 +94,11 @@ impl Capacity {
         // The SRAM's 128 KiB less the map (28 B a voxel) and the received
         // map (8 B a voxel).
         spare_words: (128 * 1024 - 36 * SMALL_MATCHING_VOXELS) / 4,
-        // A cache for every cell a scene's footprint can list (three words
-        // each): a windowed search never thins them.
-        search_words: crate::matching::search::SearchScratch::windowed(SMALL_SCENE_WORDS.div_ceil(3)),
+        // A cache for every cell a scene's footprint can list: its grid
+        // and the list (three words a cell, one listed per 2 x 2 cells) fit
+        // its words, so at most about 330 (a windowed search never thins
+        // them).
+        search_words: crate::matching::search::SearchScratch::windowed(512),
         // Its maps' refinements took up to 36 (kitti00 0:5 / 5:10, a
         // straight street, with a network's labels: 30 stopped one of them
         // short of the tolerance at the right answer); the others 11-23.
