@@ -24,7 +24,7 @@
 //! it. Nothing allocates: the extras, coarse entries, normals, index slots
 //! and footprint words live in a [`PyramidStorage`] the caller provides. A
 //! map's coarse levels take about 0.4 entries per voxel (0.5 m maps, 3
-//! levels), so a model's pyramid costs about 6 + 0.4 * 24 = 16 bytes per
+//! levels), so a model's pyramid costs about 6 + 0.4 * 20 = 14 bytes per
 //! voxel besides the map and its footprint.
 
 use super::footprint::{self, Footprint, FootprintInfo};

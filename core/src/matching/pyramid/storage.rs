@@ -191,7 +191,7 @@ impl<T: PyramidStorage + ?Sized> PyramidStorage for &mut T {
 /// Pyramid storage of compile-time size: extras for `V` voxels, `E` coarse
 /// entries with a normal and one index word each (two 16-bit slots: `E`
 /// must stay under [`NARROW_LIMIT`]), `W` footprint words. Bytes:
-/// `6 V + 24 E + 4 W`.
+/// `6 V + 20 E + 4 W`.
 pub struct ArrayPyramidStorage<const V: usize, const E: usize, const W: usize> {
     extras: [VoxelExtra; V],
     entries: [CoarseEntry; E],
@@ -246,7 +246,7 @@ impl<const V: usize, const E: usize, const W: usize> PyramidStorage for ArrayPyr
 
 /// Storage of a scene's pyramid ([`Role::Scene`], e.g. of a
 /// [`SceneMap`]) of compile-time size: `E` coarse entries and `W` footprint
-/// words, no extras, normals or index slots. Bytes: `16 E + 4 W`.
+/// words, no extras, normals or index slots. Bytes: `12 E + 4 W`.
 pub struct ArraySceneStorage<const E: usize, const W: usize> {
     entries: [CoarseEntry; E],
     words: [u32; W],
