@@ -119,6 +119,17 @@ fn link_without_a_peer_is_a_clean_error() {
 /// `cosem match` on the same files. Checks delivery and results, never times.
 #[test]
 fn two_link_processes_through_a_lossy_relay() {
+    through_relay(&["--error-rate", "0.01", "--seed", "5"]);
+}
+
+/// The same through `cosem relay --mix`: 2% of the bytes substituted by
+/// another value, dropped or duplicated in equal shares (issue 32's mix).
+#[test]
+fn two_link_processes_through_a_relay_that_substitutes_drops_and_duplicates() {
+    through_relay(&["--error-rate", "0.02", "--mix", "byte=1,drop=1,dup=1", "--seed", "6"]);
+}
+
+fn through_relay(damage: &[&str]) {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
     synth(&seq, 2, 17);
@@ -127,7 +138,7 @@ fn two_link_processes_through_a_lossy_relay() {
         let (d, o) = (seq.display().to_string(), m.display().to_string());
         cosem_ok(&["map", "--data", &d, "--frames", f, "--voxel", "0.5", "--max-range", "25", "-o", &o]);
     }
-    let mut relay = spawn(&["relay", "--baud", "115200", "--error-rate", "0.01", "--seed", "5"]);
+    let mut relay = spawn(&[&["relay", "--baud", "115200"][..], damage].concat());
     let line = first_line(&mut relay);
     let addrs: Vec<String> = line.trim().strip_prefix("relay on ").unwrap().split(' ').map(str::to_string).collect();
     let (sa, sb) = (a.display().to_string(), b.display().to_string());

@@ -1,28 +1,29 @@
 //! `cosem relay`: a paced, lossy line between two `cosem link` processes.
 
 use super::Error;
-use cosem_host::relay::{run, Flip, LineModel};
+use cosem_host::relay::{run, Flip, LineModel, Mix};
 use std::time::Duration;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// The two ports on 127.0.0.1 the link processes connect to (0: any
-    /// free port; both addresses are printed).
+    /// The two ports on 127.0.0.1 the link processes connect to (0: any free one; printed).
     #[arg(long, num_args = 2, default_values_t = [0, 0])]
     ports: Vec<u16>,
     /// Line speed (baud, 8N1) each direction is paced to; 0: unpaced.
     #[arg(long, default_value_t = 115_200)]
     baud: u32,
-    /// Probability that a byte is flipped, dropped or duplicated.
+    /// Probability that a byte is damaged (flipped, dropped or duplicated).
     #[arg(long, default_value_t = 0.0, value_parser = super::args::probability)]
     error_rate: f64,
     /// Seed of the errors.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// What a flip does: `bit` flips one bit, `byte` XORs a random non-zero
-    /// byte.
-    #[arg(long, value_enum, default_value = "bit")]
+    /// What a flip does: `bit` flips one bit, `byte` XORs a random non-zero byte.
+    #[arg(long, value_enum, default_value = "bit", conflicts_with = "mix")]
     flip: Flip,
+    /// Shares of the damage instead: bit=S,byte=S,drop=S,dup=S.
+    #[arg(long)]
+    mix: Option<Mix>,
     /// Give up when the two sides have not connected in this long (s).
     #[arg(long, default_value = "60", value_parser = super::args::positive)]
     accept_timeout: f64,
@@ -32,7 +33,7 @@ pub fn run_relay(a: Args) -> Result<(), Error> {
     let bind =
         |p: u16| std::net::TcpListener::bind(("127.0.0.1", p)).map_err(|e| format!("listen on 127.0.0.1:{p}: {e}"));
     let listeners = [bind(a.ports[0])?, bind(a.ports[1])?];
-    let model = LineModel { baud: a.baud, error_rate: a.error_rate, seed: a.seed, flip: a.flip };
+    let model = LineModel { baud: a.baud, error_rate: a.error_rate, seed: a.seed, flip: a.flip, mix: a.mix };
     let wait = Duration::from_secs_f64(a.accept_timeout.min(86_400.0));
     let stats = run(listeners, model, wait, |[x, y]| eprintln!("relay on {x} {y}"))?;
     println!(

@@ -1,9 +1,10 @@
 //! A line between two `cosem link` processes, as a UART would be: each
 //! direction paced to a baud rate (8N1: ten bits a byte) and, with
 //! probability `error_rate` per byte, the byte flipped (one bit, or with
-//! [`Flip::Byte`] any value), dropped or duplicated (a third each), from a
-//! seeded generator per direction. For
-//! measuring the link on a realistic line, and for tests (`cosem relay`).
+//! [`Flip::Byte`] any value), dropped or duplicated (a third each), or
+//! damaged in the shares a [`Mix`] names, from a seeded generator per
+//! direction. For measuring the link on a realistic line, and for tests
+//! (`cosem relay`).
 
 use crate::error::Error;
 use crate::rng::Rng;
@@ -25,6 +26,84 @@ pub struct LineModel {
     pub seed: u64,
     /// What a flip does to a byte.
     pub flip: Flip,
+    /// The shares of the kinds of damage (`None`: flips as `flip` says,
+    /// drops and duplicates, a third each).
+    pub mix: Option<Mix>,
+}
+
+/// How a damaged byte is damaged, in shares (weights of any scale): one
+/// bit flipped, the byte replaced by another value, dropped, duplicated.
+/// `bit=1,byte=1,drop=1,dup=1` on the command line; a kind left out has
+/// no share.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Mix {
+    /// One bit flipped.
+    pub bit: f64,
+    /// Replaced by another value (XOR with a random non-zero byte).
+    pub byte: f64,
+    /// Dropped.
+    pub drop: f64,
+    /// Sent twice.
+    pub dup: f64,
+}
+
+impl std::str::FromStr for Mix {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let mut mix = Mix { bit: 0.0, byte: 0.0, drop: 0.0, dup: 0.0 };
+        for part in s.split(',') {
+            let (key, value) = part.split_once('=').ok_or(format!("`{part}`: KIND=SHARE (bit, byte, drop, dup)"))?;
+            let share: f64 = value.trim().parse().map_err(|_| format!("`{value}`: not a number"))?;
+            if !(share.is_finite() && share >= 0.0) {
+                return Err(format!("`{part}`: a share is a finite number, 0 or more"));
+            }
+            *match key.trim() {
+                "bit" => &mut mix.bit,
+                "byte" => &mut mix.byte,
+                "drop" => &mut mix.drop,
+                "dup" => &mut mix.dup,
+                other => return Err(format!("`{other}`: bit, byte, drop or dup")),
+            } = share;
+        }
+        if mix.bit + mix.byte + mix.drop + mix.dup > 0.0 {
+            Ok(mix)
+        } else {
+            Err("the shares add up to nothing".into())
+        }
+    }
+}
+
+/// One kind of damage.
+enum Damage {
+    Bit,
+    Byte,
+    Drop,
+    Dup,
+}
+
+impl LineModel {
+    /// The damage a damaged byte gets.
+    fn damage(&self, rng: &mut Rng) -> Damage {
+        let Some(m) = self.mix else {
+            // As before mixes existed: the same draws for the same seed.
+            return match rng.below(3) {
+                0 if self.flip == Flip::Bit => Damage::Bit,
+                0 => Damage::Byte,
+                1 => Damage::Drop,
+                _ => Damage::Dup,
+            };
+        };
+        let x = rng.unit() * (m.bit + m.byte + m.drop + m.dup);
+        if x < m.bit {
+            Damage::Bit
+        } else if x < m.bit + m.byte {
+            Damage::Byte
+        } else if x < m.bit + m.byte + m.drop {
+            Damage::Drop
+        } else {
+            Damage::Dup
+        }
+    }
 }
 
 /// What a flip does to a byte: a UART's bit error flips one bit; noise
@@ -64,13 +143,11 @@ fn pump(mut from: TcpStream, mut to: TcpStream, model: LineModel, seed: u64, cou
         for &b in &buf[..n] {
             if model.error_rate > 0.0 && rng.chance(model.error_rate) {
                 counts[1].fetch_add(1, Ordering::Relaxed);
-                match rng.below(3) {
-                    0 => out.push(match model.flip {
-                        Flip::Bit => b ^ (1 << rng.below(8)),
-                        Flip::Byte => b ^ (1 + rng.below(255) as u8),
-                    }),
-                    1 => {}
-                    _ => out.extend_from_slice(&[b, b]),
+                match model.damage(&mut rng) {
+                    Damage::Bit => out.push(b ^ (1 << rng.below(8))),
+                    Damage::Byte => out.push(b ^ (1 + rng.below(255) as u8)),
+                    Damage::Drop => {}
+                    Damage::Dup => out.extend_from_slice(&[b, b]),
                 }
             } else {
                 out.push(b);
@@ -119,4 +196,45 @@ pub fn run(
     let _ = (t0.join(), t1.join());
     let load = |i: usize| counts[i].load(Ordering::Relaxed);
     Ok(RelayStats { bytes_in: [load(0), load(2)], damaged: [load(1), load(3)] })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_mix_names_its_shares_and_refuses_what_is_not_one() {
+        let m: Mix = "bit=1, byte=2,drop=0.5".parse().unwrap();
+        assert_eq!(m, Mix { bit: 1.0, byte: 2.0, drop: 0.5, dup: 0.0 });
+        for bad in ["", "bit", "bit=x", "bit=-1", "bit=inf", "bite=1", "bit=0,dup=0"] {
+            assert!(bad.parse::<Mix>().is_err(), "{bad}");
+        }
+    }
+
+    /// Draws follow the shares; without a mix, the draws of before (a third
+    /// each, the flip as `flip` says).
+    #[test]
+    fn damage_follows_the_shares() {
+        let model = |mix| LineModel { baud: 0, error_rate: 1.0, seed: 1, flip: Flip::Byte, mix };
+        let count = |m: &LineModel| {
+            let mut rng = Rng::new(7);
+            let mut n = [0usize; 4];
+            for _ in 0..30_000 {
+                n[match m.damage(&mut rng) {
+                    Damage::Bit => 0,
+                    Damage::Byte => 1,
+                    Damage::Drop => 2,
+                    Damage::Dup => 3,
+                }] += 1;
+            }
+            n
+        };
+        let n = count(&model(Some(Mix { bit: 0.0, byte: 1.0, drop: 1.0, dup: 2.0 })));
+        assert_eq!(n[0], 0);
+        assert!((7_000..8_000).contains(&n[1]) && (7_000..8_000).contains(&n[2]), "{n:?}");
+        assert!((14_500..15_500).contains(&n[3]), "{n:?}");
+        let thirds = count(&model(None));
+        assert_eq!(thirds[0], 0);
+        assert!(thirds[1..].iter().all(|&k| (9_500..10_500).contains(&k)), "{thirds:?}");
+    }
 }
