@@ -3,7 +3,7 @@
 //! board declares them once (two zeroed statics) and no stage can reach
 //! another's buffers:
 //!
-//! - the **own** region holds the robot's map (voxels, then index slots)
+//! - the **own** region holds the robot's map (index slots, then voxels)
 //!   while it maps and sends; then its voxels become the model's level 0
 //!   where they lie ([`CopiedBase::compact`](crate::matching::CopiedBase::compact): an 18-byte point in place of
 //!   each 24-byte voxel; the index stays), and what the points leave free
@@ -197,7 +197,7 @@ impl Capacity {
         best
     }
 
-    /// Words of the own region: the map (its voxels, then its index), then
+    /// Words of the own region: the map (its index, then its voxels), then
     /// the spare words.
     pub const fn own_words(&self) -> usize {
         let [voxels, slots] = self.map_words();

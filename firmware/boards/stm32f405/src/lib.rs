@@ -117,6 +117,21 @@ impl Meter for Board {
     }
 }
 
+/// The static behind `slot` (in `.sram`, which reset does not clear) with
+/// its bytes zeroed, as a value.
+///
+/// # Safety
+///
+/// No other code names the static (call it once, from `main`), and all
+/// bytes zero is a valid `T` (a type of plain integers).
+pub unsafe fn zeroed<T>(slot: *mut core::mem::MaybeUninit<T>) -> &'static mut T {
+    // SAFETY: the caller's promises: the only reference, zeros are a `T`.
+    unsafe {
+        core::ptr::write_bytes(slot, 0, 1);
+        (*slot).assume_init_mut()
+    }
+}
+
 /// Sleeps until an interrupt.
 pub fn sleep() {
     cortex_m::asm::wfi();

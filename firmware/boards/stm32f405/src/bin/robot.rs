@@ -24,7 +24,7 @@ use cosem_core::robot::{Capacity, Robot, RobotConfig};
 use cosem_core::wire::feed::RobotReport;
 use cosem_firmware::drive;
 use cosem_firmware::serial::RingSerial;
-use cosem_stm32f405::{exit, millis_at, sleep, start, systick_hz, Board, FeedRx, LinkRx};
+use cosem_stm32f405::{exit, millis_at, sleep, start, systick_hz, zeroed, Board, FeedRx, LinkRx};
 use static_cell::ConstStaticCell;
 use stm32f4xx_hal::pac::interrupt;
 
@@ -69,11 +69,7 @@ fn main() -> ! {
     // SAFETY: `main` runs once and is the only code that names `SRAM`,
     // here; its bytes are written (zeros: every field is plain integers)
     // before they are taken as initialised.
-    let sram = unsafe {
-        let sram = &mut *addr_of_mut!(SRAM);
-        core::ptr::write_bytes(sram.as_mut_ptr(), 0, 1);
-        sram.assume_init_mut()
-    };
+    let sram = unsafe { zeroed(addr_of_mut!(SRAM)) };
     let Sram { own, received } = sram;
     // The set-up names the voxel size; until then the received map waits
     // empty.

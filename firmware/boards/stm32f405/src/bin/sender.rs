@@ -16,7 +16,7 @@ use cosem_core::robot::{Capacity, Robot, RobotConfig};
 use cosem_core::wire::feed::RobotReport;
 use cosem_firmware::drive;
 use cosem_firmware::serial::RingSerial;
-use cosem_stm32f405::{exit, millis_at, sleep, start, systick_hz, Board, FeedRx, LinkRx};
+use cosem_stm32f405::{exit, millis_at, sleep, start, systick_hz, zeroed, Board, FeedRx, LinkRx};
 use static_cell::ConstStaticCell;
 use stm32f4xx_hal::pac::interrupt;
 
@@ -55,11 +55,7 @@ fn main() -> ! {
     let turn = TURN.take();
     // SAFETY: `main` runs once and is the only code that names `OWN`, here;
     // its words are written (zeros) before they are taken as initialised.
-    let own = unsafe {
-        let own = &mut *addr_of_mut!(OWN);
-        core::ptr::write_bytes(own.as_mut_ptr(), 0, 1);
-        own.assume_init_mut()
-    };
+    let own = unsafe { zeroed(addr_of_mut!(OWN)) };
     let Ok(mut robot) = Robot::sender(RobotConfig::default(), own, turn, CAPACITY) else { exit(false) };
     let link = core::slice::from_mut(&mut link);
     let quiet = || FEED_RX.ring().is_empty() && LINK_RX.ring().is_empty();

@@ -24,7 +24,7 @@ use cosem_core::robot::team::{TeamRobot, TABLE_WORDS};
 use cosem_core::robot::{map_config, Capacity, RobotConfig};
 use cosem_firmware::drive;
 use cosem_firmware::serial::RingSerial;
-use cosem_stm32f405::{exit, millis_at, sleep, start_team, systick_hz, Board, FeedRx, Link3Rx, LinkRx, Port};
+use cosem_stm32f405::{exit, millis_at, sleep, start_team, systick_hz, zeroed, Board, FeedRx, Link3Rx, LinkRx, Port};
 use static_cell::ConstStaticCell;
 use stm32f4xx_hal::pac::interrupt;
 
@@ -82,11 +82,7 @@ fn main() -> ! {
     // SAFETY: `main` runs once and is the only code that names `SRAM`,
     // here; every field is integers (voxels, slots, entries, normals,
     // words), so its bytes, zeroed here, are a valid value.
-    let sram = unsafe {
-        let sram = &mut *addr_of_mut!(SRAM);
-        core::ptr::write_bytes(sram.as_mut_ptr(), 0, 1);
-        sram.assume_init_mut()
-    };
+    let sram = unsafe { zeroed(addr_of_mut!(SRAM)) };
     let Sram { own, model, scene, received, scratch } = sram;
     // The set-up names the voxel size; until then the maps wait empty.
     let (Ok(mut own), Ok(mut received)) = (LocalMap::new(own, map_config(0.5)), SceneMap::new(&mut received[..], 0.5))
