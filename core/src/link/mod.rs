@@ -10,11 +10,12 @@
 //! The protocol is selective repeat over a byte stream, which suits
 //! full-duplex lines: each side's map is one stream of records (a
 //! `MapHeader`, then codec chunks, each behind a length byte), cut into
-//! `Data` frames wherever the sender likes. Frames are COBS with a CRC-32,
-//! so a receiver resynchronises after any flipped, dropped or duplicated
-//! byte and never takes a corrupted one; a frame whose only damage is one
-//! flipped bit or one duplicated byte is repaired
-//! ([`crate::wire::Deframer`]). The receiver keeps what arrives
+//! `Data` frames wherever the sender likes. Frames carry a Reed-Solomon
+//! codeword (payload, CRC-32, parity) and end in a zero byte, so a receiver
+//! resynchronises after any substituted, dropped or duplicated byte, corrects
+//! substituted bytes up to half the parity, repairs one or two dropped or
+//! duplicated bytes by trying them against the code, and never takes a
+//! frame whose CRC fails ([`crate::wire::Deframer`]). The receiver keeps what arrives
 //! ahead of a gap (up to [`STREAM_BUFFER`] bytes), decodes records once the
 //! bytes before them are in, and acknowledges every few frames, or at once
 //! when a frame asks: a cumulative offset plus up to three ranges held
@@ -22,10 +23,13 @@
 //! acknowledged, and not acknowledged themselves, were lost: they are sent
 //! again at once, cut to the current frame size; a timer (twice the
 //! measured round trip, backing off) catches the rest. Each side
-//! estimates the line from the frames that arrive (whole, repaired,
-//! broken, and their lengths) and sizes its frames for the most data per
-//! byte of line. On a half-duplex line the same
-//! machinery keeps one frame in flight (stop-and-wait), and the two maps
+//! estimates the line from the frames that arrive (the bytes the code
+//! rebuilt: substituted, dropped, duplicated; and the frames lost) and picks
+//! the frame size and parity that carry the most data per byte of line: on
+//! a clean line long frames without parity, on a bad one short frames with
+//! more. On a half-duplex line the same
+//! machinery keeps one frame in flight (stop-and-wait: a second frame
+//! would collide with the answer), and the two maps
 //! go one after the other.
 //!
 //! The receiver checks the voxel count and the digest of the whole map and

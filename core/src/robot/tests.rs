@@ -36,7 +36,7 @@ fn feed_of(id: u8, prior: Option<[f32; 12]>) -> Vec<u8> {
         out.extend_from_slice(&frame[..n]);
     };
     push(FeedMessage::Setup(Setup { robot_id: id, resolution: 0.5, prior, silence_ms: 5000 }));
-    for part in points.chunks(64 * crate::wire::feed::POINT_BYTES) {
+    for part in points.chunks(crate::wire::feed::MAX_POINTS_PER_MESSAGE * crate::wire::feed::POINT_BYTES) {
         push(FeedMessage::Points { scan: 0, data: part });
     }
     push(FeedMessage::EndOfFeed { scans: 1, points: (points.len() / crate::wire::feed::POINT_BYTES) as u32 });

@@ -25,7 +25,7 @@ pub const FEED_VERSION: u8 = 4;
 /// the class index.
 pub const POINT_BYTES: usize = 7;
 /// Most points in one [`FeedMessage::Points`] (fits a frame with room).
-pub const MAX_POINTS_PER_MESSAGE: usize = 64;
+pub const MAX_POINTS_PER_MESSAGE: usize = 32;
 
 /// What a host tells a robot before its scans.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

@@ -10,7 +10,7 @@
 //! first frame (its `Hello`; a version-2 `Data` byte reads as version 2). Floats from the wire
 //! are checked: a NaN or infinity is a typed error, never a value.
 
-use super::frame::{frame_with, FrameError};
+use super::frame::{frame_with, frame_with_parity, FrameError};
 use serde::{Deserialize, Serialize};
 
 /// Version of the link protocol (in the first byte of every payload but
@@ -154,9 +154,9 @@ const TAG_HELLO: u8 = 0;
 const TAG_ACK: u8 = 3;
 const TAG_ABORT: u8 = 4;
 
-/// Bytes a `Data` frame adds to its data: flags and offset, CRC-32, COBS
-/// code and delimiter (one more COBS code per 254 bytes).
-pub const DATA_OVERHEAD: usize = 2 + 4 + 1 + 1;
+/// Bytes a `Data` frame adds to its data, besides its parity: flags and
+/// offset, CRC-32, the frame's header and delimiter.
+pub const DATA_OVERHEAD: usize = 2 + 4 + super::frame::HEADER + 1;
 
 #[derive(Serialize, Deserialize)]
 struct AbortFields {
@@ -319,6 +319,11 @@ impl<'a> Message<'a> {
     /// Encodes the message as one frame (delimiter included) into `out`.
     pub fn to_frame(&self, out: &mut [u8]) -> Result<usize, MessageError> {
         frame_with(out, |payload| self.encode(payload))
+    }
+
+    /// As [`Message::to_frame`], with `parity` parity bytes.
+    pub fn to_frame_parity(&self, out: &mut [u8], parity: usize) -> Result<usize, MessageError> {
+        frame_with_parity(out, parity, |payload| self.encode(payload))
     }
 
     /// Decodes a payload; borrows `Data` bytes from it.

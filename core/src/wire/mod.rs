@@ -6,8 +6,11 @@
 //! - [`range`]: the adaptive binary range coder the codec uses;
 //! - [`codec`]: the compact, chunked voxel encoding (Morton order, range
 //!   coded in context: gaps, quantised labels, occupancy and position);
-//! - [`frame`]: COBS framing with a CRC-32 per frame, and
-//!   [`frame::frame_with`], the one "encode a message, then frame it";
+//! - [`rs`]: Reed-Solomon over GF(256), the forward error correction;
+//! - [`frame`]: frames of a Reed-Solomon codeword (payload, CRC-32, parity)
+//!   that end in a zero byte, the decoder that repairs substituted, dropped
+//!   and duplicated bytes, and [`frame::frame_with`], the one "encode a
+//!   message, then frame it";
 //! - [`message`]: the link's versioned messages (postcard);
 //! - [`report`]: a match result as plain numbers;
 //! - [`feed`]: the feed protocol between a host and a robot;
@@ -26,12 +29,16 @@ pub mod mapfile;
 pub mod message;
 pub mod range;
 pub mod report;
+pub mod rs;
 pub mod share;
 
 pub use codec::{CodecModel, DecodeError, EncodeError, MapDecoder, MapEncoder};
 pub use crc::{crc32, Crc32};
 pub use feed::{FeedError, FeedMessage, RobotMessage, RobotReport, Setup};
-pub use frame::{encode_frame, frame_with, Arrived, DeframeError, Deframer, FrameError, MAX_FRAME, MAX_PAYLOAD};
+pub use frame::{
+    encode_frame, encode_frame_parity, frame_with, Arrived, Damage, DeframeError, Deframer, FrameError, MAX_FRAME,
+    MAX_PAYLOAD,
+};
 pub use mapfile::{MapFileError, MapFileHeader};
 pub use message::{AbortReason, Hello, MapHeader, Message, MessageError, PROTOCOL_VERSION};
 pub use report::MatchReport;

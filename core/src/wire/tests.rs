@@ -202,8 +202,12 @@ fn golden_messages() {
     let n = Message::Ack(ack).encode(&mut payload).unwrap();
     let mut frame = [0u8; MAX_FRAME];
     let f = encode_frame(&payload[..n], &mut frame).unwrap();
-    assert_eq!(&frame[..f], &[4, 67, 44, 1, 5, 10, 166, 169, 128, 0]);
-    assert_eq!(f - n + 2, super::message::DATA_OVERHEAD, "frame overhead: CRC, COBS, delimiter; flags and offset");
+    assert_eq!(&frame[..f], &[194, 2, 12, 105, 67, 44, 1, 2, 10, 166, 169, 128, 129, 167, 242, 63, 0]);
+    assert_eq!(
+        f - n + 2,
+        super::message::DATA_OVERHEAD + super::frame::DEFAULT_PARITY,
+        "frame overhead: CRC, header, delimiter, parity; flags and offset"
+    );
 }
 
 #[test]

@@ -186,6 +186,20 @@ pub fn goodput_bound(p: f64, overhead: usize, repairable: f64) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The capacity of a line that substitutes a fraction `p` of its bytes
+/// (a 256-ary symmetric channel), as a fraction of its raw rate:
+/// `(8 - H(p) - p log2 255) / 8`. Drops and duplicates cost more, and no
+/// simple closed form bounds them: this is the floor of what any code
+/// could do at this error rate.
+pub fn capacity_bound(p: f64) -> f64 {
+    if p <= 0.0 {
+        return 1.0;
+    }
+    let p = p.min(1.0);
+    let h = if p >= 1.0 { 0.0 } else { -p * p.log2() - (1.0 - p) * (1.0 - p).log2() };
+    ((8.0 - h - p * 255f64.log2()) / 8.0).max(0.0)
+}
+
 /// The simulator's flips garble a whole byte (not repairable); its
 /// duplicated bytes are: a third of its errors.
 pub const SIM_REPAIRABLE: f64 = 1.0 / 3.0;
@@ -207,6 +221,8 @@ pub struct LinkSummary {
     /// [`goodput_bound`] with this protocol's frame overhead, without and
     /// with the deframer's repair of the simulator's duplicated bytes.
     pub bound: [f64; 2],
+    /// [`capacity_bound`] at this error rate.
+    pub capacity: f64,
     /// Median retransmissions per run (both sides).
     pub retransmissions: f64,
     /// Stream bytes of A's and B's map.
@@ -236,6 +252,7 @@ impl LinkSummary {
                 let (p, h) = (runs.first().map(|r| r.rate).unwrap_or(0.0), cosem_core::wire::message::DATA_OVERHEAD);
                 [goodput_bound(p, h, 0.0), goodput_bound(p, h, SIM_REPAIRABLE)]
             },
+            capacity: capacity_bound(runs.first().map(|r| r.rate).unwrap_or(0.0)),
             retransmissions: median(
                 runs.iter().map(|r| f64::from(r.retransmissions[0] + r.retransmissions[1])).collect(),
             ),
@@ -248,7 +265,7 @@ impl std::fmt::Display for LinkSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "  byte errors {:>4.1}%: {}/{} delivered whole; both maps through in {:.2} s median ({:.2} s worst), ends over {:.2} s; goodput {:.0}% of the line (bounds {:.0}% without FEC, {:.0}% with repair); {:.0} retransmissions; {} + {} map bytes",
+            "  byte errors {:>4.1}%: {}/{} delivered whole; both maps through in {:.2} s median ({:.2} s worst), ends over {:.2} s; goodput {:.0}% of the line (capacity bound {:.0}%; without FEC at most {:.0}%, with one-error repair {:.0}%); {:.0} retransmissions; {} + {} map bytes",
             self.rate * 100.0,
             self.delivered.0,
             self.delivered.1,
@@ -256,6 +273,7 @@ impl std::fmt::Display for LinkSummary {
             self.worst_s,
             self.median_s.1,
             self.goodput * 100.0,
+            self.capacity * 100.0,
             self.bound[0] * 100.0,
             self.bound[1] * 100.0,
             self.retransmissions,
@@ -561,5 +579,18 @@ impl std::fmt::Display for LabelRow {
             self.voxels,
             100.0 * self.strict
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_capacity_of_a_substituting_line() {
+        // The figure: 5% substituted bytes leave about 91%.
+        assert!((super::capacity_bound(0.05) - 0.914).abs() < 0.001);
+        assert_eq!(super::capacity_bound(0.0), 1.0);
+        assert!(super::capacity_bound(0.2) > 0.6 && super::capacity_bound(0.2) < super::capacity_bound(0.1));
+        // Every value equally likely: nothing gets through.
+        assert!(super::capacity_bound(255.0 / 256.0) < 1e-9);
     }
 }

@@ -162,9 +162,11 @@ pub struct LinkJson {
     pub retransmissions: u32,
     /// Frames rejected.
     pub bad_frames: u32,
-    /// Frames received with one flipped bit or one duplicated byte, repaired
+    /// Frames received damaged and repaired by the forward error correction
     /// (counted in `frames_received` too).
     pub repaired_frames: u32,
+    /// Bytes the correction rebuilt: substituted, dropped, duplicated.
+    pub repaired_bytes: [u32; 3],
     /// Data frames received that brought nothing new.
     pub duplicates: u32,
     /// Acknowledgements sent.
@@ -208,6 +210,7 @@ impl LinkJson {
             retransmissions: stats.retransmissions,
             bad_frames: stats.bad_frames,
             repaired_frames: stats.repaired_frames,
+            repaired_bytes: stats.repaired_bytes,
             duplicates: stats.duplicates,
             acks_sent: stats.acks_sent,
             voxels_sent: voxels.0,

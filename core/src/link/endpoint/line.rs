@@ -1,37 +1,137 @@
-//! The line as the frames that arrive judge it: its damage rate, what
-//! the deframer repairs, and the frame size that goes through best.
+//! The line as the frames that arrive judge it: how often it substitutes
+//! bytes and how often it drops or duplicates them, and the frame size and
+//! parity that carry the most data per byte of line.
 
-/// What the line does to frames, per byte: `rate` of any damage and
-/// `repairable`, the part the deframer repairs when it is a frame's only
-/// damage (a flipped bit, a duplicated byte). Both as `-ln(1 - p)`.
+use crate::wire::frame::{Damage, DEFAULT_PARITY, MAX_PAYLOAD, PAIR_MAX};
+use crate::wire::message::DATA_OVERHEAD;
+use crate::wire::rs::MAX_PARITY;
+
+/// What the line does, per byte: the probability of a substituted byte
+/// and of a dropped or duplicated one.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct LineModel {
-    pub(super) rate: f32,
-    pub(super) repairable: f32,
+    pub(super) substitution: f32,
+    pub(super) indel: f32,
 }
 
-impl LineModel {
-    /// The rate of damage that costs a frame of `len` bytes: `u` with
-    /// `exp(-u len)` the chance that it arrives usable.
-    pub(super) fn residual(&self, len: usize) -> f32 {
-        let l = len.max(1) as f32;
-        self.rate - libm::log1pf(self.repairable * l) / l
+/// How frames go out: data bytes and parity bytes per frame, and the
+/// chance that such a frame arrives usable.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct FrameShape {
+    pub(super) chunk: usize,
+    pub(super) parity: usize,
+    pub(super) arrival: f32,
+}
+
+impl FrameShape {
+    /// Before anything arrived: the largest frames with the default parity.
+    pub(super) fn initial(config: &super::LinkConfig) -> Self {
+        let chunk = usize::from(config.max_chunk).min(MAX_PAYLOAD - 2 - DEFAULT_PARITY);
+        FrameShape { chunk, parity: DEFAULT_PARITY, arrival: 1.0 }
+    }
+
+    /// The best shape for `line` within the configured sizes.
+    pub(super) fn for_line(line: LineModel, config: &super::LinkConfig) -> Self {
+        let shape = line.best_shape(usize::from(config.min_chunk), usize::from(config.max_chunk));
+        FrameShape { arrival: line.arrival(shape), ..shape }
     }
 }
 
-/// The line, judged by the frames that arrive: a frame of `L` bytes
-/// arrives whole with probability `exp(-tL)` and repaired with probability
-/// `cL exp(-tL)`, so from the fractions of whole and repaired frames and
-/// their mean length, `t = -ln(whole) / L` and `c = repaired / whole / L`.
-/// Counts halve now and then, to follow a line that changes.
+/// `P(K <= k)` for `K` Poisson with mean `mean`.
+fn poisson_cdf(mean: f32, k: isize) -> f32 {
+    if k < 0 {
+        return 0.0;
+    }
+    let (mut term, mut sum) = (libm::expf(-mean), 0.0);
+    for i in 0..=k {
+        sum += term;
+        term *= mean / (i + 1) as f32;
+    }
+    sum.min(1.0)
+}
+
+impl LineModel {
+    /// The chance that a frame of `chunk` data bytes and `parity` parity
+    /// bytes arrives usable: no drop or duplicate in its header, and in its
+    /// codeword a damage the deframer repairs (substitutions up to half the
+    /// parity, one edit with one parity equation spent and one kept, two
+    /// edits on short codewords with two or three spent).
+    pub(super) fn arrival(&self, shape: FrameShape) -> f32 {
+        let n = shape.chunk + DATA_OVERHEAD - crate::wire::frame::HEADER - 1 + shape.parity;
+        let t = (shape.parity / 2) as isize;
+        let body = (n + 1) as f32;
+        let (s, d) = (self.substitution * body, self.indel * body);
+        let header = libm::expf(-4.0 * self.indel);
+        let e = libm::expf(-d);
+        let mut p = e * poisson_cdf(s, t);
+        if shape.parity >= 2 {
+            p += e * d * poisson_cdf(s, t - 1);
+        }
+        if shape.parity >= 4 && n <= PAIR_MAX {
+            p += e * d * d / 2.0 * (0.25 * poisson_cdf(s, t - 2) + 0.75 * poisson_cdf(s, t - 1));
+        }
+        header * p
+    }
+
+    /// Data per byte of line of frames of `shape`.
+    fn goodput(&self, shape: FrameShape) -> f32 {
+        let line = (shape.chunk + DATA_OVERHEAD + shape.parity) as f32;
+        shape.chunk as f32 / line * self.arrival(shape)
+    }
+
+    /// The shape with the most data per byte of line, data between
+    /// `min_chunk` and `max_chunk`: every even parity, each with sizes on a
+    /// coarse grid refined around its best.
+    pub(super) fn best_shape(&self, min_chunk: usize, max_chunk: usize) -> FrameShape {
+        let mut best = (FrameShape { chunk: min_chunk, parity: DEFAULT_PARITY, arrival: 0.0 }, -1.0f32);
+        for parity in (0..=MAX_PARITY).step_by(2) {
+            let top = max_chunk.min(MAX_PAYLOAD - 2 - parity);
+            if top < min_chunk {
+                break;
+            }
+            // Sizes on a grid of eighths, then the neighbours of the best.
+            let span = top - min_chunk;
+            let mut local = (min_chunk, -1.0f32);
+            for k in 0..=8 {
+                let chunk = min_chunk + span * k / 8;
+                let g = self.goodput(FrameShape { chunk, parity, arrival: 0.0 });
+                if g > local.1 {
+                    local = (chunk, g);
+                }
+            }
+            let step = (span / 8).max(1);
+            let (lo, hi) = (local.0.saturating_sub(step).max(min_chunk), (local.0 + step).min(top));
+            for chunk in (lo..=hi).step_by((step / 8).max(1)) {
+                let g = self.goodput(FrameShape { chunk, parity, arrival: 0.0 });
+                if g > local.1 {
+                    local = (chunk, g);
+                }
+            }
+            if local.1 > best.1 {
+                best = (FrameShape { chunk: local.0, parity, arrival: 0.0 }, local.1);
+            }
+        }
+        best.0
+    }
+}
+
+/// The line, judged by the frames that arrive: the bytes of the frames
+/// decoded and what the deframer repaired in them, and the frames lost,
+/// each counted as one error more than its code repairs (a lower bound:
+/// the errors of a lost frame are not seen). Counts halve now and then, to
+/// follow a line that changes.
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct LineEstimate {
-    pub(super) good: u32,
-    pub(super) repaired: u32,
-    pub(super) bad: u32,
+    pub(super) frames: u32,
     pub(super) bytes: u32,
+    pub(super) substituted: u32,
+    pub(super) indels: u32,
+    /// Errors attributed to lost frames.
+    pub(super) lost_errors: u32,
     /// Bytes of the frame being received.
     pub(super) current: u32,
+    /// Parity of the last frame decoded (what the peer is using).
+    pub(super) parity: u8,
 }
 
 impl LineEstimate {
@@ -39,33 +139,98 @@ impl LineEstimate {
         self.current = self.current.saturating_add(1);
     }
 
-    pub(super) fn frame(&mut self, whole: bool, repaired: bool) {
-        if repaired {
-            self.repaired += 1;
-        } else if whole {
-            self.good += 1;
-        } else {
-            self.bad += 1;
+    /// A frame arrived: with `damage` repaired, or (`None`) lost.
+    pub(super) fn frame(&mut self, damage: Option<(Damage, u8)>) {
+        let len = core::mem::take(&mut self.current);
+        match damage {
+            Some((d, parity)) => {
+                self.substituted += u32::from(d.substituted);
+                self.indels += u32::from(d.dropped) + u32::from(d.duplicated);
+                self.parity = parity;
+            }
+            None => self.lost_errors += u32::from(self.parity / 2) + 1,
         }
-        self.bytes = self.bytes.saturating_add(core::mem::take(&mut self.current));
-        if self.good + self.repaired + self.bad > 400 {
-            self.good /= 2;
-            self.repaired /= 2;
-            self.bad /= 2;
+        self.frames += 1;
+        self.bytes = self.bytes.saturating_add(len + 1);
+        if self.frames > 400 {
+            self.frames /= 2;
             self.bytes /= 2;
+            self.substituted /= 2;
+            self.indels /= 2;
+            self.lost_errors /= 2;
         }
     }
 
-    /// The estimate, with a prior of one error in 2000 bytes worth four
-    /// whole frames of 100 bytes.
+    /// The estimate, with a prior of one error in 2000 bytes (a third
+    /// substitutions) worth 400 bytes; errors of lost frames split as the
+    /// repaired ones are.
     pub(super) fn model(&self) -> LineModel {
-        const PRIOR_FRAMES: f32 = 4.0;
+        const PRIOR_BYTES: f32 = 400.0;
         const PRIOR_RATE: f32 = 1.0 / 2000.0;
-        let frames = (self.good + self.repaired + self.bad) as f32 + PRIOR_FRAMES;
-        let whole = self.good as f32 + PRIOR_FRAMES * libm::expf(-PRIOR_RATE * 100.0);
-        let mean = ((self.bytes as f32 + PRIOR_FRAMES * 100.0) / frames).max(1.0);
-        let rate = (-libm::logf((whole / frames).max(0.01)) / mean).min(0.7);
-        let repairable = (self.repaired as f32 / whole / mean).min(rate);
-        LineModel { rate, repairable }
+        let bytes = self.bytes as f32 + PRIOR_BYTES;
+        let sub = self.substituted as f32 + PRIOR_BYTES * PRIOR_RATE / 3.0;
+        let indel = self.indels as f32 + PRIOR_BYTES * PRIOR_RATE * 2.0 / 3.0;
+        let lost = self.lost_errors as f32;
+        let share = sub / (sub + indel);
+        LineModel {
+            substitution: ((sub + lost * share) / bytes).min(0.5),
+            indel: ((indel + lost * (1.0 - share)) / bytes).min(0.5),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_clean_line_gets_long_frames_and_little_parity_a_bad_one_more() {
+        let clean = LineModel { substitution: 0.0, indel: 0.0 };
+        let s = clean.best_shape(8, 240);
+        assert_eq!((s.chunk, s.parity), (240, 0));
+        let mut last = s;
+        for rate in [0.001f32, 0.01, 0.05, 0.1, 0.2] {
+            let m = LineModel { substitution: rate / 3.0, indel: rate * 2.0 / 3.0 };
+            let s = m.best_shape(8, 240);
+            assert!(s.chunk <= last.chunk, "{rate}: {s:?} after {last:?}");
+            // Up to 5% errors most frames arrive; beyond, short frames pay.
+            assert!(m.arrival(s) > 0.5 || rate > 0.05, "{rate}: {s:?} arrives {}", m.arrival(s));
+            assert!(m.goodput(s) > 0.05, "{rate}: {s:?}");
+            last = s;
+        }
+    }
+
+    #[test]
+    fn the_estimate_follows_what_was_repaired() {
+        let mut e = LineEstimate::default();
+        for i in 0..300 {
+            for _ in 0..99 {
+                e.byte();
+            }
+            let d = Damage { substituted: (i % 2) as u8, dropped: (i % 4 == 0) as u8, duplicated: 0 };
+            e.frame(Some((d, 4)));
+        }
+        let m = e.model();
+        assert!((m.substitution - 0.005).abs() < 0.001, "{m:?}");
+        assert!((m.indel - 0.0025).abs() < 0.001, "{m:?}");
+    }
+}
+#[cfg(test)]
+mod dbg {
+    use super::*;
+    #[test]
+    fn dbg_shapes() {
+        for rate in [0.0f32, 0.01, 0.05, 0.1, 0.2] {
+            let m = LineModel { substitution: rate / 3.0, indel: rate * 2.0 / 3.0 };
+            let s = m.best_shape(8, 240);
+            std::eprintln!("rate {rate}: {s:?} arrival {} goodput {}", m.arrival(s), m.goodput(s));
+            for p in [0usize, 2, 4, 8, 12, 16] {
+                for c in [16usize, 32, 64, 100, 160, 240] {
+                    let sh = FrameShape { chunk: c, parity: p, arrival: 0.0 };
+                    std::eprint!(" {:.2}", m.goodput(sh));
+                }
+                std::eprintln!("  <- p {p}");
+            }
+        }
     }
 }

@@ -8,7 +8,7 @@ use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::frame::{Deframer, MAX_FRAME, MAX_PAYLOAD};
 use crate::wire::message::{
     AbortReason, Ack, Hello, MapHeader, Message, MessageError, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED,
-    DATA_OVERHEAD, MAX_SACK, OFFSET_MODULUS,
+    MAX_SACK, OFFSET_MODULUS,
 };
 use core::borrow::Borrow;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
@@ -17,7 +17,7 @@ mod line;
 mod rx;
 mod tx;
 
-use line::{LineEstimate, LineModel};
+use line::{FrameShape, LineEstimate};
 use rx::Rx;
 use tx::{SegList, Tx};
 
@@ -174,8 +174,14 @@ pub struct LinkStats {
     pub retransmissions: u32,
     /// Frames rejected (CRC, COBS, malformed).
     pub bad_frames: u32,
-    /// Frames repaired (one flipped bit or one duplicated byte) and used.
+    /// Frames repaired by the forward error correction and used.
     pub repaired_frames: u32,
+    /// Bytes the correction rebuilt in frames used: substituted, dropped
+    /// and duplicated on the line.
+    pub repaired_bytes: [u32; 3],
+    /// Data and parity bytes of the last data frame sent: the shape the
+    /// line estimate chose.
+    pub frame_shape: (u16, u8),
     /// Voxels received.
     pub voxels_received: u32,
     /// Encoded voxel bytes sent (chunk data only, first transmissions).
@@ -317,6 +323,9 @@ struct Session<'a, M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> {
     rx: Rx<'a, R>,
     deframer: Deframer,
     line: LineEstimate,
+    /// Frames sized and protected for the line as the peer's frames show it
+    /// (recomputed when one arrives).
+    shape: FrameShape,
     started: bool,
     last_heard: u64,
     /// When any byte last arrived, whole frame or not: the line is alive.
@@ -334,9 +343,14 @@ struct Session<'a, M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> {
 }
 
 /// Sends one message as a frame; returns the bytes written.
-fn send_msg<IO: Write>(io: &mut IO, msg: &Message<'_>, stats: &mut LinkStats) -> Result<usize, LinkError> {
+fn send_msg<IO: Write>(
+    io: &mut IO,
+    msg: &Message<'_>,
+    parity: usize,
+    stats: &mut LinkStats,
+) -> Result<usize, LinkError> {
     let mut frame = [0u8; MAX_FRAME];
-    let f = msg.to_frame(&mut frame).map_err(|_| LinkError::Setup)?;
+    let f = msg.to_frame_parity(&mut frame, parity).map_err(|_| LinkError::Setup)?;
     io.write_all(frame.get(..f).unwrap_or(&[])).map_err(io_error)?;
     io.flush().map_err(io_error)?;
     stats.bytes_sent += f as u64;
@@ -400,6 +414,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory, O: Borrow<LocalMap<M>>> E
             rx: Rx::new(staging),
             deframer: Deframer::new(),
             line: LineEstimate::default(),
+            shape: FrameShape::initial(&config),
             started: false,
             last_heard: 0,
             last_byte: 0,
@@ -522,7 +537,7 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
             if !matches!(e, LinkError::Io(_) | LinkError::PeerAborted(_)) {
                 let map_id = self.rx.header.map(|h| h.map_id).or(self.tx.as_ref().map(|t| t.header.map_id));
                 let msg = Message::Abort { map_id: map_id.unwrap_or(0), reason };
-                let _ = send_msg(io, &msg, &mut self.stats);
+                let _ = send_msg(io, &msg, self.shape.parity, &mut self.stats);
             }
         }
         r
@@ -534,7 +549,7 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
 
     fn send_ack<IO: Write>(&mut self, io: &mut IO, have: &[u32; STREAM_BUFFER / 32]) -> Result<(), LinkError> {
         let ack = self.rx.ack(have, self.finished());
-        send_msg(io, &Message::Ack(ack), &mut self.stats)?;
+        send_msg(io, &Message::Ack(ack), self.shape.parity, &mut self.stats)?;
         self.stats.acks_sent += 1;
         self.rx.unacked = 0;
         self.rx.ack_now = false;
@@ -558,7 +573,7 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
                 max_payload: MAX_PAYLOAD as u16,
                 takes_map: self.rx.map.is_some(),
             };
-            send_msg(io, &Message::Hello(hello), &mut self.stats)?;
+            send_msg(io, &Message::Hello(hello), self.shape.parity, &mut self.stats)?;
         }
         // Read everything that is there.
         let mut buf = [0u8; 64];
@@ -584,9 +599,8 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
             && self.peer_takes_map != Some(false)
             && io.write_ready().map_err(io_error)?;
         if let (Some(tx), true) = (self.tx.as_mut(), may_send) {
-            let line = self.line.model();
             let heard = self.last_byte.max(self.last_heard);
-            tx.send_next(&mut tb, io, (now, heard), line, &self.config, &mut self.stats)?;
+            tx.send_next(&mut tb, io, (now, heard), self.shape, &self.config, &mut self.stats)?;
         }
         if self.finished() {
             if self.finished_at.is_none() {
@@ -618,20 +632,30 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
             peer_takes_map,
             peer_id,
             line,
+            shape,
             ..
         } = self;
         if b != 0 {
             line.byte();
         }
         let (payload, repaired) = match deframer.push_frame(b) {
-            Ok(Some(f)) => (f.payload, f.repaired),
+            Ok(Some(f)) => {
+                line.frame(Some((f.damage, f.parity)));
+                let d = f.damage;
+                for (count, k) in stats.repaired_bytes.iter_mut().zip([d.substituted, d.dropped, d.duplicated]) {
+                    *count += u32::from(k);
+                }
+                (f.payload, f.repaired)
+            }
             Ok(None) => return Ok(()),
             Err(_) => {
                 stats.bad_frames += 1;
-                line.frame(false, false);
+                line.frame(None);
+                *shape = FrameShape::for_line(line.model(), config);
                 return Ok(());
             }
         };
+        *shape = FrameShape::for_line(line.model(), config);
         let msg = match Message::decode(payload) {
             Ok(msg) => msg,
             // An intact frame (its CRC-32 holds, nothing repaired) in another
@@ -641,11 +665,9 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
             Err(MessageError::NonFinite) if !repaired => return Err(LinkError::BadHello),
             Err(_) => {
                 stats.bad_frames += 1;
-                line.frame(false, false);
                 return Ok(());
             }
         };
-        line.frame(true, repaired);
         stats.repaired_frames += u32::from(repaired);
         stats.frames_received += 1;
         *last_heard = now;

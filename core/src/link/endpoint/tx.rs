@@ -117,8 +117,10 @@ pub(super) struct Tx<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> {
     pub(super) acked_order: u32,
     /// The receiver said it holds the whole map.
     pub(super) complete: bool,
-    /// Data bytes per frame, from the estimated byte error rate.
+    /// Data bytes per frame, from the estimated line.
     pub(super) size: usize,
+    /// Parity bytes per frame, from the estimated line.
+    pub(super) parity: usize,
     pub(super) srtt: Option<u32>,
     /// Shortest round trip seen (ms).
     pub(super) min_rtt: u32,
@@ -130,6 +132,9 @@ pub(super) struct Tx<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> {
     pub(super) last_probe: u64,
     /// Resends while nothing new can go (every fourth asks for an answer).
     pub(super) idle_resends: u32,
+    /// Half duplex: when the frame now awaiting its answer went out (one
+    /// frame a turn: a second one would collide with the answer).
+    pub(super) awaiting: Option<u64>,
 }
 
 impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
@@ -157,7 +162,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
             bounds,
             digest: encoder.digest(),
         };
-        let mut tx = Tx {
+        let tx = Tx {
             encoder,
             header,
             header_queued: false,
@@ -167,15 +172,16 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
             order: 0,
             acked_order: 0,
             complete: false,
-            size: usize::from(config.max_chunk),
+            size: FrameShape::initial(config).chunk,
+            parity: FrameShape::initial(config).parity,
             srtt: None,
             min_rtt: u32::MAX,
             backoff: 0,
             last_progress: 0,
             last_probe: 0,
             idle_resends: 0,
+            awaiting: None,
         };
-        tx.resize(LineEstimate::default().model(), config);
         Ok(tx)
     }
 }
@@ -238,31 +244,6 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         base.min(config.max_timeout_ms)
     }
 
-    /// Sizes frames for the most data per byte of line. A frame of `L`
-    /// bytes (`h` of them overhead) arrives whole with probability
-    /// `exp(-tL)` and is repaired with probability `cL exp(-tL)` (one error
-    /// of the repairable kind), so data per byte sent is `g(L) = (L - h) / L
-    /// * exp(-tL) * (1 + cL)`. `ln g` is concave: its peak is where the
-    /// derivative `h / (L (L - h)) - t + c / (1 + cL)` crosses zero, found
-    /// by bisection (without repair, `L = (h + sqrt(h^2 + 4h/t)) / 2`).
-    pub(super) fn resize(&mut self, line: LineModel, config: &LinkConfig) {
-        let h = DATA_OVERHEAD as f32;
-        let slope = |l: f32| h / (l * (l - h)) - line.rate + line.repairable / (1.0 + line.repairable * l);
-        let (mut lo, mut hi) = (h + f32::from(config.min_chunk), h + f32::from(config.max_chunk));
-        if slope(hi) >= 0.0 {
-            lo = hi;
-        }
-        for _ in 0..24 {
-            let mid = 0.5 * (lo + hi);
-            if slope(mid) > 0.0 {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        self.size = ((lo - h) as usize).clamp(usize::from(config.min_chunk), usize::from(config.max_chunk));
-    }
-
     /// Cuts segment `i` to the current frame size; the rest stays lost.
     pub(super) fn cut(&mut self, segs: &mut SegList, i: usize) {
         let Some(s) = segs.get(i).copied() else { return };
@@ -298,9 +279,11 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         seg.sends = seg.sends.saturating_add(1);
         seg.sent_at = now as u32;
         seg.lost = 0;
+        self.awaiting = Some(now);
         let offset = (seg.start % OFFSET_MODULUS) as u16;
         let msg = Message::Data { offset, poll, data: data.get(..len).unwrap_or(&[]) };
-        send_msg(io, &msg, stats)?;
+        send_msg(io, &msg, self.parity, stats)?;
+        stats.frame_shape = (len as u16, self.parity as u8);
         Ok(())
     }
 
@@ -316,18 +299,21 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         b: &mut TxBufs<'_>,
         io: &mut IO,
         (now, heard): (u64, u64),
-        line: LineModel,
+        shape: FrameShape,
         config: &LinkConfig,
         stats: &mut LinkStats,
     ) -> Result<(), LinkError> {
         if self.complete {
             return Ok(());
         }
+        if config.half_duplex && self.awaiting.is_some_and(|t| now < t + u64::from(self.rto(config))) {
+            return Ok(());
+        }
         self.fill(b)?;
         // Frames sized for the line as the peer's frames show it (after a
         // stall, no larger than the probes were).
         let probe = self.size;
-        self.resize(line, config);
+        (self.size, self.parity) = (shape.chunk, shape.parity);
         if self.backoff > 0 {
             self.size = self.size.min(probe);
         }
@@ -352,13 +338,13 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
             if now < self.last_probe + wait {
                 return Ok(());
             }
-            return self.probe(b, io, now, line, config, stats);
+            return self.probe(b, io, now, shape, config, stats);
         }
         // On a clean line, bytes not acknowledged in a timeout; on a lossy
         // one, sooner (a round trip and a half): there the oldest bytes are
         // likely lost again, and the line would idle meanwhile.
         let wait = match self.srtt {
-            Some(s) if line.residual(self.size + DATA_OVERHEAD) > 0.005 => s + s / 2 + 5,
+            Some(s) if shape.arrival < 0.995 => s + s / 2 + 5,
             _ => rto,
         };
         let due = b.segs.iter().take(8).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);
@@ -403,7 +389,7 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         b: &mut TxBufs<'_>,
         io: &mut IO,
         now: u64,
-        line: LineModel,
+        shape: FrameShape,
         config: &LinkConfig,
         stats: &mut LinkStats,
     ) -> Result<(), LinkError> {
@@ -413,8 +399,7 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         self.backoff += 1;
         self.last_probe = now;
         let half = (self.size / 2).max(usize::from(config.min_chunk));
-        self.resize(line, config);
-        self.size = self.size.min(half);
+        (self.size, self.parity) = (shape.chunk.min(half), shape.parity);
         self.cut(b.segs, 0);
         stats.retransmissions += 1;
         self.transmit(b, 0, true, io, now, stats)
@@ -440,6 +425,7 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
                     .iter()
                     .any(|&(a, b)| b != a && s.start.wrapping_sub(a) < 1 << 30 && b.wrapping_sub(end) < 1 << 30)
         };
+        self.awaiting = None;
         let mut progress = ahead > 0;
         // The round trip of the last-sent bytes acknowledged now (sent once:
         // older ones may have waited behind a gap, or for a lost ack).
