@@ -43,6 +43,7 @@ fn line(seed: u64, error_rate: f64, stall_chance: f64) -> std::boxed::Box<RefCel
         stall_chance,
         bytes_per_ms: 11.52,
         half_duplex: false,
+        mix: sim::Mix::THIRDS,
     })))
 }
 
@@ -225,6 +226,7 @@ fn half_duplex_line_takes_turns_without_collisions() {
         stall_chance: 0.0,
         bytes_per_ms: 11.52,
         half_duplex: true,
+        mix: sim::Mix::THIRDS,
     })));
     let (mut p0, mut p1) = Line::ports(&wire);
     let config = LinkConfig { half_duplex: true, ..LinkConfig::default() };

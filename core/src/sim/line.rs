@@ -1,7 +1,8 @@
 //! A simulated serial line for tests and benchmarks: seeded, deterministic,
 //! allocation-free. Bytes written at one end reach the other at a fixed rate
 //! (e.g. 11.52 bytes per millisecond: 115200 baud, 8N1); each byte is, with
-//! probability `error_rate`, flipped, dropped or duplicated (a third each);
+//! probability `error_rate`, damaged as a [`Mix`] says (by default replaced
+//! by another value, dropped or duplicated, a third each);
 //! with probability `stall_chance` per millisecond the line stalls for 0.2
 //! to 2 s. Time is virtual: call [`SimLine::tick`] once per millisecond.
 
@@ -22,6 +23,96 @@ pub struct SimConfig {
     /// One medium for both directions: when both ends transmit in the same
     /// millisecond, the bytes of both collide and arrive garbled.
     pub half_duplex: bool,
+    /// How a damaged byte is damaged.
+    pub mix: Mix,
+}
+
+/// How a damaged byte is damaged, in shares (weights of any scale): one
+/// bit flipped, the byte replaced by another value (XOR with a random
+/// non-zero byte), dropped, duplicated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Mix {
+    /// One bit flipped.
+    pub bit: f64,
+    /// Replaced by another value.
+    pub byte: f64,
+    /// Dropped.
+    pub drop: f64,
+    /// Sent twice.
+    pub dup: f64,
+}
+
+/// Why a mix could not be read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MixError {
+    /// A part is not `KIND=SHARE`.
+    Syntax,
+    /// A kind other than `bit`, `byte`, `drop`, `dup`.
+    Kind,
+    /// A share that is not a finite number of at least 0.
+    Share,
+    /// The shares add up to nothing.
+    Empty,
+}
+
+impl core::fmt::Display for MixError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            MixError::Syntax => "a mix is KIND=SHARE,... (kinds bit, byte, drop, dup)",
+            MixError::Kind => "a kind of damage is bit, byte, drop or dup",
+            MixError::Share => "a share is a finite number, 0 or more",
+            MixError::Empty => "the shares add up to nothing",
+        })
+    }
+}
+
+impl Mix {
+    /// Replaced, dropped or duplicated, a third each: the simulator's
+    /// damage before mixes existed, and an independent relay's.
+    pub const THIRDS: Mix = Mix { bit: 0.0, byte: 1.0, drop: 1.0, dup: 1.0 };
+
+    /// Reads `bit=S,byte=S,drop=S,dup=S` (a kind left out has no share).
+    pub fn parse(text: &str) -> Result<Mix, MixError> {
+        let mut mix = Mix { bit: 0.0, byte: 0.0, drop: 0.0, dup: 0.0 };
+        for part in text.split(',') {
+            let (key, value) = part.split_once('=').ok_or(MixError::Syntax)?;
+            let share: f64 = value.trim().parse().map_err(|_| MixError::Share)?;
+            if !(share.is_finite() && share >= 0.0) {
+                return Err(MixError::Share);
+            }
+            *match key.trim() {
+                "bit" => &mut mix.bit,
+                "byte" => &mut mix.byte,
+                "drop" => &mut mix.drop,
+                "dup" => &mut mix.dup,
+                _ => return Err(MixError::Kind),
+            } = share;
+        }
+        if mix.total() > 0.0 {
+            Ok(mix)
+        } else {
+            Err(MixError::Empty)
+        }
+    }
+
+    fn total(&self) -> f64 {
+        self.bit + self.byte + self.drop + self.dup
+    }
+
+    /// The kind of damage of the draw `x` in `[0, 1)`: 0 bit, 1 byte, 2
+    /// drop, 3 dup.
+    pub fn kind(&self, x: f64) -> u8 {
+        let x = x * self.total();
+        if x < self.bit {
+            0
+        } else if x < self.bit + self.byte {
+            1
+        } else if x < self.bit + self.byte + self.drop {
+            2
+        } else {
+            3
+        }
+    }
 }
 
 impl SimConfig {
@@ -33,6 +124,7 @@ impl SimConfig {
             stall_chance: 0.0,
             bytes_per_ms: f64::from(baud) / 10.0 / 1000.0,
             half_duplex: false,
+            mix: Mix::THIRDS,
         }
     }
 }
@@ -134,12 +226,19 @@ impl<const N: usize> SimLine<N> {
 
     fn send(&mut self, side: usize, b: u8) {
         if self.unit() < self.config.error_rate {
-            match self.next() % 3 {
+            // The thirds draw as they did before mixes existed.
+            let mix = self.config.mix;
+            let kind = if mix == Mix::THIRDS { 1 + (self.next() % 3) as u8 } else { mix.kind(self.unit()) };
+            match kind {
                 0 => {
+                    let bit = 1u8 << (self.next() % 8);
+                    self.wire[side].push(b ^ bit);
+                }
+                1 => {
                     let flip = (self.next() as u8) | 1;
                     self.wire[side].push(b ^ flip);
                 }
-                1 => {}
+                2 => {}
                 _ => {
                     self.wire[side].push(b);
                     self.wire[side].push(b);

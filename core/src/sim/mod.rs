@@ -8,7 +8,7 @@
 
 mod line;
 
-pub use line::{OutputFull, ScriptPort, SimConfig, SimLine, SimPort};
+pub use line::{Mix, MixError, OutputFull, ScriptPort, SimConfig, SimLine, SimPort};
 
 use crate::robot::{Machine, Poll, RobotError};
 use alloc::vec::Vec;

@@ -100,9 +100,12 @@ pub struct GlobalArgs {
 pub struct LinkArgs {
     #[command(flatten)]
     pair: PairArgs,
-    /// Byte error rates to simulate (each byte flipped, dropped or duplicated).
+    /// Byte error rates to simulate, each damaged byte as --mix says.
     #[arg(long, default_value = "0,0.01,0.05", value_delimiter = ',')]
     error_rates: Vec<f64>,
+    /// Shares of the damage: bit=S,byte=S,drop=S,dup=S (default substituted, dropped, duplicated alike).
+    #[arg(long, value_parser = cosem_host::relay::parse_mix, default_value = "byte=1,drop=1,dup=1")]
+    mix: cosem_host::relay::Mix,
     /// Line speed (baud, 8N1).
     #[arg(long, default_value_t = 115_200, value_parser = super::args::baud)]
     baud: u32,
@@ -177,20 +180,17 @@ fn bench_wire(a: MapArgs, json: Option<&Path>) -> Result<(), Error> {
 
 fn bench_link(a: LinkArgs, json: Option<&Path>) -> Result<(), Error> {
     let (pair, dir, _tmp) = a.pair.load(a.voxel, Some(a.max_range))?;
-    let (na, nb) = (pair.map_a.len(), pair.map_b.len());
-    let (ra, rb) = (a.pair.a, a.pair.b);
+    let (na, nb, ra, rb) = (pair.map_a.len(), pair.map_b.len(), a.pair.a, a.pair.b);
     let (d, voxel, range, baud, seeds) = (dir.display(), a.voxel, a.max_range, a.baud, a.seeds);
     println!("bench link: A {na} voxels ({ra}), B {nb} voxels ({rb}) of {d} at {voxel} m within {range} m; both ways at once, {baud} baud (8N1), simulated time, {seeds} seeds");
     let mut summaries = Vec::new();
     for &rate in &a.error_rates {
         let runs =
-            (1..=seeds.max(1)).map(|seed| bench::link(&pair, rate, baud, seed)).collect::<Result<Vec<_>, _>>()?;
+            (1..=seeds.max(1)).map(|s| bench::link(&pair, rate, a.mix, baud, s)).collect::<Result<Vec<_>, _>>()?;
+        println!("{}", bench::LinkSummary::of(&runs, baud));
         summaries.push(bench::LinkSummary::of(&runs, baud));
-        println!("{}", summaries[summaries.len() - 1]);
     }
-    println!("  goodput: map bytes per direction over the line's bytes in the time until that map was through;");
-    println!("  bounds: the best a retransmission scheme can do with this frame overhead, max over L of (L-h)/L (1-p)^L without FEC;");
-    println!("  with repair, frames whose one error is repairable count too (here the duplicated bytes, a third: the simulator's flips garble whole bytes)");
+    println!("  goodput: map bytes per direction over the line's bytes in the time until that map was through; capacity: a line substituting that share of bytes (8 - H(p) - p log2 255 bits a byte), the floor for drops and duplicates;\n  without FEC: the best of retransmission alone with this frame overhead, max over L of (L-h)/L (1-p)^L; one-error repair: as cosem's frames were before forward error correction");
     save(json, &summaries)
 }
 

@@ -22,7 +22,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "bit", conflicts_with = "mix")]
     flip: Flip,
     /// Shares of the damage instead: bit=S,byte=S,drop=S,dup=S.
-    #[arg(long)]
+    #[arg(long, value_parser = cosem_host::relay::parse_mix)]
     mix: Option<Mix>,
     /// Give up when the two sides have not connected in this long (s).
     #[arg(long, default_value = "60", value_parser = super::args::positive)]

@@ -14,6 +14,7 @@ use cosem_core::classes::Class;
 use cosem_core::geometry::errors_of;
 use cosem_core::map::MapConfig;
 use cosem_core::matching::{MatchResult, MatchSettings, Matcher};
+use cosem_core::sim::{Mix, SimConfig};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -139,6 +140,8 @@ pub fn wire(map: &HostMap, repeat: usize) -> Result<WireFigures, Error> {
 pub struct LinkFigures {
     /// Byte error rate.
     pub rate: f64,
+    /// Shares of the damage: bit flips, substituted, dropped, duplicated.
+    pub mix: [f64; 4],
     /// Simulated seconds until A's map, then B's, was through (`None`: never).
     pub through_s: [Option<f64>; 2],
     /// Simulated seconds until both ends were over (closing included).
@@ -154,12 +157,15 @@ pub struct LinkFigures {
 }
 
 /// Both maps of `pair` exchanged at once over a simulated line of `baud`
-/// with byte error `rate` (seeded by `seed`), in simulated time.
-pub fn link(pair: &Pair, rate: f64, baud: u32, seed: u64) -> Result<LinkFigures, Error> {
-    let x = simulate_exchange(&pair.map_a, &pair.map_b, rate, baud, seed)?;
+/// with byte error `rate` damaging bytes as `mix` says (seeded by `seed`),
+/// in simulated time.
+pub fn link(pair: &Pair, rate: f64, mix: Mix, baud: u32, seed: u64) -> Result<LinkFigures, Error> {
+    let line = SimConfig { error_rate: rate, mix, ..SimConfig::clean(baud, seed) };
+    let x = simulate_exchange(&pair.map_a, &pair.map_b, line)?;
     let [a, b] = x.stats;
     Ok(LinkFigures {
         rate,
+        mix: [mix.bit, mix.byte, mix.drop, mix.dup],
         through_s: x.through_s,
         over_s: x.over_s,
         bytes: [a.bytes_sent, b.bytes_sent],
@@ -207,8 +213,12 @@ pub const SIM_REPAIRABLE: f64 = 1.0 / 3.0;
 /// Many seeded exchanges at one error rate, summarised.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct LinkSummary {
+    /// Version of these fields (2: `mix` and `capacity` added).
+    pub schema: u32,
     /// Byte error rate.
     pub rate: f64,
+    /// Shares of the damage: bit flips, substituted, dropped, duplicated.
+    pub mix: [f64; 4],
     /// Runs that delivered both maps, and runs.
     pub delivered: (usize, usize),
     /// Median seconds until both maps were through, and until both ends
@@ -243,7 +253,9 @@ impl LinkSummary {
             })
             .collect();
         LinkSummary {
+            schema: 2,
             rate: runs.first().map(|r| r.rate).unwrap_or(0.0),
+            mix: runs.first().map(|r| r.mix).unwrap_or([0.0; 4]),
             delivered: (ok.len(), runs.len()),
             median_s: (median(ok.iter().map(|r| both(r)).collect()), median(ok.iter().map(|r| r.over_s).collect())),
             worst_s: ok.iter().map(|r| both(r)).fold(0.0, f64::max),
@@ -265,8 +277,12 @@ impl std::fmt::Display for LinkSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "  byte errors {:>4.1}%: {}/{} delivered whole; both maps through in {:.2} s median ({:.2} s worst), ends over {:.2} s; goodput {:.0}% of the line (capacity bound {:.0}%; without FEC at most {:.0}%, with one-error repair {:.0}%); {:.0} retransmissions; {} + {} map bytes",
+            "  byte errors {:>4.1}% (bit {}, byte {}, drop {}, dup {}): {}/{} delivered whole; both maps through in {:.2} s median ({:.2} s worst), ends over {:.2} s; goodput {:.0}% of the line (capacity bound {:.0}%; without FEC at most {:.0}%, with one-error repair {:.0}%); {:.0} retransmissions; {} + {} map bytes",
             self.rate * 100.0,
+            self.mix[0],
+            self.mix[1],
+            self.mix[2],
+            self.mix[3],
             self.delivered.0,
             self.delivered.1,
             self.median_s.0,

@@ -23,6 +23,7 @@ use crate::source::{Source, SourceOptions};
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::MapConfig;
 use cosem_core::matching::{MatchSettings, MatchStatus};
+use cosem_core::sim::SimConfig;
 use cosem_core::team::{consistent_set, solve, RelativePose, MAX_ROBOTS};
 use nalgebra::Matrix6;
 use std::path::PathBuf;
@@ -265,7 +266,7 @@ impl Mesh {
         };
         for i in 0..n {
             for j in i + 1..n {
-                let x = simulate_exchange(&maps[i], &maps[j], 0.0, 115_200, (i * n + j) as u64)?;
+                let x = simulate_exchange(&maps[i], &maps[j], SimConfig::clean(115_200, (i * n + j) as u64))?;
                 if !x.delivered {
                     return Err(Error::Invalid(format!(
                         "the link between robots {i} and {j} did not deliver both maps"

@@ -53,10 +53,9 @@ impl<F, L: Read + Write + ReadReady + WriteReady, T> Machine<F, L, T> for Exchan
     }
 }
 
-/// Maps `ma` and `mb` exchanged at once over a simulated line of `baud`
-/// with byte error `rate` (seeded by `seed`), in simulated time, by the
-/// core's link endpoints (robot ids 0 and 1).
-pub fn simulate_exchange(ma: &HostMap, mb: &HostMap, rate: f64, baud: u32, seed: u64) -> Result<SimExchange, Error> {
+/// Maps `ma` and `mb` exchanged at once over the simulated `line`, in
+/// simulated time, by the core's link endpoints (robot ids 0 and 1).
+pub fn simulate_exchange(ma: &HostMap, mb: &HostMap, line: SimConfig) -> Result<SimExchange, Error> {
     let (mut s0, mut s1) = (vec![0u32; ma.len()], vec![0u32; mb.len()]);
     let (mut st0, mut st1) = (new_map(mb.len(), *ma.config())?, new_map(ma.len(), *ma.config())?);
     let lc = LinkConfig::default();
@@ -66,7 +65,7 @@ pub fn simulate_exchange(ma: &HostMap, mb: &HostMap, rate: f64, baud: u32, seed:
     let e1 = Endpoint::new(lc, 1, 2, 0, Some((mb, &mut s1)), Some(&mut st1), &mut *b1).map_err(setup)?;
     let mut x0 = Exchanger { endpoint: e0, through_ms: None };
     let mut x1 = Exchanger { endpoint: e1, through_ms: None };
-    let wire = Wire { a: 0, b: 1, line: SimConfig { error_rate: rate, ..SimConfig::clean(baud, seed) } };
+    let wire = Wire { a: 0, b: 1, line };
     let out = sim::run(&mut [&mut x0 as &mut SimRobot<'_, '_, Option<u64>>, &mut x1], &[], &[wire], 3_600_000);
     let stats = [x0.endpoint.stats(), x1.endpoint.stats()];
     let through_ms = [x1.through_ms, x0.through_ms];

@@ -31,46 +31,11 @@ pub struct LineModel {
     pub mix: Option<Mix>,
 }
 
-/// How a damaged byte is damaged, in shares (weights of any scale): one
-/// bit flipped, the byte replaced by another value, dropped, duplicated.
-/// `bit=1,byte=1,drop=1,dup=1` on the command line; a kind left out has
-/// no share.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Mix {
-    /// One bit flipped.
-    pub bit: f64,
-    /// Replaced by another value (XOR with a random non-zero byte).
-    pub byte: f64,
-    /// Dropped.
-    pub drop: f64,
-    /// Sent twice.
-    pub dup: f64,
-}
+pub use cosem_core::sim::Mix;
 
-impl std::str::FromStr for Mix {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        let mut mix = Mix { bit: 0.0, byte: 0.0, drop: 0.0, dup: 0.0 };
-        for part in s.split(',') {
-            let (key, value) = part.split_once('=').ok_or(format!("`{part}`: KIND=SHARE (bit, byte, drop, dup)"))?;
-            let share: f64 = value.trim().parse().map_err(|_| format!("`{value}`: not a number"))?;
-            if !(share.is_finite() && share >= 0.0) {
-                return Err(format!("`{part}`: a share is a finite number, 0 or more"));
-            }
-            *match key.trim() {
-                "bit" => &mut mix.bit,
-                "byte" => &mut mix.byte,
-                "drop" => &mut mix.drop,
-                "dup" => &mut mix.dup,
-                other => return Err(format!("`{other}`: bit, byte, drop or dup")),
-            } = share;
-        }
-        if mix.bit + mix.byte + mix.drop + mix.dup > 0.0 {
-            Ok(mix)
-        } else {
-            Err("the shares add up to nothing".into())
-        }
-    }
+/// Reads a mix from the command line (`bit=1,byte=1,drop=1,dup=1`).
+pub fn parse_mix(text: &str) -> Result<Mix, String> {
+    Mix::parse(text).map_err(|e| format!("`{text}`: {e}"))
 }
 
 /// One kind of damage.
@@ -93,15 +58,11 @@ impl LineModel {
                 _ => Damage::Dup,
             };
         };
-        let x = rng.unit() * (m.bit + m.byte + m.drop + m.dup);
-        if x < m.bit {
-            Damage::Bit
-        } else if x < m.bit + m.byte {
-            Damage::Byte
-        } else if x < m.bit + m.byte + m.drop {
-            Damage::Drop
-        } else {
-            Damage::Dup
+        match m.kind(rng.unit()) {
+            0 => Damage::Bit,
+            1 => Damage::Byte,
+            2 => Damage::Drop,
+            _ => Damage::Dup,
         }
     }
 }
@@ -204,10 +165,10 @@ mod tests {
 
     #[test]
     fn a_mix_names_its_shares_and_refuses_what_is_not_one() {
-        let m: Mix = "bit=1, byte=2,drop=0.5".parse().unwrap();
+        let m: Mix = parse_mix("bit=1, byte=2,drop=0.5").unwrap();
         assert_eq!(m, Mix { bit: 1.0, byte: 2.0, drop: 0.5, dup: 0.0 });
         for bad in ["", "bit", "bit=x", "bit=-1", "bit=inf", "bite=1", "bit=0,dup=0"] {
-            assert!(bad.parse::<Mix>().is_err(), "{bad}");
+            assert!(parse_mix(bad).is_err(), "{bad}");
         }
     }
 

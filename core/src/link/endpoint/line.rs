@@ -116,22 +116,39 @@ impl LineModel {
 }
 
 /// The line, judged by the frames that arrive: the bytes of the frames
-/// decoded and what the deframer repaired in them, and the frames lost,
-/// each counted as one error more than its code repairs (a lower bound:
-/// the errors of a lost frame are not seen). Counts halve now and then, to
-/// follow a line that changes.
+/// decoded and what the deframer repaired in them, and the frames lost.
+/// A lost frame had more errors than its code repairs; it is counted with
+/// the errors it had on average given that, at the rate estimated so far
+/// (`E[K | K > t]`, `K` Poisson: what repaired frames alone would
+/// underestimate, as the frames with the most damage are the ones lost).
+/// Counts halve now and then, to follow a line that changes.
 #[derive(Clone, Copy, Debug, Default)]
 pub(super) struct LineEstimate {
     pub(super) frames: u32,
-    pub(super) bytes: u32,
-    pub(super) substituted: u32,
-    pub(super) indels: u32,
+    pub(super) bytes: f32,
+    pub(super) substituted: f32,
+    pub(super) indels: f32,
     /// Errors attributed to lost frames.
-    pub(super) lost_errors: u32,
+    pub(super) lost_errors: f32,
     /// Bytes of the frame being received.
     pub(super) current: u32,
     /// Parity of the last frame decoded (what the peer is using).
     pub(super) parity: u8,
+}
+
+/// `E[K | K > t]` for `K` Poisson with mean `mean`.
+fn mean_beyond(mean: f32, t: usize) -> f32 {
+    let (mut term, mut below, mut weighted) = (libm::expf(-mean), 0.0f32, 0.0f32);
+    for k in 0..=t {
+        below += term;
+        weighted += k as f32 * term;
+        term *= mean / (k + 1) as f32;
+    }
+    let above = 1.0 - below;
+    if above < 1e-4 {
+        return (t + 1) as f32;
+    }
+    ((mean - weighted) / above).max((t + 1) as f32)
 }
 
 impl LineEstimate {
@@ -141,40 +158,43 @@ impl LineEstimate {
 
     /// A frame arrived: with `damage` repaired, or (`None`) lost.
     pub(super) fn frame(&mut self, damage: Option<(Damage, u8)>) {
-        let len = core::mem::take(&mut self.current);
+        let len = core::mem::take(&mut self.current) as f32 + 1.0;
         match damage {
             Some((d, parity)) => {
-                self.substituted += u32::from(d.substituted);
-                self.indels += u32::from(d.dropped) + u32::from(d.duplicated);
+                self.substituted += f32::from(d.substituted);
+                self.indels += f32::from(d.dropped) + f32::from(d.duplicated);
                 self.parity = parity;
             }
-            None => self.lost_errors += u32::from(self.parity / 2) + 1,
+            None => {
+                let m = self.model();
+                let t = usize::from(self.parity / 2);
+                self.lost_errors += mean_beyond((m.substitution + m.indel) * len, t);
+            }
         }
         self.frames += 1;
-        self.bytes = self.bytes.saturating_add(len + 1);
+        self.bytes += len;
         if self.frames > 400 {
             self.frames /= 2;
-            self.bytes /= 2;
-            self.substituted /= 2;
-            self.indels /= 2;
-            self.lost_errors /= 2;
+            self.bytes /= 2.0;
+            self.substituted /= 2.0;
+            self.indels /= 2.0;
+            self.lost_errors /= 2.0;
         }
     }
 
     /// The estimate, with a prior of one error in 2000 bytes (a third
-    /// substitutions) worth 400 bytes; errors of lost frames split as the
+    /// substitutions) worth 100 bytes; errors of lost frames split as the
     /// repaired ones are.
     pub(super) fn model(&self) -> LineModel {
-        const PRIOR_BYTES: f32 = 400.0;
+        const PRIOR_BYTES: f32 = 100.0;
         const PRIOR_RATE: f32 = 1.0 / 2000.0;
-        let bytes = self.bytes as f32 + PRIOR_BYTES;
-        let sub = self.substituted as f32 + PRIOR_BYTES * PRIOR_RATE / 3.0;
-        let indel = self.indels as f32 + PRIOR_BYTES * PRIOR_RATE * 2.0 / 3.0;
-        let lost = self.lost_errors as f32;
+        let bytes = self.bytes + PRIOR_BYTES;
+        let sub = self.substituted + PRIOR_BYTES * PRIOR_RATE / 3.0;
+        let indel = self.indels + PRIOR_BYTES * PRIOR_RATE * 2.0 / 3.0;
         let share = sub / (sub + indel);
         LineModel {
-            substitution: ((sub + lost * share) / bytes).min(0.5),
-            indel: ((indel + lost * (1.0 - share)) / bytes).min(0.5),
+            substitution: ((sub + self.lost_errors * share) / bytes).min(0.5),
+            indel: ((indel + self.lost_errors * (1.0 - share)) / bytes).min(0.5),
         }
     }
 }

@@ -342,6 +342,10 @@ struct Session<'a, M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> {
     stats: LinkStats,
 }
 
+/// Parity of a `Hello`: it is sent once, and the damage it arrives with is
+/// the peer's first measure of the line.
+const HELLO_PARITY: usize = 16;
+
 /// Sends one message as a frame; returns the bytes written.
 fn send_msg<IO: Write>(
     io: &mut IO,
@@ -573,7 +577,8 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
                 max_payload: MAX_PAYLOAD as u16,
                 takes_map: self.rx.map.is_some(),
             };
-            send_msg(io, &Message::Hello(hello), self.shape.parity, &mut self.stats)?;
+            // Well protected: the first frame the peer judges the line by.
+            send_msg(io, &Message::Hello(hello), HELLO_PARITY, &mut self.stats)?;
         }
         // Read everything that is there.
         let mut buf = [0u8; 64];
