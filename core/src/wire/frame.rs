@@ -21,9 +21,10 @@
 //! leave one parity equation unused, and the CRC-32 must hold: a wrong
 //! repair passes both with probability about `2^-40` per try.
 //!
-//! `p = 0` is a frame with its CRC only. Senders that know the line choose
-//! `p` per frame ([`encode_frame_parity`]); the others use
-//! [`DEFAULT_PARITY`].
+//! A frame without parity (`p = 0`, a clean line's) is `0xBF` and
+//! `COBS(payload ++ CRC-32)`: up to [`MAX_PAYLOAD`] bytes, a CRC and nothing
+//! to correct. Senders that know the line choose `p` per frame
+//! ([`encode_frame_parity`]); the others use [`DEFAULT_PARITY`].
 
 use super::crc::crc32;
 use super::rs::{self, alpha_pow, mul, MAX_PARITY};
@@ -32,10 +33,13 @@ use super::rs::{self, alpha_pow, mul, MAX_PARITY};
 pub const HEADER: usize = 4;
 /// Longest codeword (so that a replacement value always exists).
 pub const MAX_CODEWORD: usize = 253;
-/// Largest payload of a frame (without parity).
-pub const MAX_PAYLOAD: usize = MAX_CODEWORD - 4;
-/// Largest frame on the line: header, codeword, delimiter.
-pub const MAX_FRAME: usize = HEADER + MAX_CODEWORD + 1;
+/// Largest payload of a frame with parity (less the parity).
+pub const MAX_CODED_PAYLOAD: usize = MAX_CODEWORD - 4;
+/// Largest payload of a frame (one without parity: a clean line's).
+pub const MAX_PAYLOAD: usize = 512;
+/// Largest frame on the line: a plain frame's kind, its COBS body (payload
+/// and CRC, one code byte per 254), delimiter; longer than any coded one.
+pub const MAX_FRAME: usize = 1 + cobs_len(MAX_PAYLOAD + 4) + 1;
 /// Parity bytes of frames whose sender does not size them for the line
 /// (two substituted bytes or one dropped byte repaired).
 pub const DEFAULT_PARITY: usize = 4;
@@ -45,10 +49,31 @@ pub const PAIR_MAX: usize = 128;
 
 const CODE_BASE: u8 = 0xC0;
 const CHECK: u8 = 0xA5;
+/// First byte of a frame without parity: COBS and a CRC-32, no correction.
+const PLAIN: u8 = 0xBF;
 
 /// The largest payload of a frame with `parity` parity bytes.
 pub const fn max_payload(parity: usize) -> usize {
-    MAX_PAYLOAD.saturating_sub(parity)
+    if parity == 0 {
+        MAX_PAYLOAD
+    } else {
+        MAX_CODED_PAYLOAD.saturating_sub(parity)
+    }
+}
+
+/// COBS-encoded length of `n` bytes.
+const fn cobs_len(n: usize) -> usize {
+    n + n / 254 + 1
+}
+
+/// Bytes on the line of a frame of a `payload`-byte payload with `parity`
+/// parity bytes, delimiter included.
+pub const fn frame_len(payload: usize, parity: usize) -> usize {
+    if parity == 0 {
+        1 + cobs_len(payload + 4) + 1
+    } else {
+        HEADER + payload + 4 + parity + 1
+    }
 }
 
 /// Why a frame could not be encoded.
@@ -128,6 +153,9 @@ pub fn encode_frame_parity(payload: &[u8], parity: usize, out: &mut [u8]) -> Res
     if payload.len() > max_payload(parity) {
         return Err(FrameError::TooLong);
     }
+    if parity == 0 {
+        return encode_plain(payload, out);
+    }
     let n = payload.len() + 4 + parity;
     let total = HEADER + n + 1;
     let frame = out.get_mut(..total).ok_or(FrameError::Buffer)?;
@@ -154,6 +182,57 @@ pub fn encode_frame_parity(payload: &[u8], parity: usize, out: &mut [u8]) -> Res
     head.copy_from_slice(&[code, h, len, code ^ h ^ len ^ CHECK]);
     end[0] = 0;
     Ok(total)
+}
+
+/// A frame without parity: its kind, then `COBS(payload ++ CRC-32)`.
+fn encode_plain(payload: &[u8], out: &mut [u8]) -> Result<usize, FrameError> {
+    let mut raw = [0u8; MAX_PAYLOAD + 4];
+    let n = payload.len();
+    raw.get_mut(..n).ok_or(FrameError::TooLong)?.copy_from_slice(payload);
+    raw[n..n + 4].copy_from_slice(&crc32(payload).to_le_bytes());
+    *out.first_mut().ok_or(FrameError::Buffer)? = PLAIN;
+    let len = cobs_encode(&raw[..n + 4], out.get_mut(1..).ok_or(FrameError::Buffer)?)?;
+    *out.get_mut(1 + len).ok_or(FrameError::Buffer)? = 0;
+    Ok(len + 2)
+}
+
+/// COBS-encodes `input` into `out`; returns the length (no delimiter).
+fn cobs_encode(input: &[u8], out: &mut [u8]) -> Result<usize, FrameError> {
+    let (mut code_at, mut at, mut code) = (0usize, 1usize, 1u8);
+    for &b in input {
+        if b != 0 {
+            *out.get_mut(at).ok_or(FrameError::Buffer)? = b;
+            at += 1;
+            code += 1;
+        }
+        if b == 0 || code == 0xFF {
+            *out.get_mut(code_at).ok_or(FrameError::Buffer)? = code;
+            code_at = at;
+            at += 1;
+            code = 1;
+        }
+    }
+    *out.get_mut(code_at).ok_or(FrameError::Buffer)? = code;
+    Ok(at)
+}
+
+/// Decodes COBS in place; the decoded length.
+fn cobs_decode_in_place(buf: &mut [u8]) -> Option<usize> {
+    let (mut read, mut write) = (0usize, 0usize);
+    while let Some(&code) = buf.get(read) {
+        read += 1;
+        for _ in 1..code {
+            let b = *buf.get(read)?;
+            *buf.get_mut(write)? = b;
+            write += 1;
+            read += 1;
+        }
+        if code != 0xFF && read < buf.len() {
+            *buf.get_mut(write)? = 0;
+            write += 1;
+        }
+    }
+    Some(write)
 }
 
 /// What the decoder repaired in a frame: a line's damage, counted.
@@ -238,9 +317,30 @@ impl Deframer {
             // The tail of an oversized frame, or an empty frame (idle line).
             return Ok(None);
         }
+        if self.buf[0] == PLAIN {
+            let n = self.plain(len)?;
+            let payload = self.buf.get(1..1 + n).ok_or(DeframeError::Short)?;
+            return Ok(Some(Arrived { payload, repaired: false, damage: Damage::default(), parity: 0 }));
+        }
         let (n, damage, parity) = self.finish(len)?;
         let payload = self.work.get(..n).ok_or(DeframeError::Short)?;
         Ok(Some(Arrived { payload, repaired: !damage.is_none(), damage, parity: parity as u8 }))
+    }
+
+    /// Decodes a frame without parity in place: its payload's length (from
+    /// `buf[1]` on).
+    fn plain(&mut self, len: usize) -> Result<usize, DeframeError> {
+        let body = self.buf.get_mut(1..len).ok_or(DeframeError::Short)?;
+        let n = cobs_decode_in_place(body).ok_or(DeframeError::Checksum)?;
+        // An empty payload is no message.
+        if n <= 4 {
+            return Err(DeframeError::Short);
+        }
+        let (payload, crc) = body.get(..n).ok_or(DeframeError::Short)?.split_at(n - 4);
+        if crc32(payload).to_le_bytes() != [crc[0], crc[1], crc[2], crc[3]] {
+            return Err(DeframeError::Checksum);
+        }
+        Ok(n - 4)
     }
 
     /// Decodes the `len` bytes received: the payload's length (at the start
@@ -618,7 +718,7 @@ mod tests {
 
     /// Feeds `bytes` to a fresh deframer; the payloads it yields (at most
     /// four) and the damage of the last.
-    fn frames_of(bytes: &[u8]) -> (heapless::Vec<heapless::Vec<u8, 256>, 4>, Damage) {
+    fn frames_of(bytes: &[u8]) -> (heapless::Vec<heapless::Vec<u8, 600>, 4>, Damage) {
         let mut d = Deframer::new();
         let mut got = heapless::Vec::new();
         let mut damage = Damage::default();
@@ -633,8 +733,8 @@ mod tests {
 
     #[test]
     fn frames_round_trip_and_survive_noise_between_them() {
-        let every: [u8; 249] = core::array::from_fn(|i| i as u8);
-        let payloads: [&[u8]; 4] = [b"hello robot", &[0u8; 30], &every[..241], &every];
+        let every: [u8; 512] = core::array::from_fn(|i| i as u8);
+        let payloads: [&[u8]; 5] = [b"hello robot", &[0u8; 30], &every[..241], &every[..249], &every];
         for payload in payloads {
             for parity in [0, 2, 4, 8] {
                 let mut out = [0u8; MAX_FRAME];
@@ -642,7 +742,8 @@ mod tests {
                     assert!(payload.len() > max_payload(parity));
                     continue;
                 };
-                assert_eq!(n, HEADER + payload.len() + 4 + parity + 1);
+                // COBS may take fewer code bytes than the most it could need.
+                assert!(n <= frame_len(payload.len(), parity) && n + 2 >= frame_len(payload.len(), parity));
                 assert!(out[..n - 1].iter().all(|&b| b != 0) && out[n - 1] == 0);
                 let mut line = [0u8; MAX_FRAME + 4];
                 line[..4].copy_from_slice(&[0x55, 0x13, 0x00, 0x00]);

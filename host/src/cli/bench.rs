@@ -15,12 +15,10 @@ pub enum What {
     Wire(MapArgs),
     /// Two maps exchanged over a simulated 115200-baud line, clean and lossy.
     Link(LinkArgs),
-    /// Prior-free global alignment of two maps: landmark extraction,
-    /// correspondence search, refinement (single thread).
+    /// Prior-free global alignment: landmarks, correspondence search, refinement (single thread).
     Global(GlobalArgs),
-    /// Camera labels on a synthetic street: points labelled per second,
-    /// agreement with the ground truth (perfect, corrupted, probabilities),
-    /// and matching success with camera labels against ground-truth labels.
+    /// Camera labels on a synthetic street: points labelled per second, agreement with the ground
+    /// truth (perfect, corrupted, probabilities), matching success with camera against true labels.
     Label(LabelArgs),
 }
 
@@ -35,8 +33,7 @@ pub struct LabelArgs {
     /// Keep every K-th value of the paper's grid of starts on each axis.
     #[arg(long, default_value_t = 2, value_parser = super::args::at_least::<1>)]
     grid_stride: usize,
-    /// Also a real SemanticKITTI-layout sequence, whose labelled scans are
-    /// splatted into camera 2 as stand-in segmentation images.
+    /// Also a real SemanticKITTI-layout sequence (labelled scans splatted into camera 2 as segmentation).
     #[arg(long)]
     data: Option<PathBuf>,
     /// Robot A's frames of --data.
@@ -101,7 +98,7 @@ pub struct LinkArgs {
     #[command(flatten)]
     pair: PairArgs,
     /// Byte error rates to simulate, each damaged byte as --mix says.
-    #[arg(long, default_value = "0,0.01,0.05", value_delimiter = ',')]
+    #[arg(long, default_value = "0,0.01,0.05,0.1,0.2", value_delimiter = ',')]
     error_rates: Vec<f64>,
     /// Shares of the damage: bit=S,byte=S,drop=S,dup=S (default substituted, dropped, duplicated alike).
     #[arg(long, value_parser = cosem_host::relay::parse_mix, default_value = "byte=1,drop=1,dup=1")]
@@ -118,6 +115,9 @@ pub struct LinkArgs {
     /// Seeded runs per error rate.
     #[arg(long, default_value_t = 10)]
     seeds: u64,
+    /// One medium for both directions: the maps go one after the other, in bursts that take turns.
+    #[arg(long)]
+    half_duplex: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -185,8 +185,9 @@ fn bench_link(a: LinkArgs, json: Option<&Path>) -> Result<(), Error> {
     println!("bench link: A {na} voxels ({ra}), B {nb} voxels ({rb}) of {d} at {voxel} m within {range} m; both ways at once, {baud} baud (8N1), simulated time, {seeds} seeds");
     let mut summaries = Vec::new();
     for &rate in &a.error_rates {
-        let runs =
-            (1..=seeds.max(1)).map(|s| bench::link(&pair, rate, a.mix, baud, s)).collect::<Result<Vec<_>, _>>()?;
+        let runs = (1..=seeds.max(1))
+            .map(|s| bench::link(&pair, (rate, a.mix, a.half_duplex), baud, s))
+            .collect::<Result<Vec<_>, _>>()?;
         println!("{}", bench::LinkSummary::of(&runs, baud));
         summaries.push(bench::LinkSummary::of(&runs, baud));
     }

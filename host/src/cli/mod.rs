@@ -39,8 +39,7 @@ enum Command {
     Eval(eval::Args),
     /// Exchange maps with a peer over TCP or a serial line, then match.
     Link(link::Args),
-    /// A paced, lossy line between two `cosem link` processes (for tests and
-    /// measurements).
+    /// A paced, lossy line between two `cosem link` processes (for tests and measurements).
     Relay(relay::Args),
     /// Two robots on emulated Cortex-M4F boards: onboard mapping, map
     /// exchange over UART0, onboard matching.

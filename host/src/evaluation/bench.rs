@@ -156,11 +156,16 @@ pub struct LinkFigures {
     pub delivered: bool,
 }
 
-/// Both maps of `pair` exchanged at once over a simulated line of `baud`
-/// with byte error `rate` damaging bytes as `mix` says (seeded by `seed`),
-/// in simulated time.
-pub fn link(pair: &Pair, rate: f64, mix: Mix, baud: u32, seed: u64) -> Result<LinkFigures, Error> {
-    let line = SimConfig { error_rate: rate, mix, ..SimConfig::clean(baud, seed) };
+/// Both maps of `pair` exchanged over a simulated line of `baud` with byte
+/// error `rate` damaging bytes as `mix` says (seeded by `seed`), full
+/// duplex (both at once) or half (one after the other), in simulated time.
+pub fn link(
+    pair: &Pair,
+    (rate, mix, half_duplex): (f64, Mix, bool),
+    baud: u32,
+    seed: u64,
+) -> Result<LinkFigures, Error> {
+    let line = SimConfig { error_rate: rate, mix, half_duplex, ..SimConfig::clean(baud, seed) };
     let x = simulate_exchange(&pair.map_a, &pair.map_b, line)?;
     let [a, b] = x.stats;
     Ok(LinkFigures {

@@ -53,12 +53,13 @@ impl<F, L: Read + Write + ReadReady + WriteReady, T> Machine<F, L, T> for Exchan
     }
 }
 
-/// Maps `ma` and `mb` exchanged at once over the simulated `line`, in
-/// simulated time, by the core's link endpoints (robot ids 0 and 1).
+/// Maps `ma` and `mb` exchanged over the simulated `line` (at once, or one
+/// after the other on a half-duplex one), in simulated time, by the core's
+/// link endpoints (robot ids 0 and 1).
 pub fn simulate_exchange(ma: &HostMap, mb: &HostMap, line: SimConfig) -> Result<SimExchange, Error> {
     let (mut s0, mut s1) = (vec![0u32; ma.len()], vec![0u32; mb.len()]);
     let (mut st0, mut st1) = (new_map(mb.len(), *ma.config())?, new_map(ma.len(), *ma.config())?);
-    let lc = LinkConfig::default();
+    let lc = LinkConfig { half_duplex: line.half_duplex, ..LinkConfig::default() };
     let setup = |e| Error::Invalid(format!("link set-up: {e}"));
     let (mut b0, mut b1) = (Box::new(LinkBuffers::new()), Box::new(LinkBuffers::new()));
     let e0 = Endpoint::new(lc, 0, 1, 0, Some((ma, &mut s0)), Some(&mut st0), &mut *b0).map_err(setup)?;

@@ -2,7 +2,7 @@
 //! bytes and how often it drops or duplicates them, and the frame size and
 //! parity that carry the most data per byte of line.
 
-use crate::wire::frame::{Damage, DEFAULT_PARITY, MAX_PAYLOAD, PAIR_MAX};
+use crate::wire::frame::{frame_len, max_payload, Damage, DEFAULT_PARITY, PAIR_MAX};
 use crate::wire::message::DATA_OVERHEAD;
 use crate::wire::rs::MAX_PARITY;
 
@@ -26,7 +26,7 @@ pub(super) struct FrameShape {
 impl FrameShape {
     /// Before anything arrived: the largest frames with the default parity.
     pub(super) fn initial(config: &super::LinkConfig) -> Self {
-        let chunk = usize::from(config.max_chunk).min(MAX_PAYLOAD - 2 - DEFAULT_PARITY);
+        let chunk = usize::from(config.max_chunk).min(max_payload(DEFAULT_PARITY) - 2);
         FrameShape { chunk, parity: DEFAULT_PARITY, arrival: 1.0 }
     }
 
@@ -75,7 +75,7 @@ impl LineModel {
 
     /// Data per byte of line of frames of `shape`.
     fn goodput(&self, shape: FrameShape) -> f32 {
-        let line = (shape.chunk + DATA_OVERHEAD + shape.parity) as f32;
+        let line = frame_len(shape.chunk + 2, shape.parity) as f32;
         shape.chunk as f32 / line * self.arrival(shape)
     }
 
@@ -85,7 +85,7 @@ impl LineModel {
     pub(super) fn best_shape(&self, min_chunk: usize, max_chunk: usize) -> FrameShape {
         let mut best = (FrameShape { chunk: min_chunk, parity: DEFAULT_PARITY, arrival: 0.0 }, -1.0f32);
         for parity in (0..=MAX_PARITY).step_by(2) {
-            let top = max_chunk.min(MAX_PAYLOAD - 2 - parity);
+            let top = max_chunk.min(max_payload(parity) - 2);
             if top < min_chunk {
                 break;
             }

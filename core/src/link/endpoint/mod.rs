@@ -41,6 +41,11 @@ const RECORD_CHUNK: usize = 240;
 /// The receiver acknowledges after this many data frames, or at once when
 /// a frame asks (poll) or the map is complete.
 const ACK_EVERY: u8 = 4;
+/// Half duplex: most bytes a turn sends before it asks for an answer (the
+/// window: the peer acknowledges nothing before the turn is over).
+const BURST: u32 = WINDOW;
+/// Half duplex: a line quiet this long (ms) after data ends the peer's turn.
+const TURN_QUIET_MS: u64 = 15;
 
 /// Timing and sizes of a link.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -55,7 +60,10 @@ pub struct LinkConfig {
     /// Probes of a line on which nothing is heard before giving up (default
     /// 100: with the timeout's ceiling, over a minute).
     pub max_retries: u8,
-    /// Largest data of a frame (bytes, default 240).
+    /// Largest data of a frame (bytes, default 300: a clean line's frames,
+    /// without parity; frames with parity hold at most 247 less the parity;
+    /// longer ones would leave fewer than the four frames an acknowledgement
+    /// waits for in the window).
     pub max_chunk: u16,
     /// Smallest data of a frame the size adapts down to (bytes, default 8).
     pub min_chunk: u16,
@@ -81,7 +89,7 @@ impl Default for LinkConfig {
             timeout_ms: 150,
             max_timeout_ms: 800,
             max_retries: 100,
-            max_chunk: 240,
+            max_chunk: 300,
             min_chunk: 8,
             silence_ms: 90_000,
             linger_ms: 3000,
@@ -593,7 +601,14 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
                 self.on_byte(b, now, &mut tb, &mut rb)?;
             }
         }
-        if self.rx.ack_now && self.rx.map.is_some() {
+        // Half duplex: a turn whose last frame (the one asking) was lost
+        // still gets its answer once the line has been quiet a while.
+        let quiet = now.saturating_sub(self.last_byte) >= TURN_QUIET_MS;
+        if self.config.half_duplex && self.rx.unacked > 0 && quiet {
+            self.rx.ack_now = true;
+        }
+        let acked_now = self.rx.ack_now && self.rx.map.is_some();
+        if acked_now {
             self.send_ack(io, rb.have)?;
         }
         // Our map goes out now, or (half duplex, not robot 0) once the peer's
@@ -609,10 +624,14 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
         }
         if self.finished() {
             if self.finished_at.is_none() {
-                // Say so twice: the peer may be waiting for exactly this.
+                // Say so twice: the peer may be waiting for exactly this (on
+                // a half-duplex line once, and not after an ack of this step:
+                // the peer answers the first at once, into the second).
                 self.finished_at = Some(now);
-                self.send_ack(io, rb.have)?;
-                self.send_ack(io, rb.have)?;
+                let says = if self.config.half_duplex { usize::from(!acked_now) } else { 2 };
+                for _ in 0..says {
+                    self.send_ack(io, rb.have)?;
+                }
             }
             let lingered = self.finished_at.is_some_and(|t| now >= t + u64::from(self.config.linger_ms));
             if self.peer_finished || lingered {
@@ -684,7 +703,11 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
                 *peer_takes_map = Some(h.takes_map);
                 *peer_id = Some(h.robot_id);
             }
-            Message::Data { offset, poll, data } => rx.on_data(rb, offset, poll, data, *resolution, stats)?,
+            Message::Data { offset, poll, data } => {
+                // Half duplex: an answer only when asked (the turn is over).
+                let every = if config.half_duplex { u8::MAX } else { ACK_EVERY };
+                rx.on_data(rb, (offset, poll, every), data, *resolution, stats)?
+            }
             Message::Ack(ack) => {
                 if ack.flags & ACK_FINISHED != 0 {
                     *peer_finished = true;

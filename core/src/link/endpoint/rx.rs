@@ -64,8 +64,7 @@ impl<S: VoxelSink> Rx<'_, S> {
     pub(super) fn on_data(
         &mut self,
         b: &mut RxBufs<'_>,
-        offset: u16,
-        poll: bool,
+        (offset, poll, ack_every): (u16, bool, u8),
         data: &[u8],
         resolution: f32,
         stats: &mut LinkStats,
@@ -102,7 +101,7 @@ impl<S: VoxelSink> Rx<'_, S> {
             self.cum += 1;
         }
         self.unacked = self.unacked.saturating_add(1);
-        if poll || self.unacked >= ACK_EVERY {
+        if poll || self.unacked >= ack_every {
             self.ack_now = true;
         }
         self.take_records(b, resolution, stats)

@@ -132,9 +132,14 @@ pub(super) struct Tx<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> {
     pub(super) last_probe: u64,
     /// Resends while nothing new can go (every fourth asks for an answer).
     pub(super) idle_resends: u32,
-    /// Half duplex: when the frame now awaiting its answer went out (one
-    /// frame a turn: a second one would collide with the answer).
+    /// Half duplex: when the frame that ended our turn went out (it asked
+    /// for an answer; anything sent before the answer would collide with it).
     pub(super) awaiting: Option<u64>,
+    /// Half duplex: bytes sent in the current turn (a burst of frames, the
+    /// last asking for an answer).
+    pub(super) burst: u32,
+    /// Half duplex: smoothed time from the end of a turn to the answer (ms).
+    pub(super) answer_ms: Option<u32>,
 }
 
 impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
@@ -181,6 +186,8 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
             last_probe: 0,
             idle_resends: 0,
             awaiting: None,
+            burst: 0,
+            answer_ms: None,
         };
         Ok(tx)
     }
@@ -231,7 +238,7 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         self.sent_end != self.produced
             && self.sent_end.wrapping_sub(self.acked) < self.window()
             && segs.len() + CUT_RESERVE < MAX_SEGMENTS
-            && (!config.half_duplex || segs.is_empty())
+            && (!config.half_duplex || self.burst < BURST)
     }
 
     /// How long bytes may go unacknowledged before they are sent again:
@@ -279,7 +286,10 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         seg.sends = seg.sends.saturating_add(1);
         seg.sent_at = now as u32;
         seg.lost = 0;
-        self.awaiting = Some(now);
+        self.burst = self.burst.saturating_add(len as u32);
+        if poll {
+            self.awaiting = Some(now);
+        }
         let offset = (seg.start % OFFSET_MODULUS) as u16;
         let msg = Message::Data { offset, poll, data: data.get(..len).unwrap_or(&[]) };
         send_msg(io, &msg, self.parity, stats)?;
@@ -306,7 +316,10 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         if self.complete {
             return Ok(());
         }
-        if config.half_duplex && self.awaiting.is_some_and(|t| now < t + u64::from(self.rto(config))) {
+        // Half duplex: the answer to our turn comes within about twice the
+        // usual delay, else the turn is taken again.
+        let answer = self.answer_ms.map_or(self.rto(config), |a| (2 * a + 20).min(self.rto(config)));
+        if config.half_duplex && self.awaiting.is_some_and(|t| now < t + u64::from(answer)) {
             return Ok(());
         }
         self.fill(b)?;
@@ -320,7 +333,9 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         if let Some(i) = b.segs.iter().position(|s| s.lost != 0) {
             self.cut(b.segs, i);
             let more = b.segs.iter().skip(i + 1).any(|s| s.lost != 0);
-            let poll = !more && !self.can_send_new(b.segs, config);
+            let len = b.segs.get(i).map_or(0, |s| u32::from(s.len));
+            let turn_over = config.half_duplex && self.burst.saturating_add(len) >= BURST;
+            let poll = turn_over || (!more && !self.can_send_new(b.segs, config));
             // One copy: since the deframer repairs single errors, extra
             // copies of bytes lost again and again no longer paid (measured).
             stats.retransmissions += 1;
@@ -352,7 +367,8 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
             self.idle_resends += 1;
             self.cut(b.segs, i);
             stats.retransmissions += 1;
-            return self.transmit(b, i, self.idle_resends.is_multiple_of(4), io, now, stats);
+            let poll = config.half_duplex || self.idle_resends.is_multiple_of(4);
+            return self.transmit(b, i, poll, io, now, stats);
         }
         Ok(())
     }
@@ -425,7 +441,11 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
                     .iter()
                     .any(|&(a, b)| b != a && s.start.wrapping_sub(a) < 1 << 30 && b.wrapping_sub(end) < 1 << 30)
         };
-        self.awaiting = None;
+        if let Some(t) = self.awaiting {
+            let sample = (now.saturating_sub(t) as u32).min(config.max_timeout_ms);
+            self.answer_ms = Some(self.answer_ms.map_or(sample, |a| (7 * a + sample) / 8));
+        }
+        (self.awaiting, self.burst) = (None, 0);
         let mut progress = ahead > 0;
         // The round trip of the last-sent bytes acknowledged now (sent once:
         // older ones may have waited behind a gap, or for a lost ack).
