@@ -134,6 +134,17 @@ fn firmware_matches_real_maps_in_the_budget() {
     let gyaw = g[(1, 0)].atan2(g[(0, 0)]).to_degrees();
     let e_t = ((t[0] - gx).powi(2) + (t[1] - gy).powi(2) + (t[2] - gz).powi(2)).sqrt();
     assert!(e_t < 0.2 && (yaw - gyaw).abs() < 0.5, "on board {t:?} {yaw} vs truth {gx} {gy} {gz} {gyaw}");
+    // The link's deframer on board: every clean frame decoded, most damaged
+    // ones too, and a cost per received byte (printed above).
+    let deframe: Vec<&str> = stdout.lines().filter(|l| l.starts_with("bench deframe")).collect();
+    assert_eq!(deframe.len(), 5, "{stdout}");
+    let num = |l: &str, key: &str| -> u64 {
+        l.split_whitespace().find_map(|w| w.strip_prefix(key)).unwrap().parse().unwrap()
+    };
+    assert_eq!(num(deframe[0], "decoded="), num(deframe[0], "frames="), "{}", deframe[0]);
+    for l in &deframe[1..3] {
+        assert!(num(l, "decoded=") * 10 > num(l, "frames=") * 6, "{l}");
+    }
 }
 
 #[test]

@@ -45,7 +45,10 @@ pub const MAX_FRAME: usize = 1 + cobs_len(MAX_PAYLOAD + 4) + 1;
 pub const DEFAULT_PARITY: usize = 4;
 /// Longest codeword the deframer tries two edits on (the tries grow with
 /// the square of the length; frames on a line that bad are short).
-pub const PAIR_MAX: usize = 128;
+pub const PAIR_MAX: usize = 96;
+/// Longest codeword whose pairs of edits may come with any number of
+/// errors the parity allows (beyond, one at most: see `pairs`).
+pub const PAIR_FULL: usize = 24;
 
 const CODE_BASE: u8 = 0xC0;
 const CHECK: u8 = 0xA5;
@@ -604,7 +607,13 @@ impl<'r, 'w> Found<'r, 'w> {
         if guessed && p < e + 1 {
             return;
         }
-        let max_errors = if guessed { (p - e - 1) / 2 } else { p / 2 };
+        let max_errors = match edit {
+            Edit::None => p / 2,
+            Edit::Drop(_) | Edit::Dup(_) => (p - e - 1) / 2,
+            // Pairs: at most one error more on longer codewords (`pairs`).
+            _ if n <= PAIR_FULL => (p - e - 1) / 2,
+            _ => ((p - e - 1) / 2).min(1),
+        };
         let erasures = edit.erasures();
         let Some(fixes) = rs::solve(s, n, &erasures[..e], max_errors) else { return };
         let errors = fixes.errors(&erasures[..e]);
@@ -650,11 +659,38 @@ enum PairKind {
     DropDup,
 }
 
-/// Tries every pair of edits of `kind`.
+/// Tries every pair of edits of `kind`, explanations with no other
+/// error only (a pair leaves few equations to spare, and the tries are
+/// many). Each try first computes the syndromes the first Forney syndrome
+/// needs (one more than the edits insert) from prefix sums kept for those
+/// alone; only the one try in 256 whose first Forney syndrome vanishes gets
+/// the rest, from prefix sums made afresh. So the scan costs a few field
+/// operations per pair of positions, what a small chip can afford.
 fn pairs(r: Received<'_>, p: usize, t: &[u8; MAX_PARITY], found: &mut Found<'_, '_>, kind: PairKind) {
     let m = r.len();
+    let n = found.n;
+    let e = match kind {
+        PairKind::Drops => 2,
+        PairKind::DropDup => 1,
+        PairKind::Dups => 0,
+    };
+    // Short codewords (a bad line's) get the full search, any error the
+    // parity allows besides the edits; longer ones the quick check first:
+    // syndromes for three Forney syndromes (one error besides the edits)
+    // where the parity allows it with one equation spare, else for one.
+    let full = n <= PAIR_FULL;
+    let w = if full {
+        p
+    } else if p >= e + 4 {
+        e + 3
+    } else {
+        e + 1
+    };
+    if p < e + 1 {
+        return;
+    }
     let mut s = [0u8; MAX_PARITY];
-    let mut pa = Prefix::start(p, m);
+    let mut pa = Prefix::start(w, m);
     let last = if kind == PairKind::Dups { m } else { m + 1 };
     for a in 0..last {
         let mut pb = pa;
@@ -669,39 +705,90 @@ fn pairs(r: Received<'_>, p: usize, t: &[u8; MAX_PARITY], found: &mut Found<'_, 
                 }
             };
             for edit in edits.into_iter().flatten() {
-                let (ra, rb) = (r.at(a), r.at(b));
-                for j in 0..p {
-                    let (up, down) = (alpha_pow(j), alpha_pow(255 - j % 255));
-                    s[j] = match edit {
-                        Edit::Drops(..) => t[j] ^ mul(pa.a[j], mul(up, up) ^ up) ^ mul(pb.a[j], up ^ 1),
-                        Edit::Dups(..) => {
-                            let a1 = pa.a[j] ^ pa.term(j, ra);
-                            let b1 = pb.a[j] ^ pb.term(j, rb);
-                            mul(mul(down, down), pa.a[j]) ^ mul(down, pb.a[j] ^ a1) ^ t[j] ^ b1
-                        }
-                        Edit::DropDup(x, _) if x == a => {
-                            let b1 = pb.a[j] ^ pb.term(j, rb);
-                            pa.a[j] ^ mul(down, pb.a[j] ^ pa.a[j]) ^ t[j] ^ b1
-                        }
-                        _ => {
-                            // Remove a, insert before b.
-                            let a1 = pa.a[j] ^ pa.term(j, ra);
-                            pa.a[j] ^ mul(up, pb.a[j] ^ a1) ^ t[j] ^ pb.a[j]
-                        }
-                    };
+                pair_syndromes(r, edit, (&pa, &pb), t, &mut s[..w]);
+                if full {
+                    found.consider(edit, &s[..p]);
+                    continue;
                 }
+                if !few_errors(&s[..w], n, edit) {
+                    continue;
+                }
+                let (fa, fb) = (prefix_at(r, p, a), prefix_at(r, p, b));
+                pair_syndromes(r, edit, (&fa, &fb), t, &mut s[..p]);
                 found.consider(edit, &s[..p]);
             }
             if b < m {
-                pb.advance(r, p);
+                pb.advance(r, w);
             }
         }
         if found.done(a) {
             return;
         }
         if a < m {
-            pa.advance(r, p);
+            pa.advance(r, w);
         }
+    }
+}
+
+/// The prefix sums of the first `p` syndromes at byte `k`.
+fn prefix_at(r: Received<'_>, p: usize, k: usize) -> Prefix {
+    let mut x = Prefix::start(p, r.len());
+    for _ in 0..k.min(r.len()) {
+        x.advance(r, p);
+    }
+    x
+}
+
+/// Syndromes `s` (as many as `s` holds) of the word a pair of edits makes,
+/// from the prefix sums at its two positions.
+fn pair_syndromes(r: Received<'_>, edit: Edit, (pa, pb): (&Prefix, &Prefix), t: &[u8; MAX_PARITY], s: &mut [u8]) {
+    let (a, b) = (pa.k, pb.k);
+    let (ra, rb) = (r.at(a), r.at(b));
+    for (j, sj) in s.iter_mut().enumerate() {
+        let (up, down) = (alpha_pow(j), alpha_pow(255 - j % 255));
+        *sj = match edit {
+            Edit::Drops(..) => t[j] ^ mul(pa.a[j], mul(up, up) ^ up) ^ mul(pb.a[j], up ^ 1),
+            Edit::Dups(..) => {
+                let a1 = pa.a[j] ^ pa.term(j, ra);
+                let b1 = pb.a[j] ^ pb.term(j, rb);
+                mul(mul(down, down), pa.a[j]) ^ mul(down, pb.a[j] ^ a1) ^ t[j] ^ b1
+            }
+            Edit::DropDup(x, _) if x == a => {
+                let b1 = pb.a[j] ^ pb.term(j, rb);
+                pa.a[j] ^ mul(down, pb.a[j] ^ pa.a[j]) ^ t[j] ^ b1
+            }
+            _ => {
+                // Remove a, insert before b.
+                let a1 = pa.a[j] ^ pa.term(j, ra);
+                pa.a[j] ^ mul(up, pb.a[j] ^ a1) ^ t[j] ^ pb.a[j]
+            }
+        };
+    }
+}
+
+/// Whether syndromes `s` of a word of `n` bytes (the edit's erasures plus
+/// one or three) may be explained by the erasures and at most one error
+/// (three Forney syndromes `T` with `T1^2 = T0 T2`: one error's, or none's)
+/// or, given one more only, by the erasures alone (`T0 = 0`). One wrong try
+/// in about 256 passes, to be solved in full.
+fn few_errors(s: &[u8], n: usize, edit: Edit) -> bool {
+    let x = |i: usize| alpha_pow((n + 254 - i % 255) % 255);
+    let er = edit.erasures();
+    let e = edit.inserted();
+    let gamma: [u8; 3] = match e {
+        0 => [1, 0, 0],
+        1 => [1, x(er[0]), 0],
+        _ => {
+            let (x1, x2) = (x(er[0]), x(er[1]));
+            [1, x1 ^ x2, mul(x1, x2)]
+        }
+    };
+    let forney = |i: usize| (0..=e).fold(0u8, |acc, k| acc ^ mul(gamma[k], s.get(i + e - k).copied().unwrap_or(0)));
+    if s.len() >= e + 3 {
+        let (t0, t1, t2) = (forney(0), forney(1), forney(2));
+        mul(t1, t1) == mul(t0, t2) && (t0 != 0 || t1 == 0)
+    } else {
+        forney(0) == 0
     }
 }
 

@@ -2,7 +2,7 @@
 //! bytes and how often it drops or duplicates them, and the frame size and
 //! parity that carry the most data per byte of line.
 
-use crate::wire::frame::{frame_len, max_payload, Damage, DEFAULT_PARITY, PAIR_MAX};
+use crate::wire::frame::{frame_len, max_payload, Damage, DEFAULT_PARITY, PAIR_FULL, PAIR_MAX};
 use crate::wire::message::DATA_OVERHEAD;
 use crate::wire::rs::MAX_PARITY;
 
@@ -68,7 +68,10 @@ impl LineModel {
             p += e * d * poisson_cdf(s, t - 1);
         }
         if shape.parity >= 4 && n <= PAIR_MAX {
-            p += e * d * d / 2.0 * (0.25 * poisson_cdf(s, t - 2) + 0.75 * poisson_cdf(s, t - 1));
+            // Beyond the full search's length, one error at most besides.
+            let cap = if n <= PAIR_FULL { isize::MAX } else { 1 };
+            let (t2, t1) = ((t - 2).min(cap), (t - 1).min(cap));
+            p += e * d * d / 2.0 * (0.25 * poisson_cdf(s, t2) + 0.75 * poisson_cdf(s, t1));
         }
         header * p
     }

@@ -201,6 +201,15 @@ pub struct LinkStats {
     pub acks_sent: u32,
 }
 
+impl LinkStats {
+    /// Adds what the deframer rebuilt in a frame.
+    fn count_repairs(&mut self, d: crate::wire::Damage) {
+        for (count, k) in self.repaired_bytes.iter_mut().zip([d.substituted, d.dropped, d.duplicated]) {
+            *count += u32::from(k);
+        }
+    }
+}
+
 /// Where an endpoint stands after a step.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -665,10 +674,7 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
         let (payload, repaired) = match deframer.push_frame(b) {
             Ok(Some(f)) => {
                 line.frame(Some((f.damage, f.parity)));
-                let d = f.damage;
-                for (count, k) in stats.repaired_bytes.iter_mut().zip([d.substituted, d.dropped, d.duplicated]) {
-                    *count += u32::from(k);
-                }
+                stats.count_repairs(f.damage);
                 (f.payload, f.repaired)
             }
             Ok(None) => return Ok(()),
