@@ -527,11 +527,17 @@ fn decode(r: Received<'_>, p: usize, n: usize, work: &mut [u8]) -> Result<(usize
     if m < 5 {
         return Err(DeframeError::Short);
     }
-    let mut total = Prefix::start(p, m);
-    for _ in 0..m {
-        total.advance(r, p);
+    // The syndromes of the received word (Horner: one product a byte and
+    // syndrome; every frame pays this, the edits' tries only a damaged one),
+    // and the factors by which a drop or a duplicate at a position shifts
+    // the bytes before it.
+    let (mut t, mut drop_f, mut dup_f) = ([0u8; MAX_PARITY], [0u8; MAX_PARITY], [0u8; MAX_PARITY]);
+    for j in 0..p {
+        let a = alpha_pow(j);
+        t[j] = (0..m).fold(0, |acc, i| mul(acc, a) ^ r.at(i));
+        drop_f[j] = 1 ^ a;
+        dup_f[j] = 1 ^ alpha_pow(255 - j % 255);
     }
-    let t = total.a;
     let mut s = [0u8; MAX_PARITY];
     let mut found = Found::new(r, work, p, n);
     match m as isize - n as isize {
@@ -545,7 +551,7 @@ fn decode(r: Received<'_>, p: usize, n: usize, work: &mut [u8]) -> Result<(usize
             let mut pa = Prefix::start(p, m);
             for a in 0..=m {
                 for j in 0..p {
-                    s[j] = t[j] ^ mul(1 ^ alpha_pow(j), pa.a[j]);
+                    s[j] = t[j] ^ mul(drop_f[j], pa.a[j]);
                 }
                 found.consider(Edit::Drop(a), &s[..p]);
                 if found.done(a) {
@@ -559,7 +565,7 @@ fn decode(r: Received<'_>, p: usize, n: usize, work: &mut [u8]) -> Result<(usize
             for a in 0..m {
                 let ra = r.at(a);
                 for j in 0..p {
-                    s[j] = t[j] ^ pa.term(j, ra) ^ mul(1 ^ alpha_pow(255 - j % 255), pa.a[j]);
+                    s[j] = t[j] ^ pa.term(j, ra) ^ mul(dup_f[j], pa.a[j]);
                 }
                 found.consider(Edit::Dup(a), &s[..p]);
                 if found.done(a) {

@@ -167,6 +167,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
             bounds,
             digest: encoder.digest(),
         };
+        let initial = FrameShape::initial(config);
         let tx = Tx {
             encoder,
             header,
@@ -177,8 +178,8 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
             order: 0,
             acked_order: 0,
             complete: false,
-            size: FrameShape::initial(config).chunk,
-            parity: FrameShape::initial(config).parity,
+            size: initial.chunk,
+            parity: initial.parity,
             srtt: None,
             min_rtt: u32::MAX,
             backoff: 0,
