@@ -254,6 +254,15 @@ impl Damage {
     pub fn is_none(&self) -> bool {
         *self == Damage::default()
     }
+
+    /// Both damages, counted together.
+    pub fn plus(self, other: Damage) -> Damage {
+        Damage {
+            substituted: self.substituted.saturating_add(other.substituted),
+            dropped: self.dropped.saturating_add(other.dropped),
+            duplicated: self.duplicated.saturating_add(other.duplicated),
+        }
+    }
 }
 
 /// A frame the deframer completed.
@@ -349,29 +358,88 @@ impl Deframer {
     /// Decodes the `len` bytes received: the payload's length (at the start
     /// of `work`), what was repaired and the parity count.
     fn finish(&mut self, len: usize) -> Result<(usize, Damage, usize), DeframeError> {
-        let (head, body) =
-            self.buf.get(..len).ok_or(DeframeError::Oversized)?.split_at_checked(HEADER).ok_or(DeframeError::Short)?;
-        let [c, h, n, k] = [head[0], head[1], head[2], head[3]];
-        let whole = c ^ h ^ n ^ k ^ CHECK == 0;
-        // The header as sent, or with one byte rebuilt from the others.
-        let tries =
-            [(c, h, n), (c, h, n), (c, h, k ^ c ^ h ^ CHECK), (c, k ^ c ^ n ^ CHECK, n), (k ^ h ^ n ^ CHECK, h, n)];
+        let frame = self.buf.get(..len).ok_or(DeframeError::Oversized)?;
         let mut error = DeframeError::Header;
-        let range = if whole { 0..1 } else { 1..5 };
-        for &(c, h, n) in tries.get(range).unwrap_or(&[]) {
-            let p = usize::from(c.wrapping_sub(CODE_BASE)) * 2;
-            let n = usize::from(n);
-            if c < CODE_BASE || p > MAX_PARITY || h == 0 || n < p + 5 || n > MAX_CODEWORD {
-                continue;
-            }
-            let word = Received { bytes: body, h };
-            match decode(word, p, n, &mut self.work) {
-                Ok((payload, damage)) => return Ok((payload, damage, p)),
+        for cand in header_candidates(frame).iter().flatten() {
+            let Some(body) = frame.get(cand.body..) else { continue };
+            let word = Received { bytes: body, h: cand.h };
+            match decode(word, cand.parity, cand.n, &mut self.work) {
+                Ok((payload, damage)) => return Ok((payload, cand.damage.plus(damage), cand.parity)),
                 Err(e) => error = e,
             }
         }
         Err(error)
     }
+}
+
+/// A reading of a frame's header: the codeword's parity, replacement value
+/// and length, where the codeword starts, and what was repaired to read it.
+#[derive(Clone, Copy)]
+struct HeaderReading {
+    parity: usize,
+    h: u8,
+    n: usize,
+    body: usize,
+    damage: Damage,
+}
+
+/// The readings of the header at the start of `frame` worth a try, best
+/// first: as sent when its check holds; else with one byte rebuilt from the
+/// others (substituted), one byte inserted (dropped: its value follows from
+/// the check) or one of two equal bytes removed (duplicated). A reading
+/// must name a parity, a codeword length near what follows, and a
+/// non-zero replacement.
+fn header_candidates(frame: &[u8]) -> [Option<HeaderReading>; 13] {
+    let mut out = [None; 13];
+    let Some(&[c, h, n, k]) = frame.first_chunk::<HEADER>() else { return out };
+    let make = |[c, h, n]: [u8; 3], body: usize, damage: Damage| {
+        let p = usize::from(c.wrapping_sub(CODE_BASE)) * 2;
+        let n = usize::from(n);
+        let rest = frame.len().checked_sub(body)?;
+        let fits = c >= CODE_BASE && p <= MAX_PARITY && h != 0 && n >= p + 5 && n <= MAX_CODEWORD;
+        (fits && rest + 2 >= n).then_some(HeaderReading { parity: p, h, n, body, damage })
+    };
+    // A header whose check holds may still be a shifted one (a dropped
+    // byte equal to the next): the edits are tried after it.
+    if c ^ h ^ n ^ k ^ CHECK == 0 {
+        out[0] = make([c, h, n], HEADER, Damage::default());
+    } else {
+        let sub = Damage { substituted: 1, ..Damage::default() };
+        let rebuilt = [[c, h, k ^ c ^ h ^ CHECK], [c, k ^ c ^ n ^ CHECK, n], [k ^ h ^ n ^ CHECK, h, n], [c, h, n]];
+        for (slot, head) in out.iter_mut().zip(rebuilt) {
+            *slot = make(head, HEADER, sub);
+        }
+    }
+    // A byte dropped at `j`: the three received and the missing one.
+    let drop = Damage { dropped: 1, ..Damage::default() };
+    let three = [c, h, n];
+    for j in 0..HEADER {
+        let missing = three.iter().fold(CHECK, |acc, &b| acc ^ b);
+        let mut head = [0u8; HEADER];
+        let mut from = three.iter();
+        for (i, b) in head.iter_mut().enumerate() {
+            *b = if i == j { missing } else { from.next().copied().unwrap_or(0) };
+        }
+        out[4 + j] = make([head[0], head[1], head[2]], HEADER - 1, drop);
+    }
+    // A byte duplicated at `j`: two equal bytes, one removed.
+    let dup = Damage { duplicated: 1, ..Damage::default() };
+    if let Some(five) = frame.first_chunk::<{ HEADER + 1 }>() {
+        for j in 0..HEADER {
+            if five[j] != five[j + 1] {
+                continue;
+            }
+            let mut head = [0u8; HEADER];
+            let mut from = five.iter().enumerate().filter(|&(i, _)| i != j + 1).map(|(_, &b)| b);
+            for b in head.iter_mut() {
+                *b = from.next().unwrap_or(0);
+            }
+            if head.iter().fold(CHECK, |acc, &b| acc ^ b) == 0 {
+                out[8 + j] = make([head[0], head[1], head[2]], HEADER + 1, dup);
+            }
+        }
+    }
+    out
 }
 
 /// The received codeword bytes, with the replacement value read as zero.
@@ -877,28 +945,25 @@ mod tests {
                     let mut drop = [0u8; 64];
                     drop[..i].copy_from_slice(&out[..i]);
                     drop[i..n - 1].copy_from_slice(&out[i + 1..n]);
-                    // A header byte dropped shifts the header: not repaired.
-                    if i >= HEADER {
-                        expect(&drop[..n - 1], "a drop", i);
-                    }
+                    // The header's bytes too: it is read with the edit.
+                    expect(&drop[..n - 1], "a drop", i);
                     let mut dup = [0u8; 65];
                     dup[..=i].copy_from_slice(&out[..=i]);
                     dup[i + 1..=n].copy_from_slice(&out[i..n]);
-                    if i >= HEADER - 1 {
-                        expect(&dup[..=n], "a duplicate", i);
-                    }
+                    expect(&dup[..=n], "a duplicate", i);
                 }
             }
         }
     }
 
-    /// Applies `k` random substitutions, drops or duplicates (after the
-    /// header) to `frame`; the damaged bytes in `out`.
+    /// Applies `k` random substitutions, drops or duplicates (in the header
+    /// at most one) to `frame`; the damaged bytes in `out`.
     fn damage(frame: &[u8], k: usize, st: &mut u64, out: &mut [u8; 400]) -> usize {
         let mut len = frame.len();
         out[..len].copy_from_slice(frame);
-        for _ in 0..k {
-            let i = HEADER + (rng(st) % (len - 1 - HEADER) as u64) as usize;
+        for e in 0..k {
+            let skip = if e == 0 { 0 } else { HEADER + 1 };
+            let i = skip + (rng(st) % (len - 1 - skip) as u64) as usize;
             match rng(st) % 3 {
                 0 => out[i] = 1 + (rng(st) % 255) as u8,
                 1 => {

@@ -52,7 +52,7 @@ fn poisson_cdf(mean: f32, k: isize) -> f32 {
 
 impl LineModel {
     /// The chance that a frame of `chunk` data bytes and `parity` parity
-    /// bytes arrives usable: no drop or duplicate in its header, and in its
+    /// bytes arrives usable: at most one damaged byte in its header, and in its
     /// codeword a damage the deframer repairs (substitutions up to half the
     /// parity, one edit with one parity equation spent and one kept, two
     /// edits on short codewords with two or three spent).
@@ -61,7 +61,8 @@ impl LineModel {
         let t = (shape.parity / 2) as isize;
         let body = (n + 1) as f32;
         let (s, d) = (self.substitution * body, self.indel * body);
-        let header = libm::expf(-4.0 * self.indel);
+        let h = crate::wire::frame::HEADER as f32 * (self.substitution + self.indel);
+        let header = libm::expf(-h) * (1.0 + h);
         let e = libm::expf(-d);
         let mut p = e * poisson_cdf(s, t);
         if shape.parity >= 2 {
@@ -236,24 +237,5 @@ mod tests {
         let m = e.model();
         assert!((m.substitution - 0.005).abs() < 0.001, "{m:?}");
         assert!((m.indel - 0.0025).abs() < 0.001, "{m:?}");
-    }
-}
-#[cfg(test)]
-mod dbg {
-    use super::*;
-    #[test]
-    fn dbg_shapes() {
-        for rate in [0.0f32, 0.01, 0.05, 0.1, 0.2] {
-            let m = LineModel { substitution: rate / 3.0, indel: rate * 2.0 / 3.0 };
-            let s = m.best_shape(8, 240);
-            std::eprintln!("rate {rate}: {s:?} arrival {} goodput {}", m.arrival(s), m.goodput(s));
-            for p in [0usize, 2, 4, 8, 12, 16] {
-                for c in [16usize, 32, 64, 100, 160, 240] {
-                    let sh = FrameShape { chunk: c, parity: p, arrival: 0.0 };
-                    std::eprint!(" {:.2}", m.goodput(sh));
-                }
-                std::eprintln!("  <- p {p}");
-            }
-        }
     }
 }
