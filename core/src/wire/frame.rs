@@ -51,6 +51,16 @@ pub const PAIR_MAX: usize = 96;
 pub const PAIR_FULL: usize = 24;
 
 const CODE_BASE: u8 = 0xC0;
+/// First byte of a block's descriptor (`super::block`): `0xE0 + p/2`.
+pub(super) const DESCRIPTOR_BASE: u8 = 0xE0;
+
+/// What a coded frame carries: a message's payload, or the descriptor of
+/// the block whose segments follow.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum FrameKind {
+    Frame,
+    Descriptor,
+}
 const CHECK: u8 = 0xA5;
 /// First byte of a frame without parity: COBS and a CRC-32, no correction.
 const PLAIN: u8 = 0xBF;
@@ -159,6 +169,17 @@ pub fn encode_frame_parity(payload: &[u8], parity: usize, out: &mut [u8]) -> Res
     if parity == 0 {
         return encode_plain(payload, out);
     }
+    encode_coded(payload, parity, CODE_BASE, out)
+}
+
+/// A coded frame of `payload`, its code byte `base + parity/2`.
+pub(super) fn encode_coded(payload: &[u8], parity: usize, base: u8, out: &mut [u8]) -> Result<usize, FrameError> {
+    if parity == 0 || parity > MAX_PARITY || !parity.is_multiple_of(2) {
+        return Err(FrameError::Parity);
+    }
+    if payload.len() > max_payload(parity) {
+        return Err(FrameError::TooLong);
+    }
     let n = payload.len() + 4 + parity;
     let total = HEADER + n + 1;
     let frame = out.get_mut(..total).ok_or(FrameError::Buffer)?;
@@ -169,7 +190,7 @@ pub fn encode_frame_parity(payload: &[u8], parity: usize, out: &mut [u8]) -> Res
     body.copy_from_slice(payload);
     crc.copy_from_slice(&crc32(payload).to_le_bytes());
     rs::encode(data, par).map_err(|_| FrameError::Parity)?;
-    let code = CODE_BASE + (parity / 2) as u8;
+    let code = base + (parity / 2) as u8;
     let len = n as u8;
     // The smallest value absent from the codeword whose check is non-zero.
     let mut seen = [false; 256];
@@ -274,8 +295,20 @@ pub struct Arrived<'a> {
     pub repaired: bool,
     /// What was repaired.
     pub damage: Damage,
-    /// Parity bytes the frame carried.
+    /// Parity bytes the frame carried (a block: each segment).
     pub parity: u8,
+    /// Segments of the block it came in (`super::block`); 0: a frame.
+    pub segments: u8,
+}
+
+/// A piece decoded as a frame: its payload's length, what was repaired,
+/// its parity and what it carries.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Completed {
+    pub(super) n: usize,
+    pub(super) damage: Damage,
+    pub(super) parity: usize,
+    pub(super) kind: FrameKind,
 }
 
 /// Reassembles frames from a byte stream, one byte at a time, correcting
@@ -311,6 +344,19 @@ impl Deframer {
     /// As [`Deframer::push`], saying also what was repaired: what a sender
     /// sizing frames for the line wants to know.
     pub fn push_frame(&mut self, byte: u8) -> Result<Option<Arrived<'_>>, DeframeError> {
+        let Some(len) = self.accept(byte)? else { return Ok(None) };
+        let c = self.complete(len)?;
+        // A block's descriptor is for a block deframer (`super::block`).
+        if c.kind == FrameKind::Descriptor {
+            return Err(DeframeError::Header);
+        }
+        Ok(Some(self.arrived(c)))
+    }
+
+    /// Takes one byte: the length of the piece a delimiter ended (`None`
+    /// for any other byte, an idle line's empty piece or the tail of an
+    /// oversized one).
+    pub(super) fn accept(&mut self, byte: u8) -> Result<Option<usize>, DeframeError> {
         if byte != 0 {
             if self.skipping {
                 return Ok(None);
@@ -326,17 +372,63 @@ impl Deframer {
         }
         let len = core::mem::take(&mut self.len);
         if core::mem::take(&mut self.skipping) || len == 0 {
-            // The tail of an oversized frame, or an empty frame (idle line).
             return Ok(None);
         }
-        if self.buf[0] == PLAIN {
-            let n = self.plain(len)?;
-            let payload = self.buf.get(1..1 + n).ok_or(DeframeError::Short)?;
-            return Ok(Some(Arrived { payload, repaired: false, damage: Damage::default(), parity: 0 }));
+        Ok(Some(len))
+    }
+
+    /// The bytes of the piece that ended, `len` long.
+    pub(super) fn piece(&self, len: usize) -> &[u8] {
+        self.buf.get(..len).unwrap_or(&[])
+    }
+
+    /// Takes back a piece of `len` bytes as unfinished, with `byte` in
+    /// place of the delimiter that ended it (a substituted zero).
+    pub(super) fn resume(&mut self, len: usize, byte: u8) {
+        if len < self.buf.len() {
+            self.buf[len] = byte;
+            self.len = len + 1;
         }
-        let (n, damage, parity) = self.finish(len)?;
-        let payload = self.work.get(..n).ok_or(DeframeError::Short)?;
-        Ok(Some(Arrived { payload, repaired: !damage.is_none(), damage, parity: parity as u8 }))
+    }
+
+    /// The codeword buffer, for decoding a block's segments.
+    pub(super) fn work(&mut self) -> &mut [u8] {
+        &mut self.work
+    }
+
+    /// Decodes the piece of `len` bytes as a frame; [`Deframer::arrived`]
+    /// gives what it carried.
+    pub(super) fn complete(&mut self, len: usize) -> Result<Completed, DeframeError> {
+        if self.buf.first() == Some(&PLAIN) {
+            let n = self.plain(len)?;
+            return Ok(Completed { n, damage: Damage::default(), parity: 0, kind: FrameKind::Frame });
+        }
+        let (n, damage, parity, kind) = self.finish(len)?;
+        Ok(Completed { n, damage, parity, kind })
+    }
+
+    /// The frame [`Deframer::complete`] decoded.
+    pub(super) fn arrived(&self, c: Completed) -> Arrived<'_> {
+        let payload = if c.parity == 0 { self.buf.get(1..1 + c.n) } else { self.work.get(..c.n) };
+        Arrived {
+            payload: payload.unwrap_or(&[]),
+            repaired: !c.damage.is_none(),
+            damage: c.damage,
+            parity: c.parity as u8,
+            segments: 0,
+        }
+    }
+
+    /// Decodes `range` of the last piece as a block's segment: `p` of its
+    /// `n` bytes parity, zeros sent as `h`; the corrected data bytes are at
+    /// the start of [`Deframer::work`].
+    pub(super) fn segment(
+        &mut self,
+        range: core::ops::Range<usize>,
+        (p, n, h): (usize, usize, u8),
+    ) -> Result<Damage, DeframeError> {
+        let bytes = self.buf.get(range).ok_or(DeframeError::Short)?;
+        decode(Received { bytes, h }, p, n, &mut self.work, false).map(|(_, damage)| damage)
     }
 
     /// Decodes a frame without parity in place: its payload's length (from
@@ -357,14 +449,14 @@ impl Deframer {
 
     /// Decodes the `len` bytes received: the payload's length (at the start
     /// of `work`), what was repaired and the parity count.
-    fn finish(&mut self, len: usize) -> Result<(usize, Damage, usize), DeframeError> {
+    fn finish(&mut self, len: usize) -> Result<(usize, Damage, usize, FrameKind), DeframeError> {
         let frame = self.buf.get(..len).ok_or(DeframeError::Oversized)?;
         let mut error = DeframeError::Header;
         for cand in header_candidates(frame).iter().flatten() {
             let Some(body) = frame.get(cand.body..) else { continue };
             let word = Received { bytes: body, h: cand.h };
-            match decode(word, cand.parity, cand.n, &mut self.work) {
-                Ok((payload, damage)) => return Ok((payload, cand.damage.plus(damage), cand.parity)),
+            match decode(word, cand.parity, cand.n, &mut self.work, true) {
+                Ok((payload, damage)) => return Ok((payload, cand.damage.plus(damage), cand.parity, cand.kind)),
                 Err(e) => error = e,
             }
         }
@@ -376,6 +468,7 @@ impl Deframer {
 /// and length, where the codeword starts, and what was repaired to read it.
 #[derive(Clone, Copy)]
 struct HeaderReading {
+    kind: FrameKind,
     parity: usize,
     h: u8,
     n: usize,
@@ -393,11 +486,16 @@ fn header_candidates(frame: &[u8]) -> [Option<HeaderReading>; 13] {
     let mut out = [None; 13];
     let Some(&[c, h, n, k]) = frame.first_chunk::<HEADER>() else { return out };
     let make = |[c, h, n]: [u8; 3], body: usize, damage: Damage| {
-        let p = usize::from(c.wrapping_sub(CODE_BASE)) * 2;
+        let (kind, base) = if c >= DESCRIPTOR_BASE {
+            (FrameKind::Descriptor, DESCRIPTOR_BASE)
+        } else {
+            (FrameKind::Frame, CODE_BASE)
+        };
+        let p = usize::from(c.wrapping_sub(base)) * 2;
         let n = usize::from(n);
         let rest = frame.len().checked_sub(body)?;
         let fits = c >= CODE_BASE && p <= MAX_PARITY && h != 0 && n >= p + 5 && n <= MAX_CODEWORD;
-        (fits && rest + 2 >= n).then_some(HeaderReading { parity: p, h, n, body, damage })
+        (fits && rest + 2 >= n).then_some(HeaderReading { kind, parity: p, h, n, body, damage })
     };
     // A header whose check holds may still be a shifted one (a dropped
     // byte equal to the next): the edits are tried after it.
@@ -444,9 +542,9 @@ fn header_candidates(frame: &[u8]) -> [Option<HeaderReading>; 13] {
 
 /// The received codeword bytes, with the replacement value read as zero.
 #[derive(Clone, Copy)]
-struct Received<'a> {
-    bytes: &'a [u8],
-    h: u8,
+pub(super) struct Received<'a> {
+    pub(super) bytes: &'a [u8],
+    pub(super) h: u8,
 }
 
 impl Received<'_> {
@@ -590,7 +688,15 @@ impl Prefix {
 /// Finds the codeword of `n` bytes, `p` of them parity, that the received
 /// word explains with the fewest edits; writes the payload at the start of
 /// `work`.
-fn decode(r: Received<'_>, p: usize, n: usize, work: &mut [u8]) -> Result<(usize, Damage), DeframeError> {
+/// Without `checked` (a block's segment) the word carries no CRC: only the
+/// code judges it (and the block's code and CRC after).
+pub(super) fn decode(
+    r: Received<'_>,
+    p: usize,
+    n: usize,
+    work: &mut [u8],
+    checked: bool,
+) -> Result<(usize, Damage), DeframeError> {
     let m = r.len();
     if m < 5 {
         return Err(DeframeError::Short);
@@ -607,7 +713,7 @@ fn decode(r: Received<'_>, p: usize, n: usize, work: &mut [u8]) -> Result<(usize
         dup_f[j] = 1 ^ alpha_pow(255 - j % 255);
     }
     let mut s = [0u8; MAX_PARITY];
-    let mut found = Found::new(r, work, p, n);
+    let mut found = Found { r, work, p, n, checked, best: None };
     match m as isize - n as isize {
         0 => {
             found.consider(Edit::None, &t[..p]);
@@ -647,7 +753,7 @@ fn decode(r: Received<'_>, p: usize, n: usize, work: &mut [u8]) -> Result<(usize
         d if d > 2 => {
             // A lost delimiter: this frame, then (some of) the next.
             let first = Received { bytes: r.bytes.get(..n).unwrap_or(&[]), h: r.h };
-            return decode(first, p, n, found.work);
+            return decode(first, p, n, found.work, checked);
         }
         _ => {}
     }
@@ -663,14 +769,12 @@ struct Found<'r, 'w> {
     work: &'w mut [u8],
     p: usize,
     n: usize,
+    /// Whether the word ends in a CRC-32 of its data.
+    checked: bool,
     best: Option<(usize, Edit, rs::Corrections)>,
 }
 
-impl<'r, 'w> Found<'r, 'w> {
-    fn new(r: Received<'r>, work: &'w mut [u8], p: usize, n: usize) -> Self {
-        Found { r, work, p, n, best: None }
-    }
-
+impl Found<'_, '_> {
     /// Tries the word `edit` makes, its syndromes `s`: kept when the code
     /// explains it (a guess keeping one parity equation spare), the CRC
     /// holds, and it needs fewer corrections than the best so far.
@@ -705,6 +809,9 @@ impl<'r, 'w> Found<'r, 'w> {
         let (p, n) = (self.p, self.n);
         if edit.apply(self.r, self.work) != n || !fixes.apply(self.work.get_mut(..n)?) {
             return None;
+        }
+        if !self.checked {
+            return Some(n - p);
         }
         let k = n - p - 4;
         let (payload, rest) = self.work.get(..n - p)?.split_at(k);

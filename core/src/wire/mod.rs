@@ -21,6 +21,7 @@
 //! Each format has golden bytes (`GOLDEN*`) that the unit tests and the
 //! on-target self-test check, and a fuzz target in `core/fuzz`.
 
+pub mod block;
 pub mod codec;
 pub mod crc;
 pub mod feed;
@@ -32,6 +33,7 @@ pub mod report;
 pub mod rs;
 pub mod share;
 
+pub use block::{encode_block, BlockDeframer, BlockShape};
 pub use codec::{CodecModel, DecodeError, EncodeError, MapDecoder, MapEncoder};
 pub use crc::{crc32, Crc32};
 pub use feed::{FeedError, FeedMessage, RobotMessage, RobotReport, Setup};

@@ -443,4 +443,24 @@ proptest! {
         let _ = super::mapfile::read_into(&file, &mut m);
         prop_assert!(m.len() <= 64);
     }
+
+    /// Random bytes after a block's descriptors (and alone) through the
+    /// block deframer: no panic, and no payload but whole frames'.
+    #[test]
+    fn random_segments_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..1500), cut in 0usize..100) {
+        let shape = super::block::BlockShape { segment: 8, parity: 2, spares: 4 };
+        let mut line = Vec::new();
+        super::block::encode_block(&[7u8; 60], shape, |b: &[u8]| -> Result<(), super::FrameError> {
+            line.extend_from_slice(b);
+            Ok(())
+        }).unwrap();
+        line.truncate(2 * super::block::DESCRIPTOR_FRAME + cut);
+        line.extend_from_slice(&bytes);
+        let mut d = super::block::BlockDeframer::new();
+        for &b in &line {
+            if let (Ok(Some(f)), _) = d.push(b) {
+                prop_assert!(f.payload == [7u8; 60] || f.segments == 0);
+            }
+        }
+    }
 }

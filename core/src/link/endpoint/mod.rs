@@ -5,7 +5,8 @@ use super::Clock;
 use crate::classes::CLASS_TABLE_VERSION;
 use crate::map::{LocalMap, VoxelSink, VoxelStorage};
 use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
-use crate::wire::frame::{Deframer, MAX_FRAME, MAX_PAYLOAD};
+use crate::wire::block::{encode_block, BlockDeframer, BlockShape};
+use crate::wire::frame::{FrameError, MAX_FRAME, MAX_PAYLOAD};
 use crate::wire::message::{
     AbortReason, Ack, Hello, MapHeader, Message, MessageError, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED,
     MAX_SACK, OFFSET_MODULUS,
@@ -338,7 +339,7 @@ struct Session<'a, M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> {
     resolution: f32,
     tx: Option<Tx<'a, M, O>>,
     rx: Rx<'a, R>,
-    deframer: Deframer,
+    deframer: BlockDeframer,
     line: LineEstimate,
     /// Frames sized and protected for the line as the peer's frames show it
     /// (recomputed when one arrives).
@@ -377,6 +378,48 @@ fn send_msg<IO: Write>(
     stats.bytes_sent += f as u64;
     stats.frames_sent += 1;
     Ok(f)
+}
+
+/// Why a block was not sent: it does not fit its shape, or the line.
+enum BlockFailure {
+    Shape,
+    Link(LinkError),
+}
+
+impl From<FrameError> for BlockFailure {
+    fn from(_: FrameError) -> Self {
+        BlockFailure::Shape
+    }
+}
+
+/// Sends one message as a block of `shape`; returns the bytes written.
+/// Should the block not fit the shape (or, rarely, every byte value occur
+/// in it whatever the key), as a frame with `parity` parity bytes (none if
+/// it is too long for them).
+fn send_block<IO: Write>(
+    io: &mut IO,
+    msg: &Message<'_>,
+    (shape, parity): (BlockShape, usize),
+    stats: &mut LinkStats,
+) -> Result<usize, LinkError> {
+    let mut payload = [0u8; MAX_PAYLOAD];
+    let n = msg.encode(&mut payload).map_err(|_| LinkError::Setup)?;
+    let sent = encode_block(payload.get(..n).unwrap_or(&[]), shape, |bytes: &[u8]| {
+        io.write_all(bytes).map_err(|e| BlockFailure::Link(io_error(e)))
+    });
+    match sent {
+        Ok(len) => {
+            io.flush().map_err(io_error)?;
+            stats.bytes_sent += len as u64;
+            stats.frames_sent += 1;
+            Ok(len)
+        }
+        Err(BlockFailure::Link(e)) => Err(e),
+        Err(BlockFailure::Shape) => {
+            let parity = if n <= crate::wire::frame::max_payload(parity) { parity } else { 0 };
+            send_msg(io, msg, parity, stats)
+        }
+    }
 }
 
 /// A stream error as a link error, keeping its kind.
@@ -433,7 +476,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory, O: Borrow<LocalMap<M>>> E
             resolution,
             tx,
             rx: Rx::new(staging),
-            deframer: Deframer::new(),
+            deframer: BlockDeframer::new(),
             line: LineEstimate::default(),
             shape: FrameShape::initial(&config),
             started: false,
@@ -671,16 +714,34 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
         if b != 0 {
             line.byte();
         }
-        let (payload, repaired) = match deframer.push_frame(b) {
+        // What a block's segments told of the line (a frame tells below).
+        let (pushed, pieces) = deframer.push(b);
+        for o in pieces {
+            line.piece(o.bytes, o.damage, o.parity);
+        }
+        let (payload, repaired) = match pushed {
             Ok(Some(f)) => {
-                line.frame(Some((f.damage, f.parity)));
+                if f.segments == 0 {
+                    line.frame(Some((f.damage, f.parity)));
+                }
                 stats.count_repairs(f.damage);
                 (f.payload, f.repaired)
             }
-            Ok(None) => return Ok(()),
-            Err(_) => {
+            Ok(None) if pieces.is_empty() => return Ok(()),
+            Ok(None) => {
+                *shape = FrameShape::for_line(line.model(), config);
+                return Ok(());
+            }
+            Err(e) => {
                 stats.bad_frames += 1;
-                line.frame(None);
+                // No header read: a frame with two of its first bytes hit, or
+                // a segment of a block whose descriptors were both lost (its
+                // bytes no frame's, and its errors unknown).
+                if e == crate::wire::DeframeError::Header {
+                    line.skip();
+                } else if pieces.is_empty() {
+                    line.frame(None);
+                }
                 *shape = FrameShape::for_line(line.model(), config);
                 return Ok(());
             }

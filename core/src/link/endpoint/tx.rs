@@ -121,7 +121,12 @@ pub(super) struct Tx<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> {
     pub(super) size: usize,
     /// Parity bytes per frame, from the estimated line.
     pub(super) parity: usize,
+    /// Data goes in blocks of this shape (a line that drops and duplicates
+    /// bytes often), else in frames.
+    pub(super) block: Option<crate::wire::BlockShape>,
     pub(super) srtt: Option<u32>,
+    /// Mean deviation of the round trips from `srtt` (ms).
+    pub(super) rttvar: u32,
     /// Shortest round trip seen (ms).
     pub(super) min_rtt: u32,
     /// Timeouts in a row with no progress at all.
@@ -180,7 +185,9 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
             complete: false,
             size: initial.chunk,
             parity: initial.parity,
+            block: None,
             srtt: None,
+            rttvar: 0,
             min_rtt: u32::MAX,
             backoff: 0,
             last_progress: 0,
@@ -293,8 +300,11 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         }
         let offset = (seg.start % OFFSET_MODULUS) as u16;
         let msg = Message::Data { offset, poll, data: data.get(..len).unwrap_or(&[]) };
-        send_msg(io, &msg, self.parity, stats)?;
-        stats.frame_shape = (len as u16, self.parity as u8);
+        match self.block {
+            Some(block) => send_block(io, &msg, (block, self.parity), stats)?,
+            None => send_msg(io, &msg, self.parity, stats)?,
+        };
+        stats.frame_shape = (len as u16, self.block.map_or(self.parity, |b| b.parity) as u8);
         Ok(())
     }
 
@@ -327,7 +337,7 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         // Frames sized for the line as the peer's frames show it (after a
         // stall, no larger than the probes were).
         let probe = self.size;
-        (self.size, self.parity) = (shape.chunk, shape.parity);
+        (self.size, self.parity, self.block) = (shape.chunk, shape.parity, shape.block);
         if self.backoff > 0 {
             self.size = self.size.min(probe);
         }
@@ -359,8 +369,9 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         // On a clean line, bytes not acknowledged in a timeout; on a lossy
         // one, sooner (a round trip and a half): there the oldest bytes are
         // likely lost again, and the line would idle meanwhile.
+        // Sooner, but not sooner than round trips that vary allow.
         let wait = match self.srtt {
-            Some(s) if shape.arrival < 0.995 => s + s / 2 + 5,
+            Some(s) if shape.arrival < 0.995 && shape.block.is_none() => (s + (s / 2).max(4 * self.rttvar) + 5).min(rto),
             _ => rto,
         };
         let due = b.segs.iter().take(8).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);
@@ -416,7 +427,7 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         self.backoff += 1;
         self.last_probe = now;
         let half = (self.size / 2).max(usize::from(config.min_chunk));
-        (self.size, self.parity) = (shape.chunk.min(half), shape.parity);
+        (self.size, self.parity, self.block) = (shape.chunk.min(half), shape.parity, shape.block);
         self.cut(b.segs, 0);
         stats.retransmissions += 1;
         self.transmit(b, 0, true, io, now, stats)
@@ -473,6 +484,9 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         if let Some(s) = freshest {
             let sample = (now as u32).wrapping_sub(s.sent_at).min(config.max_timeout_ms);
             self.min_rtt = self.min_rtt.min(sample);
+            if let Some(r) = self.srtt {
+                self.rttvar = (3 * self.rttvar + r.abs_diff(sample)) / 4;
+            }
             self.srtt = Some(self.srtt.map_or(sample, |r| (7 * r + sample) / 8));
         }
         self.acked = cum;
