@@ -121,6 +121,76 @@ fn deframe_costs(data: &[u8]) {
             instructions / u64::from(bytes.max(1))
         );
     }
+    // Blocks, as the link shapes them where bytes go missing often.
+    for (rate, segment, spares) in [(500u32, 14usize, 4usize), (1000, 10, 11), (2000, 6, 32)] {
+        let shape = cosem_core::wire::BlockShape { segment, parity: 4, spares };
+        let (bytes, blocks, ok, instructions) = block_cost(data, rate, shape);
+        say!(
+            "bench blocks errors_per_10k={} segment={} parity=4 spares={} bytes={} blocks={} decoded={} instructions_per_byte={}",
+            rate,
+            segment,
+            spares,
+            bytes,
+            blocks,
+            ok,
+            instructions / u64::from(bytes.max(1))
+        );
+    }
+}
+
+/// A byte stream's damage: each byte substituted, dropped or duplicated
+/// (a third each) with probability `rate` in 10,000, from `next`.
+fn damage(b: u8, rate: u32, next: &mut impl FnMut() -> u64) -> [Option<u8>; 2] {
+    if (next() % 10_000) < u64::from(rate) {
+        match next() % 3 {
+            0 => [Some(b ^ ((next() as u8) | 1)), None],
+            1 => [None, None],
+            _ => [Some(b), Some(b)],
+        }
+    } else {
+        [Some(b), None]
+    }
+}
+
+/// As `deframe_cost`, for blocks of `shape` carrying 302 bytes of `data`
+/// each (a 300-byte chunk and its message header) through a block
+/// deframer: bytes received, blocks sent, blocks decoded, instructions.
+fn block_cost(data: &[u8], rate: u32, shape: cosem_core::wire::BlockShape) -> (u32, u32, u32, u64) {
+    let mut deframer = cosem_core::wire::BlockDeframer::new();
+    let mut rng = 0x2545_F491_4F6C_DD1Du64;
+    let mut next = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        rng
+    };
+    let (mut bytes, mut blocks, mut ok, mut spent) = (0u32, 0u32, 0u32, 0u64);
+    let mut line = [0u8; 2400];
+    for part in data.chunks(302).take(30) {
+        let mut len = 0;
+        let sent = cosem_core::wire::encode_block(part, shape, |bs: &[u8]| -> Result<(), cosem_core::wire::FrameError> {
+            for &b in bs {
+                for c in damage(b, rate, &mut next).into_iter().flatten() {
+                    if let Some(slot) = line.get_mut(len) {
+                        *slot = c;
+                        len += 1;
+                    }
+                }
+            }
+            Ok(())
+        });
+        if sent.is_err() {
+            return (0, 0, 0, 0);
+        }
+        blocks += 1;
+        let t0 = ticks();
+        for &c in line.get(..len).unwrap_or(&[]) {
+            ok += u32::from(matches!(deframer.push_frame(c), Ok(Some(_))));
+        }
+        spent += (ticks() - t0) * INSTRUCTIONS_PER_TICK;
+        bytes += len as u32;
+    }
+    (bytes, blocks, ok, spent)
 }
 
 /// Frames of `chunk` bytes of `data` with `parity` parity bytes, each byte
@@ -145,16 +215,7 @@ fn deframe_cost(data: &[u8], rate: u32, chunk: usize, parity: usize) -> (u32, u3
         // The frame as the line delivers it, then through the deframer.
         let mut len = 0;
         for &b in frame.get(..n).unwrap_or(&[]) {
-            let copies = if (next() % 10_000) < u64::from(rate) {
-                match next() % 3 {
-                    0 => [Some(b ^ ((next() as u8) | 1)), None],
-                    1 => [None, None],
-                    _ => [Some(b), Some(b)],
-                }
-            } else {
-                [Some(b), None]
-            };
-            for c in copies.into_iter().flatten() {
+            for c in damage(b, rate, &mut next).into_iter().flatten() {
                 if let Some(slot) = line.get_mut(len) {
                     *slot = c;
                     len += 1;
