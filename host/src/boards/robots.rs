@@ -330,8 +330,11 @@ pub enum LineFault {
     None,
     /// Passes nothing: each robot's peer is silent.
     Silent,
-    /// Flips each byte with this probability (seeded).
+    /// Flips a bit of each byte with this probability (seeded).
     Corrupt(f64),
+    /// Damages each byte with this probability (seeded): substitutes,
+    /// drops or duplicates it, alike.
+    Lossy(f64),
 }
 
 impl std::str::FromStr for LineFault {
@@ -340,10 +343,17 @@ impl std::str::FromStr for LineFault {
         match s {
             "none" => Ok(LineFault::None),
             "silent" => Ok(LineFault::Silent),
-            _ => match s.strip_prefix("corrupt=").map(str::parse::<f64>) {
-                Some(Ok(p)) if (0.0..=1.0).contains(&p) => Ok(LineFault::Corrupt(p)),
-                _ => Err(format!("`{s}`: expected none, silent or corrupt=P with P in [0, 1]")),
-            },
+            _ => {
+                let (kind, p): (fn(f64) -> LineFault, _) = match s.split_once('=') {
+                    Some(("corrupt", p)) => (LineFault::Corrupt, p),
+                    Some(("lossy", p)) => (LineFault::Lossy, p),
+                    _ => return Err(format!("`{s}`: expected none, silent, corrupt=P or lossy=P")),
+                };
+                match p.parse::<f64>() {
+                    Ok(p) if (0.0..=1.0).contains(&p) => Ok(kind(p)),
+                    _ => Err(format!("`{s}`: the probability must be a number in [0, 1]")),
+                }
+            }
         }
     }
 }
@@ -439,12 +449,14 @@ pub(crate) fn accept(listener: &TcpListener, deadline: Instant) -> Result<TcpStr
 pub(crate) fn pump(mut from: TcpStream, mut to: TcpStream, fault: LineFault, seed: u64, count: Arc<AtomicU64>) {
     let mut rng = crate::rng::Rng::new(seed);
     let mut buf = [0u8; 4096];
+    let mut out = Vec::with_capacity(2 * buf.len());
     loop {
         let n = match from.read(&mut buf) {
             Ok(0) | Err(_) => break,
             Ok(n) => n,
         };
         count.fetch_add(n as u64, Ordering::Relaxed);
+        out.clear();
         match fault {
             LineFault::Silent => continue,
             LineFault::Corrupt(p) => {
@@ -453,10 +465,21 @@ pub(crate) fn pump(mut from: TcpStream, mut to: TcpStream, fault: LineFault, see
                         *b ^= 1 << (rng.below(8) as u8);
                     }
                 }
+                out.extend_from_slice(&buf[..n]);
             }
-            LineFault::None => {}
+            LineFault::Lossy(p) => {
+                for &b in &buf[..n] {
+                    match (rng.chance(p), rng.below(3)) {
+                        (false, _) => out.push(b),
+                        (true, 0) => out.push(b ^ (1 + rng.below(255) as u8)),
+                        (true, 1) => {}
+                        (true, _) => out.extend([b, b]),
+                    }
+                }
+            }
+            LineFault::None => out.extend_from_slice(&buf[..n]),
         }
-        if to.write_all(&buf[..n]).is_err() {
+        if to.write_all(&out).is_err() {
             break;
         }
     }

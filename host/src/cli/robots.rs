@@ -55,8 +55,8 @@ pub struct Args {
     /// Robot B's board (see --board-a).
     #[arg(long, default_value = "mps2-an386")]
     board_b: Board,
-    /// What the line between the UART0s does: none, silent, or corrupt=P
-    /// (each byte flipped with probability P).
+    /// What the line between the UART0s does: none, silent, corrupt=P (a
+    /// bit of each byte flipped with probability P) or lossy=P (substituted, dropped, duplicated alike).
     #[arg(long, default_value = "none")]
     line: LineFault,
     /// A robot gives up on the link after this long without a valid frame (s).
