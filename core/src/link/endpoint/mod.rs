@@ -719,13 +719,13 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
         for o in pieces {
             line.piece(o.bytes, o.damage, o.parity);
         }
-        let (payload, repaired) = match pushed {
+        let (payload, repaired, in_block) = match pushed {
             Ok(Some(f)) => {
                 if f.segments == 0 {
                     line.frame(Some((f.damage, f.parity)));
                 }
                 stats.count_repairs(f.damage);
-                (f.payload, f.repaired)
+                (f.payload, f.repaired, f.segments > 0)
             }
             Ok(None) if pieces.is_empty() => return Ok(()),
             Ok(None) => {
@@ -772,7 +772,14 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
             }
             Message::Data { offset, poll, data } => {
                 // Half duplex: an answer only when asked (the turn is over).
-                let every = if config.half_duplex { u8::MAX } else { ACK_EVERY };
+                // Blocks carry up to 300 data bytes each: acknowledged every
+                // two (every four, the sender's window filled before the
+                // acks came: 5% took 1.96 s instead of 1.86, simulated).
+                let every = match (config.half_duplex, in_block) {
+                    (true, _) => u8::MAX,
+                    (false, true) => 2,
+                    (false, false) => ACK_EVERY,
+                };
                 rx.on_data(rb, (offset, poll, every), data, *resolution, stats)?
             }
             Message::Ack(ack) => {
