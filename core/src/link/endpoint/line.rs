@@ -45,6 +45,12 @@ impl FrameShape {
     pub(super) fn for_line(line: LineModel, config: &super::LinkConfig) -> Self {
         let shape = line.best_shape(usize::from(config.min_chunk), usize::from(config.max_chunk));
         let frames = FrameShape { arrival: line.arrival(shape), ..shape };
+        // Half duplex: frames only. A turn's answer comes when its last
+        // frame is in, and a block's is 500 bytes, not a frame's few: the
+        // turn timing was not made for it (measured: storms of resends).
+        if config.half_duplex {
+            return frames;
+        }
         let chunk = usize::from(config.max_chunk).min(BLOCK_DATA - 6);
         match line.best_block(chunk) {
             // Both weighed as blocks are: a lost one's wait counts.

@@ -736,8 +736,9 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
                 stats.bad_frames += 1;
                 // No header read: a frame with two of its first bytes hit, or
                 // a segment of a block whose descriptors were both lost (its
-                // bytes no frame's, and its errors unknown).
-                if e == crate::wire::DeframeError::Header {
+                // bytes no frame's, and its errors unknown). Half duplex has
+                // no blocks, and there it is a frame a collision garbled.
+                if e == crate::wire::DeframeError::Header && !config.half_duplex {
                     line.skip();
                 } else if pieces.is_empty() {
                     line.frame(None);
