@@ -338,6 +338,10 @@ mod tests {
         // Substitutions alone: frames correct them at less cost.
         let m = LineModel { substitution: 0.05, indel: 0.0 };
         assert_eq!(FrameShape::for_line(m, &config).block, None);
+        // Half duplex: frames (the turns are timed for them).
+        let m = LineModel { substitution: 0.1 / 3.0, indel: 0.2 / 3.0 };
+        let half = super::super::LinkConfig { half_duplex: true, ..config };
+        assert_eq!(FrameShape::for_line(m, &half).block, None);
     }
 
     #[test]
