@@ -221,7 +221,20 @@ fn two_robots_match_across_a_line_that_drops_and_duplicates_bytes() {
     let mut runs = vec![(seq.as_str(), "mps2-an386")];
     runs.extend(kitti.as_deref().map(|k| (k, "stm32f405")));
     for (data, board) in runs {
-        let args = ["--data", data, "--a", "0:5", "--b", "5:10", "--line", "lossy=0.1", "--board-a", board, "--board-b", board];
+        let args = [
+            "--data",
+            data,
+            "--a",
+            "0:5",
+            "--b",
+            "5:10",
+            "--line",
+            "lossy=0.1",
+            "--board-a",
+            board,
+            "--board-b",
+            board,
+        ];
         let (json, ok) = robots(&args);
         assert!(ok, "{board}: {json}");
         // A duplicate in 30 bytes: the bytes received may exceed those sent.

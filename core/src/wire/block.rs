@@ -170,11 +170,13 @@ pub fn encode_block<E: From<FrameError>>(
     let mut spare = [0u8; BLOCK_SPARE];
     let mut w = [0u8; MAX_SEGMENT + MAX_SEGMENT_PARITY + 1];
     let mut found = None;
+    // Byte `i` of the block's data (payload, CRC, zeros) under `key`.
+    let keyed_data = |key: u8, i: usize| {
+        let b = payload.get(i).or_else(|| crc.get(i.wrapping_sub(payload.len()))).copied().unwrap_or(0);
+        b ^ keyed(key, i)
+    };
     for key in 0..KEYS {
-        let data = |i: usize| {
-            let b = payload.get(i).or_else(|| crc.get(i.wrapping_sub(payload.len()))).copied().unwrap_or(0);
-            b ^ keyed(key, i)
-        };
+        let data = |i: usize| keyed_data(key, i);
         spares(&data, lay, &mut spare)?;
         // The replacement: a value no segment holds.
         let mut seen = [false; 256];
@@ -190,10 +192,7 @@ pub fn encode_block<E: From<FrameError>>(
         }
     }
     let (h, key) = found.ok_or(FrameError::TooLong)?;
-    let data = |i: usize| {
-        let b = payload.get(i).or_else(|| crc.get(i.wrapping_sub(payload.len()))).copied().unwrap_or(0);
-        b ^ keyed(key, i)
-    };
+    let data = |i: usize| keyed_data(key, i);
     let mut total = 0;
     let mut d = [0u8; DESCRIPTOR_FRAME];
     for copy in 0..2 {
@@ -393,10 +392,7 @@ impl BlockDeframer {
     /// header's check holds and its length fits): a segment does by chance
     /// about once in a hundred thousand.
     fn looks_like_frame(&self, len: usize) -> bool {
-        let piece = self.frames.piece(len);
-        let Some(&[c, h, n, k]) = piece.first_chunk::<HEADER>() else { return false };
-        let whole = c ^ h ^ n ^ k == 0xA5 && c >= 0xC0 && (c & 0x1F) <= 16;
-        whole && (usize::from(n) + HEADER).abs_diff(len) <= 2
+        super::frame::reads_whole(self.frames.piece(len))
     }
 
     fn segment_lost(&mut self, bytes: usize, lay: Layout) {
@@ -496,8 +492,13 @@ impl BlockDeframer {
             return Err(DeframeError::Checksum);
         }
         let damage = self.damage;
-        let arrived =
-            Arrived { payload: &[], repaired: !damage.is_none() || lost > 0, damage, parity: lay.p as u8, segments: n as u8 };
+        let arrived = Arrived {
+            payload: &[],
+            repaired: !damage.is_none() || lost > 0,
+            damage,
+            parity: lay.p as u8,
+            segments: n as u8,
+        };
         Ok(Done::Block(BlockDone { len, arrived }))
     }
 }

@@ -464,6 +464,16 @@ impl Deframer {
     }
 }
 
+/// Whether `piece` (the bytes before a delimiter) reads as a whole coded
+/// frame or descriptor: its header's check holds, its code names a parity,
+/// and its length fits the codeword's within two edits.
+pub(super) fn reads_whole(piece: &[u8]) -> bool {
+    let Some(&[c, h, n, k]) = piece.first_chunk::<HEADER>() else { return false };
+    let coded = |base: u8| c >= base && usize::from(c - base) * 2 <= MAX_PARITY;
+    let named = coded(CODE_BASE) && c < DESCRIPTOR_BASE || coded(DESCRIPTOR_BASE);
+    c ^ h ^ n ^ k ^ CHECK == 0 && named && (usize::from(n) + HEADER).abs_diff(piece.len()) <= 2
+}
+
 /// A reading of a frame's header: the codeword's parity, replacement value
 /// and length, where the codeword starts, and what was repaired to read it.
 #[derive(Clone, Copy)]
@@ -486,11 +496,8 @@ fn header_candidates(frame: &[u8]) -> [Option<HeaderReading>; 13] {
     let mut out = [None; 13];
     let Some(&[c, h, n, k]) = frame.first_chunk::<HEADER>() else { return out };
     let make = |[c, h, n]: [u8; 3], body: usize, damage: Damage| {
-        let (kind, base) = if c >= DESCRIPTOR_BASE {
-            (FrameKind::Descriptor, DESCRIPTOR_BASE)
-        } else {
-            (FrameKind::Frame, CODE_BASE)
-        };
+        let (kind, base) =
+            if c >= DESCRIPTOR_BASE { (FrameKind::Descriptor, DESCRIPTOR_BASE) } else { (FrameKind::Frame, CODE_BASE) };
         let p = usize::from(c.wrapping_sub(base)) * 2;
         let n = usize::from(n);
         let rest = frame.len().checked_sub(body)?;

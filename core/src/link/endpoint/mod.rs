@@ -4,8 +4,8 @@
 use super::Clock;
 use crate::classes::CLASS_TABLE_VERSION;
 use crate::map::{LocalMap, VoxelSink, VoxelStorage};
-use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::block::{encode_block, BlockDeframer, BlockShape};
+use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::frame::{FrameError, MAX_FRAME, MAX_PAYLOAD};
 use crate::wire::message::{
     AbortReason, Ack, Hello, MapHeader, Message, MessageError, SackBlock, ACK_ALL_BLOCKS, ACK_COMPLETE, ACK_FINISHED,

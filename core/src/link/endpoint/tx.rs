@@ -371,7 +371,9 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         // likely lost again, and the line would idle meanwhile.
         // Sooner, but not sooner than round trips that vary allow.
         let wait = match self.srtt {
-            Some(s) if shape.arrival < 0.995 && shape.block.is_none() => (s + (s / 2).max(4 * self.rttvar) + 5).min(rto),
+            Some(s) if shape.arrival < 0.995 && shape.block.is_none() => {
+                (s + (s / 2).max(4 * self.rttvar) + 5).min(rto)
+            }
             _ => rto,
         };
         let due = b.segs.iter().take(8).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);

@@ -138,6 +138,25 @@ fn deframe_costs(data: &[u8]) {
     }
 }
 
+/// The damage's fixed seed.
+const SEED: u64 = 0x2545_F491_4F6C_DD1D;
+
+/// The next of a xorshift sequence.
+fn xorshift(state: &mut u64) -> u64 {
+    *state ^= *state << 13;
+    *state ^= *state >> 7;
+    *state ^= *state << 17;
+    *state
+}
+
+/// Feeds `line` to `push` one byte at a time: how many bytes completed a
+/// payload, and the instructions it took.
+fn timed(line: &[u8], mut push: impl FnMut(u8) -> bool) -> (u32, u64) {
+    let t0 = ticks();
+    let ok = line.iter().map(|&c| u32::from(push(c))).sum();
+    (ok, (ticks() - t0) * INSTRUCTIONS_PER_TICK)
+}
+
 /// A byte stream's damage: each byte substituted, dropped or duplicated
 /// (a third each) with probability `rate` in 10,000, from `next`.
 fn damage(b: u8, rate: u32, next: &mut impl FnMut() -> u64) -> [Option<u8>; 2] {
@@ -157,38 +176,30 @@ fn damage(b: u8, rate: u32, next: &mut impl FnMut() -> u64) -> [Option<u8>; 2] {
 /// deframer: bytes received, blocks sent, blocks decoded, instructions.
 fn block_cost(data: &[u8], rate: u32, shape: cosem_core::wire::BlockShape) -> (u32, u32, u32, u64) {
     let mut deframer = cosem_core::wire::BlockDeframer::new();
-    let mut rng = 0x2545_F491_4F6C_DD1Du64;
-    let mut next = move || {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
-        rng
-    };
+    let mut rng = SEED;
+    let mut next = move || xorshift(&mut rng);
     let (mut bytes, mut blocks, mut ok, mut spent) = (0u32, 0u32, 0u32, 0u64);
     let mut line = [0u8; 2400];
     for part in data.chunks(302).take(30) {
         let mut len = 0;
-        let sent = cosem_core::wire::encode_block(part, shape, |bs: &[u8]| -> Result<(), cosem_core::wire::FrameError> {
-            for &b in bs {
-                for c in damage(b, rate, &mut next).into_iter().flatten() {
-                    if let Some(slot) = line.get_mut(len) {
-                        *slot = c;
-                        len += 1;
+        let sent =
+            cosem_core::wire::encode_block(part, shape, |bs: &[u8]| -> Result<(), cosem_core::wire::FrameError> {
+                for &b in bs {
+                    for c in damage(b, rate, &mut next).into_iter().flatten() {
+                        if let Some(slot) = line.get_mut(len) {
+                            *slot = c;
+                            len += 1;
+                        }
                     }
                 }
-            }
-            Ok(())
-        });
+                Ok(())
+            });
         if sent.is_err() {
             return (0, 0, 0, 0);
         }
         blocks += 1;
-        let t0 = ticks();
-        for &c in line.get(..len).unwrap_or(&[]) {
-            ok += u32::from(matches!(deframer.push_frame(c), Ok(Some(_))));
-        }
-        spent += (ticks() - t0) * INSTRUCTIONS_PER_TICK;
-        bytes += len as u32;
+        let (got, took) = timed(line.get(..len).unwrap_or(&[]), |c| matches!(deframer.push_frame(c), Ok(Some(_))));
+        (ok, spent, bytes) = (ok + got, spent + took, bytes + len as u32);
     }
     (bytes, blocks, ok, spent)
 }
@@ -200,14 +211,9 @@ fn block_cost(data: &[u8], rate: u32, shape: cosem_core::wire::BlockShape) -> (u
 /// deframer took.
 fn deframe_cost(data: &[u8], rate: u32, chunk: usize, parity: usize) -> (u32, u32, u32, u64) {
     let mut deframer = cosem_core::wire::Deframer::new();
-    let (mut frame, mut rng) = ([0u8; cosem_core::wire::MAX_FRAME], 0x2545_F491_4F6C_DD1Du64);
+    let (mut frame, mut rng) = ([0u8; cosem_core::wire::MAX_FRAME], SEED);
     let (mut bytes, mut frames, mut ok, mut spent) = (0u32, 0u32, 0u32, 0u64);
-    let mut next = move || {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
-        rng
-    };
+    let mut next = move || xorshift(&mut rng);
     let mut line = [0u8; 2 * cosem_core::wire::MAX_FRAME];
     for part in data.chunks(chunk).take(400) {
         let Ok(n) = cosem_core::wire::encode_frame_parity(part, parity, &mut frame) else { return (0, 0, 0, 0) };
@@ -222,12 +228,8 @@ fn deframe_cost(data: &[u8], rate: u32, chunk: usize, parity: usize) -> (u32, u3
                 }
             }
         }
-        let t0 = ticks();
-        for &c in line.get(..len).unwrap_or(&[]) {
-            ok += u32::from(matches!(deframer.push(c), Ok(Some(_))));
-        }
-        spent += (ticks() - t0) * INSTRUCTIONS_PER_TICK;
-        bytes += len as u32;
+        let (got, took) = timed(line.get(..len).unwrap_or(&[]), |c| matches!(deframer.push(c), Ok(Some(_))));
+        (ok, spent, bytes) = (ok + got, spent + took, bytes + len as u32);
     }
     (bytes, frames, ok, spent)
 }
