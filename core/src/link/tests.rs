@@ -44,6 +44,7 @@ fn line(seed: u64, error_rate: f64, stall_chance: f64) -> std::boxed::Box<RefCel
         bytes_per_ms: 11.52,
         half_duplex: false,
         mix: sim::Mix::THIRDS,
+        send_buffer: 16,
     })))
 }
 
@@ -227,6 +228,7 @@ fn half_duplex_line_takes_turns_without_collisions() {
         bytes_per_ms: 11.52,
         half_duplex: true,
         mix: sim::Mix::THIRDS,
+        send_buffer: 16,
     })));
     let (mut p0, mut p1) = Line::ports(&wire);
     let config = LinkConfig { half_duplex: true, ..LinkConfig::default() };
@@ -238,6 +240,79 @@ fn half_duplex_line_takes_turns_without_collisions() {
     // Only the opening hellos and a rare ack crossing a resend may overlap.
     let collisions = wire.borrow().collisions();
     assert!(collisions < 10, "{collisions} collisions");
+}
+
+/// A street of a few thousand voxels (about 4 KB encoded): road, two
+/// walls, poles.
+fn street_map(seed: u32) -> LocalMap<Heap> {
+    let mut m = map(4000);
+    let o = (seed % 5) as f32 * 0.2;
+    for i in 0..120 {
+        let x = o + i as f32 * 0.2;
+        for j in 0..16 {
+            m.insert_point([x, j as f32 * 0.2, 0.0], Class::Road).unwrap();
+        }
+        for k in 0..5 {
+            m.insert_point([x, -0.4, k as f32 * 0.2], Class::Building).unwrap();
+            m.insert_point([x, 3.6, k as f32 * 0.2], Class::Building).unwrap();
+        }
+        if i % 15 == 0 {
+            for k in 0..12 {
+                m.insert_point([x, 0.2, k as f32 * 0.2], Class::Pole).unwrap();
+            }
+        }
+    }
+    m
+}
+
+/// A peer that reads late (a slow host, an emulator starved of CPU, a
+/// robot busy elsewhere) behind a deep send buffer: what the sender wrote
+/// waits in the line, round trips grow with the queue. The sender must not
+/// fill it with copies the peer reads much later (a storm of resends:
+/// before, megabytes for a 10 KB map on emulated boards under a CPU hog).
+/// Slow lines of 115200, 20000 and 5000 baud, and one whose peer does not
+/// look at it for 5 s in the middle (busy matching).
+#[test]
+fn a_peer_that_reads_late_gets_no_storm_of_resends() {
+    for (seed, bytes_per_ms, busy) in [(1u64, 11.52, 0..0), (2, 2.0, 0..0), (3, 0.5, 0..0), (4, 11.52, 50..5050)] {
+        let (m0, m1) = (street_map(2), street_map(3));
+        let (mut s0, mut s1) = (vec![0u32; m0.len()], vec![0u32; m1.len()]);
+        let (mut st0, mut st1) = (map(4000), map(4000));
+        let config = sim::SimConfig { bytes_per_ms, send_buffer: 65536, ..sim::SimConfig::clean(115_200, seed) };
+        let wire = std::boxed::Box::new(RefCell::new(Line::new(config)));
+        let (mut p0, mut p1) = Line::ports(&wire);
+        let config = LinkConfig::default();
+        let mut e0 = Endpoint::new(config, 0, 100, 0, Some((&m0, &mut s0)), Some(&mut st0), bufs()).unwrap();
+        let mut e1 = Endpoint::new(config, 1, 200, 0, Some((&m1, &mut s1)), Some(&mut st1), bufs()).unwrap();
+        let (mut r0, mut r1) = (Ok(Progress::Busy), Ok(Progress::Busy));
+        for now in 0..2_000_000 {
+            wire.borrow_mut().tick(now);
+            if r0 == Ok(Progress::Busy) {
+                r0 = e0.step(&mut p0, now);
+            }
+            if r1 == Ok(Progress::Busy) && !busy.contains(&now) {
+                r1 = e1.step(&mut p1, now);
+            }
+            if r0 != Ok(Progress::Busy) && r1 != Ok(Progress::Busy) {
+                break;
+            }
+        }
+        assert_eq!((r0, r1), (Ok(Progress::Done), Ok(Progress::Done)));
+        let stats = [e0.stats(), e1.stats()];
+        assert_eq!((st0.len(), st1.len()), (m1.len(), m0.len()));
+        for s in stats {
+            let ratio = s.bytes_sent as f64 / s.chunk_bytes_sent as f64;
+            std::println!(
+                "{bytes_per_ms} B/ms, busy {busy:?}: sent {} B for {} B of map ({ratio:.2}x), {} resends",
+                s.bytes_sent,
+                s.chunk_bytes_sent,
+                s.retransmissions
+            );
+            // Probes while the peer is busy: one per 800 ms at most.
+            let probes = (busy.end - busy.start) / 800;
+            assert!(ratio < 2.0 && u64::from(s.retransmissions) <= 6 + probes, "{ratio:.2}x the map's bytes: {s:?}");
+        }
+    }
 }
 
 /// A map received into a [`crate::map::SceneMap`] over a lossy line holds

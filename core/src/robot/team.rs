@@ -40,6 +40,9 @@ pub const TABLE_WORDS: usize = MAX_ROBOTS * MAX_ROBOTS * ESTIMATE_WORDS;
 /// acknowledged them (ms).
 const SHARE_RESEND_MS: u64 = 250;
 
+/// Doublings of the resend wait while the peer says nothing (at most 4 s).
+const SHARE_BACKOFF: u8 = 4;
+
 /// Pose-graph iterations.
 const SOLVE_ITERATIONS: u32 = 50;
 
@@ -112,6 +115,10 @@ struct ShareRound {
     peer: u8,
     last_sent: Option<u64>,
     last_heard: u64,
+    /// Resends since the peer was last heard: each doubles the wait
+    /// before the next (a peer still busy with its maps reads them all
+    /// later, so a fixed pace would only pile them up).
+    unanswered: u8,
     /// Bit b: the peer holds our estimate of b.
     acked: u8,
     /// The peer said it is finished.
@@ -367,6 +374,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink + SceneSource, P: PyramidStorage, Q: Pyra
                         peer,
                         last_sent: None,
                         last_heard: now_ms,
+                        unanswered: 0,
                         acked: 0,
                         peer_finished: false,
                         done_at: None,
@@ -575,11 +583,13 @@ fn share_step<L: Read + Write + ReadReady + WriteReady>(
                     put(table, &e);
                     w.ack_due = true;
                     w.last_heard = now;
+                    w.unanswered = 0;
                 }
                 Ok(ShareMessage::Ack { from, held, finished }) if from == w.peer => {
                     w.acked |= held;
                     w.peer_finished |= finished;
                     w.last_heard = now;
+                    w.unanswered = 0;
                 }
                 // Another protocol's frame (the map exchange's last
                 // words), or a message for someone else: not ours.
@@ -602,7 +612,8 @@ fn share_step<L: Read + Write + ReadReady + WriteReady>(
         port.flush().map_err(io)
     };
     let ack = ShareMessage::Ack { from: me, held: held(table, n, w.peer), finished: w.done_at.is_some() };
-    let resend = w.last_sent.is_none_or(|t| now.saturating_sub(t) >= SHARE_RESEND_MS);
+    let pace = SHARE_RESEND_MS << w.unanswered.min(SHARE_BACKOFF);
+    let resend = w.last_sent.is_none_or(|t| now.saturating_sub(t) >= pace);
     if (w.ack_due || resend) && port.write_ready().map_err(io)? {
         if resend && w.acked & mine != mine {
             for b in (0..n).filter(|&b| b != me && w.acked & (1 << b) == 0) {
@@ -615,6 +626,7 @@ fn share_step<L: Read + Write + ReadReady + WriteReady>(
         w.ack_due = false;
         if resend {
             w.last_sent = Some(now);
+            w.unanswered = w.unanswered.saturating_add(1);
         }
     }
     // Over when both are finished, or we are and the peer went quiet for a

@@ -25,6 +25,11 @@ pub struct SimConfig {
     pub half_duplex: bool,
     /// How a damaged byte is damaged.
     pub mix: Mix,
+    /// Bytes a sender may have waiting to leave before its end says it
+    /// cannot take more: a UART's FIFO, 16; a pipe, a socket or an
+    /// emulator's line, thousands (bytes written then wait their turn, as
+    /// a peer on a slow host reads them late).
+    pub send_buffer: usize,
 }
 
 /// How a damaged byte is damaged, in shares (weights of any scale): one
@@ -125,6 +130,7 @@ impl SimConfig {
             bytes_per_ms: f64::from(baud) / 10.0 / 1000.0,
             half_duplex: false,
             mix: Mix::THIRDS,
+            send_buffer: 16,
         }
     }
 }
@@ -289,10 +295,11 @@ impl<const N: usize> embedded_io::ReadReady for SimPort<'_, N> {
 }
 
 impl<const N: usize> embedded_io::WriteReady for SimPort<'_, N> {
-    /// Whether the line's transmitter has room: at most a UART's 16-byte
-    /// FIFO of earlier bytes still waiting to leave.
+    /// Whether the line's transmitter has room: fewer than
+    /// [`SimConfig::send_buffer`] earlier bytes still waiting to leave.
     fn write_ready(&mut self) -> Result<bool, Infallible> {
-        Ok(self.line.borrow().wire[self.side].len < 16)
+        let line = self.line.borrow();
+        Ok(line.wire[self.side].len < line.config.send_buffer)
     }
 }
 

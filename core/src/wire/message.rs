@@ -2,9 +2,12 @@
 //! the fields (postcard for `Hello` and `Abort`, fixed little-endian fields and
 //! varints for the frequent `Data` and `Ack`, which must be short).
 //!
-//! A `Data` payload starts with two bytes: the top bit set, the poll flag,
+//! A `Data` payload starts with three bytes: the top bit set, the poll flag,
 //! then the stream offset modulo 2^14 (on a bad line frames are short, and
-//! each byte counts). Every other payload starts with one byte: the top bit
+//! each byte counts), then the frame's transmission tag, which the
+//! receiver's `Ack`s echo (so the sender knows which copy of a resent frame
+//! the peer read, and how far it read: a slow peer's queue is told from a
+//! loss). Every other payload starts with one byte: the top bit
 //! clear, [`PROTOCOL_VERSION`] in the next three bits, the message tag in
 //! the low four. A peer speaking another version is told apart at the
 //! first frame (its `Hello`; a version-2 `Data` byte reads as version 2). Floats from the wire
@@ -15,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 /// Version of the link protocol (in the first byte of every payload but
 /// `Data`). At most 7.
-pub const PROTOCOL_VERSION: u8 = 4;
+pub const PROTOCOL_VERSION: u8 = 5;
 
 /// `Data` offsets count stream bytes modulo this (the window is far smaller).
 pub const OFFSET_MODULUS: u32 = 1 << 14;
@@ -118,6 +121,10 @@ pub struct Ack {
     pub sack: [SackBlock; MAX_SACK],
     /// How many of `sack` are used.
     pub blocks: u8,
+    /// The [`Message::Data`] tag of the last data frame received before
+    /// this ack (0 before any; version 5): everything the peer sent before
+    /// that frame has arrived or is lost.
+    pub echo: u8,
 }
 
 /// One message. A map travels as a byte *stream* (its [`MapHeader`], then
@@ -134,6 +141,9 @@ pub enum Message<'a> {
         offset: u16,
         /// Answer with an [`Ack`] at once (the sender is about to wait).
         poll: bool,
+        /// The sender's count of data frames sent, this one included,
+        /// modulo 256 (version 5): echoed by [`Ack::echo`].
+        tag: u8,
         /// The bytes.
         data: &'a [u8],
     },
@@ -154,9 +164,12 @@ const TAG_HELLO: u8 = 0;
 const TAG_ACK: u8 = 3;
 const TAG_ABORT: u8 = 4;
 
-/// Bytes a `Data` frame adds to its data, besides its parity: flags and
-/// offset, CRC-32, the frame's header and delimiter.
-pub const DATA_OVERHEAD: usize = 2 + 4 + super::frame::HEADER + 1;
+/// Bytes of a `Data` payload before its data: flags and offset, tag.
+pub const DATA_HEADER: usize = 3;
+
+/// Bytes a `Data` frame adds to its data, besides its parity: flags,
+/// offset and tag, CRC-32, the frame's header and delimiter.
+pub const DATA_OVERHEAD: usize = DATA_HEADER + 4 + super::frame::HEADER + 1;
 
 #[derive(Serialize, Deserialize)]
 struct AbortFields {
@@ -287,10 +300,11 @@ impl<'a> Message<'a> {
                 let rest = out.get_mut(at..).ok_or(MessageError::Buffer)?;
                 at += postcard::to_slice(h, rest).map_err(|_| MessageError::Buffer)?.len();
             }
-            Message::Data { offset, poll, data } => {
+            Message::Data { offset, poll, tag, data } => {
                 let [lo, hi] = offset.to_le_bytes();
                 push(out, &mut at, DATA_BIT | if *poll { DATA_POLL_BIT } else { 0 } | hi)?;
                 push(out, &mut at, lo)?;
+                push(out, &mut at, *tag)?;
                 let dst = out.get_mut(at..at + data.len()).ok_or(MessageError::Buffer)?;
                 dst.copy_from_slice(data);
                 at += data.len();
@@ -301,6 +315,7 @@ impl<'a> Message<'a> {
                     push(out, &mut at, b)?;
                 }
                 push(out, &mut at, a.flags)?;
+                push(out, &mut at, a.echo)?;
                 for b in a.blocks() {
                     push_varint(out, &mut at, b.start)?;
                     push_varint(out, &mut at, b.len)?;
@@ -330,9 +345,9 @@ impl<'a> Message<'a> {
     pub fn decode(payload: &'a [u8]) -> Result<Self, MessageError> {
         let (&first, body) = payload.split_first().ok_or(MessageError::Empty)?;
         if first & DATA_BIT != 0 {
-            let (&lo, data) = body.split_first().ok_or(MessageError::Malformed)?;
+            let (&[lo, tag], data) = body.split_first_chunk().ok_or(MessageError::Malformed)?;
             let offset = u16::from_le_bytes([lo, first & !(DATA_BIT | DATA_POLL_BIT)]);
-            return Ok(Message::Data { offset, poll: first & DATA_POLL_BIT != 0, data });
+            return Ok(Message::Data { offset, poll: first & DATA_POLL_BIT != 0, tag, data });
         }
         if first >> 4 != PROTOCOL_VERSION {
             return Err(MessageError::Version(first >> 4));
@@ -341,8 +356,8 @@ impl<'a> Message<'a> {
         let msg = match tag {
             TAG_HELLO => Message::Hello(decode_exact(body)?),
             TAG_ACK => {
-                let (head, mut blocks) = body.split_at_checked(3).ok_or(MessageError::Malformed)?;
-                let mut ack = Ack { cum: u16::from_le_bytes([head[0], head[1]]), flags: head[2], ..Ack::default() };
+                let (&[lo, hi, flags, echo], mut blocks) = body.split_first_chunk().ok_or(MessageError::Malformed)?;
+                let mut ack = Ack { cum: u16::from_le_bytes([lo, hi]), flags, echo, ..Ack::default() };
                 while !blocks.is_empty() {
                     let mut at = 0;
                     let start = take_varint(blocks, &mut at)?;
@@ -408,20 +423,21 @@ impl MapHeader {
 pub const GOLDEN: [(Message<'static>, &[u8]); 5] = [
     (
         Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: 0.2, max_payload: 512, takes_map: true }),
-        &[0x40, 1, 1, 205, 204, 76, 62, 128, 4, 1],
+        &[0x50, 1, 1, 205, 204, 76, 62, 128, 4, 1],
     ),
-    (Message::Data { offset: 0x1234, poll: false, data: &[1, 2, 0, 255] }, &[0x92, 0x34, 1, 2, 0, 255]),
-    (Message::Data { offset: 7, poll: true, data: &[9] }, &[0xC0, 7, 9]),
+    (Message::Data { offset: 0x1234, poll: false, tag: 5, data: &[1, 2, 0, 255] }, &[0x92, 0x34, 5, 1, 2, 0, 255]),
+    (Message::Data { offset: 7, poll: true, tag: 0xFE, data: &[9] }, &[0xC0, 7, 0xFE, 9]),
     (
         Message::Ack(Ack {
             cum: 300,
             flags: ACK_COMPLETE,
             sack: [SackBlock { start: 20, len: 200 }, SackBlock { start: 400, len: 1 }, SackBlock { start: 0, len: 0 }],
             blocks: 2,
+            echo: 9,
         }),
-        &[0x43, 44, 1, 1, 20, 200, 1, 144, 3, 1],
+        &[0x53, 44, 1, 1, 9, 20, 200, 1, 144, 3, 1],
     ),
-    (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[0x44, 7, 2]),
+    (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[0x54, 7, 2]),
 ];
 
 /// The golden map header (a record of the map stream) and its bytes.

@@ -202,11 +202,11 @@ fn golden_messages() {
     let n = Message::Ack(ack).encode(&mut payload).unwrap();
     let mut frame = [0u8; MAX_FRAME];
     let f = encode_frame(&payload[..n], &mut frame).unwrap();
-    assert_eq!(&frame[..f], &[194, 2, 12, 105, 67, 44, 1, 2, 10, 166, 169, 128, 129, 167, 242, 63, 0]);
+    assert_eq!(&frame[..f], &[194, 2, 13, 104, 83, 44, 1, 2, 2, 183, 56, 183, 82, 233, 8, 199, 50, 0]);
     assert_eq!(
-        f - n + 2,
+        f - n + super::message::DATA_HEADER,
         super::message::DATA_OVERHEAD + super::frame::DEFAULT_PARITY,
-        "frame overhead: CRC, header, delimiter, parity; flags and offset"
+        "frame overhead: CRC, header, delimiter, parity; flags, offset and tag"
     );
 }
 
@@ -217,21 +217,28 @@ fn bad_messages_are_typed_errors() {
     assert_eq!(Message::decode(&[0x23, 7]), Err(MessageError::Version(2)), "a version 2 peer's ack");
     assert_eq!(Message::decode(&[0x21, 7, 0, 1]), Err(MessageError::Version(2)), "a version 2 peer's data");
     assert_eq!(Message::decode(&[0x33, 7]), Err(MessageError::Version(3)), "a version 3 peer's ack");
-    assert_eq!(Message::decode(&[0x4F]), Err(MessageError::Malformed), "unknown tag");
-    assert_eq!(Message::decode(&[0x41]), Err(MessageError::Malformed), "version 2's data tag");
+    assert_eq!(Message::decode(&[0x43, 44, 1, 1]), Err(MessageError::Version(4)), "a version 4 peer's ack");
+    assert_eq!(Message::decode(&[0x5F]), Err(MessageError::Malformed), "unknown tag");
+    assert_eq!(Message::decode(&[0x51]), Err(MessageError::Malformed), "version 2's data tag");
     assert_eq!(Message::decode(&[0x80]), Err(MessageError::Malformed), "data without its offset");
-    assert_eq!(Message::decode(&[0x44, 7, 2, 0]), Err(MessageError::Trailing));
-    assert_eq!(Message::decode(&[0x43, 1, 0, 0, 5]), Err(MessageError::Malformed), "a sack block cut short");
-    assert_eq!(Message::decode(&[0x43, 1, 0, 0, 5, 0]), Err(MessageError::Malformed), "an empty sack block");
-    assert_eq!(Message::decode(&[0x43, 1, 0, 0, 1, 1, 2, 1, 3, 1, 4, 1]), Err(MessageError::Trailing), "four blocks");
-    assert_eq!(Message::decode(&[0x43, 1, 0, 0, 0x80, 0, 1]), Err(MessageError::Malformed), "non-canonical varint");
-    let far = Message::Data { offset: 1 << 14, poll: false, data: &[1] };
+    assert_eq!(Message::decode(&[0x80, 7]), Err(MessageError::Malformed), "data without its tag");
+    assert_eq!(Message::decode(&[0x54, 7, 2, 0]), Err(MessageError::Trailing));
+    assert_eq!(Message::decode(&[0x53, 1, 0, 0]), Err(MessageError::Malformed), "an ack without its echo");
+    assert_eq!(Message::decode(&[0x53, 1, 0, 0, 0, 5]), Err(MessageError::Malformed), "a sack block cut short");
+    assert_eq!(Message::decode(&[0x53, 1, 0, 0, 0, 5, 0]), Err(MessageError::Malformed), "an empty sack block");
+    assert_eq!(
+        Message::decode(&[0x53, 1, 0, 0, 0, 1, 1, 2, 1, 3, 1, 4, 1]),
+        Err(MessageError::Trailing),
+        "four blocks"
+    );
+    assert_eq!(Message::decode(&[0x53, 1, 0, 0, 0, 0x80, 0, 1]), Err(MessageError::Malformed), "non-canonical varint");
+    let far = Message::Data { offset: 1 << 14, poll: false, tag: 0, data: &[1] };
     assert_eq!(far.encode(&mut [0u8; 8]), Err(MessageError::Malformed), "an offset beyond 14 bits");
     let nan =
         Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: f32::NAN, max_payload: 512, takes_map: true });
     assert_eq!(nan.encode(&mut [0u8; 32]), Err(MessageError::NonFinite));
     // A NaN smuggled in by hand is refused on decode.
-    let mut bytes = [0x40u8, 1, 1, 0, 0, 192, 127, 128, 4, 1];
+    let mut bytes = [0x50u8, 1, 1, 0, 0, 192, 127, 128, 4, 1];
     assert_eq!(Message::decode(&bytes), Err(MessageError::NonFinite));
     bytes[6] = 0x3F;
     assert!(Message::decode(&bytes).is_ok());
@@ -271,7 +278,7 @@ fn hundred_thousand_frames_without_a_panic() {
             len
         } else {
             // A valid frame of a valid message, then mutated.
-            let p = Message::Data { offset: i as u16, poll: i % 3 == 0, data: &payload[..len.min(40)] }
+            let p = Message::Data { offset: i as u16, poll: i % 3 == 0, tag: i as u8, data: &payload[..len.min(40)] }
                 .encode(&mut payload.clone())
                 .unwrap_or(0);
             let m = encode_frame(&payload[..p.min(payload.len())], &mut good).unwrap();

@@ -6,7 +6,7 @@ use crate::wire::block::{
     BlockShape, BLOCK_DATA, BLOCK_SPARE, DESCRIPTOR_FRAME, DESCRIPTOR_PARITY, MAX_SEGMENTS, MAX_SPARES,
 };
 use crate::wire::frame::{frame_len, max_payload, Damage, DEFAULT_PARITY, HEADER, PAIR_FULL, PAIR_MAX};
-use crate::wire::message::DATA_OVERHEAD;
+use crate::wire::message::{DATA_HEADER, DATA_OVERHEAD};
 use crate::wire::rs::MAX_PARITY;
 
 /// What the line does, per byte: the probability of a substituted byte
@@ -26,13 +26,16 @@ pub(super) struct FrameShape {
     pub(super) parity: usize,
     pub(super) arrival: f32,
     pub(super) block: Option<BlockShape>,
+    /// The line looks clean (fewer than 2 damaged bytes in 1000): a
+    /// frame not acknowledged in time is late, not lost.
+    pub(super) clean: bool,
 }
 
 impl FrameShape {
     /// Before anything arrived: the largest frames with the default parity.
     pub(super) fn initial(config: &super::LinkConfig) -> Self {
-        let chunk = usize::from(config.max_chunk).min(max_payload(DEFAULT_PARITY) - 2);
-        FrameShape { chunk, parity: DEFAULT_PARITY, arrival: 1.0, block: None }
+        let chunk = usize::from(config.max_chunk).min(max_payload(DEFAULT_PARITY) - DATA_HEADER);
+        FrameShape { chunk, parity: DEFAULT_PARITY, arrival: 1.0, block: None, clean: true }
     }
 
     /// The best shape for `line` within the configured sizes: frames, or
@@ -44,14 +47,15 @@ impl FrameShape {
     /// undelivered).
     pub(super) fn for_line(line: LineModel, config: &super::LinkConfig) -> Self {
         let shape = line.best_shape(usize::from(config.min_chunk), usize::from(config.max_chunk));
-        let frames = FrameShape { arrival: line.arrival(shape), ..shape };
+        let frames = FrameShape { arrival: line.arrival(shape), clean: line.substitution + line.indel < 0.002, ..shape };
         // Half duplex: frames only. A turn's answer comes when its last
         // frame is in, and a block's is 500 bytes, not a frame's few: the
         // turn timing was not made for it (measured: storms of resends).
         if config.half_duplex {
             return frames;
         }
-        let chunk = usize::from(config.max_chunk).min(BLOCK_DATA - 6);
+        // A block's payload: the data message and its CRC-32.
+        let chunk = usize::from(config.max_chunk).min(BLOCK_DATA - DATA_HEADER - 4);
         match line.best_block(chunk) {
             // Both weighed as blocks are: a lost one's wait counts.
             Some((block, goodput, arrival)) if goodput > line.goodput(frames) * frames.arrival => {
@@ -114,7 +118,7 @@ impl LineModel {
 
     /// Data per byte of line of frames of `shape`.
     fn goodput(&self, shape: FrameShape) -> f32 {
-        let line = frame_len(shape.chunk + 2, shape.parity) as f32;
+        let line = frame_len(shape.chunk + DATA_HEADER, shape.parity) as f32;
         shape.chunk as f32 / line * self.arrival(shape)
     }
 
@@ -124,7 +128,7 @@ impl LineModel {
     /// arrives: when a descriptor copy does and at least its data segments'
     /// count of segments (binomial, the spares added one by one).
     pub(super) fn best_block(&self, chunk: usize) -> Option<(BlockShape, f32, f32)> {
-        let payload = chunk + 2;
+        let payload = chunk + DATA_HEADER;
         let desc = self.header() * self.codeword(DESCRIPTOR_FRAME - HEADER - 1, DESCRIPTOR_PARITY);
         let desc = 1.0 - (1.0 - desc) * (1.0 - desc);
         let mut best: Option<(BlockShape, f32, f32)> = None;
@@ -161,9 +165,9 @@ impl LineModel {
     /// `min_chunk` and `max_chunk`: every even parity, each with sizes on a
     /// coarse grid refined around its best.
     pub(super) fn best_shape(&self, min_chunk: usize, max_chunk: usize) -> FrameShape {
-        let mut best = (FrameShape { chunk: min_chunk, parity: DEFAULT_PARITY, arrival: 0.0, block: None }, -1.0f32);
+        let mut best = (FrameShape { chunk: min_chunk, parity: DEFAULT_PARITY, arrival: 0.0, block: None, clean: false }, -1.0f32);
         for parity in (0..=MAX_PARITY).step_by(2) {
-            let top = max_chunk.min(max_payload(parity) - 2);
+            let top = max_chunk.min(max_payload(parity) - DATA_HEADER);
             if top < min_chunk {
                 break;
             }
@@ -172,7 +176,7 @@ impl LineModel {
             let mut local = (min_chunk, -1.0f32);
             for k in 0..=8 {
                 let chunk = min_chunk + span * k / 8;
-                let g = self.goodput(FrameShape { chunk, parity, arrival: 0.0, block: None });
+                let g = self.goodput(FrameShape { chunk, parity, arrival: 0.0, block: None, clean: false });
                 if g > local.1 {
                     local = (chunk, g);
                 }
@@ -180,13 +184,13 @@ impl LineModel {
             let step = (span / 8).max(1);
             let (lo, hi) = (local.0.saturating_sub(step).max(min_chunk), (local.0 + step).min(top));
             for chunk in (lo..=hi).step_by((step / 8).max(1)) {
-                let g = self.goodput(FrameShape { chunk, parity, arrival: 0.0, block: None });
+                let g = self.goodput(FrameShape { chunk, parity, arrival: 0.0, block: None, clean: false });
                 if g > local.1 {
                     local = (chunk, g);
                 }
             }
             if local.1 > best.1 {
-                best = (FrameShape { chunk: local.0, parity, arrival: 0.0, block: None }, local.1);
+                best = (FrameShape { chunk: local.0, parity, arrival: 0.0, block: None, clean: false }, local.1);
             }
         }
         best.0
@@ -332,7 +336,7 @@ mod tests {
                 assert!(goodput > m.goodput(frames) * m.arrival(frames), "{rate}: {shape:?}");
                 let least = if rate <= 0.1 { 0.8 } else { 0.4 };
                 assert!(arrival > least && (arrival - shape.arrival).abs() < 1e-6, "{rate}: {b:?} arrives {arrival}");
-                assert!(b.fits(shape.chunk + 2), "{rate}: {b:?}");
+                assert!(b.fits(shape.chunk + DATA_HEADER), "{rate}: {b:?}");
             }
         }
         // Substitutions alone: frames correct them at less cost.

@@ -771,7 +771,8 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
                 *peer_takes_map = Some(h.takes_map);
                 *peer_id = Some(h.robot_id);
             }
-            Message::Data { offset, poll, data } => {
+            Message::Data { offset, poll, tag, data } => {
+                rx.echo = tag;
                 // Half duplex: an answer only when asked (the turn is over).
                 // Blocks carry up to 300 data bytes each: acknowledged every
                 // two (every four, the sender's window filled before the

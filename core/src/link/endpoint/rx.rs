@@ -22,6 +22,8 @@ pub(super) struct Rx<'a, S: VoxelSink> {
     /// Data frames since the last acknowledgement.
     pub(super) unacked: u8,
     pub(super) ack_now: bool,
+    /// Tag of the last data frame that arrived (echoed by our acks).
+    pub(super) echo: u8,
 }
 
 impl<'a, S: VoxelSink> Rx<'a, S> {
@@ -39,6 +41,7 @@ impl<'a, S: VoxelSink> Rx<'a, S> {
             latest: 0,
             unacked: 0,
             ack_now: false,
+            echo: 0,
         }
     }
 }
@@ -176,7 +179,7 @@ impl<S: VoxelSink> Rx<'_, S> {
 
     /// What we hold, as an acknowledgement.
     pub(super) fn ack(&self, have: &[u32; STREAM_BUFFER / 32], finished: bool) -> Ack {
-        let mut ack = Ack { cum: self.cum as u16, ..Ack::default() };
+        let mut ack = Ack { cum: self.cum as u16, echo: self.echo, ..Ack::default() };
         if self.done {
             ack.flags |= ACK_COMPLETE;
         }

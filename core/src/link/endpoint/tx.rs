@@ -3,6 +3,9 @@
 
 use super::*;
 
+/// Transmissions whose send times are kept (for round trips from echoes).
+pub(super) const SENT_TIMES: usize = 32;
+
 /// One frame's worth of the stream in flight.
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
@@ -12,8 +15,9 @@ pub(super) struct Segment {
     pub(super) sends: u8,
     /// Known lost (1): waits for retransmission.
     pub(super) lost: u8,
-    /// Transmission number of its last send (a later number acknowledged
-    /// while this one is not means this one was lost: the line keeps order).
+    /// Transmission number of its last send (its tag is this modulo 256;
+    /// the peer having read a later one while this one is not held means
+    /// this one was lost: the line keeps order).
     pub(super) order: u32,
     /// Milliseconds (wrapping) of its last send.
     pub(super) sent_at: u32,
@@ -113,8 +117,15 @@ pub(super) struct Tx<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> {
     pub(super) acked: u32,
     pub(super) sent_end: u32,
     pub(super) produced: u32,
+    /// Data frames sent (the last one's transmission number).
     pub(super) order: u32,
+    /// The last transmission the peer read, as its acks echo it: frames
+    /// sent after it are unread (in its queue, on the line, or lost).
     pub(super) acked_order: u32,
+    /// When the last [`SENT_TIMES`] transmissions left (ms, wrapping), by
+    /// transmission number: an echo gives the round trip of the very copy
+    /// the peer read, resent or not.
+    pub(super) sent_times: [u32; SENT_TIMES],
     /// The receiver said it holds the whole map.
     pub(super) complete: bool,
     /// Data bytes per frame, from the estimated line.
@@ -127,8 +138,6 @@ pub(super) struct Tx<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> {
     pub(super) srtt: Option<u32>,
     /// Mean deviation of the round trips from `srtt` (ms).
     pub(super) rttvar: u32,
-    /// Shortest round trip seen (ms).
-    pub(super) min_rtt: u32,
     /// Timeouts in a row with no progress at all.
     pub(super) backoff: u32,
     /// When an acknowledgement last took bytes off our hands.
@@ -137,6 +146,10 @@ pub(super) struct Tx<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> {
     pub(super) last_probe: u64,
     /// Resends while nothing new can go (every fourth asks for an answer).
     pub(super) idle_resends: u32,
+    /// Rounds of such resends (the oldest bytes sent again) since the peer
+    /// last read a frame of ours: on a clean line each doubles the wait
+    /// before the next.
+    pub(super) unanswered: u32,
     /// Half duplex: when the frame that ended our turn went out (it asked
     /// for an answer; anything sent before the answer would collide with it).
     pub(super) awaiting: Option<u64>,
@@ -182,17 +195,18 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
             produced: 0,
             order: 0,
             acked_order: 0,
+            sent_times: [0; SENT_TIMES],
             complete: false,
             size: initial.chunk,
             parity: initial.parity,
             block: None,
             srtt: None,
             rttvar: 0,
-            min_rtt: u32::MAX,
             backoff: 0,
             last_progress: 0,
             last_probe: 0,
             idle_resends: 0,
+            unanswered: 0,
             awaiting: None,
             burst: 0,
             answer_ms: None,
@@ -251,12 +265,14 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
 
     /// How long bytes may go unacknowledged before they are sent again:
     /// twice the smoothed round trip (before any, `timeout_ms`).
+    /// Capped at `max_timeout_ms`, but never below a round trip as the
+    /// peer answers now (a slow peer's queue lengthens it: resending
+    /// sooner than the answer can come is a storm, not a repair).
     pub(super) fn rto(&self, config: &LinkConfig) -> u32 {
-        let base = match self.srtt {
-            Some(s) => (2 * s + 20).max(30),
-            None => config.timeout_ms,
-        };
-        base.min(config.max_timeout_ms)
+        match self.srtt {
+            Some(s) => (2 * s + 20).max(30).min(config.max_timeout_ms.max(s + 4 * self.rttvar + 20)),
+            None => config.timeout_ms.min(config.max_timeout_ms),
+        }
     }
 
     /// Cuts segment `i` to the current frame size; the rest stays lost.
@@ -290,6 +306,9 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
             *d = b.ring[seg.start.wrapping_add(k as u32) as usize % STREAM_BUFFER];
         }
         self.order += 1;
+        if let Some(t) = self.sent_times.get_mut(self.order as usize % SENT_TIMES) {
+            *t = now as u32;
+        }
         seg.order = self.order;
         seg.sends = seg.sends.saturating_add(1);
         seg.sent_at = now as u32;
@@ -299,7 +318,7 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
             self.awaiting = Some(now);
         }
         let offset = (seg.start % OFFSET_MODULUS) as u16;
-        let msg = Message::Data { offset, poll, data: data.get(..len).unwrap_or(&[]) };
+        let msg = Message::Data { offset, poll, tag: self.order as u8, data: data.get(..len).unwrap_or(&[]) };
         match self.block {
             Some(block) => send_block(io, &msg, (block, self.parity), stats)?,
             None => send_msg(io, &msg, self.parity, stats)?,
@@ -341,6 +360,18 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         if self.backoff > 0 {
             self.size = self.size.min(probe);
         }
+        let rto = self.rto(config);
+        if self.unread() >= self.unread_limit() && !b.segs.is_empty() {
+            // The peer has not read what it was sent: a peer busy elsewhere
+            // or on a slow host, whose queue more frames would only
+            // lengthen (a storm of resends it reads much later). Wait for
+            // its acks; without progress for a timeout (all lost, or the
+            // peer busy), probe at a timeout that doubles.
+            return match now >= self.last_progress + u64::from(rto) {
+                true => self.probe_when_due(b, io, now, shape, config, stats),
+                false => Ok(()),
+            };
+        }
         if let Some(i) = b.segs.iter().position(|s| s.lost != 0) {
             self.cut(b.segs, i);
             let more = b.segs.iter().skip(i + 1).any(|s| s.lost != 0);
@@ -358,13 +389,8 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         if b.segs.is_empty() {
             return Ok(());
         }
-        let rto = self.rto(config);
         if now >= self.last_progress.max(heard) + 4 * u64::from(rto) {
-            let wait = u64::from(rto.saturating_mul(1 << self.backoff.min(8)).min(config.max_timeout_ms.max(rto)));
-            if now < self.last_probe + wait {
-                return Ok(());
-            }
-            return self.probe(b, io, now, shape, config, stats);
+            return self.probe_when_due(b, io, now, shape, config, stats);
         }
         // On a clean line, bytes not acknowledged in a timeout; on a lossy
         // one, sooner (a round trip and a half): there the oldest bytes are
@@ -376,12 +402,25 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
             }
             _ => rto,
         };
-        let due = b.segs.iter().take(8).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);
+        // On a clean line (also before anything arrived), only the
+        // oldest bytes go again, asking for an answer (which tells what is
+        // missing), and rounds that brought none double the wait: the peer
+        // reads late (busy, or on a slow host) and reads every copy in the
+        // end. On a lossy line the copies are likely lost: the oldest eight
+        // may go, at the same pace (doubling there made 20% take 20 s
+        // instead of 12, simulated).
+        let clean = shape.clean;
+        let (doubling, oldest) = if clean { (self.unanswered.min(5), 1) } else { (0, 8) };
+        let wait = wait.saturating_mul(1 << doubling);
+        let due = b.segs.iter().take(oldest).position(|s| (now as u32).wrapping_sub(s.sent_at) >= wait);
         if let Some(i) = due {
             self.idle_resends += 1;
+            if i == 0 {
+                self.unanswered += 1;
+            }
             self.cut(b.segs, i);
             stats.retransmissions += 1;
-            let poll = config.half_duplex || self.idle_resends.is_multiple_of(4);
+            let poll = config.half_duplex || clean || self.idle_resends.is_multiple_of(4);
             return self.transmit(b, i, poll, io, now, stats);
         }
         Ok(())
@@ -409,6 +448,37 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         stats.chunk_bytes_sent += len as u64;
         let poll = !self.can_send_new(b.segs, config);
         self.transmit(b, b.segs.len() - 1, poll, io, now, stats)
+    }
+
+    /// Data frames sent that the peer has not read, as far as its acks tell.
+    pub(super) fn unread(&self) -> u32 {
+        self.order.wrapping_sub(self.acked_order)
+    }
+
+    /// Most unread frames before the sender waits: two windows of frames
+    /// of the current size, at least 8 and at most 128 (so that a tag, the
+    /// transmission number modulo 256, names one frame unread; probes add
+    /// one each, at a timeout that doubles).
+    fn unread_limit(&self) -> u32 {
+        (2 * WINDOW / self.size.max(1) as u32).clamp(8, 128)
+    }
+
+    /// A probe once the doubling timeout since the last one has run.
+    fn probe_when_due<IO: Write>(
+        &mut self,
+        b: &mut TxBufs<'_>,
+        io: &mut IO,
+        now: u64,
+        shape: FrameShape,
+        config: &LinkConfig,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
+        let rto = self.rto(config);
+        let wait = u64::from(rto.saturating_mul(1 << self.backoff.min(8)).min(config.max_timeout_ms.max(rto)));
+        if now < self.last_probe + wait {
+            return Ok(());
+        }
+        self.probe(b, io, now, shape, config, stats)
     }
 
     /// Nothing heard: the line may have got worse. Resends the oldest bytes
@@ -461,31 +531,30 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         }
         (self.awaiting, self.burst) = (None, 0);
         let mut progress = ahead > 0;
-        // The round trip of the last-sent bytes acknowledged now (sent once:
-        // older ones may have waited behind a gap, or for a lost ack).
-        let mut freshest: Option<Segment> = None;
+        // The peer read everything up to the frame it echoes: its tag is
+        // that frame's transmission number modulo 256, and fewer than 256
+        // are ever unread (see `unread_limit`). An older ack says less.
+        let back = (self.order as u8).wrapping_sub(ack.echo);
+        let read = self.order.wrapping_sub(u32::from(back));
+        let newer = read.wrapping_sub(self.acked_order) < 1 << 31;
+        if newer {
+            progress |= read != self.acked_order;
+            self.acked_order = read;
+        }
         let mut i = 0;
         while let Some(s) = segs.get(i).copied() {
             if held(&s) {
-                // An ack sooner than any round trip after a resend is for an
-                // earlier copy: its order says nothing.
-                let since = (now as u32).wrapping_sub(s.sent_at);
-                let ambiguous = s.sends > 1 && self.min_rtt != u32::MAX && since < self.min_rtt;
-                if !ambiguous {
-                    if freshest.is_none_or(|f| s.order > f.order) {
-                        freshest = Some(s);
-                    }
-                    self.acked_order = self.acked_order.max(s.order);
-                }
                 segs.remove(i);
                 progress = true;
             } else {
                 i += 1;
             }
         }
-        if let Some(s) = freshest {
-            let sample = (now as u32).wrapping_sub(s.sent_at).min(config.max_timeout_ms);
-            self.min_rtt = self.min_rtt.min(sample);
+        // The round trip of the very copy the peer read last: the ack
+        // left as it read that frame (nothing later of ours had reached it).
+        let recent = self.order.wrapping_sub(read) < SENT_TIMES as u32 && read != 0;
+        if let Some(&sent_at) = self.sent_times.get(read as usize % SENT_TIMES).filter(|_| newer && recent) {
+            let sample = (now as u32).wrapping_sub(sent_at);
             if let Some(r) = self.srtt {
                 self.rttvar = (3 * self.rttvar + r.abs_diff(sample)) / 4;
             }
@@ -497,18 +566,16 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         // the end of its next-to-last block; beyond, nothing is known.
         let all = ack.flags & ACK_ALL_BLOCKS != 0;
         let known = ranges.get(..usize::from(ack.blocks).saturating_sub(1)).unwrap_or(&[]).last().map_or(cum, |r| r.1);
-        // Only bytes out for a round trip: an ack for an earlier copy of
-        // what was resent since says nothing of what followed that copy.
-        let settled = self.srtt.unwrap_or(0);
         for s in segs.iter_mut() {
             let within = all || known.wrapping_sub(s.start.wrapping_add(u32::from(s.len))) < 1 << 30;
-            let out_long = (now as u32).wrapping_sub(s.sent_at) >= settled;
-            if s.lost == 0 && s.order < self.acked_order && within && out_long {
+            let before = self.acked_order.wrapping_sub(s.order).wrapping_sub(1) < 1 << 31;
+            if s.lost == 0 && before && within {
                 s.lost = 1;
             }
         }
         if progress {
             self.backoff = 0;
+            self.unanswered = 0;
             self.last_progress = now;
         }
         if ack.flags & ACK_COMPLETE != 0 && self.exhausted() && self.acked == self.produced {
