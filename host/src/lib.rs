@@ -36,6 +36,8 @@ pub mod sources {
     pub mod label;
     pub mod mcap_read;
     pub mod recording;
+    #[cfg(feature = "segment")]
+    pub mod segment;
     pub mod source;
     pub mod synth;
 }
@@ -97,6 +99,8 @@ pub use evaluation::{align, bench, boxplot, demo, eval, pair, stats, team};
 pub use lines::{exchange, link, relay, transport};
 pub use maps::{cmap, job, mapping, noise, ply};
 pub use reports::report;
+#[cfg(feature = "segment")]
+pub use sources::segment;
 pub use sources::{cdr_read, class_table, cloud, kitti, label, mcap_read, recording, source, synth};
 
 pub use error::Error;

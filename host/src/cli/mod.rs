@@ -13,6 +13,7 @@ mod map;
 mod matching;
 mod relay;
 mod robots;
+mod segment;
 mod synth;
 mod team;
 
@@ -57,6 +58,8 @@ enum Command {
     },
     /// Label LiDAR scans from camera segmentation images (SemanticKITTI layout out).
     Label(label::Args),
+    /// Segment camera images with a network (ONNX, pure Rust; feature `segment`).
+    Segment(segment::Args),
     /// Synthesise a SemanticKITTI-layout sequence (street scene + simulated LiDAR).
     Synth(synth::Args),
     /// Benchmarks that print numbers.
@@ -107,6 +110,7 @@ fn run_command(cli: Cli) -> Result<u8, Error> {
         Command::Info(a) => done(info::run(a)),
         Command::Export { format } => done(export::run(format)),
         Command::Label(a) => done(label::run(a)),
+        Command::Segment(a) => done(segment::run(a)),
         Command::Synth(a) => done(synth::run(a)),
         Command::Bench { json, what } => done(bench::run(what, json.as_deref())),
         Command::Demo(a) => done(demo::run(a)),

@@ -349,6 +349,9 @@ pub struct LabelJson {
     pub classes: &'static str,
     /// In-view points whose existing label has a class.
     pub compared: usize,
+    /// Per class against the existing labels: recall, precision, top
+    /// confusions (schema 2; empty without labels to compare with).
+    pub per_class: Vec<crate::label::ClassAgreement>,
     /// Frames labelled.
     pub frames: usize,
     /// Points projecting into the image and seen by the camera.
@@ -369,6 +372,8 @@ pub struct LabelJson {
     pub probabilities: bool,
     /// The camera's image size the projection was scaled from.
     pub scaled_from_image_size: Option<[u32; 2]>,
+    /// Version of this JSON (2: `per_class`).
+    pub schema_version: u32,
     /// Seconds in all, reading and writing included.
     pub wall_seconds: f64,
 }
@@ -382,6 +387,7 @@ impl LabelJson {
             agreement_in_class_set: s.agreement_in_set(),
             classes: opts.classes.name(),
             compared: s.compared,
+            per_class: s.per_class(),
             frames: s.frames,
             in_view: s.in_view,
             label_seconds: s.label_seconds,
@@ -392,6 +398,7 @@ impl LabelJson {
             points_per_second: s.points as f64 / s.label_seconds.max(1e-9),
             probabilities: opts.probabilities,
             scaled_from_image_size: s.scaled_from.map(|(w, h)| [w, h]),
+            schema_version: 2,
             wall_seconds: wall,
         }
     }

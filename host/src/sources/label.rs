@@ -15,7 +15,7 @@
 
 use crate::kitti::{KittiError, Sequence};
 use cosem_core::camera::{evidence_from_probabilities, Camera, DepthGrid, Projection, SegClasses};
-use cosem_core::classes::{Class, MovingObjects};
+use cosem_core::classes::{Class, MovingObjects, NUM_CLASSES};
 use cosem_core::map::{LabelDistribution, SensorModel, LABEL_SLOTS};
 use std::path::{Path, PathBuf};
 
@@ -413,6 +413,28 @@ pub struct LabelStats {
     pub agreeing_in_set: usize,
     /// Seconds spent projecting and labelling (reading and writing excluded).
     pub label_seconds: f64,
+    /// Compared points by (truth, new class): row `t` (a class index, the
+    /// truth as the class set can say it), column `c` (a class index, or
+    /// [`NUM_CLASSES`] for none); empty until a point is compared.
+    pub confusion: Vec<u64>,
+}
+
+/// How one class fared against the truth (see [`LabelStats::per_class`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ClassAgreement {
+    /// The class.
+    pub class: &'static str,
+    /// Compared points whose truth is this class.
+    pub truth_points: u64,
+    /// Compared points labelled this class.
+    pub labelled_points: u64,
+    /// Of the truth's points, the share labelled this class.
+    pub recall: Option<f64>,
+    /// Of the points labelled this class, the share whose truth it is.
+    pub precision: Option<f64>,
+    /// What the truth's points were labelled instead, most first (at most
+    /// three, each a share of the truth's points; "none": left unlabelled).
+    pub confused_with: Vec<(&'static str, f64)>,
 }
 
 impl LabelStats {
@@ -443,6 +465,22 @@ impl LabelStats {
             ),
             None => "(the input has no labels to compare with)\n".into(),
         };
+        let classes = self.per_class();
+        if !classes.is_empty() {
+            out += "  class            truth   recall  precision  mostly confused with\n";
+        }
+        for k in &classes {
+            let pct = |v: Option<f64>| v.map_or("     -".into(), |v| format!("{:5.1}%", 100.0 * v));
+            let conf: Vec<String> = k.confused_with.iter().map(|(c, f)| format!("{c} {:.0}%", 100.0 * f)).collect();
+            out += &format!(
+                "  {:<14} {:>7}   {}     {}  {}\n",
+                k.class,
+                k.truth_points,
+                pct(k.recall),
+                pct(k.precision),
+                conf.join(", ")
+            );
+        }
         if let Some((w, h)) = self.scaled_from {
             out += &format!("the camera's projection was scaled from its {w}x{h} images to the segmentation's size\n");
         }
@@ -457,6 +495,38 @@ impl LabelStats {
     /// Agreement within what the class set can say, if compared.
     pub fn agreement_in_set(&self) -> Option<f64> {
         (self.compared > 0).then(|| self.agreeing_in_set as f64 / self.compared as f64)
+    }
+
+    /// Per class (those the truth or the new labels hold): recall,
+    /// precision and the top confusions, from [`LabelStats::confusion`].
+    pub fn per_class(&self) -> Vec<ClassAgreement> {
+        let cols = NUM_CLASSES + 1;
+        if self.confusion.len() != NUM_CLASSES * cols {
+            return Vec::new();
+        }
+        let at = |t: usize, c: usize| self.confusion[t * cols + c];
+        let name = |c: usize| Class::from_index(c as u8).map_or("none", Class::name);
+        (0..NUM_CLASSES)
+            .filter_map(|k| {
+                let truth: u64 = (0..cols).map(|c| at(k, c)).sum();
+                let labelled: u64 = (0..NUM_CLASSES).map(|t| at(t, k)).sum();
+                if truth == 0 && labelled == 0 {
+                    return None;
+                }
+                let share = |n: u64, d: u64| (d > 0).then(|| n as f64 / d as f64);
+                let mut others: Vec<(usize, u64)> =
+                    (0..cols).filter(|&c| c != k && at(k, c) > 0).map(|c| (c, at(k, c))).collect();
+                others.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+                Some(ClassAgreement {
+                    class: name(k),
+                    truth_points: truth,
+                    labelled_points: labelled,
+                    recall: share(at(k, k), truth),
+                    precision: share(at(k, k), labelled),
+                    confused_with: others.iter().take(3).map(|&(c, n)| (name(c), n as f64 / truth as f64)).collect(),
+                })
+            })
+            .collect()
     }
 }
 
@@ -910,6 +980,15 @@ impl FrameLabels<'_> {
             stats.agreeing += usize::from(c == Some(gt));
             let said = self.o.classes.class(self.o.classes.id(Some(gt))).ok().flatten();
             stats.agreeing_in_set += usize::from(c.is_some() && c == said);
+            let cols = NUM_CLASSES + 1;
+            if stats.confusion.is_empty() {
+                stats.confusion = vec![0; NUM_CLASSES * cols];
+            }
+            let row = usize::from(said.unwrap_or(gt).index());
+            let col = c.map_or(NUM_CLASSES, |c| usize::from(c.index()));
+            if let Some(n) = stats.confusion.get_mut(row * cols + col) {
+                *n += 1;
+            }
         }
     }
 }

@@ -47,7 +47,8 @@ impl FrameShape {
     /// undelivered).
     pub(super) fn for_line(line: LineModel, config: &super::LinkConfig) -> Self {
         let shape = line.best_shape(usize::from(config.min_chunk), usize::from(config.max_chunk));
-        let frames = FrameShape { arrival: line.arrival(shape), clean: line.substitution + line.indel < 0.002, ..shape };
+        let frames =
+            FrameShape { arrival: line.arrival(shape), clean: line.substitution + line.indel < 0.002, ..shape };
         // Half duplex: frames only. A turn's answer comes when its last
         // frame is in, and a block's is 500 bytes, not a frame's few: the
         // turn timing was not made for it (measured: storms of resends).
@@ -165,7 +166,8 @@ impl LineModel {
     /// `min_chunk` and `max_chunk`: every even parity, each with sizes on a
     /// coarse grid refined around its best.
     pub(super) fn best_shape(&self, min_chunk: usize, max_chunk: usize) -> FrameShape {
-        let mut best = (FrameShape { chunk: min_chunk, parity: DEFAULT_PARITY, arrival: 0.0, block: None, clean: false }, -1.0f32);
+        let mut best =
+            (FrameShape { chunk: min_chunk, parity: DEFAULT_PARITY, arrival: 0.0, block: None, clean: false }, -1.0f32);
         for parity in (0..=MAX_PARITY).step_by(2) {
             let top = max_chunk.min(max_payload(parity) - DATA_HEADER);
             if top < min_chunk {

@@ -1,0 +1,139 @@
+//! `cosem segment` on the real KITTI images with the real network (feature
+//! `segment`; skipped with a reason where `../shared` is absent): the Rust
+//! inference against onnxruntime on the same inputs, the labels it gives
+//! the LiDAR points against SemanticKITTI's truth, and bad models named.
+#![cfg(feature = "segment")]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn shared() -> PathBuf {
+    match std::env::var_os("COSEM_DATA") {
+        Some(d) => PathBuf::from(d).join(".."),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
+    }
+}
+
+/// The model and a sequence's folder, or why the test skips.
+fn real(seq: &str) -> Option<(PathBuf, PathBuf)> {
+    let model = shared().join("models/espnetv2-cityscapes-s2.0-512x1024.onnx");
+    let data = match std::env::var_os("COSEM_DATA") {
+        Some(d) => PathBuf::from(d).join(seq),
+        None => shared().join("data").join(seq),
+    };
+    if model.exists() && data.join("image_2").is_dir() {
+        Some((model, data))
+    } else {
+        eprintln!("skipping: {} or {}/image_2 not found (set COSEM_DATA)", model.display(), data.display());
+        None
+    }
+}
+
+fn cosem(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_cosem")).args(args).output().expect("run cosem")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = cosem(args);
+    assert!(out.status.success(), "cosem {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn s(p: &Path) -> String {
+    p.display().to_string()
+}
+
+/// The Rust inference (tract) gives onnxruntime's labels on the same input
+/// tensors of real KITTI images, on at least 99.9% of the pixels.
+#[test]
+fn tract_agrees_with_onnxruntime_on_real_images() {
+    let Some((model, data)) = real("kitti00") else { return };
+    let have = Command::new("python3").args(["-c", "import onnxruntime, numpy"]).output();
+    if !have.is_ok_and(|o| o.status.success()) {
+        eprintln!("skipping: python3 with onnxruntime and numpy is missing (pip install onnxruntime numpy)");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let (out, check) = (tmp.path().join("seg"), tmp.path().join("check"));
+    let images = data.join("image_2");
+    ok(&[
+        "segment",
+        "--model",
+        &s(&model),
+        "--images",
+        &s(&images),
+        "--out",
+        &s(&out),
+        "--frames",
+        "0:3:2",
+        "--fit",
+        "squash",
+        "--check-dir",
+        &s(&check),
+    ]);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/segment_reference.py");
+    let run = Command::new("python3").args([s(&script), s(&model), s(&check)]).output().unwrap();
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{text}{}", String::from_utf8_lossy(&run.stderr));
+    let all: f64 = text.lines().find_map(|l| l.strip_prefix("all ")).unwrap().trim().parse().unwrap();
+    eprintln!("{text}");
+    assert!(all >= 0.999, "agreement with onnxruntime {all}");
+    // The PNGs are at the camera image's own size, ids 0-18 or 255.
+    for f in ["000000.png", "000002.png"] {
+        let d = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(out.join(f)).unwrap()));
+        let mut r = d.read_info().unwrap();
+        let mut buf = vec![0u8; r.output_buffer_size().unwrap()];
+        let info = r.next_frame(&mut buf).unwrap();
+        assert_eq!((info.width, info.height), (1241, 376), "{f}");
+        assert!(buf.iter().all(|&v| v < 19 || v == 255), "{f}");
+    }
+}
+
+/// Labels from the network on the camera's points of kitti00 agree with
+/// SemanticKITTI's truth on at least 70% (as Cityscapes can say them:
+/// parking is road, trunk is vegetation), and on kitti07 too.
+#[test]
+fn network_labels_agree_with_the_truth() {
+    for (seq, frames, least) in [("kitti00", "0:10", 0.70), ("kitti07", "0:10", 0.70)] {
+        let Some((model, data)) = real(seq) else { return };
+        let tmp = tempfile::tempdir().unwrap();
+        let (seg, lab) = (tmp.path().join("seg"), tmp.path().join("lab"));
+        let images = data.join("image_2");
+        ok(&["segment", "--model", &s(&model), "--images", &s(&images), "--out", &s(&seg), "--frames", frames]);
+        let json =
+            ok(&["label", "--data", &s(&data), "--seg", &s(&seg), "--frames", frames, "--out", &s(&lab), "--json"]);
+        let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+        let agree = v["agreement_in_class_set"].as_f64().unwrap();
+        eprintln!(
+            "{seq} {frames}: {:.1}% of the camera's points right ({:.1}% by exact class)",
+            100.0 * agree,
+            100.0 * v["agreement"].as_f64().unwrap()
+        );
+        assert!(agree >= least, "{seq}: {agree}");
+    }
+}
+
+/// A file that is not a network, and one whose input is not an image
+/// tensor, are typed errors naming the file (and the shapes).
+#[test]
+fn bad_models_are_named() {
+    let Some((_, data)) = real("kitti00") else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let junk = tmp.path().join("junk.onnx");
+    std::fs::write(&junk, b"not a protobuf at all").unwrap();
+    let images = data.join("image_2");
+    let out = cosem(&[
+        "segment",
+        "--model",
+        &s(&junk),
+        "--images",
+        &s(&images),
+        "--out",
+        &s(&tmp.path().join("o")),
+        "--frames",
+        "0:1",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("junk.onnx"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
