@@ -14,8 +14,19 @@ pub struct Args {
     data: PathBuf,
     /// Segmentation images: 8-bit PNGs of class ids named like the scans
     /// (000042.png), or with --probabilities NumPy maps (000042.npy).
-    #[arg(long)]
-    seg: PathBuf,
+    #[arg(long, required_unless_present = "model", conflicts_with = "model")]
+    seg: Option<PathBuf>,
+    /// Segment the camera's images with this network (ONNX, as `cosem
+    /// segment`; feature `segment`) into OUT/seg_<camera>/ first, then label
+    /// from them.
+    #[arg(long, requires = "images")]
+    model: Option<PathBuf>,
+    /// With --model: the camera's colour images (KITTI's image_2/).
+    #[arg(long, requires = "model")]
+    images: Option<PathBuf>,
+    /// With --model: how an image meets the network (see `cosem segment`).
+    #[arg(long, default_value = "squash")]
+    fit: String,
     /// Camera whose projection `P<camera>` in calib.txt the images are from.
     #[arg(long, default_value_t = 2)]
     camera: u8,
@@ -65,26 +76,82 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
+    let frames: Option<Vec<usize>> = a.frames.map(|r| r.frames().collect());
+    let seg = match (&a.seg, &a.model, &a.images) {
+        (Some(seg), _, _) => seg.clone(),
+        (None, Some(model), Some(images)) => segment_first(model, images, &a, frames.clone())?,
+        _ => return Err("give --seg, or --model with --images".into()),
+    };
     let opts = LabelOptions {
         data: a.data.clone(),
-        seg: a.seg.clone(),
+        seg,
         camera: a.camera,
         classes: a.classes,
         probabilities: a.probabilities,
         occlusion: !a.keep_occluded,
         image_size: a.image_size.as_deref().map(parse_image_size).transpose()?,
-        frames: a.frames.map(|r| r.frames().collect()),
+        frames,
         out: a.out.clone(),
         copy_scans: a.copy_scans,
-        void_channel: a.void_channel,
+        // A network run here gives its void channel last (`cosem segment`).
+        void_channel: match a.model {
+            Some(_) if a.probabilities => cosem_host::label::VoidChannel::Last,
+            _ => a.void_channel,
+        },
         scale_to_images: a.scale_to_images,
     };
     let t = std::time::Instant::now();
-    let s = label_sequence(&opts)?;
+    let labelled = label_sequence(&opts);
+    // The segmentation made here goes into the output, beside the labels
+    // (a sequence folder's seg_<camera>/, as `cosem synth` writes it).
+    if a.model.is_some() {
+        let kept = labelled.as_ref().map(|_| a.out.join(format!("seg_{}", a.camera)));
+        match kept {
+            Ok(to) => std::fs::rename(&opts.seg, &to).map_err(|e| format!("{}: {e}", to.display()))?,
+            Err(_) => {
+                let _ = std::fs::remove_dir_all(&opts.seg);
+            }
+        }
+    }
+    let s = labelled?;
     let wall = t.elapsed().as_secs_f64();
     if a.json {
         return super::print_json(&LabelJson::of(&s, &opts, wall));
     }
     print!("{}", s.text(&opts, wall));
     Ok(())
+}
+
+/// `--model`: the images segmented (as `cosem segment` would) into a new
+/// folder beside OUT, which the labelling reads and then moves into OUT as
+/// seg_<camera>/.
+#[cfg(feature = "segment")]
+fn segment_first(
+    model: &std::path::Path,
+    images: &std::path::Path,
+    a: &Args,
+    frames: Option<Vec<usize>>,
+) -> Result<PathBuf, Error> {
+    use cosem_host::segment::{segment_folder, SegmentOptions};
+    cosem_host::paths::refuse_inside(&a.out, &[&a.data, images])?;
+    let name = a.out.file_name().map_or("label".into(), |n| n.to_string_lossy().into_owned());
+    let out = a.out.with_file_name(format!(".{name}.seg-{}", std::process::id()));
+    let opts = SegmentOptions {
+        model: model.to_path_buf(),
+        images: images.to_path_buf(),
+        out: out.clone(),
+        frames,
+        probabilities: a.probabilities,
+        fit: a.fit.parse().map_err(|e: String| format!("--fit {e}"))?,
+        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        check: None,
+    };
+    let s = segment_folder(&opts, &|| {})?;
+    eprintln!("segmented {} images into {} ({:.0} ms per image)", s.images, out.display(), s.ms_per_image);
+    Ok(out)
+}
+
+#[cfg(not(feature = "segment"))]
+fn segment_first(_: &std::path::Path, _: &std::path::Path, _: &Args, _: Option<Vec<usize>>) -> Result<PathBuf, Error> {
+    Err("--model needs the `segment` feature (tract-onnx): cargo build --release --features segment".into())
 }
