@@ -190,6 +190,7 @@ fn bench_segment(a: SegmentArgs, json: Option<&Path>) -> Result<(), Error> {
             fit: a.fit.parse().map_err(|e: String| format!("--fit {e}"))?,
             threads,
             check: None,
+            overlay: false,
         };
         let s = segment_folder(&opts, &|| {})?;
         println!(

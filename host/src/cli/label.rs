@@ -145,6 +145,7 @@ fn segment_first(
         fit: a.fit.parse().map_err(|e: String| format!("--fit {e}"))?,
         threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
         check: None,
+        overlay: false,
     };
     let s = segment_folder(&opts, &|| {})?;
     eprintln!("segmented {} images into {} ({:.0} ms per image)", s.images, out.display(), s.ms_per_image);

@@ -38,6 +38,9 @@ pub struct Args {
     /// size as .npy here (to check against another runtime; squash only).
     #[arg(long)]
     check_dir: Option<PathBuf>,
+    /// Also write NNNNNN.overlay.png: the image with its class colours laid over it.
+    #[arg(long)]
+    overlay: bool,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -60,6 +63,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         fit,
         threads,
         check: a.check_dir,
+        overlay: a.overlay,
     };
     let bar = indicatif::ProgressBar::new(opts.frames.as_ref().map_or(0, Vec::len) as u64);
     let style = indicatif::ProgressStyle::with_template("{bar:40} {pos} images, {elapsed} elapsed, eta {eta}");

@@ -371,6 +371,9 @@ pub struct SegmentOptions {
     pub fit: Fit,
     /// Images segmented at once (each on one core).
     pub threads: usize,
+    /// Also write `NNNNNN.overlay.png`: the image with each pixel's class
+    /// colour (cosem's class table) laid over it, half and half.
+    pub overlay: bool,
     /// Also write, per image, the network's input (`NNNNNN.input.npy`,
     /// float32 [1, 3, H, W]) and its labels at its own size
     /// (`NNNNNN.labels.npy`, uint8 [H, W]) here: to check the inference
@@ -451,8 +454,13 @@ fn segment_one(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Re
         crate::paths::write_file(&file, npy("|u1", &[h, w], &labels.ids)).map_err(io(file.clone()))?;
     }
     let scores = net.scores(&image, o.fit)?;
+    let labels = scores.labels();
     let file = o.out.join(format!("{name}.png"));
-    crate::label::write_seg_png(&file, &scores.labels()).map_err(io(file.clone()))?;
+    crate::label::write_seg_png(&file, &labels).map_err(io(file.clone()))?;
+    if o.overlay {
+        let file = o.out.join(format!("{name}.overlay.png"));
+        write_rgb_png(&file, &overlay(&image, &labels)).map_err(io(file.clone()))?;
+    }
     if o.probabilities {
         let file = o.out.join(format!("{name}.npy"));
         crate::label::write_probabilities(&file, &scores.probabilities()).map_err(io(file.clone()))?;
@@ -496,6 +504,33 @@ pub fn segment_folder(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<Se
         ms_per_image: 1000.0 * wall_s / list.len() as f64,
         threads,
     })
+}
+
+/// `image` with each pixel's class colour laid over it, half and half
+/// (void pixels left as they are).
+pub fn overlay(image: &RgbImage, labels: &SegImage) -> RgbImage {
+    use cosem_core::camera::SegClasses;
+    let mut rgb = image.rgb.clone();
+    for (px, &id) in rgb.chunks_exact_mut(3).zip(&labels.ids) {
+        if let Ok(Some(class)) = SegClasses::Cityscapes.class(id) {
+            for (p, c) in px.iter_mut().zip(class.color()) {
+                *p = ((u16::from(*p) + u16::from(c)) / 2) as u8;
+            }
+        }
+    }
+    RgbImage { rgb, ..*image }
+}
+
+/// Writes an 8-bit RGB PNG.
+pub fn write_rgb_png(path: &Path, image: &RgbImage) -> std::io::Result<()> {
+    let mut file = crate::paths::Output::create(path)?;
+    let mut enc = png::Encoder::new(&mut file, image.width, image.height);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header().map_err(std::io::Error::other)?;
+    w.write_image_data(&image.rgb).map_err(std::io::Error::other)?;
+    w.finish().map_err(std::io::Error::other)?;
+    file.commit()
 }
 
 /// RGB bytes as three planes of 0-255 values.
