@@ -148,7 +148,8 @@ fn segment_first(
         overlay: false,
     };
     let s = segment_folder(&opts, &|| {})?;
-    eprintln!("segmented {} images into {} ({:.0} ms per image)", s.images, out.display(), s.ms_per_image);
+    let kept = a.out.join(format!("seg_{}", a.camera));
+    eprintln!("segmented {} images ({:.0} ms per image), kept in {}", s.images, s.ms_per_image, kept.display());
     Ok(out)
 }
 
