@@ -180,3 +180,41 @@ fn bench_segment_prints_times_per_image() {
     let out = ok(&["bench", "segment", "--model", &s(&model), "--images", &s(&images), "--frames", "0:1"]);
     assert_eq!(out.lines().filter(|l| l.contains("ms per image")).count(), 2, "{out}");
 }
+
+/// A valid ONNX network that breaks the contract (one channel in, one
+/// out) is refused, naming the shapes it has and the ones it needs.
+#[test]
+fn a_network_of_the_wrong_shapes_is_refused_naming_them() {
+    let Some((_, data)) = real("kitti00") else { return };
+    let have = Command::new("python3").args(["-c", "import onnx"]).output();
+    if !have.is_ok_and(|o| o.status.success()) {
+        eprintln!("skipping: python3 with onnx is missing (pip install onnx)");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let model = tmp.path().join("gray.onnx");
+    let py = "import onnx, sys\n\
+from onnx import helper, TensorProto\n\
+i = helper.make_tensor_value_info('image', TensorProto.FLOAT, [1, 1, 16, 24])\n\
+o = helper.make_tensor_value_info('logits', TensorProto.FLOAT, [1, 1, 16, 24])\n\
+g = helper.make_graph([helper.make_node('Identity', ['image'], ['logits'])], 'g', [i], [o])\n\
+onnx.save(helper.make_model(g, opset_imports=[helper.make_opsetid('', 13)]), sys.argv[1])\n";
+    let made = Command::new("python3").args(["-c", py, &s(&model)]).output().unwrap();
+    assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
+    let images = data.join("image_2");
+    let out = cosem(&[
+        "segment",
+        "--model",
+        &s(&model),
+        "--images",
+        &s(&images),
+        "--out",
+        &s(&tmp.path().join("o")),
+        "--frames",
+        "0:1",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("gray.onnx") && err.contains("1,1,16,24") && err.contains("[1, 3, H, W]"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
