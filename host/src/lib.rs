@@ -36,6 +36,7 @@ pub mod sources {
     pub mod label;
     pub mod mcap_read;
     pub mod recording;
+    pub mod seg_files;
     #[cfg(feature = "segment")]
     pub mod segment;
     pub mod source;
@@ -101,6 +102,6 @@ pub use maps::{cmap, job, mapping, noise, ply};
 pub use reports::report;
 #[cfg(feature = "segment")]
 pub use sources::segment;
-pub use sources::{cdr_read, class_table, cloud, kitti, label, mcap_read, recording, source, synth};
+pub use sources::{cdr_read, class_table, cloud, kitti, label, mcap_read, recording, seg_files, source, synth};
 
 pub use error::Error;

@@ -43,6 +43,12 @@ fn s(p: &Path) -> String {
     p.display().to_string()
 }
 
+/// `cosem segment` of frame 0 of `images` with `model` into `tmp`/o.
+fn segment_first_frame(model: &Path, images: &Path, tmp: &Path) -> std::process::Output {
+    let out = tmp.join("o");
+    cosem(&["segment", "--model", &s(model), "--images", &s(images), "--out", &s(&out), "--frames", "0:1"])
+}
+
 /// The Rust inference (tract) gives onnxruntime's labels on the same input
 /// tensors of real KITTI images, on at least 99.9% of the pixels.
 #[test]
@@ -156,17 +162,7 @@ fn bad_models_are_named() {
     let junk = tmp.path().join("junk.onnx");
     std::fs::write(&junk, b"not a protobuf at all").unwrap();
     let images = data.join("image_2");
-    let out = cosem(&[
-        "segment",
-        "--model",
-        &s(&junk),
-        "--images",
-        &s(&images),
-        "--out",
-        &s(&tmp.path().join("o")),
-        "--frames",
-        "0:1",
-    ]);
+    let out = segment_first_frame(&junk, &images, tmp.path());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("junk.onnx"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
@@ -202,17 +198,7 @@ onnx.save(helper.make_model(g, opset_imports=[helper.make_opsetid('', 13)]), sys
     let made = Command::new("python3").args(["-c", py, &s(&model)]).output().unwrap();
     assert!(made.status.success(), "{}", String::from_utf8_lossy(&made.stderr));
     let images = data.join("image_2");
-    let out = cosem(&[
-        "segment",
-        "--model",
-        &s(&model),
-        "--images",
-        &s(&images),
-        "--out",
-        &s(&tmp.path().join("o")),
-        "--frames",
-        "0:1",
-    ]);
+    let out = segment_first_frame(&model, &images, tmp.path());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{err}");
     assert!(err.contains("gray.onnx") && err.contains("1,1,16,24") && err.contains("[1, 3, H, W]"), "{err}");

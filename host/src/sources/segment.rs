@@ -9,7 +9,7 @@
 //! mean and deviation; one output `float32 [1, C, H, W]` of raw scores,
 //! channels 0-18 the Cityscapes training ids, any further one void.
 
-use crate::label::{ProbabilityMap, SegImage};
+use crate::seg_files::{npy_bytes, ProbabilityMap, SegImage};
 use std::path::{Path, PathBuf};
 use tract_onnx::prelude::*;
 
@@ -290,10 +290,10 @@ impl Network {
 
     /// The network's scores for one input of its size, normalised RGB
     /// planes (`3 * H * W`).
-    pub fn infer(&self, input: Vec<f32>) -> Result<Vec<f32>, SegmentError> {
+    pub fn infer(&self, input: &[f32]) -> Result<Vec<f32>, SegmentError> {
         let err = |e: TractError| SegmentError::Model { path: self.path.clone(), what: format!("{e:#}") };
         let (h, w) = self.input;
-        let tensor = Tensor::from_shape(&[1, 3, h, w], &input).map_err(err)?;
+        let tensor = Tensor::from_shape(&[1, 3, h, w], input).map_err(err)?;
         let out = self.plan.run(tvec!(tensor.into())).map_err(err)?;
         let first = out.first().ok_or_else(|| err(TractError::msg("no output")))?;
         first.try_as_plain_ram().and_then(|v| v.as_slice::<f32>().map(<[f32]>::to_vec)).map_err(err)
@@ -315,40 +315,48 @@ impl Network {
         planes
     }
 
+    /// The scores of `image` squashed to the network (`out`, the network's
+    /// output) stretched back to the image's size.
+    pub fn back_to_image(&self, out: &[f32], image: &RgbImage) -> Scores {
+        let (h, w) = self.input;
+        let values = resize_planes(out, self.channels, (w, h), (image.width as usize, image.height as usize));
+        Scores { width: image.width, height: image.height, channels: self.channels, values }
+    }
+
     /// Scores for `image` at its own size, brought to the network by `fit`.
     pub fn scores(&self, image: &RgbImage, fit: Fit) -> Result<Scores, SegmentError> {
+        match fit {
+            Fit::Squash => Ok(self.back_to_image(&self.infer(&self.squashed_input(image))?, image)),
+            Fit::Tile { scale } => self.tiled(image, scale),
+        }
+    }
+
+    /// Scores of `image` scaled by `scale`, grown to at least the input's
+    /// size (edges repeated) and covered by overlapping tiles (scores
+    /// averaged), back at the image's size.
+    fn tiled(&self, image: &RgbImage, scale: f32) -> Result<Scores, SegmentError> {
         let (iw, ih) = (image.width as usize, image.height as usize);
         let (h, w) = self.input;
         let c = self.channels;
-        let values = match fit {
-            Fit::Squash => {
-                let out = self.infer(self.squashed_input(image))?;
-                resize_planes(&out, c, (w, h), (iw, ih))
+        let (sw, sh) = (((iw as f32 * scale).round() as usize).max(1), ((ih as f32 * scale).round() as usize).max(1));
+        let scaled = resize_planes(&rgb_planes(image), 3, (iw, ih), (sw, sh));
+        let (pw, ph) = (sw.max(w), sh.max(h));
+        let padded = pad_edges(&scaled, 3, (sw, sh), (pw, ph));
+        let mut sum = vec![0f32; c * pw * ph];
+        let mut count = vec![0u16; pw * ph];
+        for y0 in tile_starts(ph, h) {
+            for x0 in tile_starts(pw, w) {
+                let mut input = crop(&padded, 3, pw, (x0, y0), (w, h));
+                Self::normalise(&mut input, w * h);
+                let out = self.infer(&input)?;
+                add_tile(&mut sum, &mut count, &out, c, pw, (x0, y0), (w, h));
             }
-            Fit::Tile { scale } => {
-                // Scaled, then at least the input's size (edges repeated).
-                let (sw, sh) =
-                    (((iw as f32 * scale).round() as usize).max(1), ((ih as f32 * scale).round() as usize).max(1));
-                let scaled = resize_planes(&rgb_planes(image), 3, (iw, ih), (sw, sh));
-                let (pw, ph) = (sw.max(w), sh.max(h));
-                let padded = pad_edges(&scaled, 3, (sw, sh), (pw, ph));
-                let mut sum = vec![0f32; c * pw * ph];
-                let mut count = vec![0u16; pw * ph];
-                for y0 in tile_starts(ph, h) {
-                    for x0 in tile_starts(pw, w) {
-                        let mut input = crop(&padded, 3, pw, (x0, y0), (w, h));
-                        Self::normalise(&mut input, w * h);
-                        let out = self.infer(input)?;
-                        add_tile(&mut sum, &mut count, &out, c, pw, (x0, y0), (w, h));
-                    }
-                }
-                for (k, v) in sum.iter_mut().enumerate() {
-                    *v /= f32::from(count[k % (pw * ph)].max(1));
-                }
-                let kept = crop(&sum, c, pw, (0, 0), (sw, sh));
-                resize_planes(&kept, c, (sw, sh), (iw, ih))
-            }
-        };
+        }
+        for (k, v) in sum.iter_mut().enumerate() {
+            *v /= f32::from(count[k % (pw * ph)].max(1));
+        }
+        let kept = crop(&sum, c, pw, (0, 0), (sw, sh));
+        let values = resize_planes(&kept, c, (sw, sh), (iw, ih));
         Ok(Scores { width: image.width, height: image.height, channels: c, values })
     }
 }
@@ -423,37 +431,27 @@ fn image_list(o: &SegmentOptions) -> Result<Vec<(String, PathBuf)>, SegmentError
     Ok(list)
 }
 
-/// A `.npy` file of `shape` holding `data` (`descr` `<f4` or `|u1`).
-fn npy(descr: &str, shape: &[usize], data: &[u8]) -> Vec<u8> {
-    let dims: Vec<String> = shape.iter().map(usize::to_string).collect();
-    let mut header = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': ({},), }}", dims.join(", "));
-    while (10 + header.len() + 1) % 64 != 0 {
-        header.push(' ');
-    }
-    header.push('\n');
-    let mut out = b"\x93NUMPY\x01\x00".to_vec();
-    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    out.extend_from_slice(header.as_bytes());
-    out.extend_from_slice(data);
-    out
-}
-
 /// Segments one image into the output folder (and the check folder).
 fn segment_one(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Result<(), SegmentError> {
     let io = |p: PathBuf| move |source| SegmentError::Io { path: p, source };
     let image = read_rgb_png(path)?;
-    if let Some(dir) = &o.check {
-        let input = net.squashed_input(&image);
-        let out = net.infer(input.clone())?;
-        let (h, w) = net.input;
-        let labels = Scores { width: w as u32, height: h as u32, channels: net.channels, values: out }.labels();
-        let bytes: Vec<u8> = input.iter().flat_map(|v| v.to_le_bytes()).collect();
-        let file = dir.join(format!("{name}.input.npy"));
-        crate::paths::write_file(&file, npy("<f4", &[1, 3, h, w], &bytes)).map_err(io(file.clone()))?;
-        let file = dir.join(format!("{name}.labels.npy"));
-        crate::paths::write_file(&file, npy("|u1", &[h, w], &labels.ids)).map_err(io(file.clone()))?;
-    }
-    let scores = net.scores(&image, o.fit)?;
+    let scores = match &o.check {
+        // The one inference of a squashed image serves the check too.
+        Some(dir) => {
+            let input = net.squashed_input(&image);
+            let out = net.infer(&input)?;
+            let (h, w) = net.input;
+            let at_network = Scores { width: w as u32, height: h as u32, channels: net.channels, values: out };
+            let bytes: Vec<u8> = input.iter().flat_map(|v| v.to_le_bytes()).collect();
+            let file = dir.join(format!("{name}.input.npy"));
+            crate::paths::write_file(&file, npy_bytes("<f4", &[1, 3, h, w], &bytes)).map_err(io(file.clone()))?;
+            let file = dir.join(format!("{name}.labels.npy"));
+            let labels = npy_bytes("|u1", &[h, w], &at_network.labels().ids);
+            crate::paths::write_file(&file, labels).map_err(io(file.clone()))?;
+            net.back_to_image(&at_network.values, &image)
+        }
+        None => net.scores(&image, o.fit)?,
+    };
     let labels = scores.labels();
     let file = o.out.join(format!("{name}.png"));
     crate::label::write_seg_png(&file, &labels).map_err(io(file.clone()))?;
@@ -523,14 +521,7 @@ pub fn overlay(image: &RgbImage, labels: &SegImage) -> RgbImage {
 
 /// Writes an 8-bit RGB PNG.
 pub fn write_rgb_png(path: &Path, image: &RgbImage) -> std::io::Result<()> {
-    let mut file = crate::paths::Output::create(path)?;
-    let mut enc = png::Encoder::new(&mut file, image.width, image.height);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut w = enc.write_header().map_err(std::io::Error::other)?;
-    w.write_image_data(&image.rgb).map_err(std::io::Error::other)?;
-    w.finish().map_err(std::io::Error::other)?;
-    file.commit()
+    crate::seg_files::write_png(path, (image.width, image.height), png::ColorType::Rgb, &image.rgb)
 }
 
 /// RGB bytes as three planes of 0-255 values.
