@@ -95,6 +95,58 @@ fn corrupted_camera_labels_still_match() {
 }
 
 #[test]
+fn unlabelled_points_become_geometry_of_an_unknown_class_when_asked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, "5", &[]);
+    let out = tmp.path().join("out");
+    label(&seq, &out, &[]);
+    let d = out.display().to_string();
+    let info = |mode: &str| -> Value {
+        let file = tmp.path().join(format!("{mode}.cmap")).display().to_string();
+        cosem_ok(&["map", "--data", &d, "--frames", "0:5", "--unlabeled", mode, "-o", &file]);
+        serde_json::from_str(&cosem_ok(&["info", &file, "--json"])).unwrap()
+    };
+    let (drop, geometry) = (info("drop"), info("geometry"));
+    let classed = |v: &Value| v["classes"].as_object().unwrap().values().map(|n| n.as_u64().unwrap()).sum::<u64>();
+    let (n_drop, n_geo) = (drop["voxels"].as_u64().unwrap(), geometry["voxels"].as_u64().unwrap());
+    eprintln!(
+        "voxels: {n_drop} labelled only, {n_geo} with unlabelled geometry ({} unknown)",
+        geometry["unknown_class"]
+    );
+    // The camera sees a fraction of each scan: most of the map's geometry
+    // is outside its view.
+    assert!(n_geo > 2 * n_drop, "{drop}\n{geometry}");
+    assert_eq!(drop["unknown_class"], 0);
+    assert_eq!(classed(&geometry) + geometry["unknown_class"].as_u64().unwrap(), n_geo);
+    // A voxel the camera labelled keeps its label.
+    assert!(classed(&geometry) >= n_drop, "{drop}\n{geometry}");
+    // Such maps match.
+    let json = tmp.path().join("eval.json").display().to_string();
+    cosem_ok(&[
+        "eval",
+        "--data",
+        &d,
+        "--a",
+        "0:5",
+        "--b",
+        "5:10",
+        "--grid-stride",
+        "2",
+        "--unlabeled",
+        "geometry",
+        "--json",
+        &json,
+    ]);
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let rate = v["methods"]["cosem"]["success_strict"].as_f64().unwrap();
+    assert!(rate >= 0.99, "strict success with unknown-class geometry {rate}");
+    let e =
+        cosem_tests::cosem_usage_err(&["map", "--data", &d, "--frames", "0:5", "--unlabeled", "keep", "-o", "x.cmap"]);
+    assert!(e.contains("expected drop or geometry"), "{e}");
+}
+
+#[test]
 fn probability_maps_become_label_evidence() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");

@@ -280,7 +280,9 @@ pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32
 pub(crate) struct Agreement {
     /// Scene entries with a model entry within one cell.
     pub inliers: u32,
-    /// Fraction of scene entries with a same-class model entry within one cell.
+    /// Fraction of the scene entries with a class that have a same-class
+    /// model entry within one cell (entries of an unknown class can neither
+    /// agree nor disagree: they count on neither side).
     pub overlap: f32,
     /// RMS distance of the inlier pairs.
     pub rmse: f32,
@@ -309,11 +311,12 @@ pub(crate) fn agreement(
     let res = model.resolution();
     let res_sq = res * res;
     let stride = stride.max(1);
-    let (mut inliers, mut same, mut sum_d2, mut seen) = (0u32, 0u32, 0.0f32, 0u32);
+    let (mut inliers, mut same, mut sum_d2, mut classed) = (0u32, 0u32, 0.0f32, 0u32);
     let (mut standing, mut covered, mut agreeing) = (0u32, 0u32, 0u32);
     let group = |c: u8| GROUP_BITS.get(usize::from(c)).copied().unwrap_or(0);
     for s in (0..scene.len()).step_by(stride).filter_map(|i| scene.entry(i)) {
-        seen += 1;
+        let known = s.class != u8::MAX;
+        classed += u32::from(known);
         let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
         let g = group(s.class);
         let seen_around = g != 0 && cover.is_some_and(|c| near_any(c, [q.x, q.y, q.z]));
@@ -335,7 +338,7 @@ pub(crate) fn agreement(
                 let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
                 if d2 <= res_sq {
                     found.0 = found.0.min(d2);
-                    found.1 |= m.class == s.class;
+                    found.1 |= known && m.class == s.class;
                     found.2 |= g != 0 && group(m.class) == g;
                 }
             }
@@ -371,7 +374,7 @@ pub(crate) fn agreement(
     // Inliers are counted for the whole scene: the subset's count times the stride.
     Agreement {
         inliers: inliers.saturating_mul(stride as u32),
-        overlap: same as f32 / seen.max(1) as f32,
+        overlap: same as f32 / classed.max(1) as f32,
         rmse: if inliers > 0 { libm::sqrtf(sum_d2 / inliers as f32) } else { 0.0 },
         agreement: agreeing as f32 / covered.max(1) as f32,
         coverage: covered as f32 / standing.max(1) as f32,

@@ -78,6 +78,53 @@ fn converges_from_far_starts_to_the_truth() {
     }
 }
 
+/// `corner` seen by a camera looking along -x: points with `x > 0` (in the
+/// corner's frame) are kept as geometry of an unknown class, the rest labelled.
+fn corner_with_unknown(map: &mut Map, t: &Isometry3<f32>) {
+    let mut labelled = new_map();
+    corner(&mut labelled, &Isometry3::identity());
+    for v in labelled.iter() {
+        let p = v.position(labelled.resolution());
+        let q = crate::geometry::transform_point(t, p);
+        if p[0] > 0.0 {
+            map.insert_point_evidence(q, &crate::map::LabelDistribution::EMPTY).unwrap();
+        } else if let Some(c) = v.class() {
+            map.insert_point(q, c).unwrap();
+        }
+    }
+}
+
+#[test]
+fn unknown_class_voxels_align_but_stay_out_of_the_overlap() {
+    let gt = from_xyz_rpy(1.5, -0.7, 0.05, 0.0, 0.0, 0.2);
+    let mut model = new_map();
+    corner_with_unknown(&mut model, &Isometry3::identity());
+    let mut scene = new_map();
+    corner_with_unknown(&mut scene, &gt.inverse());
+    let unknown = scene.iter().filter(|v| v.class().is_none()).count();
+    assert!(unknown > scene.len() / 3, "{unknown} of {}", scene.len());
+    let (pm, ps) = (pyramid(&model), pyramid(&scene));
+    for method in [Method::Cosem, Method::CosemHard, Method::Geometric] {
+        let settings = MatchSettings { method, ..MatchSettings::default() };
+        let d = from_xyz_rpy(4.0, -4.0, 0.0, 0.0, 0.0, f32::to_radians(15.0));
+        let r = Matcher::new(settings).align(&pm, &ps, &(d * gt)).unwrap();
+        let (et, er) = errors(&r.transform, &gt);
+        assert_eq!(r.status, MatchStatus::Converged, "{method:?}: {r:?}");
+        assert!(et < 0.05 && er < 0.2, "{method:?}: e_t {et} e_r {er}");
+        // The overlap is over the labelled voxels: they all agree here
+        // (counting the unknown ones as disagreeing would halve it).
+        assert!(r.overlap > 0.9, "{method:?}: {r:?}");
+        let whole = crate::map::overlap(&model, &scene, &r.transform);
+        assert!((whole - r.overlap).abs() < 0.05, "{whole} vs {}", r.overlap);
+    }
+    // A scene of unknown voxels alone has no overlap to show.
+    let mut blank = new_map();
+    for v in scene.iter() {
+        blank.insert_point_evidence(v.position(scene.resolution()), &crate::map::LabelDistribution::EMPTY).unwrap();
+    }
+    assert_eq!(crate::map::overlap(&model, &blank, &gt), 0.0);
+}
+
 #[test]
 fn self_match_is_identity_and_bit_for_bit_repeatable() {
     let mut m = new_map();

@@ -48,7 +48,8 @@ pub fn thin_scan(frame: &Frame, resolution: f32, crop: f32, filter: &PointFilter
         if r > crop {
             continue;
         }
-        let Some(class) = filter.keep(r, l) else { continue };
+        // The boards' robots keep the default filter: classes only.
+        let Some(Some(class)) = filter.keep(r, l) else { continue };
         let k = ((p[0] * inv).floor() as i32, (p[1] * inv).floor() as i32, (p[2] * inv).floor() as i32);
         let cell = cells.entry(k).or_insert([(0, [0.0; 3]); NUM_CLASSES]);
         let c = &mut cell[usize::from(class.index())];

@@ -88,6 +88,17 @@ pub fn seg(s: &str) -> Result<SegChoice, String> {
     }
 }
 
+/// `--unlabeled`: drop (the conventions' default) or geometry (kept as
+/// voxels of an unknown class).
+pub fn unlabeled(s: &str) -> Result<cosem_host::mapping::Unlabeled, String> {
+    use cosem_host::mapping::Unlabeled;
+    match s {
+        "drop" => Ok(Unlabeled::Drop),
+        "geometry" => Ok(Unlabeled::Geometry),
+        _ => Err(format!("`{s}`: expected drop or geometry")),
+    }
+}
+
 /// A whole number of at least `N`.
 pub fn at_least<const N: usize>(s: &str) -> Result<usize, String> {
     match s.parse::<usize>() {

@@ -95,6 +95,10 @@ pub struct Args {
     /// Seed of the label noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Unlabelled points (id 0; a camera's labels leave so the points
+    /// outside its view): drop, or geometry (voxels of an unknown class).
+    #[arg(long, default_value = "drop", value_parser = super::args::unlabeled)]
+    unlabeled: cosem_host::mapping::Unlabeled,
     /// Prior-free protocol instead of the grid: the scene map is moved by a
     /// known heading (36 around the circle) and offset (10 seeded, up to
     /// 50 m) and matched with no prior.
@@ -140,11 +144,17 @@ fn first_method(a: &Args) -> MatchSettings {
 /// The pair the arguments name (clap requires them without --negatives).
 fn spec(a: &Args) -> Result<PairSpec, Error> {
     let (Some(data), Some(ra), Some(rb)) = (&a.data, a.a, a.b) else { return Err("--data, --a and --b".into()) };
-    Ok(PairSpec::new(data, ra, rb, a.voxel).with_noise(a.label_noise, a.seed).with_source(a.source.options()))
+    Ok(PairSpec::new(data, ra, rb, a.voxel)
+        .with_noise(a.label_noise, a.seed)
+        .with_source(a.source.options())
+        .with_unlabeled(a.unlabeled))
 }
 
 fn negatives(a: &Args, pool: &rayon::ThreadPool) -> Result<(), Error> {
-    let spec = PairSpec::places(a.voxel).with_noise(a.label_noise, a.seed).with_source(a.source.options());
+    let spec = PairSpec::places(a.voxel)
+        .with_noise(a.label_noise, a.seed)
+        .with_source(a.source.options())
+        .with_unlabeled(a.unlabeled);
     let s = first_method(a);
     let n = a.negatives.len();
     let bar = progress_bar(n * (n - 1) * (2 + a.random_priors));

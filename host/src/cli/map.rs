@@ -57,6 +57,10 @@ pub struct Args {
     /// Keep moving objects, mapped to their static class.
     #[arg(long)]
     keep_moving: bool,
+    /// Unlabelled points (id 0; a camera's labels leave so the points
+    /// outside its view): drop, or geometry (voxels of an unknown class).
+    #[arg(long, default_value = "drop", value_parser = super::args::unlabeled)]
+    unlabeled: cosem_host::mapping::Unlabeled,
     /// Probability that a point's label is right (Bayes sensor model).
     #[arg(long, default_value_t = SensorModel::default().accuracy)]
     label_accuracy: f32,
@@ -108,7 +112,7 @@ pub fn run(a: Args) -> Result<(), Error> {
             sensor: SensorModel { accuracy: a.label_accuracy },
             ..MapConfig::default()
         },
-        filter: PointFilter { max_range: a.max_range, moving },
+        filter: PointFilter { max_range: a.max_range, moving, unlabeled: a.unlabeled },
         noise: (a.label_noise, a.seed),
     };
     let w = job.run(&source, &format!("{name} {range}"), &a.output)?;
@@ -119,8 +123,12 @@ pub fn run(a: Args) -> Result<(), Error> {
         eprintln!("warning: {warning}");
     }
     let (points, kept, voxels, bytes) = (w.stats.points, w.stats.kept, w.voxels, w.bytes);
+    let unknown = match w.stats.unknown_class {
+        0 => String::new(),
+        n => format!(" (and {n} unlabelled as geometry)"),
+    };
     println!(
-        "{}: {} frames, {points} points, {kept} kept, {voxels} voxels at {} m, {bytes} bytes ({:.1} bytes/voxel) in {:.2} s",
+        "{}: {} frames, {points} points, {kept} kept{unknown}, {voxels} voxels at {} m, {bytes} bytes ({:.1} bytes/voxel) in {:.2} s",
         a.output.display(),
         w.frames,
         a.voxel,

@@ -73,7 +73,7 @@ pub fn map(frames: &[Frame], voxel: f32, repeat: usize) -> Result<MapFigures, Er
     let labelled: Vec<([f32; 3], Class)> = frames
         .iter()
         .flat_map(|f| f.points.iter().zip(&f.ranges).zip(&f.labels).map(|((p, r), l)| (*p, *r, *l)))
-        .filter_map(|(p, r, l)| filter.keep(r, l).map(|c| (p, c)))
+        .filter_map(|(p, r, l)| filter.keep(r, l).flatten().map(|c| (p, c)))
         .collect();
     let config = MapConfig::with_resolution(voxel);
     let mut map = new_map(labelled.len(), config)?;

@@ -3,7 +3,7 @@
 
 use crate::error::Error;
 use crate::kitti::{Frame, FrameRange};
-use crate::mapping::{build_map, HostMap, PointFilter};
+use crate::mapping::{build_map, HostMap, PointFilter, Unlabeled};
 use crate::noise::{corrupt_all, LabelNoise, NoiseStats};
 use crate::source::{Source, SourceOptions};
 use cosem_core::geometry::Isometry3;
@@ -55,6 +55,12 @@ impl PairSpec {
     /// The same pair with `noise` on its labels (seeded).
     pub fn with_noise(self, noise: LabelNoise, seed: u64) -> Self {
         PairSpec { noise: (noise, seed), ..self }
+    }
+
+    /// The same pair with unlabelled points kept or dropped.
+    pub fn with_unlabeled(mut self, unlabeled: Unlabeled) -> Self {
+        self.filter.unlabeled = unlabeled;
+        self
     }
 
     /// The same pair read with `options` (a recording's topic, a class

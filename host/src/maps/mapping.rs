@@ -3,7 +3,7 @@
 
 use crate::kitti::Frame;
 use cosem_core::classes::{Class, MovingObjects};
-use cosem_core::map::{ConfigError, InsertError, Insertion, MapConfig};
+use cosem_core::map::{ConfigError, InsertError, Insertion, LabelDistribution, MapConfig};
 
 /// Why a map could not be built.
 #[derive(Debug, thiserror::Error)]
@@ -44,6 +44,20 @@ pub fn new_map(capacity: usize, config: MapConfig) -> Result<HostMap, BuildError
     cosem_core::map::vec_map(capacity, config).map_err(BuildError::Config)
 }
 
+/// What becomes of unlabelled points (SemanticKITTI id 0): a camera's
+/// labels leave so every point outside its view, about three in four of a
+/// scan.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Unlabeled {
+    /// Left out of the map (the conventions' default).
+    #[default]
+    Drop,
+    /// Kept as geometry of an unknown class: a voxel with no label evidence,
+    /// which the matcher takes as uniform over the classes (and which a
+    /// labelled point in the same voxel later labels).
+    Geometry,
+}
+
 /// Which points go into a map.
 #[derive(Clone, Copy, Debug)]
 pub struct PointFilter {
@@ -51,23 +65,30 @@ pub struct PointFilter {
     pub max_range: Option<f32>,
     /// What to do with moving objects.
     pub moving: MovingObjects,
+    /// What to do with unlabelled points.
+    pub unlabeled: Unlabeled,
 }
 
 impl Default for PointFilter {
     fn default() -> Self {
-        PointFilter { max_range: None, moving: MovingObjects::Skip }
+        PointFilter { max_range: None, moving: MovingObjects::Skip, unlabeled: Unlabeled::Drop }
     }
 }
 
 impl PointFilter {
-    /// The class a point enters the map with, or `None` if it is left out.
-    pub fn keep(&self, range: f32, label: u32) -> Option<Class> {
+    /// How a point enters the map: `Some(Some(class))` with a class,
+    /// `Some(None)` as geometry of an unknown class, `None` not at all.
+    pub fn keep(&self, range: f32, label: u32) -> Option<Option<Class>> {
         if let Some(r) = self.max_range {
             if range > r {
                 return None;
             }
         }
-        Class::from_semantic_kitti(label, self.moving)
+        match Class::from_semantic_kitti(label, self.moving) {
+            Some(class) => Some(Some(class)),
+            None if label & 0xFFFF == 0 && self.unlabeled == Unlabeled::Geometry => Some(None),
+            None => None,
+        }
     }
 }
 
@@ -78,6 +99,9 @@ pub struct BuildStats {
     pub points: usize,
     /// Points with a usable class within range.
     pub kept: usize,
+    /// Unlabelled points kept as geometry of an unknown class
+    /// ([`Unlabeled::Geometry`]).
+    pub unknown_class: usize,
     /// Points dropped by the eviction policy.
     pub dropped: usize,
     /// Points beyond the map's key range (32,768 voxels from the anchor on
@@ -180,11 +204,20 @@ pub fn fuse_frames(map: &mut HostMap, frames: &[Frame], filter: &PointFilter) ->
                 stats.count_left_out(filter, r, l);
                 continue;
             };
-            stats.kept += 1;
             // A network's probabilities, where given, instead of its argmax.
-            let inserted = match f.evidence.as_ref().and_then(|e| e.get(point)).copied().flatten() {
-                Some(e) => map.insert_point_evidence(*p, &e),
-                None => map.insert_point(*p, class),
+            let inserted = match (class, f.evidence.as_ref().and_then(|e| e.get(point)).copied().flatten()) {
+                (None, _) => {
+                    stats.unknown_class += 1;
+                    map.insert_point_evidence(*p, &LabelDistribution::EMPTY)
+                }
+                (Some(_), Some(e)) => {
+                    stats.kept += 1;
+                    map.insert_point_evidence(*p, &e)
+                }
+                (Some(class), None) => {
+                    stats.kept += 1;
+                    map.insert_point(*p, class)
+                }
             };
             match inserted {
                 Ok(Insertion::Dropped) => stats.dropped += 1,

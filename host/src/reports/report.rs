@@ -276,6 +276,9 @@ pub struct InfoJson {
     pub wire_bytes_per_voxel: f64,
     /// Voxels per class name.
     pub classes: std::collections::BTreeMap<&'static str, usize>,
+    /// Voxels of an unknown class (geometry kept without labels:
+    /// `cosem map --unlabeled geometry`).
+    pub unknown_class: usize,
     /// Anchor scan time (s).
     pub anchor_time: Option<f64>,
     /// Source text, escaped.
@@ -306,6 +309,7 @@ impl InfoJson {
             memory_bytes_per_voxel: cosem_core::map::BYTES_PER_VOXEL,
             wire_bytes_per_voxel: crate::cmap::wire_bytes_per_voxel(&map, cosem_core::wire::mapfile::FILE_CHUNK),
             classes: histogram.iter().copied().collect(),
+            unknown_class: map.iter().filter(|v| v.class().is_none()).count(),
             anchor_time: header.anchor_time,
             // Text from the file: escaped, so no control byte reaches a terminal.
             source: header.source.as_ref().map(|s| s.escape_debug().to_string()),
@@ -331,6 +335,10 @@ impl std::fmt::Display for InfoJson {
         writeln!(f, "  classes:")?;
         for (c, n) in &self.histogram {
             writeln!(f, "    {:<14} {:>8}  {:5.1}%", c, n, 100.0 * *n as f64 / self.voxels.max(1) as f64)?;
+        }
+        if self.unknown_class > 0 {
+            let n = self.unknown_class;
+            writeln!(f, "    {:<14} {:>8}  {:5.1}%", "(unknown)", n, 100.0 * n as f64 / self.voxels.max(1) as f64)?;
         }
         Ok(())
     }
