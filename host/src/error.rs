@@ -24,6 +24,10 @@ pub enum Error {
     /// Labelling scans from camera segmentation.
     #[error(transparent)]
     Label(#[from] crate::label::LabelError),
+    /// Segmenting camera images with a network.
+    #[cfg(feature = "segment")]
+    #[error(transparent)]
+    Segment(#[from] crate::segment::SegmentError),
     /// Preparing a map for matching.
     #[error("preparing a map: {0}")]
     Pyramid(PyramidError),

@@ -37,7 +37,7 @@ pub struct SegmentArgs {
     #[arg(long, default_value = "0:4")]
     frames: FrameRange,
     /// How an image meets the network (see `cosem segment`).
-    #[arg(long, default_value = "squash")]
+    #[arg(long, default_value = "tile")]
     fit: String,
 }
 
@@ -169,48 +169,14 @@ pub fn run(w: What, json: Option<&Path>) -> Result<(), Error> {
     }
 }
 
-/// Segments the images on one core, then on all (the second run after a
-/// first that warms the caches): milliseconds per image each way.
-#[cfg(feature = "segment")]
+/// Milliseconds per image on one core, then on all.
 fn bench_segment(a: SegmentArgs, json: Option<&Path>) -> Result<(), Error> {
-    use cosem_host::segment::{segment_folder, SegmentOptions};
     let root = bench::data_root();
     let model = a.model.unwrap_or_else(|| root.join("../models/espnetv2-cityscapes-s2.0-512x1024.onnx"));
     let images = a.images.unwrap_or_else(|| root.join("kitti00/image_2"));
-    let tmp = TempDir::new("cosem-bench-segment");
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut figures = Vec::new();
-    for threads in [1, cores] {
-        let opts = SegmentOptions {
-            model: model.clone(),
-            images: images.clone(),
-            out: tmp.0.join(format!("t{threads}")),
-            frames: Some(a.frames.frames().collect()),
-            probabilities: false,
-            fit: a.fit.parse().map_err(|e: String| format!("--fit {e}"))?,
-            threads,
-            check: None,
-            overlay: false,
-        };
-        let s = segment_folder(&opts, &|| {})?;
-        println!(
-            "bench segment: {} images of {} ({} fit), network {}x{}: {threads} thread(s): {:.0} ms per image ({:.2} images/s)",
-            s.images,
-            images.display(),
-            a.fit,
-            s.input.1,
-            s.input.0,
-            s.ms_per_image,
-            1000.0 / s.ms_per_image
-        );
-        figures.push(s);
-    }
+    let figures = bench::segment(&model, &images, a.frames, &a.fit)?;
+    figures.iter().for_each(|f| println!("{f}"));
     save(json, &figures)
-}
-
-#[cfg(not(feature = "segment"))]
-fn bench_segment(_: SegmentArgs, _: Option<&Path>) -> Result<(), Error> {
-    Err("bench segment needs the `segment` feature (tract-onnx): cargo build --release --features segment".into())
 }
 
 /// Writes `figures` as JSON to `path`, if given.

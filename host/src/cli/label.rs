@@ -2,7 +2,7 @@
 
 use super::Error;
 use cosem_host::kitti::FrameRange;
-use cosem_host::label::{label_sequence, parse_image_size, LabelOptions};
+use cosem_host::label::{label_sequence, label_with_model, parse_image_size, LabelOptions};
 use cosem_host::report::LabelJson;
 use std::path::PathBuf;
 
@@ -25,7 +25,7 @@ pub struct Args {
     #[arg(long, requires = "model")]
     images: Option<PathBuf>,
     /// With --model: how an image meets the network (see `cosem segment`).
-    #[arg(long, default_value = "squash")]
+    #[arg(long, default_value = "tile")]
     fit: String,
     /// Camera whose projection `P<camera>` in calib.txt the images are from.
     #[arg(long, default_value_t = 2)]
@@ -76,84 +76,35 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
-    let frames: Option<Vec<usize>> = a.frames.map(|r| r.frames().collect());
-    let seg = match (&a.seg, &a.model, &a.images) {
-        (Some(seg), _, _) => seg.clone(),
-        (None, Some(model), Some(images)) => segment_first(model, images, &a, frames.clone())?,
-        _ => return Err("give --seg, or --model with --images".into()),
-    };
     let opts = LabelOptions {
         data: a.data.clone(),
-        seg,
+        seg: a.seg.clone().unwrap_or_default(),
         camera: a.camera,
         classes: a.classes,
         probabilities: a.probabilities,
         occlusion: !a.keep_occluded,
         image_size: a.image_size.as_deref().map(parse_image_size).transpose()?,
-        frames,
+        frames: a.frames.map(|r| r.frames().collect()),
         out: a.out.clone(),
         copy_scans: a.copy_scans,
-        // A network run here gives its void channel last (`cosem segment`).
-        void_channel: match a.model {
-            Some(_) if a.probabilities => cosem_host::label::VoidChannel::Last,
-            _ => a.void_channel,
-        },
+        void_channel: a.void_channel,
         scale_to_images: a.scale_to_images,
     };
     let t = std::time::Instant::now();
-    let labelled = label_sequence(&opts);
-    // The segmentation made here goes into the output, beside the labels
-    // (a sequence folder's seg_<camera>/, as `cosem synth` writes it).
-    if a.model.is_some() {
-        let kept = labelled.as_ref().map(|_| a.out.join(format!("seg_{}", a.camera)));
-        match kept {
-            Ok(to) => std::fs::rename(&opts.seg, &to).map_err(|e| format!("{}: {e}", to.display()))?,
-            Err(_) => {
-                let _ = std::fs::remove_dir_all(&opts.seg);
-            }
+    let s = match (&a.seg, &a.model, &a.images) {
+        (Some(_), _, _) => label_sequence(&opts)?,
+        (None, Some(model), Some(images)) => {
+            let (s, n, ms) = label_with_model(&opts, model, images, &a.fit)?;
+            let kept = a.out.join(format!("seg_{}", a.camera));
+            eprintln!("segmented {n} images ({ms:.0} ms per image), kept in {}", kept.display());
+            s
         }
-    }
-    let s = labelled?;
+        _ => return Err("give --seg, or --model with --images".into()),
+    };
     let wall = t.elapsed().as_secs_f64();
     if a.json {
         return super::print_json(&LabelJson::of(&s, &opts, wall));
     }
     print!("{}", s.text(&opts, wall));
     Ok(())
-}
-
-/// `--model`: the images segmented (as `cosem segment` would) into a new
-/// folder beside OUT, which the labelling reads and then moves into OUT as
-/// seg_<camera>/.
-#[cfg(feature = "segment")]
-fn segment_first(
-    model: &std::path::Path,
-    images: &std::path::Path,
-    a: &Args,
-    frames: Option<Vec<usize>>,
-) -> Result<PathBuf, Error> {
-    use cosem_host::segment::{segment_folder, SegmentOptions};
-    cosem_host::paths::refuse_inside(&a.out, &[&a.data, images])?;
-    let name = a.out.file_name().map_or("label".into(), |n| n.to_string_lossy().into_owned());
-    let out = a.out.with_file_name(format!(".{name}.seg-{}", std::process::id()));
-    let opts = SegmentOptions {
-        model: model.to_path_buf(),
-        images: images.to_path_buf(),
-        out: out.clone(),
-        frames,
-        probabilities: a.probabilities,
-        fit: a.fit.parse().map_err(|e: String| format!("--fit {e}"))?,
-        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        check: None,
-        overlay: false,
-    };
-    let s = segment_folder(&opts, &|| {})?;
-    let kept = a.out.join(format!("seg_{}", a.camera));
-    eprintln!("segmented {} images ({:.0} ms per image), kept in {}", s.images, s.ms_per_image, kept.display());
-    Ok(out)
-}
-
-#[cfg(not(feature = "segment"))]
-fn segment_first(_: &std::path::Path, _: &std::path::Path, _: &Args, _: Option<Vec<usize>>) -> Result<PathBuf, Error> {
-    Err("--model needs the `segment` feature (tract-onnx): cargo build --release --features segment".into())
 }

@@ -29,10 +29,11 @@ pub struct Args {
     /// Images segmented at once, one per core (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
-    /// How an image meets the network's input: squash (the whole image
-    /// stretched to it), tile (scaled 1.6x keeping its aspect, covered by
-    /// overlapping tiles) or tile:SCALE.
-    #[arg(long, default_value = "squash")]
+    /// How an image meets the network's input: tile (at its own scale,
+    /// covered by overlapping tiles: the better labels), tile:SCALE (scaled
+    /// first, aspect kept) or squash (the whole image stretched to it: one
+    /// inference, half the time).
+    #[arg(long, default_value = "tile")]
     fit: String,
     /// Also write each image's network input and labels at the network's
     /// size as .npy here (to check against another runtime; squash only).

@@ -615,3 +615,80 @@ mod tests {
         assert!(super::capacity_bound(255.0 / 256.0) < 1e-9);
     }
 }
+
+/// `cosem bench segment`: one network run over the same images on one
+/// core, then on all (the second after a first that warmed the caches).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SegmentFigures {
+    /// The images.
+    pub images_dir: PathBuf,
+    /// How they met the network.
+    pub fit: String,
+    /// Images segmented.
+    pub images: usize,
+    /// The network's input (height, width).
+    pub input: (usize, usize),
+    /// Images at once.
+    pub threads: usize,
+    /// Milliseconds per image, wall time.
+    pub ms_per_image: f64,
+}
+
+impl std::fmt::Display for SegmentFigures {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "bench segment: {} images of {} ({} fit), network {}x{}: {} thread(s): {:.0} ms per image ({:.2} images/s)",
+            self.images,
+            self.images_dir.display(),
+            self.fit,
+            self.input.1,
+            self.input.0,
+            self.threads,
+            self.ms_per_image,
+            1000.0 / self.ms_per_image
+        )
+    }
+}
+
+/// Segments `frames` of `images` with `model` on one core, then on all
+/// (feature `segment`; without it an error saying how to build it).
+pub fn segment(model: &Path, images: &Path, frames: FrameRange, fit: &str) -> Result<Vec<SegmentFigures>, Error> {
+    #[cfg(feature = "segment")]
+    {
+        use crate::segment::{segment_folder, SegmentOptions};
+        let tmp = TempDir::new("cosem-bench-segment");
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let mut figures = Vec::new();
+        for threads in [1, cores] {
+            let opts = SegmentOptions {
+                model: model.to_path_buf(),
+                images: images.to_path_buf(),
+                out: tmp.0.join(format!("t{threads}")),
+                frames: Some(frames.frames().collect()),
+                probabilities: false,
+                fit: fit.parse().map_err(|e: String| Error::Invalid(format!("--fit {e}")))?,
+                threads,
+                check: None,
+                overlay: false,
+            };
+            let s = segment_folder(&opts, &|| {})?;
+            figures.push(SegmentFigures {
+                images_dir: images.to_path_buf(),
+                fit: fit.to_string(),
+                images: s.images,
+                input: s.input,
+                threads,
+                ms_per_image: s.ms_per_image,
+            });
+        }
+        Ok(figures)
+    }
+    #[cfg(not(feature = "segment"))]
+    {
+        let _ = (model, images, frames, fit);
+        Err(Error::Invalid(
+            "bench segment needs the `segment` feature (tract-onnx): cargo build --release --features segment".into(),
+        ))
+    }
+}

@@ -110,6 +110,31 @@ pub use super::seg_files::{
     SegImage, VoidChannel,
 };
 
+/// `cosem label --model NET --images DIR`: the images segmented first
+/// (`crate::segment::label_from_images`, feature `segment`; without it an
+/// error saying how to build it), then labelled. Returns the counts, the
+/// images segmented and the milliseconds per image.
+pub fn label_with_model(
+    o: &LabelOptions,
+    model: &Path,
+    images: &Path,
+    fit: &str,
+) -> Result<(LabelStats, usize, f64), crate::Error> {
+    #[cfg(feature = "segment")]
+    {
+        let fit = fit.parse().map_err(|e: String| crate::Error::Invalid(format!("--fit {e}")))?;
+        let (stats, s) = crate::segment::label_from_images(o, model, images, fit)?;
+        Ok((stats, s.images, s.ms_per_image))
+    }
+    #[cfg(not(feature = "segment"))]
+    {
+        let _ = (o, model, images, fit);
+        Err(crate::Error::Invalid(
+            "--model needs the `segment` feature (tract-onnx): cargo build --release --features segment".into(),
+        ))
+    }
+}
+
 /// What `cosem label` does.
 #[derive(Clone, Debug)]
 pub struct LabelOptions {
