@@ -10,7 +10,7 @@
 
 use cosem_core::classes::{Class, MovingObjects};
 use cosem_core::geometry::Isometry3;
-use cosem_core::map::{Insertion, MapConfig};
+use cosem_core::map::{Insertion, LabelDistribution, MapConfig};
 use cosem_core::matching::{MatchResult, MatchSettings};
 use cosem_host::align::{align, prepare, DEFAULT_LEVELS};
 use cosem_host::mapping::HostMap;
@@ -49,12 +49,21 @@ impl Map {
     /// `labels` N non-negative integers of any integer dtype, each holding
     /// the SemanticKITTI id in its low 16 bits (an instance id may sit in
     /// the bits above), voxels of `voxel` metres. Points without a class
-    /// (unlabeled, outliers, moving objects) are left out; a negative
-    /// label, a NaN coordinate, or a map left empty is a `ValueError`
-    /// saying why.
+    /// (unlabeled, outliers, moving objects) are left out; with
+    /// `unlabeled="geometry"` unlabelled points (id 0: a camera's labels
+    /// leave so the points outside its view) are kept as voxels of an
+    /// unknown class (class index 255 in `voxels()`), which matching takes
+    /// as uniform over the classes. A negative label, a NaN coordinate, an
+    /// `unlabeled` other than "drop" or "geometry", or a map left empty is a
+    /// `ValueError` saying why.
     #[staticmethod]
-    #[pyo3(signature = (xyz, labels, voxel = 0.2))]
-    fn from_points(xyz: &Bound<'_, PyAny>, labels: &Bound<'_, PyAny>, voxel: f32) -> PyResult<Self> {
+    #[pyo3(signature = (xyz, labels, voxel = 0.2, unlabeled = "drop"))]
+    fn from_points(xyz: &Bound<'_, PyAny>, labels: &Bound<'_, PyAny>, voxel: f32, unlabeled: &str) -> PyResult<Self> {
+        let keep_unlabeled = match unlabeled {
+            "drop" => false,
+            "geometry" => true,
+            other => return Err(value_error(format!("unlabeled={other:?}: \"drop\" or \"geometry\""))),
+        };
         let xyz = float_array(xyz, "xyz", "(N, 3)")?;
         let xyz: PyReadonlyArray2<'_, f64> = xyz.extract().map_err(|_| value_error(xyz_shape_error(&xyz)))?;
         let shape = xyz.shape();
@@ -67,12 +76,18 @@ impl Map {
         let mut map = cosem_core::map::vec_map(shape[0].max(1), config).map_err(value_error)?;
         let mut classless = 0usize;
         for (i, (p, &l)) in xyz.outer_iter().zip(labels.iter()).enumerate() {
-            let Some(class) = Class::from_semantic_kitti(l, MovingObjects::Skip) else {
-                classless += 1;
-                continue;
-            };
             let point = [p[0] as f32, p[1] as f32, p[2] as f32];
-            match map.insert_point(point, class) {
+            let inserted = match Class::from_semantic_kitti(l, MovingObjects::Skip) {
+                Some(class) => map.insert_point(point, class),
+                None if keep_unlabeled && l & 0xFFFF == 0 => {
+                    map.insert_point_evidence(point, &LabelDistribution::EMPTY)
+                }
+                None => {
+                    classless += 1;
+                    continue;
+                }
+            };
+            match inserted {
                 Ok(Insertion::Dropped) | Ok(_) => {}
                 Err(e) => return Err(value_error(format!("point {i} {point:?}: {e}"))),
             }
@@ -91,7 +106,7 @@ impl Map {
 
     /// A map from voxels as [`Map.voxels`] gives them: `positions` an (N, 3)
     /// array (m), `classes` N class indices (0-18, the positions in
-    /// `cosem.CLASSES`; not label ids). Each voxel is re-created holding
+    /// `cosem.CLASSES`, or 255 for an unknown class; not label ids). Each voxel is re-created holding
     /// one observation at its position: the same voxels and classes, with
     /// the observation counts and confidences of a fresh map.
     #[staticmethod]
@@ -108,11 +123,16 @@ impl Map {
         let config = MapConfig { resolution: voxel, ..MapConfig::default() };
         let mut map = cosem_core::map::vec_map(shape[0].max(1), config).map_err(value_error)?;
         for (i, (p, &c)) in positions.as_array().outer_iter().zip(classes.iter()).enumerate() {
-            let class = u8::try_from(c).ok().and_then(Class::from_index).ok_or_else(|| {
-                value_error(format!("classes[{i}] = {c}: not a class index (0 to 18, see cosem.CLASSES)"))
-            })?;
             let point = [p[0] as f32, p[1] as f32, p[2] as f32];
-            map.insert_point(point, class).map_err(|e| value_error(format!("voxel {i} {point:?}: {e}")))?;
+            let inserted = if c == 255 {
+                map.insert_point_evidence(point, &LabelDistribution::EMPTY)
+            } else {
+                let class = u8::try_from(c).ok().and_then(Class::from_index).ok_or_else(|| {
+                    value_error(format!("classes[{i}] = {c}: not a class index (0 to 18, see cosem.CLASSES, or 255)"))
+                })?;
+                map.insert_point(point, class)
+            };
+            inserted.map_err(|e| value_error(format!("voxel {i} {point:?}: {e}")))?;
         }
         Ok(Map { map })
     }

@@ -152,6 +152,33 @@ def test_voxels_round_trip_through_from_voxels(maps):
     assert np.allclose(pos[order(pos)], p2[order(p2)], atol=1e-5)
     with pytest.raises(ValueError, match="class index"):
         cosem.Map.from_voxels(pos[:2], np.array([0, 40]), 0.5)
+    with pytest.raises(ValueError, match="class index"):
+        cosem.Map.from_voxels(pos[:1], np.array([254]), 0.5)
+
+
+def test_unlabelled_points_kept_as_geometry_when_asked(tmp_path, maps):
+    rng = np.random.default_rng(7)
+    p, labels = corner(rng)
+    # A camera sees the half x < 0: the rest is unlabelled (id 0).
+    seen = np.where(p[:, 0] < 0.0, labels, 0)
+    dropped = cosem.Map.from_points(p, seen, 0.5)
+    kept = cosem.Map.from_points(p, seen, 0.5, unlabeled="geometry")
+    classes = kept.voxels()[1]
+    unknown = int((classes == 255).sum())
+    assert len(kept) > len(dropped) + 500 and unknown > 500
+    assert not (dropped.voxels()[1] == 255).any()
+    # Unknown voxels survive the round trips through a file and from_voxels.
+    back = cosem.Map.from_voxels(*kept.voxels(), kept.resolution)
+    assert int((back.voxels()[1] == 255).sum()) == unknown
+    kept.save(str(tmp_path / "k.cmap"))
+    assert int((cosem.Map.load(str(tmp_path / "k.cmap")).voxels()[1] == 255).sum()) == unknown
+    # Such maps still match: the scene of the fixture against this model.
+    _, scene, truth = maps
+    r = cosem.match(kept, scene, init=truth @ rot_z(5.0, [1.0, -1.0, 0.0]))
+    t, a = errors(r.transform, truth)
+    assert r.status == "Converged" and t < 0.3 and a < 1.0, (r, t, a)
+    with pytest.raises(ValueError, match="geometry"):
+        cosem.Map.from_points(p, seen, 0.5, unlabeled="keep")
 
 
 def test_init_of_any_float_dtype_or_a_list(maps):
