@@ -150,6 +150,19 @@ fn network_labels_agree_with_the_truth() {
         assert_eq!(truth, v["compared"].as_u64().unwrap());
         let road = classes.iter().find(|c| c["class"] == "road").unwrap();
         assert!(road["recall"].as_f64().unwrap() > 0.8, "{road}");
+        // The maps of these labels match: prior-free (360 starts at 0.5 m)
+        // and from the paper's full grid (1,331 starts at 0.2 m).
+        let (file, lab) = (s(&tmp.path().join("eval.json")), s(&lab));
+        for protocol in [&["--global", "--voxel", "0.5"][..], &[][..]] {
+            let mut args = vec!["eval", "--data", &lab, "--a", "0:5", "--b", "5:10", "--json", &file];
+            args.extend_from_slice(protocol);
+            ok(&args);
+            let e: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+            let (mode, starts) = (e["mode"].as_str().unwrap(), e["starts"].as_u64().unwrap());
+            let rate = e["methods"]["cosem"]["success_strict"].as_f64().unwrap();
+            eprintln!("{seq} camera labels, {mode}: {:.1}% strict of {starts} starts", 100.0 * rate);
+            assert!(rate >= 0.99 && starts >= 360, "{seq} {mode}: {rate} of {starts}");
+        }
     }
 }
 
