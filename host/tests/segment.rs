@@ -43,6 +43,17 @@ fn s(p: &Path) -> String {
     p.display().to_string()
 }
 
+/// Whether python3 imports `modules` (space-separated); says why a test
+/// skips when not.
+fn python_has(modules: &str) -> bool {
+    let import = format!("import {}", modules.replace(' ', ", "));
+    let have = Command::new("python3").args(["-c", &import]).output().is_ok_and(|o| o.status.success());
+    if !have {
+        eprintln!("skipping: python3 with {modules} is missing (pip install {modules})");
+    }
+    have
+}
+
 /// `cosem segment` of frame 0 of `images` with `model` into `tmp`/o.
 fn segment_first_frame(model: &Path, images: &Path, tmp: &Path) -> std::process::Output {
     let out = tmp.join("o");
@@ -54,9 +65,7 @@ fn segment_first_frame(model: &Path, images: &Path, tmp: &Path) -> std::process:
 #[test]
 fn tract_agrees_with_onnxruntime_on_real_images() {
     let Some((model, data)) = real("kitti00") else { return };
-    let have = Command::new("python3").args(["-c", "import onnxruntime, numpy"]).output();
-    if !have.is_ok_and(|o| o.status.success()) {
-        eprintln!("skipping: python3 with onnxruntime and numpy is missing (pip install onnxruntime numpy)");
+    if !python_has("onnxruntime numpy") {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -195,9 +204,7 @@ fn bench_segment_prints_times_per_image() {
 #[test]
 fn a_network_of_the_wrong_shapes_is_refused_naming_them() {
     let Some((_, data)) = real("kitti00") else { return };
-    let have = Command::new("python3").args(["-c", "import onnx"]).output();
-    if !have.is_ok_and(|o| o.status.success()) {
-        eprintln!("skipping: python3 with onnx is missing (pip install onnx)");
+    if !python_has("onnx") {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();

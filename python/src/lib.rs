@@ -8,12 +8,12 @@
 //! print(r.status, r.transform)   # "Converged", 4x4 numpy array
 //! ```
 
-use cosem_core::classes::{Class, MovingObjects};
+use cosem_core::classes::Class;
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::{Insertion, LabelDistribution, MapConfig};
 use cosem_core::matching::{MatchResult, MatchSettings};
 use cosem_host::align::{align, prepare, DEFAULT_LEVELS};
-use cosem_host::mapping::HostMap;
+use cosem_host::mapping::{HostMap, PointFilter, Unlabeled};
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyIOError, PyValueError};
 use pyo3::prelude::*;
@@ -59,11 +59,13 @@ impl Map {
     #[staticmethod]
     #[pyo3(signature = (xyz, labels, voxel = 0.2, unlabeled = "drop"))]
     fn from_points(xyz: &Bound<'_, PyAny>, labels: &Bound<'_, PyAny>, voxel: f32, unlabeled: &str) -> PyResult<Self> {
-        let keep_unlabeled = match unlabeled {
-            "drop" => false,
-            "geometry" => true,
+        let unlabeled = match unlabeled {
+            "drop" => Unlabeled::Drop,
+            "geometry" => Unlabeled::Geometry,
             other => return Err(value_error(format!("unlabeled={other:?}: \"drop\" or \"geometry\""))),
         };
+        // The host's filter (no range limit, moving objects left out).
+        let filter = PointFilter { unlabeled, ..PointFilter::default() };
         let xyz = float_array(xyz, "xyz", "(N, 3)")?;
         let xyz: PyReadonlyArray2<'_, f64> = xyz.extract().map_err(|_| value_error(xyz_shape_error(&xyz)))?;
         let shape = xyz.shape();
@@ -77,11 +79,9 @@ impl Map {
         let mut classless = 0usize;
         for (i, (p, &l)) in xyz.outer_iter().zip(labels.iter()).enumerate() {
             let point = [p[0] as f32, p[1] as f32, p[2] as f32];
-            let inserted = match Class::from_semantic_kitti(l, MovingObjects::Skip) {
-                Some(class) => map.insert_point(point, class),
-                None if keep_unlabeled && l & 0xFFFF == 0 => {
-                    map.insert_point_evidence(point, &LabelDistribution::EMPTY)
-                }
+            let inserted = match filter.keep(0.0, l) {
+                Some(Some(class)) => map.insert_point(point, class),
+                Some(None) => map.insert_point_evidence(point, &LabelDistribution::EMPTY),
                 None => {
                     classless += 1;
                     continue;

@@ -349,8 +349,9 @@ pub(crate) fn agreement(
             visit(&mut found, dx, dy, dz);
         }
         // Settled: the nearest is within half a cell (so nothing outside the
-        // block is nearer) and a same-class entry was found.
-        if !(found.1 && (found.2 || g == 0) && found.0 <= 0.25 * res_sq) {
+        // block is nearer) and a same-class entry was found (an entry of an
+        // unknown class looks for none: its nearest is all it needs).
+        if !((found.1 || !known) && (found.2 || g == 0) && found.0 <= 0.25 * res_sq) {
             for dx in -1..=1 {
                 for dy in -1..=1 {
                     for dz in -1..=1 {
