@@ -41,7 +41,17 @@ pub enum PoseError {
     NotANumber(usize),
     /// The number at this position is NaN or infinite.
     NonFinite(usize),
+    /// The number at this position is out of range: a translation beyond
+    /// [`MAX_POSE_METRES`], an angle beyond [`MAX_POSE_DEGREES`].
+    OutOfRange(usize),
 }
+
+/// The largest translation a pose may have (m): 1,000 km, far beyond any
+/// robot's map (and past where `f32` keeps centimetres).
+pub const MAX_POSE_METRES: f64 = 1.0e6;
+
+/// The largest angle a pose may have (degrees, either sign).
+pub const MAX_POSE_DEGREES: f64 = 360.0;
 
 impl core::fmt::Display for PoseError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
@@ -51,6 +61,10 @@ impl core::fmt::Display for PoseError {
             PoseError::Count(n) => write!(f, "expected 6 numbers x,y,z,roll,pitch,yaw, found {n}"),
             PoseError::NotANumber(i) => write!(f, "{} is not a number", name(i)),
             PoseError::NonFinite(i) => write!(f, "{} is not finite", name(i)),
+            PoseError::OutOfRange(i) if *i < 3 => {
+                write!(f, "{} is beyond {MAX_POSE_METRES:e} m", name(i))
+            }
+            PoseError::OutOfRange(i) => write!(f, "{} is beyond {MAX_POSE_DEGREES} degrees", name(i)),
         }
     }
 }
@@ -67,6 +81,9 @@ pub fn parse_pose(s: &str) -> Result<Isometry3<f64>, PoseError> {
             let x: f64 = part.trim().parse().map_err(|_| PoseError::NotANumber(i))?;
             if !x.is_finite() {
                 return Err(PoseError::NonFinite(i));
+            }
+            if x.abs() > if i < 3 { MAX_POSE_METRES } else { MAX_POSE_DEGREES } {
+                return Err(PoseError::OutOfRange(i));
             }
             *slot = x;
         }

@@ -3,6 +3,12 @@
 
 use cosem_core::matching::{MatchError, PyramidError};
 
+/// Says something the user should know that is not an error (a
+/// recording read up to a cut, say), on standard error, one line.
+pub fn warn(message: &str) {
+    eprintln!("warning: {message}");
+}
+
 /// Anything the host library can fail at.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {

@@ -91,6 +91,7 @@ pub mod reports {
 }
 
 pub mod error;
+pub mod limits;
 pub mod paths;
 pub mod rng;
 

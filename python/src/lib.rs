@@ -134,6 +134,9 @@ impl Map {
             };
             inserted.map_err(|e| value_error(format!("voxel {i} {point:?}: {e}")))?;
         }
+        if map.is_empty() {
+            return Err(value_error("no voxels: the map would be empty".to_string()));
+        }
         Ok(Map { map })
     }
 

@@ -154,6 +154,9 @@ def test_voxels_round_trip_through_from_voxels(maps):
         cosem.Map.from_voxels(pos[:2], np.array([0, 40]), 0.5)
     with pytest.raises(ValueError, match="class index"):
         cosem.Map.from_voxels(pos[:1], np.array([254]), 0.5)
+    # Empty arrays are no map: refused, never a 0-voxel map to save.
+    with pytest.raises(ValueError, match="empty"):
+        cosem.Map.from_voxels(np.zeros((0, 3)), np.zeros(0, dtype=np.uint8), 0.5)
 
 
 def test_unlabelled_points_kept_as_geometry_when_asked(tmp_path, maps):

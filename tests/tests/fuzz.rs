@@ -222,7 +222,7 @@ fn recording(path: &Path, compression: ChunkCompression, crcs: bool) -> Vec<u8> 
 }
 
 fn what(frames: Option<FrameRange>) -> RecordingScans<'static> {
-    RecordingScans { points: "/points", label_field: "label", pose_frame: "world", frames, odom: None }
+    RecordingScans { points: "/points", label_field: "label", pose_frame: "world", frames, odom: None, strict: true }
 }
 
 #[test]

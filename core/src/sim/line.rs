@@ -58,6 +58,10 @@ pub enum MixError {
     Share,
     /// The shares add up to nothing.
     Empty,
+    /// The shares add up to more than a finite number.
+    Overflow,
+    /// A kind given twice.
+    Duplicate,
 }
 
 impl core::fmt::Display for MixError {
@@ -67,6 +71,8 @@ impl core::fmt::Display for MixError {
             MixError::Kind => "a kind of damage is bit, byte, drop or dup",
             MixError::Share => "a share is a finite number, 0 or more",
             MixError::Empty => "the shares add up to nothing",
+            MixError::Overflow => "the shares add up to more than a finite number",
+            MixError::Duplicate => "a kind of damage is given twice",
         })
     }
 }
@@ -76,24 +82,34 @@ impl Mix {
     /// damage before mixes existed, and an independent relay's.
     pub const THIRDS: Mix = Mix { bit: 0.0, byte: 1.0, drop: 1.0, dup: 1.0 };
 
-    /// Reads `bit=S,byte=S,drop=S,dup=S` (a kind left out has no share).
+    /// Reads `bit=S,byte=S,drop=S,dup=S` (a kind left out has no share,
+    /// none given twice); the shares are finite, at least 0, and add up
+    /// to a positive finite number.
     pub fn parse(text: &str) -> Result<Mix, MixError> {
         let mut mix = Mix { bit: 0.0, byte: 0.0, drop: 0.0, dup: 0.0 };
+        let mut given = [false; 4];
         for part in text.split(',') {
             let (key, value) = part.split_once('=').ok_or(MixError::Syntax)?;
             let share: f64 = value.trim().parse().map_err(|_| MixError::Share)?;
             if !(share.is_finite() && share >= 0.0) {
                 return Err(MixError::Share);
             }
-            *match key.trim() {
-                "bit" => &mut mix.bit,
-                "byte" => &mut mix.byte,
-                "drop" => &mut mix.drop,
-                "dup" => &mut mix.dup,
+            let (k, slot) = match key.trim() {
+                "bit" => (0, &mut mix.bit),
+                "byte" => (1, &mut mix.byte),
+                "drop" => (2, &mut mix.drop),
+                "dup" => (3, &mut mix.dup),
                 _ => return Err(MixError::Kind),
-            } = share;
+            };
+            if core::mem::replace(&mut given[k], true) {
+                return Err(MixError::Duplicate);
+            }
+            *slot = share;
         }
-        if mix.total() > 0.0 {
+        let total = mix.total();
+        if !total.is_finite() {
+            Err(MixError::Overflow)
+        } else if total > 0.0 {
             Ok(mix)
         } else {
             Err(MixError::Empty)

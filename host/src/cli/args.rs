@@ -107,6 +107,20 @@ pub fn at_least<const N: usize>(s: &str) -> Result<usize, String> {
     }
 }
 
+/// A thread count (`--threads`): 1 to 4 x the machine's cores.
+pub fn threads(s: &str) -> Result<usize, String> {
+    let n = s.parse::<usize>().map_err(|_| format!("`{s}`: expected a whole number of threads"))?;
+    cosem_host::limits::threads("--threads", n)
+}
+
+/// `--max-pixels`: a whole number of at least 1.
+pub fn max_pixels(s: &str) -> Result<u64, String> {
+    match s.parse::<u64>() {
+        Ok(v) if v >= 1 => Ok(v),
+        _ => Err(format!("`{s}`: expected a whole number of pixels, at least 1")),
+    }
+}
+
 /// A probability in [0, 1].
 pub fn probability(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
@@ -136,6 +150,10 @@ pub struct SourceArgs {
     /// A class table (TOML) mapping the scans' label ids to classes.
     #[arg(long)]
     pub classes: Option<std::path::PathBuf>,
+    /// With a recording: one cut short (no footer) is an error; without,
+    /// it is read up to its last whole record, with a warning.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 impl SourceArgs {
@@ -147,6 +165,7 @@ impl SourceArgs {
             pose_frame: self.pose_frame.clone(),
             odom: self.odom.clone(),
             classes: self.classes.clone(),
+            strict: self.strict,
         }
     }
 }

@@ -117,7 +117,7 @@ pub struct LinkArgs {
     #[command(flatten)]
     pair: PairArgs,
     /// Byte error rates to simulate, each damaged byte as --mix says.
-    #[arg(long, default_value = "0,0.01,0.05,0.1,0.2", value_delimiter = ',')]
+    #[arg(long, default_value = "0,0.01,0.05,0.1,0.2", value_delimiter = ',', value_parser = super::args::probability)]
     error_rates: Vec<f64>,
     /// Shares of the damage: bit=S,byte=S,drop=S,dup=S (default substituted, dropped, duplicated alike).
     #[arg(long, value_parser = cosem_host::relay::parse_mix, default_value = "byte=1,drop=1,dup=1")]
@@ -131,8 +131,8 @@ pub struct LinkArgs {
     /// Keep points within this range of their sensor (m).
     #[arg(long, default_value = "25", value_parser = super::args::positive_f32)]
     max_range: f32,
-    /// Seeded runs per error rate.
-    #[arg(long, default_value_t = 10)]
+    /// Seeded runs per error rate, 1 to 10,000.
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]
     seeds: u64,
     /// One medium for both directions: the maps go one after the other, in bursts that take turns.
     #[arg(long)]

@@ -69,8 +69,9 @@ pub struct Args {
     /// Degrees of freedom: 6, or 4 (x, y, z, yaw).
     #[arg(long, default_value = "6", value_parser = super::args::dof)]
     dof: Dof,
-    /// Worker threads (each match itself runs on one); default: all cores.
-    #[arg(long)]
+    /// Worker threads (each match itself runs on one), 1 to 4 x the
+    /// cores; default: all cores.
+    #[arg(long, value_parser = super::args::threads)]
     threads: Option<usize>,
     /// Write the summary and every start's result as JSON to this file.
     #[arg(long)]
@@ -124,10 +125,11 @@ fn progress_bar(len: usize) -> ProgressBar {
 
 /// Checks the output paths can be written before the run.
 fn check_outputs(a: &Args) -> Result<(), Error> {
-    let mut inputs: Vec<&std::path::Path> = a.negatives.iter().map(|p| p.data.as_path()).collect();
-    inputs.extend(a.data.as_deref());
-    inputs.extend(a.source.classes.as_deref());
-    let outputs: Vec<&std::path::Path> = [&a.json, &a.plot].into_iter().flatten().map(|p| p.as_path()).collect();
+    let mut inputs: Vec<(&str, &std::path::Path)> = a.negatives.iter().map(|p| ("--negatives", p.data.as_path())).collect();
+    inputs.extend(a.data.as_deref().map(|p| ("--data", p)));
+    inputs.extend(a.source.classes.as_deref().map(|p| ("--classes", p)));
+    let outputs: Vec<(&str, &std::path::Path)> =
+        [("--json", &a.json), ("--plot", &a.plot)].into_iter().filter_map(|(n, p)| Some((n, p.as_deref()?))).collect();
     Ok(cosem_host::paths::check_outputs(&outputs, &inputs)?)
 }
 

@@ -29,12 +29,12 @@ pub enum Format {
         /// File format.
         #[arg(long)]
         format: cosem_host::cloud::CloudFormat,
-        /// Output folder (created; never inside the input folder; a folder
-        /// that already holds scans or poses only with --force).
+        /// Output folder, written whole and swapped into place: a new or
+        /// empty folder, or with --force an earlier export (never inside,
+        /// over or around the input folder).
         #[arg(short, long)]
         output: PathBuf,
-        /// Write into a folder that already holds scans or poses (files of
-        /// the same names are replaced).
+        /// Replace an earlier export (a folder of scans and poses.txt only).
         #[arg(long)]
         force: bool,
     },
@@ -71,7 +71,10 @@ pub fn run(f: Format) -> Result<(), Error> {
             println!("{}: {n} scans as {} and poses.txt", output.display(), format.extension());
         }
         Format::Mcap { data, frames, topic, compression, output } => {
-            cosem_host::paths::refuse_inside(&output, &[&data])?;
+            cosem_host::paths::check_output("--output", &output, &[("--data", &data)])?;
+            if topic.is_empty() || topic.chars().any(|c| c.is_whitespace() || c.is_control()) {
+                return Err(format!("--topic `{topic}`: expected a ROS 2 topic name such as /velodyne_points").into());
+            }
             if output.is_dir() {
                 return Err(format!("{}: is a folder; -o names the recording file to write", output.display()).into());
             }

@@ -84,7 +84,7 @@ pub fn run(a: Args) -> Result<(), Error> {
         probabilities: a.probabilities,
         occlusion: !a.keep_occluded,
         image_size: a.image_size.as_deref().map(parse_image_size).transpose()?,
-        frames: a.frames.map(|r| r.frames().collect()),
+        frames: a.frames.into_iter().collect(),
         out: a.out.clone(),
         copy_scans: a.copy_scans,
         void_channel: a.void_channel,

@@ -79,9 +79,10 @@ pub struct Args {
 pub fn run(a: Args) -> Result<(), Error> {
     let t0 = Instant::now();
     // Every file read is an input: the output is never one of them.
-    let mut inputs: Vec<&std::path::Path> = a.files.iter().map(PathBuf::as_path).collect();
-    inputs.extend([&a.poses, &a.mcap, &a.source.classes].into_iter().flatten().map(PathBuf::as_path));
-    cosem_host::paths::refuse_overwrite(&a.output, &inputs)?;
+    let mut inputs: Vec<(&str, &std::path::Path)> = a.files.iter().map(|p| ("FILES", p.as_path())).collect();
+    let named = [("--poses", &a.poses), ("--mcap", &a.mcap), ("--classes", &a.source.classes), ("--data", &a.data)];
+    inputs.extend(named.into_iter().filter_map(|(n, p)| Some((n, p.as_deref()?))));
+    cosem_host::paths::check_output("--output", &a.output, &inputs)?;
     let options = a.source.options();
     // Three spellings of one thing: a source of scans and a range of them.
     let source = match (&a.format, &a.poses, &a.data, &a.mcap) {
@@ -92,10 +93,7 @@ pub fn run(a: Args) -> Result<(), Error> {
             }
             Source::scans(*format, &a.files, poses, &options)?
         }
-        (_, _, Some(data), _) => {
-            cosem_host::paths::refuse_inside(&a.output, &[data])?;
-            Source::open(data, &options)?
-        }
+        (_, _, Some(data), _) => Source::open(data, &options)?,
         _ => return Err("give --data and --frames, --mcap, or --format, the files and --poses".into()),
     };
     let name = match (&a.mcap, &a.format) {

@@ -30,8 +30,11 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<u8, Error> {
     let (settings, prior) = a.opts.resolve();
-    for out in [&a.merged, &a.mcap_out].into_iter().flatten() {
-        cosem_host::paths::refuse_overwrite(out, &[&a.model, &a.scene])?;
+    let outputs: Vec<(&str, &std::path::Path)> =
+        [("--merged", &a.merged), ("--mcap-out", &a.mcap_out)].into_iter().filter_map(|(n, p)| Some((n, p.as_deref()?))).collect();
+    cosem_host::paths::check_outputs_apart(&outputs)?;
+    for (arg, out) in outputs {
+        cosem_host::paths::check_output(arg, out, &[("MODEL", &a.model), ("SCENE", &a.scene)])?;
     }
     let (_, model) = cosem_host::cmap::read(&a.model)?;
     let (_, scene) = cosem_host::cmap::read(&a.scene)?;

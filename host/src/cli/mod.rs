@@ -28,6 +28,10 @@ pub type Error = Box<dyn std::error::Error + Send + Sync>;
 pub struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// The most pixels an image (or a network's input) may have; a larger
+    /// one is refused before anything is allocated for it.
+    #[arg(long, global = true, default_value_t = cosem_host::limits::DEFAULT_MAX_PIXELS, value_parser = args::max_pixels)]
+    max_pixels: u64,
 }
 
 #[derive(Subcommand, Debug)]
@@ -98,6 +102,7 @@ pub fn run(cli: Cli) -> Result<u8, Error> {
 }
 
 fn run_command(cli: Cli) -> Result<u8, Error> {
+    cosem_host::limits::set_max_pixels(cli.max_pixels);
     let done = |r: Result<(), Error>| r.map(|()| 0);
     match cli.command {
         Command::Map(a) => done(map::run(a)),

@@ -33,6 +33,9 @@ pub fn run_relay(a: Args) -> Result<(), Error> {
     let bind =
         |p: u16| std::net::TcpListener::bind(("127.0.0.1", p)).map_err(|e| format!("listen on 127.0.0.1:{p}: {e}"));
     let listeners = [bind(a.ports[0])?, bind(a.ports[1])?];
+    if a.mix.is_some() && a.error_rate == 0.0 {
+        eprintln!("warning: --mix without --error-rate: the line stays clean (--error-rate 0), the mix is not used");
+    }
     let model = LineModel { baud: a.baud, error_rate: a.error_rate, seed: a.seed, flip: a.flip, mix: a.mix };
     let wait = Duration::from_secs_f64(a.accept_timeout.min(86_400.0));
     let stats = run(listeners, model, wait, |[x, y]| eprintln!("relay on {x} {y}"))?;

@@ -26,8 +26,9 @@ pub struct Args {
     /// `cosem label --probabilities --void-channel last`).
     #[arg(long)]
     probabilities: bool,
-    /// Images segmented at once, one per core (default: all cores).
-    #[arg(long)]
+    /// Images segmented at once, one per core, 1 to 4 x the cores
+    /// (default: all cores).
+    #[arg(long, value_parser = super::args::threads)]
     threads: Option<usize>,
     /// How an image meets the network's input: tile (at its own scale,
     /// covered by overlapping tiles: the better labels), tile:SCALE (scaled
@@ -59,14 +60,14 @@ pub fn run(a: Args) -> Result<(), Error> {
         model: a.model,
         images: a.images,
         out: a.out,
-        frames: a.frames.map(|r| r.frames().collect()),
+        frames: a.frames,
         probabilities: a.probabilities,
         fit,
         threads,
         check: a.check_dir,
         overlay: a.overlay,
     };
-    let bar = indicatif::ProgressBar::new(opts.frames.as_ref().map_or(0, Vec::len) as u64);
+    let bar = indicatif::ProgressBar::new(opts.frames.map_or(0, |r| r.len()) as u64);
     let style = indicatif::ProgressStyle::with_template("{bar:40} {pos} images, {elapsed} elapsed, eta {eta}");
     bar.set_style(style.unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
     let s = segment_folder(&opts, &|| bar.inc(1))?;

@@ -398,7 +398,7 @@ fn label_options(
     data: PathBuf,
     seg: PathBuf,
     probabilities: bool,
-    frames: Option<Vec<usize>>,
+    frames: Vec<FrameRange>,
     out: PathBuf,
 ) -> crate::label::LabelOptions {
     crate::label::LabelOptions {
@@ -440,7 +440,7 @@ pub fn label_synthetic(seed: u64, frames: usize, stride: usize, tmp: &Path) -> R
             None => (src.clone(), None),
             Some(r) => {
                 let out = tmp.join(format!("l{seed}-{k}"));
-                let opts = label_options(src.clone(), src.join(SEG_DIR), r.probabilities, None, out.clone());
+                let opts = label_options(src.clone(), src.join(SEG_DIR), r.probabilities, Vec::new(), out.clone());
                 (out, Some(crate::label::label_sequence(&opts)?))
             }
         };
@@ -463,7 +463,9 @@ pub fn label_real(
     use crate::label::{camera_of, label_sequence, splat_segmentation, write_seg_png};
     let cs = cosem_core::camera::SegClasses::Cityscapes;
     let seq = Sequence::open(data)?;
-    let frames: Vec<usize> = a.frames().chain(b.frames()).collect();
+    let all = seq.scan_frames()?;
+    let mut frames = a.select(&all, data)?;
+    frames.extend(b.select(&all, data)?);
     let name = data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let (strict, voxels) = strict_success(data, a, b, stride)?;
     let mut rows = vec![LabelRow { seq: name.clone(), labels: "ground truth (LiDAR)", figures: None, strict, voxels }];
@@ -480,7 +482,7 @@ pub fn label_real(
             write_seg_png(&path, &im).map_err(|source| Error::Io { path: path.clone(), source })?;
         }
         let out = tmp.join(format!("real-out-{k}"));
-        let s = label_sequence(&label_options(data.to_path_buf(), seg, false, Some(frames.clone()), out.clone()))?;
+        let s = label_sequence(&label_options(data.to_path_buf(), seg, false, vec![a, b], out.clone()))?;
         let (strict, voxels) = strict_success(&out, a, b, stride)?;
         let labels = if corrupt { "splatted camera, corrupted" } else { "splatted camera" };
         rows.push(LabelRow { seq: name.clone(), labels, figures: Some(s), strict, voxels });
@@ -665,7 +667,7 @@ pub fn segment(model: &Path, images: &Path, frames: FrameRange, fit: &str) -> Re
                 model: model.to_path_buf(),
                 images: images.to_path_buf(),
                 out: tmp.0.join(format!("t{threads}")),
-                frames: Some(frames.frames().collect()),
+                frames: Some(frames),
                 probabilities: false,
                 fit: fit.parse().map_err(|e: String| Error::Invalid(format!("--fit {e}")))?,
                 threads,

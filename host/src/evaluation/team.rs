@@ -42,17 +42,32 @@ pub struct RobotSpec {
 impl std::str::FromStr for RobotSpec {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        // The frames are the last two or three colon-separated fields.
+        // The frames are the last two or three colon-separated fields; a
+        // folder may hold colons, so both readings are tried, and where
+        // both name an existing folder the spec is ambiguous.
+        let mut readings = Vec::new();
         for fields in [3, 2] {
             let parts: Vec<&str> = s.rsplitn(fields + 1, ':').collect();
-            if parts.len() == fields + 1 {
+            if parts.len() == fields + 1 && !parts[fields].is_empty() {
                 let frames = parts[..fields].iter().rev().copied().collect::<Vec<_>>().join(":");
                 if let Ok(r) = frames.parse::<FrameRange>() {
-                    return Ok(RobotSpec { data: parts[fields].into(), frames: r });
+                    readings.push(RobotSpec { data: parts[fields].into(), frames: r });
                 }
             }
         }
-        Err(format!("`{s}`: expected DIR:START:END[:STRIDE]"))
+        let existing: Vec<&RobotSpec> = readings.iter().filter(|r| r.data.exists()).collect();
+        match (&readings[..], &existing[..]) {
+            (_, [a, b]) => Err(format!(
+                "`{s}` reads two ways: folder {} frames {}, or folder {} frames {}; rename the folder with a colon",
+                a.data.display(),
+                a.frames,
+                b.data.display(),
+                b.frames
+            )),
+            (_, [one]) => Ok((*one).clone()),
+            ([first, ..], []) => Ok(first.clone()),
+            _ => Err(format!("`{s}`: expected DIR:START:END[:STRIDE]")),
+        }
     }
 }
 

@@ -167,7 +167,9 @@ mod tests {
     fn a_mix_names_its_shares_and_refuses_what_is_not_one() {
         let m: Mix = parse_mix("bit=1, byte=2,drop=0.5").unwrap();
         assert_eq!(m, Mix { bit: 1.0, byte: 2.0, drop: 0.5, dup: 0.0 });
-        for bad in ["", "bit", "bit=x", "bit=-1", "bit=inf", "bite=1", "bit=0,dup=0"] {
+        let bad = ["", "bit", "bit=x", "bit=-1", "bit=inf", "bit=nan", "bite=1", "bit=0,dup=0"];
+        // Shares whose sum overflows, and a kind given twice.
+        for bad in bad.into_iter().chain(["bit=1e308,byte=1e308", "bit=1,bit=2", "drop=1, drop=0"]) {
             assert!(parse_mix(bad).is_err(), "{bad}");
         }
     }

@@ -43,6 +43,12 @@ pub enum CmapError {
         /// Its size.
         len: u64,
     },
+    /// A map with no voxel: nothing to match, never written or read.
+    #[error("{path}: the map has no voxels: nothing to match (an empty map is never written or read)")]
+    Empty {
+        /// The file.
+        path: PathBuf,
+    },
     /// The map the header describes cannot be allocated.
     #[error("{path}: {source}")]
     Map {
@@ -98,6 +104,9 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(CmapHeader, HostMap), CmapEr
     let format = |error| CmapError::Format { path: path.to_path_buf(), error };
     let file = mapfile::parse(bytes).map_err(format)?;
     let h = file.header;
+    if h.voxel_count == 0 {
+        return Err(CmapError::Empty { path: path.to_path_buf() });
+    }
     let config = MapConfig {
         resolution: h.resolution,
         sensor: SensorModel { accuracy: h.label_accuracy },
@@ -125,6 +134,9 @@ pub fn round_trip(map: &HostMap, source: &str) -> Result<(Vec<u8>, HostMap), Cma
 
 /// Writes a map file; returns its length.
 pub fn write(path: &Path, map: &HostMap, anchor_time: Option<f64>, source: Option<&str>) -> Result<usize, CmapError> {
+    if map.is_empty() {
+        return Err(CmapError::Empty { path: path.to_path_buf() });
+    }
     let bytes = encode(map, anchor_time, source);
     crate::paths::write_file(path, &bytes).map_err(|source| CmapError::Io { path: path.to_path_buf(), source })?;
     Ok(bytes.len())

@@ -61,7 +61,7 @@ pub fn write(path: &Path, points: &[PlyPoint]) -> std::io::Result<()> {
 /// class (grey: no class) at `output`, never over the input. Returns the
 /// points written.
 pub fn export_map(file: &Path, output: &Path) -> Result<usize, crate::Error> {
-    crate::paths::refuse_overwrite(output, &[file])?;
+    crate::paths::check_output("--output", output, &[("FILE", file)])?;
     let (_, map) = crate::cmap::read(file)?;
     let id = cosem_core::geometry::Isometry3::identity();
     let colour = |v: &cosem_core::map::SemanticVoxel| v.class().map(|c| c.color()).unwrap_or([128; 3]);

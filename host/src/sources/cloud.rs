@@ -620,9 +620,11 @@ pub fn write_ply(path: &Path, points: &[[f32; 3]], labels: &[u32]) -> Result<(),
 
 /// `cosem export scans`: frames `frames` of the SemanticKITTI folder
 /// `data` written as PCD or PLY scans (x, y, z, label) named by frame, and
-/// their poses (`poses.txt`), into `output`: the input `cosem map --format`
-/// reads. A folder that already holds scans or poses is refused unless
-/// `force`; `output` never lies inside `data`. Returns the scans written.
+/// their poses (`poses.txt`), into the folder `output`: the input `cosem
+/// map --format` reads. The folder is written whole and swapped into
+/// place: a new folder, an empty one, or (with `force`) an earlier export
+/// (scans and poses.txt only: anything else in it is refused). Returns
+/// the scans written.
 pub fn export_scans(
     data: &Path,
     frames: crate::kitti::FrameRange,
@@ -630,40 +632,52 @@ pub fn export_scans(
     output: &Path,
     force: bool,
 ) -> Result<usize, crate::Error> {
-    crate::paths::refuse_inside(output, &[data])?;
-    if !force {
-        refuse_used_folder(output)?;
-    }
+    crate::paths::check_output("--output", output, &[("--data", data)])?;
+    refuse_used_folder(output, force)?;
     let seq = crate::kitti::Sequence::open(data)?;
-    std::fs::create_dir_all(output).map_err(|e| crate::Error::Invalid(format!("{}: {e}", output.display())))?;
+    let io = |source| crate::Error::Io { path: output.to_path_buf(), source };
+    let dir = crate::paths::OutputDir::create(output).map_err(io)?;
     let mut poses = Vec::new();
     for i in frames.frames() {
         let scan = seq.read_scan(i)?;
         poses.push(seq.velodyne_matrix(i)?);
         let points: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
-        let path = output.join(format!("{i:06}.{}", format.extension()));
+        let path = dir.path().join(format!("{i:06}.{}", format.extension()));
         match format {
             CloudFormat::Pcd => write_pcd(&path, &points, &scan.labels)?,
             CloudFormat::Ply => write_ply(&path, &points, &scan.labels)?,
         }
     }
-    write_poses(&output.join("poses.txt"), &poses)?;
+    write_poses(&dir.path().join("poses.txt"), &poses)?;
+    dir.commit().map_err(io)?;
     Ok(poses.len())
 }
 
-/// Refuses a folder that holds scans or poses already.
-fn refuse_used_folder(output: &Path) -> Result<(), crate::Error> {
+/// Refuses a folder that holds anything but an earlier export's scans and
+/// poses, and one that holds those without `force`.
+fn refuse_used_folder(output: &Path, force: bool) -> Result<(), crate::Error> {
     let Ok(entries) = std::fs::read_dir(output) else { return Ok(()) };
-    let held = entries
-        .flatten()
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .find(|n| n == "poses.txt" || n == "velodyne" || n == "labels" || n.ends_with(".pcd") || n.ends_with(".ply"));
+    let ours = |n: &str| {
+        n == "poses.txt"
+            || n.strip_suffix(".pcd").or_else(|| n.strip_suffix(".ply")).is_some_and(|s| s.bytes().all(|b| b.is_ascii_digit()))
+    };
+    let mut held = None;
+    for name in entries.flatten().map(|e| e.file_name().to_string_lossy().into_owned()) {
+        if !ours(&name) {
+            return Err(crate::Error::Invalid(format!(
+                "--output {}: holds {name}, which is not an earlier export's: the folder is replaced whole, \
+                 choose a new or empty folder",
+                output.display()
+            )));
+        }
+        held = Some(name);
+    }
     match held {
-        Some(name) => Err(crate::Error::Invalid(format!(
-            "{}: already holds {name}: scans and poses are not replaced without --force (or choose a new folder)",
+        Some(name) if !force => Err(crate::Error::Invalid(format!(
+            "--output {}: already holds {name}: an earlier export is not replaced without --force (or choose a new folder)",
             output.display()
         ))),
-        None => Ok(()),
+        _ => Ok(()),
     }
 }
 

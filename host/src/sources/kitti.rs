@@ -105,6 +105,9 @@ pub enum KittiError {
     /// A frame range that does not parse or is empty.
     #[error("frame range `{0}`: expected START:END[:STRIDE] with END > START and STRIDE >= 1")]
     Range(String),
+    /// A frame range that asks for frames the source does not have.
+    #[error("frames {0}")]
+    FramesMissing(String),
 }
 
 /// Frames `start..end` (end exclusive) every `stride`.
@@ -122,6 +125,38 @@ impl FrameRange {
     /// The frames of the range.
     pub fn frames(&self) -> impl Iterator<Item = usize> + Clone {
         (self.start..self.end).step_by(self.stride)
+    }
+
+    /// How many frames the range has (counted, not listed).
+    pub fn len(&self) -> usize {
+        (self.end - self.start).div_ceil(self.stride.max(1))
+    }
+
+    /// Whether the range has no frame (never, as parsed).
+    pub fn is_empty(&self) -> bool {
+        self.end <= self.start
+    }
+
+    /// Whether `frame` is one of the range's.
+    pub fn contains(&self, frame: usize) -> bool {
+        frame >= self.start && frame < self.end && (frame - self.start).is_multiple_of(self.stride.max(1))
+    }
+
+    /// The range's frames among `available` (a source's frame numbers,
+    /// sorted): listed from what exists, never from the range, so a huge
+    /// range costs nothing; a frame of the range that is not there is an
+    /// error naming the range, the frame and what `source` has.
+    pub fn select(&self, available: &[usize], source: &std::path::Path) -> Result<Vec<usize>, KittiError> {
+        let chosen: Vec<usize> = available.iter().copied().filter(|&f| self.contains(f)).collect();
+        if chosen.len() == self.len() {
+            return Ok(chosen);
+        }
+        let missing = self.frames().find(|f| available.binary_search(f).is_err()).unwrap_or(self.start);
+        let has = match (available.first(), available.last()) {
+            (Some(a), Some(b)) => format!("{} frames, {a} to {b}", available.len()),
+            _ => "no frames".into(),
+        };
+        Err(KittiError::FramesMissing(format!("{self}: frame {missing} is not in {} ({has})", source.display())))
     }
 }
 
@@ -279,8 +314,19 @@ impl Sequence {
         let calib = read_text(&calib_path)?;
         let mut tr = None;
         let mut projections = [None; 4];
+        // A key given twice is refused: which one is meant cannot be told.
+        let mut first_line: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
         for (i, line) in calib.lines().enumerate() {
             let line = line.trim_start();
+            if let Some((key, _)) = line.split_once(':') {
+                if let Some(before) = first_line.insert(key.trim(), i + 1) {
+                    return Err(KittiError::Parse {
+                        path: calib_path.clone(),
+                        line: i + 1,
+                        what: format!("`{}:` again (first on line {before}): one line a key", key.trim()),
+                    });
+                }
+            }
             if let Some(rest) = line.strip_prefix("Tr:") {
                 tr = Some(parse_rigid(&calib_path, i + 1, rest)?);
             }

@@ -153,8 +153,9 @@ pub struct LabelOptions {
     /// Leave points hidden from the camera by nearer points unlabelled
     /// ([`DepthGrid`]).
     pub occlusion: bool,
-    /// Frames to label; default: every scan in `velodyne/`.
-    pub frames: Option<Vec<usize>>,
+    /// Frames to label, range after range, each checked against the
+    /// scans in `velodyne/`; none: every scan there.
+    pub frames: Vec<crate::kitti::FrameRange>,
     /// The output folder.
     pub out: PathBuf,
     /// Copy the scans into the output instead of linking them (relative
@@ -484,7 +485,6 @@ fn camera_from(
 /// input folders can be moved or copied together), or a copy when `copy`
 /// is asked or no link can be made.
 fn copy_or_link(from: &Path, to: &Path, copy: bool) -> Result<(), LabelError> {
-    let _ = std::fs::remove_file(to);
     let abs = std::fs::canonicalize(from).map_err(io(from))?;
     #[cfg(unix)]
     if !copy {
@@ -493,7 +493,7 @@ fn copy_or_link(from: &Path, to: &Path, copy: bool) -> Result<(), LabelError> {
             return Ok(());
         }
     }
-    std::fs::copy(&abs, to).map(|_| ()).map_err(io(to))
+    crate::paths::copy_file(&abs, to).map_err(io(to))
 }
 
 /// `target` (absolute) as a path relative to the folder `base` (absolute).
@@ -515,69 +515,53 @@ fn relative_to(target: &Path, base: &Path) -> PathBuf {
 /// with it may be replaced by a new run.
 const PROVENANCE_TITLE: &str = "# Labels from camera segmentation (`cosem label`)";
 
-/// Refuses an output folder that is, or lies inside, an input folder (or
-/// holds one), and an existing folder that is not a `cosem label` output.
-fn check_out(o: &LabelOptions) -> Result<PathBuf, LabelError> {
-    let out = crate::paths::resolved(&o.out);
-    for (name, input) in [("--data", &o.data), ("--seg", &o.seg)] {
-        let input = crate::paths::resolved(input);
-        if out.starts_with(&input) || input.starts_with(&out) {
-            return Err(LabelError::Format {
-                path: o.out.clone(),
-                what: format!(
-                    "is {} or holds it ({name} {}): the input is never written",
-                    input.display(),
-                    input.display()
-                ),
-            });
-        }
-    }
+/// Refuses an output folder that is, lies inside or holds an input (any
+/// spelling: [`crate::paths::check_output`]), and an existing folder that
+/// is neither empty nor a `cosem label` output.
+pub(crate) fn check_out(o: &LabelOptions, inputs: &[(&str, &Path)]) -> Result<(), crate::Error> {
+    crate::paths::check_output("--out", &o.out, inputs)?;
+    let out = &o.out;
     let ours = std::fs::read_to_string(out.join("PROVENANCE.md")).is_ok_and(|t| t.starts_with(PROVENANCE_TITLE));
-    let empty = std::fs::read_dir(&out).map(|mut d| d.next().is_none()).unwrap_or(true);
+    let empty = std::fs::read_dir(out).map(|mut d| d.next().is_none()).unwrap_or(true);
     if out.exists() && !(ours || empty) {
         return Err(LabelError::Format {
             path: o.out.clone(),
             what: "exists and is not an earlier `cosem label` output: choose another --out".into(),
-        });
+        }
+        .into());
     }
-    Ok(out)
+    Ok(())
 }
 
 /// Labels a sequence from its segmentation images and writes a
 /// SemanticKITTI-layout folder at `out`: links to the scans, copies of
 /// calib.txt, poses.txt and times.txt, the new labels (and, with
 /// probabilities, the evidence). Written into a new folder beside `out`,
-/// then renamed: an input folder is never touched, a failed run leaves
-/// nothing half-written, and `out` may only be a new folder or an earlier
-/// output.
-pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, LabelError> {
-    let out = check_out(o)?;
-    let staging = out.with_file_name(format!(
-        ".{}.cosem-label-{}",
-        out.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&staging);
-    let run = LabelOptions { out: staging.clone(), ..o.clone() };
-    let stats = label_into(&run);
-    let finish = stats.and_then(|s| {
-        if out.exists() {
-            std::fs::remove_dir_all(&out).map_err(io(&out))?;
-        }
-        std::fs::rename(&staging, &out).map_err(io(&out))?;
-        Ok(s)
-    });
-    if finish.is_err() {
-        let _ = std::fs::remove_dir_all(&staging);
-    }
-    finish
+/// then swapped into place ([`crate::paths::OutputDir`]): an input is never
+/// touched, a failed run leaves nothing behind, and `out` may only be a
+/// new or empty folder or an earlier output.
+pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, crate::Error> {
+    check_out(o, &[("--data", &o.data), ("--seg", &o.seg)])?;
+    let dir = crate::paths::OutputDir::create(&o.out).map_err(io(&o.out))?;
+    let run = LabelOptions { out: dir.path().to_path_buf(), ..o.clone() };
+    let stats = label_into(&run, &o.seg)?;
+    dir.commit().map_err(io(&o.out))?;
+    Ok(stats)
 }
 
-fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
+/// Labels `o.data` into the folder `o.out` (a new temporary one); `seg`
+/// is how the segmentation is named in the provenance.
+pub(crate) fn label_into(o: &LabelOptions, seg: &Path) -> Result<LabelStats, LabelError> {
     let seq = Sequence::open(&o.data)?;
-    let frames = match &o.frames {
-        Some(f) => f.clone(),
-        None => seq.scan_frames()?,
+    let all = seq.scan_frames()?;
+    let frames = if o.frames.is_empty() {
+        all
+    } else {
+        let mut chosen = Vec::new();
+        for r in &o.frames {
+            chosen.extend(r.select(&all, &o.data.join("velodyne"))?);
+        }
+        chosen
     };
     if frames.is_empty() {
         return Err(LabelError::Format {
@@ -585,7 +569,7 @@ fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
             what: "no scans (NNNNNN.bin) to label".into(),
         });
     }
-    prepare_output(o)?;
+    prepare_output(o, seg)?;
     let mut stats = LabelStats::default();
     let mut camera: Option<(Camera, (u32, u32))> = None;
     let mut depth_buffer: Vec<f32> = Vec::new();
@@ -632,7 +616,7 @@ fn label_into(o: &LabelOptions) -> Result<LabelStats, LabelError> {
 }
 
 /// The output folder's layout and what it copies from the input.
-fn prepare_output(o: &LabelOptions) -> Result<(), LabelError> {
+fn prepare_output(o: &LabelOptions, seg: &Path) -> Result<(), LabelError> {
     for d in ["velodyne", "labels"] {
         let p = o.out.join(d);
         std::fs::create_dir_all(&p).map_err(io(&p))?;
@@ -644,7 +628,7 @@ fn prepare_output(o: &LabelOptions) -> Result<(), LabelError> {
     for f in ["calib.txt", "poses.txt", "times.txt"] {
         let from = o.data.join(f);
         if from.exists() {
-            std::fs::copy(&from, o.out.join(f)).map_err(io(&from))?;
+            crate::paths::copy_file(&from, &o.out.join(f)).map_err(io(&from))?;
         }
     }
     let prov = format!(
@@ -652,7 +636,7 @@ fn prepare_output(o: &LabelOptions) -> Result<(), LabelError> {
          Each LiDAR point takes the class of the pixel it projects to (P{} after Tr); points behind the camera or \
          outside the image are unlabeled (0). See the source folder's PROVENANCE.md for the data's origin and licence.\n",
         o.data.display(),
-        o.seg.display(),
+        seg.display(),
         o.camera,
         o.classes.name(),
         if o.probabilities { ", per-pixel probabilities" } else { "" },

@@ -111,12 +111,29 @@ impl<'a> Body<'a> {
     }
 }
 
+/// How reading a data section ended.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Ending {
+    /// At its end record, or where the caller stopped.
+    Complete,
+    /// The file is cut short (a recording whose writer stopped without a
+    /// footer): every record before `at` was read whole.
+    Cut {
+        /// The byte offset of the first record not read whole.
+        at: u64,
+        /// What is missing there.
+        what: String,
+    },
+}
+
 /// Reads an MCAP file's data section, handing each message to `on` until
-/// it returns `Break` or the data section ends.
+/// it returns `Break` or the data section ends; a file cut short is read
+/// up to its last whole record ([`Ending::Cut`]: the caller says whether
+/// that is an error).
 pub fn read_messages(
     path: &Path,
     on: impl FnMut(&Message<'_>) -> Result<ControlFlow<()>, String>,
-) -> Result<(), McapError> {
+) -> Result<Ending, McapError> {
     let err = |what: String| McapError { path: path.to_owned(), what };
     let file = std::fs::File::open(path).map_err(|e| err(e.to_string()))?;
     let size = file.metadata().map_err(|e| err(e.to_string()))?.len();
@@ -130,7 +147,7 @@ pub fn read_messages_from<R: Read + Seek>(
     size: u64,
     path: &Path,
     mut on: impl FnMut(&Message<'_>) -> Result<ControlFlow<()>, String>,
-) -> Result<(), McapError> {
+) -> Result<Ending, McapError> {
     let err = |what: String| McapError { path: path.to_owned(), what };
     let mut magic = [0u8; 8];
     if size < 8 || r.read_exact(&mut magic).is_err() || magic != MAGIC {
@@ -141,9 +158,8 @@ pub fn read_messages_from<R: Read + Seek>(
     let mut body = Vec::new();
     loop {
         if size - pos < 9 {
-            return Err(err(format!(
-                "ends at byte offset {pos} inside the data section: cut short (no data end record); --frames reads the scans before the cut"
-            )));
+            let what = format!("{} bytes, no whole record header (no data end record)", size - pos);
+            return Ok(Ending::Cut { at: pos, what });
         }
         let mut head = [0u8; 9];
         r.read_exact(&mut head).map_err(|e| err(format!("byte offset {pos}: {e}")))?;
@@ -152,10 +168,8 @@ pub fn read_messages_from<R: Read + Seek>(
         let at = pos;
         pos += 9;
         if len > size - pos {
-            return Err(err(format!(
-                "record 0x{opcode:02x} at byte offset {at} announces {len} bytes, the file has {} left (cut short or corrupt)",
-                size - pos
-            )));
+            let what = format!("record 0x{opcode:02x} announces {len} bytes, the file has {} left", size - pos);
+            return Ok(Ending::Cut { at, what });
         }
         let here = |what: String| err(format!("record 0x{opcode:02x} at byte offset {at}: {what}"));
         match opcode {
@@ -173,10 +187,10 @@ pub fn read_messages_from<R: Read + Seek>(
                     record(opcode, &body, &mut channels, at, &mut on).map_err(here)?
                 };
                 if flow.is_break() {
-                    return Ok(());
+                    return Ok(Ending::Complete);
                 }
             }
-            op::DATA_END | op::FOOTER => return Ok(()),
+            op::DATA_END | op::FOOTER => return Ok(Ending::Complete),
             _ => {
                 r.seek(SeekFrom::Current(len as i64)).map_err(|e| here(e.to_string()))?;
                 pos += len;

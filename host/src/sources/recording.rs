@@ -342,6 +342,10 @@ pub struct RecordingScans<'a> {
     /// transforms as `header.frame_id -> child_frame_id` (chained through
     /// `/tf_static` to the clouds' frame).
     pub odom: Option<&'a str>,
+    /// A recording cut short (no footer) is an error; otherwise it is read
+    /// up to its last whole record, with a warning naming the byte offset
+    /// and what was read.
+    pub strict: bool,
 }
 
 /// Reads scans from a recording and puts them into the first one's frame
@@ -372,7 +376,7 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
     let wanted =
         |i: usize| what.frames.is_none_or(|r| i >= r.start && i < r.end && (i - r.start).is_multiple_of(r.stride));
     let all_in = |seen: usize| what.frames.is_some_and(|r| seen >= r.end);
-    crate::mcap_read::read_messages(path, |m| {
+    let ending = crate::mcap_read::read_messages(path, |m| {
         let topic = m.channel.topic.as_str();
         let at = |e: String| format!("{topic} message at byte offset {} (log time {}): {e}", m.offset, m.log_time);
         let is_cdr = m.channel.message_encoding == "cdr";
@@ -413,7 +417,20 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
         Ok(std::ops::ControlFlow::Continue(()))
     })
     .map_err(|e| RecordingError::Mcap { path: path.to_owned(), what: e.what })?;
-    let asked = what.frames.map_or(1, |r| r.frames().count());
+    if let crate::mcap_read::Ending::Cut { at, what: missing } = ending {
+        let what_ = format!("cut short at byte offset {at} ({missing})");
+        if what.strict {
+            return Err(RecordingError::Mcap { path: path.to_owned(), what: format!("{what_}; without --strict the scans before the cut are read") });
+        }
+        crate::error::warn(&format!(
+            "{}: {what_}: read the {} messages on {} before the cut{}",
+            path.display(),
+            seen,
+            what.points,
+            what.frames.map_or(String::new(), |r| format!(" (frames {r} asked)"))
+        ));
+    }
+    let asked = what.frames.map_or(1, |r| r.len());
     if clouds.len() < asked {
         let frames = what.frames.map_or("all".into(), |r| r.to_string());
         return Err(msg_err(format!("{}: {seen} messages, frames {frames} ask for {asked}", what.points)));
@@ -688,7 +705,14 @@ mod tests {
 
     fn read_one(path: &Path) -> Result<(Vec<Frame>, usize), RecordingError> {
         let what =
-            RecordingScans { points: "/points", label_field: "label", pose_frame: "world", frames: None, odom: None };
+            RecordingScans {
+                points: "/points",
+                label_field: "label",
+                pose_frame: "world",
+                frames: None,
+                odom: None,
+                strict: false,
+            };
         read_scans(path, &what)
     }
 

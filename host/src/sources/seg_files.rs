@@ -33,6 +33,8 @@ pub fn read_seg_png(path: &Path) -> Result<SegImage, LabelError> {
     // Palette indices are the ids: no expansion to RGB.
     decoder.set_transformations(png::Transformations::IDENTITY);
     let mut reader = decoder.read_info().map_err(|e| format(format!("not a readable PNG ({e})")))?;
+    let file_bytes = std::fs::metadata(path).map_err(io(path))?.len();
+    crate::limits::image_pixels(reader.info().width, reader.info().height, file_bytes).map_err(format)?;
     let (color, depth) = reader.output_color_type();
     if !matches!(color, png::ColorType::Grayscale | png::ColorType::Indexed) || depth != png::BitDepth::Eight {
         return Err(format(format!(
@@ -160,6 +162,9 @@ pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap
     } else {
         return Err(format(format!("shape {shape:?}: no dimension of {channels} class channels")));
     };
+    if height == 0 || width == 0 {
+        return Err(format(format!("shape {shape:?}: an image of {height}x{width} pixels, none to label")));
+    }
     let data = bytes.get(data_at..).unwrap_or(&[]);
     let n = height
         .checked_mul(width)

@@ -18,6 +18,9 @@ const MEAN: [f32; 3] = [0.485, 0.456, 0.406];
 const STD: [f32; 3] = [0.229, 0.224, 0.225];
 /// Cityscapes training ids: channels beyond are void.
 const CITYSCAPES_CLASSES: usize = 19;
+
+/// The ONNX opsets tract-onnx is tested against (its own words: 9 to 18).
+pub const SUPPORTED_OPSETS: std::ops::RangeInclusive<i64> = 9..=18;
 /// The id a void pixel gets in the PNG (what `cosem label` ignores).
 pub const VOID_ID: u8 = 255;
 
@@ -49,6 +52,30 @@ pub enum SegmentError {
         path: PathBuf,
         /// What does not fit, with the shapes found.
         what: String,
+    },
+    /// The model declares an ONNX opset the runtime does not support.
+    #[error(
+        "{path}: declares ONNX opset {opset}; the runtime (tract-onnx) supports opsets {} to {}: export the \
+         network with one of those", SUPPORTED_OPSETS.start(), SUPPORTED_OPSETS.end()
+    )]
+    Opset {
+        /// The model file.
+        path: PathBuf,
+        /// The opset it declares (0: none of the default domain).
+        opset: i64,
+    },
+    /// The network scored an image with a number that is not finite (NaN
+    /// or infinite weights): no label can be read from it.
+    #[error("{image}: the network {model} gave the score {value} (output value {at}): not a finite number")]
+    NonFinite {
+        /// The image.
+        image: PathBuf,
+        /// The model file.
+        model: PathBuf,
+        /// Where in the network's output.
+        at: usize,
+        /// The value.
+        value: f32,
     },
     /// An image that is not an 8-bit RGB(A) or grey PNG.
     #[error("{path}: {what}")]
@@ -119,6 +146,8 @@ pub fn read_rgb_png(path: &Path) -> Result<RgbImage, SegmentError> {
     let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
     decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
     let mut reader = decoder.read_info().map_err(|e| bad(format!("not a readable PNG ({e})")))?;
+    let file_bytes = std::fs::metadata(path).map_err(|source| SegmentError::Io { path: path.to_path_buf(), source })?.len();
+    crate::limits::image_pixels(reader.info().width, reader.info().height, file_bytes).map_err(bad)?;
     let size = reader.output_buffer_size().ok_or_else(|| bad("image too large".into()))?;
     let mut buf = vec![0u8; size];
     let info = reader.next_frame(&mut buf).map_err(|e| bad(format!("corrupt PNG data ({e})")))?;
@@ -274,7 +303,14 @@ impl Network {
         let model_err = |e: TractError| SegmentError::Model { path: path.to_path_buf(), what: format!("{e:#}") };
         let contract = |what: String| SegmentError::Contract { path: path.to_path_buf(), what };
         let bytes = std::fs::read(path).map_err(|source| SegmentError::Io { path: path.to_path_buf(), source })?;
-        let model = tract_onnx::onnx().model_for_read(&mut bytes.as_slice()).map_err(model_err)?;
+        let onnx = tract_onnx::onnx();
+        let proto = onnx.proto_model_for_read(&mut bytes.as_slice()).map_err(model_err)?;
+        let opset = proto.opset_import.iter().find(|o| o.domain.is_empty() || o.domain == "ai.onnx").map(|o| o.version);
+        match opset {
+            Some(v) if SUPPORTED_OPSETS.contains(&v) => {}
+            v => return Err(SegmentError::Opset { path: path.to_path_buf(), opset: v.unwrap_or(0) }),
+        }
+        let model = onnx.model_for_proto_model(&proto).map_err(model_err)?;
         let typed = model.into_typed().map_err(model_err)?;
         if typed.inputs.len() != 1 || typed.outputs.len() != 1 {
             return Err(contract(format!("{} inputs and {} outputs", typed.inputs.len(), typed.outputs.len())));
@@ -293,6 +329,7 @@ impl Network {
         if !fits {
             return Err(contract(format!("input {}, output {}", shape_of(&input), shape_of(&output))));
         }
+        crate::limits::network_pixels(i[2], i[3]).map_err(contract)?;
         let plan = typed.into_optimized().and_then(|m| m.into_runnable()).map_err(model_err)?;
         Ok(Network { plan, path: path.to_path_buf(), input: (i[2], i[3]), channels: o[1] })
     }
@@ -305,7 +342,11 @@ impl Network {
         let tensor = Tensor::from_shape(&[1, 3, h, w], input).map_err(err)?;
         let out = self.plan.run(tvec!(tensor.into())).map_err(err)?;
         let first = out.first().ok_or_else(|| err(TractError::msg("no output")))?;
-        first.try_as_plain_ram().and_then(|v| v.as_slice::<f32>().map(<[f32]>::to_vec)).map_err(err)
+        let scores = first.try_as_plain_ram().and_then(|v| v.as_slice::<f32>().map(<[f32]>::to_vec)).map_err(err)?;
+        if let Some(k) = scores.iter().position(|v| !v.is_finite()) {
+            return Err(SegmentError::NonFinite { image: PathBuf::new(), model: self.path.clone(), at: k, value: scores[k] });
+        }
+        Ok(scores)
     }
 
     /// The normalised input planes for an image of exactly the input's size
@@ -380,8 +421,9 @@ pub struct SegmentOptions {
     /// Output folder: `NNNNNN.png` of training ids, and with
     /// `probabilities` `NNNNNN.npy` probability maps.
     pub out: PathBuf,
-    /// Frames to segment; default: every PNG in `images`.
-    pub frames: Option<Vec<usize>>,
+    /// Frames to segment (checked against the images there before any is
+    /// segmented); default: every PNG in `images`.
+    pub frames: Option<crate::kitti::FrameRange>,
     /// Also write probability maps (`|u1`, H x W x C, void last).
     pub probabilities: bool,
     /// How images are brought to the network's size.
@@ -429,63 +471,92 @@ pub fn label_from_images(
     images: &Path,
     fit: Fit,
 ) -> Result<(crate::label::LabelStats, SegmentSummary), crate::Error> {
-    crate::paths::refuse_inside(&o.out, &[&o.data, images])?;
-    let name = o.out.file_name().map_or("label".into(), |n| n.to_string_lossy().into_owned());
-    let seg = o.out.with_file_name(format!(".{name}.seg-{}", std::process::id()));
+    crate::label::check_out(o, &[("--data", &o.data), ("--images", images), ("--model", model)])?;
+    let io = |source| crate::Error::Io { path: o.out.clone(), source };
+    let dir = crate::paths::OutputDir::create(&o.out).map_err(io)?;
+    let seg = dir.path().join(format!("seg_{}", o.camera));
     let opts = SegmentOptions {
         model: model.to_path_buf(),
         images: images.to_path_buf(),
         out: seg.clone(),
-        frames: o.frames.clone(),
+        frames: o.frames.first().copied().filter(|_| o.frames.len() == 1),
         probabilities: o.probabilities,
         fit,
         threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
         check: None,
         overlay: false,
     };
-    let summary = segment_folder(&opts, &|| {}).inspect_err(|_| {
-        let _ = std::fs::remove_dir_all(&seg);
-    })?;
+    if o.frames.len() > 1 {
+        return Err(crate::Error::Invalid("--model labels one frame range at a time".into()));
+    }
+    let summary = segment_into(&opts, &|| {})?;
     // A network run here gives its void channel last.
     let void_channel = if o.probabilities { crate::label::VoidChannel::Last } else { o.void_channel };
-    let labelling = crate::label::LabelOptions { seg: seg.clone(), void_channel, ..o.clone() };
-    match crate::label::label_sequence(&labelling) {
-        Ok(stats) => {
-            let kept = o.out.join(format!("seg_{}", o.camera));
-            std::fs::rename(&seg, &kept).map_err(|source| crate::Error::Io { path: kept, source })?;
-            Ok((stats, summary))
-        }
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(&seg);
-            Err(e.into())
-        }
-    }
+    let labelling = crate::label::LabelOptions { seg, void_channel, out: dir.path().to_path_buf(), ..o.clone() };
+    let stats = crate::label::label_into(&labelling, &o.out.join(format!("seg_{}", o.camera)))?;
+    dir.commit().map_err(io)?;
+    Ok((stats, summary))
 }
 
 /// The images to segment: `(frame name, path)`, in order.
 fn image_list(o: &SegmentOptions) -> Result<Vec<(String, PathBuf)>, SegmentError> {
     let io = |source| SegmentError::Io { path: o.images.clone(), source };
-    if let Some(frames) = &o.frames {
+    if let Some(range) = &o.frames {
+        let mut numbered = Vec::new();
+        for entry in std::fs::read_dir(&o.images).map_err(io)? {
+            let name = entry.map_err(io)?.file_name();
+            let name = name.to_string_lossy();
+            if let Some(Ok(n)) = name.strip_suffix(".png").map(str::parse::<usize>) {
+                numbered.push(n);
+            }
+        }
+        numbered.sort_unstable();
+        let frames = range.select(&numbered, &o.images).map_err(|e| SegmentError::Image {
+            path: o.images.clone(),
+            what: format!("--frames {e}").replace("--frames frames ", "--frames "),
+        })?;
         return Ok(frames.iter().map(|f| (format!("{f:06}"), o.images.join(format!("{f:06}.png")))).collect());
     }
     let mut list = Vec::new();
+    let mut other = None;
     for entry in std::fs::read_dir(&o.images).map_err(io)? {
         let path = entry.map_err(io)?.path();
         if path.extension().is_some_and(|e| e == "png") {
-            if let Some(stem) = path.file_stem().and_then(|s| s.to_str()) {
-                list.push((stem.to_string(), path.clone()));
+            match path.file_stem().and_then(|s| s.to_str()).map(|s| (s, s.parse::<usize>())) {
+                Some((stem, Ok(n))) => list.push((n, stem.to_string(), path.clone())),
+                _ => other = Some(path.clone()),
             }
         }
     }
+    if let (Some(other), false) = (other, list.is_empty()) {
+        return Err(SegmentError::Image {
+            path: o.images.clone(),
+            what: format!(
+                "mixes numbered images (NNNNNN.png) with {}: name every image by its frame number",
+                other.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+            ),
+        });
+    }
+    // Ordered by frame number, not by text (9 before 10).
     list.sort();
     if list.is_empty() {
-        return Err(SegmentError::Image { path: o.images.clone(), what: "no .png images in this folder".into() });
+        return Err(SegmentError::Image {
+            path: o.images.clone(),
+            what: "no numbered .png images (NNNNNN.png) in this folder".into(),
+        });
     }
-    Ok(list)
+    Ok(list.into_iter().map(|(_, stem, path)| (stem, path)).collect())
 }
 
 /// Segments one image into the output folder (and the check folder).
 fn segment_one(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Result<(), SegmentError> {
+    segment_image(net, o, name, path).map_err(|e| match e {
+        SegmentError::NonFinite { model, at, value, .. } => SegmentError::NonFinite { image: path.to_path_buf(), model, at, value },
+        e => e,
+    })
+}
+
+fn segment_image(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Result<(), SegmentError> {
     let io = |p: PathBuf| move |source| SegmentError::Io { path: p, source };
     let image = read_rgb_png(path)?;
     let scores = match &o.check {
@@ -519,17 +590,82 @@ fn segment_one(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Re
     Ok(())
 }
 
-/// Segments every image of `o` with the network, `o.threads` at once;
-/// `tick` after each image (a progress bar).
-pub fn segment_folder(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<SegmentSummary, SegmentError> {
-    let list = image_list(o)?;
-    let mut inputs: Vec<&Path> = vec![o.images.as_path(), o.model.as_path()];
-    inputs.extend(o.check.as_deref().filter(|c| crate::paths::same_file(c, &o.out)));
-    for dir in std::iter::once(&o.out).chain(o.check.as_ref()) {
-        let refuse = |e: crate::Error| SegmentError::Image { path: dir.clone(), what: e.to_string() };
-        crate::paths::refuse_inside(dir, &inputs[..2]).map_err(refuse)?;
-        std::fs::create_dir_all(dir).map_err(|source| SegmentError::Io { path: dir.clone(), source })?;
+/// Whether a file name is one `cosem segment` writes (into the output
+/// folder, or with `check` into the check folder).
+fn segment_file(name: &str, check: bool) -> bool {
+    let suffixes: &[&str] = if check { &[".input.npy", ".labels.npy"] } else { &[".overlay.png", ".png", ".npy"] };
+    suffixes.iter().any(|s| name.strip_suffix(s).is_some_and(|stem| !stem.is_empty() && !stem.contains('.')))
+}
+
+/// Refuses an existing folder that holds anything `cosem segment` does not
+/// write (it is replaced whole).
+fn refuse_foreign(arg: &str, dir: &Path, check: bool) -> Result<(), SegmentError> {
+    let Ok(entries) = std::fs::read_dir(dir) else { return Ok(()) };
+    for name in entries.flatten().map(|e| e.file_name().to_string_lossy().into_owned()) {
+        if !segment_file(&name, check) {
+            return Err(SegmentError::Image {
+                path: dir.to_path_buf(),
+                what: format!(
+                    "{arg}: holds {name}, which is not an earlier `cosem segment` output: the folder is replaced \
+                     whole, choose a new or empty folder"
+                ),
+            });
+        }
     }
+    Ok(())
+}
+
+/// Segments every image of `o` with the network, `o.threads` at once;
+/// `tick` after each image (a progress bar). The output folders (`out`,
+/// `check`) are written whole and swapped into place: new or empty
+/// folders, or earlier outputs of this command; never an input, inside
+/// one or holding one (an image linked into the output included).
+pub fn segment_folder(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<SegmentSummary, SegmentError> {
+    fn refuse(path: &Path) -> impl Fn(crate::Error) -> SegmentError + '_ {
+        move |e| SegmentError::Image { path: path.to_path_buf(), what: e.to_string() }
+    }
+    let inputs: [(&str, &Path); 2] = [("--images", &o.images), ("--model", &o.model)];
+    let mut outputs: Vec<(&str, &Path)> = vec![("--out", &o.out)];
+    outputs.extend(o.check.as_deref().map(|c| ("--check-dir", c)));
+    crate::paths::check_outputs_apart(&outputs).map_err(refuse(&o.out))?;
+    for (arg, dir) in &outputs {
+        crate::paths::check_output(arg, dir, &inputs).map_err(refuse(dir))?;
+        refuse_foreign(arg, dir, *arg == "--check-dir")?;
+    }
+    let list = image_list(o)?;
+    for (_, image) in &list {
+        for (arg, dir) in &outputs {
+            crate::paths::check_output(arg, dir, &[("--images", image)]).map_err(refuse(dir))?;
+        }
+    }
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| SegmentError::Io { path, source }
+    };
+    let out = crate::paths::OutputDir::create(&o.out).map_err(io(&o.out))?;
+    let check = o.check.as_deref().map(|c| crate::paths::OutputDir::create(c).map_err(io(c))).transpose()?;
+    let run = SegmentOptions {
+        out: out.path().to_path_buf(),
+        check: check.as_ref().map(|c| c.path().to_path_buf()),
+        ..o.clone()
+    };
+    let summary = segment_list(&run, &list, tick)?;
+    out.commit().map_err(io(&o.out))?;
+    if let (Some(c), Some(path)) = (check, &o.check) {
+        c.commit().map_err(io(path))?;
+    }
+    Ok(summary)
+}
+
+/// [`segment_folder`] into a folder of the caller's (a new one, no checks
+/// against inputs beyond the images').
+fn segment_into(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<SegmentSummary, SegmentError> {
+    let list = image_list(o)?;
+    std::fs::create_dir_all(&o.out).map_err(|source| SegmentError::Io { path: o.out.clone(), source })?;
+    segment_list(o, &list, tick)
+}
+
+fn segment_list(o: &SegmentOptions, list: &[(String, PathBuf)], tick: &(dyn Fn() + Sync)) -> Result<SegmentSummary, SegmentError> {
     let t = std::time::Instant::now();
     let net = Network::load(&o.model)?;
     let load_s = t.elapsed().as_secs_f64();

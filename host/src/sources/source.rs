@@ -29,6 +29,9 @@ pub struct SourceOptions {
     pub odom: Option<String>,
     /// A class table for a user's label ids (any source).
     pub classes: Option<PathBuf>,
+    /// A recording cut short is an error (else read up to the cut, with a
+    /// warning).
+    pub strict: bool,
 }
 
 impl Default for SourceOptions {
@@ -39,6 +42,7 @@ impl Default for SourceOptions {
             pose_frame: "world".into(),
             odom: None,
             classes: None,
+            strict: false,
         }
     }
 }
@@ -98,6 +102,7 @@ impl Source {
         poses: &Path,
         options: &SourceOptions,
     ) -> Result<Source, Error> {
+        let files = &in_frame_order(files.to_vec())?;
         let read = crate::cloud::read_poses(poses)?;
         if read.len() < files.len() {
             let what = format!("{} poses for {} scans", read.len(), files.len());
@@ -134,7 +139,7 @@ impl Source {
                 _ => {}
             }
         }
-        let (format, mut files) = match (pcd.is_empty(), ply.is_empty()) {
+        let (format, files) = match (pcd.is_empty(), ply.is_empty()) {
             (false, true) => (CloudFormat::Pcd, pcd),
             (true, false) => (CloudFormat::Ply, ply),
             (false, false) => {
@@ -150,7 +155,7 @@ impl Source {
                 )))
             }
         };
-        files.sort();
+        let files = in_frame_order(files)?;
         let poses = crate::cloud::read_poses(&dir.join("poses.txt"))?;
         if poses.len() < files.len() {
             return Err(Error::Invalid(format!(
@@ -206,6 +211,7 @@ impl Source {
                     pose_frame: &self.options.pose_frame,
                     frames: range,
                     odom: self.options.odom.as_deref(),
+                    strict: self.options.strict,
                 };
                 let (frames, skipped, world) = crate::recording::read_scans_in_world(path, &what)?;
                 (frames, world.first().copied().unwrap_or_else(Matrix4::identity), skipped)
@@ -283,4 +289,25 @@ impl Source {
 /// files' own numbers, as the folder reader moves points).
 pub fn relative(wa: &Matrix4<f64>, wb: &Matrix4<f64>) -> Isometry3<f64> {
     crate::kitti::isometry(&(crate::kitti::rigid_inverse(wa) * wb))
+}
+
+/// Scan files in frame order: numbered files (`5.pcd`, `000010.pcd`) by
+/// their number, not their text (a shell's `*.pcd` puts 10 before 5);
+/// files with no number keep the order given. Numbered and unnumbered
+/// files mixed is an error: which pose is whose cannot be told.
+pub fn in_frame_order(mut files: Vec<PathBuf>) -> Result<Vec<PathBuf>, Error> {
+    let number = |p: &PathBuf| p.file_stem().and_then(|s| s.to_str()).and_then(|s| s.parse::<u64>().ok());
+    let numbered = files.iter().filter(|f| number(f).is_some()).count();
+    if numbered == files.len() {
+        files.sort_by_key(|f| (number(f), f.clone()));
+    } else if numbered > 0 {
+        let (n, other) = (files.iter().find(|f| number(f).is_some()), files.iter().find(|f| number(f).is_none()));
+        let name = |f: Option<&PathBuf>| f.map(|f| f.display().to_string()).unwrap_or_default();
+        return Err(Error::Invalid(format!(
+            "scans mix numbered files ({}) with others ({}): name every scan by its frame number, or none",
+            name(n),
+            name(other)
+        )));
+    }
+    Ok(files)
 }
