@@ -121,6 +121,51 @@ pub fn max_pixels(s: &str) -> Result<u64, String> {
     }
 }
 
+/// A number of frames to synthesise: 1 to 100,000.
+pub fn frames_count(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(v) if (1..=100_000).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}`: expected a whole number of frames from 1 to 100000")),
+    }
+}
+
+/// A finite number from `LO` to `HI`.
+pub fn within<const LO: i64, const HI: i64>(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= LO as f64 && v <= HI as f64 => Ok(v),
+        _ => Err(format!("`{s}`: expected a number from {LO} to {HI}")),
+    }
+}
+
+/// Repetitions of a benchmark: 1 to 1,000.
+pub fn repeat(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(v) if (1..=1000).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}`: expected a whole number of repetitions from 1 to 1000")),
+    }
+}
+
+/// A time in seconds: positive, at most a day (86,400 s).
+pub fn seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 86_400.0 => Ok(v),
+        _ => Err(format!("`{s}`: expected seconds, more than 0 and at most 86400 (a day)")),
+    }
+}
+
+/// A label accuracy: a probability in (1/19, 1).
+pub fn accuracy(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if v > 1.0 / 19.0 && v < 1.0 => Ok(v),
+        _ => Err(format!("`{s}`: expected a probability in (1/19, 1)")),
+    }
+}
+
+/// A probability in [0, 1] as `f32`.
+pub fn probability_f32(s: &str) -> Result<f32, String> {
+    probability(s).map(|v| v as f32)
+}
+
 /// A probability in [0, 1].
 pub fn probability(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {

@@ -44,7 +44,7 @@ pub struct SegmentArgs {
 #[derive(clap::Args, Debug)]
 pub struct LabelArgs {
     /// Frames of the synthetic sequence (robot A the first half, B the rest; at least 4).
-    #[arg(long, default_value_t = 10, value_parser = super::args::at_least::<4>)]
+    #[arg(long, default_value_t = 10, value_parser = super::args::frames_count)]
     frames: usize,
     /// Seeds of the synthetic sequences.
     #[arg(long, default_value = "5", value_delimiter = ',')]
@@ -107,8 +107,8 @@ pub struct GlobalArgs {
     /// Voxel size (m).
     #[arg(long, default_value = "0.2", value_parser = super::args::positive_f32)]
     voxel: f32,
-    /// Repetitions (the median is reported).
-    #[arg(long, default_value_t = 5)]
+    /// Repetitions (the median is reported), 1 to 1,000.
+    #[arg(long, default_value_t = 5, value_parser = super::args::repeat)]
     repeat: usize,
 }
 
@@ -153,12 +153,22 @@ pub struct MapArgs {
     /// Voxel size (m).
     #[arg(long, default_value = "0.2", value_parser = super::args::positive_f32)]
     voxel: f32,
-    /// Repetitions (the median is reported).
-    #[arg(long, default_value_t = 5)]
+    /// Repetitions (the median is reported), 1 to 1,000.
+    #[arg(long, default_value_t = 5, value_parser = super::args::repeat)]
     repeat: usize,
 }
 
 pub fn run(w: What, json: Option<&Path>) -> Result<(), Error> {
+    if let Some(out) = json {
+        let inputs: Vec<(&str, &Path)> = match &w {
+            What::Map(a) | What::Wire(a) => named([("--data", &a.data), ("--classes", &a.source.classes)]),
+            What::Link(a) => named([("--data", &a.pair.data), ("--classes", &a.pair.source.classes)]),
+            What::Global(a) => named([("--data", &a.pair.data), ("--classes", &a.pair.source.classes)]),
+            What::Label(a) => named([("--data", &a.data), ("--data", &None)]),
+            What::Segment(a) => named([("--model", &a.model), ("--images", &a.images)]),
+        };
+        cosem_host::paths::check_output("--json", out, &inputs)?;
+    }
     match w {
         What::Map(a) => bench_map(a, json),
         What::Wire(a) => bench_wire(a, json),
@@ -167,6 +177,11 @@ pub fn run(w: What, json: Option<&Path>) -> Result<(), Error> {
         What::Label(a) => bench_label(a, json),
         What::Segment(a) => bench_segment(a, json),
     }
+}
+
+/// The inputs given, by their arguments.
+fn named<'a, const N: usize>(args: [(&'static str, &'a Option<PathBuf>); N]) -> Vec<(&'static str, &'a Path)> {
+    args.into_iter().filter_map(|(n, p)| Some((n, p.as_deref()?))).collect()
 }
 
 /// Milliseconds per image on one core, then on all.
@@ -235,6 +250,9 @@ fn bench_global(a: GlobalArgs) -> Result<(), Error> {
 }
 
 fn bench_label(a: LabelArgs, json: Option<&Path>) -> Result<(), Error> {
+    if a.frames < 4 {
+        return Err(format!("--frames {}: at least 4 (two robots of two frames)", a.frames).into());
+    }
     let tmp = TempDir::new("cosem-bench-label");
     let starts = cosem_host::eval::grid(a.grid_stride).len();
     println!("bench label: camera 2, Cityscapes ids; strict success over {starts} starts of the paper's grid");

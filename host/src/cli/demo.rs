@@ -7,8 +7,9 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Frames to synthesise; robot A maps the first half, robot B the second.
-    #[arg(long, default_value_t = 20)]
+    /// Frames to synthesise (2 to 100,000); robot A maps the first half,
+    /// robot B the second.
+    #[arg(long, default_value_t = 20, value_parser = super::args::frames_count)]
     frames: usize,
     /// Seed of the synthetic street.
     #[arg(long, default_value_t = 1)]
@@ -18,7 +19,7 @@ pub struct Args {
     voxel: f32,
     /// Keep the synthetic sequence and maps in this folder (default: a
     /// temporary folder, removed at the end).
-    #[arg(long)]
+    #[arg(long, value_name = "OUT")]
     out: Option<PathBuf>,
 }
 

@@ -45,7 +45,7 @@ pub struct Args {
     negatives: Vec<Place>,
     /// The verdict's threshold on the agreement of what both maps saw
     /// (default: the matcher's, 0.40): to measure other operating points.
-    #[arg(long)]
+    #[arg(long, value_parser = super::args::probability_f32)]
     min_agreement: Option<f32>,
     /// Random priors per negative pair.
     #[arg(long, default_value_t = 3)]
@@ -74,10 +74,10 @@ pub struct Args {
     #[arg(long, value_parser = super::args::threads)]
     threads: Option<usize>,
     /// Write the summary and every start's result as JSON to this file.
-    #[arg(long)]
+    #[arg(long, value_name = "OUT")]
     json: Option<PathBuf>,
     /// Write box plots of e_t and e_r per method to this SVG file.
-    #[arg(long)]
+    #[arg(long, value_name = "OUT")]
     plot: Option<PathBuf>,
     /// Pass both maps through the compact wire encoding (as if received
     /// over the link) before matching: shows what quantisation costs.
@@ -125,7 +125,8 @@ fn progress_bar(len: usize) -> ProgressBar {
 
 /// Checks the output paths can be written before the run.
 fn check_outputs(a: &Args) -> Result<(), Error> {
-    let mut inputs: Vec<(&str, &std::path::Path)> = a.negatives.iter().map(|p| ("--negatives", p.data.as_path())).collect();
+    let mut inputs: Vec<(&str, &std::path::Path)> =
+        a.negatives.iter().map(|p| ("--negatives", p.data.as_path())).collect();
     inputs.extend(a.data.as_deref().map(|p| ("--data", p)));
     inputs.extend(a.source.classes.as_deref().map(|p| ("--classes", p)));
     let outputs: Vec<(&str, &std::path::Path)> =

@@ -13,7 +13,7 @@ pub enum Format {
         /// Map file.
         file: PathBuf,
         /// Output PLY file.
-        #[arg(short, long)]
+        #[arg(short, long, value_name = "OUT")]
         output: PathBuf,
     },
     /// A SemanticKITTI folder's scans as labelled point clouds, one file a
@@ -32,7 +32,7 @@ pub enum Format {
         /// Output folder, written whole and swapped into place: a new or
         /// empty folder, or with --force an earlier export (never inside,
         /// over or around the input folder).
-        #[arg(short, long)]
+        #[arg(short, long, value_name = "OUT")]
         output: PathBuf,
         /// Replace an earlier export (a folder of scans and poses.txt only).
         #[arg(long)]
@@ -55,7 +55,7 @@ pub enum Format {
         #[arg(long, value_enum, default_value = "zstd")]
         compression: cosem_host::recording::ChunkCompression,
         /// Output MCAP file (never inside the input folder).
-        #[arg(short, long)]
+        #[arg(short, long, value_name = "OUT")]
         output: PathBuf,
     },
 }

@@ -64,7 +64,7 @@ pub struct Args {
     frames: Option<FrameRange>,
     /// Output folder (SemanticKITTI layout: links to the scans, copies of
     /// calib, poses and times, the new labels).
-    #[arg(long)]
+    #[arg(long, value_name = "OUT")]
     out: PathBuf,
     /// Copy the scans into the output folder instead of linking them
     /// (relative symbolic links: the two folders may move together).

@@ -29,13 +29,13 @@ pub struct Args {
     baud: Option<u32>,
     /// Give up after this long, whatever the state (s; long enough for a
     /// robot's map on a 115200-baud line with 5% byte errors).
-    #[arg(long, default_value = "600", value_parser = super::args::positive)]
+    #[arg(long, default_value = "600", value_parser = super::args::seconds)]
     deadline: f64,
     /// With --listen: give up when no peer connected in this long (s).
-    #[arg(long, default_value = "60", value_parser = super::args::positive)]
+    #[arg(long, default_value = "60", value_parser = super::args::seconds)]
     accept_timeout: f64,
     /// With --tcp: keep trying to connect for this long while the peer starts (s).
-    #[arg(long, default_value = "10", value_parser = super::args::positive)]
+    #[arg(long, default_value = "10", value_parser = super::args::seconds)]
     connect_timeout: f64,
     /// Our robot id (default 0 when listening, 1 when connecting).
     #[arg(long)]

@@ -62,7 +62,7 @@ pub struct Args {
     #[arg(long, default_value = "drop", value_parser = super::args::unlabeled)]
     unlabeled: cosem_host::mapping::Unlabeled,
     /// Probability that a point's label is right (Bayes sensor model).
-    #[arg(long, default_value_t = SensorModel::default().accuracy)]
+    #[arg(long, default_value_t = SensorModel::default().accuracy, value_parser = super::args::accuracy)]
     label_accuracy: f32,
     /// Label noise on every scan: none, network[:SEVERITY] or iid:P (see
     /// `cosem eval --help`).
@@ -72,7 +72,7 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Output map file.
-    #[arg(short, long)]
+    #[arg(short, long, value_name = "OUT")]
     output: PathBuf,
 }
 

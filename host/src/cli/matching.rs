@@ -19,19 +19,21 @@ pub struct Args {
     #[arg(long)]
     pub(super) json: bool,
     /// Write both maps in the model frame, coloured by robot, to this PLY.
-    #[arg(long)]
+    #[arg(long, value_name = "OUT")]
     merged: Option<PathBuf>,
     /// Write the match as a ROS 2 recording (MCAP) to view in Foxglove: both
     /// maps as PointCloud2 coloured by class (/cosem/model, /cosem/scene),
     /// T_model_scene on /tf (model -> scene), the result on /cosem/status.
-    #[arg(long)]
+    #[arg(long, value_name = "OUT")]
     mcap_out: Option<PathBuf>,
 }
 
 pub fn run(a: Args) -> Result<u8, Error> {
     let (settings, prior) = a.opts.resolve();
-    let outputs: Vec<(&str, &std::path::Path)> =
-        [("--merged", &a.merged), ("--mcap-out", &a.mcap_out)].into_iter().filter_map(|(n, p)| Some((n, p.as_deref()?))).collect();
+    let outputs: Vec<(&str, &std::path::Path)> = [("--merged", &a.merged), ("--mcap-out", &a.mcap_out)]
+        .into_iter()
+        .filter_map(|(n, p)| Some((n, p.as_deref()?)))
+        .collect();
     cosem_host::paths::check_outputs_apart(&outputs)?;
     for (arg, out) in outputs {
         cosem_host::paths::check_output(arg, out, &[("MODEL", &a.model), ("SCENE", &a.scene)])?;

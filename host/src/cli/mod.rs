@@ -16,6 +16,7 @@ mod robots;
 mod segment;
 mod synth;
 mod team;
+mod tree;
 
 use clap::{Parser, Subcommand};
 
@@ -69,13 +70,16 @@ enum Command {
     /// Benchmarks that print numbers.
     Bench {
         /// Also write the figures as JSON to this file (map, wire, link, label).
-        #[arg(long, global = true)]
+        #[arg(long, global = true, value_name = "OUT")]
         json: Option<std::path::PathBuf>,
         #[command(subcommand)]
         what: bench::What,
     },
     /// The main job on built-in data: synthesise, map two robots, match.
     Demo(demo::Args),
+    /// The command tree as JSON (for the misuse table test).
+    #[command(hide = true)]
+    CliTree,
 }
 
 /// Runs a parsed command line; returns the exit code (docs/commands.md, "Exit
@@ -119,6 +123,7 @@ fn run_command(cli: Cli) -> Result<u8, Error> {
         Command::Synth(a) => done(synth::run(a)),
         Command::Bench { json, what } => done(bench::run(what, json.as_deref())),
         Command::Demo(a) => done(demo::run(a)),
+        Command::CliTree => done(tree::run()),
     }
 }
 

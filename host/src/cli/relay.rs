@@ -25,7 +25,7 @@ pub struct Args {
     #[arg(long, value_parser = cosem_host::relay::parse_mix)]
     mix: Option<Mix>,
     /// Give up when the two sides have not connected in this long (s).
-    #[arg(long, default_value = "60", value_parser = super::args::positive)]
+    #[arg(long, default_value = "60", value_parser = super::args::seconds)]
     accept_timeout: f64,
 }
 

@@ -2,7 +2,7 @@
 //! maps over their UART0s and match on board; printed beside the host's own
 //! run of the same pipeline on the same fed data and the ground truth.
 
-use super::args::{pose, positive, positive_f32};
+use super::args::{pose, positive_f32};
 use super::{show, Error};
 use cosem_core::geometry::Isometry3;
 use cosem_host::board::Board;
@@ -60,10 +60,10 @@ pub struct Args {
     #[arg(long, default_value = "none")]
     line: LineFault,
     /// A robot gives up on the link after this long without a valid frame (s).
-    #[arg(long, default_value = "30", value_parser = positive)]
+    #[arg(long, default_value = "30", value_parser = super::args::seconds)]
     silence: f64,
     /// Kill both emulators after this long (s, at most a day).
-    #[arg(long, default_value = "900", value_parser = positive)]
+    #[arg(long, default_value = "900", value_parser = super::args::seconds)]
     timeout: f64,
     /// Label noise on every scan before it is fed: none, network[:SEVERITY]
     /// or iid:P (see `cosem eval --help`); robot i's seed is --seed + i.

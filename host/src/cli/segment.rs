@@ -17,7 +17,7 @@ pub struct Args {
     images: PathBuf,
     /// Output folder: NNNNNN.png of training ids (255 void) at each image's
     /// own size; with --probabilities also NNNNNN.npy.
-    #[arg(long)]
+    #[arg(long, value_name = "OUT")]
     out: PathBuf,
     /// Frames START:END[:STRIDE]; default: every image.
     #[arg(long)]
@@ -38,7 +38,7 @@ pub struct Args {
     fit: String,
     /// Also write each image's network input and labels at the network's
     /// size as .npy here (to check against another runtime; squash only).
-    #[arg(long)]
+    #[arg(long, value_name = "OUT")]
     check_dir: Option<PathBuf>,
     /// Also write NNNNNN.overlay.png: the image with its class colours laid over it.
     #[arg(long)]

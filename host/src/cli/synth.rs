@@ -8,22 +8,22 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Output folder.
-    #[arg(long)]
+    #[arg(long, value_name = "OUT")]
     out: PathBuf,
-    /// Number of frames.
-    #[arg(long, default_value_t = 10)]
+    /// Number of frames, 1 to 100,000.
+    #[arg(long, default_value_t = 10, value_parser = super::args::frames_count)]
     frames: usize,
     /// Seed of scene, trajectory and noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Range noise, standard deviation (m).
-    #[arg(long, default_value_t = SynthConfig::default().range_noise)]
+    /// Range noise, standard deviation (m), 0 to 10.
+    #[arg(long, default_value_t = SynthConfig::default().range_noise, value_parser = super::args::within::<0, 10>)]
     range_noise: f64,
-    /// Fraction of points given a wrong random label.
-    #[arg(long, default_value_t = 0.0)]
+    /// Fraction of points given a wrong random label, 0 to 1.
+    #[arg(long, default_value_t = 0.0, value_parser = super::args::probability)]
     label_noise: f64,
-    /// Distance driven per frame (m).
-    #[arg(long, default_value_t = SynthConfig::default().step)]
+    /// Distance driven per frame (m), 0 to 50.
+    #[arg(long, default_value_t = SynthConfig::default().step, value_parser = super::args::within::<0, 50>)]
     step: f64,
     /// Render camera 2's segmentation image per frame into seg_2/, with
     /// these ids: cityscapes (a Cityscapes-trained network's 19 training

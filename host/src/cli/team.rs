@@ -61,10 +61,10 @@ pub struct Args {
     pub(super) firmware: Option<std::path::PathBuf>,
     /// With --on-board: a robot gives up on a peer after this long without a
     /// valid frame (s).
-    #[arg(long, default_value = "60", value_parser = super::args::positive)]
+    #[arg(long, default_value = "60", value_parser = super::args::seconds)]
     pub(super) silence: f64,
     /// With --on-board: kill the emulators after this long (s).
-    #[arg(long, default_value = "1800", value_parser = super::args::positive)]
+    #[arg(long, default_value = "1800", value_parser = super::args::seconds)]
     pub(super) timeout: f64,
 }
 

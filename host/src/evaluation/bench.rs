@@ -356,6 +356,9 @@ pub fn data_root() -> PathBuf {
     std::env::var_os("COSEM_DATA").map_or_else(|| PathBuf::from("../shared/data"), PathBuf::from)
 }
 
+/// The most frames a benchmark synthesises when it has no data.
+pub const MAX_SYNTHETIC_FRAMES: usize = 1000;
+
 /// The sequence to benchmark on: `given`, else `kitti00` under
 /// [`data_root`], else a fresh synthetic one of `frames` frames (removed
 /// when the returned guard drops: its presence says it is synthetic).
@@ -366,6 +369,13 @@ pub fn data_dir(given: Option<PathBuf>, frames: usize) -> Result<(PathBuf, Optio
     let kitti = data_root().join("kitti00");
     if kitti.join("poses.txt").exists() {
         return Ok((kitti, None));
+    }
+    if frames > MAX_SYNTHETIC_FRAMES {
+        return Err(Error::Invalid(format!(
+            "frames up to {frames}: no --data and no kitti00 under {}, and a synthetic sequence has at most \
+             {MAX_SYNTHETIC_FRAMES} frames here",
+            data_root().display()
+        )));
     }
     let tmp = TempDir::new("cosem-bench");
     let cfg = crate::synth::SynthConfig { frames, ..Default::default() };

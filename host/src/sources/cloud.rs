@@ -635,6 +635,7 @@ pub fn export_scans(
     crate::paths::check_output("--output", output, &[("--data", data)])?;
     refuse_used_folder(output, force)?;
     let seq = crate::kitti::Sequence::open(data)?;
+    seq.check_range(frames)?;
     let io = |source| crate::Error::Io { path: output.to_path_buf(), source };
     let dir = crate::paths::OutputDir::create(output).map_err(io)?;
     let mut poses = Vec::new();
@@ -659,7 +660,9 @@ fn refuse_used_folder(output: &Path, force: bool) -> Result<(), crate::Error> {
     let Ok(entries) = std::fs::read_dir(output) else { return Ok(()) };
     let ours = |n: &str| {
         n == "poses.txt"
-            || n.strip_suffix(".pcd").or_else(|| n.strip_suffix(".ply")).is_some_and(|s| s.bytes().all(|b| b.is_ascii_digit()))
+            || n.strip_suffix(".pcd")
+                .or_else(|| n.strip_suffix(".ply"))
+                .is_some_and(|s| s.bytes().all(|b| b.is_ascii_digit()))
     };
     let mut held = None;
     for name in entries.flatten().map(|e| e.file_name().to_string_lossy().into_owned()) {

@@ -407,6 +407,20 @@ impl Sequence {
         self.camera_poses.len()
     }
 
+    /// Checks that `range` lies within the sequence (a pose for each of
+    /// its frames), naming the range and the frames there are.
+    pub fn check_range(&self, range: FrameRange) -> Result<(), KittiError> {
+        let n = self.camera_poses.len();
+        if range.end > n {
+            return Err(KittiError::FramesMissing(format!(
+                "{range}: {} has {n} frames (0 to {}, poses.txt)",
+                self.dir.display(),
+                n.saturating_sub(1)
+            )));
+        }
+        Ok(())
+    }
+
     /// The LiDAR pose of a scan in the world as the matrix
     /// `inv(Tr) * P_i * Tr`, with the file's numbers (what
     /// [`Sequence::load_range`] moves points with).
@@ -516,6 +530,7 @@ impl Sequence {
     /// Reads the frames of a range and puts them into the anchor frame (the
     /// LiDAR frame of the range's first scan).
     pub fn load_range(&self, range: FrameRange) -> Result<Vec<Frame>, KittiError> {
+        self.check_range(range)?;
         // Points move with the file's own numbers (as KITTI's tools do).
         let anchor_inv = rigid_inverse(&self.velodyne_matrix(range.start)?);
         range

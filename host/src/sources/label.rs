@@ -628,7 +628,8 @@ fn prepare_output(o: &LabelOptions, seg: &Path) -> Result<(), LabelError> {
     for f in ["calib.txt", "poses.txt", "times.txt"] {
         let from = o.data.join(f);
         if from.exists() {
-            crate::paths::copy_file(&from, &o.out.join(f)).map_err(io(&from))?;
+            let to = o.out.join(f);
+            crate::paths::copy_file(&from, &to).map_err(io(&to))?;
         }
     }
     let prov = format!(

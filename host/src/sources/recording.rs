@@ -420,7 +420,10 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
     if let crate::mcap_read::Ending::Cut { at, what: missing } = ending {
         let what_ = format!("cut short at byte offset {at} ({missing})");
         if what.strict {
-            return Err(RecordingError::Mcap { path: path.to_owned(), what: format!("{what_}; without --strict the scans before the cut are read") });
+            return Err(RecordingError::Mcap {
+                path: path.to_owned(),
+                what: format!("{what_}; without --strict the scans before the cut are read"),
+            });
         }
         crate::error::warn(&format!(
             "{}: {what_}: read the {} messages on {} before the cut{}",
@@ -544,6 +547,7 @@ pub fn export(
     compression: ChunkCompression,
     out: &Path,
 ) -> Result<usize, crate::Error> {
+    seq.check_range(frames)?;
     let mut scans = Vec::new();
     for i in frames.frames() {
         let scan = seq.read_scan(i)?;
@@ -704,15 +708,14 @@ mod tests {
     }
 
     fn read_one(path: &Path) -> Result<(Vec<Frame>, usize), RecordingError> {
-        let what =
-            RecordingScans {
-                points: "/points",
-                label_field: "label",
-                pose_frame: "world",
-                frames: None,
-                odom: None,
-                strict: false,
-            };
+        let what = RecordingScans {
+            points: "/points",
+            label_field: "label",
+            pose_frame: "world",
+            frames: None,
+            odom: None,
+            strict: false,
+        };
         read_scans(path, &what)
     }
 

@@ -146,7 +146,8 @@ pub fn read_rgb_png(path: &Path) -> Result<RgbImage, SegmentError> {
     let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
     decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
     let mut reader = decoder.read_info().map_err(|e| bad(format!("not a readable PNG ({e})")))?;
-    let file_bytes = std::fs::metadata(path).map_err(|source| SegmentError::Io { path: path.to_path_buf(), source })?.len();
+    let file_bytes =
+        std::fs::metadata(path).map_err(|source| SegmentError::Io { path: path.to_path_buf(), source })?.len();
     crate::limits::image_pixels(reader.info().width, reader.info().height, file_bytes).map_err(bad)?;
     let size = reader.output_buffer_size().ok_or_else(|| bad("image too large".into()))?;
     let mut buf = vec![0u8; size];
@@ -344,7 +345,12 @@ impl Network {
         let first = out.first().ok_or_else(|| err(TractError::msg("no output")))?;
         let scores = first.try_as_plain_ram().and_then(|v| v.as_slice::<f32>().map(<[f32]>::to_vec)).map_err(err)?;
         if let Some(k) = scores.iter().position(|v| !v.is_finite()) {
-            return Err(SegmentError::NonFinite { image: PathBuf::new(), model: self.path.clone(), at: k, value: scores[k] });
+            return Err(SegmentError::NonFinite {
+                image: PathBuf::new(),
+                model: self.path.clone(),
+                at: k,
+                value: scores[k],
+            });
         }
         Ok(scores)
     }
@@ -551,7 +557,9 @@ fn image_list(o: &SegmentOptions) -> Result<Vec<(String, PathBuf)>, SegmentError
 /// Segments one image into the output folder (and the check folder).
 fn segment_one(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Result<(), SegmentError> {
     segment_image(net, o, name, path).map_err(|e| match e {
-        SegmentError::NonFinite { model, at, value, .. } => SegmentError::NonFinite { image: path.to_path_buf(), model, at, value },
+        SegmentError::NonFinite { model, at, value, .. } => {
+            SegmentError::NonFinite { image: path.to_path_buf(), model, at, value }
+        }
         e => e,
     })
 }
@@ -665,7 +673,11 @@ fn segment_into(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<SegmentS
     segment_list(o, &list, tick)
 }
 
-fn segment_list(o: &SegmentOptions, list: &[(String, PathBuf)], tick: &(dyn Fn() + Sync)) -> Result<SegmentSummary, SegmentError> {
+fn segment_list(
+    o: &SegmentOptions,
+    list: &[(String, PathBuf)],
+    tick: &(dyn Fn() + Sync),
+) -> Result<SegmentSummary, SegmentError> {
     let t = std::time::Instant::now();
     let net = Network::load(&o.model)?;
     let load_s = t.elapsed().as_secs_f64();

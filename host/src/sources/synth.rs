@@ -689,6 +689,14 @@ fn refuse_foreign_folder(dir: &Path) -> std::io::Result<()> {
 /// (a new or empty folder, or an earlier synthetic sequence's).
 pub fn write_sequence(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesised> {
     refuse_foreign_folder(dir)?;
+    // Written whole into a temporary folder, then swapped into place.
+    let out = crate::paths::OutputDir::create(dir)?;
+    let seq = write_into(out.path(), cfg)?;
+    out.commit()?;
+    Ok(seq)
+}
+
+fn write_into(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesised> {
     let seq = synthesise(cfg);
     std::fs::create_dir_all(dir.join("velodyne"))?;
     std::fs::create_dir_all(dir.join("labels"))?;
