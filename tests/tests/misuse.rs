@@ -116,7 +116,7 @@ fn with(args: &[String], arg: &Value, value: &str, baseline_positionals: usize) 
         out.push(value.to_string());
         return out;
     }
-    if let Some(i) = out.iter().position(|a| flags.iter().any(|f| *f == a)) {
+    if let Some(i) = out.iter().position(|a| flags.contains(&a)) {
         out[i + 1] = value.to_string();
         return out;
     }
