@@ -140,9 +140,9 @@ pub fn check_outputs_apart(outputs: &[(&str, &Path)]) -> Result<(), crate::Error
 
 fn refusal(arg: &str, out: &Path, how: &str, name: &str, input: &Path) -> crate::Error {
     let what = match how {
-        "is" => "an input is never overwritten",
+        "is" => "an input is never written (never overwritten)",
         "lies inside" => "an input folder is never written",
-        _ => "replacing it would remove an input",
+        _ => "replacing it would remove an input, and an input is never written",
     };
     crate::Error::Invalid(format!(
         "{arg} {}: {how} the input {name} {}: {what}, choose another output",

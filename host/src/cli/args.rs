@@ -149,7 +149,7 @@ pub fn repeat(s: &str) -> Result<usize, String> {
 pub fn seconds(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 && v <= 86_400.0 => Ok(v),
-        _ => Err(format!("`{s}`: expected seconds, more than 0 and at most 86400 (a day)")),
+        _ => Err(format!("`{s}`: expected a positive number of seconds, at most 86400 (a day)")),
     }
 }
 

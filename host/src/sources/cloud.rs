@@ -668,8 +668,8 @@ fn refuse_used_folder(output: &Path, force: bool) -> Result<(), crate::Error> {
     for name in entries.flatten().map(|e| e.file_name().to_string_lossy().into_owned()) {
         if !ours(&name) {
             return Err(crate::Error::Invalid(format!(
-                "--output {}: holds {name}, which is not an earlier export's: the folder is replaced whole, \
-                 choose a new or empty folder",
+                "--output {}: already holds {name}, which is not an earlier export's: the folder is replaced \
+                 whole, not even with --force; choose a new or empty folder",
                 output.display()
             )));
         }

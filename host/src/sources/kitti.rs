@@ -413,8 +413,8 @@ impl Sequence {
         let n = self.camera_poses.len();
         if range.end > n {
             return Err(KittiError::FramesMissing(format!(
-                "{range}: {} has {n} frames (0 to {}, poses.txt)",
-                self.dir.display(),
+                "{range}: {} has a pose for {n} frames (0 to {}): no pose for frame {n}",
+                self.dir.join("poses.txt").display(),
                 n.saturating_sub(1)
             )));
         }
