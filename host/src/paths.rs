@@ -77,11 +77,11 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
 /// Whether `inner` is `outer` or lies inside it, by resolved path or by
 /// the identity of one of `inner`'s existing folders.
 fn within(inner: &Path, outer: &Path) -> bool {
-    if resolved(inner).starts_with(resolved(outer)) {
+    let inner = resolved(inner);
+    if inner.starts_with(resolved(outer)) {
         return true;
     }
     let Some(id) = file_id(outer) else { return false };
-    let inner = resolved(inner);
     inner.ancestors().any(|a| file_id(a) == Some(id))
 }
 

@@ -208,6 +208,11 @@ fn run(args: &[String], env: &[(String, String)], cwd: &Path) -> Outcome {
     Outcome { code, stderr: reader.join().unwrap_or_default(), secs: t.elapsed().as_secs_f64() }
 }
 
+/// A run's first error line, its work folder spelled WORK (to compare runs).
+fn first_error(o: &Outcome, work: &Path) -> String {
+    o.stderr.lines().find(|l| l.starts_with("error")).unwrap_or("").replace(&work.display().to_string(), "WORK")
+}
+
 fn fixture(root: &Path) -> Fixture {
     let s = |p: &Path| p.display().to_string();
     let seq = root.join("in/seq");
@@ -370,13 +375,7 @@ fn every_command_refuses_misuse_cleanly() {
         let work = f.root.join("base");
         prepare_work(&work, &f, None);
         let o = run(&fill(template, &f, &work.join("OUT")), &[], &work);
-        let first = o
-            .stderr
-            .lines()
-            .find(|l| l.starts_with("error"))
-            .unwrap_or("")
-            .replace(&work.display().to_string(), "WORK");
-        baseline_end.insert(name.to_string(), (o.code, first));
+        baseline_end.insert(name.to_string(), (o.code, first_error(&o, &work)));
         let _ = std::fs::remove_dir_all(&work);
     }
     // Each case runs in a work folder of its own (outputs, bad inputs).
@@ -409,13 +408,7 @@ fn every_command_refuses_misuse_cleanly() {
                 if o.code.is_none() || o.code == Some(101) || o.stderr.contains("panicked") {
                     problems.push(format!("crashed (exit {:?})", o.code));
                 }
-                let first = o
-                    .stderr
-                    .lines()
-                    .find(|l| l.starts_with("error"))
-                    .unwrap_or("")
-                    .replace(&work.display().to_string(), "WORK");
-                let as_baseline = baseline_end.get(&case.command) == Some(&(o.code, first));
+                let as_baseline = baseline_end.get(&case.command) == Some(&(o.code, first_error(&o, &work)));
                 if o.code != Some(0) && o.code != Some(-999) && !as_baseline {
                     let names: Vec<String> = case
                         .names

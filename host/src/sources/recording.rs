@@ -360,6 +360,29 @@ pub fn read_scans(path: &Path, what: &RecordingScans<'_>) -> Result<(Vec<Frame>,
     read_scans_in_world(path, what).map(|(frames, skipped, _)| (frames, skipped))
 }
 
+/// A recording cut short at byte offset `at` after `seen` point cloud
+/// messages: an error with `strict`, else a warning saying what was read.
+fn cut_short(
+    path: &Path,
+    what: &RecordingScans<'_>,
+    at: u64,
+    missing: &str,
+    seen: usize,
+) -> Result<(), RecordingError> {
+    let cut = format!("cut short at byte offset {at} ({missing})");
+    if what.strict {
+        let what = format!("{cut}; without --strict the scans before the cut are read");
+        return Err(RecordingError::Mcap { path: path.to_owned(), what });
+    }
+    let asked = what.frames.map_or(String::new(), |r| format!(" (frames {r} asked)"));
+    crate::error::warn(&format!(
+        "{}: {cut}: read the {seen} messages on {} before the cut{asked}",
+        path.display(),
+        what.points
+    ));
+    Ok(())
+}
+
 /// Scans in the first one's frame, the points skipped for a NaN
 /// coordinate, and each scan's `T_world_sensor`.
 pub type ScansInWorld = (Vec<Frame>, usize, Vec<Matrix4<f64>>);
@@ -418,20 +441,7 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
     })
     .map_err(|e| RecordingError::Mcap { path: path.to_owned(), what: e.what })?;
     if let crate::mcap_read::Ending::Cut { at, what: missing } = ending {
-        let what_ = format!("cut short at byte offset {at} ({missing})");
-        if what.strict {
-            return Err(RecordingError::Mcap {
-                path: path.to_owned(),
-                what: format!("{what_}; without --strict the scans before the cut are read"),
-            });
-        }
-        crate::error::warn(&format!(
-            "{}: {what_}: read the {} messages on {} before the cut{}",
-            path.display(),
-            seen,
-            what.points,
-            what.frames.map_or(String::new(), |r| format!(" (frames {r} asked)"))
-        ));
+        cut_short(path, what, at, &missing, seen)?;
     }
     let asked = what.frames.map_or(1, |r| r.len());
     if clouds.len() < asked {

@@ -477,6 +477,9 @@ pub fn label_from_images(
     images: &Path,
     fit: Fit,
 ) -> Result<(crate::label::LabelStats, SegmentSummary), crate::Error> {
+    if o.frames.len() > 1 {
+        return Err(crate::Error::Invalid("--model labels one frame range at a time".into()));
+    }
     crate::label::check_out(o, &[("--data", &o.data), ("--images", images), ("--model", model)])?;
     let io = |source| crate::Error::Io { path: o.out.clone(), source };
     let dir = crate::paths::OutputDir::create(&o.out).map_err(io)?;
@@ -485,16 +488,13 @@ pub fn label_from_images(
         model: model.to_path_buf(),
         images: images.to_path_buf(),
         out: seg.clone(),
-        frames: o.frames.first().copied().filter(|_| o.frames.len() == 1),
+        frames: o.frames.first().copied(),
         probabilities: o.probabilities,
         fit,
         threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
         check: None,
         overlay: false,
     };
-    if o.frames.len() > 1 {
-        return Err(crate::Error::Invalid("--model labels one frame range at a time".into()));
-    }
     let summary = segment_into(&opts, &|| {})?;
     // A network run here gives its void channel last.
     let void_channel = if o.probabilities { crate::label::VoidChannel::Last } else { o.void_channel };
