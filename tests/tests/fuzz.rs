@@ -8,11 +8,18 @@
 //! silently read). Each target runs a fixed number of cases or until its
 //! time cap, whichever comes first; the seed and the case are printed on a
 //! failure. `cargo fuzz` targets of the same readers are in `host/fuzz`.
+//! Images (segmentation PNGs, camera PNGs, `.npy` probability maps) are
+//! mutated the same way, and PNG chunks get their CRCs recomputed after a
+//! mutation half of the time, so that the decoder's header and size checks
+//! are reached and not only its checksum.
 
 use cosem_host::class_table::ClassTable;
 use cosem_host::cloud::{read_pcd, read_ply, read_poses, write_pcd, write_ply, write_poses};
 use cosem_host::kitti::FrameRange;
 use cosem_host::recording::{read_scans, write_scans, ChunkCompression, RecordingScans, ScanRecord};
+use cosem_host::seg_files::{
+    npy_bytes, read_probabilities, read_rgb_png, read_seg_png, write_rgb_png, write_seg_png, RgbImage, SegImage,
+};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::Path;
@@ -296,4 +303,142 @@ fn mutated_poses_and_class_tables_never_panic() {
     fuzz("classes.toml", 52, table.as_bytes(), true, tmp.path(), limit, |_, b| {
         std::str::from_utf8(b).is_ok_and(|t| ClassTable::parse(t).is_ok())
     });
+}
+
+/// CRC-32 (IEEE) as PNG's chunks carry it.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut c = !0u32;
+    for &b in bytes {
+        c ^= u32::from(b);
+        for _ in 0..8 {
+            c = if c & 1 == 1 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
+        }
+    }
+    !c
+}
+
+/// `png` with every whole chunk's CRC recomputed (a mutated file that the
+/// decoder then reads past its checksums).
+fn fix_png_crcs(mut png: Vec<u8>) -> Vec<u8> {
+    let mut at = 8;
+    while at + 12 <= png.len() {
+        let len = u32::from_be_bytes([png[at], png[at + 1], png[at + 2], png[at + 3]]) as usize;
+        let Some(end) = (at + 8).checked_add(len).filter(|e| e + 4 <= png.len()) else { break };
+        let crc = crc32(&png[at + 4..end]).to_be_bytes();
+        png[end..end + 4].copy_from_slice(&crc);
+        at = end + 4;
+    }
+    png
+}
+
+/// A PNG mutation: bytes as [`mutate`], or the header's width and height
+/// set to extreme values; half of the time with the CRCs made right again.
+fn mutate_png(valid: &[u8], rng: &mut Rng) -> Vec<u8> {
+    let mut b = if rng.below(3) == 0 && valid.len() > 24 {
+        let mut b = valid.to_vec();
+        let sizes = [0u32, 1, 0x7FFF_FFFF, u32::MAX, 65_536, 200_000, 1 << 20, rng.next() as u32 % 100_000];
+        let at = 16 + 4 * rng.below(2);
+        b[at..at + 4].copy_from_slice(&sizes[rng.below(sizes.len())].to_be_bytes());
+        b
+    } else {
+        mutate(valid, rng)
+    };
+    if rng.below(2) == 0 {
+        b = fix_png_crcs(b);
+    }
+    b
+}
+
+/// A small image with structure (blocks of ids) and some noise.
+fn ids(width: u32, height: u32, rng: &mut Rng) -> Vec<u8> {
+    (0..width * height)
+        .map(|i| if rng.below(10) == 0 { rng.next() as u8 } else { ((i % width) / 7 + 3 * (i / width / 5)) as u8 })
+        .collect()
+}
+
+#[test]
+fn mutated_images_and_probability_maps_never_panic_nor_allocate_beyond_their_size() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut rng = Rng(61);
+    let (w, h) = (48u32, 20u32);
+    // A PNG's pixels are bounded by 1032x its bytes (deflate's ratio) and
+    // the decoder holds at most 4 bytes a pixel (RGBA, 16-bit stripped),
+    // plus its inflater's window and tables.
+    let png_limit = |len: usize| (1 << 20) + 4 * 1032 * len;
+    let seg = tmp.path().join("seg.png");
+    write_seg_png(&seg, &SegImage { width: w, height: h, ids: ids(w, h, &mut rng) }).unwrap();
+    let valid = std::fs::read(&seg).unwrap();
+    let want = read_seg_png(&seg).unwrap();
+    let mut png_fuzz = |name: &str, seed: u64, valid: &[u8], read: &dyn Fn(&Path) -> bool| {
+        let path = tmp.path().join(name);
+        let mut rng = Rng(seed);
+        let started = Instant::now();
+        let (mut cases, mut accepted) = (0, 0);
+        while cases < CASES && started.elapsed() < TIME_CAP {
+            let bytes = mutate_png(valid, &mut rng);
+            std::fs::write(&path, &bytes).unwrap();
+            LARGEST.with(|l| l.set(0));
+            let ok = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| read(&path)));
+            let largest = LARGEST.with(Cell::get);
+            let keep = tmp.path().join(format!("{name}.case{cases}"));
+            let Ok(a) = ok else {
+                std::fs::copy(&path, &keep).unwrap();
+                panic!("{name}: seed {seed} case {cases}: the reader panicked (input kept at {})", keep.display());
+            };
+            accepted += usize::from(a);
+            if largest > png_limit(bytes.len()) {
+                std::fs::copy(&path, &keep).unwrap();
+                panic!(
+                    "{name}: seed {seed} case {cases}: an allocation of {largest} bytes for a file of {} \
+                     (input kept at {})",
+                    bytes.len(),
+                    keep.display()
+                );
+            }
+            cases += 1;
+        }
+        println!(
+            "{name}: {cases} mutated files in {:.1} s, {accepted} read, the rest refused with an error",
+            started.elapsed().as_secs_f64()
+        );
+        assert!(cases >= 200, "{name}: only {cases} cases within the time cap");
+        assert!(accepted > 0 && accepted < cases, "{name}: {accepted} of {cases} read: the mutations missed");
+    };
+    png_fuzz("mutated-seg.png", 62, &valid, &|p| {
+        let got = read_seg_png(p);
+        if let Ok(img) = &got {
+            assert_eq!(img.ids.len(), img.width as usize * img.height as usize, "ids for every pixel");
+        }
+        got.is_ok()
+    });
+    // A camera image, RGB and grey (expanded to RGB on reading).
+    let rgb: Vec<u8> = ids(w, h, &mut rng).iter().flat_map(|&v| [v, v.wrapping_mul(3), 255 - v]).collect();
+    let cam = tmp.path().join("cam.png");
+    let image = RgbImage { width: w, height: h, rgb };
+    write_rgb_png(&cam, &image).unwrap();
+    assert_eq!(read_rgb_png(&cam).unwrap(), image);
+    let read_rgb = |p: &Path| {
+        let got = read_rgb_png(p);
+        if let Ok(img) = &got {
+            assert_eq!(img.rgb.len(), 3 * img.width as usize * img.height as usize, "RGB for every pixel");
+        }
+        got.is_ok()
+    };
+    png_fuzz("mutated-cam.png", 63, &std::fs::read(&cam).unwrap(), &read_rgb);
+    png_fuzz("grey.png", 64, &valid, &read_rgb);
+    // The right file read right, after all of that.
+    assert_eq!(read_seg_png(&seg).unwrap(), want);
+
+    // Probability maps: the whole file is read (its size), the values at
+    // most 4 bytes per data byte, and an (H, W, C) copy of a (C, H, W) map.
+    let npy_limit = |len: usize| (1 << 16) + 8 * len;
+    let channels = 4;
+    let f4: Vec<u8> = (0..w * h * channels as u32).flat_map(|i| ((i % 7) as f32 / 7.0).to_le_bytes()).collect();
+    let hwc = npy_bytes("<f4", &[h as usize, w as usize, channels], &f4);
+    fuzz("hwc.npy", 65, &hwc, false, tmp.path(), npy_limit, |p, _| read_probabilities(p, channels).is_ok());
+    let u1: Vec<u8> = (0..w * h * channels as u32).map(|i| (i % 251) as u8).collect();
+    let chw = npy_bytes("|u1", &[channels, h as usize, w as usize], &u1);
+    fuzz("chw.npy", 66, &chw, false, tmp.path(), npy_limit, |p, _| read_probabilities(p, channels).is_ok());
+    // The header's numbers (its version, header length and shape).
+    fuzz("shape.npy", 67, &chw, true, tmp.path(), npy_limit, |p, _| read_probabilities(p, channels).is_ok());
 }

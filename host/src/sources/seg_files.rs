@@ -87,6 +87,63 @@ pub fn write_png(path: &Path, (width, height): (u32, u32), color: png::ColorType
     file.commit()
 }
 
+/// An 8-bit colour image, RGB row by row.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RgbImage {
+    /// Width (pixels).
+    pub width: u32,
+    /// Height (pixels).
+    pub height: u32,
+    /// `width * height * 3` bytes.
+    pub rgb: Vec<u8>,
+}
+
+/// Reads an 8-bit PNG (RGB, RGBA, grey, palette) as RGB.
+#[cfg(feature = "png")]
+pub fn read_rgb_png(path: &Path) -> Result<RgbImage, LabelError> {
+    let bad = |what: String| LabelError::Format { path: path.to_path_buf(), what };
+    let file = std::fs::File::open(path).map_err(io(path))?;
+    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+    decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    let mut reader = decoder.read_info().map_err(|e| bad(format!("not a readable PNG ({e})")))?;
+    let file_bytes = std::fs::metadata(path).map_err(io(path))?.len();
+    crate::limits::image_pixels(reader.info().width, reader.info().height, file_bytes).map_err(bad)?;
+    let size = reader.output_buffer_size().ok_or_else(|| bad("image too large".into()))?;
+    let mut buf = vec![0u8; size];
+    let info = reader.next_frame(&mut buf).map_err(|e| bad(format!("corrupt PNG data ({e})")))?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let per = match info.color_type {
+        png::ColorType::Rgb => 3,
+        png::ColorType::Rgba => 4,
+        png::ColorType::Grayscale => 1,
+        png::ColorType::GrayscaleAlpha => 2,
+        other => return Err(bad(format!("unsupported colour type {other:?}"))),
+    };
+    if w == 0 || h == 0 {
+        return Err(bad("empty image".into()));
+    }
+    let mut rgb = Vec::with_capacity(w * h * 3);
+    for row in buf.chunks(info.line_size).take(h) {
+        let row = row.get(..w * per).ok_or_else(|| bad("short image row".into()))?;
+        for px in row.chunks_exact(per) {
+            match per {
+                1 | 2 => rgb.extend([px[0]; 3]),
+                _ => rgb.extend_from_slice(&px[..3]),
+            }
+        }
+    }
+    if rgb.len() != w * h * 3 {
+        return Err(bad("truncated image".into()));
+    }
+    Ok(RgbImage { width: info.width, height: info.height, rgb })
+}
+
+/// Writes an 8-bit RGB PNG.
+#[cfg(feature = "png")]
+pub fn write_rgb_png(path: &Path, image: &RgbImage) -> std::io::Result<()> {
+    write_png(path, (image.width, image.height), png::ColorType::Rgb, &image.rgb)
+}
+
 /// Per-pixel class probabilities: `channels` values per pixel, row by row.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ProbabilityMap {

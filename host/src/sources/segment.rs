@@ -9,6 +9,7 @@
 //! mean and deviation; one output `float32 [1, C, H, W]` of raw scores,
 //! channels 0-18 the Cityscapes training ids, any further one void.
 
+pub use crate::seg_files::{read_rgb_png, write_rgb_png, RgbImage};
 use crate::seg_files::{npy_bytes, ProbabilityMap, SegImage};
 use std::path::{Path, PathBuf};
 use tract_onnx::prelude::*;
@@ -126,57 +127,6 @@ impl std::str::FromStr for Fit {
             _ => Err(format!("{s:?}: squash, tile or tile:SCALE")),
         }
     }
-}
-
-/// An 8-bit colour image, RGB row by row.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct RgbImage {
-    /// Width (pixels).
-    pub width: u32,
-    /// Height (pixels).
-    pub height: u32,
-    /// `width * height * 3` bytes.
-    pub rgb: Vec<u8>,
-}
-
-/// Reads an 8-bit PNG (RGB, RGBA, grey, palette) as RGB.
-pub fn read_rgb_png(path: &Path) -> Result<RgbImage, SegmentError> {
-    let bad = |what: String| SegmentError::Image { path: path.to_path_buf(), what };
-    let file = std::fs::File::open(path).map_err(|source| SegmentError::Io { path: path.to_path_buf(), source })?;
-    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
-    decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
-    let mut reader = decoder.read_info().map_err(|e| bad(format!("not a readable PNG ({e})")))?;
-    let file_bytes =
-        std::fs::metadata(path).map_err(|source| SegmentError::Io { path: path.to_path_buf(), source })?.len();
-    crate::limits::image_pixels(reader.info().width, reader.info().height, file_bytes).map_err(bad)?;
-    let size = reader.output_buffer_size().ok_or_else(|| bad("image too large".into()))?;
-    let mut buf = vec![0u8; size];
-    let info = reader.next_frame(&mut buf).map_err(|e| bad(format!("corrupt PNG data ({e})")))?;
-    let (w, h) = (info.width as usize, info.height as usize);
-    let per = match info.color_type {
-        png::ColorType::Rgb => 3,
-        png::ColorType::Rgba => 4,
-        png::ColorType::Grayscale => 1,
-        png::ColorType::GrayscaleAlpha => 2,
-        other => return Err(bad(format!("unsupported colour type {other:?}"))),
-    };
-    if w == 0 || h == 0 {
-        return Err(bad("empty image".into()));
-    }
-    let mut rgb = Vec::with_capacity(w * h * 3);
-    for row in buf.chunks(info.line_size).take(h) {
-        let row = row.get(..w * per).ok_or_else(|| bad("short image row".into()))?;
-        for px in row.chunks_exact(per) {
-            match per {
-                1 | 2 => rgb.extend([px[0]; 3]),
-                _ => rgb.extend_from_slice(&px[..3]),
-            }
-        }
-    }
-    if rgb.len() != w * h * 3 {
-        return Err(bad("truncated image".into()));
-    }
-    Ok(RgbImage { width: info.width, height: info.height, rgb })
 }
 
 /// Resampling from `src` to `dst` samples with a triangle (bilinear)
@@ -566,7 +516,11 @@ fn segment_one(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Re
 
 fn segment_image(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Result<(), SegmentError> {
     let io = |p: PathBuf| move |source| SegmentError::Io { path: p, source };
-    let image = read_rgb_png(path)?;
+    let image = read_rgb_png(path).map_err(|e| match e {
+        crate::label::LabelError::Io { path, source } => SegmentError::Io { path, source },
+        crate::label::LabelError::Format { path, what } => SegmentError::Image { path, what },
+        e => SegmentError::Image { path: path.to_path_buf(), what: e.to_string() },
+    })?;
     let scores = match &o.check {
         // The one inference of a squashed image serves the check too.
         Some(dir) => {
@@ -718,11 +672,6 @@ pub fn overlay(image: &RgbImage, labels: &SegImage) -> RgbImage {
         }
     }
     RgbImage { rgb, ..*image }
-}
-
-/// Writes an 8-bit RGB PNG.
-pub fn write_rgb_png(path: &Path, image: &RgbImage) -> std::io::Result<()> {
-    crate::seg_files::write_png(path, (image.width, image.height), png::ColorType::Rgb, &image.rgb)
 }
 
 /// RGB bytes as three planes of 0-255 values.
