@@ -369,7 +369,7 @@ fn mutated_images_and_probability_maps_never_panic_nor_allocate_beyond_their_siz
     write_seg_png(&seg, &SegImage { width: w, height: h, ids: ids(w, h, &mut rng) }).unwrap();
     let valid = std::fs::read(&seg).unwrap();
     let want = read_seg_png(&seg).unwrap();
-    let mut png_fuzz = |name: &str, seed: u64, valid: &[u8], read: &dyn Fn(&Path) -> bool| {
+    let png_fuzz = |name: &str, seed: u64, valid: &[u8], read: &dyn Fn(&Path) -> bool| {
         let path = tmp.path().join(name);
         let mut rng = Rng(seed);
         let started = Instant::now();
