@@ -393,3 +393,68 @@ fn synth_never_writes_over_other_data() {
     assert_eq!(fs::read_to_string(user.join("poses.txt")).unwrap(), "1 0 0 0 0 1 0 0 0 0 1 0\n");
     assert_eq!(fs::read_dir(&user).unwrap().count(), 1);
 }
+
+/// A recording cut in the middle (no footer) is read up to its last whole
+/// record with a warning naming the byte offset and what was read;
+/// `--strict` makes it an error.
+#[test]
+fn a_recording_cut_short_warns_and_strict_refuses_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = fresh(tmp.path());
+    let (rec, cut) = (tmp.path().join("r.mcap"), tmp.path().join("cut.mcap"));
+    cosem_tests::cosem_ok(&["export", "mcap", "--data", &s(&seq), "--frames", "0:3", "-o", &s(&rec)]);
+    let bytes = fs::read(&rec).unwrap();
+    fs::write(&cut, &bytes[..bytes.len() * 4 / 5]).unwrap();
+    let out = cosem_tests::cosem(&["map", "--data", &s(&cut), "-o", &s(&tmp.path().join("m.cmap"))]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("warning") && stderr.contains("cut short at byte offset"), "{stderr}");
+    assert!(stderr.contains("read the 2 messages"), "{stderr}");
+    let e = cosem_err(&["map", "--data", &s(&cut), "--strict", "-o", &s(&tmp.path().join("n.cmap"))]);
+    assert!(e.contains("cut short at byte offset") && e.contains("cut.mcap"), "{e}");
+    assert!(!tmp.path().join("n.cmap").exists());
+    // The whole recording: no warning.
+    let out = cosem_tests::cosem(&["map", "--data", &s(&rec), "-o", &s(&tmp.path().join("w.cmap"))]);
+    assert!(out.status.success() && !String::from_utf8_lossy(&out.stderr).contains("warning"));
+}
+
+/// The data-loss repro: an output spelled through a folder that
+/// does not exist yet (`D/new/../k00`) is the input, and is refused before
+/// anything is written; with `--copy-scans` the labels stay as they were.
+#[test]
+fn label_never_replaces_its_input_through_a_missing_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path().join("D");
+    let seq = d.join("k00");
+    cosem_tests::cosem_ok(&["synth", "--out", &s(&seq), "--frames", "3", "--seg", "cityscapes"]);
+    let snapshot = |dir: &Path| {
+        let mut v: Vec<(String, Vec<u8>)> = Vec::new();
+        let mut stack = vec![dir.to_path_buf()];
+        while let Some(p) = stack.pop() {
+            for e in fs::read_dir(&p).unwrap().flatten() {
+                let meta = fs::symlink_metadata(e.path()).unwrap();
+                if meta.is_dir() {
+                    stack.push(e.path());
+                } else {
+                    v.push((e.path().display().to_string(), fs::read(e.path()).unwrap_or_default()));
+                }
+            }
+        }
+        v.sort();
+        v
+    };
+    let before = snapshot(&d);
+    let (seg, data) = (s(&seq.join("seg_2")), s(&seq));
+    for out in [d.join("new/../k00"), d.join("new/../k00/seg_2"), seq.join("seg_2/new/..")] {
+        for extra in [&[][..], &["--copy-scans"][..]] {
+            let mut args = vec!["label", "--data", &data, "--seg", &seg, "--frames", "0:2"];
+            args.extend_from_slice(extra);
+            let o = s(&out);
+            args.extend(["--out", &o]);
+            let e = cosem_err(&args);
+            assert!(e.contains("--out") && e.contains("input"), "{args:?}: {e}");
+            assert!(!d.join("new").exists(), "{args:?}: made D/new");
+            assert_eq!(snapshot(&d), before, "{args:?}: an input changed");
+        }
+    }
+}

@@ -219,6 +219,10 @@ pub struct TeamEnd {
     pub peak_stack: u32,
 }
 
+/// The voxel sizes a robot can be fed (m): finer would not fit a board's
+/// map at a robot's range, coarser leaves no structure to match.
+pub const FEED_RESOLUTION: core::ops::RangeInclusive<f32> = 0.01..=10.0;
+
 /// Why a feed message is not one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -229,8 +233,10 @@ pub enum FeedError {
     Version(u8),
     /// Not a well-formed message.
     Malformed,
-    /// A float is NaN or infinite (or a resolution out of range).
+    /// A float is NaN or infinite.
     NonFinite,
+    /// A voxel size outside [`FEED_RESOLUTION`].
+    Resolution,
     /// The output buffer is too small.
     Buffer,
     /// Point data not a whole number of points.
@@ -255,7 +261,13 @@ impl core::fmt::Display for FeedError {
             FeedError::Empty => f.write_str("empty payload"),
             FeedError::Version(v) => write!(f, "feed protocol version {v}, expected {FEED_VERSION}"),
             FeedError::Malformed => f.write_str("malformed feed message"),
-            FeedError::NonFinite => f.write_str("non-finite or out-of-range number"),
+            FeedError::NonFinite => f.write_str("non-finite number"),
+            FeedError::Resolution => write!(
+                f,
+                "voxel size outside the feed's {} to {} m",
+                FEED_RESOLUTION.start(),
+                FEED_RESOLUTION.end()
+            ),
             FeedError::Buffer => f.write_str("buffer too small"),
             FeedError::PointBytes { len } => write!(f, "{len} bytes of points is not a multiple of {POINT_BYTES}"),
             FeedError::Class { offset, class } => write!(f, "point at byte {offset}: class {class} not in the table"),
@@ -329,8 +341,8 @@ impl FeedMessage<'_> {
                 if let Some(prior) = &s.prior {
                     finite(prior)?;
                 }
-                if !(s.resolution.is_finite() && (0.01..=10.0).contains(&s.resolution)) {
-                    return Err(FeedError::NonFinite);
+                if !FEED_RESOLUTION.contains(&s.resolution) {
+                    return Err(FeedError::Resolution);
                 }
                 Ok(())
             }

@@ -374,6 +374,22 @@ fn golden_feed_messages() {
     assert_eq!(&frame[..n], &plain[..m]);
 }
 
+/// A set-up whose voxel size is outside the feed's range (or not a
+/// number) is refused as such, on encoding and on decoding.
+#[test]
+fn feed_setup_voxel_size_is_bounded() {
+    use super::feed::{FeedError, FeedMessage, Setup};
+    let mut buf = [0u8; 64];
+    for resolution in [f32::NAN, f32::INFINITY, 0.0, 0.005, 10.5, 1e30, -0.5] {
+        let msg = FeedMessage::Setup(Setup { robot_id: 0, resolution, prior: None, silence_ms: 1 });
+        assert_eq!(msg.encode(&mut buf), Err(FeedError::Resolution), "{resolution}");
+    }
+    // The golden set-up with its voxel size (bytes 3..7) set to 20 m.
+    let mut bytes = super::feed::GOLDEN_FEED[1].1.to_vec();
+    bytes[3..7].copy_from_slice(&20.0f32.to_le_bytes());
+    assert_eq!(FeedMessage::decode(&bytes), Err(FeedError::Resolution));
+}
+
 /// Golden bytes of a codec chunk and of a whole `.cmap` file.
 #[test]
 fn golden_chunk_and_map_file() {

@@ -73,6 +73,16 @@ pub fn positive_f32(s: &str) -> Result<f32, String> {
     positive(s).map(|v| v as f32)
 }
 
+/// A voxel size robots can be fed (m): within the feed's range
+/// ([`cosem_core::wire::feed::FEED_RESOLUTION`]).
+pub fn feed_voxel(s: &str) -> Result<f32, String> {
+    let range = cosem_core::wire::feed::FEED_RESOLUTION;
+    match s.parse::<f32>() {
+        Ok(v) if range.contains(&v) => Ok(v),
+        _ => Err(format!("`{s}`: expected a voxel size from {} to {} m", range.start(), range.end())),
+    }
+}
+
 /// Segmentation images to render, or none (a type alias: clap takes it as
 /// one value, not as an optional argument).
 pub type SegChoice = Option<cosem_core::camera::SegClasses>;
