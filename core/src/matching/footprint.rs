@@ -7,7 +7,6 @@
 //! amount. Both anchor frames are level (z against gravity), so a column
 //! mask is a rotation-invariant description of what stands there.
 
-use super::pyramid::Level;
 use crate::map::key::floor_f32;
 
 /// Levels of max-pooling (windows of 1, 2, 4, ... 2^(POOL_LEVELS-1) cells).
@@ -192,17 +191,26 @@ impl Grid<'_> {
     }
 }
 
-/// Builds a footprint of `level`'s entries into `words`, with the pooled
-/// grids when `pooled` (a model's); the cell size starts at `cell` and
-/// doubles until the grids fit. `None` if nothing fits.
-pub(crate) fn build(level: &Level<'_>, cell: f32, pooled: bool, words: &mut [u32]) -> Option<FootprintInfo> {
-    let first = level.entry(0)?;
+/// Builds a footprint of a level's entries (`entries()` gives each one's
+/// horizontal position and class index, as often as asked; `count` of
+/// them) into `words`, with the pooled grids when `pooled` (a model's);
+/// the cell size starts at `cell` and doubles until the grids fit. `None`
+/// if nothing fits. (Entries, not the pyramid's level type: the pyramid
+/// builds footprints, a footprint knows nothing of pyramids.)
+pub(crate) fn build<I: Iterator<Item = ([f32; 2], u8)>>(
+    entries: impl Fn() -> I,
+    count: usize,
+    cell: f32,
+    pooled: bool,
+    words: &mut [u32],
+) -> Option<FootprintInfo> {
+    let (first, _) = entries().next()?;
     let grids = if pooled { POOL_LEVELS } else { 2 };
-    let (mut lo, mut hi) = ([first.position[0], first.position[1]], [first.position[0], first.position[1]]);
-    for e in level.iter() {
+    let (mut lo, mut hi) = (first, first);
+    for (position, _) in entries() {
         for a in 0..2 {
-            lo[a] = lo[a].min(e.position[a]);
-            hi[a] = hi[a].max(e.position[a]);
+            lo[a] = lo[a].min(position[a]);
+            hi[a] = hi[a].max(position[a]);
         }
     }
     let mut cell = cell;
@@ -213,9 +221,9 @@ pub(crate) fn build(level: &Level<'_>, cell: f32, pooled: bool, words: &mut [u32
         let grid = width * height;
         // Occupied cells are listed at every other cell on each axis.
         let listed = width.div_ceil(2) * height.div_ceil(2);
-        if packed(grids, grid) + 3 * listed.min(level.len()) <= words.len() {
+        if packed(grids, grid) + 3 * listed.min(count) <= words.len() {
             let mut info = FootprintInfo { cell, origin, width, height, occupied: 0, grids };
-            fill(level, &mut info, words);
+            fill(entries(), &mut info, words);
             return Some(info);
         }
         cell *= 2.0;
@@ -223,15 +231,15 @@ pub(crate) fn build(level: &Level<'_>, cell: f32, pooled: bool, words: &mut [u32
     None
 }
 
-fn fill(level: &Level<'_>, info: &mut FootprintInfo, words: &mut [u32]) {
+fn fill(entries: impl Iterator<Item = ([f32; 2], u8)>, info: &mut FootprintInfo, words: &mut [u32]) {
     let (w, h) = (info.width, info.height);
     let grid = w * h;
     words.iter_mut().take(packed(info.grids, grid)).for_each(|v| *v = 0);
     let inv = 1.0 / info.cell;
-    for e in level.iter() {
-        let Some(&bit) = GROUP_BITS.get(usize::from(e.class)) else { continue };
-        let i = libm::floorf((e.position[0] - info.origin[0]) * inv) as usize;
-        let j = libm::floorf((e.position[1] - info.origin[1]) * inv) as usize;
+    for (position, class) in entries {
+        let Some(&bit) = GROUP_BITS.get(usize::from(class)) else { continue };
+        let i = libm::floorf((position[0] - info.origin[0]) * inv) as usize;
+        let j = libm::floorf((position[1] - info.origin[1]) * inv) as usize;
         let c = j.min(h - 1) * w + i.min(w - 1);
         set_cell_byte(words, 0, grid, c, cell_byte(words, 0, grid, c) | bit);
     }

@@ -827,7 +827,8 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         if footprint_cell.is_finite() && footprint_cell > 0.0 {
             let PyramidPartsMut { extras, words, points, point_slots, .. } = pyramid.storage.parts_mut();
             let level0 = Level::new(base.level0(extras, points, point_slots), resolution);
-            pyramid.footprint = footprint::build(&level0, footprint_cell, model, words);
+            let entries = || level0.iter().map(|e| ([e.position[0], e.position[1]], e.class));
+            pyramid.footprint = footprint::build(entries, level0.len(), footprint_cell, model, words);
         }
         Ok(pyramid)
     }
