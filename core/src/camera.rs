@@ -1,4 +1,4 @@
-//! Stage 1 (with [`crate::classes`]): labels for LiDAR points from a
+//! Layer 3 (above [`crate::map`], whose label evidence it makes): labels for LiDAR points from a
 //! camera's semantic segmentation (the
 //! paper's section IV-A): a segmentation network labels each image, and each
 //! LiDAR point takes the class of the pixel it projects to through the

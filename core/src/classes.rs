@@ -1,4 +1,4 @@
-//! Stage 1: the class table, SemanticKITTI's standard learning map (19
+//! Layer 1: the class table, SemanticKITTI's standard learning map (19
 //! classes).
 //!
 //! Raw SemanticKITTI ids are mapped with [`Class::from_semantic_kitti`]. Ids the

@@ -4,39 +4,45 @@
 //! allocator: the same code builds a robot's local semantic voxel map on a
 //! microcontroller and on a laptop, bit for bit.
 //!
-//! Data flows one way, and the modules follow it (the same stage numbers
-//! appear in each module's documentation and in docs/architecture.md):
+//! Data flows one way, and the modules follow it in layers: a module
+//! imports only from lower layers (the same numbers appear in each
+//! module's documentation, in docs/architecture.md and in the test that
+//! holds them, `tests/tests/layers.rs`):
 //!
-//! 1. [`classes`], [`camera`]: points get classes: SemanticKITTI's 19-class
-//!    table and raw ids, or labels from a camera's semantic segmentation
-//!    (projection, Cityscapes ids, per-pixel probabilities as evidence).
+//! 1. [`classes`]: SemanticKITTI's 19-class table and raw ids.
 //! 2. [`map`]: labelled points are fused into a [`map::LocalMap`], a
 //!    fixed-capacity voxel hash map holding per voxel a sub-voxel mean
 //!    position, an occupancy log-odds, a hit count and a Bayes-fused label
 //!    distribution, in 24 bytes (32 with its index).
-//! 3. [`wire`]: every byte format, importing nothing from the stages after
+//! 3. [`camera`]: labels from a camera's semantic segmentation
+//!    (projection, Cityscapes ids, per-pixel probabilities as a map's
+//!    label evidence).
+//! 4. [`wire`]: every byte format, importing nothing from the layers above
 //!    it: the compact chunked voxel encoding, COBS frames with a CRC-32,
 //!    the link's and the feed's versioned messages, a match result as plain
 //!    numbers, the `.cmap` map file. Golden bytes freeze each format.
-//! 4. [`link`]: an [`link::Endpoint`] sends its map and receives the peer's
+//! 5. [`link`]: an [`link::Endpoint`] sends its map and receives the peer's
 //!    over any `embedded-io` byte stream (acks, retries, timeouts, a
 //!    staging map accepted only whole).
-//! 5. [`matching`]: a [`matching::Pyramid`] prepares each map once
+//! 6. [`matching`]: a [`matching::Pyramid`] prepares each map once
 //!    (per-class coarse levels, hash index, normals, footprint); a
 //!    [`matching::Matcher`] aligns a scene to a model (coarse correlative
 //!    search, then coarse-to-fine EM) and returns a
 //!    [`matching::MatchResult`] with a status, inliers, overlap and the
 //!    information matrix; [`matching::global`] aligns without a prior.
-//! 6. [`robot`]: one robot's sequence (feed, map, link, align, report) as a
+//!    Beside it, [`team`]: the kept pairwise matches of a team of robots
+//!    place every robot in one frame (a small pose graph, with
+//!    covariances).
+//! 7. [`selftest`]: a fixed mapping, wire and matching case whose figures
+//!    must agree to the bit on the chip and on a host.
+//! 8. [`robot`]: one robot's sequence (feed, map, link, align, report) as a
 //!    poll-driven step machine that the firmware and a host both drive.
-//! 7. [`team`]: the kept pairwise matches of a team of robots place every
-//!    robot in one frame (a small pose graph, with covariances).
+//! 9. `sim` (feature `sim`, tests and hosts): a seeded lossy line and the
+//!    one driver of N robots over simulated wires.
 //!
-//! [`geometry`] (rigid transforms, the conventions' pose syntax and error
-//! measures) and [`region`] (memory that serves stages in turn, handed over
-//! by ownership) underlie them all. [`selftest`] runs a fixed mapping, wire and
-//! matching case whose figures must agree to the bit on the chip and on a
-//! host.
+//! Layer 0, [`geometry`] (rigid transforms, the conventions' pose syntax
+//! and error measures) and [`region`] (memory that serves stages in turn,
+//! handed over by ownership), underlies them all.
 //!
 //! Capacities are set by the storage: [`map::ArrayStorage`] fixes them at
 //! compile time (`FixedMap<N>`), [`map::SliceStorage`] borrows buffers the

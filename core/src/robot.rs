@@ -1,4 +1,4 @@
-//! Stage 6: one robot, end to end, as a poll-driven step machine
+//! Layer 8: one robot, end to end, as a poll-driven step machine
 //! ([`Machine::poll`], like smoltcp's interface poll): the firmware drives
 //! it with its UARTs and SysTick, a host drives the same machine with byte
 //! buffers and simulated lines (`crate::sim`, feature `sim`), so the host's

@@ -1,4 +1,4 @@
-//! Stage 7 (a team of robots): every robot placed in one frame from the
+//! Layer 6 (a team of robots, beside matching): every robot placed in one frame from the
 //! pairwise matches that were kept.
 //!
 //! Each kept match is a [`RelativePose`]: robot `a`'s estimate of `T_a_b`

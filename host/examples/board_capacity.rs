@@ -12,7 +12,7 @@ use cosem_core::map::{SceneMap, ScenePoint};
 use cosem_core::robot::{Capacity, Robot, RobotConfig};
 use cosem_core::sim::{self, SimRobot, Wire};
 use cosem_core::wire::feed::RobotReport;
-use cosem_host::robots::feeds;
+use cosem_host::boards::feeds::feeds;
 use std::path::Path;
 
 /// The capacity, voxel size and crop the arguments name.
@@ -61,12 +61,12 @@ fn main() {
         ("kitti00-loop", "52:53", "4501:4502", true, "none"),
     ];
     for &(seq, a, b, noprior, noise) in cases {
-        let src = cosem_host::source::Source::open(&data.join(seq), &Default::default()).unwrap();
-        let ra: cosem_host::kitti::FrameRange = a.parse().unwrap();
-        let rb: cosem_host::kitti::FrameRange = b.parse().unwrap();
+        let src = cosem_host::sources::source::Source::open(&data.join(seq), &Default::default()).unwrap();
+        let ra: cosem_host::sources::kitti::FrameRange = a.parse().unwrap();
+        let rb: cosem_host::sources::kitti::FrameRange = b.parse().unwrap();
         let gt = src.relative_pose(ra.start, rb.start).unwrap();
-        let prior = if noprior { None } else { Some(cosem_host::robots::default_prior(&gt)) };
-        let noise: cosem_host::noise::LabelNoise = noise.parse().unwrap();
+        let prior = if noprior { None } else { Some(cosem_host::boards::robots::default_prior(&gt)) };
+        let noise: cosem_host::maps::noise::LabelNoise = noise.parse().unwrap();
         let f = feeds(&src, [ra, rb], voxel, crop, prior.as_ref(), 30_000, noise, 4).unwrap();
         let bytes = [f[0].bytes().unwrap(), f[1].bytes().unwrap()];
         let mut own = [vec![0u32; cap.own_words()], vec![0u32; cap.own_words()]];

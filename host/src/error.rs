@@ -1,48 +1,26 @@
-//! The host library's error: each variant a layer's typed error, whose
-//! message names the file, frame or value at fault.
+//! The host library's one error: a layer's typed error carried as it is
+//! (whose message names the file, frame or value at fault), the core's
+//! matching errors, I/O on a named path, an invalid argument.
 
 use cosem_core::matching::{MatchError, PyramidError};
 
-/// Says something the user should know that is not an error (a
-/// recording read up to a cut, say), on standard error, one line.
-pub fn warn(message: &str) {
-    eprintln!("warning: {message}");
-}
+/// A layer's typed error (a source's, the camera's, a map's, the
+/// matcher's): its message names the file, frame or value at fault. The
+/// one [`Error`] carries it as it is, so this base module names no layer.
+pub trait LayerError: std::error::Error + Send + Sync + 'static {}
 
 /// Anything the host library can fail at.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// Reading a SemanticKITTI-layout folder.
-    #[error(transparent)]
-    Kitti(#[from] crate::kitti::KittiError),
-    /// Building a map.
-    #[error(transparent)]
-    Build(#[from] crate::mapping::BuildError),
-    /// Reading a user's scans (PCD, PLY) or their poses.
-    #[error(transparent)]
-    Cloud(#[from] crate::cloud::CloudError),
-    /// Reading or writing a ROS 2 recording (MCAP).
-    #[error(transparent)]
-    Recording(#[from] crate::recording::RecordingError),
-    /// Reading or writing a map file.
-    #[error(transparent)]
-    Cmap(#[from] crate::cmap::CmapError),
-    /// Labelling scans from camera segmentation.
-    #[error(transparent)]
-    Label(#[from] crate::label::LabelError),
-    /// Segmenting camera images with a network.
-    #[cfg(feature = "segment")]
-    #[error(transparent)]
-    Segment(#[from] crate::segment::SegmentError),
+    /// A layer's typed error ([`LayerError`]), as it is.
+    #[error("{0}")]
+    Layer(Box<dyn LayerError>),
     /// Preparing a map for matching.
     #[error("preparing a map: {0}")]
     Pyramid(PyramidError),
     /// Matching.
     #[error("matching: {0}")]
     Match(MatchError),
-    /// Aligning (with or without a prior).
-    #[error(transparent)]
-    Align(#[from] crate::align::AlignError),
     /// A file or folder the library writes or runs.
     #[error("{path}: {source}")]
     Io {
@@ -54,6 +32,22 @@ pub enum Error {
     /// An argument out of range, with what is expected.
     #[error("{0}")]
     Invalid(String),
+}
+
+impl Error {
+    /// The layer error of type `E` this is, if it is one.
+    pub fn layer<E: LayerError>(&self) -> Option<&E> {
+        match self {
+            Error::Layer(e) => (e.as_ref() as &dyn std::error::Error).downcast_ref::<E>(),
+            _ => None,
+        }
+    }
+}
+
+impl<E: LayerError> From<E> for Error {
+    fn from(e: E) -> Self {
+        Error::Layer(Box::new(e))
+    }
 }
 
 impl From<PyramidError> for Error {

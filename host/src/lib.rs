@@ -3,59 +3,81 @@
 //! `default-features = false` the library alone builds (no clap, rayon,
 //! serial ports, PNG or JSON printing).
 //!
-//! The modules are grouped by layer in folders ([`sources`], [`maps`],
-//! [`lines`], [`evaluation`], [`boards`], [`reports`]), each also reachable
-//! by its own name:
+//! The modules are grouped by layer, lowest first, and a module imports
+//! only from its own layer (without cycles) and the layers below
+//! (`tests/tests/layers.rs`, `docs/architecture.md`):
 //!
-//! - Data in: [`kitti`] (SemanticKITTI layout; every error names its file),
-//!   [`synth`] (procedural streets, a simulated 64-beam LiDAR, camera
-//!   segmentation), [`label`] (LiDAR labels from camera segmentation),
-//!   [`noise`] (a segmentation network's label errors, seeded), [`cloud`]
-//!   (users' scans as PCD or PLY files with poses in KITTI's layout).
-//! - Maps: [`mapping`] (frames to a map on the heap), [`cmap`] (the core's
-//!   map file with path context), [`ply`] (export).
-//! - Matching: [`align`] (heap pyramids, alignment with or without a
-//!   prior), [`pair`] (two robots' maps and their truth), [`eval`] (starts,
-//!   thresholds, outcomes, summaries), [`stats`] (one quantile).
-//! - Robots: [`link`] (one robot's end of the map exchange), [`robots`]
-//!   (feeds, the host's run of the robots' pipeline, two QEMU boards),
-//!   [`board`] (the boards a robot runs on), [`team`] and [`team_board`]
-//!   (a team on the host and on boards), [`transport`] (TCP and serial
-//!   ports behind embedded-io).
-//! - Output: [`report`] (the JSON of the commands), [`boxplot`] (SVG).
+//! - base: [`paths`] (outputs never an input, written whole), [`rng`],
+//!   [`limits`] (bounds on sizes and threads), [`diagnostics`] (warnings),
+//!   [`poses`] (poses as text), [`error`] (the one error, carrying each
+//!   layer's typed error);
+//! - [`sources`]: labelled scans in (SemanticKITTI folders, ROS 2
+//!   recordings, PCD/PLY scans with poses);
+//! - [`camera`]: camera segmentation (images, a network in ONNX) and LiDAR
+//!   labels from it;
+//! - [`worlds`]: synthetic worlds and their sensors;
+//! - [`maps`]: frames to maps on the heap, map files, exports, label noise;
+//! - [`matching`]: alignment on the host;
+//! - [`lines`]: links, ports, the paced lossy relay, simulated exchanges;
+//! - [`evaluation`]: the map pipeline, pairs, protocols, teams on the
+//!   host, benchmarks, the demo;
+//! - [`boards`]: the robots' pipelines on emulated boards (QEMU);
+//! - [`reports`]: the commands' JSON (stable field names) and text.
 //!
 //! Transforms are nalgebra `Isometry3` throughout, with the conventions'
 //! pose syntax and error measures from [`cosem_core::geometry`].
 
-/// Layer 1, scans in: every source of labelled scans and its readers.
+pub mod diagnostics;
+pub mod limits;
+pub mod paths;
+pub mod poses;
+pub mod rng;
+
+/// Scans in: every source of labelled scans and its readers.
 pub mod sources {
     pub mod cdr_read;
     pub mod class_table;
     pub mod cloud;
     pub mod kitti;
-    pub mod label;
     pub mod mcap_read;
     pub mod recording;
+    pub mod ros_msgs;
+    pub mod source;
+}
+
+/// The camera: segmentation images and probability maps, a network that
+/// makes them (feature `segment`), LiDAR labels from them.
+pub mod camera {
+    pub mod label;
     pub mod seg_files;
     #[cfg(feature = "segment")]
     pub mod segment;
-    pub mod source;
+}
+
+/// Synthetic worlds: procedural streets, a simulated 64-beam LiDAR and
+/// camera segmentation.
+pub mod worlds {
     pub mod synth;
 }
 
-/// Layer 2, maps: frames to maps on the heap, map files, exports, label
-/// noise.
+/// Maps: frames to maps on the heap, map files, exports, label noise.
 pub mod maps {
     pub mod cmap;
-    pub mod job;
     pub mod mapping;
     pub mod noise;
     pub mod ply;
 }
 
-/// Layer 3, lines: one robot's end of a map exchange, the paced lossy
-/// relay, TCP and serial ports behind embedded-io, two maps exchanged
-/// over a simulated line.
+/// Matching on the host: heap pyramids, alignment with or without a prior.
+pub mod matching {
+    pub mod align;
+}
+
+pub mod error;
+
+/// Lines: one robot's end of a map exchange, the paced lossy relay, TCP
+/// and serial ports behind embedded-io, two maps exchanged over a
+/// simulated line.
 pub mod lines {
     pub mod exchange;
     pub mod link;
@@ -63,46 +85,36 @@ pub mod lines {
     pub mod transport;
 }
 
-/// Layer 4, matching and evaluation: alignment, pairs and teams on the
-/// host, the protocols, benchmarks, the demo.
+/// The host's runs: the map pipeline, pairs and their truth, the
+/// evaluation protocols, teams on the host, benchmarks, the demo.
 pub mod evaluation {
-    pub mod align;
     pub mod bench;
     pub mod boxplot;
     pub mod demo;
     pub mod eval;
+    pub mod job;
     pub mod pair;
     pub mod stats;
     pub mod team;
 }
 
-/// Layer 5, boards: the robots' pipelines on emulated boards (QEMU) and
-/// the host's twin runs.
+/// Boards: the robots' pipelines on emulated boards (QEMU) and the host's
+/// twin runs.
 pub mod boards {
     pub mod board;
+    pub mod emulator;
+    pub mod feeds;
+    pub mod firmware;
+    pub mod pump;
     pub mod robots;
     pub mod team_board;
+    pub mod twin;
 }
 
-/// Output: the commands' JSON (stable field names).
+/// Output: the commands' JSON (stable field names) and text.
 pub mod reports {
+    pub mod match_recording;
     pub mod report;
+    pub mod robots;
     pub mod team;
 }
-
-pub mod error;
-pub mod limits;
-pub mod paths;
-pub mod rng;
-
-// The modules by their own names too (the paths the crate has always had).
-pub use boards::{board, robots, team_board};
-pub use evaluation::{align, bench, boxplot, demo, eval, pair, stats, team};
-pub use lines::{exchange, link, relay, transport};
-pub use maps::{cmap, job, mapping, noise, ply};
-pub use reports::report;
-#[cfg(feature = "segment")]
-pub use sources::segment;
-pub use sources::{cdr_read, class_table, cloud, kitti, label, mcap_read, recording, seg_files, source, synth};
-
-pub use error::Error;

@@ -102,7 +102,7 @@ fn clash(out: &Path, input: &Path) -> Option<&'static str> {
 /// is, lies inside or holds one of `inputs` (each with its argument), or
 /// one of the symbolic links found in an input folder (a few levels down)
 /// points into it. The message names both arguments and both paths.
-pub fn check_output(arg: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<(), crate::Error> {
+pub fn check_output(arg: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<(), crate::error::Error> {
     for (name, input) in inputs {
         if let Some(how) = clash(out, input) {
             return Err(refusal(arg, out, how, name, input));
@@ -110,7 +110,7 @@ pub fn check_output(arg: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<(
     }
     for (name, input) in inputs {
         if let Some(link) = link_into(input, out) {
-            return Err(crate::Error::Invalid(format!(
+            return Err(crate::error::Error::Invalid(format!(
                 "{arg} {}: the input {name} {} holds {}, a link into it: an input is never written, choose another output",
                 out.display(),
                 input.display(),
@@ -123,11 +123,11 @@ pub fn check_output(arg: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<(
 
 /// Refuses outputs that are, lie inside or hold one another (two outputs
 /// of one command, such as a folder and a file written beside it).
-pub fn check_outputs_apart(outputs: &[(&str, &Path)]) -> Result<(), crate::Error> {
+pub fn check_outputs_apart(outputs: &[(&str, &Path)]) -> Result<(), crate::error::Error> {
     for (i, (a, pa)) in outputs.iter().enumerate() {
         for (b, pb) in &outputs[i + 1..] {
             if let Some(how) = clash(pa, pb) {
-                return Err(crate::Error::Invalid(format!(
+                return Err(crate::error::Error::Invalid(format!(
                     "{a} {}: {how} the output {b} {}: give each output its own place",
                     pa.display(),
                     pb.display()
@@ -138,13 +138,13 @@ pub fn check_outputs_apart(outputs: &[(&str, &Path)]) -> Result<(), crate::Error
     Ok(())
 }
 
-fn refusal(arg: &str, out: &Path, how: &str, name: &str, input: &Path) -> crate::Error {
+fn refusal(arg: &str, out: &Path, how: &str, name: &str, input: &Path) -> crate::error::Error {
     let what = match how {
         "is" => "an input is never written (never overwritten)",
         "lies inside" => "an input folder is never written",
         _ => "replacing it would remove an input, and an input is never written",
     };
-    crate::Error::Invalid(format!(
+    crate::error::Error::Invalid(format!(
         "{arg} {}: {how} the input {name} {}: {what}, choose another output",
         out.display(),
         input.display()
@@ -185,7 +185,7 @@ fn link_into(input: &Path, out: &Path) -> Option<PathBuf> {
 
 /// Checks, before a long run, that every output can be written and lies in
 /// no input folder (leaving behind no file that was not there).
-pub fn check_outputs(outputs: &[(&str, &Path)], inputs: &[(&str, &Path)]) -> Result<(), crate::Error> {
+pub fn check_outputs(outputs: &[(&str, &Path)], inputs: &[(&str, &Path)]) -> Result<(), crate::error::Error> {
     check_outputs_apart(outputs)?;
     for (arg, path) in outputs {
         check_output(arg, path, inputs)?;
@@ -197,7 +197,7 @@ pub fn check_outputs(outputs: &[(&str, &Path)], inputs: &[(&str, &Path)]) -> Res
             .create(true)
             .append(true)
             .open(path)
-            .map_err(|source| crate::Error::Io { path: path.to_path_buf(), source })?;
+            .map_err(|source| crate::error::Error::Io { path: path.to_path_buf(), source })?;
         if !existed {
             let _ = std::fs::remove_file(path);
         }

@@ -12,8 +12,8 @@ use cosem_core::classes::Class;
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::{Insertion, LabelDistribution, MapConfig};
 use cosem_core::matching::{MatchResult, MatchSettings};
-use cosem_host::align::{align, prepare, DEFAULT_LEVELS};
-use cosem_host::mapping::{HostMap, PointFilter, Unlabeled};
+use cosem_host::matching::align::{align, prepare, DEFAULT_LEVELS};
+use cosem_host::maps::mapping::{HostMap, PointFilter, Unlabeled};
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyIOError, PyValueError};
 use pyo3::prelude::*;
@@ -33,13 +33,13 @@ impl Map {
     /// Reads a `.cmap` map file.
     #[staticmethod]
     fn load(path: std::path::PathBuf) -> PyResult<Self> {
-        let (_, map) = cosem_host::cmap::read(&path).map_err(|e| PyIOError::new_err(e.to_string()))?;
+        let (_, map) = cosem_host::maps::cmap::read(&path).map_err(|e| PyIOError::new_err(e.to_string()))?;
         Ok(Map { map })
     }
 
     /// Writes the map as a `.cmap` file.
     fn save(&self, path: std::path::PathBuf) -> PyResult<()> {
-        cosem_host::cmap::write(&path, &self.map, None, Some("cosem python"))
+        cosem_host::maps::cmap::write(&path, &self.map, None, Some("cosem python"))
             .map(|_| ())
             .map_err(|e| PyIOError::new_err(e.to_string()))
     }

@@ -170,5 +170,5 @@ pub fn run_within(cmd: &mut Command, limit: std::time::Duration) -> Output {
 /// The mps2-an386 QEMU command line (firmware/qemu/, as the firmware's
 /// cargo runner and the host use it) for `elf`, without `-serial` options.
 pub fn qemu(elf: &Path) -> Command {
-    cosem_host::board::Board::Mps2An386.qemu_command(elf, &[])
+    cosem_host::boards::board::Board::Mps2An386.qemu_command(elf, &[])
 }

@@ -85,7 +85,7 @@ fn bench_writes_its_figures_as_json() {
     let out =
         cosem_ok(&["bench", "map", "--data", &s(&seq), "--frames", "0:3", "--repeat", "1", "--json", &s(&map_json)]);
     cosem_ok(&["map", "--data", &s(&seq), "--frames", "0:3", "-o", &s(&cmap)]);
-    let (_, map) = cosem_host::cmap::read(&cmap).unwrap();
+    let (_, map) = cosem_host::maps::cmap::read(&cmap).unwrap();
     let m = read(&map_json);
     assert_eq!(m["voxels"].as_u64(), Some(map.len() as u64), "{m}");
     assert!(out.contains(&format!("({} bytes)", m["file_bytes"])), "{out}\n{m}");
@@ -111,7 +111,7 @@ fn scans_as_pcd_or_ply_files_give_the_folders_map() {
     for (k, (data, frames)) in folders.iter().enumerate() {
         let want = tmp.path().join(format!("{k}.cmap"));
         cosem_ok(&["map", "--data", &s(data), "--frames", frames, "--voxel", "0.3", "-o", &s(&want)]);
-        let (_, want) = cosem_host::cmap::read(&want).unwrap();
+        let (_, want) = cosem_host::maps::cmap::read(&want).unwrap();
         for format in ["pcd", "ply"] {
             let out = tmp.path().join(format!("{k}-{format}"));
             cosem_ok(&["export", "scans", "--data", &s(data), "--frames", frames, "--format", format, "-o", &s(&out)]);
@@ -129,7 +129,7 @@ fn scans_as_pcd_or_ply_files_give_the_folders_map() {
             let got_s = s(&got);
             args.extend(["-o", &got_s]);
             cosem_ok(&args);
-            let (_, got) = cosem_host::cmap::read(&got).unwrap();
+            let (_, got) = cosem_host::maps::cmap::read(&got).unwrap();
             assert!(want.len() > 1000, "{}", want.len());
             assert_eq!(got.voxels(), want.voxels(), "{} {frames} as {format}", data.display());
         }
@@ -195,7 +195,7 @@ fn a_class_table_maps_a_users_ids_in_every_reader() {
         let o = s(&out);
         args.extend(["-o", &o]);
         cosem_ok(&args);
-        cosem_host::cmap::read(&out).unwrap().1
+        cosem_host::maps::cmap::read(&out).unwrap().1
     };
     let (seq_s, same_s, two_s) = (s(&seq), s(&same), s(&two));
     let want = map(&["--data", &seq_s, "--frames", "0:3"], "want.cmap");
@@ -244,18 +244,18 @@ fn a_ros2_recording_gives_the_folders_map() {
     for (k, (data, frames)) in folders.iter().enumerate() {
         let want = tmp.path().join(format!("{k}.cmap"));
         cosem_ok(&["map", "--data", &s(data), "--frames", frames, "--voxel", "0.5", "-o", &s(&want)]);
-        let (_, want) = cosem_host::cmap::read(&want).unwrap();
+        let (_, want) = cosem_host::maps::cmap::read(&want).unwrap();
         let bag = tmp.path().join(format!("{k}.mcap"));
         cosem_ok(&["export", "mcap", "--data", &s(data), "--frames", frames, "-o", &s(&bag)]);
         let n = frames.split(':').nth(1).unwrap().parse::<usize>().unwrap()
             - frames.split(':').next().unwrap().parse::<usize>().unwrap();
         let got = tmp.path().join(format!("{k}-bag.cmap"));
         cosem_ok(&["map", "--mcap", &s(&bag), "--frames", &format!("0:{n}"), "--voxel", "0.5", "-o", &s(&got)]);
-        let (_, got) = cosem_host::cmap::read(&got).unwrap();
+        let (_, got) = cosem_host::maps::cmap::read(&got).unwrap();
         // Without --frames: every scan of the topic, the same map.
         let all = tmp.path().join(format!("{k}-all.cmap"));
         cosem_ok(&["map", "--mcap", &s(&bag), "--voxel", "0.5", "-o", &s(&all)]);
-        assert_eq!(cosem_host::cmap::read(&all).unwrap().1.voxels(), got.voxels());
+        assert_eq!(cosem_host::maps::cmap::read(&all).unwrap().1.voxels(), got.voxels());
         let (a, b) = (want.len() as f64, got.len() as f64);
         assert!((a - b).abs() <= 0.01 * a, "{} voxels from the folder, {} from the recording", a, b);
         let same = got.iter().filter(|v| want.get(v.key).is_some_and(|w| w.class() == v.class())).count();
@@ -300,7 +300,7 @@ fn a_recording_written_by_the_python_writers_gives_the_folders_map() {
     for (k, (data, frames, n)) in folders.iter().enumerate() {
         let want = tmp.path().join(format!("{k}.cmap"));
         cosem_ok(&["map", "--data", &s(data), "--frames", frames, "--voxel", "0.5", "-o", &s(&want)]);
-        let (_, want) = cosem_host::cmap::read(&want).unwrap();
+        let (_, want) = cosem_host::maps::cmap::read(&want).unwrap();
         let scans = tmp.path().join(format!("scans{k}"));
         cosem_ok(&["export", "scans", "--data", &s(data), "--frames", frames, "--format", "pcd", "-o", &s(&scans)]);
         for (compression, odom) in [("zstd", false), ("lz4", false), ("zstd", true)] {
@@ -324,7 +324,7 @@ fn a_recording_written_by_the_python_writers_gives_the_folders_map() {
             }
             args.extend(["-o", &got_s]);
             cosem_ok(&args);
-            let (_, got) = cosem_host::cmap::read(&got).unwrap();
+            let (_, got) = cosem_host::maps::cmap::read(&got).unwrap();
             let (a, b) = (want.len() as f64, got.len() as f64);
             assert!((a - b).abs() <= 0.01 * a, "{compression}: {a} voxels from the folder, {b} from the recording");
             let same = got.iter().filter(|v| want.get(v.key).is_some_and(|w| w.class() == v.class())).count();
@@ -352,11 +352,11 @@ fn a_match_is_written_as_a_recording_to_view() {
     cosem_ok(&["map", "--data", &s(&seq), "--frames", "3:6", "--voxel", "0.5", "-o", &s(&b)]);
     let out = cosem_tests::cosem(&["match", &s(&a), &s(&b), "--mcap-out", &s(&bag)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let (_, scene) = cosem_host::cmap::read(&b).unwrap();
+    let (_, scene) = cosem_host::maps::cmap::read(&b).unwrap();
     let back = tmp.path().join("back.cmap");
     let args = ["map", "--mcap", &s(&bag), "--points", "/cosem/scene", "--frames", "0:1", "--pose-frame", "model"];
     cosem_ok(&[&args[..], &["--voxel", "0.5", "-o", &s(&back)]].concat());
-    let (_, back) = cosem_host::cmap::read(&back).unwrap();
+    let (_, back) = cosem_host::maps::cmap::read(&back).unwrap();
     assert_eq!(back.len(), scene.len());
     let err = cosem_tests::cosem_err(&["match", &s(&a), &s(&b), "--mcap-out", &s(&a)]);
     assert!(err.contains("input"), "{err}");

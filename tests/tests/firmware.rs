@@ -6,7 +6,7 @@
 use cosem_core::map::MapConfig;
 use cosem_core::matching::{PyramidCapacity, VecPyramidStorage};
 use cosem_core::selftest::{self, FOOTPRINT_WORDS, MAP_VOXELS, PYRAMID_ENTRIES, RESOLUTION};
-use cosem_host::mapping::new_map;
+use cosem_host::maps::mapping::new_map;
 
 /// The self-test's report lines as the firmware prints them, computed here.
 fn host_lines() -> Vec<String> {
@@ -77,7 +77,7 @@ fn core_reads_the_hosts_map_files() {
         &file.display().to_string(),
     ]);
     let bytes = std::fs::read(&file).unwrap();
-    let (header, host_map) = cosem_host::cmap::read(&file).unwrap();
+    let (header, host_map) = cosem_host::maps::cmap::read(&file).unwrap();
     let mut core_map = new_map(header.voxel_count as usize, MapConfig::with_resolution(0.5)).unwrap();
     let info = cosem_core::wire::mapfile::read_into(&bytes, &mut core_map).unwrap();
     assert_eq!(info.voxel_count as usize, host_map.len());
@@ -128,7 +128,7 @@ fn firmware_matches_real_maps_in_the_budget() {
     let t: Vec<f64> = field("translation=").split(',').map(|v| v.parse().unwrap()).collect();
     let yaw: f64 = field("yaw_deg=").parse().unwrap();
     // Ground truth T_A_B of kitti00 0 -> 5: about (3.57, 0.05, 0.02) m, 1.29 degrees.
-    let gt = cosem_host::kitti::Sequence::open(&data).unwrap().relative_pose(0, 5).unwrap();
+    let gt = cosem_host::sources::kitti::Sequence::open(&data).unwrap().relative_pose(0, 5).unwrap();
     let g = gt.to_homogeneous();
     let (gx, gy, gz) = (g[(0, 3)], g[(1, 3)], g[(2, 3)]);
     let gyaw = g[(1, 0)].atan2(g[(0, 0)]).to_degrees();

@@ -184,15 +184,15 @@ fn malformed_inputs_name_the_file() {
     let e = run("o1", &[]);
     assert!(e.contains("000001.png") && e.contains("missing"), "{e}");
     // A wrong size.
-    let small = cosem_host::label::SegImage { width: 20, height: 10, ids: vec![0; 200] };
-    cosem_host::label::write_seg_png(&f1, &small).unwrap();
+    let small = cosem_host::camera::label::SegImage { width: 20, height: 10, ids: vec![0; 200] };
+    cosem_host::camera::label::write_seg_png(&f1, &small).unwrap();
     let e = run("o2", &[]);
     assert!(e.contains("000001.png") && e.contains("20x10") && e.contains("1241x376"), "{e}");
     // An unknown class id (40 is no Cityscapes training id) at a named pixel.
     std::fs::write(&f1, kept).unwrap();
-    let mut im = cosem_host::label::read_seg_png(&seg.join("000002.png")).unwrap();
+    let mut im = cosem_host::camera::label::read_seg_png(&seg.join("000002.png")).unwrap();
     im.ids[3 * 1241 + 7] = 40;
-    cosem_host::label::write_seg_png(&seg.join("000002.png"), &im).unwrap();
+    cosem_host::camera::label::write_seg_png(&seg.join("000002.png"), &im).unwrap();
     let e = run("o3", &[]);
     assert!(e.contains("000002.png") && e.contains("(7, 3)") && e.contains("class id 40"), "{e}");
     // Not a PNG; a missing probability map; a camera calib.txt lacks; an unknown class set.
@@ -288,7 +288,7 @@ fn label_never_writes_into_its_input() {
 /// of full-size images.
 #[test]
 fn segmentation_of_another_size_is_refused_or_scaled_when_asked() {
-    use cosem_host::label::{read_seg_png, write_seg_png, SegImage};
+    use cosem_host::camera::label::{read_seg_png, write_seg_png, SegImage};
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
     synth(&seq, "6", &[]);
@@ -328,7 +328,7 @@ fn segmentation_of_another_size_is_refused_or_scaled_when_asked() {
 /// say, read with --void-channel last (the same labels when void is 0).
 #[test]
 fn a_void_channel_is_taken_when_named() {
-    use cosem_host::label::{read_probabilities, write_probabilities, ProbabilityMap};
+    use cosem_host::camera::label::{read_probabilities, write_probabilities, ProbabilityMap};
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
     synth(&seq, "7", &["--seg-probabilities"]);

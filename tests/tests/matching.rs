@@ -152,11 +152,11 @@ fn loop_pairs_align_with_no_prior() {
         assert_eq!(v["status"], "Converged", "{name}: {v}");
         assert!(v["global"]["score"].as_u64().unwrap() > 0, "{name}: {v}");
         assert!(v["agreement"].as_f64().unwrap() > 0.6, "{name}: {v}");
-        let seq = cosem_host::kitti::Sequence::open(&dir).unwrap();
+        let seq = cosem_host::sources::kitti::Sequence::open(&dir).unwrap();
         let start = |r: &str| r.split(':').next().unwrap().parse::<usize>().unwrap();
         let gt = seq.relative_pose(start(a), start(b)).unwrap();
         let n: Vec<f64> = v["transform"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
-        let est = cosem_host::report::from_row_major(&n.try_into().unwrap());
+        let est = cosem_host::poses::from_row_major(&n.try_into().unwrap());
         let (e_t, e_r) = cosem_core::geometry::pose_errors(&est, &gt);
         assert!(e_t < 0.3 && e_r < 1.0, "{name}: e_t {e_t} m, e_r {e_r} deg");
         eprintln!("{name}: no prior, agreement {}: e_t {e_t:.3} m, e_r {e_r:.3} deg", v["agreement"]);

@@ -1,4 +1,4 @@
-//! Stage 4: moving maps over a narrow, lossy line.
+//! Layer 5: moving maps over a narrow, lossy line.
 //!
 //! An [`Endpoint`] sends its own map and receives the peer's, over any
 //! byte stream implementing `embedded_io`'s `Read + Write + ReadReady + WriteReady` (a

@@ -1,4 +1,4 @@
-//! Stage 2: building a robot's local semantic map.
+//! Layer 2: building a robot's local semantic map.
 //!
 //! - [`key`]: voxel keys and hashing;
 //! - [`labels`]: compact label distributions and the Bayes sensor model;

@@ -1,4 +1,4 @@
-//! Stage 5: EM map matching.
+//! Layer 6: EM map matching.
 //!
 //! - [`pyramid`]: the search structure, a semantic resolution pyramid with
 //!   a hash index per level and per-entry normals (one-off preparation);

@@ -1,4 +1,4 @@
-//! Stage 3: every byte format of cosem, and nothing above it: this module
+//! Layer 4: every byte format of cosem, and nothing above it: this module
 //! imports no type from the map's users (matching, link, robot), so a
 //! format can be read, tested and fuzzed on its own.
 //!

@@ -123,7 +123,7 @@ impl Board {
 
     /// The board's QEMU command line (`firmware/qemu/`: the one place it
     /// is written) with `serials` as its serial ports in order (`None`:
-    /// `null`), the debugging options of [`crate::robots::debug_args`] and
+    /// `null`), the debugging options of [`debug_args`] and
     /// `elf` as the kernel.
     pub fn qemu_command(self, elf: &Path, serials: &[Option<u16>]) -> Command {
         let machine = match self {
@@ -136,7 +136,7 @@ impl Board {
             .args(serials.iter().flat_map(|p| {
                 ["-serial".to_string(), p.map_or_else(|| "null".to_string(), |p| format!("tcp:127.0.0.1:{p}"))]
             }))
-            .args(crate::robots::debug_args())
+            .args(debug_args())
             .arg("-kernel")
             .arg(elf);
         cmd
@@ -190,3 +190,21 @@ pub fn static_ram_bytes(elf: &Path) -> Result<u64, Error> {
 pub fn firmware_for(board: Board, given: Option<&Path>) -> PathBuf {
     given.map_or_else(|| PathBuf::from(board.default_firmware()), Path::to_path_buf)
 }
+
+/// Extra QEMU arguments from the environment: a GDB port per instance
+/// (`COSEM_DEBUG_GDB`), a TCG plugin (`COSEM_QEMU_PLUGIN`).
+fn debug_args() -> Vec<String> {
+    static NEXT: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let mut args = match std::env::var("COSEM_DEBUG_GDB").ok().and_then(|v| v.parse::<u16>().ok()) {
+        Some(base) => vec!["-gdb".into(), format!("tcp::{}", base + n)],
+        None => vec![],
+    };
+    // A TCG plugin for every QEMU (e.g. a profiler); `{n}` becomes the
+    // instance's number, so each writes its own file.
+    if let Ok(plugin) = std::env::var("COSEM_QEMU_PLUGIN") {
+        args.extend(["-plugin".into(), plugin.replace("{n}", &n.to_string())]);
+    }
+    args
+}
+

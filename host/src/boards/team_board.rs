@@ -14,10 +14,13 @@
 //! [`TeamRobot`] with the same feeds over simulated clean lines, so the
 //! boards' placements must be the host's.
 
-use crate::board::Board;
+use crate::boards::board::Board;
 use crate::error::Error;
-use crate::mapping::new_map;
-use crate::robots::{accept, board_pyramids, pump, qemu, Feed, FeederLine, LineFault};
+use crate::maps::mapping::new_map;
+use crate::boards::emulator::{accept, qemu, FeederLine};
+use crate::boards::feeds::Feed;
+use crate::boards::pump::{pump, LineFault};
+use crate::boards::twin::board_pyramids;
 use cosem_core::link::LinkBuffers;
 use cosem_core::robot::team::{port_of, TeamRobot, TABLE_WORDS};
 use cosem_core::robot::{self, RobotConfig};
@@ -109,8 +112,8 @@ pub fn host_team_run(feeds: &[Feed], board: Board) -> Result<Vec<TeamReports>, E
     let bytes = team_feed_bytes(feeds)?;
     let config = robot::map_config(feeds.first().map_or(0.5, |f| f.setup.resolution));
     struct Buffers {
-        own: crate::mapping::HostMap,
-        received: crate::robots::Received,
+        own: crate::maps::mapping::HostMap,
+        received: crate::boards::twin::Received,
         scratch: Vec<u32>,
         link: Box<LinkBuffers>,
     }
@@ -118,7 +121,7 @@ pub fn host_team_run(feeds: &[Feed], board: Board) -> Result<Vec<TeamReports>, E
         .map(|_| {
             Ok(Buffers {
                 own: new_map(c.voxels, config)?,
-                received: crate::robots::received_scene(c.voxels, config.resolution)?,
+                received: crate::boards::twin::received_scene(c.voxels, config.resolution)?,
                 scratch: vec![0u32; c.voxels.max(TABLE_WORDS)],
                 link: Box::new(LinkBuffers::new()),
             })
@@ -294,7 +297,7 @@ fn run_boards_inner(
                 .collect::<Vec<_>>(),
         )
     })();
-    let codes = crate::robots::reap(&mut children, deadline);
+    let codes = crate::boards::emulator::reap(&mut children, deadline);
     let reports = result?;
     let runs = reports
         .into_iter()
@@ -302,8 +305,8 @@ fn run_boards_inner(
         .map(|(mut reports, exit_code)| {
             // A board that stopped without a word: say what its exit code tells.
             if let Some((stage, message)) = reports.failed.as_mut().filter(|(s, _)| s == "host") {
-                *message = crate::robots::lost_reason(message, exit_code);
-                *stage = crate::robots::firmware_stage(exit_code).to_string();
+                *message = crate::boards::emulator::lost_reason(message, exit_code);
+                *stage = crate::boards::emulator::firmware_stage(exit_code).to_string();
             }
             BoardRun { reports, exit_code }
         })
@@ -338,14 +341,14 @@ fn serial_ports(
 
 /// Each robot's feed: its frames (label noise applied, robot i's seeded by
 /// `seed + i`) thinned to one point per `voxel` within `crop` m, no prior.
-pub fn team_feeds(spec: &crate::team::TeamSpec, crop: f32, silence_ms: u32) -> Result<Vec<Feed>, Error> {
-    let filter = crate::mapping::PointFilter::default();
+pub fn team_feeds(spec: &crate::evaluation::team::TeamSpec, crop: f32, silence_ms: u32) -> Result<Vec<Feed>, Error> {
+    let filter = crate::maps::mapping::PointFilter::default();
     let mut out = Vec::new();
     for (i, r) in spec.robots.iter().enumerate() {
-        let seq = crate::source::Source::open(&r.data, &spec.source)?;
+        let seq = crate::sources::source::Source::open(&r.data, &spec.source)?;
         let (mut frames, _, _) = seq.load(Some(r.frames))?;
-        crate::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(i as u64));
-        let scans = frames.iter().map(|f| crate::robots::thin_scan(f, spec.voxel, crop, &filter)).collect();
+        crate::maps::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(i as u64));
+        let scans = frames.iter().map(|f| crate::boards::feeds::thin_scan(f, spec.voxel, crop, &filter)).collect();
         let setup =
             cosem_core::wire::feed::Setup { robot_id: i as u8, resolution: spec.voxel, prior: None, silence_ms };
         out.push(Feed { setup, scans });
@@ -370,16 +373,29 @@ pub fn placement_difference(a: &TeamReports, b: &TeamReports) -> Option<(f64, bo
     Some((worst, same))
 }
 
+/// What a team on boards ran: each board's run, the host's run of the same
+/// robots, the truth (reported by `crate::reports::team::TeamBoardJson`).
+pub struct TeamBoardsRun {
+    /// Each board's run.
+    pub boards: Vec<BoardRun>,
+    /// The host's run of each robot.
+    pub host: Vec<TeamReports>,
+    /// The truth.
+    pub truth: crate::evaluation::team::Truth,
+    /// Wall time of the boards' run (s).
+    pub wall_s: f64,
+}
+
 /// A team on `board`s, end to end: each robot's feed, the host's run of
 /// the same robots, the boards under QEMU (`firmware`, default the board's
-/// team binary; killed after `timeout`), and the report.
+/// team binary; killed after `timeout`).
 pub fn run_on_boards(
-    spec: &crate::team::TeamSpec,
+    spec: &crate::evaluation::team::TeamSpec,
     crop: f32,
     silence_ms: u32,
     (board, firmware): (Board, Option<&Path>),
     timeout: Duration,
-) -> Result<crate::reports::team::TeamBoardJson, Error> {
+) -> Result<TeamBoardsRun, Error> {
     let (n, most) = (spec.robots.len(), max_boards(board));
     if !(2..=most).contains(&n) {
         return Err(Error::Invalid(format!(
@@ -387,18 +403,18 @@ pub fn run_on_boards(
             board.as_str()
         )));
     }
-    let truth = crate::team::Truth::of(spec)?;
+    let truth = crate::evaluation::team::Truth::of(spec)?;
     let feeds = team_feeds(spec, crop, silence_ms)?;
     let host = host_team_run(&feeds, board)?;
-    let elf = crate::robots::firmware(firmware.unwrap_or(Path::new(board.team_firmware())))?;
+    let elf = crate::boards::firmware::firmware(firmware.unwrap_or(Path::new(board.team_firmware())))?;
     let (boards, wall_s) = run_boards(board, &elf, &feeds, timeout, true)?;
-    crate::reports::team::TeamBoardJson::of(&boards, &host, &truth, wall_s)
+    Ok(TeamBoardsRun { boards, host, truth, wall_s })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::team::{RobotSpec, TeamSpec};
+    use crate::evaluation::team::{RobotSpec, TeamSpec};
 
     fn data() -> Option<std::path::PathBuf> {
         let root = std::env::var_os("COSEM_DATA").map_or_else(|| "../../shared/data".into(), std::path::PathBuf::from);
@@ -415,14 +431,14 @@ mod tests {
     fn host_team_run_places_three_robots_of_one_drive() {
         let Some(dir) = data() else { return };
         let robot =
-            |a, b| RobotSpec { data: dir.clone(), frames: crate::kitti::FrameRange { start: a, end: b, stride: 1 } };
+            |a, b| RobotSpec { data: dir.clone(), frames: crate::sources::kitti::FrameRange { start: a, end: b, stride: 1 } };
         let spec = TeamSpec {
             robots: vec![robot(0, 3), robot(3, 6), robot(6, 10)],
             voxel: 0.5,
             prior_noise: None,
             inject_false_match: Vec::new(),
             source: Default::default(),
-            label_noise: crate::noise::LabelNoise::None,
+            label_noise: crate::maps::noise::LabelNoise::None,
             seed: 1,
             settings: Default::default(),
         };

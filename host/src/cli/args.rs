@@ -100,8 +100,8 @@ pub fn seg(s: &str) -> Result<SegChoice, String> {
 
 /// `--unlabeled`: drop (the conventions' default) or geometry (kept as
 /// voxels of an unknown class).
-pub fn unlabeled(s: &str) -> Result<cosem_host::mapping::Unlabeled, String> {
-    use cosem_host::mapping::Unlabeled;
+pub fn unlabeled(s: &str) -> Result<cosem_host::maps::mapping::Unlabeled, String> {
+    use cosem_host::maps::mapping::Unlabeled;
     match s {
         "drop" => Ok(Unlabeled::Drop),
         "geometry" => Ok(Unlabeled::Geometry),
@@ -213,8 +213,8 @@ pub struct SourceArgs {
 
 impl SourceArgs {
     /// The library's options.
-    pub fn options(&self) -> cosem_host::source::SourceOptions {
-        cosem_host::source::SourceOptions {
+    pub fn options(&self) -> cosem_host::sources::source::SourceOptions {
+        cosem_host::sources::source::SourceOptions {
             points: self.points.clone(),
             label_field: self.label_field.clone(),
             pose_frame: self.pose_frame.clone(),

@@ -1,10 +1,10 @@
 //! `cosem bench`: benchmarks that print numbers (the measuring is in
-//! `cosem_host::bench`).
+//! `cosem_host::evaluation::bench`).
 
 use super::Error;
-use cosem_host::bench::{self, TempDir};
-use cosem_host::kitti::FrameRange;
-use cosem_host::pair::{Pair, PairSpec};
+use cosem_host::evaluation::bench::{self, TempDir};
+use cosem_host::sources::kitti::FrameRange;
+use cosem_host::evaluation::pair::{Pair, PairSpec};
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Subcommand, Debug)]
@@ -120,8 +120,8 @@ pub struct LinkArgs {
     #[arg(long, default_value = "0,0.01,0.05,0.1,0.2", value_delimiter = ',', value_parser = super::args::probability)]
     error_rates: Vec<f64>,
     /// Shares of the damage: bit=S,byte=S,drop=S,dup=S (default substituted, dropped, duplicated alike).
-    #[arg(long, value_parser = cosem_host::relay::parse_mix, default_value = "byte=1,drop=1,dup=1")]
-    mix: cosem_host::relay::Mix,
+    #[arg(long, value_parser = cosem_host::lines::relay::parse_mix, default_value = "byte=1,drop=1,dup=1")]
+    mix: cosem_host::lines::relay::Mix,
     /// Line speed (baud, 8N1).
     #[arg(long, default_value_t = 115_200, value_parser = super::args::baud)]
     baud: u32,
@@ -214,7 +214,7 @@ fn bench_wire(a: MapArgs, json: Option<&Path>) -> Result<(), Error> {
     let (dir, _tmp) = data(a.data, a.frames.end)?;
     let frames = bench::frames(&dir, a.frames, &a.source.options())?;
     let config = cosem_core::map::MapConfig::with_resolution(a.voxel);
-    let (map, _) = cosem_host::mapping::build_map(&frames, config, &cosem_host::mapping::PointFilter::default())?;
+    let (map, _) = cosem_host::maps::mapping::build_map(&frames, config, &cosem_host::maps::mapping::PointFilter::default())?;
     let (n, range, d) = (frames.len(), a.frames, dir.display());
     println!("bench wire: {} voxels at {} m from {n} frames {range} of {d}", map.len(), a.voxel);
     let figures = bench::wire(&map, a.repeat)?;
@@ -254,7 +254,7 @@ fn bench_label(a: LabelArgs, json: Option<&Path>) -> Result<(), Error> {
         return Err(format!("--frames {}: at least 4 (two robots of two frames)", a.frames).into());
     }
     let tmp = TempDir::new("cosem-bench-label");
-    let starts = cosem_host::eval::grid(a.grid_stride).len();
+    let starts = cosem_host::evaluation::eval::grid(a.grid_stride).len();
     println!("bench label: camera 2, Cityscapes ids; strict success over {starts} starts of the paper's grid");
     println!(
         "  {:<8} {:<26} {:>8} {:>10} {:>8} {:>11} {:>8}",

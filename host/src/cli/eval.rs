@@ -4,12 +4,12 @@
 use super::args::settings;
 use super::Error;
 use cosem_core::matching::{Dof, MatchSettings, Method};
-use cosem_host::eval::{
+use cosem_host::evaluation::eval::{
     corners, evaluate, global_starts, grid, run_negatives, sample, EvalReport, MapsInfo, Place, Protocol, Start,
 };
-use cosem_host::kitti::FrameRange;
-use cosem_host::noise::LabelNoise;
-use cosem_host::pair::{Pair, PairSpec};
+use cosem_host::sources::kitti::FrameRange;
+use cosem_host::maps::noise::LabelNoise;
+use cosem_host::evaluation::pair::{Pair, PairSpec};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
@@ -99,7 +99,7 @@ pub struct Args {
     /// Unlabelled points (id 0; a camera's labels leave so the points
     /// outside its view): drop, or geometry (voxels of an unknown class).
     #[arg(long, default_value = "drop", value_parser = super::args::unlabeled)]
-    unlabeled: cosem_host::mapping::Unlabeled,
+    unlabeled: cosem_host::maps::mapping::Unlabeled,
     /// Prior-free protocol instead of the grid: the scene map is moved by a
     /// known heading (36 around the circle) and offset (10 seeded, up to
     /// 50 m) and matched with no prior.

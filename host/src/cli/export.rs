@@ -25,10 +25,10 @@ pub enum Format {
         data: PathBuf,
         /// Frames START:END[:STRIDE] (END exclusive).
         #[arg(long)]
-        frames: cosem_host::kitti::FrameRange,
+        frames: cosem_host::sources::kitti::FrameRange,
         /// File format.
         #[arg(long)]
-        format: cosem_host::cloud::CloudFormat,
+        format: cosem_host::sources::cloud::CloudFormat,
         /// Output folder, written whole and swapped into place: a new or
         /// empty folder, or with --force an earlier export (never inside,
         /// over or around the input folder).
@@ -47,13 +47,13 @@ pub enum Format {
         data: PathBuf,
         /// Frames START:END[:STRIDE] (END exclusive).
         #[arg(long)]
-        frames: cosem_host::kitti::FrameRange,
+        frames: cosem_host::sources::kitti::FrameRange,
         /// The point cloud topic.
         #[arg(long, default_value = "/velodyne_points")]
         topic: String,
         /// Chunk compression.
         #[arg(long, value_enum, default_value = "zstd")]
-        compression: cosem_host::recording::ChunkCompression,
+        compression: cosem_host::sources::recording::ChunkCompression,
         /// Output MCAP file (never inside the input folder).
         #[arg(short, long, value_name = "OUT")]
         output: PathBuf,
@@ -63,11 +63,11 @@ pub enum Format {
 pub fn run(f: Format) -> Result<(), Error> {
     match f {
         Format::Ply { file, output } => {
-            let n = cosem_host::ply::export_map(&file, &output)?;
+            let n = cosem_host::maps::ply::export_map(&file, &output)?;
             println!("{}: {n} points", output.display());
         }
         Format::Scans { data, frames, format, output, force } => {
-            let n = cosem_host::cloud::export_scans(&data, frames, format, &output, force)?;
+            let n = cosem_host::sources::cloud::export_scans(&data, frames, format, &output, force)?;
             println!("{}: {n} scans as {} and poses.txt", output.display(), format.extension());
         }
         Format::Mcap { data, frames, topic, compression, output } => {
@@ -78,8 +78,8 @@ pub fn run(f: Format) -> Result<(), Error> {
             if output.is_dir() {
                 return Err(format!("{}: is a folder; -o names the recording file to write", output.display()).into());
             }
-            let seq = cosem_host::kitti::Sequence::open(&data)?;
-            let n = cosem_host::recording::export(&seq, frames, &topic, compression, &output)?;
+            let seq = cosem_host::sources::kitti::Sequence::open(&data)?;
+            let n = cosem_host::sources::recording::export(&seq, frames, &topic, compression, &output)?;
             println!("{}: {n} scans on {topic} and /tf", output.display());
         }
     }

@@ -1,7 +1,7 @@
 //! `cosem info`: what a map file holds.
 
 use super::Error;
-use cosem_host::report::InfoJson;
+use cosem_host::reports::report::InfoJson;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

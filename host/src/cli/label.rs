@@ -1,9 +1,9 @@
 //! `cosem label`: LiDAR labels from camera segmentation images.
 
 use super::Error;
-use cosem_host::kitti::FrameRange;
-use cosem_host::label::{label_sequence, label_with_model, parse_image_size, LabelOptions};
-use cosem_host::report::LabelJson;
+use cosem_host::sources::kitti::FrameRange;
+use cosem_host::camera::label::{label_sequence, label_with_model, parse_image_size, LabelOptions};
+use cosem_host::reports::report::LabelJson;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -58,7 +58,7 @@ pub struct Args {
     /// the class set's, first or last (most Cityscapes networks: 19
     /// classes and void last); its probability counts as no class.
     #[arg(long, value_enum, default_value = "none")]
-    void_channel: cosem_host::label::VoidChannel,
+    void_channel: cosem_host::camera::label::VoidChannel,
     /// Frames START:END[:STRIDE]; default: every scan in velodyne/.
     #[arg(long)]
     frames: Option<FrameRange>,

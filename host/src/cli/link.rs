@@ -2,9 +2,9 @@
 
 use super::args::MatchOpts;
 use super::{print_json, Error};
-use cosem_host::align::prepare_and_align;
-use cosem_host::link::{exchange, Exchange, Line};
-use cosem_host::report::{exit_code, result_text, GlobalJson, LinkJson, MatchJson};
+use cosem_host::matching::align::prepare_and_align;
+use cosem_host::lines::link::{exchange, Exchange, Line};
+use cosem_host::reports::report::{exit_code, result_text, GlobalJson, LinkJson, MatchJson};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -63,7 +63,7 @@ fn line(a: &Args) -> Line {
 
 pub fn run(a: Args) -> Result<u8, Error> {
     let (settings, prior) = a.opts.resolve();
-    let (header, ours) = cosem_host::cmap::read(&a.map)?;
+    let (header, ours) = cosem_host::maps::cmap::read(&a.map)?;
     let robot_id = a.robot_id.unwrap_or(if a.listen.is_some() { 0 } else { 1 });
     let anchor_us = header.anchor_time.map(|t| (t * 1e6) as u64).unwrap_or(0);
     let started = Instant::now();

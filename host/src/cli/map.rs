@@ -5,11 +5,11 @@
 use super::Error;
 use cosem_core::classes::MovingObjects;
 use cosem_core::map::{MapConfig, SensorModel};
-use cosem_host::job::MapJob;
-use cosem_host::kitti::FrameRange;
-use cosem_host::mapping::PointFilter;
-use cosem_host::noise::LabelNoise;
-use cosem_host::source::Source;
+use cosem_host::evaluation::job::MapJob;
+use cosem_host::sources::kitti::FrameRange;
+use cosem_host::maps::mapping::PointFilter;
+use cosem_host::maps::noise::LabelNoise;
+use cosem_host::sources::source::Source;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -35,7 +35,7 @@ pub struct Args {
     /// (fields x, y, z and an integer label holding the SemanticKITTI id in
     /// its low 16 bits; NaN points skipped).
     #[arg(long, requires = "poses")]
-    format: Option<cosem_host::cloud::CloudFormat>,
+    format: Option<cosem_host::sources::cloud::CloudFormat>,
     /// The scans' files (with --format).
     #[arg(requires = "format")]
     files: Vec<PathBuf>,
@@ -60,7 +60,7 @@ pub struct Args {
     /// Unlabelled points (id 0; a camera's labels leave so the points
     /// outside its view): drop, or geometry (voxels of an unknown class).
     #[arg(long, default_value = "drop", value_parser = super::args::unlabeled)]
-    unlabeled: cosem_host::mapping::Unlabeled,
+    unlabeled: cosem_host::maps::mapping::Unlabeled,
     /// Probability that a point's label is right (Bayes sensor model).
     #[arg(long, default_value_t = SensorModel::default().accuracy, value_parser = super::args::accuracy)]
     label_accuracy: f32,

@@ -2,9 +2,9 @@
 
 use super::args::MatchOpts;
 use super::{print_json, Error};
-use cosem_host::align::prepare_and_align;
-use cosem_host::ply;
-use cosem_host::report::{exit_code, result_text, GlobalJson, MatchJson};
+use cosem_host::matching::align::prepare_and_align;
+use cosem_host::maps::ply;
+use cosem_host::reports::report::{exit_code, result_text, GlobalJson, MatchJson};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -38,8 +38,8 @@ pub fn run(a: Args) -> Result<u8, Error> {
     for (arg, out) in outputs {
         cosem_host::paths::check_output(arg, out, &[("MODEL", &a.model), ("SCENE", &a.scene)])?;
     }
-    let (_, model) = cosem_host::cmap::read(&a.model)?;
-    let (_, scene) = cosem_host::cmap::read(&a.scene)?;
+    let (_, model) = cosem_host::maps::cmap::read(&a.model)?;
+    let (_, scene) = cosem_host::maps::cmap::read(&a.scene)?;
     if (model.resolution() - scene.resolution()).abs() > 1e-6 {
         let (m, s) = (a.model.display(), a.scene.display());
         return Err(
@@ -57,7 +57,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
     j.global = global.as_ref().map(GlobalJson::from);
     if let Some(path) = &a.mcap_out {
         let text = serde_json::to_string(&j).map_err(|e| format!("{}: {e}", path.display()))?;
-        cosem_host::recording::write_match(path, &model, &scene, &r.transform, &text)?;
+        cosem_host::reports::match_recording::write_match(path, &model, &scene, &r.transform, &text)?;
     }
     if a.json {
         print_json(&j)?;

@@ -1,7 +1,7 @@
 //! `cosem relay`: a paced, lossy line between two `cosem link` processes.
 
 use super::Error;
-use cosem_host::relay::{run, Flip, LineModel, Mix};
+use cosem_host::lines::relay::{run, Flip, LineModel, Mix};
 use std::time::Duration;
 
 #[derive(clap::Args, Debug)]
@@ -22,7 +22,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "bit", conflicts_with = "mix")]
     flip: Flip,
     /// Shares of the damage instead: bit=S,byte=S,drop=S,dup=S.
-    #[arg(long, value_parser = cosem_host::relay::parse_mix)]
+    #[arg(long, value_parser = cosem_host::lines::relay::parse_mix)]
     mix: Option<Mix>,
     /// Give up when the two sides have not connected in this long (s).
     #[arg(long, default_value = "60", value_parser = super::args::seconds)]

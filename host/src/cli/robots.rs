@@ -5,9 +5,12 @@
 use super::args::{feed_voxel, pose, positive_f32};
 use super::{show, Error};
 use cosem_core::geometry::Isometry3;
-use cosem_host::board::Board;
-use cosem_host::kitti::FrameRange;
-use cosem_host::robots::{run_robots, LineFault, RobotsSpec, DEFAULT_FIRMWARE};
+use cosem_host::boards::board::Board;
+use cosem_host::sources::kitti::FrameRange;
+use cosem_host::boards::firmware::DEFAULT_FIRMWARE;
+use cosem_host::boards::pump::LineFault;
+use cosem_host::boards::robots::{run_robots, RobotsSpec};
+use cosem_host::reports::robots::{exit_code, RobotsJson};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -68,7 +71,7 @@ pub struct Args {
     /// Label noise on every scan before it is fed: none, network[:SEVERITY]
     /// or iid:P (see `cosem eval --help`); robot i's seed is --seed + i.
     #[arg(long, default_value = "none")]
-    label_noise: cosem_host::noise::LabelNoise,
+    label_noise: cosem_host::maps::noise::LabelNoise,
     /// Seed of the label noise.
     #[arg(long, default_value = "1")]
     seed: u64,
@@ -76,7 +79,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<u8, Error> {
     let spec = RobotsSpec {
-        source: cosem_host::source::Source::open(&a.data, &a.source.options())?,
+        source: cosem_host::sources::source::Source::open(&a.data, &a.source.options())?,
         ranges: [a.a, a.b],
         voxel: a.voxel.unwrap_or(a.board_a.default_voxel().max(a.board_b.default_voxel())),
         crop: a.crop,
@@ -89,7 +92,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
         timeout_s: a.timeout,
         label_noise: (a.label_noise, a.seed),
     };
-    let (report, code) = run_robots(&spec)?;
-    show(a.json, &report)?;
-    code.ok_or_else(|| "a robot did not report a match".into())
+    let run = run_robots(&spec)?;
+    show(a.json, &RobotsJson::of(&run))?;
+    exit_code(&run).ok_or_else(|| "a robot did not report a match".into())
 }

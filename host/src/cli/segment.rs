@@ -2,7 +2,7 @@
 //! pure Rust) into what `cosem label --seg` reads.
 
 use super::Error;
-use cosem_host::kitti::FrameRange;
+use cosem_host::sources::kitti::FrameRange;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -50,7 +50,7 @@ pub struct Args {
 
 #[cfg(feature = "segment")]
 pub fn run(a: Args) -> Result<(), Error> {
-    use cosem_host::segment::{segment_folder, Fit, SegmentOptions};
+    use cosem_host::camera::segment::{segment_folder, Fit, SegmentOptions};
     let fit: Fit = a.fit.parse().map_err(|e: String| format!("--fit {e}"))?;
     if a.check_dir.is_some() && fit != Fit::Squash {
         return Err("--check-dir: only with --fit squash (one network input per image)".into());

@@ -2,7 +2,7 @@
 
 use super::args::SegChoice;
 use super::Error;
-use cosem_host::synth::{write_sequence, SegRender, SynthConfig};
+use cosem_host::worlds::synth::{write_sequence, SegRender, SynthConfig};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

@@ -1,10 +1,10 @@
 //! `cosem team`: N robots placed in robot 0's frame (see
-//! `cosem_host::team`).
+//! `cosem_host::evaluation::team`).
 
 use super::{show, Error};
 use cosem_core::matching::MatchSettings;
 use cosem_host::reports::team::TeamJson;
-use cosem_host::team::{parse_prior_noise, parse_robot_pair, run as run_team, RobotSpec, TeamSpec};
+use cosem_host::evaluation::team::{parse_prior_noise, parse_robot_pair, run as run_team, RobotSpec, TeamSpec};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -33,7 +33,7 @@ pub struct Args {
     /// Label noise on every scan: none, network[:SEVERITY] or iid:P (see
     /// `cosem eval --help`).
     #[arg(long, default_value = "none")]
-    pub(super) label_noise: cosem_host::noise::LabelNoise,
+    pub(super) label_noise: cosem_host::maps::noise::LabelNoise,
     /// Seed of the prior and label noise.
     #[arg(long, default_value_t = 1)]
     pub(super) seed: u64,
@@ -54,7 +54,7 @@ pub struct Args {
     /// With --on-board: the boards, mps2-an386 or stm32f405 (voxels of 0.5
     /// or 1 m by default).
     #[arg(long, default_value = "mps2-an386")]
-    pub(super) board: cosem_host::board::Board,
+    pub(super) board: cosem_host::boards::board::Board,
     /// With --on-board: the firmware's team binary (default: the board's,
     /// built or brought up to date first).
     #[arg(long)]
@@ -84,7 +84,7 @@ pub(super) fn spec(a: &Args, default_voxel: f32) -> TeamSpec {
 
 /// Exit code: 0 when every robot is placed in robot 0's frame; 5 when one
 /// is not; 1 when a board stopped (`--on-board`: each robot on its own
-/// emulated board, see `cosem_host::team_board`, beside the host's run).
+/// emulated board, see `cosem_host::boards::team_board`, beside the host's run).
 pub fn run(a: Args) -> Result<u8, Error> {
     if a.on_board {
         // No prior and no injected match on board (clap refuses them).
@@ -92,7 +92,8 @@ pub fn run(a: Args) -> Result<u8, Error> {
         let silence_ms = (a.silence * 1000.0).min(f64::from(u32::MAX)) as u32;
         let timeout = std::time::Duration::from_secs_f64(a.timeout.min(86_400.0));
         let board = (a.board, a.firmware.as_deref());
-        let out = cosem_host::team_board::run_on_boards(&spec, a.crop, silence_ms, board, timeout)?;
+        let run = cosem_host::boards::team_board::run_on_boards(&spec, a.crop, silence_ms, board, timeout)?;
+        let out = cosem_host::reports::team::TeamBoardJson::of(&run.boards, &run.host, &run.truth, run.wall_s)?;
         show(a.json, &out)?;
         return Ok(out.exit_code());
     }

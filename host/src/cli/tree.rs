@@ -29,7 +29,7 @@ fn kind(arg: &clap::Arg) -> &'static str {
     ];
     if numbers.into_iter().any(is) {
         "number"
-    } else if is(TypeId::of::<cosem_host::kitti::FrameRange>()) {
+    } else if is(TypeId::of::<cosem_host::sources::kitti::FrameRange>()) {
         "range"
     } else if is(TypeId::of::<PathBuf>()) {
         let out = arg.get_value_names().is_some_and(|n| n.iter().any(|n| n.as_str().starts_with("OUT")));

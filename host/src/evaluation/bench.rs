@@ -2,14 +2,14 @@
 //! and returns its figures (the command prints them). Times are medians of
 //! repeated single-threaded runs.
 
-use crate::align::{prepare, DEFAULT_LEVELS};
+use crate::matching::align::{prepare, DEFAULT_LEVELS};
 use crate::error::Error;
-use crate::eval::{grid, STRICT};
-use crate::exchange::simulate_exchange;
-use crate::kitti::{Frame, FrameRange, Sequence};
-use crate::mapping::{new_map, HostMap, PointFilter};
-use crate::pair::{Pair, PairSpec};
-use crate::stats::median;
+use crate::evaluation::eval::{grid, STRICT};
+use crate::lines::exchange::simulate_exchange;
+use crate::sources::kitti::{Frame, FrameRange, Sequence};
+use crate::maps::mapping::{new_map, HostMap, PointFilter};
+use crate::evaluation::pair::{Pair, PairSpec};
+use crate::evaluation::stats::median;
 use cosem_core::classes::Class;
 use cosem_core::geometry::errors_of;
 use cosem_core::map::MapConfig;
@@ -86,7 +86,7 @@ pub fn map(frames: &[Frame], voxel: f32, repeat: usize) -> Result<MapFigures, Er
     })?;
     let (classify_insert_s, _) = timed(repeat, || {
         map.clear();
-        crate::mapping::fuse_frames(&mut map, frames, &filter)?;
+        crate::maps::mapping::fuse_frames(&mut map, frames, &filter)?;
         Ok(())
     })?;
     let mut coarse = new_map(map.len(), config)?;
@@ -100,7 +100,7 @@ pub fn map(frames: &[Frame], voxel: f32, repeat: usize) -> Result<MapFigures, Er
         insert_s,
         classify_insert_s,
         coarsen,
-        file_bytes: crate::cmap::encode(&map, None, None).len(),
+        file_bytes: crate::maps::cmap::encode(&map, None, None).len(),
     })
 }
 
@@ -119,7 +119,7 @@ pub struct WireFigures {
 
 /// Encode and decode throughput of the compact encoding in link-sized chunks.
 pub fn wire(map: &HostMap, repeat: usize) -> Result<WireFigures, Error> {
-    let (encode_s, chunks) = timed(repeat, || Ok(crate::cmap::encode_chunks(map, 240)))?;
+    let (encode_s, chunks) = timed(repeat, || Ok(crate::maps::cmap::encode_chunks(map, 240)))?;
     let (decode_s, out) = timed(repeat, || {
         let mut out = new_map(map.len(), *map.config())?;
         let mut model = Box::new(cosem_core::wire::CodecModel::new());
@@ -249,7 +249,7 @@ impl LinkSummary {
     pub fn of(runs: &[LinkFigures], baud: u32) -> Self {
         let line_bytes_per_s = f64::from(baud) / 10.0;
         let ok: Vec<&LinkFigures> = runs.iter().filter(|r| r.delivered).collect();
-        let median = |v: Vec<f64>| crate::stats::quantile(&v, 0.5).unwrap_or(f64::NAN);
+        let median = |v: Vec<f64>| crate::evaluation::stats::quantile(&v, 0.5).unwrap_or(f64::NAN);
         let both = |r: &LinkFigures| r.through_s[0].unwrap_or(f64::NAN).max(r.through_s[1].unwrap_or(f64::NAN));
         let goodput: Vec<f64> = ok
             .iter()
@@ -378,15 +378,15 @@ pub fn data_dir(given: Option<PathBuf>, frames: usize) -> Result<(PathBuf, Optio
         )));
     }
     let tmp = TempDir::new("cosem-bench");
-    let cfg = crate::synth::SynthConfig { frames, ..Default::default() };
-    crate::synth::write_sequence(&tmp.0, &cfg).map_err(|source| Error::Io { path: tmp.0.clone(), source })?;
+    let cfg = crate::worlds::synth::SynthConfig { frames, ..Default::default() };
+    crate::worlds::synth::write_sequence(&tmp.0, &cfg).map_err(|source| Error::Io { path: tmp.0.clone(), source })?;
     Ok((tmp.0.clone(), Some(tmp)))
 }
 
 /// The frames of a range of a source of scans (a folder, a recording, a
 /// folder of PCD/PLY scans).
-pub fn frames(dir: &Path, range: FrameRange, options: &crate::source::SourceOptions) -> Result<Vec<Frame>, Error> {
-    Ok(crate::source::Source::open(dir, options)?.load(Some(range))?.0)
+pub fn frames(dir: &Path, range: FrameRange, options: &crate::sources::source::SourceOptions) -> Result<Vec<Frame>, Error> {
+    Ok(crate::sources::source::Source::open(dir, options)?.load(Some(range))?.0)
 }
 
 /// One row of `cosem bench label`.
@@ -397,7 +397,7 @@ pub struct LabelRow {
     /// Where its labels came from.
     pub labels: &'static str,
     /// Labelling figures (camera rows).
-    pub figures: Option<crate::label::LabelStats>,
+    pub figures: Option<crate::camera::label::LabelStats>,
     /// Strict success over the grid.
     pub strict: f64,
     /// Robot A's voxels.
@@ -410,8 +410,8 @@ fn label_options(
     probabilities: bool,
     frames: Vec<FrameRange>,
     out: PathBuf,
-) -> crate::label::LabelOptions {
-    crate::label::LabelOptions {
+) -> crate::camera::label::LabelOptions {
+    crate::camera::label::LabelOptions {
         data,
         seg,
         camera: 2,
@@ -422,7 +422,7 @@ fn label_options(
         frames,
         out,
         copy_scans: false,
-        void_channel: crate::label::VoidChannel::None,
+        void_channel: crate::camera::label::VoidChannel::None,
         scale_to_images: false,
     }
 }
@@ -431,7 +431,7 @@ fn label_options(
 /// labelled four ways: LiDAR ground truth, camera 2 perfect, corrupted, and
 /// corrupted with probabilities; each matched over the grid (`stride`).
 pub fn label_synthetic(seed: u64, frames: usize, stride: usize, tmp: &Path) -> Result<Vec<LabelRow>, Error> {
-    use crate::synth::{write_sequence, SegRender, SynthConfig, SEG_DIR};
+    use crate::worlds::synth::{write_sequence, SegRender, SynthConfig, SEG_DIR};
     let half = frames / 2;
     let (ra, rb) = (FrameRange { start: 0, end: half, stride: 1 }, FrameRange { start: half, end: frames, stride: 1 });
     let cs = cosem_core::camera::SegClasses::Cityscapes;
@@ -451,7 +451,7 @@ pub fn label_synthetic(seed: u64, frames: usize, stride: usize, tmp: &Path) -> R
             Some(r) => {
                 let out = tmp.join(format!("l{seed}-{k}"));
                 let opts = label_options(src.clone(), src.join(SEG_DIR), r.probabilities, Vec::new(), out.clone());
-                (out, Some(crate::label::label_sequence(&opts)?))
+                (out, Some(crate::camera::label::label_sequence(&opts)?))
             }
         };
         let (strict, voxels) = strict_success(&dir, ra, rb, stride)?;
@@ -470,7 +470,7 @@ pub fn label_real(
     stride: usize,
     tmp: &Path,
 ) -> Result<Vec<LabelRow>, Error> {
-    use crate::label::{camera_of, label_sequence, splat_segmentation, write_seg_png};
+    use crate::camera::label::{camera_of, label_sequence, splat_segmentation, write_seg_png};
     let cs = cosem_core::camera::SegClasses::Cityscapes;
     let seq = Sequence::open(data)?;
     let all = seq.scan_frames()?;
@@ -486,9 +486,9 @@ pub fn label_real(
         for &f in &frames {
             let scan = seq.read_scan(f)?;
             let path = seg.join(format!("{f:06}.png"));
-            let cam = camera_of(&seq, 2, crate::synth::IMAGE_SIZE, &path)?;
+            let cam = camera_of(&seq, 2, crate::worlds::synth::IMAGE_SIZE, &path)?;
             let im = splat_segmentation(&cam, &scan.points, &scan.labels, cs);
-            let im = if corrupt { crate::synth::corrupt(&im, cs, &mut rng) } else { im };
+            let im = if corrupt { crate::worlds::synth::corrupt(&im, cs, &mut rng) } else { im };
             write_seg_png(&path, &im).map_err(|source| Error::Io { path: path.clone(), source })?;
         }
         let out = tmp.join(format!("real-out-{k}"));
@@ -668,7 +668,7 @@ impl std::fmt::Display for SegmentFigures {
 pub fn segment(model: &Path, images: &Path, frames: FrameRange, fit: &str) -> Result<Vec<SegmentFigures>, Error> {
     #[cfg(feature = "segment")]
     {
-        use crate::segment::{segment_folder, SegmentOptions};
+        use crate::camera::segment::{segment_folder, SegmentOptions};
         let tmp = TempDir::new("cosem-bench-segment");
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         let mut figures = Vec::new();

@@ -27,12 +27,12 @@ struct Stats {
 }
 
 fn stats(sorted: &[f64]) -> Stats {
-    let at = |q: f64| crate::stats::quantile_sorted(sorted, q).unwrap_or(f64::NAN);
+    let at = |q: f64| crate::evaluation::stats::quantile_sorted(sorted, q).unwrap_or(f64::NAN);
     let (q1, median, q3) = (at(0.25), at(0.5), at(0.75));
     let iqr = q3 - q1;
     let low = sorted.iter().copied().find(|v| *v >= q1 - 1.5 * iqr).unwrap_or(q1);
     let high = sorted.iter().rev().copied().find(|v| *v <= q3 + 1.5 * iqr).unwrap_or(q3);
-    let mean = crate::stats::mean(sorted).unwrap_or(f64::NAN);
+    let mean = crate::evaluation::stats::mean(sorted).unwrap_or(f64::NAN);
     Stats { q1, median, q3, mean, low, high }
 }
 

@@ -3,14 +3,14 @@
 //! through the map file encoding, match it against robot A's from a prior
 //! 5 m and 15 degrees off, and tell the estimate against the truth.
 
-use crate::align::{prepare, DEFAULT_LEVELS};
+use crate::matching::align::{prepare, DEFAULT_LEVELS};
 use crate::error::Error;
-use crate::eval::Start;
-use crate::kitti::FrameRange;
-use crate::mapping::{class_histogram, HostMap};
-use crate::pair::{Pair, PairSpec};
-use crate::report::pose_words;
-use crate::synth::{write_sequence, SynthConfig};
+use crate::evaluation::eval::Start;
+use crate::sources::kitti::FrameRange;
+use crate::maps::mapping::{class_histogram, HostMap};
+use crate::evaluation::pair::{Pair, PairSpec};
+use crate::poses::pose_words;
+use crate::worlds::synth::{write_sequence, SynthConfig};
 use cosem_core::geometry::{errors_of, Isometry3};
 use cosem_core::map::overlap;
 use cosem_core::matching::{MatchSettings, Matcher};
@@ -56,9 +56,9 @@ pub fn run(d: &Demo, dir: &Path, out: &mut impl Write) -> Result<(), Error> {
     let pair = Pair::load(&PairSpec::new(dir, ra, rb, d.voxel))?;
     // Robot B's map travels as bytes, in the compact (quantised) encoding:
     // what arrives encodes back to exactly what was sent.
-    let (bytes_b, received_b) = crate::cmap::round_trip(&pair.map_b, &format!("synthetic {rb}"))?;
+    let (bytes_b, received_b) = crate::maps::cmap::round_trip(&pair.map_b, &format!("synthetic {rb}"))?;
     if d.keep_maps {
-        crate::cmap::write(&dir.join("robot_a.cmap"), &pair.map_a, None, Some(&format!("synthetic {ra}")))?;
+        crate::maps::cmap::write(&dir.join("robot_a.cmap"), &pair.map_a, None, Some(&format!("synthetic {ra}")))?;
         let b = dir.join("robot_b.cmap");
         crate::paths::write_file(&b, &bytes_b).map_err(|source| Error::Io { path: b, source })?;
     }

@@ -3,11 +3,11 @@
 //! thresholds, one outcome per start and method, and summaries whose JSON
 //! field names are the same in every mode (`schema_version` 2).
 
-use crate::align::{prepare, HostPyramid, DEFAULT_LEVELS};
+use crate::matching::align::{prepare, HostPyramid, DEFAULT_LEVELS};
 use crate::error::Error;
-use crate::mapping::{build_map, HostMap, PointFilter};
-use crate::pair::moved_frames;
-use crate::stats::{quantile, Spread};
+use crate::maps::mapping::{build_map, HostMap, PointFilter};
+use crate::evaluation::pair::moved_frames;
+use crate::evaluation::stats::{quantile, Spread};
 use cosem_core::geometry::{errors_of, pose_deg, row_major, Isometry3};
 use cosem_core::map::MapConfig;
 use cosem_core::matching::global::align_searched;
@@ -409,7 +409,7 @@ impl EvalReport {
 impl EvalReport {
     /// Box plots of e_t and e_r per method (SVG, like the paper's Fig. 5).
     pub fn plot(&self, caption: &str) -> String {
-        use crate::boxplot::{render, Panel};
+        use crate::evaluation::boxplot::{render, Panel};
         let series = |f: fn(&Outcome) -> f64| -> Vec<(&str, Vec<f64>)> {
             let names = self.methods.keys().map(String::as_str);
             names.map(|n| (n, self.results.iter().filter(|o| o.method == n).map(f).collect())).collect()
@@ -471,8 +471,8 @@ impl Protocol {
 /// (`on_prepared` is told the maps and the milliseconds per map), then
 /// every match (`progress` after each); the report of it all.
 pub fn evaluate(
-    pair: &crate::pair::Pair,
-    spec: &crate::pair::PairSpec,
+    pair: &crate::evaluation::pair::Pair,
+    spec: &crate::evaluation::pair::PairSpec,
     protocol: &Protocol,
     on_prepared: impl FnOnce(&MapsInfo, f64),
     progress: &(dyn Fn() + Sync),
@@ -534,7 +534,7 @@ pub fn run_global(
     method: &str,
     settings: MatchSettings,
     map_a: &HostMap,
-    frames_b: &[crate::kitti::Frame],
+    frames_b: &[crate::sources::kitti::Frame],
     map_config: (MapConfig, &PointFilter),
     gt: &Isometry3<f64>,
     starts: &[GlobalStart],
@@ -596,7 +596,7 @@ pub struct Place {
     /// SemanticKITTI-layout folder.
     pub data: std::path::PathBuf,
     /// Its frames (`None`: the first scan in velodyne/).
-    pub frames: Option<crate::kitti::FrameRange>,
+    pub frames: Option<crate::sources::kitti::FrameRange>,
 }
 
 impl std::str::FromStr for Place {
@@ -606,7 +606,7 @@ impl std::str::FromStr for Place {
         let name_start = s.rfind('/').map_or(0, |i| i + 1);
         match s[name_start..].find(':').map(|i| i + name_start) {
             Some(at) => {
-                let frames = s[at + 1..].parse().map_err(|e: crate::kitti::KittiError| format!("`{s}`: {e}"))?;
+                let frames = s[at + 1..].parse().map_err(|e: crate::sources::kitti::KittiError| format!("`{s}`: {e}"))?;
                 Ok(Place { data: s[..at].into(), frames: Some(frames) })
             }
             None => Ok(Place { data: s.into(), frames: None }),
@@ -702,9 +702,9 @@ impl std::fmt::Display for NegativeReport {
 /// A place's map (default: its first scan), its source and anchor pose.
 fn place_map(
     p: &Place,
-    spec: &crate::pair::PairSpec,
-) -> Result<(crate::source::Source, nalgebra::Matrix4<f64>, HostMap), Error> {
-    let seq = crate::source::Source::open(&p.data, &spec.source)?;
+    spec: &crate::evaluation::pair::PairSpec,
+) -> Result<(crate::sources::source::Source, nalgebra::Matrix4<f64>, HostMap), Error> {
+    let seq = crate::sources::source::Source::open(&p.data, &spec.source)?;
     let range = match (p.frames, seq.folder()) {
         (Some(r), _) => r,
         (None, Some(folder)) => {
@@ -713,9 +713,9 @@ fn place_map(
                 .first()
                 .copied()
                 .ok_or_else(|| Error::Invalid(format!("{}: no scans", p.data.display())))?;
-            crate::kitti::FrameRange { start: first, end: first + 1, stride: 1 }
+            crate::sources::kitti::FrameRange { start: first, end: first + 1, stride: 1 }
         }
-        (None, None) => crate::kitti::FrameRange { start: 0, end: 1, stride: 1 },
+        (None, None) => crate::sources::kitti::FrameRange { start: 0, end: 1, stride: 1 },
     };
     let (frames, anchor, _) = spec.frames(&seq, range)?;
     let (map, _) = build_map(&frames, spec.config, &spec.filter)?;
@@ -724,7 +724,7 @@ fn place_map(
 
 /// The ordered pairs of different places, and how many pairs were left
 /// out for overlapping (folders of one sequence may hold one place).
-fn negative_pairs(maps: &[(crate::source::Source, nalgebra::Matrix4<f64>, HostMap)]) -> (Vec<(usize, usize)>, usize) {
+fn negative_pairs(maps: &[(crate::sources::source::Source, nalgebra::Matrix4<f64>, HostMap)]) -> (Vec<(usize, usize)>, usize) {
     let mut pairs = Vec::new();
     let mut overlapping = 0;
     for (i, a) in maps.iter().enumerate() {
@@ -733,7 +733,7 @@ fn negative_pairs(maps: &[(crate::source::Source, nalgebra::Matrix4<f64>, HostMa
                 continue;
             }
             if a.0.same_trajectory(&b.0) {
-                let t = crate::source::relative(&a.1, &b.1);
+                let t = crate::sources::source::relative(&a.1, &b.1);
                 if cosem_core::map::overlap(&a.2, &b.2, &t.cast::<f32>()) >= 0.01 {
                     overlapping += 1;
                     continue;
@@ -751,7 +751,7 @@ fn negative_pairs(maps: &[(crate::source::Source, nalgebra::Matrix4<f64>, HostMa
 /// heading). Every `Converged` is a false accept.
 pub fn run_negatives(
     places: &[Place],
-    spec: &crate::pair::PairSpec,
+    spec: &crate::evaluation::pair::PairSpec,
     settings: MatchSettings,
     random_priors: usize,
     progress: &(dyn Fn() + Sync),

@@ -2,10 +2,10 @@
 //! what `eval`, `bench` and `robots` start from.
 
 use crate::error::Error;
-use crate::kitti::{Frame, FrameRange};
-use crate::mapping::{build_map, HostMap, PointFilter, Unlabeled};
-use crate::noise::{corrupt_all, LabelNoise, NoiseStats};
-use crate::source::{Source, SourceOptions};
+use crate::sources::kitti::{Frame, FrameRange};
+use crate::maps::mapping::{build_map, HostMap, PointFilter, Unlabeled};
+use crate::maps::noise::{corrupt_all, LabelNoise, NoiseStats};
+use crate::sources::source::{Source, SourceOptions};
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::MapConfig;
 use nalgebra::Matrix4;
@@ -111,7 +111,7 @@ impl Pair {
         let (frames_b, anchor_b, nb) = spec.frames(&seq, spec.b)?;
         let (map_b, _) = build_map(&frames_b, spec.config, &spec.filter)?;
         // The truth from the anchors the loads gave (a recording is not read again).
-        let gt = crate::source::relative(&anchor_a, &anchor_b);
+        let gt = crate::sources::source::relative(&anchor_a, &anchor_b);
         let noise = NoiseStats { points: na.points + nb.points, changed: na.changed + nb.changed };
         Ok(Pair { map_a, map_b, frames_b, gt, noise })
     }
@@ -133,7 +133,7 @@ impl Pair {
 /// A map as it arrives through the compact encoding.
 pub fn through_encoding(map: &HostMap) -> Result<HostMap, Error> {
     let name = Path::new("(encoded map)");
-    Ok(crate::cmap::decode(&crate::cmap::encode(map, None, None), name)?.1)
+    Ok(crate::maps::cmap::decode(&crate::maps::cmap::encode(map, None, None), name)?.1)
 }
 
 /// `frames` moved by `d` (points rebuilt in the frame `d` maps them to).

@@ -13,13 +13,13 @@
 //! ([`cosem_core::team::solve`]). Robots connected among themselves but not
 //! to robot 0 are a separate group in the frame of their lowest index.
 
-use crate::align::{align, prepare, DEFAULT_LEVELS};
+use crate::matching::align::{align, prepare, DEFAULT_LEVELS};
 use crate::error::Error;
-use crate::exchange::simulate_exchange;
-use crate::kitti::FrameRange;
-use crate::mapping::{build_map, HostMap, PointFilter};
+use crate::lines::exchange::simulate_exchange;
+use crate::sources::kitti::FrameRange;
+use crate::maps::mapping::{build_map, HostMap, PointFilter};
 use crate::rng::Rng;
-use crate::source::{Source, SourceOptions};
+use crate::sources::source::{Source, SourceOptions};
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::MapConfig;
 use cosem_core::matching::{MatchSettings, MatchStatus};
@@ -115,7 +115,7 @@ pub struct TeamSpec {
     /// How the robots' recordings or scan files are read.
     pub source: SourceOptions,
     /// Label noise on every robot's scans (robot i's seeded by `seed + i`).
-    pub label_noise: crate::noise::LabelNoise,
+    pub label_noise: crate::maps::noise::LabelNoise,
     /// Seed of the prior and label noise.
     pub seed: u64,
     /// Matcher settings.
@@ -201,7 +201,7 @@ impl Truth {
     pub fn between(&self, i: usize, j: usize) -> Option<Isometry3<f64>> {
         let (a, b) = (self.sources.get(i)?, self.sources.get(j)?);
         let (wa, wb) = (self.anchors.get(i)?.as_ref()?, self.anchors.get(j)?.as_ref()?);
-        a.same_trajectory(b).then(|| crate::source::relative(wa, wb))
+        a.same_trajectory(b).then(|| crate::sources::source::relative(wa, wb))
     }
 }
 
@@ -257,7 +257,7 @@ fn robot_maps(spec: &TeamSpec, truth: &Truth) -> Result<Vec<HostMap>, Error> {
     let mut maps = Vec::with_capacity(spec.robots.len());
     for (i, r) in spec.robots.iter().enumerate() {
         let (mut frames, _, _) = truth.sources[i].load(Some(r.frames))?;
-        crate::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(i as u64));
+        crate::maps::noise::corrupt_all(&mut frames, spec.label_noise, spec.seed.wrapping_add(i as u64));
         maps.push(build_map(&frames, config, &PointFilter::default())?.0);
     }
     Ok(maps)

@@ -3,7 +3,7 @@
 //! link` measures and what a team on the host sends between its robots.
 
 use crate::error::Error;
-use crate::mapping::{new_map, HostMap};
+use crate::maps::mapping::{new_map, HostMap};
 use cosem_core::link::{Endpoint, LinkBuffers, LinkConfig, LinkStats, Progress};
 use cosem_core::map::VecStorage;
 use cosem_core::robot::{Machine, Poll, RobotError};

@@ -2,8 +2,8 @@
 //! or a serial port, with the core's link endpoint.
 
 use crate::error::Error;
-use crate::mapping::{new_map, HostMap};
-use crate::transport::{HostClock, Paced, Tcp};
+use crate::maps::mapping::{new_map, HostMap};
+use crate::lines::transport::{HostClock, Paced, Tcp};
 use cosem_core::link::{Endpoint, LinkBuffers, LinkConfig, LinkStats, Progress};
 use std::time::Duration;
 
@@ -87,7 +87,7 @@ fn run(
         }
         #[cfg(feature = "serial")]
         Line::Serial(dev, baud) => {
-            let mut io = crate::transport::Serial::open(dev, *baud)
+            let mut io = crate::lines::transport::Serial::open(dev, *baud)
                 .map_err(|e| Error::Io { path: dev.into(), source: std::io::Error::other(e) })?;
             drive(&mut endpoint, &mut io, started, how.deadline)
         }

@@ -8,7 +8,7 @@
 
 use crate::error::Error;
 use crate::rng::Rng;
-use crate::transport::{accept_within, Pacer};
+use crate::lines::transport::{accept_within, Pacer};
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicU64, Ordering};

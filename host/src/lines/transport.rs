@@ -324,3 +324,9 @@ impl<T: embedded_io::Write> embedded_io::Write for Paced<T> {
         self.inner.flush()
     }
 }
+
+/// 8N1 at `baud`: seconds a number of bytes takes on the line.
+pub fn line_seconds(bytes: u64, baud: u32) -> f64 {
+    bytes as f64 * 10.0 / f64::from(baud.max(1))
+}
+

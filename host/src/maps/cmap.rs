@@ -2,7 +2,7 @@
 //! ([`cosem_core::wire::mapfile`]) read into and written from heap maps,
 //! every error naming its file.
 
-use crate::mapping::{new_map, BuildError, HostMap};
+use crate::maps::mapping::{new_map, BuildError, HostMap};
 use cosem_core::map::MapConfig;
 use cosem_core::map::SensorModel;
 use cosem_core::wire::mapfile::{self, MapFileError, MapFileHeader, FILE_CHUNK};
@@ -58,6 +58,8 @@ pub enum CmapError {
         source: BuildError,
     },
 }
+
+impl crate::error::LayerError for CmapError {}
 
 /// The map's voxels in the compact encoding, as chunks of at most `chunk` bytes.
 pub fn encode_chunks(map: &HostMap, chunk: usize) -> Vec<Vec<u8>> {

@@ -1,7 +1,7 @@
 //! Building local maps on the host: heap storage sized at run time, and the
 //! loop that fuses a range of frames into a map with the core's code.
 
-use crate::kitti::Frame;
+use crate::sources::kitti::Frame;
 use cosem_core::classes::{Class, MovingObjects};
 use cosem_core::map::{ConfigError, InsertError, Insertion, LabelDistribution, MapConfig};
 
@@ -34,6 +34,8 @@ pub enum BuildError {
     #[error("the map is empty: {0}")]
     Empty(String),
 }
+
+impl crate::error::LayerError for BuildError {}
 
 /// A local map on the host: the core's map on heap storage sized at run
 /// time.

@@ -60,13 +60,13 @@ pub fn write(path: &Path, points: &[PlyPoint]) -> std::io::Result<()> {
 /// `cosem export ply`: the map file `file` as a PLY point cloud coloured by
 /// class (grey: no class) at `output`, never over the input. Returns the
 /// points written.
-pub fn export_map(file: &Path, output: &Path) -> Result<usize, crate::Error> {
+pub fn export_map(file: &Path, output: &Path) -> Result<usize, crate::error::Error> {
     crate::paths::check_output("--output", output, &[("FILE", file)])?;
-    let (_, map) = crate::cmap::read(file)?;
+    let (_, map) = crate::maps::cmap::read(file)?;
     let id = cosem_core::geometry::Isometry3::identity();
     let colour = |v: &cosem_core::map::SemanticVoxel| v.class().map(|c| c.color()).unwrap_or([128; 3]);
     let points: Vec<PlyPoint> = map.iter().map(|v| PlyPoint::of(v, map.resolution(), &id, colour(v))).collect();
-    write(output, &points).map_err(|e| crate::Error::Invalid(format!("{}: {e}", output.display())))?;
+    write(output, &points).map_err(|e| crate::error::Error::Invalid(format!("{}: {e}", output.display())))?;
     Ok(points.len())
 }
 
@@ -74,13 +74,13 @@ pub fn export_map(file: &Path, output: &Path) -> Result<usize, crate::Error> {
 /// `t_model_scene` (orange) in one PLY file.
 pub fn write_merged(
     path: &Path,
-    model: &crate::mapping::HostMap,
-    scene: &crate::mapping::HostMap,
+    model: &crate::maps::mapping::HostMap,
+    scene: &crate::maps::mapping::HostMap,
     t_model_scene: &cosem_core::geometry::Isometry3<f32>,
-) -> Result<(), crate::Error> {
+) -> Result<(), crate::error::Error> {
     let id = cosem_core::geometry::Isometry3::identity();
     let mut pts: Vec<PlyPoint> = Vec::with_capacity(model.len() + scene.len());
     pts.extend(model.iter().map(|v| PlyPoint::of(v, model.resolution(), &id, [40, 110, 255])));
     pts.extend(scene.iter().map(|v| PlyPoint::of(v, scene.resolution(), t_model_scene, [255, 120, 30])));
-    write(path, &pts).map_err(|e| crate::Error::Invalid(format!("{}: {e}", path.display())))
+    write(path, &pts).map_err(|e| crate::error::Error::Invalid(format!("{}: {e}", path.display())))
 }

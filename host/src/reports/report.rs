@@ -2,7 +2,7 @@
 //! one place for the field names scripts read (kept stable; a change gets
 //! a schema version).
 
-use cosem_core::geometry::{row_major, xyz_rpy_deg, Isometry3};
+use cosem_core::geometry::{row_major, xyz_rpy_deg};
 use cosem_core::matching::global::Searched;
 use cosem_core::matching::{MatchResult, MAX_LEVELS};
 use cosem_core::wire::feed::GlobalReport;
@@ -134,17 +134,6 @@ impl GlobalJson {
     }
 }
 
-/// A transform from its 16 row-major numbers (as the JSON holds it).
-pub fn from_row_major(m: &[f64; 16]) -> Isometry3<f64> {
-    cosem_core::geometry::rigid_from_matrix(&nalgebra::Matrix4::from_row_slice(m)).unwrap_or_else(Isometry3::identity)
-}
-
-/// `x,y,z,roll,pitch,yaw` (m, degrees) of a transform, for printing.
-pub fn pose_text(t: &Isometry3<f64>) -> String {
-    let x = xyz_rpy_deg(t);
-    format!("{:.4},{:.4},{:.4},{:.3},{:.3},{:.3}", x[0], x[1], x[2], x[3], x[4], x[5])
-}
-
 /// `cosem link --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct LinkJson {
@@ -200,7 +189,7 @@ impl LinkJson {
         baud: u32,
         result: MatchJson,
     ) -> Self {
-        let line = |bytes| crate::robots::line_seconds(bytes, baud);
+        let line = |bytes| crate::lines::transport::line_seconds(bytes, baud);
         LinkJson {
             robot_id,
             bytes_sent: stats.bytes_sent,
@@ -292,12 +281,12 @@ pub struct InfoJson {
 
 impl InfoJson {
     /// What the map file `file` holds.
-    pub fn of(file: &std::path::Path) -> Result<Self, crate::Error> {
-        let (header, map) = crate::cmap::read(file)?;
-        let bytes = std::fs::metadata(file).map_err(|source| crate::Error::Io { path: file.into(), source })?.len();
+    pub fn of(file: &std::path::Path) -> Result<Self, crate::error::Error> {
+        let (header, map) = crate::maps::cmap::read(file)?;
+        let bytes = std::fs::metadata(file).map_err(|source| crate::error::Error::Io { path: file.into(), source })?.len();
         let voxels = map.len();
         let histogram: Vec<(&'static str, usize)> =
-            crate::mapping::class_histogram(&map).iter().map(|(c, n)| (c.name(), *n)).collect();
+            crate::maps::mapping::class_histogram(&map).iter().map(|(c, n)| (c.name(), *n)).collect();
         let (lo, hi) = map.bounds().unwrap_or(([0.0; 3], [0.0; 3]));
         Ok(InfoJson {
             file: file.display().to_string(),
@@ -307,7 +296,7 @@ impl InfoJson {
             bytes,
             bytes_per_voxel: bytes as f64 / voxels.max(1) as f64,
             memory_bytes_per_voxel: cosem_core::map::BYTES_PER_VOXEL,
-            wire_bytes_per_voxel: crate::cmap::wire_bytes_per_voxel(&map, cosem_core::wire::mapfile::FILE_CHUNK),
+            wire_bytes_per_voxel: crate::maps::cmap::wire_bytes_per_voxel(&map, cosem_core::wire::mapfile::FILE_CHUNK),
             classes: histogram.iter().copied().collect(),
             unknown_class: map.iter().filter(|v| v.class().is_none()).count(),
             anchor_time: header.anchor_time,
@@ -359,7 +348,7 @@ pub struct LabelJson {
     pub compared: usize,
     /// Per class against the existing labels: recall, precision, top
     /// confusions (schema 2; empty without labels to compare with).
-    pub per_class: Vec<crate::label::ClassAgreement>,
+    pub per_class: Vec<crate::camera::label::ClassAgreement>,
     /// Frames labelled.
     pub frames: usize,
     /// Points projecting into the image and seen by the camera.
@@ -388,7 +377,7 @@ pub struct LabelJson {
 
 impl LabelJson {
     /// The figures of a labelling run with `opts`, `wall` seconds in all.
-    pub fn of(s: &crate::label::LabelStats, opts: &crate::label::LabelOptions, wall: f64) -> Self {
+    pub fn of(s: &crate::camera::label::LabelStats, opts: &crate::camera::label::LabelOptions, wall: f64) -> Self {
         LabelJson {
             agreeing: s.agreeing,
             agreement: s.agreement(),
@@ -429,7 +418,7 @@ pub fn result_text(r: &MatchResult, global: Option<&Searched>) -> String {
     let _ =
         writeln!(out, "x,y,z,roll,pitch,yaw  {:.4},{:.4},{:.4},{:.4},{:.4},{:.4}", x[0], x[1], x[2], x[3], x[4], x[5]);
     let used = r.iterations_per_level.iter().rposition(|&n| n > 0).map_or(1, |i| i + 1);
-    let per_level = &r.iterations_per_level[..used.max(crate::align::DEFAULT_LEVELS)];
+    let per_level = &r.iterations_per_level[..used.max(crate::matching::align::DEFAULT_LEVELS)];
     let _ = writeln!(out, "iterations  {} (per level, fine to coarse: {per_level:?})", r.iterations);
     let _ = writeln!(out, "inliers     {}   overlap {:.1}%   rmse {:.4} m", r.inliers, 100.0 * r.overlap, r.rmse);
     let _ = writeln!(
@@ -440,15 +429,6 @@ pub fn result_text(r: &MatchResult, global: Option<&Searched>) -> String {
     );
     let _ = writeln!(out, "information min eigenvalue {:.4e}, normalised {:.4}", r.min_eigenvalue, r.degeneracy);
     out
-}
-
-/// `x ... m, ... yaw ... deg` of a transform, in words.
-pub fn pose_words(t: &Isometry3<f64>) -> String {
-    let g = xyz_rpy_deg(t);
-    format!(
-        "x {:.3} m, y {:.3} m, z {:.3} m, roll {:.2}, pitch {:.2}, yaw {:.2} deg",
-        g[0], g[1], g[2], g[3], g[4], g[5]
-    )
 }
 
 /// The exit code of `cosem match`, `link` and `robots` for a status: 0

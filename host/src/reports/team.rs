@@ -1,12 +1,12 @@
 //! What `cosem team` reports, on the host and on boards: the JSON (schema
 //! 2: stable field names, `verified` added to 1) and its text, built from
-//! a team's outcome ([`crate::team::TeamOutcome`]) or from the boards'
-//! reports ([`crate::team_board::BoardRun`]). The command line only parses
+//! a team's outcome ([`crate::evaluation::team::TeamOutcome`]) or from the boards'
+//! reports ([`crate::boards::team_board::BoardRun`]). The command line only parses
 //! and prints.
 
 use crate::error::Error;
-use crate::team::{verified_placements, TeamOutcome, Truth};
-use crate::team_board::{placement_difference, BoardRun, TeamReports};
+use crate::evaluation::team::{verified_placements, TeamOutcome, Truth};
+use crate::boards::team_board::{placement_difference, BoardRun, TeamReports};
 use cosem_core::geometry::{errors_of, from_rows, row_major};
 use cosem_core::matching::MatchStatus;
 use cosem_core::wire::share::Estimate;

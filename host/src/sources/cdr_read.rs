@@ -4,7 +4,7 @@
 //! message before anything is allocated, and a point cloud's bytes are
 //! borrowed, not copied. Errors name the byte offset in the message.
 
-use crate::recording::{Header, Quaternion, Time, Transform, TransformStamped, Vector3};
+use crate::sources::ros_msgs::{Header, Quaternion, Time, Transform, TransformStamped, Vector3};
 
 /// A CDR cursor: offsets (and alignment) count from after the 4-byte
 /// encapsulation header.
@@ -190,7 +190,7 @@ impl<'a> Cdr<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::recording::{PointCloud2, PointField, TfMessage};
+    use crate::sources::ros_msgs::{PointCloud2, PointField, TfMessage};
 
     fn cloud() -> PointCloud2 {
         PointCloud2 {

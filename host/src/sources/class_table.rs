@@ -41,6 +41,8 @@ pub enum ClassTableError {
     },
 }
 
+impl crate::error::LayerError for ClassTableError {}
+
 /// The file's shape.
 #[derive(serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -98,7 +100,7 @@ impl ClassTable {
     /// pipeline reads them as a SemanticKITTI folder's. `Err((frame, point,
     /// id))` names the first point whose id the table does not name
     /// (`frame` is the frame's position in `frames`).
-    pub fn relabel(&self, frames: &mut [crate::kitti::Frame]) -> Result<(), (usize, usize, u16)> {
+    pub fn relabel(&self, frames: &mut [crate::sources::kitti::Frame]) -> Result<(), (usize, usize, u16)> {
         for (f, frame) in frames.iter_mut().enumerate() {
             for (i, l) in frame.labels.iter_mut().enumerate() {
                 let class = self.class_of(*l).map_err(|id| (f, i, id))?;

@@ -12,8 +12,8 @@
 //! compressed PCD are refused with an error naming the file. Every error
 //! names the file and the line or byte offset at fault.
 
-use crate::kitti::Frame;
-use nalgebra::{Isometry3, Matrix4};
+use crate::sources::kitti::{frame_of, Cloud, Frame};
+use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
 
 /// Why a cloud, or its poses, could not be read.
@@ -53,6 +53,8 @@ pub enum CloudError {
     },
 }
 
+impl crate::error::LayerError for CloudError {}
+
 /// The file formats of users' scans.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
@@ -73,17 +75,6 @@ impl CloudFormat {
     }
 }
 
-/// One scan read from a file: points in the sensor's frame and their raw
-/// label words.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Cloud {
-    /// x, y, z (m, sensor frame).
-    pub points: Vec<[f32; 3]>,
-    /// Label words (SemanticKITTI id in the low 16 bits).
-    pub labels: Vec<u32>,
-    /// Points skipped for a NaN coordinate.
-    pub skipped: usize,
-}
 
 /// A scalar type of a field.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -553,10 +544,10 @@ pub fn parse_poses(text: &str, path: &Path) -> Result<Vec<Matrix4<f64>>, CloudEr
     let mut poses = Vec::new();
     for (n, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
         // The folder reader's parser of poses.txt lines.
-        let m = crate::kitti::parse_rigid(path, n + 1, line).map_err(|e| CloudError::Poses {
+        let m = crate::sources::kitti::parse_rigid(path, n + 1, line).map_err(|e| CloudError::Poses {
             path: path.to_owned(),
             what: match e {
-                crate::kitti::KittiError::Parse { line, what, .. } => format!("line {line}: {what}"),
+                crate::sources::kitti::KittiError::Parse { line, what, .. } => format!("line {line}: {what}"),
                 other => other.to_string(),
             },
         })?;
@@ -627,16 +618,16 @@ pub fn write_ply(path: &Path, points: &[[f32; 3]], labels: &[u32]) -> Result<(),
 /// the scans written.
 pub fn export_scans(
     data: &Path,
-    frames: crate::kitti::FrameRange,
+    frames: crate::sources::kitti::FrameRange,
     format: CloudFormat,
     output: &Path,
     force: bool,
-) -> Result<usize, crate::Error> {
+) -> Result<usize, crate::error::Error> {
     crate::paths::check_output("--output", output, &[("--data", data)])?;
     refuse_used_folder(output, force)?;
-    let seq = crate::kitti::Sequence::open(data)?;
+    let seq = crate::sources::kitti::Sequence::open(data)?;
     seq.check_range(frames)?;
-    let io = |source| crate::Error::Io { path: output.to_path_buf(), source };
+    let io = |source| crate::error::Error::Io { path: output.to_path_buf(), source };
     let dir = crate::paths::OutputDir::create(output).map_err(io)?;
     let mut poses = Vec::new();
     for i in frames.frames() {
@@ -656,7 +647,7 @@ pub fn export_scans(
 
 /// Refuses a folder that holds anything but an earlier export's scans and
 /// poses, and one that holds those without `force`.
-fn refuse_used_folder(output: &Path, force: bool) -> Result<(), crate::Error> {
+fn refuse_used_folder(output: &Path, force: bool) -> Result<(), crate::error::Error> {
     let Ok(entries) = std::fs::read_dir(output) else { return Ok(()) };
     let ours = |n: &str| {
         n == "poses.txt"
@@ -667,7 +658,7 @@ fn refuse_used_folder(output: &Path, force: bool) -> Result<(), crate::Error> {
     let mut held = None;
     for name in entries.flatten().map(|e| e.file_name().to_string_lossy().into_owned()) {
         if !ours(&name) {
-            return Err(crate::Error::Invalid(format!(
+            return Err(crate::error::Error::Invalid(format!(
                 "--output {}: already holds {name}, which is not an earlier export's: the folder is replaced \
                  whole, not even with --force; choose a new or empty folder",
                 output.display()
@@ -676,7 +667,7 @@ fn refuse_used_folder(output: &Path, force: bool) -> Result<(), crate::Error> {
         held = Some(name);
     }
     match held {
-        Some(name) if !force => Err(crate::Error::Invalid(format!(
+        Some(name) if !force => Err(crate::error::Error::Invalid(format!(
             "--output {}: already holds {name}: an earlier export is not replaced without --force (or choose a new folder)",
             output.display()
         ))),
@@ -685,7 +676,7 @@ fn refuse_used_folder(output: &Path, force: bool) -> Result<(), crate::Error> {
 }
 
 /// Reads scans (one file each, in order) with their sensor poses and puts
-/// them into the first scan's frame, as [`crate::kitti::Sequence::load_range`]
+/// them into the first scan's frame, as [`crate::sources::kitti::Sequence::load_range`]
 /// does a SemanticKITTI folder's: frame `i` is the `i`-th file.
 pub fn load_scans(
     format: CloudFormat,
@@ -701,7 +692,7 @@ pub fn load_scans(
         });
     }
     let Some(first) = poses.first() else { return Ok((Vec::new(), 0)) };
-    let anchor_inv = crate::kitti::rigid_inverse(first);
+    let anchor_inv = crate::sources::kitti::rigid_inverse(first);
     let mut skipped = 0;
     let mut frames = Vec::with_capacity(files.len());
     for (i, (file, pose)) in files.iter().zip(&poses).enumerate() {
@@ -710,24 +701,6 @@ pub fn load_scans(
         frames.push(frame_of(i, None, &(anchor_inv * pose), cloud));
     }
     Ok((frames, skipped))
-}
-
-/// A scan as a [`Frame`]: its points moved by `m` (the scan's sensor pose
-/// in the anchor frame) with the folder reader's arithmetic.
-pub(crate) fn frame_of(index: usize, time: Option<f64>, m: &Matrix4<f64>, cloud: Cloud) -> Frame {
-    let mut points = Vec::with_capacity(cloud.points.len());
-    let mut ranges = Vec::with_capacity(cloud.points.len());
-    for p in &cloud.points {
-        let (x, y, z) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
-        ranges.push((x * x + y * y + z * z).sqrt() as f32);
-        points.push([
-            (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
-            (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
-            (m[(2, 0)] * x + m[(2, 1)] * y + m[(2, 2)] * z + m[(2, 3)]) as f32,
-        ]);
-    }
-    let pose: Isometry3<f64> = crate::kitti::isometry(m);
-    Frame { index, time, pose, points, ranges, labels: cloud.labels, evidence: None }
 }
 
 #[cfg(test)]

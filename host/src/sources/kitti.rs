@@ -4,6 +4,7 @@
 //! byte offset) and what is wrong with it.
 
 use cosem_core::geometry::{rigid_from_matrix, Isometry3};
+use cosem_core::map::{LabelDistribution, LABEL_SLOTS};
 use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
 
@@ -109,6 +110,8 @@ pub enum KittiError {
     #[error("frames {0}")]
     FramesMissing(String),
 }
+
+impl crate::error::LayerError for KittiError {}
 
 /// Frames `start..end` (end exclusive) every `stride`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -434,7 +437,7 @@ impl Sequence {
     }
 
     /// The same folder with labels that are a user's ids, read through a
-    /// class table ([`crate::class_table`]) instead of SemanticKITTI's.
+    /// class table ([`crate::sources::class_table`]) instead of SemanticKITTI's.
     pub fn with_user_ids(mut self) -> Self {
         self.check_ids = false;
         self
@@ -539,12 +542,77 @@ impl Sequence {
                 let m = anchor_inv * self.velodyne_matrix(i)?;
                 let scan = self.read_scan(i)?;
                 let points = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
-                let cloud = crate::cloud::Cloud { points, labels: scan.labels, skipped: 0 };
+                let cloud = Cloud { points, labels: scan.labels, skipped: 0 };
                 let time = self.times.as_ref().and_then(|t| t.get(i).copied());
-                let mut frame = crate::cloud::frame_of(i, time, &m, cloud);
-                frame.evidence = crate::label::read_evidence(&self.dir, i, frame.points.len())?;
+                let mut frame = frame_of(i, time, &m, cloud);
+                frame.evidence = read_evidence(&self.dir, i, frame.points.len())?;
                 Ok(frame)
             })
             .collect()
     }
+}/// Reads a frame's label evidence (`evidence/NNNNNN.bin`, which `cosem
+/// label --probabilities` writes beside the labels), if the folder has
+/// one: one label distribution per point (`None` for empty slots).
+pub fn read_evidence(
+    dir: &Path,
+    frame: usize,
+    points: usize,
+) -> Result<Option<Vec<Option<LabelDistribution>>>, KittiError> {
+    let path = dir.join("evidence").join(format!("{frame:06}.bin"));
+    if !path.exists() {
+        return Ok(None);
+    }
+    let bytes = std::fs::read(&path).map_err(|source| KittiError::Io { path: path.clone(), source })?;
+    let per = 2 * LABEL_SLOTS;
+    if bytes.len() != points * per {
+        return Err(KittiError::Malformed {
+            path,
+            what: format!("{} bytes of evidence for {points} points ({per} bytes each)", bytes.len()),
+        });
+    }
+    let mut out = Vec::with_capacity(points);
+    for (i, c) in bytes.chunks_exact(per).enumerate() {
+        let mut slots = [0u16; LABEL_SLOTS];
+        for (k, s) in slots.iter_mut().enumerate() {
+            *s = u16::from_le_bytes([c[2 * k], c[2 * k + 1]]);
+        }
+        let d = LabelDistribution::from_raw(slots).map_err(|e| KittiError::Malformed {
+            path: path.clone(),
+            what: format!("point {i} (byte offset {}): {e}", i * per),
+        })?;
+        out.push((!d.is_empty()).then_some(d));
+    }
+    Ok(Some(out))
 }
+
+/// One scan read from a file: points in the sensor's frame and their raw
+/// label words.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Cloud {
+    /// x, y, z (m, sensor frame).
+    pub points: Vec<[f32; 3]>,
+    /// Label words (SemanticKITTI id in the low 16 bits).
+    pub labels: Vec<u32>,
+    /// Points skipped for a NaN coordinate.
+    pub skipped: usize,
+}
+
+/// A scan as a [`Frame`]: its points moved by `m` (the scan's sensor pose
+/// in the anchor frame) with the folder reader's arithmetic.
+pub fn frame_of(index: usize, time: Option<f64>, m: &Matrix4<f64>, cloud: Cloud) -> Frame {
+    let mut points = Vec::with_capacity(cloud.points.len());
+    let mut ranges = Vec::with_capacity(cloud.points.len());
+    for p in &cloud.points {
+        let (x, y, z) = (f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+        ranges.push((x * x + y * y + z * z).sqrt() as f32);
+        points.push([
+            (m[(0, 0)] * x + m[(0, 1)] * y + m[(0, 2)] * z + m[(0, 3)]) as f32,
+            (m[(1, 0)] * x + m[(1, 1)] * y + m[(1, 2)] * z + m[(1, 3)]) as f32,
+            (m[(2, 0)] * x + m[(2, 1)] * y + m[(2, 2)] * z + m[(2, 3)]) as f32,
+        ]);
+    }
+    let pose: Isometry3<f64> = isometry(m);
+    Frame { index, time, pose, points, ranges, labels: cloud.labels, evidence: None }
+}
+
+

@@ -12,10 +12,12 @@
 //! transforms hold at every stamp. A stamp outside an edge's transforms,
 //! or no chain, is an error naming the scan.
 
-use crate::cloud::{frame_of, read_records, Cloud, Layout, Scalar};
-use crate::kitti::Frame;
+use crate::sources::cloud::{read_records, Layout, Scalar};
+use crate::sources::kitti::{frame_of, Cloud};
+use crate::sources::kitti::Frame;
 use nalgebra::{Isometry3, Matrix4, Quaternion as NQuaternion, Translation3, UnitQuaternion};
-use serde::{Deserialize, Serialize};
+use crate::sources::ros_msgs::*;
+use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -48,179 +50,10 @@ pub enum RecordingError {
     },
     /// A scan's points.
     #[error(transparent)]
-    Cloud(#[from] crate::cloud::CloudError),
+    Cloud(#[from] crate::sources::cloud::CloudError),
 }
 
-/// `builtin_interfaces/msg/Time`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Time {
-    /// Seconds.
-    pub sec: i32,
-    /// Nanoseconds.
-    pub nanosec: u32,
-}
-
-impl Time {
-    fn nanos(self) -> i64 {
-        i64::from(self.sec) * 1_000_000_000 + i64::from(self.nanosec)
-    }
-
-    fn of_seconds(t: f64) -> Self {
-        let ns = (t * 1e9).round() as i64;
-        Time { sec: ns.div_euclid(1_000_000_000) as i32, nanosec: ns.rem_euclid(1_000_000_000) as u32 }
-    }
-}
-
-/// `std_msgs/msg/Header`.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Header {
-    /// When.
-    pub stamp: Time,
-    /// In which frame.
-    pub frame_id: String,
-}
-
-/// `sensor_msgs/msg/PointField`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct PointField {
-    /// Field name.
-    pub name: String,
-    /// Byte offset in a point.
-    pub offset: u32,
-    /// 1 int8 ... 6 uint32, 7 float32, 8 float64.
-    pub datatype: u8,
-    /// Values.
-    pub count: u32,
-}
-
-/// `sensor_msgs/msg/PointCloud2`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct PointCloud2 {
-    /// Stamp and sensor frame.
-    pub header: Header,
-    /// Rows (1 for an unorganised cloud).
-    pub height: u32,
-    /// Points a row.
-    pub width: u32,
-    /// The point layout.
-    pub fields: Vec<PointField>,
-    /// Big-endian data (refused).
-    pub is_bigendian: bool,
-    /// Bytes a point.
-    pub point_step: u32,
-    /// Bytes a row.
-    pub row_step: u32,
-    /// The points.
-    pub data: Vec<u8>,
-    /// No invalid points.
-    pub is_dense: bool,
-}
-
-/// `geometry_msgs/msg/Vector3`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Vector3 {
-    /// x.
-    pub x: f64,
-    /// y.
-    pub y: f64,
-    /// z.
-    pub z: f64,
-}
-
-/// `geometry_msgs/msg/Quaternion`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Quaternion {
-    /// x.
-    pub x: f64,
-    /// y.
-    pub y: f64,
-    /// z.
-    pub z: f64,
-    /// w.
-    pub w: f64,
-}
-
-/// `geometry_msgs/msg/Transform`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Transform {
-    /// Translation.
-    pub translation: Vector3,
-    /// Rotation.
-    pub rotation: Quaternion,
-}
-
-/// `geometry_msgs/msg/TransformStamped`: the child frame's pose in the
-/// parent (`header.frame_id`).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct TransformStamped {
-    /// Stamp and parent frame.
-    pub header: Header,
-    /// Child frame.
-    pub child_frame_id: String,
-    /// `T_parent_child`.
-    pub transform: Transform,
-}
-
-/// `tf2_msgs/msg/TFMessage`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct TfMessage {
-    /// The transforms.
-    pub transforms: Vec<TransformStamped>,
-}
-
-/// `geometry_msgs/msg/Pose`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Pose {
-    /// Position.
-    pub position: Vector3,
-    /// Orientation.
-    pub orientation: Quaternion,
-}
-
-/// `geometry_msgs/msg/PoseWithCovariance`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct PoseWithCovariance {
-    /// The pose.
-    pub pose: Pose,
-    /// Row-major 6x6 covariance.
-    pub covariance: [[f64; 6]; 6],
-}
-
-/// `geometry_msgs/msg/Twist`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Twist {
-    /// Linear velocity.
-    pub linear: Vector3,
-    /// Angular velocity.
-    pub angular: Vector3,
-}
-
-/// `geometry_msgs/msg/TwistWithCovariance`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct TwistWithCovariance {
-    /// The twist.
-    pub twist: Twist,
-    /// Row-major 6x6 covariance.
-    pub covariance: [[f64; 6]; 6],
-}
-
-/// `nav_msgs/msg/Odometry`: the pose of `child_frame_id` in
-/// `header.frame_id`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Odometry {
-    /// Stamp and the odometry frame.
-    pub header: Header,
-    /// The moving frame.
-    pub child_frame_id: String,
-    /// Its pose.
-    pub pose: PoseWithCovariance,
-    /// Its velocity.
-    pub twist: TwistWithCovariance,
-}
-
-/// The message definitions a recording's schemas carry (`ros2msg`).
-const POINTCLOUD2_SCHEMA: &str = "std_msgs/Header header\nuint32 height\nuint32 width\nPointField[] fields\nbool is_bigendian\nuint32 point_step\nuint32 row_step\nuint8[] data\nbool is_dense\n================================================================================\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n================================================================================\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n================================================================================\nMSG: sensor_msgs/PointField\nuint8 INT8=1\nuint8 UINT8=2\nuint8 INT16=3\nuint8 UINT16=4\nuint8 INT32=5\nuint8 UINT32=6\nuint8 FLOAT32=7\nuint8 FLOAT64=8\nstring name\nuint32 offset\nuint8 datatype\nuint32 count\n";
-const TFMESSAGE_SCHEMA: &str = "geometry_msgs/TransformStamped[] transforms\n================================================================================\nMSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\nTransform transform\n================================================================================\nMSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n================================================================================\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n================================================================================\nMSG: geometry_msgs/Transform\nVector3 translation\nQuaternion rotation\n================================================================================\nMSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n================================================================================\nMSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n";
+impl crate::error::LayerError for RecordingError {}
 
 fn iso_of(t: &Transform) -> Option<Isometry3<f64>> {
     let r = t.rotation;
@@ -235,8 +68,9 @@ fn iso_of(t: &Transform) -> Option<Isometry3<f64>> {
     })
 }
 
-fn transform_of(m: &Matrix4<f64>) -> Transform {
-    let iso = crate::kitti::isometry(m);
+/// A rigid 4x4 matrix as a ROS 2 transform (translation, unit quaternion).
+pub fn transform_of(m: &Matrix4<f64>) -> Transform {
+    let iso = crate::sources::kitti::isometry(m);
     let q = iso.rotation.quaternion();
     let v = iso.translation.vector;
     Transform {
@@ -337,7 +171,7 @@ pub struct RecordingScans<'a> {
     /// The frame poses are expressed in (the root of the chain).
     pub pose_frame: &'a str,
     /// Which of the topic's messages (0-based, END exclusive; `None`: all).
-    pub frames: Option<crate::kitti::FrameRange>,
+    pub frames: Option<crate::sources::kitti::FrameRange>,
     /// An odometry topic (`nav_msgs/msg/Odometry`) whose poses join the
     /// transforms as `header.frame_id -> child_frame_id` (chained through
     /// `/tf_static` to the clouds' frame).
@@ -352,7 +186,7 @@ pub struct RecordingScans<'a> {
 /// (as a SemanticKITTI folder's); returns the frames and the points
 /// skipped for a NaN coordinate.
 ///
-/// The recording is read as a stream (see [`crate::mcap_read`]): with
+/// The recording is read as a stream (see [`crate::sources::mcap_read`]): with
 /// `frames` given, reading stops once those scans are in and every one's
 /// pose can be resolved, so the first scans of an hour-long recording cost
 /// what a recording of just those scans does.
@@ -375,7 +209,7 @@ fn cut_short(
         return Err(RecordingError::Mcap { path: path.to_owned(), what });
     }
     let asked = what.frames.map_or(String::new(), |r| format!(" (frames {r} asked)"));
-    crate::error::warn(&format!(
+    crate::diagnostics::warn(&format!(
         "{}: {cut}: read the {seen} messages on {} before the cut{asked}",
         path.display(),
         what.points
@@ -399,7 +233,7 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
     let wanted =
         |i: usize| what.frames.is_none_or(|r| i >= r.start && i < r.end && (i - r.start).is_multiple_of(r.stride));
     let all_in = |seen: usize| what.frames.is_some_and(|r| seen >= r.end);
-    let ending = crate::mcap_read::read_messages(path, |m| {
+    let ending = crate::sources::mcap_read::read_messages(path, |m| {
         let topic = m.channel.topic.as_str();
         let at = |e: String| format!("{topic} message at byte offset {} (log time {}): {e}", m.offset, m.log_time);
         let is_cdr = m.channel.message_encoding == "cdr";
@@ -409,18 +243,18 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
                 if !is_cdr {
                     return Err(format!("{topic}: encoding `{}`, not cdr", m.channel.message_encoding));
                 }
-                let header = crate::cdr_read::Cdr::new(m.data).and_then(|mut c| c.point_cloud()).map_err(at)?.header;
+                let header = crate::sources::cdr_read::Cdr::new(m.data).and_then(|mut c| c.point_cloud()).map_err(at)?.header;
                 stamps.push((header.stamp.nanos(), header.frame_id));
                 clouds.push((seen, m.data.to_vec()));
             }
             seen += 1;
         } else if Some(topic) == what.odom && is_cdr {
-            let o = crate::cdr_read::Cdr::new(m.data).and_then(|mut c| c.odometry_pose()).map_err(at)?;
+            let o = crate::sources::cdr_read::Cdr::new(m.data).and_then(|mut c| c.odometry_pose()).map_err(at)?;
             let iso = iso_of(&o.transform).ok_or_else(|| at("the pose is not a rigid transform".into()))?;
             tree.add(false, (o.header.frame_id, o.child_frame_id), o.header.stamp.nanos(), iso);
             new_pose = true;
         } else if (topic == "/tf" || topic == "/tf_static") && is_cdr {
-            let transforms = crate::cdr_read::Cdr::new(m.data).and_then(|mut c| c.tf_message()).map_err(at)?;
+            let transforms = crate::sources::cdr_read::Cdr::new(m.data).and_then(|mut c| c.tf_message()).map_err(at)?;
             for t in transforms {
                 let iso = iso_of(&t.transform).ok_or_else(|| {
                     at(format!("transform {} -> {} is not a rigid transform", t.header.frame_id, t.child_frame_id))
@@ -440,7 +274,7 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
         Ok(std::ops::ControlFlow::Continue(()))
     })
     .map_err(|e| RecordingError::Mcap { path: path.to_owned(), what: e.what })?;
-    if let crate::mcap_read::Ending::Cut { at, what: missing } = ending {
+    if let crate::sources::mcap_read::Ending::Cut { at, what: missing } = ending {
         cut_short(path, what, at, &missing, seen)?;
     }
     let asked = what.frames.map_or(1, |r| r.len());
@@ -454,7 +288,7 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
     let mut anchor_inv: Option<Matrix4<f64>> = None;
     for (index, data) in clouds {
         let at = |what_: String| msg_err(format!("{} message {index}: {what_}", what.points));
-        let pc = crate::cdr_read::Cdr::new(&data).and_then(|mut c| c.point_cloud()).map_err(at)?;
+        let pc = crate::sources::cdr_read::Cdr::new(&data).and_then(|mut c| c.point_cloud()).map_err(at)?;
         let cloud = cloud_points(&pc, what.label_field, path).map_err(|e| match e {
             CloudRead::Message(m) => at(m),
             CloudRead::Cloud(c) => RecordingError::Cloud(c),
@@ -462,7 +296,7 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
         skipped += cloud.skipped;
         let t = pc.header.stamp.nanos();
         let pose = tree.pose(what.pose_frame, &pc.header.frame_id, t).map_err(at)?.to_homogeneous();
-        let anchor = *anchor_inv.get_or_insert_with(|| crate::kitti::rigid_inverse(&pose));
+        let anchor = *anchor_inv.get_or_insert_with(|| crate::sources::kitti::rigid_inverse(&pose));
         let time = Some(t as f64 * 1e-9);
         frames.push(frame_of(index, time, &(anchor * pose), cloud));
         world.push(pose);
@@ -475,12 +309,12 @@ enum CloudRead {
     /// The message's own fields disagree (named).
     Message(String),
     /// A point.
-    Cloud(crate::cloud::CloudError),
+    Cloud(crate::sources::cloud::CloudError),
 }
 
 /// The points of a PointCloud2: its sizes checked against its data
 /// before any row is read.
-fn cloud_points(pc: &crate::cdr_read::CloudMsg<'_>, label_field: &str, path: &Path) -> Result<Cloud, CloudRead> {
+fn cloud_points(pc: &crate::sources::cdr_read::CloudMsg<'_>, label_field: &str, path: &Path) -> Result<Cloud, CloudRead> {
     let bad = CloudRead::Message;
     if pc.is_bigendian {
         return Err(bad("big-endian point data is not read".into()));
@@ -551,12 +385,12 @@ pub struct ScanRecord<'a> {
 /// [`write_scans`]; stamps from `times.txt`, else 0.1 s a frame). Returns
 /// the scans written.
 pub fn export(
-    seq: &crate::kitti::Sequence,
-    frames: crate::kitti::FrameRange,
+    seq: &crate::sources::kitti::Sequence,
+    frames: crate::sources::kitti::FrameRange,
     topic: &str,
     compression: ChunkCompression,
     out: &Path,
-) -> Result<usize, crate::Error> {
+) -> Result<usize, crate::error::Error> {
     seq.check_range(frames)?;
     let mut scans = Vec::new();
     for i in frames.frames() {
@@ -585,14 +419,14 @@ pub fn write_scans<'a>(
     compression: ChunkCompression,
     chunk_crcs: bool,
     scans: impl Iterator<Item = ScanRecord<'a>>,
-) -> Result<usize, crate::Error> {
+) -> Result<usize, crate::error::Error> {
     let compression = match compression {
         ChunkCompression::None => None,
         ChunkCompression::Zstd => Some(mcap::Compression::Zstd),
         ChunkCompression::Lz4 => Some(mcap::Compression::Lz4),
     };
     let mut w =
-        Out::create_with(out, mcap::WriteOptions::new().compression(compression).calculate_chunk_crcs(chunk_crcs))?;
+        RecordingWriter::create_with(out, mcap::WriteOptions::new().compression(compression).calculate_chunk_crcs(chunk_crcs))?;
     let pc_schema = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA)?;
     let tf_schema = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA)?;
     let pc_channel = w.channel(pc_schema, topic)?;
@@ -610,7 +444,7 @@ pub fn write_scans<'a>(
             }],
         };
         let count = scan.points.len().min(scan.labels.len());
-        let data = crate::cloud::records(scan.points.iter().copied(), scan.labels);
+        let data = crate::sources::cloud::records(scan.points.iter().copied(), scan.labels);
         let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
         let pc = PointCloud2 {
             header: header("velodyne"),
@@ -632,38 +466,43 @@ pub fn write_scans<'a>(
 }
 
 /// A ROS 2 recording being written (zstd chunks, `ros2msg` schemas, CDR
-/// messages), its errors naming the file.
-struct Out<'p> {
+/// messages), its errors naming the file; the file appears only when
+/// [`RecordingWriter::finish`] succeeds.
+pub struct RecordingWriter<'p> {
     w: mcap::Writer<crate::paths::Output>,
     path: &'p Path,
 }
 
-impl<'p> Out<'p> {
-    fn create(path: &'p Path) -> Result<Self, crate::Error> {
+impl<'p> RecordingWriter<'p> {
+    /// A new recording at `path` (zstd chunks).
+    pub fn create(path: &'p Path) -> Result<Self, crate::error::Error> {
         Self::create_with(path, mcap::WriteOptions::new().compression(Some(mcap::Compression::Zstd)))
     }
 
-    fn create_with(path: &'p Path, options: mcap::WriteOptions) -> Result<Self, crate::Error> {
+    /// A new recording at `path` written with `options`.
+    pub fn create_with(path: &'p Path, options: mcap::WriteOptions) -> Result<Self, crate::error::Error> {
         let file =
-            crate::paths::Output::create(path).map_err(|source| crate::Error::Io { path: path.to_owned(), source })?;
+            crate::paths::Output::create(path).map_err(|source| crate::error::Error::Io { path: path.to_owned(), source })?;
         let w = options.profile("ros2").create(file);
-        w.map(|w| Out { w, path }).map_err(|e| crate::Error::Invalid(format!("{}: {e}", path.display())))
+        w.map(|w| RecordingWriter { w, path }).map_err(|e| crate::error::Error::Invalid(format!("{}: {e}", path.display())))
     }
 
-    fn err(&self, e: impl std::fmt::Display) -> crate::Error {
-        crate::Error::Invalid(format!("{}: {e}", self.path.display()))
+    fn err(&self, e: impl std::fmt::Display) -> crate::error::Error {
+        crate::error::Error::Invalid(format!("{}: {e}", self.path.display()))
     }
 
-    fn schema(&mut self, name: &str, definition: &str) -> Result<u16, crate::Error> {
+    /// Adds a `ros2msg` schema; its id.
+    pub fn schema(&mut self, name: &str, definition: &str) -> Result<u16, crate::error::Error> {
         self.w.add_schema(name, "ros2msg", definition.as_bytes()).map_err(|e| self.err(e))
     }
 
-    fn channel(&mut self, schema: u16, topic: &str) -> Result<u16, crate::Error> {
+    /// Adds a CDR channel on `topic`; its id.
+    pub fn channel(&mut self, schema: u16, topic: &str) -> Result<u16, crate::error::Error> {
         self.w.add_channel(schema, topic, "cdr", &BTreeMap::new()).map_err(|e| self.err(e))
     }
 
     /// One message, CDR little endian with its encapsulation header.
-    fn write<T: Serialize>(&mut self, channel_id: u16, sequence: u32, time: u64, msg: &T) -> Result<(), crate::Error> {
+    pub fn write<T: Serialize>(&mut self, channel_id: u16, sequence: u32, time: u64, msg: &T) -> Result<(), crate::error::Error> {
         let data = cdr::serialize::<_, _, cdr::CdrLe>(msg, cdr::Infinite).map_err(|e| self.err(format!("CDR: {e}")))?;
         let header = mcap::records::MessageHeader { channel_id, sequence, log_time: time, publish_time: time };
         self.w.write_to_known_channel(&header, &data).map_err(|e| self.err(e))
@@ -671,10 +510,10 @@ impl<'p> Out<'p> {
 
     /// Finishes the file and renames it into place (an error before this
     /// leaves no file).
-    fn finish(mut self) -> Result<(), crate::Error> {
+    pub fn finish(mut self) -> Result<(), crate::error::Error> {
         self.w.finish().map_err(|e| self.err(e))?;
         let out = self.w.into_inner();
-        out.commit().map_err(|source| crate::Error::Io { path: self.path.to_owned(), source })
+        out.commit().map_err(|source| crate::error::Error::Io { path: self.path.to_owned(), source })
     }
 }
 
@@ -701,7 +540,7 @@ mod tests {
 
     /// A recording of one PointCloud2 (as given) and its pose.
     fn one_cloud(path: &Path, pc: &PointCloud2) {
-        let mut w = Out::create(path).unwrap();
+        let mut w = RecordingWriter::create(path).unwrap();
         let pcs = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA).unwrap();
         let tfs = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA).unwrap();
         let (pc_ch, tf_ch) = (w.channel(pcs, "/points").unwrap(), w.channel(tfs, "/tf").unwrap());
@@ -739,7 +578,7 @@ mod tests {
             is_bigendian: false,
             point_step: 16,
             row_step: 32,
-            data: crate::cloud::records([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]].into_iter(), &[40, 50]),
+            data: crate::sources::cloud::records([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]].into_iter(), &[40, 50]),
             is_dense: true,
         }
     }
@@ -775,7 +614,7 @@ mod tests {
         let big = PointCloud2 {
             width: 4000,
             row_step: 16 * 4000,
-            data: crate::cloud::records((0..4000).map(|i| [i as f32, 0.5, 1.0]), &[40; 4000]),
+            data: crate::sources::cloud::records((0..4000).map(|i| [i as f32, 0.5, 1.0]), &[40; 4000]),
             ..two_points()
         };
         one_cloud(&p, &big);
@@ -806,83 +645,4 @@ mod tests {
         assert_eq!(&bytes[..8], &[0, 1, 0, 0, 3, 0, 0, 0]);
         assert_eq!(cdr::deserialize::<PointCloud2>(&bytes).unwrap(), pc);
     }
-}
-
-/// `std_msgs/msg/String`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct StringMsg {
-    /// The text.
-    pub data: String,
-}
-
-const STRING_SCHEMA: &str = "string data\n";
-
-/// A map's voxels as a PointCloud2 in `frame`: x, y, z (float32), rgba
-/// (uint32: the class's colour, opaque), label (uint32: the SemanticKITTI
-/// id of the voxel's class, 0 without one), class (uint8: its index, 255
-/// without one).
-fn map_cloud(map: &crate::mapping::HostMap, frame: &str) -> PointCloud2 {
-    let step = 21u32;
-    let mut data = Vec::with_capacity(map.len() * step as usize);
-    for v in map.iter() {
-        for c in v.position(map.resolution()) {
-            data.extend_from_slice(&c.to_le_bytes());
-        }
-        let class = v.class();
-        let [r, g, b] = class.map(|c| c.color()).unwrap_or([128; 3]);
-        data.extend_from_slice(&u32::from_be_bytes([r, g, b, 255]).to_le_bytes());
-        data.extend_from_slice(&u32::from(class.map_or(0, |c| c.semantic_kitti_id())).to_le_bytes());
-        data.push(class.map_or(255, |c| c.index()));
-    }
-    let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
-    PointCloud2 {
-        header: Header { stamp: Time::default(), frame_id: frame.into() },
-        height: 1,
-        width: map.len() as u32,
-        fields: vec![
-            field("x", 0, 7),
-            field("y", 4, 7),
-            field("z", 8, 7),
-            field("rgba", 12, 6),
-            field("label", 16, 6),
-            field("class", 20, 2),
-        ],
-        is_bigendian: false,
-        point_step: step,
-        row_step: step * map.len() as u32,
-        data,
-        is_dense: true,
-    }
-}
-
-/// Writes a match to view in Foxglove: both maps as PointCloud2 coloured
-/// by class (`/cosem/model` in frame `model`, `/cosem/scene` in frame
-/// `scene`), the found `T_model_scene` on `/tf` (`model -> scene`) and the
-/// result as JSON text on `/cosem/status` (`std_msgs/msg/String`).
-pub fn write_match(
-    path: &Path,
-    model: &crate::mapping::HostMap,
-    scene: &crate::mapping::HostMap,
-    t_model_scene: &Isometry3<f32>,
-    status_json: &str,
-) -> Result<(), crate::Error> {
-    let mut w = Out::create(path)?;
-    let pc = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA)?;
-    let tf = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA)?;
-    let st = w.schema("std_msgs/msg/String", STRING_SCHEMA)?;
-    let (model_ch, scene_ch) = (w.channel(pc, "/cosem/model")?, w.channel(pc, "/cosem/scene")?);
-    let (tf_ch, status_ch) = (w.channel(tf, "/tf")?, w.channel(st, "/cosem/status")?);
-    let t: Isometry3<f64> = nalgebra::convert(*t_model_scene);
-    let tf_msg = TfMessage {
-        transforms: vec![TransformStamped {
-            header: Header { stamp: Time::default(), frame_id: "model".into() },
-            child_frame_id: "scene".into(),
-            transform: transform_of(&t.to_homogeneous()),
-        }],
-    };
-    w.write(model_ch, 0, 0, &map_cloud(model, "model"))?;
-    w.write(scene_ch, 0, 0, &map_cloud(scene, "scene"))?;
-    w.write(tf_ch, 0, 0, &tf_msg)?;
-    w.write(status_ch, 0, 0, &StringMsg { data: status_json.to_owned() })?;
-    w.finish()
 }

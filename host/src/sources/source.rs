@@ -7,11 +7,11 @@
 //! three, and the ground truth between two frames of one source is the
 //! source's own poses.
 
-use crate::class_table::ClassTable;
-use crate::cloud::CloudFormat;
+use crate::sources::class_table::ClassTable;
+use crate::sources::cloud::CloudFormat;
 use crate::error::Error;
-use crate::kitti::{Frame, FrameRange, Sequence};
-use crate::recording::RecordingScans;
+use crate::sources::kitti::{Frame, FrameRange, Sequence};
+use crate::sources::recording::RecordingScans;
 use nalgebra::{Isometry3, Matrix4};
 use std::path::{Path, PathBuf};
 
@@ -103,10 +103,10 @@ impl Source {
         options: &SourceOptions,
     ) -> Result<Source, Error> {
         let files = &in_frame_order(files.to_vec())?;
-        let read = crate::cloud::read_poses(poses)?;
+        let read = crate::sources::cloud::read_poses(poses)?;
         if read.len() < files.len() {
             let what = format!("{} poses for {} scans", read.len(), files.len());
-            return Err(crate::cloud::CloudError::Poses { path: poses.to_owned(), what }.into());
+            return Err(crate::sources::cloud::CloudError::Poses { path: poses.to_owned(), what }.into());
         }
         let kind = SourceKind::Scans { format, files: files.to_vec(), poses: read };
         let first = files.first().map_or(poses, PathBuf::as_path);
@@ -156,7 +156,7 @@ impl Source {
             }
         };
         let files = in_frame_order(files)?;
-        let poses = crate::cloud::read_poses(&dir.join("poses.txt"))?;
+        let poses = crate::sources::cloud::read_poses(&dir.join("poses.txt"))?;
         if poses.len() < files.len() {
             return Err(Error::Invalid(format!(
                 "{}: {} poses for {} scans",
@@ -213,22 +213,22 @@ impl Source {
                     odom: self.options.odom.as_deref(),
                     strict: self.options.strict,
                 };
-                let (frames, skipped, world) = crate::recording::read_scans_in_world(path, &what)?;
+                let (frames, skipped, world) = crate::sources::recording::read_scans_in_world(path, &what)?;
                 (frames, world.first().copied().unwrap_or_else(Matrix4::identity), skipped)
             }
             SourceKind::Scans { format, files, poses } => {
                 let all = FrameRange { start: 0, end: files.len(), stride: 1 };
                 let range = range.unwrap_or(all);
                 let anchor = *poses.get(range.start).ok_or_else(|| self.beyond(range, files.len()))?;
-                let anchor_inv = crate::kitti::rigid_inverse(&anchor);
+                let anchor_inv = crate::sources::kitti::rigid_inverse(&anchor);
                 let mut frames = Vec::new();
                 let mut skipped = 0;
                 for i in range.frames() {
                     let file = files.get(i).ok_or_else(|| self.beyond(range, files.len()))?;
                     let pose = poses.get(i).ok_or_else(|| self.beyond(range, poses.len()))?;
-                    let cloud = crate::cloud::read(*format, file, &self.options.label_field)?;
+                    let cloud = crate::sources::cloud::read(*format, file, &self.options.label_field)?;
                     skipped += cloud.skipped;
-                    frames.push(crate::cloud::frame_of(i, None, &(anchor_inv * pose), cloud));
+                    frames.push(crate::sources::kitti::frame_of(i, None, &(anchor_inv * pose), cloud));
                 }
                 (frames, anchor, skipped)
             }
@@ -288,7 +288,7 @@ impl Source {
 /// `T_a_b` from two sensor poses in one world, `inv(W_a) * W_b` (with the
 /// files' own numbers, as the folder reader moves points).
 pub fn relative(wa: &Matrix4<f64>, wb: &Matrix4<f64>) -> Isometry3<f64> {
-    crate::kitti::isometry(&(crate::kitti::rigid_inverse(wa) * wb))
+    crate::sources::kitti::isometry(&(crate::sources::kitti::rigid_inverse(wa) * wb))
 }
 
 /// Scan files in frame order: numbered files (`5.pcd`, `000010.pcd`) by

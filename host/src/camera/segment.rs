@@ -2,15 +2,15 @@
 //! feature `segment`): the paper's camera pipeline. A colour image in, the
 //! network's class scores at the image's own size out, as the PNG of
 //! Cityscapes training ids (255 void) or the probability map that
-//! [`crate::label`] reads.
+//! [`crate::camera::label`] reads.
 //!
 //! The network's contract (e.g. `../shared/models/PROVENANCE.md`): one input
 //! `float32 [1, 3, H, W]`, RGB, `(pixel / 255 - mean) / std` with ImageNet's
 //! mean and deviation; one output `float32 [1, C, H, W]` of raw scores,
 //! channels 0-18 the Cityscapes training ids, any further one void.
 
-pub use crate::seg_files::{read_rgb_png, write_rgb_png, RgbImage};
-use crate::seg_files::{npy_bytes, ProbabilityMap, SegImage};
+pub use crate::camera::seg_files::{read_rgb_png, write_rgb_png, RgbImage};
+use crate::camera::seg_files::{npy_bytes, ProbabilityMap, SegImage};
 use std::path::{Path, PathBuf};
 use tract_onnx::prelude::*;
 
@@ -87,6 +87,8 @@ pub enum SegmentError {
         what: String,
     },
 }
+
+impl crate::error::LayerError for SegmentError {}
 
 /// How an image is brought to the network's input size. The default,
 /// tiles at the image's own scale, labelled KITTI's camera points better
@@ -379,7 +381,7 @@ pub struct SegmentOptions {
     pub out: PathBuf,
     /// Frames to segment (checked against the images there before any is
     /// segmented); default: every PNG in `images`.
-    pub frames: Option<crate::kitti::FrameRange>,
+    pub frames: Option<crate::sources::kitti::FrameRange>,
     /// Also write probability maps (`|u1`, H x W x C, void last).
     pub probabilities: bool,
     /// How images are brought to the network's size.
@@ -414,44 +416,6 @@ pub struct SegmentSummary {
     pub ms_per_image: f64,
     /// Threads.
     pub threads: usize,
-}
-
-/// `cosem label --model NET --images DIR`: the images segmented (as `cosem
-/// segment` would, on every core) into a new folder beside `o.out`, the
-/// scans labelled from it (`o.seg` is set to it), and the segmentation kept
-/// in OUT/seg_<camera>/ (a sequence folder's place for it, as `cosem synth`
-/// writes it); removed when labelling fails.
-pub fn label_from_images(
-    o: &crate::label::LabelOptions,
-    model: &Path,
-    images: &Path,
-    fit: Fit,
-) -> Result<(crate::label::LabelStats, SegmentSummary), crate::Error> {
-    if o.frames.len() > 1 {
-        return Err(crate::Error::Invalid("--model labels one frame range at a time".into()));
-    }
-    crate::label::check_out(o, &[("--data", &o.data), ("--images", images), ("--model", model)])?;
-    let io = |source| crate::Error::Io { path: o.out.clone(), source };
-    let dir = crate::paths::OutputDir::create(&o.out).map_err(io)?;
-    let seg = dir.path().join(format!("seg_{}", o.camera));
-    let opts = SegmentOptions {
-        model: model.to_path_buf(),
-        images: images.to_path_buf(),
-        out: seg.clone(),
-        frames: o.frames.first().copied(),
-        probabilities: o.probabilities,
-        fit,
-        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        check: None,
-        overlay: false,
-    };
-    let summary = segment_into(&opts, &|| {})?;
-    // A network run here gives its void channel last.
-    let void_channel = if o.probabilities { crate::label::VoidChannel::Last } else { o.void_channel };
-    let labelling = crate::label::LabelOptions { seg, void_channel, out: dir.path().to_path_buf(), ..o.clone() };
-    let stats = crate::label::label_into(&labelling, &o.out.join(format!("seg_{}", o.camera)))?;
-    dir.commit().map_err(io)?;
-    Ok((stats, summary))
 }
 
 /// The images to segment: `(frame name, path)`, in order.
@@ -517,9 +481,8 @@ fn segment_one(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Re
 fn segment_image(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> Result<(), SegmentError> {
     let io = |p: PathBuf| move |source| SegmentError::Io { path: p, source };
     let image = read_rgb_png(path).map_err(|e| match e {
-        crate::label::LabelError::Io { path, source } => SegmentError::Io { path, source },
-        crate::label::LabelError::Format { path, what } => SegmentError::Image { path, what },
-        e => SegmentError::Image { path: path.to_path_buf(), what: e.to_string() },
+        crate::camera::seg_files::ImageError::Io { path, source } => SegmentError::Io { path, source },
+        crate::camera::seg_files::ImageError::Format { path, what } => SegmentError::Image { path, what },
     })?;
     let scores = match &o.check {
         // The one inference of a squashed image serves the check too.
@@ -540,14 +503,14 @@ fn segment_image(net: &Network, o: &SegmentOptions, name: &str, path: &Path) -> 
     };
     let labels = scores.labels();
     let file = o.out.join(format!("{name}.png"));
-    crate::label::write_seg_png(&file, &labels).map_err(io(file.clone()))?;
+    crate::camera::seg_files::write_seg_png(&file, &labels).map_err(io(file.clone()))?;
     if o.overlay {
         let file = o.out.join(format!("{name}.overlay.png"));
         write_rgb_png(&file, &overlay(&image, &labels)).map_err(io(file.clone()))?;
     }
     if o.probabilities {
         let file = o.out.join(format!("{name}.npy"));
-        crate::label::write_probabilities(&file, &scores.probabilities()).map_err(io(file.clone()))?;
+        crate::camera::seg_files::write_probabilities(&file, &scores.probabilities()).map_err(io(file.clone()))?;
     }
     Ok(())
 }
@@ -583,7 +546,7 @@ fn refuse_foreign(arg: &str, dir: &Path, check: bool) -> Result<(), SegmentError
 /// folders, or earlier outputs of this command; never an input, inside
 /// one or holding one (an image linked into the output included).
 pub fn segment_folder(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<SegmentSummary, SegmentError> {
-    fn refuse(path: &Path) -> impl Fn(crate::Error) -> SegmentError + '_ {
+    fn refuse(path: &Path) -> impl Fn(crate::error::Error) -> SegmentError + '_ {
         move |e| SegmentError::Image { path: path.to_path_buf(), what: e.to_string() }
     }
     let inputs: [(&str, &Path); 2] = [("--images", &o.images), ("--model", &o.model)];
@@ -621,7 +584,7 @@ pub fn segment_folder(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<Se
 
 /// [`segment_folder`] into a folder of the caller's (a new one, no checks
 /// against inputs beyond the images').
-fn segment_into(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<SegmentSummary, SegmentError> {
+pub(crate) fn segment_into(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<SegmentSummary, SegmentError> {
     let list = image_list(o)?;
     std::fs::create_dir_all(&o.out).map_err(|source| SegmentError::Io { path: o.out.clone(), source })?;
     segment_list(o, &list, tick)

@@ -13,15 +13,18 @@
 //! [`cosem_core::map::LabelDistribution::raw`]), which mapping fuses
 //! instead of a hard label.
 
-use crate::kitti::{KittiError, Sequence};
+use crate::sources::kitti::{KittiError, Sequence};
 use cosem_core::camera::{evidence_from_probabilities, Camera, DepthGrid, Projection, SegClasses};
 use cosem_core::classes::{Class, MovingObjects, NUM_CLASSES};
-use cosem_core::map::{LabelDistribution, SensorModel, LABEL_SLOTS};
+use cosem_core::map::{SensorModel, LABEL_SLOTS};
 use std::path::{Path, PathBuf};
 
 /// Anything wrong with labelling a sequence.
 #[derive(Debug, thiserror::Error)]
 pub enum LabelError {
+    /// A segmentation image or probability map.
+    #[error(transparent)]
+    Image(#[from] crate::camera::seg_files::ImageError),
     /// Reading the LiDAR sequence.
     #[error(transparent)]
     Kitti(#[from] KittiError),
@@ -101,17 +104,19 @@ pub enum LabelError {
     },
 }
 
+impl crate::error::LayerError for LabelError {}
+
 pub(crate) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> LabelError + '_ {
     move |source| LabelError::Io { path: path.to_path_buf(), source }
 }
 
-pub use super::seg_files::{
+pub use crate::camera::seg_files::{
     read_probabilities, read_probabilities_of, read_seg_png, write_probabilities, write_seg_png, ProbabilityMap,
     SegImage, VoidChannel,
 };
 
 /// `cosem label --model NET --images DIR`: the images segmented first
-/// (`crate::segment::label_from_images`, feature `segment`; without it an
+/// ([`label_from_images`], feature `segment`; without it an
 /// error saying how to build it), then labelled. Returns the counts, the
 /// images segmented and the milliseconds per image.
 pub fn label_with_model(
@@ -119,20 +124,59 @@ pub fn label_with_model(
     model: &Path,
     images: &Path,
     fit: &str,
-) -> Result<(LabelStats, usize, f64), crate::Error> {
+) -> Result<(LabelStats, usize, f64), crate::error::Error> {
     #[cfg(feature = "segment")]
     {
-        let fit = fit.parse().map_err(|e: String| crate::Error::Invalid(format!("--fit {e}")))?;
-        let (stats, s) = crate::segment::label_from_images(o, model, images, fit)?;
+        let fit = fit.parse().map_err(|e: String| crate::error::Error::Invalid(format!("--fit {e}")))?;
+        let (stats, s) = label_from_images(o, model, images, fit)?;
         Ok((stats, s.images, s.ms_per_image))
     }
     #[cfg(not(feature = "segment"))]
     {
         let _ = (o, model, images, fit);
-        Err(crate::Error::Invalid(
+        Err(crate::error::Error::Invalid(
             "--model needs the `segment` feature (tract-onnx): cargo build --release --features segment".into(),
         ))
     }
+}
+
+/// `cosem label --model NET --images DIR`: the images segmented (as `cosem
+/// segment` would, on every core) into a new folder beside `o.out`, the
+/// scans labelled from it (`o.seg` is set to it), and the segmentation kept
+/// in OUT/seg_<camera>/ (a sequence folder's place for it, as `cosem synth`
+/// writes it); removed when labelling fails.
+#[cfg(feature = "segment")]
+pub fn label_from_images(
+    o: &LabelOptions,
+    model: &Path,
+    images: &Path,
+    fit: crate::camera::segment::Fit,
+) -> Result<(LabelStats, crate::camera::segment::SegmentSummary), crate::error::Error> {
+    if o.frames.len() > 1 {
+        return Err(crate::error::Error::Invalid("--model labels one frame range at a time".into()));
+    }
+    check_out(o, &[("--data", &o.data), ("--images", images), ("--model", model)])?;
+    let io = |source| crate::error::Error::Io { path: o.out.clone(), source };
+    let dir = crate::paths::OutputDir::create(&o.out).map_err(io)?;
+    let seg = dir.path().join(format!("seg_{}", o.camera));
+    let opts = crate::camera::segment::SegmentOptions {
+        model: model.to_path_buf(),
+        images: images.to_path_buf(),
+        out: seg.clone(),
+        frames: o.frames.first().copied(),
+        probabilities: o.probabilities,
+        fit,
+        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        check: None,
+        overlay: false,
+    };
+    let summary = crate::camera::segment::segment_into(&opts, &|| {})?;
+    // A network run here gives its void channel last.
+    let void_channel = if o.probabilities { VoidChannel::Last } else { o.void_channel };
+    let labelling = LabelOptions { seg, void_channel, out: dir.path().to_path_buf(), ..o.clone() };
+    let stats = label_into(&labelling, &o.out.join(format!("seg_{}", o.camera)))?;
+    dir.commit().map_err(io)?;
+    Ok((stats, summary))
 }
 
 /// What `cosem label` does.
@@ -155,7 +199,7 @@ pub struct LabelOptions {
     pub occlusion: bool,
     /// Frames to label, range after range, each checked against the
     /// scans in `velodyne/`; none: every scan there.
-    pub frames: Vec<crate::kitti::FrameRange>,
+    pub frames: Vec<crate::sources::kitti::FrameRange>,
     /// The output folder.
     pub out: PathBuf,
     /// Copy the scans into the output instead of linking them (relative
@@ -518,7 +562,7 @@ const PROVENANCE_TITLE: &str = "# Labels from camera segmentation (`cosem label`
 /// Refuses an output folder that is, lies inside or holds an input (any
 /// spelling: [`crate::paths::check_output`]), and an existing folder that
 /// is neither empty nor a `cosem label` output.
-pub(crate) fn check_out(o: &LabelOptions, inputs: &[(&str, &Path)]) -> Result<(), crate::Error> {
+pub(crate) fn check_out(o: &LabelOptions, inputs: &[(&str, &Path)]) -> Result<(), crate::error::Error> {
     crate::paths::check_output("--out", &o.out, inputs)?;
     let out = &o.out;
     let ours = std::fs::read_to_string(out.join("PROVENANCE.md")).is_ok_and(|t| t.starts_with(PROVENANCE_TITLE));
@@ -540,7 +584,7 @@ pub(crate) fn check_out(o: &LabelOptions, inputs: &[(&str, &Path)]) -> Result<()
 /// then swapped into place ([`crate::paths::OutputDir`]): an input is never
 /// touched, a failed run leaves nothing behind, and `out` may only be a
 /// new or empty folder or an earlier output.
-pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, crate::Error> {
+pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, crate::error::Error> {
     check_out(o, &[("--data", &o.data), ("--seg", &o.seg)])?;
     let dir = crate::paths::OutputDir::create(&o.out).map_err(io(&o.out))?;
     let run = LabelOptions { out: dir.path().to_path_buf(), ..o.clone() };
@@ -778,40 +822,6 @@ fn write_frame(
         crate::paths::write_file(&epath, evidence).map_err(io(&epath))?;
     }
     Ok(())
-}
-
-/// Reads a frame's label evidence (`evidence/NNNNNN.bin`), if the folder has
-/// one: one label distribution per point (`None` for empty slots).
-pub fn read_evidence(
-    dir: &Path,
-    frame: usize,
-    points: usize,
-) -> Result<Option<Vec<Option<LabelDistribution>>>, KittiError> {
-    let path = dir.join("evidence").join(format!("{frame:06}.bin"));
-    if !path.exists() {
-        return Ok(None);
-    }
-    let bytes = std::fs::read(&path).map_err(|source| KittiError::Io { path: path.clone(), source })?;
-    let per = 2 * LABEL_SLOTS;
-    if bytes.len() != points * per {
-        return Err(KittiError::Malformed {
-            path,
-            what: format!("{} bytes of evidence for {points} points ({per} bytes each)", bytes.len()),
-        });
-    }
-    let mut out = Vec::with_capacity(points);
-    for (i, c) in bytes.chunks_exact(per).enumerate() {
-        let mut slots = [0u16; LABEL_SLOTS];
-        for (k, s) in slots.iter_mut().enumerate() {
-            *s = u16::from_le_bytes([c[2 * k], c[2 * k + 1]]);
-        }
-        let d = LabelDistribution::from_raw(slots).map_err(|e| KittiError::Malformed {
-            path: path.clone(),
-            what: format!("point {i} (byte offset {}): {e}", i * per),
-        })?;
-        out.push((!d.is_empty()).then_some(d));
-    }
-    Ok(Some(out))
 }
 
 /// A stand-in for a segmentation image where no camera images exist (real

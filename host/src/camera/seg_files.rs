@@ -2,9 +2,34 @@
 //! probabilities (NumPy `.npy`), read and written; what `cosem label`
 //! reads and `cosem segment` and `cosem synth` write.
 
-use super::label::{io, LabelError};
+/// Why a segmentation image or probability map could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    /// Reading the file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// Not an image (or map) of the kind expected; what is wrong.
+    #[error("{path}: {what}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+}
+
+impl crate::error::LayerError for ImageError {}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ImageError + '_ {
+    move |source| ImageError::Io { path: path.to_path_buf(), source }
+}
 use cosem_core::camera::SegClasses;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// A segmentation image: one class id per pixel, row by row.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -26,8 +51,8 @@ impl SegImage {
 
 /// Reads an 8-bit single-channel PNG (grayscale or palette) of class ids.
 #[cfg(feature = "png")]
-pub fn read_seg_png(path: &Path) -> Result<SegImage, LabelError> {
-    let format = |what: String| LabelError::Format { path: path.to_path_buf(), what };
+pub fn read_seg_png(path: &Path) -> Result<SegImage, ImageError> {
+    let format = |what: String| ImageError::Format { path: path.to_path_buf(), what };
     let file = std::fs::File::open(path).map_err(io(path))?;
     let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
     // Palette indices are the ids: no expansion to RGB.
@@ -57,8 +82,8 @@ pub fn read_seg_png(path: &Path) -> Result<SegImage, LabelError> {
 
 /// Without the `png` feature: segmentation images cannot be read.
 #[cfg(not(feature = "png"))]
-pub fn read_seg_png(path: &Path) -> Result<SegImage, LabelError> {
-    Err(LabelError::Format { path: path.to_path_buf(), what: "PNG support is off (cosem-host's `png` feature)".into() })
+pub fn read_seg_png(path: &Path) -> Result<SegImage, ImageError> {
+    Err(ImageError::Format { path: path.to_path_buf(), what: "PNG support is off (cosem-host's `png` feature)".into() })
 }
 
 /// Without the `png` feature: segmentation images cannot be written.
@@ -100,8 +125,8 @@ pub struct RgbImage {
 
 /// Reads an 8-bit PNG (RGB, RGBA, grey, palette) as RGB.
 #[cfg(feature = "png")]
-pub fn read_rgb_png(path: &Path) -> Result<RgbImage, LabelError> {
-    let bad = |what: String| LabelError::Format { path: path.to_path_buf(), what };
+pub fn read_rgb_png(path: &Path) -> Result<RgbImage, ImageError> {
+    let bad = |what: String| ImageError::Format { path: path.to_path_buf(), what };
     let file = std::fs::File::open(path).map_err(io(path))?;
     let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
     decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
@@ -199,8 +224,8 @@ fn npy_header(bytes: &[u8]) -> Result<(String, Vec<usize>, usize), String> {
 
 /// Reads a NumPy `.npy` probability map (`<f4`, or `|u1` read as value/255)
 /// of shape `(H, W, C)` or `(C, H, W)` with `C = channels`.
-pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap, LabelError> {
-    let format = |what: String| LabelError::Format { path: path.to_path_buf(), what };
+pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap, ImageError> {
+    let format = |what: String| ImageError::Format { path: path.to_path_buf(), what };
     let bytes = std::fs::read(path).map_err(io(path))?;
     let (descr, shape, data_at) = npy_header(&bytes).map_err(format)?;
     let [a, b, c] = shape[..] else {
@@ -284,7 +309,7 @@ pub fn read_probabilities_of(
     path: &Path,
     classes: SegClasses,
     void: VoidChannel,
-) -> Result<ProbabilityMap, LabelError> {
+) -> Result<ProbabilityMap, ImageError> {
     let n = classes.channels();
     if void == VoidChannel::None {
         return read_probabilities(path, n);

@@ -2,10 +2,10 @@
 //! asked) -> a map -> a `.cmap` file, with what each step kept.
 
 use crate::error::Error;
-use crate::kitti::FrameRange;
-use crate::mapping::{build_map, BuildStats, PointFilter};
-use crate::noise::LabelNoise;
-use crate::source::Source;
+use crate::sources::kitti::FrameRange;
+use crate::maps::mapping::{build_map, BuildStats, PointFilter};
+use crate::maps::noise::LabelNoise;
+use crate::sources::source::Source;
 use cosem_core::map::MapConfig;
 use std::path::Path;
 
@@ -43,14 +43,14 @@ impl MapJob {
     pub fn run(&self, source: &Source, what: &str, output: &Path) -> Result<MapWritten, Error> {
         let (mut frames, _, skipped) = source.load(self.frames)?;
         let (noise, seed) = self.noise;
-        let changed = crate::noise::corrupt_all(&mut frames, noise, seed);
+        let changed = crate::maps::noise::corrupt_all(&mut frames, noise, seed);
         let (map, stats) = build_map(&frames, self.config, &self.filter)?;
         let described = match noise {
             LabelNoise::None => what.to_string(),
             n => format!("{what} label noise {n:?} seed {seed} ({:.1}% changed)", 100.0 * changed.rate()),
         };
         let anchor_time = frames.first().and_then(|f| f.time);
-        let bytes = crate::cmap::write(output, &map, anchor_time, Some(&described))?;
+        let bytes = crate::maps::cmap::write(output, &map, anchor_time, Some(&described))?;
         Ok(MapWritten { frames: frames.len(), stats, voxels: map.len(), bytes, skipped })
     }
 }

@@ -2,7 +2,7 @@
 //! map, and one entry point with or without a prior (the robots' path,
 //! [`cosem_core::robot::align`], with the host's capacities).
 
-use crate::mapping::HostMap;
+use crate::maps::mapping::HostMap;
 use cosem_core::geometry::Isometry3;
 use cosem_core::matching::global::{align_searched, Searched};
 use cosem_core::matching::search::GlobalSearch;
@@ -36,10 +36,10 @@ pub fn levels_for(resolution: f32, levels: usize) -> usize {
 /// Prepares a map for matching, as model or scene, in storage sized for it,
 /// with at least `levels` levels ([`levels_for`]). Maps finer than
 /// [`MIN_VOXEL`] are refused with the reason.
-pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::Error> {
+pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::error::Error> {
     let r = map.resolution();
     if r < MIN_VOXEL * 0.999 {
-        return Err(crate::Error::Invalid(format!(
+        return Err(crate::error::Error::Invalid(format!(
             "{r} m voxels: the matcher supports voxels of {MIN_VOXEL} m and more (its pyramid of at most {} levels must reach the coarse search's 1 m cells)",
             cosem_core::matching::MAX_LEVELS
         )));
@@ -54,6 +54,8 @@ pub enum AlignError {
     #[error("matching: {0}")]
     Match(MatchError),
 }
+
+impl crate::error::LayerError for AlignError {}
 
 /// Aligns two prepared maps (`pyramids.0` the model): from `prior`
 /// (`T_model_scene`) when given, else with none (the conventions) by the
@@ -94,8 +96,8 @@ pub fn prepare_and_align(
     names: [&str; 2],
     settings: MatchSettings,
     prior: Option<&Isometry3<f32>>,
-) -> Result<TimedMatch, crate::Error> {
-    let named = |name: &str, e: crate::Error| crate::Error::Invalid(format!("{name}: {e}"));
+) -> Result<TimedMatch, crate::error::Error> {
+    let named = |name: &str, e: crate::error::Error| crate::error::Error::Invalid(format!("{name}: {e}"));
     let t0 = std::time::Instant::now();
     let pm = prepare(model, DEFAULT_LEVELS).map_err(|e| named(names[0], e))?;
     let ps = prepare(scene, DEFAULT_LEVELS).map_err(|e| named(names[1], e))?;

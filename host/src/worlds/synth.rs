@@ -7,7 +7,7 @@
 //! streets. Everything is seeded: the same seed gives the same bytes. This is
 //! the project's built-in data: demos and tests run on it without any dataset.
 
-use crate::label::{ProbabilityMap, SegImage};
+use crate::camera::label::{ProbabilityMap, SegImage};
 use crate::rng::Rng;
 use cosem_core::camera::SegClasses;
 use cosem_core::classes::Class;
@@ -748,10 +748,10 @@ fn write_into(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesised> {
         let seg_dir = dir.join(SEG_DIR);
         std::fs::create_dir_all(&seg_dir)?;
         for (i, im) in seq.seg.iter().enumerate() {
-            crate::label::write_seg_png(&seg_dir.join(format!("{i:06}.png")), im)?;
+            crate::camera::label::write_seg_png(&seg_dir.join(format!("{i:06}.png")), im)?;
             if r.probabilities {
                 let p = probabilities_of(im, r.classes);
-                crate::label::write_probabilities(&seg_dir.join(format!("{i:06}.npy")), &p)?;
+                crate::camera::label::write_probabilities(&seg_dir.join(format!("{i:06}.npy")), &p)?;
             }
         }
     }
