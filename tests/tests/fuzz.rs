@@ -13,13 +13,13 @@
 //! mutation half of the time, so that the decoder's header and size checks
 //! are reached and not only its checksum.
 
+use cosem_host::camera::seg_files::{
+    npy_bytes, read_probabilities, read_rgb_png, read_seg_png, write_rgb_png, write_seg_png, RgbImage, SegImage,
+};
 use cosem_host::sources::class_table::ClassTable;
 use cosem_host::sources::cloud::{read_pcd, read_ply, read_poses, write_pcd, write_ply, write_poses};
 use cosem_host::sources::kitti::FrameRange;
 use cosem_host::sources::recording::{read_scans, write_scans, ChunkCompression, RecordingScans, ScanRecord};
-use cosem_host::camera::seg_files::{
-    npy_bytes, read_probabilities, read_rgb_png, read_seg_png, write_rgb_png, write_seg_png, RgbImage, SegImage,
-};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::Path;

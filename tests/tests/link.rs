@@ -212,12 +212,14 @@ fn robot_sized_maps_cross_a_five_percent_line_whole() {
     for (rate, seeds) in [(0.01, 1..=1), (0.05, 1..=2), (0.2, 1..=1)] {
         for seed in seeds {
             let run =
-                cosem_host::evaluation::bench::link(&pair, (rate, cosem_core::sim::Mix::THIRDS, false), 115_200, seed).unwrap();
+                cosem_host::evaluation::bench::link(&pair, (rate, cosem_core::sim::Mix::THIRDS, false), 115_200, seed)
+                    .unwrap();
             assert!(run.delivered, "rate {rate} seed {seed}: {run:?}");
             assert!(run.retransmissions[0] + run.retransmissions[1] > 0, "no error hit the line");
         }
     }
     // One medium for both directions: the maps in turns, bursts of frames.
-    let run = cosem_host::evaluation::bench::link(&pair, (0.05, cosem_core::sim::Mix::THIRDS, true), 115_200, 1).unwrap();
+    let run =
+        cosem_host::evaluation::bench::link(&pair, (0.05, cosem_core::sim::Mix::THIRDS, true), 115_200, 1).unwrap();
     assert!(run.delivered, "half duplex: {run:?}");
 }

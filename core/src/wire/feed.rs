@@ -262,12 +262,9 @@ impl core::fmt::Display for FeedError {
             FeedError::Version(v) => write!(f, "feed protocol version {v}, expected {FEED_VERSION}"),
             FeedError::Malformed => f.write_str("malformed feed message"),
             FeedError::NonFinite => f.write_str("non-finite number"),
-            FeedError::Resolution => write!(
-                f,
-                "voxel size outside the feed's {} to {} m",
-                FEED_RESOLUTION.start(),
-                FEED_RESOLUTION.end()
-            ),
+            FeedError::Resolution => {
+                write!(f, "voxel size outside the feed's {} to {} m", FEED_RESOLUTION.start(), FEED_RESOLUTION.end())
+            }
             FeedError::Buffer => f.write_str("buffer too small"),
             FeedError::PointBytes { len } => write!(f, "{len} bytes of points is not a multiple of {POINT_BYTES}"),
             FeedError::Class { offset, class } => write!(f, "point at byte {offset}: class {class} not in the table"),

@@ -207,4 +207,3 @@ fn debug_args() -> Vec<String> {
     }
     args
 }
-

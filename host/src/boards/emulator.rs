@@ -42,7 +42,6 @@ pub(crate) fn accept(listener: &TcpListener, deadline: Instant) -> Result<TcpStr
         .map_err(|e| format!("QEMU did not connect its serial port: {e}"))
 }
 
-
 /// The feeder's side of a robot's feeder line: the feed goes out once the
 /// robot said it listens ([`RobotMessage::Ready`]: a UART that is not yet
 /// enabled drops what arrives), on a thread of its own, while the robot's

@@ -15,12 +15,12 @@
 //! boards' placements must be the host's.
 
 use crate::boards::board::Board;
-use crate::error::Error;
-use crate::maps::mapping::new_map;
 use crate::boards::emulator::{accept, qemu, FeederLine};
 use crate::boards::feeds::Feed;
 use crate::boards::pump::{pump, LineFault};
 use crate::boards::twin::board_pyramids;
+use crate::error::Error;
+use crate::maps::mapping::new_map;
 use cosem_core::link::LinkBuffers;
 use cosem_core::robot::team::{port_of, TeamRobot, TABLE_WORDS};
 use cosem_core::robot::{self, RobotConfig};
@@ -430,8 +430,10 @@ mod tests {
     #[test]
     fn host_team_run_places_three_robots_of_one_drive() {
         let Some(dir) = data() else { return };
-        let robot =
-            |a, b| RobotSpec { data: dir.clone(), frames: crate::sources::kitti::FrameRange { start: a, end: b, stride: 1 } };
+        let robot = |a, b| RobotSpec {
+            data: dir.clone(),
+            frames: crate::sources::kitti::FrameRange { start: a, end: b, stride: 1 },
+        };
         let spec = TeamSpec {
             robots: vec![robot(0, 3), robot(3, 6), robot(6, 10)],
             voxel: 0.5,

@@ -3,8 +3,8 @@
 
 use super::Error;
 use cosem_host::evaluation::bench::{self, TempDir};
-use cosem_host::sources::kitti::FrameRange;
 use cosem_host::evaluation::pair::{Pair, PairSpec};
+use cosem_host::sources::kitti::FrameRange;
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Subcommand, Debug)]
@@ -214,7 +214,8 @@ fn bench_wire(a: MapArgs, json: Option<&Path>) -> Result<(), Error> {
     let (dir, _tmp) = data(a.data, a.frames.end)?;
     let frames = bench::frames(&dir, a.frames, &a.source.options())?;
     let config = cosem_core::map::MapConfig::with_resolution(a.voxel);
-    let (map, _) = cosem_host::maps::mapping::build_map(&frames, config, &cosem_host::maps::mapping::PointFilter::default())?;
+    let (map, _) =
+        cosem_host::maps::mapping::build_map(&frames, config, &cosem_host::maps::mapping::PointFilter::default())?;
     let (n, range, d) = (frames.len(), a.frames, dir.display());
     println!("bench wire: {} voxels at {} m from {n} frames {range} of {d}", map.len(), a.voxel);
     let figures = bench::wire(&map, a.repeat)?;

@@ -7,9 +7,9 @@ use cosem_core::matching::{Dof, MatchSettings, Method};
 use cosem_host::evaluation::eval::{
     corners, evaluate, global_starts, grid, run_negatives, sample, EvalReport, MapsInfo, Place, Protocol, Start,
 };
-use cosem_host::sources::kitti::FrameRange;
-use cosem_host::maps::noise::LabelNoise;
 use cosem_host::evaluation::pair::{Pair, PairSpec};
+use cosem_host::maps::noise::LabelNoise;
+use cosem_host::sources::kitti::FrameRange;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 

@@ -1,9 +1,9 @@
 //! `cosem label`: LiDAR labels from camera segmentation images.
 
 use super::Error;
-use cosem_host::sources::kitti::FrameRange;
 use cosem_host::camera::label::{label_sequence, label_with_model, parse_image_size, LabelOptions};
 use cosem_host::reports::report::LabelJson;
+use cosem_host::sources::kitti::FrameRange;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

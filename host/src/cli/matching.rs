@@ -2,8 +2,8 @@
 
 use super::args::MatchOpts;
 use super::{print_json, Error};
-use cosem_host::matching::align::prepare_and_align;
 use cosem_host::maps::ply;
+use cosem_host::matching::align::prepare_and_align;
 use cosem_host::reports::report::{exit_code, result_text, GlobalJson, MatchJson};
 use std::path::PathBuf;
 

@@ -6,11 +6,11 @@ use super::args::{feed_voxel, pose, positive_f32};
 use super::{show, Error};
 use cosem_core::geometry::Isometry3;
 use cosem_host::boards::board::Board;
-use cosem_host::sources::kitti::FrameRange;
 use cosem_host::boards::firmware::DEFAULT_FIRMWARE;
 use cosem_host::boards::pump::LineFault;
 use cosem_host::boards::robots::{run_robots, RobotsSpec};
 use cosem_host::reports::robots::{exit_code, RobotsJson};
+use cosem_host::sources::kitti::FrameRange;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

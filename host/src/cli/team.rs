@@ -3,8 +3,8 @@
 
 use super::{show, Error};
 use cosem_core::matching::MatchSettings;
-use cosem_host::reports::team::TeamJson;
 use cosem_host::evaluation::team::{parse_prior_noise, parse_robot_pair, run as run_team, RobotSpec, TeamSpec};
+use cosem_host::reports::team::TeamJson;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {

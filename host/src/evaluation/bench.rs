@@ -2,14 +2,14 @@
 //! and returns its figures (the command prints them). Times are medians of
 //! repeated single-threaded runs.
 
-use crate::matching::align::{prepare, DEFAULT_LEVELS};
 use crate::error::Error;
 use crate::evaluation::eval::{grid, STRICT};
-use crate::lines::exchange::simulate_exchange;
-use crate::sources::kitti::{Frame, FrameRange, Sequence};
-use crate::maps::mapping::{new_map, HostMap, PointFilter};
 use crate::evaluation::pair::{Pair, PairSpec};
 use crate::evaluation::stats::median;
+use crate::lines::exchange::simulate_exchange;
+use crate::maps::mapping::{new_map, HostMap, PointFilter};
+use crate::matching::align::{prepare, DEFAULT_LEVELS};
+use crate::sources::kitti::{Frame, FrameRange, Sequence};
 use cosem_core::classes::Class;
 use cosem_core::geometry::errors_of;
 use cosem_core::map::MapConfig;
@@ -385,7 +385,11 @@ pub fn data_dir(given: Option<PathBuf>, frames: usize) -> Result<(PathBuf, Optio
 
 /// The frames of a range of a source of scans (a folder, a recording, a
 /// folder of PCD/PLY scans).
-pub fn frames(dir: &Path, range: FrameRange, options: &crate::sources::source::SourceOptions) -> Result<Vec<Frame>, Error> {
+pub fn frames(
+    dir: &Path,
+    range: FrameRange,
+    options: &crate::sources::source::SourceOptions,
+) -> Result<Vec<Frame>, Error> {
     Ok(crate::sources::source::Source::open(dir, options)?.load(Some(range))?.0)
 }
 

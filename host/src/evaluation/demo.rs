@@ -3,13 +3,13 @@
 //! through the map file encoding, match it against robot A's from a prior
 //! 5 m and 15 degrees off, and tell the estimate against the truth.
 
-use crate::matching::align::{prepare, DEFAULT_LEVELS};
 use crate::error::Error;
 use crate::evaluation::eval::Start;
-use crate::sources::kitti::FrameRange;
-use crate::maps::mapping::{class_histogram, HostMap};
 use crate::evaluation::pair::{Pair, PairSpec};
+use crate::maps::mapping::{class_histogram, HostMap};
+use crate::matching::align::{prepare, DEFAULT_LEVELS};
 use crate::poses::pose_words;
+use crate::sources::kitti::FrameRange;
 use crate::worlds::synth::{write_sequence, SynthConfig};
 use cosem_core::geometry::{errors_of, Isometry3};
 use cosem_core::map::overlap;

@@ -3,11 +3,11 @@
 //! thresholds, one outcome per start and method, and summaries whose JSON
 //! field names are the same in every mode (`schema_version` 2).
 
-use crate::matching::align::{prepare, HostPyramid, DEFAULT_LEVELS};
 use crate::error::Error;
-use crate::maps::mapping::{build_map, HostMap, PointFilter};
 use crate::evaluation::pair::moved_frames;
 use crate::evaluation::stats::{quantile, Spread};
+use crate::maps::mapping::{build_map, HostMap, PointFilter};
+use crate::matching::align::{prepare, HostPyramid, DEFAULT_LEVELS};
 use cosem_core::geometry::{errors_of, pose_deg, row_major, Isometry3};
 use cosem_core::map::MapConfig;
 use cosem_core::matching::global::align_searched;
@@ -606,7 +606,8 @@ impl std::str::FromStr for Place {
         let name_start = s.rfind('/').map_or(0, |i| i + 1);
         match s[name_start..].find(':').map(|i| i + name_start) {
             Some(at) => {
-                let frames = s[at + 1..].parse().map_err(|e: crate::sources::kitti::KittiError| format!("`{s}`: {e}"))?;
+                let frames =
+                    s[at + 1..].parse().map_err(|e: crate::sources::kitti::KittiError| format!("`{s}`: {e}"))?;
                 Ok(Place { data: s[..at].into(), frames: Some(frames) })
             }
             None => Ok(Place { data: s.into(), frames: None }),
@@ -724,7 +725,9 @@ fn place_map(
 
 /// The ordered pairs of different places, and how many pairs were left
 /// out for overlapping (folders of one sequence may hold one place).
-fn negative_pairs(maps: &[(crate::sources::source::Source, nalgebra::Matrix4<f64>, HostMap)]) -> (Vec<(usize, usize)>, usize) {
+fn negative_pairs(
+    maps: &[(crate::sources::source::Source, nalgebra::Matrix4<f64>, HostMap)],
+) -> (Vec<(usize, usize)>, usize) {
     let mut pairs = Vec::new();
     let mut overlapping = 0;
     for (i, a) in maps.iter().enumerate() {

@@ -2,9 +2,9 @@
 //! asked) -> a map -> a `.cmap` file, with what each step kept.
 
 use crate::error::Error;
-use crate::sources::kitti::FrameRange;
 use crate::maps::mapping::{build_map, BuildStats, PointFilter};
 use crate::maps::noise::LabelNoise;
+use crate::sources::kitti::FrameRange;
 use crate::sources::source::Source;
 use cosem_core::map::MapConfig;
 use std::path::Path;

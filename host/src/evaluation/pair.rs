@@ -2,9 +2,9 @@
 //! what `eval`, `bench` and `robots` start from.
 
 use crate::error::Error;
-use crate::sources::kitti::{Frame, FrameRange};
 use crate::maps::mapping::{build_map, HostMap, PointFilter, Unlabeled};
 use crate::maps::noise::{corrupt_all, LabelNoise, NoiseStats};
+use crate::sources::kitti::{Frame, FrameRange};
 use crate::sources::source::{Source, SourceOptions};
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::MapConfig;

@@ -13,12 +13,12 @@
 //! ([`cosem_core::team::solve`]). Robots connected among themselves but not
 //! to robot 0 are a separate group in the frame of their lowest index.
 
-use crate::matching::align::{align, prepare, DEFAULT_LEVELS};
 use crate::error::Error;
 use crate::lines::exchange::simulate_exchange;
-use crate::sources::kitti::FrameRange;
 use crate::maps::mapping::{build_map, HostMap, PointFilter};
+use crate::matching::align::{align, prepare, DEFAULT_LEVELS};
 use crate::rng::Rng;
+use crate::sources::kitti::FrameRange;
 use crate::sources::source::{Source, SourceOptions};
 use cosem_core::geometry::Isometry3;
 use cosem_core::map::MapConfig;

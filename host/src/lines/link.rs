@@ -2,8 +2,8 @@
 //! or a serial port, with the core's link endpoint.
 
 use crate::error::Error;
-use crate::maps::mapping::{new_map, HostMap};
 use crate::lines::transport::{HostClock, Paced, Tcp};
+use crate::maps::mapping::{new_map, HostMap};
 use cosem_core::link::{Endpoint, LinkBuffers, LinkConfig, LinkStats, Progress};
 use std::time::Duration;
 

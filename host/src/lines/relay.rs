@@ -7,8 +7,8 @@
 //! (`cosem relay`).
 
 use crate::error::Error;
-use crate::rng::Rng;
 use crate::lines::transport::{accept_within, Pacer};
+use crate::rng::Rng;
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicU64, Ordering};

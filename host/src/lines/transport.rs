@@ -329,4 +329,3 @@ impl<T: embedded_io::Write> embedded_io::Write for Paced<T> {
 pub fn line_seconds(bytes: u64, baud: u32) -> f64 {
     bytes as f64 * 10.0 / f64::from(baud.max(1))
 }
-

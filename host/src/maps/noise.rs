@@ -15,8 +15,8 @@
 //! Everything is seeded (`--seed`) and keyed by the scan's frame number, so
 //! the same scan gets the same errors in every run and map.
 
-use crate::sources::kitti::Frame;
 use crate::rng::Rng;
+use crate::sources::kitti::Frame;
 use cosem_core::classes::{Class, MovingObjects, NUM_CLASSES};
 use std::str::FromStr;
 

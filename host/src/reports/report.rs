@@ -283,7 +283,8 @@ impl InfoJson {
     /// What the map file `file` holds.
     pub fn of(file: &std::path::Path) -> Result<Self, crate::error::Error> {
         let (header, map) = crate::maps::cmap::read(file)?;
-        let bytes = std::fs::metadata(file).map_err(|source| crate::error::Error::Io { path: file.into(), source })?.len();
+        let bytes =
+            std::fs::metadata(file).map_err(|source| crate::error::Error::Io { path: file.into(), source })?.len();
         let voxels = map.len();
         let histogram: Vec<(&'static str, usize)> =
             crate::maps::mapping::class_histogram(&map).iter().map(|(c, n)| (c.name(), *n)).collect();

@@ -4,9 +4,9 @@
 //! reports ([`crate::boards::team_board::BoardRun`]). The command line only parses
 //! and prints.
 
+use crate::boards::team_board::{placement_difference, BoardRun, TeamReports};
 use crate::error::Error;
 use crate::evaluation::team::{verified_placements, TeamOutcome, Truth};
-use crate::boards::team_board::{placement_difference, BoardRun, TeamReports};
 use cosem_core::geometry::{errors_of, from_rows, row_major};
 use cosem_core::matching::MatchStatus;
 use cosem_core::wire::share::Estimate;

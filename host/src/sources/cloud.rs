@@ -75,7 +75,6 @@ impl CloudFormat {
     }
 }
 
-
 /// A scalar type of a field.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Scalar {

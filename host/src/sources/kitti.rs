@@ -550,7 +550,8 @@ impl Sequence {
             })
             .collect()
     }
-}/// Reads a frame's label evidence (`evidence/NNNNNN.bin`, which `cosem
+}
+/// Reads a frame's label evidence (`evidence/NNNNNN.bin`, which `cosem
 /// label --probabilities` writes beside the labels), if the folder has
 /// one: one label distribution per point (`None` for empty slots).
 pub fn read_evidence(
@@ -614,5 +615,3 @@ pub fn frame_of(index: usize, time: Option<f64>, m: &Matrix4<f64>, cloud: Cloud)
     let pose: Isometry3<f64> = isometry(m);
     Frame { index, time, pose, points, ranges, labels: cloud.labels, evidence: None }
 }
-
-

@@ -13,10 +13,10 @@
 //! or no chain, is an error naming the scan.
 
 use crate::sources::cloud::{read_records, Layout, Scalar};
-use crate::sources::kitti::{frame_of, Cloud};
 use crate::sources::kitti::Frame;
-use nalgebra::{Isometry3, Matrix4, Quaternion as NQuaternion, Translation3, UnitQuaternion};
+use crate::sources::kitti::{frame_of, Cloud};
 use crate::sources::ros_msgs::*;
+use nalgebra::{Isometry3, Matrix4, Quaternion as NQuaternion, Translation3, UnitQuaternion};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -243,7 +243,8 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
                 if !is_cdr {
                     return Err(format!("{topic}: encoding `{}`, not cdr", m.channel.message_encoding));
                 }
-                let header = crate::sources::cdr_read::Cdr::new(m.data).and_then(|mut c| c.point_cloud()).map_err(at)?.header;
+                let header =
+                    crate::sources::cdr_read::Cdr::new(m.data).and_then(|mut c| c.point_cloud()).map_err(at)?.header;
                 stamps.push((header.stamp.nanos(), header.frame_id));
                 clouds.push((seen, m.data.to_vec()));
             }
@@ -314,7 +315,11 @@ enum CloudRead {
 
 /// The points of a PointCloud2: its sizes checked against its data
 /// before any row is read.
-fn cloud_points(pc: &crate::sources::cdr_read::CloudMsg<'_>, label_field: &str, path: &Path) -> Result<Cloud, CloudRead> {
+fn cloud_points(
+    pc: &crate::sources::cdr_read::CloudMsg<'_>,
+    label_field: &str,
+    path: &Path,
+) -> Result<Cloud, CloudRead> {
     let bad = CloudRead::Message;
     if pc.is_bigendian {
         return Err(bad("big-endian point data is not read".into()));
@@ -425,8 +430,10 @@ pub fn write_scans<'a>(
         ChunkCompression::Zstd => Some(mcap::Compression::Zstd),
         ChunkCompression::Lz4 => Some(mcap::Compression::Lz4),
     };
-    let mut w =
-        RecordingWriter::create_with(out, mcap::WriteOptions::new().compression(compression).calculate_chunk_crcs(chunk_crcs))?;
+    let mut w = RecordingWriter::create_with(
+        out,
+        mcap::WriteOptions::new().compression(compression).calculate_chunk_crcs(chunk_crcs),
+    )?;
     let pc_schema = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA)?;
     let tf_schema = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA)?;
     let pc_channel = w.channel(pc_schema, topic)?;
@@ -481,10 +488,11 @@ impl<'p> RecordingWriter<'p> {
 
     /// A new recording at `path` written with `options`.
     pub fn create_with(path: &'p Path, options: mcap::WriteOptions) -> Result<Self, crate::error::Error> {
-        let file =
-            crate::paths::Output::create(path).map_err(|source| crate::error::Error::Io { path: path.to_owned(), source })?;
+        let file = crate::paths::Output::create(path)
+            .map_err(|source| crate::error::Error::Io { path: path.to_owned(), source })?;
         let w = options.profile("ros2").create(file);
-        w.map(|w| RecordingWriter { w, path }).map_err(|e| crate::error::Error::Invalid(format!("{}: {e}", path.display())))
+        w.map(|w| RecordingWriter { w, path })
+            .map_err(|e| crate::error::Error::Invalid(format!("{}: {e}", path.display())))
     }
 
     fn err(&self, e: impl std::fmt::Display) -> crate::error::Error {
@@ -502,7 +510,13 @@ impl<'p> RecordingWriter<'p> {
     }
 
     /// One message, CDR little endian with its encapsulation header.
-    pub fn write<T: Serialize>(&mut self, channel_id: u16, sequence: u32, time: u64, msg: &T) -> Result<(), crate::error::Error> {
+    pub fn write<T: Serialize>(
+        &mut self,
+        channel_id: u16,
+        sequence: u32,
+        time: u64,
+        msg: &T,
+    ) -> Result<(), crate::error::Error> {
         let data = cdr::serialize::<_, _, cdr::CdrLe>(msg, cdr::Infinite).map_err(|e| self.err(format!("CDR: {e}")))?;
         let header = mcap::records::MessageHeader { channel_id, sequence, log_time: time, publish_time: time };
         self.w.write_to_known_channel(&header, &data).map_err(|e| self.err(e))

@@ -7,9 +7,9 @@
 //! three, and the ground truth between two frames of one source is the
 //! source's own poses.
 
+use crate::error::Error;
 use crate::sources::class_table::ClassTable;
 use crate::sources::cloud::CloudFormat;
-use crate::error::Error;
 use crate::sources::kitti::{Frame, FrameRange, Sequence};
 use crate::sources::recording::RecordingScans;
 use nalgebra::{Isometry3, Matrix4};
