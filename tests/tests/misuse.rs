@@ -224,6 +224,26 @@ fn fixture(root: &Path) -> Fixture {
     Fixture { root: root.to_path_buf(), seq, a, b }
 }
 
+/// The command's own input: the baseline's first path in the fixture.
+fn own_input(f: &Fixture, base: &[String]) -> Option<PathBuf> {
+    let inside = f.root.join("in").display().to_string();
+    base.iter().find(|a| a.starts_with(&inside)).map(PathBuf::from)
+}
+
+/// An output spelled as `input`: itself, inside it, `missing/..` of it, a
+/// hard link (a folder: a symbolic one) and a symbolic link to it.
+fn output_spellings(input: &Path, work: &Path) -> [(&'static str, String); 5] {
+    let file = input.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let hard = if input.is_dir() { work.join("sym") } else { work.join("hard") };
+    [
+        ("an input", input.display().to_string()),
+        ("inside an input", input.join("x").display().to_string()),
+        ("missing/.. of an input", format!("{}/missing/../{file}", input.parent().unwrap().display())),
+        ("a hard link to an input", hard.display().to_string()),
+        ("a symbolic link to an input", work.join("sym").display().to_string()),
+    ]
+}
+
 /// The table's cases for one command.
 fn cases(f: &Fixture, command: &[String], args: &[Value], template: &str, work: &Path) -> Vec<Case> {
     let name = command.join(" ");
@@ -274,22 +294,8 @@ fn cases(f: &Fixture, command: &[String], args: &[Value], template: &str, work: 
             }
             "output" if !has_inputs => {}
             "output" => {
-                // The command's own input (the baseline's first path in the fixture).
-                let inside = f.root.join("in").display().to_string();
-                let Some(input) = base.iter().find(|a| a.starts_with(&inside)).map(PathBuf::from) else { continue };
-                let is_dir = input.is_dir();
-                let file = input.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-                let spellings: [(&str, String); 5] = [
-                    ("an input", input.display().to_string()),
-                    ("inside an input", input.join("x").display().to_string()),
-                    ("missing/.. of an input", format!("{}/missing/../{file}", input.parent().unwrap().display())),
-                    (
-                        "a hard link to an input",
-                        if is_dir { work.join("sym") } else { work.join("hard") }.display().to_string(),
-                    ),
-                    ("a symbolic link to an input", work.join("sym").display().to_string()),
-                ];
-                for (what, p) in spellings {
+                let Some(input) = own_input(f, &base) else { continue };
+                for (what, p) in output_spellings(&input, work) {
                     let mut names = names.clone();
                     names.push(p.clone());
                     case(format!("{long} {what}"), with(&base, arg, &p, words), names);
@@ -356,44 +362,14 @@ fn every_command_refuses_misuse_cleanly() {
     let tmp = tempfile::tempdir().unwrap();
     let f = fixture(tmp.path());
     let tree: Vec<Value> = serde_json::from_str(&cosem_ok(&["cli-tree"])).expect("cli-tree JSON");
-    let baselines = baselines();
-    let mut all = Vec::new();
-    let mut skipped = Vec::new();
-    let mut k = 0;
-    for c in &tree {
-        let command: Vec<String> =
-            c["command"].as_array().unwrap().iter().map(|w| w.as_str().unwrap().to_string()).collect();
-        let name = command.join(" ");
-        let template = baselines.get(name.as_str()).unwrap_or_else(|| panic!("no baseline for `{name}`: add one"));
-        let mut args: Vec<Value> = c["args"].as_array().unwrap().clone();
-        let mut positional = 0;
-        for a in &mut args {
-            if a["positional"].as_bool().unwrap_or(false) {
-                a["index"] = positional.into();
-                positional += 1;
-            }
-        }
-        for case in cases(&f, &command, &args, template, &tmp.path().join("work")) {
-            if case.what.ends_with(" unreadable") && !unreadable_bites(tmp.path()) {
-                skipped.push(format!("{name} [{}]", case.what));
-                continue;
-            }
-            all.push((k, case));
-            k += 1;
-        }
-    }
-    // Each command's baseline alone: a case that fails as its baseline
-    // does (a link with no peer) is not a refusal of the case's value.
-    let mut baseline_end: BTreeMap<String, (Option<i32>, String)> = BTreeMap::new();
-    for (name, template) in &baselines {
-        let work = f.root.join("base");
-        prepare_work(&work, &f, None);
-        let o = run(&fill(template, &f, &work.join("OUT")), &[], &work);
-        baseline_end.insert(name.to_string(), (o.code, first_error(&o, &work)));
-        let _ = std::fs::remove_dir_all(&work);
-    }
+    let (all, skipped) = table(&f, &tree, tmp.path());
+    let checker = Checker {
+        f: &f,
+        spelled: tmp.path().join("work").display().to_string(),
+        baseline_end: baseline_ends(&f),
+        before: snapshot(&f.root.join("in")),
+    };
     // Each case runs in a work folder of its own (outputs, bad inputs).
-    let before = snapshot(&f.root.join("in"));
     let failures = Mutex::new(Vec::new());
     let next = Mutex::new(all.clone().into_iter());
     let t = Instant::now();
@@ -402,68 +378,12 @@ fn every_command_refuses_misuse_cleanly() {
         for _ in 0..4 {
             s.spawn(|| loop {
                 let Some((k, case)) = next.lock().unwrap().next() else { break };
-                let work = f.root.join(format!("w{k}"));
-                let inside = f.root.join("in").display().to_string();
-                let input = case.args.iter().find(|a| a.starts_with(&inside)).map(PathBuf::from);
-                prepare_work(&work, &f, input.as_deref().filter(|p| p.exists()));
-                let args: Vec<String> = case
-                    .args
-                    .iter()
-                    .map(|a| a.replace(&tmp.path().join("work").display().to_string(), &work.display().to_string()))
-                    .collect();
-                let watch = case.watch.as_ref().map(|_| work.join("OUT"));
-                let listed = watch.as_deref().map(listing);
-                let parent = listing(&f.root.join("in"));
-                let o = run(&args, &case.env, &work);
-                let mut problems = Vec::new();
-                if o.code == Some(-999) {
-                    problems.push("did not end within 30 s".to_string());
+                let (secs, failed) = checker.check(k, &case);
+                let mut sl = slowest.lock().unwrap();
+                if secs > sl.0 {
+                    *sl = (secs, format!("{} {}", case.command, case.what));
                 }
-                if o.code.is_none() || o.code == Some(101) || o.stderr.contains("panicked") {
-                    problems.push(format!("crashed (exit {:?})", o.code));
-                }
-                let as_baseline = baseline_end.get(&case.command) == Some(&(o.code, first_error(&o, &work)));
-                if o.code != Some(0) && o.code != Some(-999) && !as_baseline {
-                    let names: Vec<String> = case
-                        .names
-                        .iter()
-                        .map(|n| n.replace(&tmp.path().join("work").display().to_string(), &work.display().to_string()))
-                        .collect();
-                    if !names.iter().any(|n| !n.is_empty() && o.stderr.contains(n.as_str())) {
-                        problems.push(format!("the message names none of {names:?}"));
-                    }
-                    if let (Some(w), Some(l)) = (&watch, &listed) {
-                        if &listing(w) != l {
-                            problems.push(format!("left {:?} in {}", listing(w), w.display()));
-                        }
-                    }
-                }
-                if listing(&f.root.join("in")) != parent {
-                    problems.push(format!("the input folder now lists {:?}", listing(&f.root.join("in"))));
-                }
-                let now = snapshot(&f.root.join("in"));
-                if now != before {
-                    let changed: Vec<_> =
-                        now.iter().filter(|(p, v)| before.get(*p) != Some(v)).map(|(p, _)| p.clone()).collect();
-                    problems.push(format!("an input changed: {changed:?}"));
-                }
-                {
-                    let mut sl = slowest.lock().unwrap();
-                    if o.secs > sl.0 {
-                        *sl = (o.secs, format!("{} {}", case.command, case.what));
-                    }
-                }
-                if !problems.is_empty() {
-                    let first = o.stderr.lines().next().unwrap_or("").to_string();
-                    failures.lock().unwrap().push(format!(
-                        "cosem {} [{}]: {} (exit {:?}: {first})",
-                        case.command,
-                        case.what,
-                        problems.join("; "),
-                        o.code
-                    ));
-                }
-                let _ = std::fs::remove_dir_all(&work);
+                failures.lock().unwrap().extend(failed);
             });
         }
     });
@@ -484,6 +404,109 @@ fn every_command_refuses_misuse_cleanly() {
         );
     }
     assert!(failures.is_empty(), "{} of {} cases failed:\n{}", failures.len(), all.len(), failures.join("\n"));
+}
+
+/// Every command's cases, numbered, and those skipped (with why).
+fn table(f: &Fixture, tree: &[Value], scratch: &Path) -> (Vec<(usize, Case)>, Vec<String>) {
+    let baselines = baselines();
+    let (mut all, mut skipped) = (Vec::new(), Vec::new());
+    for c in tree {
+        let command: Vec<String> =
+            c["command"].as_array().unwrap().iter().map(|w| w.as_str().unwrap().to_string()).collect();
+        let name = command.join(" ");
+        let template = baselines.get(name.as_str()).unwrap_or_else(|| panic!("no baseline for `{name}`: add one"));
+        let mut args: Vec<Value> = c["args"].as_array().unwrap().clone();
+        let mut positional = 0;
+        for a in &mut args {
+            if a["positional"].as_bool().unwrap_or(false) {
+                a["index"] = positional.into();
+                positional += 1;
+            }
+        }
+        for case in cases(f, &command, &args, template, &scratch.join("work")) {
+            if case.what.ends_with(" unreadable") && !unreadable_bites(scratch) {
+                skipped.push(format!("{name} [{}]", case.what));
+                continue;
+            }
+            all.push((all.len(), case));
+        }
+    }
+    (all, skipped)
+}
+
+/// Each command's baseline alone, how it ended: a case that fails as its
+/// baseline does (a link with no peer) is not a refusal of the case's value.
+fn baseline_ends(f: &Fixture) -> BTreeMap<String, (Option<i32>, String)> {
+    let mut ends = BTreeMap::new();
+    for (name, template) in &baselines() {
+        let work = f.root.join("base");
+        prepare_work(&work, f, None);
+        let o = run(&fill(template, f, &work.join("OUT")), &[], &work);
+        ends.insert(name.to_string(), (o.code, first_error(&o, &work)));
+        let _ = std::fs::remove_dir_all(&work);
+    }
+    ends
+}
+
+/// What every case is checked against.
+struct Checker<'a> {
+    f: &'a Fixture,
+    /// The work folder as the cases spell it (each runs in its own).
+    spelled: String,
+    baseline_end: BTreeMap<String, (Option<i32>, String)>,
+    /// The inputs before any case ran.
+    before: BTreeMap<PathBuf, String>,
+}
+
+impl Checker<'_> {
+    /// Runs case `k` in a work folder of its own: its time, and a line
+    /// saying what went wrong (none when nothing did).
+    fn check(&self, k: usize, case: &Case) -> (f64, Option<String>) {
+        let (f, inputs) = (self.f, self.f.root.join("in"));
+        let work = f.root.join(format!("w{k}"));
+        let here = |a: &String| a.replace(&self.spelled, &work.display().to_string());
+        let input = own_input(f, &case.args);
+        prepare_work(&work, f, input.as_deref().filter(|p| p.exists()));
+        let args: Vec<String> = case.args.iter().map(here).collect();
+        let watch = case.watch.as_ref().map(|_| work.join("OUT"));
+        let listed = watch.as_deref().map(listing);
+        let parent = listing(&inputs);
+        let o = run(&args, &case.env, &work);
+        let mut problems = Vec::new();
+        if o.code == Some(-999) {
+            problems.push("did not end within 30 s".to_string());
+        }
+        if o.code.is_none() || o.code == Some(101) || o.stderr.contains("panicked") {
+            problems.push(format!("crashed (exit {:?})", o.code));
+        }
+        let as_baseline = self.baseline_end.get(&case.command) == Some(&(o.code, first_error(&o, &work)));
+        if o.code != Some(0) && o.code != Some(-999) && !as_baseline {
+            let names: Vec<String> = case.names.iter().map(here).collect();
+            if !names.iter().any(|n| !n.is_empty() && o.stderr.contains(n.as_str())) {
+                problems.push(format!("the message names none of {names:?}"));
+            }
+            if let (Some(w), Some(l)) = (&watch, &listed) {
+                if &listing(w) != l {
+                    problems.push(format!("left {:?} in {}", listing(w), w.display()));
+                }
+            }
+        }
+        if listing(&inputs) != parent {
+            problems.push(format!("the input folder now lists {:?}", listing(&inputs)));
+        }
+        let now = snapshot(&inputs);
+        if now != self.before {
+            let changed: Vec<_> =
+                now.iter().filter(|(p, v)| self.before.get(*p) != Some(v)).map(|(p, _)| p.clone()).collect();
+            problems.push(format!("an input changed: {changed:?}"));
+        }
+        let _ = std::fs::remove_dir_all(&work);
+        let first = o.stderr.lines().next().unwrap_or("");
+        let failed = (!problems.is_empty()).then(|| {
+            format!("cosem {} [{}]: {} (exit {:?}: {first})", case.command, case.what, problems.join("; "), o.code)
+        });
+        (o.secs, failed)
+    }
 }
 
 /// Every output on a full disk: a 64 KiB tmpfs in a mount namespace of the

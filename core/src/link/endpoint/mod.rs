@@ -460,7 +460,7 @@ impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory, O: Borrow<LocalMap<M>>> E
         let tx = match map {
             None => None,
             Some((m, scratch)) => {
-                if (m.borrow().resolution() - resolution).abs() > 1e-6 * resolution {
+                if !same_resolution(m.borrow().resolution(), resolution) {
                     return Err(LinkError::Setup);
                 }
                 let ids = (map_id, robot_id, anchor_time_us);
@@ -711,61 +711,16 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
             shape,
             ..
         } = self;
-        if b != 0 {
-            line.byte();
-        }
-        // What a block's segments told of the line (a frame tells below).
-        let (pushed, pieces) = deframer.push(b);
-        for o in pieces {
-            line.piece(o.bytes, o.damage, o.parity);
-        }
-        let (payload, repaired, in_block) = match pushed {
-            Ok(Some(f)) => {
-                if f.segments == 0 {
-                    line.frame(Some((f.damage, f.parity)));
-                }
-                stats.count_repairs(f.damage);
-                (f.payload, f.repaired, f.segments > 0)
-            }
-            Ok(None) if pieces.is_empty() => return Ok(()),
-            Ok(None) => {
-                *shape = FrameShape::for_line(line.model(), config);
-                return Ok(());
-            }
-            Err(e) => {
-                stats.bad_frames += 1;
-                // No header read: a frame with two of its first bytes hit, or
-                // a segment of a block whose descriptors were both lost (its
-                // bytes no frame's, and its errors unknown). Half duplex has
-                // no blocks, and there it is a frame a collision garbled.
-                if e == crate::wire::DeframeError::Header && !config.half_duplex {
-                    line.skip();
-                } else if pieces.is_empty() {
-                    line.frame(None);
-                }
-                *shape = FrameShape::for_line(line.model(), config);
-                return Ok(());
-            }
+        let Some((payload, repaired, in_block)) = take_frame(deframer, line, stats, config, shape, b) else {
+            return Ok(());
         };
-        *shape = FrameShape::for_line(line.model(), config);
-        let msg = match Message::decode(payload) {
-            Ok(msg) => msg,
-            // An intact frame (its CRC-32 holds, nothing repaired) in another
-            // version, or a Hello with a non-finite field: the peer, not the
-            // line, says so, and waiting would only end at the deadline.
-            Err(MessageError::Version(v)) if !repaired => return Err(LinkError::Version(v)),
-            Err(MessageError::NonFinite) if !repaired => return Err(LinkError::BadHello),
-            Err(_) => {
-                stats.bad_frames += 1;
-                return Ok(());
-            }
-        };
+        let Some(msg) = decode_frame(payload, repaired, stats)? else { return Ok(()) };
         stats.repaired_frames += u32::from(repaired);
         stats.frames_received += 1;
         *last_heard = now;
         match msg {
             Message::Hello(h) => {
-                if h.class_table != CLASS_TABLE_VERSION || (h.resolution - *resolution).abs() > 1e-6 * *resolution {
+                if !compatible(h.class_table, h.resolution, *resolution) {
                     return Err(LinkError::Incompatible);
                 }
                 *peer_takes_map = Some(h.takes_map);
@@ -801,5 +756,85 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
             }
         }
         Ok(())
+    }
+}
+
+/// Whether a peer's map (its class table version and voxel size) can be
+/// taken by a map of voxels of `ours` metres: the one test of the Hello,
+/// of a received map's header and of a staging map against its map.
+pub(super) fn compatible(class_table: u16, resolution: f32, ours: f32) -> bool {
+    class_table == CLASS_TABLE_VERSION && same_resolution(resolution, ours)
+}
+
+/// Two voxel sizes that are the same one (to a millionth).
+pub(super) fn same_resolution(a: f32, b: f32) -> bool {
+    (a - b).abs() <= 1e-6 * b
+}
+
+/// One byte into the deframer, and what it told of the line (the line
+/// estimate and the frame shape follow it): the frame it completed, if
+/// any, as (payload, repaired, came in a block).
+fn take_frame<'d>(
+    deframer: &'d mut BlockDeframer,
+    line: &mut LineEstimate,
+    stats: &mut LinkStats,
+    config: &LinkConfig,
+    shape: &mut FrameShape,
+    b: u8,
+) -> Option<(&'d [u8], bool, bool)> {
+    if b != 0 {
+        line.byte();
+    }
+    // What a block's segments told of the line (a frame tells below).
+    let (pushed, pieces) = deframer.push(b);
+    for o in pieces {
+        line.piece(o.bytes, o.damage, o.parity);
+    }
+    let taken = match pushed {
+        Ok(Some(f)) => {
+            if f.segments == 0 {
+                line.frame(Some((f.damage, f.parity)));
+            }
+            stats.count_repairs(f.damage);
+            Some((f.payload, f.repaired, f.segments > 0))
+        }
+        Ok(None) if pieces.is_empty() => return None,
+        Ok(None) => None,
+        Err(e) => {
+            stats.bad_frames += 1;
+            // No header read: a frame with two of its first bytes hit, or
+            // a segment of a block whose descriptors were both lost (its
+            // bytes no frame's, and its errors unknown). Half duplex has
+            // no blocks, and there it is a frame a collision garbled.
+            if e == crate::wire::DeframeError::Header && !config.half_duplex {
+                line.skip();
+            } else if pieces.is_empty() {
+                line.frame(None);
+            }
+            None
+        }
+    };
+    *shape = FrameShape::for_line(line.model(), config);
+    taken
+}
+
+/// A frame's message: `None` (counted as a bad frame) when it does not
+/// decode; an error when an intact frame (its CRC-32 holds, nothing
+/// repaired) is in another version or a Hello with a non-finite field:
+/// the peer, not the line, says so, and waiting would only end at the
+/// deadline.
+fn decode_frame<'p>(
+    payload: &'p [u8],
+    repaired: bool,
+    stats: &mut LinkStats,
+) -> Result<Option<Message<'p>>, LinkError> {
+    match Message::decode(payload) {
+        Ok(msg) => Ok(Some(msg)),
+        Err(MessageError::Version(v)) if !repaired => Err(LinkError::Version(v)),
+        Err(MessageError::NonFinite) if !repaired => Err(LinkError::BadHello),
+        Err(_) => {
+            stats.bad_frames += 1;
+            Ok(None)
+        }
     }
 }

@@ -149,7 +149,7 @@ impl<S: VoxelSink> Rx<'_, S> {
         match (self.header, self.decoder.as_mut()) {
             (None, _) => {
                 let h = MapHeader::decode(rec).map_err(|_| LinkError::Decode(DecodeError::Truncated))?;
-                if h.class_table != CLASS_TABLE_VERSION || (h.resolution - resolution).abs() > 1e-6 * resolution {
+                if !super::compatible(h.class_table, h.resolution, resolution) {
                     return Err(LinkError::Incompatible);
                 }
                 if h.voxel_count as usize > map.capacity() {

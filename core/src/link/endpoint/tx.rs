@@ -373,15 +373,7 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
             };
         }
         if let Some(i) = b.segs.iter().position(|s| s.lost != 0) {
-            self.cut(b.segs, i);
-            let more = b.segs.iter().skip(i + 1).any(|s| s.lost != 0);
-            let len = b.segs.get(i).map_or(0, |s| u32::from(s.len));
-            let turn_over = config.half_duplex && self.burst.saturating_add(len) >= BURST;
-            let poll = turn_over || (!more && !self.can_send_new(b.segs, config));
-            // One copy: since the deframer repairs single errors, extra
-            // copies of bytes lost again and again no longer paid (measured).
-            stats.retransmissions += 1;
-            return self.transmit(b, i, poll, io, now, stats);
+            return self.resend_lost(b, i, io, now, config, stats);
         }
         if self.can_send_new(b.segs, config) {
             return self.send_new(b, io, now, config, stats);
@@ -392,6 +384,41 @@ impl<S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'_, S, O> {
         if now >= self.last_progress.max(heard) + 4 * u64::from(rto) {
             return self.probe_when_due(b, io, now, shape, config, stats);
         }
+        self.resend_unacknowledged(b, io, now, (shape, rto), config, stats)
+    }
+
+    /// Sends segment `i`, reported lost, again (cut to the current size).
+    fn resend_lost<IO: Write>(
+        &mut self,
+        b: &mut TxBufs<'_>,
+        i: usize,
+        io: &mut IO,
+        now: u64,
+        config: &LinkConfig,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
+        self.cut(b.segs, i);
+        let more = b.segs.iter().skip(i + 1).any(|s| s.lost != 0);
+        let len = b.segs.get(i).map_or(0, |s| u32::from(s.len));
+        let turn_over = config.half_duplex && self.burst.saturating_add(len) >= BURST;
+        let poll = turn_over || (!more && !self.can_send_new(b.segs, config));
+        // One copy: since the deframer repairs single errors, extra
+        // copies of bytes lost again and again no longer paid (measured).
+        stats.retransmissions += 1;
+        self.transmit(b, i, poll, io, now, stats)
+    }
+
+    /// Sends again the oldest bytes not acknowledged for a while (a
+    /// timeout `rto` on a clean line, sooner on a lossy one), if any are.
+    fn resend_unacknowledged<IO: Write>(
+        &mut self,
+        b: &mut TxBufs<'_>,
+        io: &mut IO,
+        now: u64,
+        (shape, rto): (FrameShape, u32),
+        config: &LinkConfig,
+        stats: &mut LinkStats,
+    ) -> Result<(), LinkError> {
         // On a clean line, bytes not acknowledged in a timeout; on a lossy
         // one, sooner (a round trip and a half): there the oldest bytes are
         // likely lost again, and the line would idle meanwhile.
