@@ -6,6 +6,7 @@
 //! with probability `stall_chance` per millisecond the line stalls for 0.2
 //! to 2 s. Time is virtual: call [`SimLine::tick`] once per millisecond.
 
+use super::fault::{Damaged, Fault, SimRng};
 use core::cell::RefCell;
 use core::convert::Infallible;
 
@@ -185,7 +186,7 @@ pub struct SimLine<const N: usize> {
     config: SimConfig,
     wire: [Ring<N>; 2],
     inbox: [Ring<N>; 2],
-    rng: u64,
+    rng: SimRng,
     stall_until: u64,
     budget: f64,
     collisions: u64,
@@ -203,7 +204,7 @@ impl<const N: usize> SimLine<N> {
             config,
             wire: [Ring::new(), Ring::new()],
             inbox: [Ring::new(), Ring::new()],
-            rng: config.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
+            rng: SimRng::new(config.seed),
             stall_until: 0,
             budget: 0.0,
             collisions: 0,
@@ -211,14 +212,11 @@ impl<const N: usize> SimLine<N> {
     }
 
     fn next(&mut self) -> u64 {
-        self.rng ^= self.rng << 13;
-        self.rng ^= self.rng >> 7;
-        self.rng ^= self.rng << 17;
-        self.rng
+        self.rng.next_u64()
     }
 
     fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+        self.rng.unit()
     }
 
     /// Moves bytes for the millisecond `now`.
@@ -246,28 +244,17 @@ impl<const N: usize> SimLine<N> {
         }
     }
 
+    /// Byte `b` onto the wire from `side`, through the line's fault (the
+    /// one fault model, [`Fault`]).
     fn send(&mut self, side: usize, b: u8) {
-        if self.unit() < self.config.error_rate {
-            // The thirds draw as they did before mixes existed.
-            let mix = self.config.mix;
-            let kind = if mix == Mix::THIRDS { 1 + (self.next() % 3) as u8 } else { mix.kind(self.unit()) };
-            match kind {
-                0 => {
-                    let bit = 1u8 << (self.next() % 8);
-                    self.wire[side].push(b ^ bit);
-                }
-                1 => {
-                    let flip = (self.next() as u8) | 1;
-                    self.wire[side].push(b ^ flip);
-                }
-                2 => {}
-                _ => {
-                    self.wire[side].push(b);
-                    self.wire[side].push(b);
-                }
+        let fault = Fault { rate: self.config.error_rate, mix: self.config.mix };
+        match fault.damage(&mut self.rng, b) {
+            Damaged::Kept(v) | Damaged::Changed(v) => self.wire[side].push(v),
+            Damaged::Dropped => {}
+            Damaged::Doubled(v) => {
+                self.wire[side].push(v);
+                self.wire[side].push(v);
             }
-        } else {
-            self.wire[side].push(b);
         }
     }
 

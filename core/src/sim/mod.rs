@@ -1,13 +1,16 @@
 //! Simulation, for tests and hosts (feature `sim`; never in a board's
-//! build): a seeded lossy serial line ([`SimLine`]), a scripted feed line
+//! build): the one fault model of a byte stream ([`Fault`], and [`Lossy`]
+//! over any port), a seeded lossy serial line ([`SimLine`]), a scripted feed line
 //! ([`ScriptPort`]), and the one driver that runs any number of robots
 //! ([`Machine`]s) over such lines in virtual time ([`run`]). The core's
 //! tests, the host's twin of a board run, its team run and its link
 //! benchmark all run robots through [`run`], so a host computes exactly
 //! what the boards compute.
 
+mod fault;
 mod line;
 
+pub use fault::{Damaged, Fault, FaultError, Lossy, SimRng};
 pub use line::{Mix, MixError, OutputFull, ScriptPort, SimConfig, SimLine, SimPort};
 
 use crate::robot::{Machine, Poll, RobotError};

@@ -1,10 +1,10 @@
 //! The line between two boards' UART0s: bytes copied both ways through a
 //! fault (none, silent, bit flips, or substituted, dropped and duplicated
-//! bytes), seeded.
+//! bytes), seeded: the relay's pump and the one fault model.
 
-use std::io::{Read, Write};
+use crate::lines::relay::{Fault, Mix};
 use std::net::TcpStream;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::AtomicU64;
 use std::sync::Arc;
 
 /// What the line between the robots' UART0s does to bytes: `none`,
@@ -43,43 +43,22 @@ impl std::str::FromStr for LineFault {
     }
 }
 
-/// Copies `from` to `to` through `fault` until either side closes; counts bytes.
-pub(crate) fn pump(mut from: TcpStream, mut to: TcpStream, fault: LineFault, seed: u64, count: Arc<AtomicU64>) {
-    let mut rng = crate::rng::Rng::new(seed);
-    let mut buf = [0u8; 4096];
-    let mut out = Vec::with_capacity(2 * buf.len());
-    loop {
-        let n = match from.read(&mut buf) {
-            Ok(0) | Err(_) => break,
-            Ok(n) => n,
-        };
-        count.fetch_add(n as u64, Ordering::Relaxed);
-        out.clear();
-        match fault {
-            LineFault::Silent => continue,
-            LineFault::Corrupt(p) => {
-                for b in &mut buf[..n] {
-                    if rng.chance(p) {
-                        *b ^= 1 << (rng.below(8) as u8);
-                    }
-                }
-                out.extend_from_slice(&buf[..n]);
-            }
-            LineFault::Lossy(p) => {
-                for &b in &buf[..n] {
-                    match (rng.chance(p), rng.below(3)) {
-                        (false, _) => out.push(b),
-                        (true, 0) => out.push(b ^ (1 + rng.below(255) as u8)),
-                        (true, 1) => {}
-                        (true, _) => out.extend([b, b]),
-                    }
-                }
-            }
-            LineFault::None => out.extend_from_slice(&buf[..n]),
-        }
-        if to.write_all(&out).is_err() {
-            break;
+impl LineFault {
+    /// The fault model of this line (the one of [`crate::lines::relay`]).
+    pub fn fault(self) -> Fault {
+        let only = |bit, drop| Mix { bit, byte: 0.0, drop, dup: 0.0 };
+        match self {
+            LineFault::None => Fault::NONE,
+            LineFault::Silent => Fault { rate: 1.0, mix: only(0.0, 1.0) },
+            LineFault::Corrupt(p) => Fault { rate: p, mix: only(1.0, 0.0) },
+            LineFault::Lossy(p) => Fault { rate: p, mix: Mix::THIRDS },
         }
     }
-    let _ = to.shutdown(std::net::Shutdown::Write);
+}
+
+/// Copies `from` to `to` through `fault` (seeded with `seed`, unpaced:
+/// QEMU's UARTs keep their own time) until either side closes; counts the
+/// bytes read.
+pub fn pump(from: TcpStream, to: TcpStream, fault: LineFault, seed: u64, count: Arc<AtomicU64>) {
+    crate::lines::relay::pump(from, to, (fault.fault(), seed, 0), [count, Arc::new(AtomicU64::new(0))]);
 }

@@ -1,7 +1,7 @@
 //! `cosem relay`: a paced, lossy line between two `cosem link` processes.
 
 use super::Error;
-use cosem_host::lines::relay::{run, Flip, LineModel, Mix};
+use cosem_host::lines::relay::{flip_mix, run, Fault, LineModel, Mix};
 use std::time::Duration;
 
 #[derive(clap::Args, Debug)]
@@ -29,6 +29,17 @@ pub struct Args {
     accept_timeout: f64,
 }
 
+/// What a flip does to a byte: a UART's bit error flips one bit; noise
+/// across a whole character (or a clock slip) garbles it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Flip {
+    /// One bit flipped.
+    #[default]
+    Bit,
+    /// XOR with a random non-zero byte.
+    Byte,
+}
+
 pub fn run_relay(a: Args) -> Result<(), Error> {
     let bind =
         |p: u16| std::net::TcpListener::bind(("127.0.0.1", p)).map_err(|e| format!("listen on 127.0.0.1:{p}: {e}"));
@@ -36,7 +47,9 @@ pub fn run_relay(a: Args) -> Result<(), Error> {
     if a.mix.is_some() && a.error_rate == 0.0 {
         eprintln!("warning: --mix without --error-rate: the line stays clean (--error-rate 0), the mix is not used");
     }
-    let model = LineModel { baud: a.baud, error_rate: a.error_rate, seed: a.seed, flip: a.flip, mix: a.mix };
+    let mix = a.mix.unwrap_or(flip_mix(a.flip == Flip::Byte));
+    let fault = Fault::new(a.error_rate, mix).map_err(|e| format!("--error-rate {} --mix: {e}", a.error_rate))?;
+    let model = LineModel { baud: a.baud, fault, seed: a.seed };
     let wait = Duration::from_secs_f64(a.accept_timeout.min(86_400.0));
     let stats = run(listeners, model, wait, |[x, y]| eprintln!("relay on {x} {y}"))?;
     println!(

@@ -1,82 +1,45 @@
 //! A line between two `cosem link` processes, as a UART would be: each
-//! direction paced to a baud rate (8N1: ten bits a byte) and, with
-//! probability `error_rate` per byte, the byte flipped (one bit, or with
-//! [`Flip::Byte`] any value), dropped or duplicated (a third each), or
-//! damaged in the shares a [`Mix`] names, from a seeded generator per
-//! direction. For measuring the link on a realistic line, and for tests
-//! (`cosem relay`).
+//! direction paced to a baud rate (8N1: ten bits a byte) and damaged by
+//! the one fault model ([`Fault`]: each byte with probability `rate`, as a
+//! [`Mix`] says), from a seeded generator per direction. For measuring the
+//! link on a realistic line, and for tests (`cosem relay`); [`pump`] is
+//! also the line between two boards' UARTs.
 
 use crate::error::Error;
-use crate::lines::transport::{accept_within, Pacer};
-use crate::rng::Rng;
-use std::io::{Read, Write};
+use crate::lines::transport::{accept_within, Paced, TcpWriter};
+use cosem_core::sim::Lossy;
+use std::io::Read;
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+pub use cosem_core::sim::{Fault, Mix};
 
 /// How the relay treats bytes.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LineModel {
     /// Line speed (baud, 8N1); 0: unpaced.
     pub baud: u32,
-    /// Probability that a byte is flipped, dropped or duplicated.
-    pub error_rate: f64,
+    /// What the line does to bytes.
+    pub fault: Fault,
     /// Seed of the errors (each direction draws from its own stream).
     pub seed: u64,
-    /// What a flip does to a byte.
-    pub flip: Flip,
-    /// The shares of the kinds of damage (`None`: flips as `flip` says,
-    /// drops and duplicates, a third each).
-    pub mix: Option<Mix>,
 }
-
-pub use cosem_core::sim::Mix;
 
 /// Reads a mix from the command line (`bit=1,byte=1,drop=1,dup=1`).
 pub fn parse_mix(text: &str) -> Result<Mix, String> {
     Mix::parse(text).map_err(|e| format!("`{text}`: {e}"))
 }
 
-/// One kind of damage.
-enum Damage {
-    Bit,
-    Byte,
-    Drop,
-    Dup,
-}
-
-impl LineModel {
-    /// The damage a damaged byte gets.
-    fn damage(&self, rng: &mut Rng) -> Damage {
-        let Some(m) = self.mix else {
-            // As before mixes existed: the same draws for the same seed.
-            return match rng.below(3) {
-                0 if self.flip == Flip::Bit => Damage::Bit,
-                0 => Damage::Byte,
-                1 => Damage::Drop,
-                _ => Damage::Dup,
-            };
-        };
-        match m.kind(rng.unit()) {
-            0 => Damage::Bit,
-            1 => Damage::Byte,
-            2 => Damage::Drop,
-            _ => Damage::Dup,
-        }
+/// The mix of a line whose damage is a flip (one bit, or the whole byte),
+/// a drop or a duplicate, a third each.
+pub fn flip_mix(whole_byte: bool) -> Mix {
+    if whole_byte {
+        Mix::THIRDS
+    } else {
+        Mix { bit: 1.0, byte: 0.0, drop: 1.0, dup: 1.0 }
     }
-}
-
-/// What a flip does to a byte: a UART's bit error flips one bit; noise
-/// across a whole character (or a clock slip) garbles it.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-pub enum Flip {
-    /// One bit flipped.
-    #[default]
-    Bit,
-    /// XOR with a random non-zero byte.
-    Byte,
 }
 
 /// What crossed the relay, per direction (first connection to second, then back).
@@ -88,42 +51,31 @@ pub struct RelayStats {
     pub damaged: [u64; 2],
 }
 
-/// Copies `from` to `to` as the line model says, until `from` closes.
-fn pump(mut from: TcpStream, mut to: TcpStream, model: LineModel, seed: u64, counts: [Arc<AtomicU64>; 2]) {
-    let mut rng = Rng::new(seed);
-    let mut pacer = Pacer::new(model.baud);
+/// Copies `from` to `to` through `fault` (seeded with `seed`), paced to
+/// `baud` (0: unpaced), until either side closes; counts the bytes read
+/// (`counts[0]`) and damaged (`counts[1]`).
+pub fn pump(from: TcpStream, to: TcpStream, (fault, seed, baud): (Fault, u64, u32), counts: [Arc<AtomicU64>; 2]) {
+    use embedded_io::Write;
+    let (mut from, shut) = (from, to.try_clone());
+    let mut out = Lossy::new(Paced::new(TcpWriter(to), baud), fault, seed);
     let mut buf = [0u8; 4096];
-    let mut out = Vec::with_capacity(8192);
     loop {
         let n = match from.read(&mut buf) {
             Ok(0) | Err(_) => break,
             Ok(n) => n,
         };
         counts[0].fetch_add(n as u64, Ordering::Relaxed);
-        out.clear();
-        for &b in &buf[..n] {
-            if model.error_rate > 0.0 && rng.chance(model.error_rate) {
-                counts[1].fetch_add(1, Ordering::Relaxed);
-                match model.damage(&mut rng) {
-                    Damage::Bit => out.push(b ^ (1 << rng.below(8))),
-                    Damage::Byte => out.push(b ^ (1 + rng.below(255) as u8)),
-                    Damage::Drop => {}
-                    Damage::Dup => out.extend_from_slice(&[b, b]),
-                }
-            } else {
-                out.push(b);
-            }
-        }
+        let before = out.damaged();
         // Paced as the UART would send, a few bytes at a time.
-        for chunk in out.chunks(64) {
-            pacer.wait();
-            if to.write_all(chunk).is_err() {
-                return;
-            }
-            pacer.sent(chunk.len());
+        let sent = buf[..n].chunks(64).try_for_each(|chunk| out.write_all(chunk));
+        counts[1].fetch_add(out.damaged() - before, Ordering::Relaxed);
+        if sent.is_err() {
+            return;
         }
     }
-    let _ = to.shutdown(std::net::Shutdown::Write);
+    if let Ok(s) = shut {
+        let _ = s.shutdown(std::net::Shutdown::Write);
+    }
 }
 
 /// Accepts one connection on each listener (within `accept_timeout`), then
@@ -151,9 +103,9 @@ pub fn run(
     let (a, b) = (clone(&streams[0])?, clone(&streams[1])?);
     let (c0, c1) = ([counts[0].clone(), counts[1].clone()], [counts[2].clone(), counts[3].clone()]);
     let (s0, s1) = (streams.remove(0), streams.remove(0));
-    let seed = model.seed;
-    let t0 = std::thread::spawn(move || pump(s0, b, model, seed, c0));
-    let t1 = std::thread::spawn(move || pump(s1, a, model, seed ^ 0x05EE_D0FB, c1));
+    let (fault, seed, baud) = (model.fault, model.seed, model.baud);
+    let t0 = std::thread::spawn(move || pump(s0, b, (fault, seed, baud), c0));
+    let t1 = std::thread::spawn(move || pump(s1, a, (fault, seed ^ 0x05EE_D0FB, baud), c1));
     let _ = (t0.join(), t1.join());
     let load = |i: usize| counts[i].load(Ordering::Relaxed);
     Ok(RelayStats { bytes_in: [load(0), load(2)], damaged: [load(1), load(3)] })
@@ -174,30 +126,37 @@ mod tests {
         }
     }
 
-    /// Draws follow the shares; without a mix, the draws of before (a third
-    /// each, the flip as `flip` says).
+    /// A relay damages at the rate asked, in both directions, and passes
+    /// a clean line's bytes as they are.
     #[test]
-    fn damage_follows_the_shares() {
-        let model = |mix| LineModel { baud: 0, error_rate: 1.0, seed: 1, flip: Flip::Byte, mix };
-        let count = |m: &LineModel| {
-            let mut rng = Rng::new(7);
-            let mut n = [0usize; 4];
-            for _ in 0..30_000 {
-                n[match m.damage(&mut rng) {
-                    Damage::Bit => 0,
-                    Damage::Byte => 1,
-                    Damage::Drop => 2,
-                    Damage::Dup => 3,
-                }] += 1;
+    fn the_relay_damages_what_it_is_told_to() {
+        use std::io::Write;
+        for (rate, want) in [(0.0, 0..1), (0.2, 1_500..2_500)] {
+            let fault = Fault::new(rate, flip_mix(false)).unwrap();
+            let listeners = [TcpListener::bind("127.0.0.1:0").unwrap(), TcpListener::bind("127.0.0.1:0").unwrap()];
+            let (tx, rx) = std::sync::mpsc::channel();
+            let relay = std::thread::spawn(move || {
+                run(listeners, LineModel { baud: 0, fault, seed: 3 }, Duration::from_secs(10), |a| {
+                    tx.send(a).unwrap();
+                })
+            });
+            let [x, y] = rx.recv().unwrap();
+            let mut a = TcpStream::connect(x).unwrap();
+            let mut b = TcpStream::connect(y).unwrap();
+            let bytes = vec![0xA5u8; 10_000];
+            a.write_all(&bytes).unwrap();
+            a.shutdown(std::net::Shutdown::Write).unwrap();
+            let mut got = Vec::new();
+            b.read_to_end(&mut got).unwrap();
+            drop(b);
+            let stats = relay.join().unwrap().unwrap();
+            assert_eq!(stats.bytes_in[0], 10_000);
+            assert!(want.contains(&stats.damaged[0]), "rate {rate}: {stats:?}");
+            if rate == 0.0 {
+                assert_eq!(got, bytes);
+            } else {
+                assert_ne!(got, bytes);
             }
-            n
-        };
-        let n = count(&model(Some(Mix { bit: 0.0, byte: 1.0, drop: 1.0, dup: 2.0 })));
-        assert_eq!(n[0], 0);
-        assert!((7_000..8_000).contains(&n[1]) && (7_000..8_000).contains(&n[2]), "{n:?}");
-        assert!((14_500..15_500).contains(&n[3]), "{n:?}");
-        let thirds = count(&model(None));
-        assert_eq!(thirds[0], 0);
-        assert!(thirds[1..].iter().all(|&k| (9_500..10_500).contains(&k)), "{thirds:?}");
+        }
     }
 }

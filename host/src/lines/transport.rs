@@ -160,6 +160,23 @@ impl embedded_io::Write for Tcp {
     }
 }
 
+/// A TCP connection written as it blocks (the far side of a relay or of
+/// the line between two boards), as an `embedded-io` writer.
+pub struct TcpWriter(pub TcpStream);
+
+impl embedded_io::ErrorType for TcpWriter {
+    type Error = TransportError;
+}
+
+impl embedded_io::Write for TcpWriter {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, TransportError> {
+        self.0.write(buf).map_err(TransportError)
+    }
+    fn flush(&mut self) -> Result<(), TransportError> {
+        self.0.flush().map_err(TransportError)
+    }
+}
+
 #[cfg(feature = "serial")]
 pub use serial::Serial;
 
