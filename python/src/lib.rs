@@ -10,10 +10,11 @@
 
 use cosem_core::classes::Class;
 use cosem_core::geometry::Isometry3;
-use cosem_core::map::{Insertion, LabelDistribution, MapConfig};
+use cosem_core::map::{LabelDistribution, MapConfig};
 use cosem_core::matching::{MatchResult, MatchSettings};
-use cosem_host::maps::mapping::{HostMap, PointFilter, Unlabeled};
+use cosem_host::maps::mapping::{build_map, BuildError, HostMap, PointFilter, Unlabeled};
 use cosem_host::matching::align::{align, prepare, DEFAULT_LEVELS};
+use cosem_host::sources::kitti::Frame;
 use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyIOError, PyValueError};
 use pyo3::prelude::*;
@@ -59,11 +60,7 @@ impl Map {
     #[staticmethod]
     #[pyo3(signature = (xyz, labels, voxel = 0.2, unlabeled = "drop"))]
     fn from_points(xyz: &Bound<'_, PyAny>, labels: &Bound<'_, PyAny>, voxel: f32, unlabeled: &str) -> PyResult<Self> {
-        let unlabeled = match unlabeled {
-            "drop" => Unlabeled::Drop,
-            "geometry" => Unlabeled::Geometry,
-            other => return Err(value_error(format!("unlabeled={other:?}: \"drop\" or \"geometry\""))),
-        };
+        let unlabeled: Unlabeled = unlabeled.parse().map_err(|e: String| value_error(format!("unlabeled={e}")))?;
         // The host's filter (no range limit, moving objects left out).
         let filter = PointFilter { unlabeled, ..PointFilter::default() };
         let xyz = float_array(xyz, "xyz", "(N, 3)")?;
@@ -73,34 +70,24 @@ impl Map {
             return Err(value_error(format!("xyz must be an (N, 3) array, got shape {shape:?}")));
         }
         let labels = label_words(labels, shape[0])?;
-        let xyz = xyz.as_array();
+        let points: Vec<[f32; 3]> =
+            xyz.as_array().outer_iter().map(|p| [p[0] as f32, p[1] as f32, p[2] as f32]).collect();
+        // One frame at the origin through the host's one mapping path
+        // (what `cosem map` runs): ranges 0, so no range limit applies.
+        let frame = Frame {
+            index: 0,
+            time: None,
+            pose: nalgebra::Isometry3::identity(),
+            ranges: vec![0.0; points.len()],
+            points,
+            labels,
+            evidence: None,
+        };
         let config = MapConfig { resolution: voxel, ..MapConfig::default() };
-        let mut map = cosem_core::map::vec_map(shape[0].max(1), config).map_err(value_error)?;
-        let mut classless = 0usize;
-        for (i, (p, &l)) in xyz.outer_iter().zip(labels.iter()).enumerate() {
-            let point = [p[0] as f32, p[1] as f32, p[2] as f32];
-            let inserted = match filter.keep(0.0, l) {
-                Some(Some(class)) => map.insert_point(point, class),
-                Some(None) => map.insert_point_evidence(point, &LabelDistribution::EMPTY),
-                None => {
-                    classless += 1;
-                    continue;
-                }
-            };
-            match inserted {
-                Ok(Insertion::Dropped) | Ok(_) => {}
-                Err(e) => return Err(value_error(format!("point {i} {point:?}: {e}"))),
-            }
-        }
-        if map.is_empty() {
-            return Err(value_error(if shape[0] == 0 {
-                "no points: the map would be empty".to_string()
-            } else {
-                format!(
-                    "the map is empty: all {classless} points have label ids without a class (unlabeled, outlier, moving, or not SemanticKITTI ids)"
-                )
-            }));
-        }
+        let (map, _) = build_map(&[frame], config, &filter).map_err(|e| match e {
+            BuildError::Empty(_) if shape[0] == 0 => value_error("no points: the map would be empty"),
+            e => value_error(e),
+        })?;
         Ok(Map { map })
     }
 

@@ -123,11 +123,10 @@ pub fn label_with_model(
     o: &LabelOptions,
     model: &Path,
     images: &Path,
-    fit: &str,
+    fit: crate::camera::seg_files::Fit,
 ) -> Result<(LabelStats, usize, f64), crate::error::Error> {
     #[cfg(feature = "segment")]
     {
-        let fit = fit.parse().map_err(|e: String| crate::error::Error::Invalid(format!("--fit {e}")))?;
         let (stats, s) = label_from_images(o, model, images, fit)?;
         Ok((stats, s.images, s.ms_per_image))
     }
@@ -150,7 +149,7 @@ pub fn label_from_images(
     o: &LabelOptions,
     model: &Path,
     images: &Path,
-    fit: crate::camera::segment::Fit,
+    fit: crate::camera::seg_files::Fit,
 ) -> Result<(LabelStats, crate::camera::segment::SegmentSummary), crate::error::Error> {
     if o.frames.len() > 1 {
         return Err(crate::error::Error::Invalid("--model labels one frame range at a time".into()));

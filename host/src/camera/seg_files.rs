@@ -169,6 +169,58 @@ pub fn write_rgb_png(path: &Path, image: &RgbImage) -> std::io::Result<()> {
     write_png(path, (image.width, image.height), png::ColorType::Rgb, &image.rgb)
 }
 
+/// How an image is brought to the network's input size. The default,
+/// tiles at the image's own scale, labelled KITTI's camera points better
+/// than squashing (77.3% / 85.4% right against 77.2% / 83.6% on kitti00 /
+/// kitti07, as Cityscapes can say them) at twice the inferences.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Fit {
+    /// The whole image stretched to the input (a KITTI image: 1.36x taller,
+    /// 0.83x narrower than it is): one inference.
+    Squash,
+    /// The image scaled keeping its aspect, then covered by overlapping
+    /// tiles of the input's size (scores averaged where tiles overlap).
+    Tile {
+        /// Scale of the image before tiling (1: as it is, two tiles for a
+        /// KITTI image; 1.6: KITTI's focal length then about Cityscapes'
+        /// at 1024x512, four tiles).
+        scale: f32,
+    },
+}
+
+impl Default for Fit {
+    fn default() -> Self {
+        Fit::Tile { scale: 1.0 }
+    }
+}
+
+impl std::str::FromStr for Fit {
+    type Err = String;
+    /// `squash`, `tile` (scale 1) or `tile:SCALE`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.split_once(':') {
+            None if s == "squash" => Ok(Fit::Squash),
+            None if s == "tile" => Ok(Fit::Tile { scale: 1.0 }),
+            Some(("tile", v)) => match v.parse::<f32>() {
+                Ok(scale) if scale.is_finite() && (0.1..=8.0).contains(&scale) => Ok(Fit::Tile { scale }),
+                _ => Err(format!("tile scale {v:?}: a number from 0.1 to 8")),
+            },
+            _ => Err(format!("{s:?}: squash, tile or tile:SCALE")),
+        }
+    }
+}
+
+impl std::fmt::Display for Fit {
+    /// As it is read: `squash`, `tile` or `tile:SCALE`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Fit::Squash => f.write_str("squash"),
+            Fit::Tile { scale } if *scale == 1.0 => f.write_str("tile"),
+            Fit::Tile { scale } => write!(f, "tile:{scale}"),
+        }
+    }
+}
+
 /// Per-pixel class probabilities: `channels` values per pixel, row by row.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ProbabilityMap {
@@ -290,7 +342,6 @@ pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap
 /// set's channels, as most Cityscapes networks output (19 classes and
 /// void).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum VoidChannel {
     /// No void channel.
     #[default]
@@ -299,6 +350,24 @@ pub enum VoidChannel {
     First,
     /// The last channel is void.
     Last,
+}
+
+impl VoidChannel {
+    /// The names it is read from (the command line's, Python's).
+    pub const NAMES: &'static [&'static str] = &["none", "first", "last"];
+}
+
+impl std::str::FromStr for VoidChannel {
+    type Err = String;
+    /// Where a void channel is: none, first or last.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "none" => Ok(VoidChannel::None),
+            "first" => Ok(VoidChannel::First),
+            "last" => Ok(VoidChannel::Last),
+            _ => Err(format!("`{s}`: expected none, first or last")),
+        }
+    }
 }
 
 /// Reads a probability map of `classes` plus a `void` channel, whose

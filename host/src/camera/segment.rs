@@ -9,6 +9,7 @@
 //! mean and deviation; one output `float32 [1, C, H, W]` of raw scores,
 //! channels 0-18 the Cityscapes training ids, any further one void.
 
+use crate::camera::seg_files::Fit;
 use crate::camera::seg_files::{npy_bytes, ProbabilityMap, SegImage};
 pub use crate::camera::seg_files::{read_rgb_png, write_rgb_png, RgbImage};
 use std::path::{Path, PathBuf};
@@ -89,47 +90,6 @@ pub enum SegmentError {
 }
 
 impl crate::error::LayerError for SegmentError {}
-
-/// How an image is brought to the network's input size. The default,
-/// tiles at the image's own scale, labelled KITTI's camera points better
-/// than squashing (77.3% / 85.4% right against 77.2% / 83.6% on kitti00 /
-/// kitti07, as Cityscapes can say them) at twice the inferences.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Fit {
-    /// The whole image stretched to the input (a KITTI image: 1.36x taller,
-    /// 0.83x narrower than it is): one inference.
-    Squash,
-    /// The image scaled keeping its aspect, then covered by overlapping
-    /// tiles of the input's size (scores averaged where tiles overlap).
-    Tile {
-        /// Scale of the image before tiling (1: as it is, two tiles for a
-        /// KITTI image; 1.6: KITTI's focal length then about Cityscapes'
-        /// at 1024x512, four tiles).
-        scale: f32,
-    },
-}
-
-impl Default for Fit {
-    fn default() -> Self {
-        Fit::Tile { scale: 1.0 }
-    }
-}
-
-impl std::str::FromStr for Fit {
-    type Err = String;
-    /// `squash`, `tile` (scale 1) or `tile:SCALE`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s.split_once(':') {
-            None if s == "squash" => Ok(Fit::Squash),
-            None if s == "tile" => Ok(Fit::Tile { scale: 1.0 }),
-            Some(("tile", v)) => match v.parse::<f32>() {
-                Ok(scale) if scale.is_finite() && (0.1..=8.0).contains(&scale) => Ok(Fit::Tile { scale }),
-                _ => Err(format!("tile scale {v:?}: a number from 0.1 to 8")),
-            },
-            _ => Err(format!("{s:?}: squash, tile or tile:SCALE")),
-        }
-    }
-}
 
 /// Resampling from `src` to `dst` samples with a triangle (bilinear)
 /// filter, widened by the ratio when shrinking (so no sample is skipped):

@@ -98,15 +98,35 @@ pub fn seg(s: &str) -> Result<SegChoice, String> {
     }
 }
 
-/// `--unlabeled`: drop (the conventions' default) or geometry (kept as
-/// voxels of an unknown class).
-pub fn unlabeled(s: &str) -> Result<cosem_host::maps::mapping::Unlabeled, String> {
-    use cosem_host::maps::mapping::Unlabeled;
-    match s {
-        "drop" => Ok(Unlabeled::Drop),
-        "geometry" => Ok(Unlabeled::Geometry),
-        _ => Err(format!("`{s}`: expected drop or geometry")),
-    }
+/// `--fit`: squash, tile or tile:SCALE.
+pub fn fit(s: &str) -> Result<cosem_host::camera::seg_files::Fit, String> {
+    s.parse()
+}
+
+/// A library enum read by name: its `NAMES` for clap's help and checks,
+/// its `FromStr` (the one parser the Python bindings use too).
+pub trait Named: std::str::FromStr<Err = String> + Clone + Send + Sync + 'static {
+    /// The names.
+    const NAMES: &'static [&'static str];
+}
+
+impl Named for cosem_host::maps::mapping::Unlabeled {
+    const NAMES: &'static [&'static str] = Self::NAMES;
+}
+impl Named for cosem_host::sources::cloud::CloudFormat {
+    const NAMES: &'static [&'static str] = Self::NAMES;
+}
+impl Named for cosem_host::sources::recording::ChunkCompression {
+    const NAMES: &'static [&'static str] = Self::NAMES;
+}
+impl Named for cosem_host::camera::seg_files::VoidChannel {
+    const NAMES: &'static [&'static str] = Self::NAMES;
+}
+
+/// The value parser of a [`Named`] enum.
+pub fn named<T: Named>() -> impl clap::builder::TypedValueParser<Value = T> {
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(T::NAMES).try_map(|s| s.parse::<T>())
 }
 
 /// A whole number of at least `N`.

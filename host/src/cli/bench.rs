@@ -37,8 +37,8 @@ pub struct SegmentArgs {
     #[arg(long, default_value = "0:4")]
     frames: FrameRange,
     /// How an image meets the network (see `cosem segment`).
-    #[arg(long, default_value = "tile")]
-    fit: String,
+    #[arg(long, default_value = "tile", value_parser = super::args::fit)]
+    fit: cosem_host::camera::seg_files::Fit,
 }
 
 #[derive(clap::Args, Debug)]
@@ -189,7 +189,7 @@ fn bench_segment(a: SegmentArgs, json: Option<&Path>) -> Result<(), Error> {
     let root = bench::data_root();
     let model = a.model.unwrap_or_else(|| root.join("../models/espnetv2-cityscapes-s2.0-512x1024.onnx"));
     let images = a.images.unwrap_or_else(|| root.join("kitti00/image_2"));
-    let figures = bench::segment(&model, &images, a.frames, &a.fit)?;
+    let figures = bench::segment(&model, &images, a.frames, a.fit)?;
     figures.iter().for_each(|f| println!("{f}"));
     save(json, &figures)
 }

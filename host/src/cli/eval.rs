@@ -98,7 +98,7 @@ pub struct Args {
     seed: u64,
     /// Unlabelled points (id 0; a camera's labels leave so the points
     /// outside its view): drop, or geometry (voxels of an unknown class).
-    #[arg(long, default_value = "drop", value_parser = super::args::unlabeled)]
+    #[arg(long, default_value = "drop", value_parser = super::args::named::<cosem_host::maps::mapping::Unlabeled>())]
     unlabeled: cosem_host::maps::mapping::Unlabeled,
     /// Prior-free protocol instead of the grid: the scene map is moved by a
     /// known heading (36 around the circle) and offset (10 seeded, up to

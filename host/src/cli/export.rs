@@ -27,7 +27,7 @@ pub enum Format {
         #[arg(long)]
         frames: cosem_host::sources::kitti::FrameRange,
         /// File format.
-        #[arg(long)]
+        #[arg(long, value_parser = super::args::named::<cosem_host::sources::cloud::CloudFormat>())]
         format: cosem_host::sources::cloud::CloudFormat,
         /// Output folder, written whole and swapped into place: a new or
         /// empty folder, or with --force an earlier export (never inside,
@@ -52,7 +52,8 @@ pub enum Format {
         #[arg(long, default_value = "/velodyne_points")]
         topic: String,
         /// Chunk compression.
-        #[arg(long, value_enum, default_value = "zstd")]
+        #[arg(long, default_value = "zstd",
+            value_parser = super::args::named::<cosem_host::sources::recording::ChunkCompression>())]
         compression: cosem_host::sources::recording::ChunkCompression,
         /// Output MCAP file (never inside the input folder).
         #[arg(short, long, value_name = "OUT")]

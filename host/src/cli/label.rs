@@ -25,8 +25,8 @@ pub struct Args {
     #[arg(long, requires = "model")]
     images: Option<PathBuf>,
     /// With --model: how an image meets the network (see `cosem segment`).
-    #[arg(long, default_value = "tile")]
-    fit: String,
+    #[arg(long, default_value = "tile", value_parser = super::args::fit)]
+    fit: cosem_host::camera::seg_files::Fit,
     /// Camera whose projection `P<camera>` in calib.txt the images are from.
     #[arg(long, default_value_t = 2)]
     camera: u8,
@@ -57,7 +57,7 @@ pub struct Args {
     /// With --probabilities: the maps hold a void (ignore) channel beyond
     /// the class set's, first or last (most Cityscapes networks: 19
     /// classes and void last); its probability counts as no class.
-    #[arg(long, value_enum, default_value = "none")]
+    #[arg(long, default_value = "none", value_parser = super::args::named::<cosem_host::camera::seg_files::VoidChannel>())]
     void_channel: cosem_host::camera::label::VoidChannel,
     /// Frames START:END[:STRIDE]; default: every scan in velodyne/.
     #[arg(long)]
@@ -94,7 +94,7 @@ pub fn run(a: Args) -> Result<(), Error> {
     let s = match (&a.seg, &a.model, &a.images) {
         (Some(_), _, _) => label_sequence(&opts)?,
         (None, Some(model), Some(images)) => {
-            let (s, n, ms) = label_with_model(&opts, model, images, &a.fit)?;
+            let (s, n, ms) = label_with_model(&opts, model, images, a.fit)?;
             let kept = a.out.join(format!("seg_{}", a.camera));
             eprintln!("segmented {n} images ({ms:.0} ms per image), kept in {}", kept.display());
             s

@@ -34,7 +34,7 @@ pub struct Args {
     /// frame, in order (the first is the anchor): labelled point clouds
     /// (fields x, y, z and an integer label holding the SemanticKITTI id in
     /// its low 16 bits; NaN points skipped).
-    #[arg(long, requires = "poses")]
+    #[arg(long, requires = "poses", value_parser = super::args::named::<cosem_host::sources::cloud::CloudFormat>())]
     format: Option<cosem_host::sources::cloud::CloudFormat>,
     /// The scans' files (with --format).
     #[arg(requires = "format")]
@@ -59,7 +59,7 @@ pub struct Args {
     keep_moving: bool,
     /// Unlabelled points (id 0; a camera's labels leave so the points
     /// outside its view): drop, or geometry (voxels of an unknown class).
-    #[arg(long, default_value = "drop", value_parser = super::args::unlabeled)]
+    #[arg(long, default_value = "drop", value_parser = super::args::named::<cosem_host::maps::mapping::Unlabeled>())]
     unlabeled: cosem_host::maps::mapping::Unlabeled,
     /// Probability that a point's label is right (Bayes sensor model).
     #[arg(long, default_value_t = SensorModel::default().accuracy, value_parser = super::args::accuracy)]

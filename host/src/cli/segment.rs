@@ -34,8 +34,8 @@ pub struct Args {
     /// covered by overlapping tiles: the better labels), tile:SCALE (scaled
     /// first, aspect kept) or squash (the whole image stretched to it: one
     /// inference, half the time).
-    #[arg(long, default_value = "tile")]
-    fit: String,
+    #[arg(long, default_value = "tile", value_parser = super::args::fit)]
+    fit: cosem_host::camera::seg_files::Fit,
     /// Also write each image's network input and labels at the network's
     /// size as .npy here (to check against another runtime; squash only).
     #[arg(long, value_name = "OUT")]
@@ -50,8 +50,9 @@ pub struct Args {
 
 #[cfg(feature = "segment")]
 pub fn run(a: Args) -> Result<(), Error> {
-    use cosem_host::camera::segment::{segment_folder, Fit, SegmentOptions};
-    let fit: Fit = a.fit.parse().map_err(|e: String| format!("--fit {e}"))?;
+    use cosem_host::camera::seg_files::Fit;
+    use cosem_host::camera::segment::{segment_folder, SegmentOptions};
+    let fit = a.fit;
     if a.check_dir.is_some() && fit != Fit::Squash {
         return Err("--check-dir: only with --fit squash (one network input per image)".into());
     }

@@ -669,7 +669,12 @@ impl std::fmt::Display for SegmentFigures {
 
 /// Segments `frames` of `images` with `model` on one core, then on all
 /// (feature `segment`; without it an error saying how to build it).
-pub fn segment(model: &Path, images: &Path, frames: FrameRange, fit: &str) -> Result<Vec<SegmentFigures>, Error> {
+pub fn segment(
+    model: &Path,
+    images: &Path,
+    frames: FrameRange,
+    fit: crate::camera::seg_files::Fit,
+) -> Result<Vec<SegmentFigures>, Error> {
     #[cfg(feature = "segment")]
     {
         use crate::camera::segment::{segment_folder, SegmentOptions};
@@ -683,7 +688,7 @@ pub fn segment(model: &Path, images: &Path, frames: FrameRange, fit: &str) -> Re
                 out: tmp.0.join(format!("t{threads}")),
                 frames: Some(frames),
                 probabilities: false,
-                fit: fit.parse().map_err(|e: String| Error::Invalid(format!("--fit {e}")))?,
+                fit,
                 threads,
                 check: None,
                 overlay: false,

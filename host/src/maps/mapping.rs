@@ -60,6 +60,23 @@ pub enum Unlabeled {
     Geometry,
 }
 
+impl Unlabeled {
+    /// The names it is read from (the command line's, Python's).
+    pub const NAMES: &'static [&'static str] = &["drop", "geometry"];
+}
+
+impl std::str::FromStr for Unlabeled {
+    type Err = String;
+    /// What to do with unlabelled points: drop or geometry.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "drop" => Ok(Unlabeled::Drop),
+            "geometry" => Ok(Unlabeled::Geometry),
+            _ => Err(format!("`{s}`: expected drop or geometry")),
+        }
+    }
+}
+
 /// Which points go into a map.
 #[derive(Clone, Copy, Debug)]
 pub struct PointFilter {

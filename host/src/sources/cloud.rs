@@ -57,12 +57,28 @@ impl crate::error::LayerError for CloudError {}
 
 /// The file formats of users' scans.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum CloudFormat {
     /// Point Cloud Library's PCD (ASCII or binary).
     Pcd,
     /// Stanford PLY (ASCII or binary little endian).
     Ply,
+}
+
+impl CloudFormat {
+    /// The names it is read from (the command line's, Python's).
+    pub const NAMES: &'static [&'static str] = &["pcd", "ply"];
+}
+
+impl std::str::FromStr for CloudFormat {
+    type Err = String;
+    /// A scan file format: pcd or ply.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "pcd" => Ok(CloudFormat::Pcd),
+            "ply" => Ok(CloudFormat::Ply),
+            _ => Err(format!("`{s}`: expected pcd or ply")),
+        }
+    }
 }
 
 impl CloudFormat {

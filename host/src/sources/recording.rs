@@ -363,7 +363,6 @@ fn cloud_points(
 
 /// How a recording's chunks are written.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum ChunkCompression {
     /// Uncompressed chunks.
     None,
@@ -371,6 +370,24 @@ pub enum ChunkCompression {
     Zstd,
     /// LZ4 frames.
     Lz4,
+}
+
+impl ChunkCompression {
+    /// The names it is read from (the command line's, Python's).
+    pub const NAMES: &'static [&'static str] = &["none", "zstd", "lz4"];
+}
+
+impl std::str::FromStr for ChunkCompression {
+    type Err = String;
+    /// A chunk compression: none, zstd or lz4.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "none" => Ok(ChunkCompression::None),
+            "zstd" => Ok(ChunkCompression::Zstd),
+            "lz4" => Ok(ChunkCompression::Lz4),
+            _ => Err(format!("`{s}`: expected none, zstd or lz4")),
+        }
+    }
 }
 
 /// One scan to write: points and label words in the sensor's frame, the
