@@ -139,6 +139,10 @@ def test_any_number_dtype_is_taken_and_other_input_named(maps):
         cosem.Map.from_points(np.array(["a", "b", "c"]), np.array([40, 40, 50]), 0.5)
     with pytest.raises(ValueError, match="empty"):
         cosem.Map.from_points(p[:3], np.array([1000, 1000, 1000]), 0.5)
+    # One voxel range, as the command line's: a robot's map is 0.02 to 10 m.
+    for voxel in (0.01, 11.0):
+        with pytest.raises(ValueError, match="0.02 to 10 m"):
+            cosem.Map.from_points(p[:3], np.array([40, 40, 50]), voxel)
 
 
 def test_voxels_round_trip_through_from_voxels(maps):

@@ -148,7 +148,20 @@ fn nonsense_numbers_are_refused() {
     for r in ["0", "-5", "NaN", "inf"] {
         cosem_tests::cosem_usage_err(&["map", "--data", &d, "--frames", "0:1", "--max-range", r, "-o", &o]);
     }
-    cosem_tests::cosem_usage_err(&["map", "--data", &d, "--frames", "0:1", "--voxel", "0", "-o", &o]);
+    // One voxel range for every command: what map writes, match takes.
+    let (ra, rb) = (format!("{d}:0:1"), format!("{d}:1:2"));
+    for (command, v) in
+        [("map", "0"), ("map", "0.01"), ("map", "11"), ("eval", "0.01"), ("robots", "0.01"), ("team", "20")]
+    {
+        let args: Vec<&str> = match command {
+            "map" => vec!["map", "--data", &d, "--frames", "0:1", "--voxel", v, "-o", &o],
+            "eval" => vec!["eval", "--data", &d, "--a", "0:1", "--b", "1:2", "--voxel", v],
+            "robots" => vec!["robots", "--data", &d, "--a", "0:1", "--b", "1:2", "--voxel", v],
+            _ => vec!["team", "--robot", &ra, "--robot", &rb, "--voxel", v],
+        };
+        let e = cosem_tests::cosem_usage_err(&args);
+        assert!(e.contains("--voxel") && e.contains("0.02 to 10 m"), "{command} --voxel {v}: {e}");
+    }
     cosem_tests::cosem_usage_err(&["link", "--map", &o, "--tcp", "127.0.0.1:1", "--connect-timeout", "NaN"]);
     let e = cosem_tests::cosem_usage_err(&["robots", "--data", &d, "--a", "0:1", "--b", "1:2", "--timeout", "NaN"]);
     assert!(e.contains("positive number"), "{e}");

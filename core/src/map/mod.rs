@@ -20,6 +20,13 @@ pub mod table;
 pub mod voxel;
 
 pub use key::{CellPoint, KeyError, VoxelKey};
+
+/// The voxel sizes of a robot's map (m): what a robot is fed, builds,
+/// sends and matches. Finer, the matcher's pyramid (at most
+/// `matching::MAX_LEVELS` levels) no longer reaches the coarse search's
+/// 1 m cells; coarser, a scan leaves no structure to match. (A map's own
+/// storage takes 1 mm to 1 km: its coarse levels are coarser.)
+pub const VOXEL_SIZES: core::ops::RangeInclusive<f32> = 0.02..=10.0;
 pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS, SCORE_UNITS_PER_NAT};
 pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertion, LocalMap, MapConfig, Neighbours};
 pub use overlap::overlap;

@@ -219,10 +219,6 @@ pub struct TeamEnd {
     pub peak_stack: u32,
 }
 
-/// The voxel sizes a robot can be fed (m): finer would not fit a board's
-/// map at a robot's range, coarser leaves no structure to match.
-pub const FEED_RESOLUTION: core::ops::RangeInclusive<f32> = 0.01..=10.0;
-
 /// Why a feed message is not one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -235,7 +231,7 @@ pub enum FeedError {
     Malformed,
     /// A float is NaN or infinite.
     NonFinite,
-    /// A voxel size outside [`FEED_RESOLUTION`].
+    /// A voxel size outside a robot's map's ([`crate::map::VOXEL_SIZES`]).
     Resolution,
     /// The output buffer is too small.
     Buffer,
@@ -263,7 +259,8 @@ impl core::fmt::Display for FeedError {
             FeedError::Malformed => f.write_str("malformed feed message"),
             FeedError::NonFinite => f.write_str("non-finite number"),
             FeedError::Resolution => {
-                write!(f, "voxel size outside the feed's {} to {} m", FEED_RESOLUTION.start(), FEED_RESOLUTION.end())
+                let sizes = crate::map::VOXEL_SIZES;
+                write!(f, "voxel size outside a robot map's {} to {} m", sizes.start(), sizes.end())
             }
             FeedError::Buffer => f.write_str("buffer too small"),
             FeedError::PointBytes { len } => write!(f, "{len} bytes of points is not a multiple of {POINT_BYTES}"),
@@ -338,7 +335,7 @@ impl FeedMessage<'_> {
                 if let Some(prior) = &s.prior {
                     finite(prior)?;
                 }
-                if !FEED_RESOLUTION.contains(&s.resolution) {
+                if !crate::map::VOXEL_SIZES.contains(&s.resolution) {
                     return Err(FeedError::Resolution);
                 }
                 Ok(())

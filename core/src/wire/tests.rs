@@ -380,7 +380,7 @@ fn golden_feed_messages() {
 fn feed_setup_voxel_size_is_bounded() {
     use super::feed::{FeedError, FeedMessage, Setup};
     let mut buf = [0u8; 64];
-    for resolution in [f32::NAN, f32::INFINITY, 0.0, 0.005, 10.5, 1e30, -0.5] {
+    for resolution in [f32::NAN, f32::INFINITY, 0.0, 0.005, 0.015, 10.5, 1e30, -0.5] {
         let msg = FeedMessage::Setup(Setup { robot_id: 0, resolution, prior: None, silence_ms: 1 });
         assert_eq!(msg.encode(&mut buf), Err(FeedError::Resolution), "{resolution}");
     }

@@ -73,13 +73,14 @@ pub fn positive_f32(s: &str) -> Result<f32, String> {
     positive(s).map(|v| v as f32)
 }
 
-/// A voxel size robots can be fed (m): within the feed's range
-/// ([`cosem_core::wire::feed::FEED_RESOLUTION`]).
-pub fn feed_voxel(s: &str) -> Result<f32, String> {
-    let range = cosem_core::wire::feed::FEED_RESOLUTION;
+/// `--voxel`: a voxel size of a robot's map, in
+/// [`cosem_core::map::VOXEL_SIZES`] (m): what every command maps, sends,
+/// feeds and matches alike.
+pub fn voxel(s: &str) -> Result<f32, String> {
+    let sizes = cosem_core::map::VOXEL_SIZES;
     match s.parse::<f32>() {
-        Ok(v) if range.contains(&v) => Ok(v),
-        _ => Err(format!("`{s}`: expected a voxel size from {} to {} m", range.start(), range.end())),
+        Ok(v) if sizes.contains(&v) => Ok(v),
+        _ => Err(format!("`{s}`: expected a voxel size from {} to {} m", sizes.start(), sizes.end())),
     }
 }
 

@@ -2,7 +2,7 @@
 //! maps over their UART0s and match on board; printed beside the host's own
 //! run of the same pipeline on the same fed data and the ground truth.
 
-use super::args::{feed_voxel, pose, positive_f32};
+use super::args::{pose, positive_f32, voxel};
 use super::{show, Error};
 use cosem_core::geometry::Isometry3;
 use cosem_host::boards::board::Board;
@@ -30,7 +30,7 @@ pub struct Args {
     /// Voxel size on board (m); each scan is fed as one point per voxel.
     /// Default: the boards' own (0.5 on mps2-an386, 0.7 on stm32f405; the
     /// larger of the two).
-    #[arg(long, value_parser = feed_voxel)]
+    #[arg(long, value_parser = voxel)]
     voxel: Option<f32>,
     /// Points farther than this from their sensor are not fed (m).
     #[arg(long, default_value = "25", value_parser = positive_f32)]

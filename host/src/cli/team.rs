@@ -16,7 +16,7 @@ pub struct Args {
     #[command(flatten)]
     pub(super) source: super::args::SourceArgs,
     /// Voxel size (m; default 0.2; on board the board's: 0.5 or 1).
-    #[arg(long, value_parser = super::args::feed_voxel)]
+    #[arg(long, value_parser = super::args::voxel)]
     pub(super) voxel: Option<f32>,
     /// No prior: every robot searches every heading and offset (the default).
     #[arg(long, conflicts_with = "prior_noise")]

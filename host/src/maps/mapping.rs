@@ -8,6 +8,14 @@ use cosem_core::map::{ConfigError, InsertError, Insertion, LabelDistribution, Ma
 /// Why a map could not be built.
 #[derive(Debug, thiserror::Error)]
 pub enum BuildError {
+    /// A voxel size outside a robot map's ([`cosem_core::map::VOXEL_SIZES`]).
+    #[error(
+        "voxel size {size} m: a robot's map has voxels of {lo} to {hi} m (finer, the matcher's pyramid cannot reach its coarse search's cells; coarser, a scan leaves nothing to match)",
+        size = .0,
+        lo = cosem_core::map::VOXEL_SIZES.start(),
+        hi = cosem_core::map::VOXEL_SIZES.end()
+    )]
+    Voxel(f32),
     /// The map configuration is invalid.
     #[error("invalid map configuration: {0}")]
     Config(ConfigError),
@@ -43,6 +51,9 @@ pub type HostMap = cosem_core::map::VecMap;
 
 /// An empty host map.
 pub fn new_map(capacity: usize, config: MapConfig) -> Result<HostMap, BuildError> {
+    if !cosem_core::map::VOXEL_SIZES.contains(&config.resolution) {
+        return Err(BuildError::Voxel(config.resolution));
+    }
     cosem_core::map::vec_map(capacity, config).map_err(BuildError::Config)
 }
 

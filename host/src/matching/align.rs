@@ -17,11 +17,12 @@ pub const FOOTPRINT_CELL: f32 = 1.0;
 /// A map prepared for matching on the host (it borrows the map).
 pub type HostPyramid<'m> = VecPyramid<'m>;
 
-/// Finest voxel size the matcher supports (m): its pyramid has at most
+/// Finest voxel size the matcher supports (m), that of a robot's map
+/// ([`cosem_core::map::VOXEL_SIZES`]): its pyramid has at most
 /// [`cosem_core::matching::MAX_LEVELS`] levels, and the coarsest must reach
 /// the footprint's 1 m cells for the coarse search's answer to land in EM's
 /// basin (0.02 m x 2^7 = 2.56 m).
-pub const MIN_VOXEL: f32 = 0.02;
+pub const MIN_VOXEL: f32 = *cosem_core::map::VOXEL_SIZES.start();
 
 /// Pyramid levels for maps of `resolution`: at least `levels`, and enough
 /// that the coarsest cell reaches 3.2 m (0.2 m maps: 5 levels; 0.04 m: 8).
@@ -38,11 +39,8 @@ pub fn levels_for(resolution: f32, levels: usize) -> usize {
 /// [`MIN_VOXEL`] are refused with the reason.
 pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::error::Error> {
     let r = map.resolution();
-    if r < MIN_VOXEL * 0.999 {
-        return Err(crate::error::Error::Invalid(format!(
-            "{r} m voxels: the matcher supports voxels of {MIN_VOXEL} m and more (its pyramid of at most {} levels must reach the coarse search's 1 m cells)",
-            cosem_core::matching::MAX_LEVELS
-        )));
+    if !cosem_core::map::VOXEL_SIZES.contains(&r) {
+        return Err(crate::maps::mapping::BuildError::Voxel(r).into());
     }
     Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, Role::Model)?)
 }
