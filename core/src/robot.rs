@@ -33,10 +33,11 @@
 use crate::geometry::Isometry3;
 use crate::link::LinkError;
 use crate::map::{ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, ScenePoint, VoxelStorage};
-use crate::matching::global::{align_searched_in, Searched};
+use crate::matching::global::Searched;
 use crate::matching::search::{GlobalSearch, SearchScratch};
+use crate::matching::Alignment;
 use crate::matching::{
-    ArrayPyramidStorage, ArraySceneStorage, MatchError, MatchResult, MatchSettings, Matcher, Pyramid, PyramidError,
+    ArrayPyramidStorage, ArraySceneStorage, MatchError, MatchResult, MatchSettings, Pyramid, PyramidError,
     PyramidStorage, SceneSource,
 };
 use crate::wire::feed::{self, FeedError, RobotMessage, RobotReport, Stage};
@@ -212,7 +213,9 @@ pub fn align_in<A: VoxelStorage, B: SceneSource + ?Sized, P: PyramidStorage, Q: 
 
 /// [`align`] of maps already prepared, in at most `iterations` EM
 /// iterations, the searches' caches in `scratch`; `on_phase` runs at phases
-/// 2 and 3.
+/// 2 and 3. The one matching path ([`crate::matching::align_prepared`])
+/// with the robots' [`Alignment`]: `iterations` and a search of
+/// [`SEARCH_NODES`].
 fn align_prepared<P: PyramidStorage, Q: PyramidStorage>(
     model: &Pyramid<'_, P>,
     scene: &Pyramid<'_, Q>,
@@ -221,18 +224,12 @@ fn align_prepared<P: PyramidStorage, Q: PyramidStorage>(
     scratch: &mut SearchScratch<'_>,
     mut on_phase: impl FnMut(u8),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
-    let matcher = Matcher::new(MatchSettings { max_iterations: iterations, ..MatchSettings::default() });
-    let r = match prior {
-        Some(p) => {
-            on_phase(2);
-            (matcher.align_in(model, scene, p, scratch).map_err(AlignError::Match)?, None)
-        }
-        None => {
-            let search = GlobalSearch { max_evaluations: SEARCH_NODES, ..GlobalSearch::default() };
-            align_searched_in(&matcher, model, scene, &search, || on_phase(2), scratch)
-        }
-        .map_err(AlignError::Match)?,
+    let how = Alignment {
+        settings: MatchSettings { max_iterations: iterations, ..MatchSettings::default() },
+        search: GlobalSearch { max_evaluations: SEARCH_NODES, ..GlobalSearch::default() },
     };
+    let r = crate::matching::align_prepared(model, scene, prior, &how, scratch, || on_phase(2))
+        .map_err(AlignError::Match)?;
     on_phase(3);
     Ok(r)
 }

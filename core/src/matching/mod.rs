@@ -40,6 +40,7 @@
 //! assert!(result.transform.translation.vector.norm() < 0.02);
 //! ```
 
+pub mod align;
 pub mod associate;
 pub mod em;
 pub mod footprint;
@@ -50,6 +51,7 @@ pub mod search;
 pub mod settings;
 pub mod solve;
 
+pub use align::{align_prepared, Alignment};
 pub use em::{MatchError, Matcher};
 pub use footprint::Footprint;
 pub use pyramid::{

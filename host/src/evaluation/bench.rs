@@ -13,7 +13,7 @@ use crate::sources::kitti::{Frame, FrameRange, Sequence};
 use cosem_core::classes::Class;
 use cosem_core::geometry::errors_of;
 use cosem_core::map::MapConfig;
-use cosem_core::matching::{MatchResult, MatchSettings, Matcher};
+use cosem_core::matching::{MatchResult, MatchSettings};
 use cosem_core::sim::{Mix, SimConfig};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -321,16 +321,14 @@ pub struct GlobalFigures {
 
 /// Prior-free alignment of `pair`, stage by stage (maps prepared first).
 pub fn global(pair: &Pair, repeat: usize) -> Result<GlobalFigures, Error> {
-    use cosem_core::matching::global::align_searched;
     use cosem_core::matching::search::{search_global, GlobalSearch};
     let (pa, pb) = (prepare(&pair.map_a, DEFAULT_LEVELS)?, prepare(&pair.map_b, DEFAULT_LEVELS)?);
-    let matcher = Matcher::new(MatchSettings::default());
     let no_footprint = || Error::Invalid("a map has no footprint".into());
     let (fa, fb) = (pa.footprint().ok_or_else(no_footprint)?, pb.footprint().ok_or_else(no_footprint)?);
     let first = GlobalSearch { candidates: 1, ..GlobalSearch::default() };
     let (t_search, outcome) = timed(repeat, || Ok(search_global(fa, fb, &first, true)))?;
     let (t_all, (result, _)) =
-        timed(repeat, || Ok(align_searched(&matcher, &pa, &pb, &GlobalSearch::default(), || {})?))?;
+        timed(repeat, || Ok(crate::matching::align::align(MatchSettings::default(), None, (&pa, &pb))?))?;
     Ok(GlobalFigures { outcome, result, errors: errors_of(&result.transform, &pair.gt), seconds: [t_search, t_all] })
 }
 
@@ -339,11 +337,11 @@ pub fn global(pair: &Pair, repeat: usize) -> Result<GlobalFigures, Error> {
 pub fn strict_success(dir: &Path, a: FrameRange, b: FrameRange, stride: usize) -> Result<(f64, usize), Error> {
     let pair = Pair::load(&PairSpec::new(dir, a, b, 0.2))?;
     let (pa, pb) = (prepare(&pair.map_a, DEFAULT_LEVELS)?, prepare(&pair.map_b, DEFAULT_LEVELS)?);
-    let matcher = Matcher::new(MatchSettings::default());
     let starts = grid(stride);
     let mut ok = 0;
     for s in &starts {
-        let r = matcher.align(&pa, &pb, &s.apply(&pair.gt).cast::<f32>())?;
+        let prior = s.apply(&pair.gt).cast::<f32>();
+        let (r, _) = crate::matching::align::align(MatchSettings::default(), Some(&prior), (&pa, &pb))?;
         let (et, er) = errors_of(&r.transform, &pair.gt);
         ok += usize::from(STRICT.met(r.status, et, er));
     }

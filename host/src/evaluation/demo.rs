@@ -13,7 +13,7 @@ use crate::sources::kitti::FrameRange;
 use crate::worlds::synth::{write_sequence, SynthConfig};
 use cosem_core::geometry::{errors_of, Isometry3};
 use cosem_core::map::overlap;
-use cosem_core::matching::{MatchSettings, Matcher};
+use cosem_core::matching::MatchSettings;
 use std::io::Write;
 use std::path::Path;
 
@@ -77,7 +77,7 @@ pub fn run(d: &Demo, dir: &Path, out: &mut impl Write) -> Result<(), Error> {
     let (pa, pb) = (prepare(&pair.map_a, DEFAULT_LEVELS)?, prepare(&received_b, DEFAULT_LEVELS)?);
     let prep_ms = tp.elapsed().as_secs_f64() * 1e3;
     let tm = std::time::Instant::now();
-    let r = Matcher::new(MatchSettings::default()).align(&pa, &pb, &prior.cast::<f32>())?;
+    let (r, _) = crate::matching::align::align(MatchSettings::default(), Some(&prior.cast::<f32>()), (&pa, &pb))?;
     let match_ms = tm.elapsed().as_secs_f64() * 1e3;
     writeln!(out, "estimate  T_A_B: {}", pose_words(&r.transform.cast::<f64>())).map_err(io)?;
     writeln!(

@@ -7,12 +7,10 @@ use crate::error::Error;
 use crate::evaluation::pair::moved_frames;
 use crate::evaluation::stats::{quantile, Spread};
 use crate::maps::mapping::{build_map, HostMap, PointFilter};
-use crate::matching::align::{prepare, HostPyramid, DEFAULT_LEVELS};
+use crate::matching::align::{align, prepare, HostPyramid, DEFAULT_LEVELS};
 use cosem_core::geometry::{errors_of, pose_deg, row_major, Isometry3};
 use cosem_core::map::MapConfig;
-use cosem_core::matching::global::align_searched;
-use cosem_core::matching::search::GlobalSearch;
-use cosem_core::matching::{MatchResult, MatchSettings, MatchStatus, Matcher, MAX_LEVELS};
+use cosem_core::matching::{MatchResult, MatchSettings, MatchStatus, MAX_LEVELS};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -511,14 +509,14 @@ pub fn run_grid(
     starts: &[Start],
     progress: &(dyn Fn() + Sync),
 ) -> Result<Vec<Outcome>, Error> {
-    let matcher = Matcher::new(settings);
+    let one = |s: &Start| align(settings, Some(&s.apply(gt).cast::<f32>()), pyramids).map(|(r, _)| r);
     if let Some(first) = starts.first() {
-        matcher.align(pyramids.0, pyramids.1, &first.apply(gt).cast::<f32>())?;
+        one(first)?;
     }
     let levels = pyramids.0.levels();
     let outcomes = for_each_start(starts, |s| {
         let t = Instant::now();
-        let r = matcher.align(pyramids.0, pyramids.1, &s.apply(gt).cast::<f32>())?;
+        let r = one(s)?;
         let ms = t.elapsed().as_secs_f64() * 1e3;
         progress();
         Ok(Outcome { start: Some(*s), ..Outcome::new(method, &r, gt, ms, levels) })
@@ -541,13 +539,12 @@ pub fn run_global(
     progress: &(dyn Fn() + Sync),
 ) -> Result<Vec<Outcome>, Error> {
     let pa = prepare(map_a, DEFAULT_LEVELS)?;
-    let matcher = Matcher::new(settings);
     let outcomes = for_each_start(starts, |s| -> Result<Outcome, Error> {
         let d = s.moved_by();
         let (map_b, _) = build_map(&moved_frames(frames_b, &d), map_config.0, map_config.1)?;
         let pb = prepare(&map_b, DEFAULT_LEVELS)?;
         let t = Instant::now();
-        let (r, found) = align_searched(&matcher, &pa, &pb, &GlobalSearch::default(), || {})?;
+        let (r, found) = align(settings, None, (&pa, &pb))?;
         let ms = t.elapsed().as_secs_f64() * 1e3;
         progress();
         let truth = gt * d.inverse();
@@ -762,7 +759,6 @@ pub fn run_negatives(
     let maps = places.iter().map(|p| place_map(p, spec)).collect::<Result<Vec<_>, _>>()?;
     let pyramids: Vec<_> = maps.iter().map(|m| prepare(&m.2, DEFAULT_LEVELS)).collect::<Result<_, _>>()?;
     let (pairs, overlapping) = negative_pairs(&maps);
-    let matcher = Matcher::new(settings);
     let mut rng = crate::rng::Rng::new(0x0E6A_7105);
     let mut jobs = Vec::new();
     for &(i, j) in &pairs {
@@ -775,13 +771,8 @@ pub fn run_negatives(
     }
     let cases = for_each_start(&jobs, |&(i, j, kind, prior)| -> Result<NegativeCase, Error> {
         let (pm, ps) = (&pyramids[i], &pyramids[j]);
-        let (r, search) = match prior {
-            Some(p) => (matcher.align(pm, ps, &p.cast::<f32>())?, None),
-            None => {
-                let (r, found) = align_searched(&matcher, pm, ps, &GlobalSearch::default(), || {})?;
-                (r, found.map(|f| f.search.scores().into()))
-            }
-        };
+        let (r, found) = align(settings, prior.map(|p| p.cast::<f32>()).as_ref(), (pm, ps))?;
+        let search = found.map(|f| f.search.scores().into());
         progress();
         Ok(NegativeCase {
             model: places[i].to_string(),

@@ -1,12 +1,15 @@
 //! Aligning two maps on the host: pyramids on the heap, sized for each
-//! map, and one entry point with or without a prior (the robots' path,
-//! [`cosem_core::robot::align`], with the host's capacities).
+//! map, aligned by the one matching path the robots take too
+//! ([`cosem_core::matching::align_prepared`]) with the host's
+//! [`Alignment`] (its settings, the default search budget).
 
 use crate::maps::mapping::HostMap;
 use cosem_core::geometry::Isometry3;
-use cosem_core::matching::global::{align_searched, Searched};
-use cosem_core::matching::search::GlobalSearch;
-use cosem_core::matching::{MatchError, MatchResult, MatchSettings, Matcher, Pyramid, Role, VecPyramid};
+use cosem_core::matching::global::Searched;
+use cosem_core::matching::search::{GlobalSearch, SearchScratch};
+use cosem_core::matching::{
+    align_prepared, Alignment, MatchError, MatchResult, MatchSettings, Pyramid, Role, VecPyramid,
+};
 
 /// Default number of pyramid levels: 0.2 m maps get cells up to 3.2 m.
 pub const DEFAULT_LEVELS: usize = 5;
@@ -57,20 +60,18 @@ impl crate::error::LayerError for AlignError {}
 
 /// Aligns two prepared maps (`pyramids.0` the model): from `prior`
 /// (`T_model_scene`) when given, else with none (the conventions) by the
-/// core's prior-free alignment ([`align_searched`]) as the robots do; then
-/// what its search found comes back too.
+/// core's prior-free alignment, through the one matching path
+/// ([`align_prepared`]) as the robots do; then what its search found comes
+/// back too.
 pub fn align(
     settings: MatchSettings,
     prior: Option<&Isometry3<f32>>,
     pyramids: (&HostPyramid<'_>, &HostPyramid<'_>),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
-    let matcher = Matcher::new(settings);
-    match prior {
-        Some(p) => Ok((matcher.align(pyramids.0, pyramids.1, p).map_err(AlignError::Match)?, None)),
-        None => {
-            align_searched(&matcher, pyramids.0, pyramids.1, &GlobalSearch::default(), || {}).map_err(AlignError::Match)
-        }
-    }
+    let how = Alignment { settings, search: GlobalSearch::default() };
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let scratch = &mut SearchScratch::new(&mut words);
+    align_prepared(pyramids.0, pyramids.1, prior, &how, scratch, || {}).map_err(AlignError::Match)
 }
 
 /// Two maps prepared and matched, with the times it took: what `cosem
