@@ -6,7 +6,7 @@
 //! with probability `stall_chance` per millisecond the line stalls for 0.2
 //! to 2 s. Time is virtual: call [`SimLine::tick`] once per millisecond.
 
-use super::fault::{Damaged, Fault, SimRng};
+use super::fault::{Damaged, Fault, Mix, SimRng};
 use core::cell::RefCell;
 use core::convert::Infallible;
 
@@ -31,110 +31,6 @@ pub struct SimConfig {
     /// emulator's line, thousands (bytes written then wait their turn, as
     /// a peer on a slow host reads them late).
     pub send_buffer: usize,
-}
-
-/// How a damaged byte is damaged, in shares (weights of any scale): one
-/// bit flipped, the byte replaced by another value (XOR with a random
-/// non-zero byte), dropped, duplicated.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Mix {
-    /// One bit flipped.
-    pub bit: f64,
-    /// Replaced by another value.
-    pub byte: f64,
-    /// Dropped.
-    pub drop: f64,
-    /// Sent twice.
-    pub dup: f64,
-}
-
-/// Why a mix could not be read.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum MixError {
-    /// A part is not `KIND=SHARE`.
-    Syntax,
-    /// A kind other than `bit`, `byte`, `drop`, `dup`.
-    Kind,
-    /// A share that is not a finite number of at least 0.
-    Share,
-    /// The shares add up to nothing.
-    Empty,
-    /// The shares add up to more than a finite number.
-    Overflow,
-    /// A kind given twice.
-    Duplicate,
-}
-
-impl core::fmt::Display for MixError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
-            MixError::Syntax => "a mix is KIND=SHARE,... (kinds bit, byte, drop, dup)",
-            MixError::Kind => "a kind of damage is bit, byte, drop or dup",
-            MixError::Share => "a share is a finite number, 0 or more",
-            MixError::Empty => "the shares add up to nothing",
-            MixError::Overflow => "the shares add up to more than a finite number",
-            MixError::Duplicate => "a kind of damage is given twice",
-        })
-    }
-}
-
-impl Mix {
-    /// Replaced, dropped or duplicated, a third each: the simulator's
-    /// damage before mixes existed, and an independent relay's.
-    pub const THIRDS: Mix = Mix { bit: 0.0, byte: 1.0, drop: 1.0, dup: 1.0 };
-
-    /// Reads `bit=S,byte=S,drop=S,dup=S` (a kind left out has no share,
-    /// none given twice); the shares are finite, at least 0, and add up
-    /// to a positive finite number.
-    pub fn parse(text: &str) -> Result<Mix, MixError> {
-        let mut mix = Mix { bit: 0.0, byte: 0.0, drop: 0.0, dup: 0.0 };
-        let mut given = [false; 4];
-        for part in text.split(',') {
-            let (key, value) = part.split_once('=').ok_or(MixError::Syntax)?;
-            let share: f64 = value.trim().parse().map_err(|_| MixError::Share)?;
-            if !(share.is_finite() && share >= 0.0) {
-                return Err(MixError::Share);
-            }
-            let (k, slot) = match key.trim() {
-                "bit" => (0, &mut mix.bit),
-                "byte" => (1, &mut mix.byte),
-                "drop" => (2, &mut mix.drop),
-                "dup" => (3, &mut mix.dup),
-                _ => return Err(MixError::Kind),
-            };
-            if core::mem::replace(&mut given[k], true) {
-                return Err(MixError::Duplicate);
-            }
-            *slot = share;
-        }
-        let total = mix.total();
-        if !total.is_finite() {
-            Err(MixError::Overflow)
-        } else if total > 0.0 {
-            Ok(mix)
-        } else {
-            Err(MixError::Empty)
-        }
-    }
-
-    fn total(&self) -> f64 {
-        self.bit + self.byte + self.drop + self.dup
-    }
-
-    /// The kind of damage of the draw `x` in `[0, 1)`: 0 bit, 1 byte, 2
-    /// drop, 3 dup.
-    pub fn kind(&self, x: f64) -> u8 {
-        let x = x * self.total();
-        if x < self.bit {
-            0
-        } else if x < self.bit + self.byte {
-            1
-        } else if x < self.bit + self.byte + self.drop {
-            2
-        } else {
-            3
-        }
-    }
 }
 
 impl SimConfig {

@@ -10,8 +10,8 @@
 mod fault;
 mod line;
 
-pub use fault::{Damaged, Fault, FaultError, Lossy, SimRng};
-pub use line::{Mix, MixError, OutputFull, ScriptPort, SimConfig, SimLine, SimPort};
+pub use fault::{Damaged, Fault, FaultError, Lossy, Mix, MixError, SimRng};
+pub use line::{OutputFull, ScriptPort, SimConfig, SimLine, SimPort};
 
 use crate::robot::{Machine, Poll, RobotError};
 use alloc::vec::Vec;
