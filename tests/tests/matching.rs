@@ -183,10 +183,20 @@ fn fine_voxels_align_and_too_fine_are_refused() {
     assert_eq!(s["status"], "Converged", "{s}");
     let t: Vec<f64> = s["transform"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
     assert!(t[3].abs() < 1e-3 && t[7].abs() < 1e-3 && t[11].abs() < 1e-3, "{t:?}");
+    // Too fine: `map` refuses the flag; a 0.01 m map from elsewhere (the
+    // library's storage takes it) is refused by `match` with the reason.
     let too = tmp.path().join("too.cmap");
-    map_at(&seq, "0:1", &too, "0.01");
+    let d = seq.display().to_string();
+    let e = cosem_tests::cosem_usage_err(&["map", "--data", &d, "--frames", "0:1", "--voxel", "0.01", "-o", "x.cmap"]);
+    assert!(e.contains("0.02 to 10 m"), "{e}");
+    let config = cosem_core::map::MapConfig { resolution: 0.01, ..Default::default() };
+    let mut fine = cosem_core::map::vec_map(100, config).unwrap();
+    for i in 0..50 {
+        fine.insert_point([i as f32 * 0.05, 0.0, 0.0], cosem_core::classes::Class::Building).unwrap();
+    }
+    cosem_host::maps::cmap::write(&too, &fine, None, None).unwrap();
     let e = cosem_tests::cosem_err(&["match", &too.display().to_string(), &too.display().to_string()]);
-    assert!(e.contains("0.02 m"), "{e}");
+    assert!(e.contains("voxel size 0.01 m") && e.contains("0.02 to 10 m"), "{e}");
 }
 
 fn map_at(seq: &Path, frames: &str, out: &Path, voxel: &str) {
