@@ -32,7 +32,8 @@
 //!    information matrix; [`matching::global`] aligns without a prior.
 //!    Beside it, [`team`]: the kept pairwise matches of a team of robots
 //!    place every robot in one frame (a small pose graph, with
-//!    covariances).
+//!    covariances); and [`pipeline`]: the one configuration of mapping and
+//!    matching, its presets (host, boards) and its one validator.
 //! 7. [`selftest`]: a fixed mapping, wire and matching case whose figures
 //!    must agree to the bit on the chip and on a host.
 //! 8. [`robot`]: one robot's sequence (feed, map, link, align, report) as a
@@ -83,6 +84,7 @@ pub mod geometry;
 pub mod link;
 pub mod map;
 pub mod matching;
+pub mod pipeline;
 pub mod region;
 pub mod robot;
 pub mod selftest;

@@ -34,12 +34,13 @@ use crate::geometry::Isometry3;
 use crate::link::LinkError;
 use crate::map::{ArrayStorage, ConfigError, FullPolicy, InsertError, LocalMap, MapConfig, ScenePoint, VoxelStorage};
 use crate::matching::global::Searched;
-use crate::matching::search::{GlobalSearch, SearchScratch};
+use crate::matching::search::SearchScratch;
 use crate::matching::Alignment;
 use crate::matching::{
     ArrayPyramidStorage, ArraySceneStorage, MatchError, MatchResult, MatchSettings, Pyramid, PyramidError,
     PyramidStorage, SceneSource,
 };
+use crate::pipeline::Pipeline;
 use crate::wire::feed::{self, FeedError, RobotMessage, RobotReport, Stage};
 use crate::wire::frame::{DeframeError, MAX_FRAME};
 use embedded_io::Write;
@@ -77,7 +78,7 @@ pub const MODEL_WORDS: usize = 9216;
 /// at 1 m.
 pub const SCENE_WORDS: usize = 6656;
 /// Nodes a robot's prior-free search may score
-/// ([`GlobalSearch::max_evaluations`]), with [`EM_ITERATIONS`] its compute
+/// ([`crate::matching::search::GlobalSearch::max_evaluations`]), with [`EM_ITERATIONS`] its compute
 /// budget. Robot maps (up to 8,192 voxels of 0.5 m, 25 m of range) that
 /// overlap met their best placement within 2-24 thousand nodes and proved
 /// it within 7-41 thousand, with ground truth and with a network's labels;
@@ -86,18 +87,18 @@ pub const SCENE_WORDS: usize = 6656;
 /// Cortex-M4). With this budget a robot spends at most about 1e8
 /// instructions searching, and after a search that took more than half of
 /// it refines only its best placement.
-pub const SEARCH_NODES: u32 = 40_000;
+pub const SEARCH_NODES: u32 = Pipeline::MPS2.alignment.search.max_evaluations;
 /// EM iterations a robot's refinement may take
 /// ([`MatchSettings::max_iterations`]; the paper's 50 serve a host):
 /// converging matches took at most 16 (prior-free protocol with a network's
 /// labels at twice the usual severity, and the paper's grid of priors); a
 /// refinement that does not converge (a wrong placement, maps that share
 /// nothing) costs about 3.5e6 instructions per iteration.
-pub const EM_ITERATIONS: u32 = 30;
+pub const EM_ITERATIONS: u32 = Pipeline::MPS2.alignment.settings.max_iterations;
 /// Pyramid levels (0.5 m maps: cells of 0.5, 1 and 2 m).
-pub const LEVELS: usize = 3;
+pub const LEVELS: usize = Pipeline::MPS2.levels;
 /// First footprint cell tried (m); doubled until the grids fit.
-pub const FOOTPRINT_CELL: f32 = 1.0;
+pub const FOOTPRINT_CELL: f32 = Pipeline::MPS2.footprint_cell;
 
 /// A robot's map storage (16-bit index slots): a team robot's.
 pub type MapStorage = ArrayStorage<VOXELS, u16>;
@@ -224,10 +225,8 @@ fn align_prepared<P: PyramidStorage, Q: PyramidStorage>(
     scratch: &mut SearchScratch<'_>,
     mut on_phase: impl FnMut(u8),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
-    let how = Alignment {
-        settings: MatchSettings { max_iterations: iterations, ..MatchSettings::default() },
-        search: GlobalSearch { max_evaluations: SEARCH_NODES, ..GlobalSearch::default() },
-    };
+    let robots = Pipeline::MPS2.alignment;
+    let how = Alignment { settings: MatchSettings { max_iterations: iterations, ..robots.settings }, ..robots };
     let r = crate::matching::align_prepared(model, scene, prior, &how, scratch, || on_phase(2))
         .map_err(AlignError::Match)?;
     on_phase(3);

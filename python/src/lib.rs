@@ -49,7 +49,7 @@ impl Map {
     /// map's frame (m; any float or integer dtype, converted to float64),
     /// `labels` N non-negative integers of any integer dtype, each holding
     /// the SemanticKITTI id in its low 16 bits (an instance id may sit in
-    /// the bits above), voxels of `voxel` metres. Points without a class
+    /// the bits above), voxels of `voxel` metres (default: the host pipeline's, 0.2). Points without a class
     /// (unlabeled, outliers, moving objects) are left out; with
     /// `unlabeled="geometry"` unlabelled points (id 0: a camera's labels
     /// leave so the points outside its view) are kept as voxels of an
@@ -58,8 +58,15 @@ impl Map {
     /// `unlabeled` other than "drop" or "geometry", or a map left empty is a
     /// `ValueError` saying why.
     #[staticmethod]
-    #[pyo3(signature = (xyz, labels, voxel = 0.2, unlabeled = "drop"))]
-    fn from_points(xyz: &Bound<'_, PyAny>, labels: &Bound<'_, PyAny>, voxel: f32, unlabeled: &str) -> PyResult<Self> {
+    #[pyo3(signature = (xyz, labels, voxel = None, unlabeled = "drop"))]
+    fn from_points(
+        xyz: &Bound<'_, PyAny>,
+        labels: &Bound<'_, PyAny>,
+        voxel: Option<f32>,
+        unlabeled: &str,
+    ) -> PyResult<Self> {
+        // The host's pipeline unless told (0.2 m).
+        let voxel = voxel.unwrap_or(cosem_core::pipeline::Pipeline::HOST.voxel);
         let unlabeled: Unlabeled = unlabeled.parse().map_err(|e: String| value_error(format!("unlabeled={e}")))?;
         // The host's filter (no range limit, moving objects left out).
         let filter = PointFilter { unlabeled, ..PointFilter::default() };

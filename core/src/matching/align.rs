@@ -21,10 +21,14 @@ pub struct Alignment {
     pub search: GlobalSearch,
 }
 
-impl Default for Alignment {
+impl Alignment {
     /// The matcher's and the search's defaults (the host's).
+    pub const DEFAULT: Alignment = Alignment { settings: MatchSettings::DEFAULT, search: GlobalSearch::DEFAULT };
+}
+
+impl Default for Alignment {
     fn default() -> Self {
-        Alignment { settings: MatchSettings::default(), search: GlobalSearch::default() }
+        Alignment::DEFAULT
     }
 }
 

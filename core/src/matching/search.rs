@@ -494,16 +494,21 @@ pub struct GlobalSearch {
     pub max_evaluations: u32,
 }
 
+impl GlobalSearch {
+    /// The documented defaults (every heading at 3 degrees, no budget), as
+    /// a constant for presets.
+    pub const DEFAULT: GlobalSearch = GlobalSearch {
+        yaw_step: 3.0 * (core::f32::consts::PI / 180.0),
+        points: 128,
+        candidates: 3,
+        exclusion: (4.0, 15.0 * (core::f32::consts::PI / 180.0)),
+        max_evaluations: u32::MAX,
+    };
+}
+
 impl Default for GlobalSearch {
     fn default() -> Self {
-        let deg = core::f32::consts::PI / 180.0;
-        GlobalSearch {
-            yaw_step: 3.0 * deg,
-            points: 128,
-            candidates: 3,
-            exclusion: (4.0, 15.0 * deg),
-            max_evaluations: u32::MAX,
-        }
+        GlobalSearch::DEFAULT
     }
 }
 

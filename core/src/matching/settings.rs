@@ -132,26 +132,32 @@ pub struct MatchSettings {
     pub degeneracy_threshold: f32,
 }
 
+impl MatchSettings {
+    /// The documented defaults (the paper's 50 iterations, the verdict's
+    /// thresholds), as a constant for presets.
+    pub const DEFAULT: MatchSettings = MatchSettings {
+        method: Method::Cosem,
+        dof: Dof::Six,
+        cost: Cost::PointToPlane,
+        search: Some(SearchWindow { translation: 15.0, yaw: 30.0 * core::f32::consts::PI / 180.0 }),
+        max_iterations: 50,
+        max_iterations_per_level: 10,
+        max_scene_entries: 2_000,
+        max_agreement_entries: 5_000,
+        sigma_start: 1.0,
+        sigma_end: 0.5,
+        anneal: 0.7,
+        translation_tolerance: 0.005,
+        rotation_tolerance: 1e-4,
+        min_overlap: 0.2,
+        min_inliers: 100,
+        min_agreement: 0.40,
+        degeneracy_threshold: 0.002,
+    };
+}
+
 impl Default for MatchSettings {
     fn default() -> Self {
-        MatchSettings {
-            method: Method::Cosem,
-            dof: Dof::Six,
-            cost: Cost::PointToPlane,
-            search: Some(SearchWindow { translation: 15.0, yaw: 30.0 * core::f32::consts::PI / 180.0 }),
-            max_iterations: 50,
-            max_iterations_per_level: 10,
-            max_scene_entries: 2_000,
-            max_agreement_entries: 5_000,
-            sigma_start: 1.0,
-            sigma_end: 0.5,
-            anneal: 0.7,
-            translation_tolerance: 0.005,
-            rotation_tolerance: 1e-4,
-            min_overlap: 0.2,
-            min_inliers: 100,
-            min_agreement: 0.40,
-            degeneracy_threshold: 0.002,
-        }
+        MatchSettings::DEFAULT
     }
 }

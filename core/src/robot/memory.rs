@@ -102,7 +102,7 @@ impl Capacity {
         // Its maps' refinements took up to 36 (kitti00 0:5 / 5:10, a
         // straight street, with a network's labels: 30 stopped one of them
         // short of the tolerance at the right answer); the others 11-23.
-        em_iterations: 40,
+        em_iterations: crate::pipeline::Pipeline::STM32F405.alignment.settings.max_iterations,
     };
 
     /// A team robot of an STM32F405 ([`super::team::TeamRobot`]): it keeps
@@ -121,7 +121,7 @@ impl Capacity {
         levels: super::LEVELS,
         spare_words: 0,
         search_words: 0,
-        em_iterations: 40,
+        em_iterations: crate::pipeline::Pipeline::STM32F405_TEAM.alignment.settings.max_iterations,
     };
 
     /// A robot that only sends its map ([`super::Robot::sender`]).
@@ -218,7 +218,7 @@ const SMALL_SCENE_WORDS: usize = 2256;
 /// The voxel size (m) a robot of [`Capacity::STM32F405`] maps at: its few
 /// voxels cover the 25 m a sensor sees around it (at 0.5 m they would
 /// cover half as far, and its maps match worse).
-pub const SMALL_VOXEL_M: f32 = 0.7;
+pub const SMALL_VOXEL_M: f32 = crate::pipeline::Pipeline::STM32F405.voxel;
 
 /// Buffers a robot carves when it aligns: the model's entries, normals,
 /// index and footprint, the scene's entries and footprint, the searches'

@@ -4,6 +4,7 @@
 //! static RAM a firmware image takes, read from its ELF section headers.
 
 use crate::error::Error;
+use cosem_core::pipeline::Pipeline;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
@@ -82,8 +83,8 @@ impl Board {
     /// team robot's 1,760 at 1 m; at 0.7 m they kept a 15 m radius).
     pub fn default_team_voxel(self) -> f32 {
         match self {
-            Board::Stm32f405 | Board::Stm32f405Sender => 1.0,
-            Board::Mps2An386 => 0.5,
+            Board::Stm32f405 | Board::Stm32f405Sender => Pipeline::STM32F405_TEAM.voxel,
+            Board::Mps2An386 => Pipeline::MPS2.voxel,
         }
     }
 
@@ -116,8 +117,8 @@ impl Board {
     /// STM32F405's 3,008 at 0.7 m).
     pub fn default_voxel(self) -> f32 {
         match self {
-            Board::Stm32f405 => cosem_core::robot::memory::SMALL_VOXEL_M,
-            Board::Mps2An386 | Board::Stm32f405Sender => 0.5,
+            Board::Stm32f405 => Pipeline::STM32F405.voxel,
+            Board::Mps2An386 | Board::Stm32f405Sender => Pipeline::MPS2.voxel,
         }
     }
 

@@ -68,20 +68,29 @@ pub fn baud(s: &str) -> Result<u32, String> {
     }
 }
 
-/// A positive finite number as `f32`.
-pub fn positive_f32(s: &str) -> Result<f32, String> {
-    positive(s).map(|v| v as f32)
+/// `--voxel`: a voxel size of a robot's map, checked by the pipeline's one
+/// validator ([`cosem_core::pipeline::Setting::Voxel`]): what every
+/// command maps, sends, feeds and matches alike.
+pub fn voxel(s: &str) -> Result<f32, String> {
+    setting(cosem_core::pipeline::Setting::Voxel, s).map(|v| v as f32)
 }
 
-/// `--voxel`: a voxel size of a robot's map, in
-/// [`cosem_core::map::VOXEL_SIZES`] (m): what every command maps, sends,
-/// feeds and matches alike.
-pub fn voxel(s: &str) -> Result<f32, String> {
-    let sizes = cosem_core::map::VOXEL_SIZES;
-    match s.parse::<f32>() {
-        Ok(v) if sizes.contains(&v) => Ok(v),
-        _ => Err(format!("`{s}`: expected a voxel size from {} to {} m", sizes.start(), sizes.end())),
-    }
+/// `--crop` / `--max-range`: how far from its sensor a point is kept (m),
+/// checked by the pipeline's validator ([`cosem_core::pipeline::Setting::Crop`]).
+pub fn crop(s: &str) -> Result<f32, String> {
+    setting(cosem_core::pipeline::Setting::Crop, s).map(|v| v as f32)
+}
+
+/// A pipeline setting from the command line, through the one validator.
+fn setting(which: cosem_core::pipeline::Setting, s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("`{s}`: expected a number ({})", which.name()))?;
+    // As the setting is kept (f32 where it is one).
+    let v = if matches!(which, cosem_core::pipeline::Setting::Voxel | cosem_core::pipeline::Setting::Crop) {
+        f64::from(v as f32)
+    } else {
+        v
+    };
+    which.check(v).map_err(|e| e.to_string())
 }
 
 /// Segmentation images to render, or none (a type alias: clap takes it as

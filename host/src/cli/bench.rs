@@ -129,7 +129,7 @@ pub struct LinkArgs {
     #[arg(long, default_value = "0.5", value_parser = super::args::voxel)]
     voxel: f32,
     /// Keep points within this range of their sensor (m).
-    #[arg(long, default_value = "25", value_parser = super::args::positive_f32)]
+    #[arg(long, default_value = "25", value_parser = super::args::crop)]
     max_range: f32,
     /// Seeded runs per error rate, 1 to 10,000.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]

@@ -52,7 +52,7 @@ pub struct Args {
     #[arg(long, default_value = "0.2", value_parser = super::args::voxel)]
     voxel: f32,
     /// Drop points farther than this from their sensor (m); no limit by default.
-    #[arg(long, value_parser = super::args::positive_f32)]
+    #[arg(long, value_parser = super::args::crop)]
     max_range: Option<f32>,
     /// Keep moving objects, mapped to their static class.
     #[arg(long)]

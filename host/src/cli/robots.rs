@@ -2,7 +2,7 @@
 //! maps over their UART0s and match on board; printed beside the host's own
 //! run of the same pipeline on the same fed data and the ground truth.
 
-use super::args::{pose, positive_f32, voxel};
+use super::args::{pose, voxel};
 use super::{show, Error};
 use cosem_core::geometry::Isometry3;
 use cosem_host::boards::board::Board;
@@ -33,7 +33,7 @@ pub struct Args {
     #[arg(long, value_parser = voxel)]
     voxel: Option<f32>,
     /// Points farther than this from their sensor are not fed (m).
-    #[arg(long, default_value = "25", value_parser = positive_f32)]
+    #[arg(long, default_value = "25", value_parser = super::args::crop)]
     crop: f32,
     /// Robot A's prior `T_A_B` as x,y,z,roll,pitch,yaw (m, degrees); robot B
     /// gets its inverse. Default: the ground truth moved by 2 m and turned

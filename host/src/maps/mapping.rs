@@ -51,7 +51,7 @@ pub type HostMap = cosem_core::map::VecMap;
 
 /// An empty host map.
 pub fn new_map(capacity: usize, config: MapConfig) -> Result<HostMap, BuildError> {
-    if !cosem_core::map::VOXEL_SIZES.contains(&config.resolution) {
+    if cosem_core::pipeline::Setting::Voxel.check(f64::from(config.resolution)).is_err() {
         return Err(BuildError::Voxel(config.resolution));
     }
     cosem_core::map::vec_map(capacity, config).map_err(BuildError::Config)

@@ -6,16 +6,17 @@
 use crate::maps::mapping::HostMap;
 use cosem_core::geometry::Isometry3;
 use cosem_core::matching::global::Searched;
-use cosem_core::matching::search::{GlobalSearch, SearchScratch};
+use cosem_core::matching::search::SearchScratch;
 use cosem_core::matching::{
     align_prepared, Alignment, MatchError, MatchResult, MatchSettings, Pyramid, Role, VecPyramid,
 };
+use cosem_core::pipeline::{Pipeline, Setting};
 
 /// Default number of pyramid levels: 0.2 m maps get cells up to 3.2 m.
-pub const DEFAULT_LEVELS: usize = 5;
+pub const DEFAULT_LEVELS: usize = Pipeline::HOST.levels;
 
 /// Default footprint cell (m) for the coarse search.
-pub const FOOTPRINT_CELL: f32 = 1.0;
+pub const FOOTPRINT_CELL: f32 = Pipeline::HOST.footprint_cell;
 
 /// A map prepared for matching on the host (it borrows the map).
 pub type HostPyramid<'m> = VecPyramid<'m>;
@@ -42,7 +43,7 @@ pub fn levels_for(resolution: f32, levels: usize) -> usize {
 /// [`MIN_VOXEL`] are refused with the reason.
 pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::error::Error> {
     let r = map.resolution();
-    if !cosem_core::map::VOXEL_SIZES.contains(&r) {
+    if Setting::Voxel.check(f64::from(r)).is_err() {
         return Err(crate::maps::mapping::BuildError::Voxel(r).into());
     }
     Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, Role::Model)?)
@@ -68,7 +69,7 @@ pub fn align(
     prior: Option<&Isometry3<f32>>,
     pyramids: (&HostPyramid<'_>, &HostPyramid<'_>),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
-    let how = Alignment { settings, search: GlobalSearch::default() };
+    let how = Alignment { settings, ..Pipeline::HOST.alignment };
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let scratch = &mut SearchScratch::new(&mut words);
     align_prepared(pyramids.0, pyramids.1, prior, &how, scratch, || {}).map_err(AlignError::Match)
