@@ -68,6 +68,16 @@ pub fn baud(s: &str) -> Result<u32, String> {
     }
 }
 
+/// The host's pipeline: the defaults of the commands that map on the host.
+pub const HOST: cosem_core::pipeline::Pipeline = cosem_core::pipeline::Pipeline::HOST;
+/// A robot's pipeline (mps2-an386): the defaults of what robots are fed.
+pub const ROBOT: cosem_core::pipeline::Pipeline = cosem_core::pipeline::Pipeline::MPS2;
+/// A robot's crop (m): what it is fed of each scan.
+pub const ROBOT_CROP: f32 = match ROBOT.crop {
+    Some(c) => c,
+    None => f32::INFINITY,
+};
+
 /// `--voxel`: a voxel size of a robot's map, checked by the pipeline's one
 /// validator ([`cosem_core::pipeline::Setting::Voxel`]): what every
 /// command maps, sends, feeds and matches alike.

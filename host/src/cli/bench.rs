@@ -105,7 +105,7 @@ pub struct GlobalArgs {
     #[command(flatten)]
     pair: PairArgs,
     /// Voxel size (m).
-    #[arg(long, default_value = "0.2", value_parser = super::args::voxel)]
+    #[arg(long, default_value_t = super::args::HOST.voxel, value_parser = super::args::voxel)]
     voxel: f32,
     /// Repetitions (the median is reported), 1 to 1,000.
     #[arg(long, default_value_t = 5, value_parser = super::args::repeat)]
@@ -126,10 +126,10 @@ pub struct LinkArgs {
     #[arg(long, default_value_t = 115_200, value_parser = super::args::baud)]
     baud: u32,
     /// Voxel size (m); the default makes a robot's map.
-    #[arg(long, default_value = "0.5", value_parser = super::args::voxel)]
+    #[arg(long, default_value_t = super::args::ROBOT.voxel, value_parser = super::args::voxel)]
     voxel: f32,
     /// Keep points within this range of their sensor (m).
-    #[arg(long, default_value = "25", value_parser = super::args::crop)]
+    #[arg(long, default_value_t = super::args::ROBOT_CROP, value_parser = super::args::crop)]
     max_range: f32,
     /// Seeded runs per error rate, 1 to 10,000.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..=10_000))]
@@ -151,7 +151,7 @@ pub struct MapArgs {
     #[command(flatten)]
     source: super::args::SourceArgs,
     /// Voxel size (m).
-    #[arg(long, default_value = "0.2", value_parser = super::args::voxel)]
+    #[arg(long, default_value_t = super::args::HOST.voxel, value_parser = super::args::voxel)]
     voxel: f32,
     /// Repetitions (the median is reported), 1 to 1,000.
     #[arg(long, default_value_t = 5, value_parser = super::args::repeat)]

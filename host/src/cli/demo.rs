@@ -15,7 +15,7 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Voxel size (m).
-    #[arg(long, default_value = "0.2", value_parser = super::args::voxel)]
+    #[arg(long, default_value_t = super::args::HOST.voxel, value_parser = super::args::voxel)]
     voxel: f32,
     /// Keep the synthetic sequence and maps in this folder (default: a
     /// temporary folder, removed at the end).

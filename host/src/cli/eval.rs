@@ -51,7 +51,7 @@ pub struct Args {
     #[arg(long, default_value_t = 3)]
     random_priors: usize,
     /// Voxel size (m).
-    #[arg(long, default_value = "0.2", value_parser = super::args::voxel)]
+    #[arg(long, default_value_t = super::args::HOST.voxel, value_parser = super::args::voxel)]
     voxel: f32,
     /// The grid of starts.
     #[arg(long, value_enum, default_value = "paper", conflicts_with_all = ["grid_stride", "limit"])]

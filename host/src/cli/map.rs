@@ -49,7 +49,7 @@ pub struct Args {
     #[command(flatten)]
     source: super::args::SourceArgs,
     /// Voxel size (m).
-    #[arg(long, default_value = "0.2", value_parser = super::args::voxel)]
+    #[arg(long, default_value_t = super::args::HOST.voxel, value_parser = super::args::voxel)]
     voxel: f32,
     /// Drop points farther than this from their sensor (m); no limit by default.
     #[arg(long, value_parser = super::args::crop)]

@@ -33,7 +33,7 @@ pub struct Args {
     #[arg(long, value_parser = voxel)]
     voxel: Option<f32>,
     /// Points farther than this from their sensor are not fed (m).
-    #[arg(long, default_value = "25", value_parser = super::args::crop)]
+    #[arg(long, default_value_t = super::args::ROBOT_CROP, value_parser = super::args::crop)]
     crop: f32,
     /// Robot A's prior `T_A_B` as x,y,z,roll,pitch,yaw (m, degrees); robot B
     /// gets its inverse. Default: the ground truth moved by 2 m and turned

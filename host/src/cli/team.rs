@@ -49,7 +49,7 @@ pub struct Args {
     pub(super) on_board: bool,
     /// With --on-board: points farther than this from their sensor are not
     /// fed (m).
-    #[arg(long, default_value = "25", value_parser = super::args::crop)]
+    #[arg(long, default_value_t = super::args::ROBOT_CROP, value_parser = super::args::crop)]
     pub(super) crop: f32,
     /// With --on-board: the boards, mps2-an386 or stm32f405 (voxels of 0.5
     /// or 1 m by default).
