@@ -150,17 +150,17 @@ fn fuzz(
     name: &str,
     seed: u64,
     valid: &[u8],
-    text: bool,
+    mutator: fn(&[u8], &mut Rng) -> Vec<u8>,
     dir: &Path,
     limit: impl Fn(usize) -> usize,
     mut read: impl FnMut(&Path, &[u8]) -> bool,
-) {
+) -> (usize, usize) {
     let path = dir.join(name);
     let mut rng = Rng(seed);
     let started = Instant::now();
     let (mut cases, mut accepted) = (0, 0);
     while cases < CASES && started.elapsed() < TIME_CAP {
-        let bytes = if text { mutate_text(valid, &mut rng) } else { mutate(valid, &mut rng) };
+        let bytes = mutator(valid, &mut rng);
         std::fs::write(&path, &bytes).unwrap();
         LARGEST.with(|l| l.set(0));
         let ok = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| read(&path, &bytes)));
@@ -188,6 +188,7 @@ fn fuzz(
         started.elapsed().as_secs_f64()
     );
     assert!(cases >= 200, "{name}: only {cases} cases within the time cap");
+    (cases, accepted)
 }
 
 /// A scan: points, label words, the sensor's pose.
@@ -248,7 +249,7 @@ fn mutated_recordings_never_panic_and_checksummed_ones_never_read_wrong() {
         // A chunk's records are held decompressed: the declared size grows
         // them at most to what the decoder produced (and read_to_end doubles).
         let limit = |len: usize| 1 << 20 | (64 * len);
-        fuzz(&name, 11 + k as u64, &valid, false, tmp.path(), limit, |p, _| {
+        fuzz(&name, 11 + k as u64, &valid, mutate, tmp.path(), limit, |p, _| {
             let got = read_scans(p, &what(frames));
             if crcs {
                 if let Ok((f, _)) = &got {
@@ -279,16 +280,16 @@ fn mutated_pcd_and_ply_files_never_panic() {
         let valid = std::fs::read(&p).unwrap();
         let read =
             |p: &Path, _: &[u8]| if ext == "pcd" { read_pcd(p, "label").is_ok() } else { read_ply(p, "label").is_ok() };
-        fuzz(&format!("binary.{ext}"), 21 + k as u64, &valid, false, tmp.path(), limit, read);
+        fuzz(&format!("binary.{ext}"), 21 + k as u64, &valid, mutate, tmp.path(), limit, read);
         // The header's numbers (COUNT, WIDTH, HEIGHT, POINTS, element counts).
-        fuzz(&format!("header.{ext}"), 31 + k as u64, &valid, true, tmp.path(), limit, read);
+        fuzz(&format!("header.{ext}"), 31 + k as u64, &valid, mutate_text, tmp.path(), limit, read);
     }
     let ascii = "VERSION 0.7\nFIELDS x y z label\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH 3\nHEIGHT 1\n\
                  VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\n1 2 3 40\n4 5 6 50\n7 8 9 70\n";
-    fuzz("ascii.pcd", 41, ascii.as_bytes(), true, tmp.path(), limit, |p, _| read_pcd(p, "label").is_ok());
+    fuzz("ascii.pcd", 41, ascii.as_bytes(), mutate_text, tmp.path(), limit, |p, _| read_pcd(p, "label").is_ok());
     let ply = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n\
                property uint label\nend_header\n1 2 3 40\n4 5 6 50\n";
-    fuzz("ascii.ply", 42, ply.as_bytes(), true, tmp.path(), limit, |p, _| read_ply(p, "label").is_ok());
+    fuzz("ascii.ply", 42, ply.as_bytes(), mutate_text, tmp.path(), limit, |p, _| read_ply(p, "label").is_ok());
 }
 
 #[test]
@@ -298,23 +299,11 @@ fn mutated_poses_and_class_tables_never_panic() {
     write_poses(&p, &scans().iter().map(|s| s.2).collect::<Vec<_>>()).unwrap();
     let valid = std::fs::read(&p).unwrap();
     let limit = |len: usize| (1 << 16) + 8 * len;
-    fuzz("poses.txt", 51, &valid, true, tmp.path(), limit, |p, _| read_poses(p).is_ok());
+    fuzz("poses.txt", 51, &valid, mutate_text, tmp.path(), limit, |p, _| read_poses(p).is_ok());
     let table = "# ids\n[ids]\n0 = \"unlabeled\"\n1 = \"road\"\n2 = \"sidewalk\"\n7 = \"car\"\n40 = \"building\"\n";
-    fuzz("classes.toml", 52, table.as_bytes(), true, tmp.path(), limit, |_, b| {
+    fuzz("classes.toml", 52, table.as_bytes(), mutate_text, tmp.path(), limit, |_, b| {
         std::str::from_utf8(b).is_ok_and(|t| ClassTable::parse(t).is_ok())
     });
-}
-
-/// CRC-32 (IEEE) as PNG's chunks carry it.
-fn crc32(bytes: &[u8]) -> u32 {
-    let mut c = !0u32;
-    for &b in bytes {
-        c ^= u32::from(b);
-        for _ in 0..8 {
-            c = if c & 1 == 1 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
-        }
-    }
-    !c
 }
 
 /// `png` with every whole chunk's CRC recomputed (a mutated file that the
@@ -324,7 +313,7 @@ fn fix_png_crcs(mut png: Vec<u8>) -> Vec<u8> {
     while at + 12 <= png.len() {
         let len = u32::from_be_bytes([png[at], png[at + 1], png[at + 2], png[at + 3]]) as usize;
         let Some(end) = (at + 8).checked_add(len).filter(|e| e + 4 <= png.len()) else { break };
-        let crc = crc32(&png[at + 4..end]).to_be_bytes();
+        let crc = cosem_core::wire::crc::crc32(&png[at + 4..end]).to_be_bytes();
         png[end..end + 4].copy_from_slice(&crc);
         at = end + 4;
     }
@@ -369,39 +358,9 @@ fn mutated_images_and_probability_maps_never_panic_nor_allocate_beyond_their_siz
     write_seg_png(&seg, &SegImage { width: w, height: h, ids: ids(w, h, &mut rng) }).unwrap();
     let valid = std::fs::read(&seg).unwrap();
     let want = read_seg_png(&seg).unwrap();
+    // Some mutations read, most are refused: the mutations reach both.
     let png_fuzz = |name: &str, seed: u64, valid: &[u8], read: &dyn Fn(&Path) -> bool| {
-        let path = tmp.path().join(name);
-        let mut rng = Rng(seed);
-        let started = Instant::now();
-        let (mut cases, mut accepted) = (0, 0);
-        while cases < CASES && started.elapsed() < TIME_CAP {
-            let bytes = mutate_png(valid, &mut rng);
-            std::fs::write(&path, &bytes).unwrap();
-            LARGEST.with(|l| l.set(0));
-            let ok = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| read(&path)));
-            let largest = LARGEST.with(Cell::get);
-            let keep = tmp.path().join(format!("{name}.case{cases}"));
-            let Ok(a) = ok else {
-                std::fs::copy(&path, &keep).unwrap();
-                panic!("{name}: seed {seed} case {cases}: the reader panicked (input kept at {})", keep.display());
-            };
-            accepted += usize::from(a);
-            if largest > png_limit(bytes.len()) {
-                std::fs::copy(&path, &keep).unwrap();
-                panic!(
-                    "{name}: seed {seed} case {cases}: an allocation of {largest} bytes for a file of {} \
-                     (input kept at {})",
-                    bytes.len(),
-                    keep.display()
-                );
-            }
-            cases += 1;
-        }
-        println!(
-            "{name}: {cases} mutated files in {:.1} s, {accepted} read, the rest refused with an error",
-            started.elapsed().as_secs_f64()
-        );
-        assert!(cases >= 200, "{name}: only {cases} cases within the time cap");
+        let (cases, accepted) = fuzz(name, seed, valid, mutate_png, tmp.path(), png_limit, |p, _| read(p));
         assert!(accepted > 0 && accepted < cases, "{name}: {accepted} of {cases} read: the mutations missed");
     };
     png_fuzz("mutated-seg.png", 62, &valid, &|p| {
@@ -435,10 +394,10 @@ fn mutated_images_and_probability_maps_never_panic_nor_allocate_beyond_their_siz
     let channels = 4;
     let f4: Vec<u8> = (0..w * h * channels as u32).flat_map(|i| ((i % 7) as f32 / 7.0).to_le_bytes()).collect();
     let hwc = npy_bytes("<f4", &[h as usize, w as usize, channels], &f4);
-    fuzz("hwc.npy", 65, &hwc, false, tmp.path(), npy_limit, |p, _| read_probabilities(p, channels).is_ok());
+    fuzz("hwc.npy", 65, &hwc, mutate, tmp.path(), npy_limit, |p, _| read_probabilities(p, channels).is_ok());
     let u1: Vec<u8> = (0..w * h * channels as u32).map(|i| (i % 251) as u8).collect();
     let chw = npy_bytes("|u1", &[channels, h as usize, w as usize], &u1);
-    fuzz("chw.npy", 66, &chw, false, tmp.path(), npy_limit, |p, _| read_probabilities(p, channels).is_ok());
+    fuzz("chw.npy", 66, &chw, mutate, tmp.path(), npy_limit, |p, _| read_probabilities(p, channels).is_ok());
     // The header's numbers (its version, header length and shape).
-    fuzz("shape.npy", 67, &chw, true, tmp.path(), npy_limit, |p, _| read_probabilities(p, channels).is_ok());
+    fuzz("shape.npy", 67, &chw, mutate_text, tmp.path(), npy_limit, |p, _| read_probabilities(p, channels).is_ok());
 }

@@ -70,7 +70,7 @@ pub fn align(
     pyramids: (&HostPyramid<'_>, &HostPyramid<'_>),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
     let how = Alignment { settings, ..Pipeline::HOST.alignment };
-    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let mut words = [0u32; SearchScratch::WINDOWED];
     let scratch = &mut SearchScratch::new(&mut words);
     align_prepared(pyramids.0, pyramids.1, prior, &how, scratch, || {}).map_err(AlignError::Match)
 }
