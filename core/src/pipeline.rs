@@ -82,6 +82,26 @@ impl Pipeline {
         checks.into_iter().try_for_each(|(setting, value)| setting.check(value).map(|_| ()))
     }
 
+    /// This pipeline with one setting changed, through the validator
+    /// ([`Setting::check`]): what every front end sets a setting with.
+    pub fn with(self, setting: Setting, value: f64) -> Result<Pipeline, PipelineError> {
+        let v = setting.check(value)?;
+        let mut p = self;
+        let s = &mut p.alignment.settings;
+        match setting {
+            Setting::Voxel => p.voxel = v as f32,
+            Setting::Crop => p.crop = Some(v as f32),
+            Setting::Levels => p.levels = v as usize,
+            Setting::FootprintCell => p.footprint_cell = v as f32,
+            Setting::Iterations => s.max_iterations = v as u32,
+            Setting::SearchNodes => p.alignment.search.max_evaluations = v as u32,
+            Setting::MinOverlap => s.min_overlap = v as f32,
+            Setting::MinAgreement => s.min_agreement = v as f32,
+            Setting::Degeneracy => s.degeneracy_threshold = v as f32,
+        }
+        Ok(p)
+    }
+
     /// The map's configuration at this voxel size (the map's other
     /// defaults).
     pub fn map_config(&self) -> MapConfig {
@@ -213,6 +233,10 @@ mod tests {
         assert_eq!(Setting::Levels.check(2.5), Err(PipelineError { setting: Setting::Levels, value: 2.5 }));
         assert!(Setting::Crop.check(f64::NAN).is_err() && Setting::Crop.check(1e308).is_err());
         assert_eq!(Setting::Crop.check(25.0), Ok(25.0));
+        let p = Pipeline::HOST.with(Setting::MinAgreement, 0.5).unwrap();
+        assert_eq!(p.alignment.settings.min_agreement, 0.5);
+        assert_eq!(Pipeline::HOST.with(Setting::SearchNodes, 0.0).unwrap_err().setting, Setting::SearchNodes);
+        assert_eq!(Pipeline::HOST.with(Setting::Iterations, 7.0).unwrap().alignment.settings.max_iterations, 7);
         let mut s = alloc::string::String::new();
         core::fmt::write(&mut s, format_args!("{}", PipelineError { setting: Setting::Voxel, value: 11.0 })).unwrap();
         assert_eq!(s, "voxel size 11: expected 0.02 to 10 m (a robot's map)");

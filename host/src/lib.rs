@@ -9,6 +9,7 @@
 //!
 //! - base: [`paths`] (outputs never an input, written whole), [`rng`],
 //!   [`limits`] (bounds on sizes and threads), [`diagnostics`] (warnings),
+//!   [`knobs`] (settings as messages name them, spelled by the front end),
 //!   [`poses`] (poses as text), [`error`] (the one error, carrying each
 //!   layer's typed error);
 //! - [`sources`]: labelled scans in (SemanticKITTI folders, ROS 2
@@ -28,6 +29,7 @@
 //! pose syntax and error measures from [`cosem_core::geometry`].
 
 pub mod diagnostics;
+pub mod knobs;
 pub mod limits;
 pub mod paths;
 pub mod poses;

@@ -3,6 +3,7 @@
 //! network's input. A number from a user or a file never sizes an
 //! allocation unchecked.
 
+use crate::knobs::Knob;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The machine's cores (1 when unknown).
@@ -57,7 +58,8 @@ pub fn image_pixels(width: u32, height: u32, file_bytes: u64) -> Result<u64, Str
     let cap = max_pixels();
     if pixels > cap {
         return Err(format!(
-            "the header says {width}x{height} = {pixels} pixels, above the cap of {cap} (raise it with --max-pixels)"
+            "the header says {width}x{height} = {pixels} pixels, above the cap of {cap} (raise it with {})",
+            Knob::MaxPixels
         ));
     }
     let holds = file_bytes.saturating_mul(DEFLATE_RATIO);
@@ -76,7 +78,8 @@ pub fn network_pixels(height: usize, width: usize) -> Result<u64, String> {
     let cap = max_pixels();
     if pixels == 0 || pixels > cap {
         return Err(format!(
-            "input {height}x{width} = {pixels} pixels: expected 1 to {cap} (the cap; raise it with --max-pixels)"
+            "input {height}x{width} = {pixels} pixels: expected 1 to {cap} (the cap; raise it with {})",
+            Knob::MaxPixels
         ));
     }
     Ok(pixels)
@@ -91,7 +94,7 @@ mod tests {
         assert!(image_pixels(1242, 375, 20_000).is_ok());
         // A 68-byte file cannot hold 200000 x 200000 pixels.
         let e = image_pixels(200_000, 200_000, 68).unwrap_err();
-        assert!(e.contains("200000x200000") && e.contains("--max-pixels"), "{e}");
+        assert!(e.contains("200000x200000") && e.contains("max_pixels"), "{e}");
         assert!(image_pixels(10_000, 10_000, 1 << 30).unwrap_err().contains("cap"));
         assert!(image_pixels(100, 100, 5).unwrap_err().contains("5 bytes"));
         assert!(image_pixels(0, 7, 100).is_err());

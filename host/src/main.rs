@@ -22,6 +22,7 @@ fn default_sigpipe() {
 fn main() {
     #[cfg(unix)]
     default_sigpipe();
+    cosem_host::knobs::spell_with(cli::args::flag);
     let args = cli::Cli::parse();
     match cli::run(args) {
         Ok(code) => std::process::exit(i32::from(code)),

@@ -295,9 +295,42 @@ impl Match {
 
 /// Aligns `scene` to `model`: `T_model_scene` from `init` (a 4x4 array),
 /// or with no prior (`init=None`: every heading and offset searched).
+/// `method` ("cosem", "cosem-hard", "geometric") and `dof` (6 or 4) as
+/// the command line's; `em_iterations`, `min_overlap`, `min_agreement` and
+/// `search_nodes` (None: the host pipeline's) through the pipeline's one
+/// validator.
 #[pyfunction(name = "match")]
-#[pyo3(signature = (model, scene, init = None))]
-fn match_maps(model: &Map, scene: &Map, init: Option<&Bound<'_, PyAny>>) -> PyResult<Match> {
+#[pyo3(signature = (model, scene, init = None, method = "cosem", dof = 6, em_iterations = None, min_overlap = None, min_agreement = None, search_nodes = None))]
+#[allow(clippy::too_many_arguments)]
+fn match_maps(
+    model: &Map,
+    scene: &Map,
+    init: Option<&Bound<'_, PyAny>>,
+    method: &str,
+    dof: u8,
+    em_iterations: Option<f64>,
+    min_overlap: Option<f64>,
+    min_agreement: Option<f64>,
+    search_nodes: Option<f64>,
+) -> PyResult<Match> {
+    use cosem_core::pipeline::{Pipeline, Setting};
+    let method = cosem_core::matching::Method::from_name(method)
+        .ok_or_else(|| value_error(format!("method {method:?}: expected cosem, cosem-hard or geometric")))?;
+    let dof = cosem_core::matching::Dof::from_count(dof).ok_or_else(|| value_error(format!("dof {dof}: expected 6 or 4")))?;
+    let tuned = [
+        (Setting::Iterations, em_iterations),
+        (Setting::MinOverlap, min_overlap),
+        (Setting::MinAgreement, min_agreement),
+        (Setting::SearchNodes, search_nodes),
+    ];
+    let mut pipeline = Pipeline::HOST;
+    for (setting, value) in tuned {
+        if let Some(v) = value {
+            pipeline = pipeline.with(setting, v).map_err(value_error)?;
+        }
+    }
+    let mut how = pipeline.alignment;
+    how.settings = MatchSettings { method, dof, ..how.settings };
     if (model.map.resolution() - scene.map.resolution()).abs() > 1e-6 {
         return Err(value_error(format!(
             "resolutions differ: {} m and {} m",
@@ -322,7 +355,7 @@ fn match_maps(model: &Map, scene: &Map, init: Option<&Bound<'_, PyAny>>) -> PyRe
     };
     let pm = prepare(&model.map, DEFAULT_LEVELS).map_err(value_error)?;
     let ps = prepare(&scene.map, DEFAULT_LEVELS).map_err(value_error)?;
-    let (result, _) = align(MatchSettings::default(), prior.as_ref(), (&pm, &ps)).map_err(value_error)?;
+    let (result, _) = align(how, prior.as_ref(), (&pm, &ps)).map_err(value_error)?;
     Ok(Match { result })
 }
 

@@ -102,6 +102,32 @@ def test_match_without_a_prior_and_from_one(maps):
     assert e_t < 0.1 and e_r < 0.5, (e_t, e_r)
 
 
+def test_match_settings_go_through_the_pipeline_validator(maps):
+    model, scene, truth = maps
+    geo = cosem.match(model, scene, method="geometric", dof=4)
+    assert geo.status == "Converged"
+    assert errors(geo.transform, truth)[0] < 0.2
+    # Each setting reaches the matcher: a search stopped at once finds no
+    # placement, EM stops at its iterations, and the verdict's thresholds
+    # turn the same pair down when set above what it has.
+    assert cosem.match(model, scene, search_nodes=1).status == "NoOverlap"
+    start = truth @ rot_z(5.0, [1.0, -1.0, 0.0])
+    assert cosem.match(model, scene, init=start).iterations > 2
+    assert cosem.match(model, scene, init=start, em_iterations=2).iterations <= 2
+    r = cosem.match(model, scene)
+    assert r.agreement < 1.0 or r.overlap < 1.0, r
+    strict = dict(min_agreement=1.0) if r.agreement < 1.0 else dict(min_overlap=1.0)
+    assert cosem.match(model, scene, **strict).status == "NoOverlap", (r, strict)
+    for bad in [dict(method="icp"), dict(dof=5), dict(em_iterations=0), dict(em_iterations=2.5),
+                dict(min_overlap=1.5), dict(min_agreement=float("nan")), dict(search_nodes=-1)]:
+        with pytest.raises(ValueError) as e:
+            cosem.match(model, scene, **bad)
+        name = next(iter(bad))
+        shown = {"em_iterations": "EM iterations", "min_overlap": "least overlap", "min_agreement": "least agreement",
+                 "search_nodes": "search nodes"}.get(name, name)
+        assert shown in str(e.value), (bad, str(e.value))
+
+
 def test_bad_input_is_a_python_error(tmp_path, maps):
     model, scene, _ = maps
     with pytest.raises(ValueError):

@@ -35,7 +35,7 @@ const CORE: Layers = &[
 /// cosem-host: files at the root are the base; folders are layers.
 const HOST: Layers = &[
     // The one error carries a layer's typed error boxed: it names none.
-    ("base", &["paths", "rng", "limits", "diagnostics", "error", "poses"]),
+    ("base", &["paths", "rng", "limits", "diagnostics", "knobs", "error", "poses"]),
     ("sources", &["sources"]),
     ("camera", &["camera"]),
     ("worlds", &["worlds"]),
@@ -396,4 +396,46 @@ fn architecture_doc_lists_the_same_layers() {
             doc.lines().filter(|l| l.starts_with(&prefix)).map(|l| l.trim_end().to_string()).collect();
         assert_eq!(got, want, "docs/architecture.md's {krate} layers differ from tests/tests/layers.rs");
     }
+}
+
+/// The lines of a library's code (comments and tests left out) that spell
+/// a command-line flag (`--name`), other than arguments to another
+/// program (cargo, QEMU).
+fn flags_spelled(files: &[File]) -> Vec<String> {
+    let mut out = Vec::new();
+    for f in files {
+        for line in code(&f.text).lines() {
+            let foreign = line.contains("cargo build") || line.contains(".args([") || line.contains(".arg(");
+            let spelled = line.match_indices("--").any(|(i, _)| {
+                line[i + 2..].chars().next().is_some_and(|c| c.is_ascii_lowercase())
+                    && !line[..i].ends_with(|c: char| c.is_alphanumeric() || c == '-')
+            });
+            if spelled && !foreign {
+                out.push(format!("{}: {}", f.rel.display(), line.trim()));
+            }
+        }
+    }
+    out
+}
+
+/// The libraries speak types, not flags: a message names a setting (a
+/// `knobs::Knob`, spelled by the front end) and its value; only the
+/// command line (`host/src/cli`, `main.rs`) spells its flags.
+#[test]
+fn libraries_spell_no_flags() {
+    let root = cosem_tests::workspace_root();
+    let mut files: Vec<File> = read_crate(&root.join("host/src"))
+        .into_iter()
+        .filter(|f| !f.rel.starts_with("cli") && f.rel != Path::new("main.rs") && !f.rel.starts_with("bin"))
+        .collect();
+    files.extend(read_crate(&root.join("python/src")));
+    files.extend(read_crate(&root.join("core/src")));
+    let spelled = flags_spelled(&files);
+    assert!(spelled.is_empty(), "library code spelling flags (name a knobs::Knob instead):\n{}", spelled.join("\n"));
+    // The check itself: a flag in a message is caught, a cargo command is not.
+    let fixture = File {
+        rel: "maps/x.rs".into(),
+        text: "fn f() -> String { format!(\"use --max-range\") }\nfn g() { c.args([\"build\", \"--release\"]); }\n".into(),
+    };
+    assert_eq!(flags_spelled(&[fixture]).len(), 1);
 }

@@ -26,6 +26,13 @@ impl Alignment {
     pub const DEFAULT: Alignment = Alignment { settings: MatchSettings::DEFAULT, search: GlobalSearch::DEFAULT };
 }
 
+/// The matcher's settings with the default search (the host's budget).
+impl From<MatchSettings> for Alignment {
+    fn from(settings: MatchSettings) -> Self {
+        Alignment { settings, ..Alignment::DEFAULT }
+    }
+}
+
 impl Default for Alignment {
     fn default() -> Self {
         Alignment::DEFAULT

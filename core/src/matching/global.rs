@@ -87,7 +87,11 @@ pub fn align_searched_in<A: PyramidStorage, B: PyramidStorage>(
         return Ok((MatchResult::no_overlap(), None));
     };
     searched();
-    let Some(best) = search.candidates.first().copied() else { return Ok((MatchResult::no_overlap(), None)) };
+    // No placement at all (nothing in common, or the budget spent before
+    // the first): what the search did comes back, nothing refined.
+    let Some(best) = search.candidates.first().copied() else {
+        return Ok((MatchResult::no_overlap(), Some(Searched { search, chosen: 0, refined: 0 })));
+    };
     let first = local.align_in(model, scene, &best.transform, scratch)?;
     let left = settings.max_evaluations.saturating_sub(search.evaluations);
     if first.status == MatchStatus::Converged || settings.candidates <= 1 || left <= search.evaluations {

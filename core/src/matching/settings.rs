@@ -54,6 +54,15 @@ impl Dof {
             Dof::Four => 4,
         }
     }
+
+    /// The degrees of freedom of this count (6 or 4).
+    pub fn from_count(count: u8) -> Option<Dof> {
+        match count {
+            6 => Some(Dof::Six),
+            4 => Some(Dof::Four),
+            _ => None,
+        }
+    }
 }
 
 /// Residual of a correspondence.

@@ -9,6 +9,7 @@
 //! both directions (and can drop or corrupt bytes, to test the firmware
 //! against a bad peer).
 
+use crate::knobs::Knob;
 use crate::boards::board::Board;
 use crate::boards::emulator::{accept, reap, FeederLine};
 use crate::boards::feeds::{feeds, Feed};
@@ -80,9 +81,11 @@ pub struct RobotsRun {
 /// QEMU (reported by `crate::reports::robots`).
 pub fn run_robots(spec: &RobotsSpec) -> Result<RobotsRun, Error> {
     if !spec.boards.iter().any(|b| b.matches()) {
-        return Err(Error::Invalid(
-            "--board-a and --board-b: one robot must be able to match (an mps2-an386 board)".into(),
-        ));
+        return Err(Error::Invalid(format!(
+            "{} and {}: one robot must be able to match (an mps2-an386 board)",
+            Knob::BoardA,
+            Knob::BoardB
+        )));
     }
     let [ra, rb] = spec.ranges;
     let truth = spec.source.relative_pose(ra.start, rb.start)?;

@@ -14,6 +14,7 @@
 //! [`TeamRobot`] with the same feeds over simulated clean lines, so the
 //! boards' placements must be the host's.
 
+use crate::knobs::Knob;
 use crate::boards::board::Board;
 use crate::boards::emulator::{accept, qemu, FeederLine};
 use crate::boards::feeds::Feed;
@@ -399,7 +400,8 @@ pub fn run_on_boards(
     let (n, most) = (spec.robots.len(), max_boards(board));
     if !(2..=most).contains(&n) {
         return Err(Error::Invalid(format!(
-            "--on-board: 2 to {most} robots on {} boards (one per peer UART and one), not {n}",
+            "{}: 2 to {most} robots on {} boards (one per peer UART and one), not {n}",
+            Knob::OnBoard,
             board.as_str()
         )));
     }

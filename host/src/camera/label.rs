@@ -13,6 +13,7 @@
 //! [`cosem_core::map::LabelDistribution::raw`]), which mapping fuses
 //! instead of a hard label.
 
+use crate::knobs::Knob;
 use crate::sources::kitti::{KittiError, Sequence};
 use cosem_core::camera::{evidence_from_probabilities, Camera, DepthGrid, Projection, SegClasses};
 use cosem_core::classes::{Class, MovingObjects, NUM_CLASSES};
@@ -133,9 +134,10 @@ pub fn label_with_model(
     #[cfg(not(feature = "segment"))]
     {
         let _ = (o, model, images, fit);
-        Err(crate::error::Error::Invalid(
-            "--model needs the `segment` feature (tract-onnx): cargo build --release --features segment".into(),
-        ))
+        Err(crate::error::Error::Invalid(format!(
+            "{} needs the `segment` feature (tract-onnx): cargo build --release --features segment",
+            Knob::Model
+        )))
     }
 }
 
@@ -152,9 +154,9 @@ pub fn label_from_images(
     fit: crate::camera::seg_files::Fit,
 ) -> Result<(LabelStats, crate::camera::segment::SegmentSummary), crate::error::Error> {
     if o.frames.len() > 1 {
-        return Err(crate::error::Error::Invalid("--model labels one frame range at a time".into()));
+        return Err(crate::error::Error::Invalid(format!("{} labels one frame range at a time", Knob::Model)));
     }
-    check_out(o, &[("--data", &o.data), ("--images", images), ("--model", model)])?;
+    check_out(o, &[(Knob::Data.name(), &o.data), (Knob::Images.name(), images), (Knob::Model.name(), model)])?;
     let io = |source| crate::error::Error::Io { path: o.out.clone(), source };
     let dir = crate::paths::OutputDir::create(&o.out).map_err(io)?;
     let seg = dir.path().join(format!("seg_{}", o.camera));
@@ -358,7 +360,7 @@ impl LabelStats {
 
 /// `WIDTHxHEIGHT` of an image (`--image-size`), both positive.
 pub fn parse_image_size(s: &str) -> Result<(u32, u32), String> {
-    let bad = || format!("--image-size `{s}`: expected WIDTHxHEIGHT, e.g. 1241x376");
+    let bad = || format!("{} `{s}`: expected WIDTHxHEIGHT, e.g. 1241x376", Knob::ImageSize);
     let (w, h) = s.split_once('x').ok_or_else(bad)?;
     let (w, h) = (w.parse::<u32>().map_err(|_| bad())?, h.parse::<u32>().map_err(|_| bad())?);
     if w == 0 || h == 0 {
@@ -418,7 +420,7 @@ fn camera_for(
     image: &Path,
     frame: usize,
 ) -> Result<(Camera, Option<(u32, u32)>), LabelError> {
-    let own = o.image_size.map(|s| (s, "--image-size")).or_else(|| {
+    let own = o.image_size.map(|s| (s, Knob::ImageSize.name())).or_else(|| {
         png_size(&seq.dir.join(format!("image_{}/{frame:06}.png", o.camera))).map(|s| (s, "the camera's image"))
     });
     let mismatch = |camera: (u32, u32), from: &str| {
@@ -426,13 +428,14 @@ fn camera_for(
         path: image.to_path_buf(),
         what: format!(
             "segmentation of {}x{} pixels, but camera {}'s images are {}x{} ({from}): give segmentation at the camera's size, \
-             or --scale-to-images to scale the projection to it{}",
+             or {} to scale the projection to it{}",
             size.0,
             size.1,
             o.camera,
             camera.0,
             camera.1,
-            if from.starts_with("about") { " (with --image-size WxH of the camera's images)" } else { "" }
+            Knob::ScaleToImages,
+            if from.starts_with("about") { format!(" (with {} WxH of the camera's images)", Knob::ImageSize) } else { String::new() }
         ),
     }
     };
@@ -562,14 +565,14 @@ const PROVENANCE_TITLE: &str = "# Labels from camera segmentation (`cosem label`
 /// spelling: [`crate::paths::check_output`]), and an existing folder that
 /// is neither empty nor a `cosem label` output.
 pub(crate) fn check_out(o: &LabelOptions, inputs: &[(&str, &Path)]) -> Result<(), crate::error::Error> {
-    crate::paths::check_output("--out", &o.out, inputs)?;
+    crate::paths::check_output(Knob::Out.name(), &o.out, inputs)?;
     let out = &o.out;
     let ours = std::fs::read_to_string(out.join("PROVENANCE.md")).is_ok_and(|t| t.starts_with(PROVENANCE_TITLE));
     let empty = std::fs::read_dir(out).map(|mut d| d.next().is_none()).unwrap_or(true);
     if out.exists() && !(ours || empty) {
         return Err(LabelError::Format {
             path: o.out.clone(),
-            what: "exists and is not an earlier `cosem label` output: choose another --out".into(),
+            what: format!("exists and is not an earlier `cosem label` output: choose another {}", Knob::Out),
         }
         .into());
     }
@@ -584,7 +587,7 @@ pub(crate) fn check_out(o: &LabelOptions, inputs: &[(&str, &Path)]) -> Result<()
 /// touched, a failed run leaves nothing behind, and `out` may only be a
 /// new or empty folder or an earlier output.
 pub fn label_sequence(o: &LabelOptions) -> Result<LabelStats, crate::error::Error> {
-    check_out(o, &[("--data", &o.data), ("--seg", &o.seg)])?;
+    check_out(o, &[(Knob::Data.name(), &o.data), (Knob::Seg.name(), &o.seg)])?;
     let dir = crate::paths::OutputDir::create(&o.out).map_err(io(&o.out))?;
     let run = LabelOptions { out: dir.path().to_path_buf(), ..o.clone() };
     let stats = label_into(&run, &o.seg)?;

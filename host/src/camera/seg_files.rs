@@ -28,6 +28,7 @@ impl crate::error::LayerError for ImageError {}
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> ImageError + '_ {
     move |source| ImageError::Io { path: path.to_path_buf(), source }
 }
+use crate::knobs::Knob;
 use cosem_core::camera::SegClasses;
 use std::path::{Path, PathBuf};
 
@@ -290,8 +291,9 @@ pub fn read_probabilities(path: &Path, channels: usize) -> Result<ProbabilityMap
     } else if a == channels + 1 || c == channels + 1 {
         return Err(format(format!(
             "shape {shape:?}: {} channels, the class set has {channels}: a network's void (ignore) channel as well? \
-             say which with --void-channel last (or first)",
-            channels + 1
+             say which with {} last (or first)",
+            channels + 1,
+            Knob::VoidChannel
         )));
     } else {
         return Err(format(format!("shape {shape:?}: no dimension of {channels} class channels")));

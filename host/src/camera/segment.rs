@@ -9,6 +9,7 @@
 //! mean and deviation; one output `float32 [1, C, H, W]` of raw scores,
 //! channels 0-18 the Cityscapes training ids, any further one void.
 
+use crate::knobs::Knob;
 use crate::camera::seg_files::Fit;
 use crate::camera::seg_files::{npy_bytes, ProbabilityMap, SegImage};
 pub use crate::camera::seg_files::{read_rgb_png, write_rgb_png, RgbImage};
@@ -393,7 +394,10 @@ fn image_list(o: &SegmentOptions) -> Result<Vec<(String, PathBuf)>, SegmentError
         numbered.sort_unstable();
         let frames = range.select(&numbered, &o.images).map_err(|e| SegmentError::Image {
             path: o.images.clone(),
-            what: format!("--frames {e}").replace("--frames frames ", "--frames "),
+            what: {
+                let e = e.to_string();
+                format!("{} {}", Knob::Frames, e.strip_prefix("frames ").unwrap_or(&e))
+            },
         })?;
         return Ok(frames.iter().map(|f| (format!("{f:06}"), o.images.join(format!("{f:06}.png")))).collect());
     }
@@ -509,18 +513,18 @@ pub fn segment_folder(o: &SegmentOptions, tick: &(dyn Fn() + Sync)) -> Result<Se
     fn refuse(path: &Path) -> impl Fn(crate::error::Error) -> SegmentError + '_ {
         move |e| SegmentError::Image { path: path.to_path_buf(), what: e.to_string() }
     }
-    let inputs: [(&str, &Path); 2] = [("--images", &o.images), ("--model", &o.model)];
-    let mut outputs: Vec<(&str, &Path)> = vec![("--out", &o.out)];
-    outputs.extend(o.check.as_deref().map(|c| ("--check-dir", c)));
+    let inputs: [(&str, &Path); 2] = [(Knob::Images.name(), &o.images), (Knob::Model.name(), &o.model)];
+    let mut outputs: Vec<(&str, &Path)> = vec![(Knob::Out.name(), &o.out)];
+    outputs.extend(o.check.as_deref().map(|c| (Knob::CheckDir.name(), c)));
     crate::paths::check_outputs_apart(&outputs).map_err(refuse(&o.out))?;
     for (arg, dir) in &outputs {
         crate::paths::check_output(arg, dir, &inputs).map_err(refuse(dir))?;
-        refuse_foreign(arg, dir, *arg == "--check-dir")?;
+        refuse_foreign(arg, dir, *arg == Knob::CheckDir.name())?;
     }
     let list = image_list(o)?;
     for (_, image) in &list {
         for (arg, dir) in &outputs {
-            crate::paths::check_output(arg, dir, &[("--images", image)]).map_err(refuse(dir))?;
+            crate::paths::check_output(arg, dir, &[(Knob::Images.name(), image)]).map_err(refuse(dir))?;
         }
     }
     let io = |path: &Path| {

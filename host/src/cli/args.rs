@@ -2,7 +2,7 @@
 //! values, never matched as strings later.
 
 use cosem_core::geometry::{parse_pose, Isometry3};
-use cosem_core::matching::{Dof, MatchSettings, Method};
+use cosem_core::matching::{Alignment, Dof, MatchSettings, Method};
 
 /// An association method by its name (`--method`): cosem, cosem-hard or
 /// geometric.
@@ -12,11 +12,7 @@ pub fn method(s: &str) -> Result<Method, String> {
 
 /// Degrees of freedom (`--dof`): 6, or 4 (x, y, z, yaw: level anchor frames).
 pub fn dof(s: &str) -> Result<Dof, String> {
-    match s {
-        "6" => Ok(Dof::Six),
-        "4" => Ok(Dof::Four),
-        _ => Err(format!("`{s}`: expected 6 or 4")),
-    }
+    s.parse().ok().and_then(Dof::from_count).ok_or_else(|| format!("`{s}`: expected 6 or 4"))
 }
 
 /// Match settings of a method and degrees of freedom.
@@ -43,13 +39,77 @@ pub struct MatchOpts {
     /// Degrees of freedom: 6, or 4 (x, y, z, yaw).
     #[arg(long, default_value = "6", value_parser = dof)]
     pub dof: Dof,
+    /// EM iterations, the verdict's thresholds, the search's budget.
+    #[command(flatten)]
+    pub tuning: Tuning,
 }
 
 impl MatchOpts {
-    /// The settings and the prior (in the matcher's precision).
-    pub fn resolve(&self) -> (MatchSettings, Option<Isometry3<f32>>) {
-        (settings(self.method, self.dof), self.init.map(|p| p.cast::<f32>()))
+    /// The alignment and the prior (in the matcher's precision).
+    pub fn resolve(&self) -> (Alignment, Option<Isometry3<f32>>) {
+        let how = self.tuning.apply(HOST.alignment);
+        let how = Alignment { settings: MatchSettings { method: self.method, dof: self.dof, ..how.settings }, ..how };
+        (how, self.init.map(|p| p.cast::<f32>()))
     }
+}
+
+/// The matcher's numbers, each through the pipeline's one validator
+/// ([`cosem_core::pipeline::Setting`]); unset: the host pipeline's.
+#[derive(clap::Args, Debug, Clone, Copy, Default)]
+pub struct Tuning {
+    /// EM iterations at most (default 50).
+    #[arg(long, value_parser = em_iterations)]
+    pub em_iterations: Option<u32>,
+    /// The verdict's least overlap: the share of the smaller map's voxels
+    /// with a match (default 0.2).
+    #[arg(long, value_parser = min_overlap)]
+    pub min_overlap: Option<f32>,
+    /// The verdict's least agreement of what both maps saw (default 0.40):
+    /// to measure other operating points.
+    #[arg(long, value_parser = min_agreement)]
+    pub min_agreement: Option<f32>,
+    /// The prior-free search's budget of nodes (default: unbounded).
+    #[arg(long, value_parser = search_nodes)]
+    pub search_nodes: Option<u32>,
+}
+
+impl Tuning {
+    /// `base` with what was set (each value already through the
+    /// validator, set by the pipeline's one setter).
+    pub fn apply(&self, base: Alignment) -> Alignment {
+        use cosem_core::pipeline::Setting;
+        let set = [
+            (Setting::Iterations, self.em_iterations.map(f64::from)),
+            (Setting::MinOverlap, self.min_overlap.map(f64::from)),
+            (Setting::MinAgreement, self.min_agreement.map(f64::from)),
+            (Setting::SearchNodes, self.search_nodes.map(f64::from)),
+        ];
+        let pipeline = cosem_core::pipeline::Pipeline { alignment: base, ..HOST };
+        set.into_iter()
+            .filter_map(|(s, v)| Some((s, v?)))
+            .fold(pipeline, |p, (s, v)| p.with(s, v).unwrap_or(p))
+            .alignment
+    }
+}
+
+/// `--em-iterations`, through the validator.
+fn em_iterations(s: &str) -> Result<u32, String> {
+    setting(cosem_core::pipeline::Setting::Iterations, s).map(|v| v as u32)
+}
+
+/// `--min-overlap`, through the validator.
+fn min_overlap(s: &str) -> Result<f32, String> {
+    setting(cosem_core::pipeline::Setting::MinOverlap, s).map(|v| v as f32)
+}
+
+/// `--min-agreement`, through the validator.
+fn min_agreement(s: &str) -> Result<f32, String> {
+    setting(cosem_core::pipeline::Setting::MinAgreement, s).map(|v| v as f32)
+}
+
+/// `--search-nodes`, through the validator.
+fn search_nodes(s: &str) -> Result<u32, String> {
+    setting(cosem_core::pipeline::Setting::SearchNodes, s).map(|v| v as u32)
 }
 
 /// A positive finite number (m, s, ...).
@@ -211,11 +271,6 @@ pub fn accuracy(s: &str) -> Result<f32, String> {
     }
 }
 
-/// A probability in [0, 1] as `f32`.
-pub fn probability_f32(s: &str) -> Result<f32, String> {
-    probability(s).map(|v| v as f32)
-}
-
 /// A probability in [0, 1].
 pub fn probability(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
@@ -261,6 +316,61 @@ impl SourceArgs {
             odom: self.odom.clone(),
             classes: self.classes.clone(),
             strict: self.strict,
+        }
+    }
+}
+
+/// How the command line spells each of the library's knobs: its flags
+/// (installed once by `main`, so the library's messages name them).
+pub fn flag(k: cosem_host::knobs::Knob) -> &'static str {
+    use cosem_host::knobs::Knob;
+    match k {
+        Knob::Classes => "--classes",
+        Knob::MaxRange => "--max-range",
+        Knob::KeepMoving => "--keep-moving",
+        Knob::MaxPixels => "--max-pixels",
+        Knob::Strict => "--strict",
+        Knob::ImageSize => "--image-size",
+        Knob::Frames => "--frames",
+        Knob::Model => "--model",
+        Knob::Images => "--images",
+        Knob::Seg => "--seg",
+        Knob::Data => "--data",
+        Knob::Out => "--out",
+        Knob::Output => "--output",
+        Knob::CheckDir => "--check-dir",
+        Knob::Force => "--force",
+        Knob::NoPrior => "--no-prior",
+        Knob::InjectFalseMatch => "--inject-false-match",
+        Knob::OnBoard => "--on-board",
+        Knob::BoardA => "--board-a",
+        Knob::BoardB => "--board-b",
+        Knob::File => "FILE",
+        Knob::VoidChannel => "--void-channel",
+        Knob::ScaleToImages => "--scale-to-images",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use cosem_host::knobs::Knob;
+
+    /// Every knob's flag is one the command line has (a long option, or a
+    /// positional's value name), so no message points to a flag that is not.
+    #[test]
+    fn every_knob_is_a_flag_of_some_command() {
+        use clap::CommandFactory;
+        fn names(c: &clap::Command, out: &mut Vec<String>) {
+            for a in c.get_arguments() {
+                out.extend(a.get_long().map(|l| format!("--{l}")));
+                out.extend(a.get_value_names().into_iter().flatten().map(|v| v.to_string()));
+            }
+            c.get_subcommands().for_each(|s| names(s, out));
+        }
+        let mut all = Vec::new();
+        names(&super::super::Cli::command(), &mut all);
+        for k in Knob::ALL {
+            assert!(all.iter().any(|n| n == super::flag(k)), "{k:?}: {} is no flag of cosem", super::flag(k));
         }
     }
 }

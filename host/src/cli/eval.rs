@@ -3,7 +3,7 @@
 
 use super::args::settings;
 use super::Error;
-use cosem_core::matching::{Dof, MatchSettings, Method};
+use cosem_core::matching::{Alignment, Dof, MatchSettings, Method};
 use cosem_host::evaluation::eval::{
     corners, evaluate, global_starts, grid, run_negatives, sample, EvalReport, MapsInfo, Place, Protocol, Start,
 };
@@ -43,10 +43,10 @@ pub struct Args {
     /// (+-20 m, any heading); each Converged is a false accept.
     #[arg(long, num_args = 2.., conflicts_with_all = ["data", "global", "grid_stride", "limit"])]
     negatives: Vec<Place>,
-    /// The verdict's threshold on the agreement of what both maps saw
-    /// (default: the matcher's, 0.40): to measure other operating points.
-    #[arg(long, value_parser = super::args::probability_f32)]
-    min_agreement: Option<f32>,
+    /// EM iterations, the verdict's thresholds (to measure other operating
+    /// points), the prior-free search's budget.
+    #[command(flatten)]
+    tuning: super::args::Tuning,
     /// Random priors per negative pair.
     #[arg(long, default_value_t = 3)]
     random_priors: usize,
@@ -134,13 +134,13 @@ fn check_outputs(a: &Args) -> Result<(), Error> {
     Ok(cosem_host::paths::check_outputs(&outputs, &inputs)?)
 }
 
-/// The settings with the verdict's threshold of the arguments.
-fn verdict(a: &Args, s: MatchSettings) -> MatchSettings {
-    MatchSettings { min_agreement: a.min_agreement.unwrap_or(s.min_agreement), ..s }
+/// A method's alignment, tuned as the arguments say.
+fn verdict(a: &Args, s: MatchSettings) -> Alignment {
+    a.tuning.apply(Alignment::from(s))
 }
 
-/// The settings of the first method (negatives and the prior-free protocol run one).
-fn first_method(a: &Args) -> MatchSettings {
+/// The alignment of the first method (negatives and the prior-free protocol run one).
+fn first_method(a: &Args) -> Alignment {
     verdict(a, settings(a.method.first().copied().unwrap_or_default(), a.dof))
 }
 

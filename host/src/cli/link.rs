@@ -62,7 +62,7 @@ fn line(a: &Args) -> Line {
 }
 
 pub fn run(a: Args) -> Result<u8, Error> {
-    let (settings, prior) = a.opts.resolve();
+    let (alignment, prior) = a.opts.resolve();
     let (header, ours) = cosem_host::maps::cmap::read(&a.map)?;
     let robot_id = a.robot_id.unwrap_or(if a.listen.is_some() { 0 } else { 1 });
     let anchor_us = header.anchor_time.map(|t| (t * 1e6) as u64).unwrap_or(0);
@@ -77,7 +77,7 @@ pub fn run(a: Args) -> Result<u8, Error> {
     let (theirs, stats) = exchange(&line(&a), &ours, &how, |at| eprintln!("listening on {at}"))?;
     let link_s = started.elapsed().as_secs_f64();
     let our_name = format!("our map {}", a.map.display());
-    let m = prepare_and_align(&ours, &theirs, [&our_name, "the peer's map"], settings, prior.as_ref())?;
+    let m = prepare_and_align(&ours, &theirs, [&our_name, "the peer's map"], alignment, prior.as_ref())?;
     let (r, global, match_ms, prep_ms) = (m.result, m.global, m.match_ms, m.prepare_ms);
     let mut result = MatchJson::new(&r, match_ms, prep_ms);
     result.global = global.as_ref().map(GlobalJson::from);

@@ -29,7 +29,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<u8, Error> {
-    let (settings, prior) = a.opts.resolve();
+    let (how, prior) = a.opts.resolve();
     let outputs: Vec<(&str, &std::path::Path)> = [("--merged", &a.merged), ("--mcap-out", &a.mcap_out)]
         .into_iter()
         .filter_map(|(n, p)| Some((n, p.as_deref()?)))
@@ -47,17 +47,16 @@ pub fn run(a: Args) -> Result<u8, Error> {
         );
     }
     let (model_name, scene_name) = (a.model.display().to_string(), a.scene.display().to_string());
-    let m = prepare_and_align(&model, &scene, [&model_name, &scene_name], settings, prior.as_ref())?;
+    let m = prepare_and_align(&model, &scene, [&model_name, &scene_name], how, prior.as_ref())?;
     let (r, global, time_ms, prep_ms) = (m.result, m.global, m.match_ms, m.prepare_ms);
     if let Some(path) = &a.merged {
         ply::write_merged(path, &model, &scene, &r.transform)?;
     }
     let mut j = MatchJson::new(&r, time_ms, prep_ms);
-    j.method = Some(settings.method.name());
+    j.method = Some(how.settings.method.name());
     j.global = global.as_ref().map(GlobalJson::from);
     if let Some(path) = &a.mcap_out {
-        let text = serde_json::to_string(&j).map_err(|e| format!("{}: {e}", path.display()))?;
-        cosem_host::reports::match_recording::write_match(path, &model, &scene, &r.transform, &text)?;
+        cosem_host::reports::match_recording::write_match(path, &model, &scene, &r.transform, &j)?;
     }
     if a.json {
         print_json(&j)?;

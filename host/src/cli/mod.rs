@@ -1,7 +1,7 @@
 //! The subcommands, one module each: each parses its arguments (clap) and
 //! prints; the work is in the `cosem_host` library.
 
-mod args;
+pub mod args;
 mod bench;
 mod demo;
 mod eval;

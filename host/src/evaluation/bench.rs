@@ -2,6 +2,7 @@
 //! and returns its figures (the command prints them). Times are medians of
 //! repeated single-threaded runs.
 
+use crate::knobs::Knob;
 use crate::error::Error;
 use crate::evaluation::eval::{grid, STRICT};
 use crate::evaluation::pair::{Pair, PairSpec};
@@ -370,8 +371,9 @@ pub fn data_dir(given: Option<PathBuf>, frames: usize) -> Result<(PathBuf, Optio
     }
     if frames > MAX_SYNTHETIC_FRAMES {
         return Err(Error::Invalid(format!(
-            "frames up to {frames}: no --data and no kitti00 under {}, and a synthetic sequence has at most \
+            "frames up to {frames}: no {} and no kitti00 under {}, and a synthetic sequence has at most \
              {MAX_SYNTHETIC_FRAMES} frames here",
+            Knob::Data,
             data_root().display()
         )));
     }

@@ -3,6 +3,7 @@
 //! through the map file encoding, match it against robot A's from a prior
 //! 5 m and 15 degrees off, and tell the estimate against the truth.
 
+use crate::knobs::Knob;
 use crate::error::Error;
 use crate::evaluation::eval::Start;
 use crate::evaluation::pair::{Pair, PairSpec};
@@ -44,7 +45,7 @@ fn describe(out: &mut impl Write, name: &str, range: FrameRange, map: &HostMap, 
 pub fn run(d: &Demo, dir: &Path, out: &mut impl Write) -> Result<(), Error> {
     let io = |source| Error::Io { path: "(output)".into(), source };
     if d.frames < 2 {
-        return Err(Error::Invalid("--frames must be at least 2".into()));
+        return Err(Error::Invalid(format!("{} {}: at least 2", Knob::Frames, d.frames)));
     }
     let t0 = std::time::Instant::now();
     write_sequence(dir, &SynthConfig { frames: d.frames, seed: d.seed, ..SynthConfig::default() })

@@ -10,7 +10,7 @@ use crate::maps::mapping::{build_map, HostMap, PointFilter};
 use crate::matching::align::{align, prepare, HostPyramid, DEFAULT_LEVELS};
 use cosem_core::geometry::{errors_of, pose_deg, row_major, Isometry3};
 use cosem_core::map::MapConfig;
-use cosem_core::matching::{MatchResult, MatchSettings, MatchStatus, MAX_LEVELS};
+use cosem_core::matching::{Alignment, MatchResult, MatchStatus, MAX_LEVELS};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -443,7 +443,7 @@ pub enum Protocol {
         /// The starts.
         starts: Vec<Start>,
         /// The methods' settings.
-        methods: Vec<MatchSettings>,
+        methods: Vec<Alignment>,
     },
     /// Prior-free: the scene's map moved by each start (rebuilt from its
     /// moved frames) and matched with no prior.
@@ -451,7 +451,7 @@ pub enum Protocol {
         /// The starts.
         starts: Vec<GlobalStart>,
         /// The method's settings.
-        settings: MatchSettings,
+        settings: Alignment,
     },
 }
 
@@ -484,15 +484,15 @@ pub fn evaluate(
         Protocol::Grid { starts, methods } => {
             let mut results = Vec::new();
             for s in methods {
-                results.extend(run_grid(s.method.name(), *s, (&pa, &pb), &pair.gt, starts, progress)?);
+                results.extend(run_grid(s.settings.method.name(), *s, (&pa, &pb), &pair.gt, starts, progress)?);
             }
-            ("grid", methods.first().map_or(6, |s| s.dof.count()), results)
+            ("grid", methods.first().map_or(6, |s| s.settings.dof.count()), results)
         }
         Protocol::Global { starts, settings: s } => {
             let config = (spec.config, &spec.filter);
             let results =
-                run_global(s.method.name(), *s, &pair.map_a, &pair.frames_b, config, &pair.gt, starts, progress)?;
-            ("global", s.dof.count(), results)
+                run_global(s.settings.method.name(), *s, &pair.map_a, &pair.frames_b, config, &pair.gt, starts, progress)?;
+            ("global", s.settings.dof.count(), results)
         }
     };
     Ok(EvalReport::new(mode, maps, spec.config.resolution, dof, prep_ms, &pair.gt, results))
@@ -503,7 +503,7 @@ pub fn evaluate(
 /// `progress` is called after each match.
 pub fn run_grid(
     method: &str,
-    settings: MatchSettings,
+    settings: Alignment,
     pyramids: (&HostPyramid<'_>, &HostPyramid<'_>),
     gt: &Isometry3<f64>,
     starts: &[Start],
@@ -530,7 +530,7 @@ pub fn run_grid(
 #[allow(clippy::too_many_arguments)]
 pub fn run_global(
     method: &str,
-    settings: MatchSettings,
+    settings: Alignment,
     map_a: &HostMap,
     frames_b: &[crate::sources::kitti::Frame],
     map_config: (MapConfig, &PointFilter),
@@ -752,7 +752,7 @@ fn negative_pairs(
 pub fn run_negatives(
     places: &[Place],
     spec: &crate::evaluation::pair::PairSpec,
-    settings: MatchSettings,
+    settings: Alignment,
     random_priors: usize,
     progress: &(dyn Fn() + Sync),
 ) -> Result<NegativeReport, Error> {

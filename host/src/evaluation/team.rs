@@ -13,6 +13,7 @@
 //! ([`cosem_core::team::solve`]). Robots connected among themselves but not
 //! to robot 0 are a separate group in the frame of their lowest index.
 
+use crate::knobs::Knob;
 use crate::error::Error;
 use crate::lines::exchange::simulate_exchange;
 use crate::maps::mapping::{build_map, HostMap, PointFilter};
@@ -82,7 +83,8 @@ pub fn parse_prior_noise(s: &str) -> Result<(f64, f64), String> {
     match v[..] {
         [m, d] if (0.0..=MAX_PRIOR_METRES).contains(&m) && (0.0..=180.0).contains(&d) => Ok((m, d)),
         _ => Err(format!(
-            "`{s}`: expected METRES,DEGREES: METRES from 0 to {MAX_PRIOR_METRES} (a prior further off is none: use --no-prior), DEGREES from 0 to 180"
+            "`{s}`: expected METRES,DEGREES: METRES from 0 to {MAX_PRIOR_METRES} (a prior further off is none: use {}), DEGREES from 0 to 180",
+            Knob::NoPrior
         )),
     }
 }
@@ -213,7 +215,7 @@ pub fn run(spec: &TeamSpec) -> Result<TeamOutcome, Error> {
     }
     for &(i, j) in &spec.inject_false_match {
         if i >= n || j >= n || i == j {
-            return Err(Error::Invalid(format!("--inject-false-match {i},{j}: two different robots of 0..{n}")));
+            return Err(Error::Invalid(format!("{} {i},{j}: two different robots of 0..{n}", Knob::InjectFalseMatch)));
         }
     }
     let truth = Truth::of(spec)?;

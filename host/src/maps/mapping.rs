@@ -1,6 +1,7 @@
 //! Building local maps on the host: heap storage sized at run time, and the
 //! loop that fuses a range of frames into a map with the core's code.
 
+use crate::knobs::Knob;
 use crate::sources::kitti::Frame;
 use cosem_core::classes::{Class, MovingObjects};
 use cosem_core::map::{ConfigError, InsertError, Insertion, LabelDistribution, MapConfig};
@@ -177,16 +178,18 @@ impl BuildStats {
         let mut out = Vec::new();
         if self.unknown_ids > 0 {
             out.push(format!(
-                "{} points have label ids that are not SemanticKITTI's (the first: {}) and were left out; a class table (--classes) maps a user's ids",
+                "{} points have label ids that are not SemanticKITTI's (the first: {}) and were left out; a class table ({}) maps a user's ids",
                 self.unknown_ids,
-                self.first_unknown_id.unwrap_or_default()
+                self.first_unknown_id.unwrap_or_default(),
+                Knob::Classes,
             ));
         }
         if self.out_of_range > 0 {
             out.push(format!(
-                "{} points lie beyond the map's key range ({:.0} m from the anchor at {voxel} m voxels) and were left out; --max-range drops far points by design",
+                "{} points lie beyond the map's key range ({:.0} m from the anchor at {voxel} m voxels) and were left out; {} drops far points by design",
                 self.out_of_range,
                 32_767.0 * voxel,
+                Knob::MaxRange,
             ));
         }
         out
@@ -200,19 +203,20 @@ impl BuildStats {
         let mut why = Vec::new();
         if self.unknown_ids > 0 {
             why.push(format!(
-                "{} have label ids that are not SemanticKITTI's (the first: {}; give a class table with --classes)",
+                "{} have label ids that are not SemanticKITTI's (the first: {}; give a class table with {})",
                 self.unknown_ids,
-                self.first_unknown_id.unwrap_or_default()
+                self.first_unknown_id.unwrap_or_default(),
+                Knob::Classes,
             ));
         }
         if self.no_class > 0 {
             why.push(format!("{} are unlabeled or of no class (ids 0, 1, 52, 99)", self.no_class));
         }
         if self.moving > 0 {
-            why.push(format!("{} are moving objects (--keep-moving keeps them)", self.moving));
+            why.push(format!("{} are moving objects ({} keeps them)", self.moving, Knob::KeepMoving));
         }
         if self.beyond_max_range > 0 {
-            why.push(format!("{} lie beyond --max-range", self.beyond_max_range));
+            why.push(format!("{} lie beyond {}", self.beyond_max_range, Knob::MaxRange));
         }
         if self.out_of_range > 0 {
             why.push(format!("{} lie beyond the map's key range", self.out_of_range));

@@ -1,6 +1,7 @@
 //! PLY export (binary little endian): x, y, z, colour, class index and the
 //! SemanticKITTI id. Opens in CloudCompare, MeshLab and Open3D.
 
+use crate::knobs::Knob;
 use std::io::Write;
 use std::path::Path;
 
@@ -61,7 +62,7 @@ pub fn write(path: &Path, points: &[PlyPoint]) -> std::io::Result<()> {
 /// class (grey: no class) at `output`, never over the input. Returns the
 /// points written.
 pub fn export_map(file: &Path, output: &Path) -> Result<usize, crate::error::Error> {
-    crate::paths::check_output("--output", output, &[("FILE", file)])?;
+    crate::paths::check_output(Knob::Output.name(), output, &[(Knob::File.name(), file)])?;
     let (_, map) = crate::maps::cmap::read(file)?;
     let id = cosem_core::geometry::Isometry3::identity();
     let colour = |v: &cosem_core::map::SemanticVoxel| v.class().map(|c| c.color()).unwrap_or([128; 3]);

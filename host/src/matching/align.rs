@@ -8,7 +8,7 @@ use cosem_core::geometry::Isometry3;
 use cosem_core::matching::global::Searched;
 use cosem_core::matching::search::SearchScratch;
 use cosem_core::matching::{
-    align_prepared, Alignment, MatchError, MatchResult, MatchSettings, Pyramid, Role, VecPyramid,
+    align_prepared, Alignment, MatchError, MatchResult, Pyramid, Role, VecPyramid,
 };
 use cosem_core::pipeline::{Pipeline, Setting};
 
@@ -63,13 +63,14 @@ impl crate::error::LayerError for AlignError {}
 /// (`T_model_scene`) when given, else with none (the conventions) by the
 /// core's prior-free alignment, through the one matching path
 /// ([`align_prepared`]) as the robots do; then what its search found comes
-/// back too.
+/// back too. `how`: an [`Alignment`], or the matcher's settings alone
+/// (with the host's search budget).
 pub fn align(
-    settings: MatchSettings,
+    how: impl Into<Alignment>,
     prior: Option<&Isometry3<f32>>,
     pyramids: (&HostPyramid<'_>, &HostPyramid<'_>),
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
-    let how = Alignment { settings, ..Pipeline::HOST.alignment };
+    let how: Alignment = how.into();
     let mut words = [0u32; SearchScratch::WINDOWED];
     let scratch = &mut SearchScratch::new(&mut words);
     align_prepared(pyramids.0, pyramids.1, prior, &how, scratch, || {}).map_err(AlignError::Match)
@@ -94,7 +95,7 @@ pub fn prepare_and_align(
     model: &HostMap,
     scene: &HostMap,
     names: [&str; 2],
-    settings: MatchSettings,
+    how: Alignment,
     prior: Option<&Isometry3<f32>>,
 ) -> Result<TimedMatch, crate::error::Error> {
     let named = |name: &str, e: crate::error::Error| crate::error::Error::Invalid(format!("{name}: {e}"));
@@ -103,6 +104,6 @@ pub fn prepare_and_align(
     let ps = prepare(scene, DEFAULT_LEVELS).map_err(|e| named(names[1], e))?;
     let prepare_ms = t0.elapsed().as_secs_f64() * 1e3;
     let t1 = std::time::Instant::now();
-    let (result, global) = align(settings, prior, (&pm, &ps))?;
+    let (result, global) = align(how, prior, (&pm, &ps))?;
     Ok(TimedMatch { result, global, prepare_ms, match_ms: t1.elapsed().as_secs_f64() * 1e3 })
 }

@@ -3,6 +3,7 @@
 //! as JSON text.
 
 use crate::maps::mapping::HostMap;
+use crate::reports::report::MatchJson;
 use crate::sources::recording::{transform_of, RecordingWriter};
 use crate::sources::ros_msgs::*;
 use nalgebra::Isometry3;
@@ -49,14 +50,15 @@ fn map_cloud(map: &HostMap, frame: &str) -> PointCloud2 {
 /// Writes a match to view in Foxglove: both maps as PointCloud2 coloured
 /// by class (`/cosem/model` in frame `model`, `/cosem/scene` in frame
 /// `scene`), the found `T_model_scene` on `/tf` (`model -> scene`) and the
-/// result as JSON text on `/cosem/status` (`std_msgs/msg/String`).
+/// result (`cosem match --json`'s) as JSON text on `/cosem/status` (`std_msgs/msg/String`).
 pub fn write_match(
     path: &Path,
     model: &HostMap,
     scene: &HostMap,
     t_model_scene: &Isometry3<f32>,
-    status_json: &str,
+    status: &MatchJson,
 ) -> Result<(), crate::error::Error> {
+    let status_json = serde_json::to_string(status).map_err(|e| crate::error::Error::Invalid(format!("{}: {e}", path.display())))?;
     let mut w = RecordingWriter::create(path)?;
     let pc = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA)?;
     let tf = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA)?;
@@ -74,6 +76,6 @@ pub fn write_match(
     w.write(model_ch, 0, 0, &map_cloud(model, "model"))?;
     w.write(scene_ch, 0, 0, &map_cloud(scene, "scene"))?;
     w.write(tf_ch, 0, 0, &tf_msg)?;
-    w.write(status_ch, 0, 0, &StringMsg { data: status_json.to_owned() })?;
+    w.write(status_ch, 0, 0, &StringMsg { data: status_json })?;
     w.finish()
 }

@@ -98,12 +98,17 @@ pub struct GlobalJson {
     /// The chosen candidate's placement, row by row (the start EM refined).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub start: Option<[f64; 16]>,
+    /// The search stopped at its budget of nodes: its
+    /// placements are the best found until then, not proven best. Written
+    /// only when true.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub exhausted: bool,
 }
 
 impl From<&Searched> for GlobalJson {
     fn from(s: &Searched) -> Self {
         let start = s.search.candidates.get(s.chosen).map(|c| row_major(&c.transform.cast::<f64>()));
-        GlobalJson { start, ..GlobalJson::from(GlobalReport::from(s)) }
+        GlobalJson { start, exhausted: s.search.exhausted, ..GlobalJson::from(GlobalReport::from(s)) }
     }
 }
 
@@ -116,6 +121,7 @@ impl From<GlobalReport> for GlobalJson {
             chosen: g.chosen,
             evaluations: g.evaluations,
             start: None,
+            exhausted: false,
         }
     }
 }
@@ -124,9 +130,16 @@ impl GlobalJson {
     /// The figures in words.
     pub fn text(&self) -> String {
         let runner_up = if self.runner_up > 0 { format!(", runner-up {}", self.runner_up) } else { String::new() };
+        let searched = if self.exhausted {
+            format!("stopped by its node budget after {} nodes, not every heading and offset searched", self.evaluations)
+        } else {
+            format!("searched every heading and offset ({} nodes)", self.evaluations)
+        };
+        if self.refined == 0 {
+            return format!("{searched}: no placement found to refine");
+        }
         format!(
-            "searched every heading and offset ({} nodes): best score {}{runner_up}; candidate {} of {} refined",
-            self.evaluations,
+            "{searched}: best score {}{runner_up}; candidate {} of {} refined",
             self.score,
             usize::from(self.chosen) + 1,
             self.refined

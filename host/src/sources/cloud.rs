@@ -12,6 +12,7 @@
 //! compressed PCD are refused with an error naming the file. Every error
 //! names the file and the line or byte offset at fault.
 
+use crate::knobs::Knob;
 use crate::sources::kitti::{frame_of, Cloud, Frame};
 use nalgebra::Matrix4;
 use std::path::{Path, PathBuf};
@@ -638,7 +639,7 @@ pub fn export_scans(
     output: &Path,
     force: bool,
 ) -> Result<usize, crate::error::Error> {
-    crate::paths::check_output("--output", output, &[("--data", data)])?;
+    crate::paths::check_output(Knob::Output.name(), output, &[(Knob::Data.name(), data)])?;
     refuse_used_folder(output, force)?;
     let seq = crate::sources::kitti::Sequence::open(data)?;
     seq.check_range(frames)?;
@@ -674,17 +675,21 @@ fn refuse_used_folder(output: &Path, force: bool) -> Result<(), crate::error::Er
     for name in entries.flatten().map(|e| e.file_name().to_string_lossy().into_owned()) {
         if !ours(&name) {
             return Err(crate::error::Error::Invalid(format!(
-                "--output {}: already holds {name}, which is not an earlier export's: the folder is replaced \
-                 whole, not even with --force; choose a new or empty folder",
-                output.display()
+                "{} {}: already holds {name}, which is not an earlier export's: the folder is replaced \
+                 whole, not even with {}; choose a new or empty folder",
+                Knob::Output,
+                output.display(),
+                Knob::Force
             )));
         }
         held = Some(name);
     }
     match held {
         Some(name) if !force => Err(crate::error::Error::Invalid(format!(
-            "--output {}: already holds {name}: an earlier export is not replaced without --force (or choose a new folder)",
-            output.display()
+            "{} {}: already holds {name}: an earlier export is not replaced without {} (or choose a new folder)",
+            Knob::Output,
+            output.display(),
+            Knob::Force
         ))),
         _ => Ok(()),
     }

@@ -12,6 +12,7 @@
 //! transforms hold at every stamp. A stamp outside an edge's transforms,
 //! or no chain, is an error naming the scan.
 
+use crate::knobs::Knob;
 use crate::sources::cloud::{read_records, Layout, Scalar};
 use crate::sources::kitti::Frame;
 use crate::sources::kitti::{frame_of, Cloud};
@@ -205,7 +206,7 @@ fn cut_short(
 ) -> Result<(), RecordingError> {
     let cut = format!("cut short at byte offset {at} ({missing})");
     if what.strict {
-        let what = format!("{cut}; without --strict the scans before the cut are read");
+        let what = format!("{cut}; without {} the scans before the cut are read", Knob::Strict);
         return Err(RecordingError::Mcap { path: path.to_owned(), what });
     }
     let asked = what.frames.map_or(String::new(), |r| format!(" (frames {r} asked)"));
