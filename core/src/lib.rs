@@ -88,6 +88,7 @@ pub mod pipeline;
 pub mod region;
 pub mod robot;
 pub mod selftest;
+pub mod session;
 #[cfg(any(test, feature = "sim"))]
 pub mod sim;
 pub mod team;

@@ -25,7 +25,7 @@ const CORE: Layers = &[
     ("camera", &["camera"]),
     ("wire", &["wire"]),
     ("link", &["link"]),
-    ("matching", &["matching", "team", "pipeline"]),
+    ("matching", &["matching", "team", "pipeline", "session"]),
     ("selftest", &["selftest"]),
     ("robot", &["robot"]),
     // Tests and hosts only (feature `sim`): lines and the driver of robots.

@@ -474,6 +474,63 @@ impl<S: VoxelStorage> LocalMap<S> {
         }
     }
 
+    /// Adds a whole voxel, or replaces the one of its key (a peer's map
+    /// kept up to date by updates).
+    pub fn upsert_voxel(&mut self, voxel: SemanticVoxel) -> Result<(), InsertError> {
+        match table::probe(self.voxels(), self.storage.slots(), voxel.key) {
+            Probe::Found(i) => {
+                if let Some(v) = self.storage.parts_mut().0.get_mut(i) {
+                    *v = voxel;
+                }
+                Ok(())
+            }
+            Probe::Vacant(_) if self.len >= self.capacity() => Err(InsertError::Full),
+            Probe::Vacant(slot) => {
+                self.push_at(slot, voxel);
+                Ok(())
+            }
+        }
+    }
+
+    /// Keeps the voxels `keep` says, in their order, and returns how many
+    /// went (the index rebuilt once; removals by key of a peer's update).
+    pub fn retain(&mut self, mut keep: impl FnMut(&SemanticVoxel) -> bool) -> usize {
+        let len = self.len;
+        let (voxels, slots) = self.storage.parts_mut();
+        let mut kept = 0;
+        for i in 0..len {
+            let Some(v) = voxels.get(i).copied() else { break };
+            if keep(&v) {
+                if let Some(dst) = voxels.get_mut(kept) {
+                    *dst = v;
+                }
+                kept += 1;
+            }
+        }
+        if kept < len {
+            self.len = kept;
+            table::rebuild(voxels.get(..kept).unwrap_or(&[]), slots);
+        }
+        len - kept
+    }
+
+    /// Moves the point whose neighbourhood a full map keeps
+    /// ([`FullPolicy::EvictFarthest`]) to where the robot is now: a robot
+    /// that keeps driving evicts what is farthest from itself, not from
+    /// where it started. The radius of the last cut no longer holds (it
+    /// was about the old point). Nothing changes under [`FullPolicy::Reject`];
+    /// a point that is not finite is refused.
+    pub fn move_anchor(&mut self, anchor: [f32; 3]) -> Result<(), ConfigError> {
+        if !anchor.iter().all(|v| v.is_finite()) {
+            return Err(ConfigError::Anchor);
+        }
+        if let FullPolicy::EvictFarthest { .. } = self.config.when_full {
+            self.config.when_full = FullPolicy::EvictFarthest { anchor };
+            self.keep_radius_sq = f32::INFINITY;
+        }
+        Ok(())
+    }
+
     /// Removes the eighth of the capacity farthest from `anchor`, exactly:
     /// a 256-bin histogram of distances finds the bin where the cut falls,
     /// a second histogram within that bin narrows it, and of the voxels

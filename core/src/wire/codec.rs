@@ -62,7 +62,7 @@ pub const POSITION_BITS: u32 = 2;
 /// Class symbols: the classes, then "none".
 const CLASS_SYMBOLS: usize = NUM_CLASSES + 1;
 const NO_CLASS: u32 = 31;
-const MORTON_LIMIT: u64 = 1 << 48;
+pub(crate) const MORTON_LIMIT: u64 = 1 << 48;
 
 /// Why a map could not be encoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -377,7 +377,7 @@ fn decode_voxel(d: &mut RangeDecoder<'_>, m: &mut CodecModel, mut gap: u64, code
     Some((gap, Quantised { class, confidence, occupancy, position }))
 }
 
-fn write_varint(out: &mut [u8], at: &mut usize, mut v: u64) -> Result<(), EncodeError> {
+pub(crate) fn write_varint(out: &mut [u8], at: &mut usize, mut v: u64) -> Result<(), EncodeError> {
     loop {
         let byte = (v & 0x7F) as u8;
         v >>= 7;
@@ -400,7 +400,7 @@ pub fn chunk_voxel_count(chunk: &[u8]) -> Option<u64> {
     read_varint(chunk, &mut 0, 5).ok()
 }
 
-fn read_varint(input: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, DecodeError> {
+pub(crate) fn read_varint(input: &[u8], at: &mut usize, max_bytes: usize) -> Result<u64, DecodeError> {
     let mut v = 0u64;
     for i in 0..max_bytes {
         let byte = *input.get(*at).ok_or(DecodeError::Truncated)?;
@@ -425,6 +425,8 @@ pub struct MapEncoder<'a, S: VoxelStorage, O: Borrow<LocalMap<S>> = &'a LocalMap
     map: O,
     /// The caller's scratch; its first `map.len()` entries hold the order.
     scratch: &'a mut [u32],
+    /// Voxels streamed: the map's, or a subset's.
+    count: usize,
     next: usize,
     _storage: PhantomData<S>,
 }
@@ -435,7 +437,26 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
     pub fn new(map: O, scratch: &'a mut [u32], model: &mut CodecModel) -> Result<Self, EncodeError> {
         stream_order(map.borrow(), scratch)?;
         model.reset();
-        Ok(MapEncoder { map, scratch, next: 0, _storage: PhantomData })
+        let count = map.borrow().len();
+        Ok(MapEncoder { map, scratch, count, next: 0, _storage: PhantomData })
+    }
+
+    /// Streams only the voxels whose indices are the first `count` entries
+    /// of `scratch` (each a voxel of `map`, none twice): the changed voxels
+    /// of an update. They are put in stream order here; resets `model`.
+    pub fn subset(map: O, scratch: &'a mut [u32], count: usize, model: &mut CodecModel) -> Result<Self, EncodeError> {
+        let m = map.borrow();
+        let order = scratch.get_mut(..count).ok_or(EncodeError::Scratch)?;
+        if order.iter().any(|&i| i as usize >= m.len()) {
+            return Err(EncodeError::Scratch);
+        }
+        let voxels = m.voxels();
+        order.sort_unstable_by_key(|&i| voxels.get(i as usize).map(|v| morton(v.key)).unwrap_or(u64::MAX));
+        if order.windows(2).any(|w| w[0] == w[1]) {
+            return Err(EncodeError::Scratch);
+        }
+        model.reset();
+        Ok(MapEncoder { map, scratch, count, next: 0, _storage: PhantomData })
     }
 
     fn map(&self) -> &LocalMap<S> {
@@ -444,7 +465,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
 
     /// The voxel indices in stream (Morton) order.
     fn order(&self) -> &[u32] {
-        self.scratch.get(..self.map().len()).unwrap_or(&[])
+        self.scratch.get(..self.count).unwrap_or(&[])
     }
 
     /// Gives the scratch back (its contents are the stream order), e.g. for
@@ -471,12 +492,17 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
 
     /// Voxels not yet encoded.
     pub fn remaining(&self) -> usize {
-        self.map().len() - self.next
+        self.count - self.next
+    }
+
+    /// Voxels streamed in all (the map's, or the subset's).
+    pub fn count(&self) -> usize {
+        self.count
     }
 
     /// Whether every voxel went out.
     pub fn is_done(&self) -> bool {
-        self.next >= self.map().len()
+        self.next >= self.count
     }
 
     /// Writes the next chunk (as many voxels as surely fit in `out`, at
@@ -490,7 +516,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
             return Err(EncodeError::Buffer);
         }
         let map: &LocalMap<S> = self.map.borrow();
-        let (order, start) = (self.scratch.get(..map.len()).unwrap_or(&[]), self.next);
+        let (order, start) = (self.scratch.get(..self.count).unwrap_or(&[]), self.next);
         let voxel = |i: usize| order.get(i).and_then(|&v| map.voxel(v as usize));
         let first = voxel(start).ok_or(EncodeError::Buffer)?;
         // The first code as a gap from the previous chunk's last one.
@@ -499,7 +525,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
             None => morton(first.key),
         };
         // The body goes after room for the largest header, then moves up.
-        let room = varint_len((map.len() - start) as u64) + varint_len(lead);
+        let room = varint_len((self.count - start) as u64) + varint_len(lead);
         let body = out.get_mut(room..).ok_or(EncodeError::Buffer)?;
         let capacity = body.len();
         let mut e = RangeEncoder::new(body);
@@ -546,6 +572,16 @@ fn stream_order<'s, S: VoxelStorage>(map: &LocalMap<S>, scratch: &'s mut [u32]) 
     let voxels = map.voxels();
     order.sort_unstable_by_key(|&i| voxels.get(i as usize).map(|v| morton(v.key)).unwrap_or(u64::MAX));
     Ok(order)
+}
+
+/// A voxel's record as the encoding keeps it (its cell and quantised
+/// fields), hashed: equal for two voxels exactly when the wire would carry
+/// them alike (up to CRC-32 collisions). What an update compares to find
+/// the voxels that changed.
+pub fn voxel_digest(v: &SemanticVoxel) -> u32 {
+    let mut crc = Crc32::new();
+    digest_voxel(&mut crc, morton(v.key), &quantise(v));
+    crc.finish()
 }
 
 /// The digest [`MapEncoder::digest`] gives, without a codec model
@@ -663,6 +699,17 @@ mod scene_point_tests {
                     assert_eq!((p.class(), p.confidence()), crate::map::class_and_confidence(&v));
                     assert_eq!(p.position(0.5), v.position(0.5));
                     assert_eq!(p.key, key);
+                }
+            }
+        }
+        // A decoded voxel encodes as it was decoded: a peer's copy kept by
+        // updates digests as the sender's map does.
+        for class in (0..NUM_CLASSES as u32).chain([NO_CLASS]) {
+            for confidence in 0..CONFIDENCE_LEVELS.len() as u32 {
+                for occupancy in 0..4 {
+                    let q = Quantised { class, confidence, occupancy, position: [1, 2, 3] };
+                    let q = if class == NO_CLASS { Quantised { confidence: 0, ..q } } else { q };
+                    assert_eq!(quantise(&rebuild(key, &q).unwrap()), q, "{class} {confidence} {occupancy}");
                 }
             }
         }

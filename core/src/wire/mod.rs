@@ -15,6 +15,8 @@
 //! - [`report`]: a match result as plain numbers;
 //! - [`feed`]: the feed protocol between a host and a robot;
 //! - [`share`]: a team's estimates, sent between robots after matching;
+//! - [`update`]: map updates between robots that keep driving (changed
+//!   voxels, removed cells, the map's digest) and their answers;
 //! - [`mapfile`]: the `.cmap` map file, read and written without an
 //!   allocator.
 //!
@@ -32,6 +34,7 @@ pub mod range;
 pub mod report;
 pub mod rs;
 pub mod share;
+pub mod update;
 
 pub use block::{encode_block, BlockDeframer, BlockShape};
 pub use codec::{CodecModel, DecodeError, EncodeError, MapDecoder, MapEncoder};

@@ -1,0 +1,240 @@
+//! The sending side of map updates: what the peer holds, and what changed
+//! since.
+
+use crate::map::{LocalMap, VoxelStorage};
+use crate::wire::codec::{map_digest, morton, voxel_digest, CodecModel, EncodeError, MapEncoder};
+use crate::wire::update::{write_update, UpdateAck, UpdateError, UpdateHeader};
+
+/// One voxel's record as a peer holds it: its cell (Morton code) and the
+/// hash of what the wire carries of it ([`voxel_digest`]); where it is in
+/// the sender's map now.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ShadowEntry {
+    /// Morton code of the cell.
+    pub code: u64,
+    /// [`voxel_digest`] of the voxel.
+    pub hash: u32,
+    /// Its index in the sender's map when the record was taken.
+    pub index: u32,
+}
+
+/// Why no update could be written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PublisherError {
+    /// The records' storage is smaller than the map.
+    Records,
+    /// The scratch is smaller than the map.
+    Scratch,
+    /// The map holds more voxels than the peer said it can hold.
+    PeerCapacity,
+    /// The update did not fit the output.
+    Update(UpdateError),
+}
+
+impl From<EncodeError> for PublisherError {
+    fn from(_: EncodeError) -> Self {
+        PublisherError::Scratch
+    }
+}
+
+impl core::fmt::Display for PublisherError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            PublisherError::Records => f.write_str("update records smaller than the map"),
+            PublisherError::Scratch => f.write_str("update scratch smaller than the map"),
+            PublisherError::PeerCapacity => f.write_str("the map holds more voxels than the peer can"),
+            PublisherError::Update(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl core::error::Error for PublisherError {}
+
+/// The sending side: the records of what the peer acknowledged (`held`)
+/// and of the update in flight (`sent`), both in caller-owned storage of
+/// the map's capacity.
+pub struct Publisher<'s> {
+    epoch: u16,
+    /// The last version made.
+    version: u32,
+    /// The version the peer holds (0: none: the next update is a snapshot).
+    acked: u32,
+    held: &'s mut [ShadowEntry],
+    held_len: usize,
+    sent: &'s mut [ShadowEntry],
+    sent_len: usize,
+    /// The version and digest of the update in flight.
+    in_flight: Option<(u32, u32)>,
+    /// Voxels the peer can hold (from its answers).
+    peer_capacity: u32,
+}
+
+impl<'s> Publisher<'s> {
+    /// A publisher of session `epoch` (a restarted robot takes another),
+    /// its records in `held` and `sent` (each at least the map's capacity).
+    pub fn new(epoch: u16, held: &'s mut [ShadowEntry], sent: &'s mut [ShadowEntry]) -> Self {
+        Publisher {
+            epoch,
+            version: 0,
+            acked: 0,
+            held,
+            held_len: 0,
+            sent,
+            sent_len: 0,
+            in_flight: None,
+            peer_capacity: u32::MAX,
+        }
+    }
+
+    /// The session's epoch.
+    pub fn epoch(&self) -> u16 {
+        self.epoch
+    }
+
+    /// The version the peer acknowledged (0: none).
+    pub fn acked(&self) -> u32 {
+        self.acked
+    }
+
+    /// The last version made.
+    pub fn version(&self) -> u32 {
+        self.version
+    }
+
+    /// Writes the update that brings the peer from what it acknowledged to
+    /// `map` now into `out` (a snapshot when it acknowledged nothing), and
+    /// returns its length. `scratch`: a `u32` per voxel of the map.
+    pub fn next_update<S: VoxelStorage>(
+        &mut self,
+        map: &LocalMap<S>,
+        scratch: &mut [u32],
+        model: &mut CodecModel,
+        out: &mut [u8],
+    ) -> Result<usize, PublisherError> {
+        let n = map.len();
+        if n > self.peer_capacity as usize {
+            return Err(PublisherError::PeerCapacity);
+        }
+        let digest = map_digest(map, scratch)?;
+        let records = self.sent.get_mut(..n).ok_or(PublisherError::Records)?;
+        for (i, (r, v)) in records.iter_mut().zip(map.iter()).enumerate() {
+            *r = ShadowEntry { code: morton(v.key), hash: voxel_digest(v), index: i as u32 };
+        }
+        records.sort_unstable_by_key(|r| r.code);
+        self.sent_len = n;
+        let snapshot = self.acked == 0;
+        let held = if snapshot { &[][..] } else { self.held.get(..self.held_len).unwrap_or(&[]) };
+        let records = self.sent.get(..n).unwrap_or(&[]);
+        // The voxels new or changed, as indices of the map.
+        let mut upserts = 0;
+        for change in Changes::new(held, records) {
+            if let Change::Upsert(index) = change {
+                *scratch.get_mut(upserts).ok_or(PublisherError::Scratch)? = index;
+                upserts += 1;
+            }
+        }
+        let removals = Changes::new(held, records).filter(|c| matches!(c, Change::Remove(_))).count();
+        let removed = Changes::new(held, records).filter_map(|c| match c {
+            Change::Remove(code) => Some(code),
+            Change::Upsert(_) => None,
+        });
+        let version = self.version.wrapping_add(1).max(1);
+        let header = UpdateHeader {
+            epoch: self.epoch,
+            base: if snapshot { 0 } else { self.acked },
+            version,
+            voxels: n as u32,
+            digest,
+            removals: removals as u32,
+            upserts: upserts as u32,
+        };
+        let mut encoder = MapEncoder::subset(map, scratch, upserts, model)?;
+        let len = write_update(&header, removed, removals, Some(&mut encoder), model, out)
+            .map_err(PublisherError::Update)?;
+        self.version = version;
+        self.in_flight = Some((version, digest));
+        Ok(len)
+    }
+
+    /// Takes the peer's answer: what it holds now. The update in flight
+    /// acknowledged, its records become what the peer holds; the version
+    /// acknowledged before, the next update is again from it (the update
+    /// was lost); anything else (another version, a digest that differs,
+    /// nothing held), the next update is a snapshot. Answers to another
+    /// epoch are ignored.
+    pub fn on_ack(&mut self, ack: &UpdateAck) {
+        if ack.epoch != self.epoch {
+            return;
+        }
+        self.peer_capacity = ack.capacity;
+        match self.in_flight {
+            Some((v, d)) if ack.version == v && ack.digest == d => {
+                core::mem::swap(&mut self.held, &mut self.sent);
+                self.held_len = self.sent_len;
+                self.acked = v;
+                self.in_flight = None;
+            }
+            _ if ack.version == self.acked && ack.version != 0 => {}
+            _ => {
+                self.acked = 0;
+                self.held_len = 0;
+            }
+        }
+    }
+}
+
+/// A difference between what the peer holds and the map now.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Change {
+    /// The voxel at this index of the map is new or changed.
+    Upsert(u32),
+    /// The cell of this Morton code left the map.
+    Remove(u64),
+}
+
+/// The differences of two record lists, each sorted by code, in code order.
+struct Changes<'a> {
+    held: &'a [ShadowEntry],
+    now: &'a [ShadowEntry],
+}
+
+impl<'a> Changes<'a> {
+    fn new(held: &'a [ShadowEntry], now: &'a [ShadowEntry]) -> Self {
+        Changes { held, now }
+    }
+}
+
+impl Iterator for Changes<'_> {
+    type Item = Change;
+    fn next(&mut self) -> Option<Change> {
+        loop {
+            match (self.held.first(), self.now.first()) {
+                (None, None) => return None,
+                (Some(h), None) => {
+                    self.held = self.held.get(1..).unwrap_or(&[]);
+                    return Some(Change::Remove(h.code));
+                }
+                (None, Some(n)) => {
+                    self.now = self.now.get(1..).unwrap_or(&[]);
+                    return Some(Change::Upsert(n.index));
+                }
+                (Some(h), Some(n)) if h.code < n.code => {
+                    self.held = self.held.get(1..).unwrap_or(&[]);
+                    return Some(Change::Remove(h.code));
+                }
+                (Some(h), Some(n)) if h.code > n.code => {
+                    self.now = self.now.get(1..).unwrap_or(&[]);
+                    return Some(Change::Upsert(n.index));
+                }
+                (Some(h), Some(n)) => {
+                    self.held = self.held.get(1..).unwrap_or(&[]);
+                    self.now = self.now.get(1..).unwrap_or(&[]);
+                    if h.hash != n.hash {
+                        return Some(Change::Upsert(n.index));
+                    }
+                }
+            }
+        }
+    }
+}

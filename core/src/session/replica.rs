@@ -1,0 +1,155 @@
+//! The receiving side of map updates: the peer's map, kept equal to
+//! `decode(encode(peer's map at version v))`.
+
+use crate::map::{ConfigError, InsertError, LocalMap, MapConfig, SemanticVoxel, VoxelSink, VoxelStorage};
+use crate::wire::codec::{map_digest, CodecModel};
+use crate::wire::update::{UpdateAck, UpdateError, UpdateView};
+
+/// What became of an update.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Applied {
+    /// Applied: the copy is the peer's map at the update's version, its
+    /// digest checked.
+    Applied,
+    /// The version held already (a repeated update): nothing changed.
+    Repeated,
+    /// For another version than the one held (an update before it was
+    /// lost, or an answer was): nothing changed; the answer says what is
+    /// held, so that the peer resends from there or sends a snapshot.
+    OutOfStep,
+    /// Damaged or malformed: nothing changed.
+    Refused(UpdateError),
+    /// Applied, but the copy did not come out as the peer's map (digest or
+    /// count): the copy is emptied and a snapshot asked for.
+    Diverged,
+    /// A new epoch (the peer restarted) that did not start with a
+    /// snapshot: the copy is emptied and a snapshot asked for.
+    Restarted,
+}
+
+/// Decodes into a map, replacing the voxel of a cell held already.
+struct Upsert<'m, S: VoxelStorage>(&'m mut LocalMap<S>);
+
+impl<S: VoxelStorage> VoxelSink for Upsert<'_, S> {
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    fn capacity(&self) -> usize {
+        self.0.capacity()
+    }
+    fn resolution(&self) -> f32 {
+        self.0.resolution()
+    }
+    fn clear(&mut self) {
+        self.0.clear();
+    }
+    fn configure(&mut self, config: MapConfig) -> Result<(), ConfigError> {
+        self.0.reset(config)
+    }
+    fn accept(&mut self, voxel: SemanticVoxel) -> Result<(), InsertError> {
+        self.0.upsert_voxel(voxel)
+    }
+}
+
+/// A robot's copy of its peer's map, in caller-owned storage (at least
+/// the capacity the robot announces in its answers).
+pub struct Replica<S: VoxelStorage> {
+    map: LocalMap<S>,
+    epoch: Option<u16>,
+    version: u32,
+    digest: u32,
+}
+
+impl<S: VoxelStorage> Replica<S> {
+    /// An empty copy over `map` (its configuration: the peer's voxel size).
+    pub fn new(mut map: LocalMap<S>) -> Self {
+        map.clear();
+        Replica { map, epoch: None, version: 0, digest: 0 }
+    }
+
+    /// The copy (the peer's map at [`Replica::version`]).
+    pub fn map(&self) -> &LocalMap<S> {
+        &self.map
+    }
+
+    /// The version held (0: none).
+    pub fn version(&self) -> u32 {
+        self.version
+    }
+
+    /// The answer that says what is held.
+    pub fn answer(&self) -> UpdateAck {
+        UpdateAck {
+            epoch: self.epoch.unwrap_or(0),
+            version: self.version,
+            digest: self.digest,
+            capacity: self.map.capacity() as u32,
+        }
+    }
+
+    fn forget(&mut self) {
+        self.map.clear();
+        self.version = 0;
+        self.digest = 0;
+    }
+
+    /// Applies an update (`scratch`: a `u32` per voxel of the copy's
+    /// capacity), and says what became of it; [`Replica::answer`] is what
+    /// to send back.
+    pub fn apply(&mut self, bytes: &[u8], model: &mut CodecModel, scratch: &mut [u32]) -> Applied {
+        let view = match UpdateView::parse(bytes) {
+            Ok(v) => v,
+            Err(e) => return Applied::Refused(e),
+        };
+        let h = view.header;
+        if self.epoch != Some(h.epoch) {
+            self.epoch = Some(h.epoch);
+            self.forget();
+            if h.base != 0 {
+                return Applied::Restarted;
+            }
+        }
+        if h.version == self.version && h.digest == self.digest && self.version != 0 {
+            return Applied::Repeated;
+        }
+        if h.base != 0 && h.base != self.version {
+            return Applied::OutOfStep;
+        }
+        if h.base == 0 {
+            self.forget();
+        }
+        if self.patch(&view, model, scratch).is_err() {
+            self.forget();
+            return Applied::Diverged;
+        }
+        let digest = map_digest(&self.map, scratch).ok();
+        if digest != Some(h.digest) || self.map.len() != h.voxels as usize {
+            self.forget();
+            return Applied::Diverged;
+        }
+        self.version = h.version;
+        self.digest = h.digest;
+        Applied::Applied
+    }
+
+    /// The update's removals and upserts applied to the copy.
+    fn patch(&mut self, view: &UpdateView<'_>, model: &mut CodecModel, scratch: &mut [u32]) -> Result<(), ()> {
+        let words = self.map.len().div_ceil(32);
+        let marks = scratch.get_mut(..words).ok_or(())?;
+        marks.fill(0);
+        for key in view.removed() {
+            let i = self.map.index_of(key).ok_or(())?;
+            *marks.get_mut(i / 32).ok_or(())? |= 1 << (i % 32);
+        }
+        if view.header.removals > 0 {
+            let mut i = 0usize;
+            self.map.retain(|_| {
+                let gone = marks.get(i / 32).is_some_and(|w| w & (1 << (i % 32)) != 0);
+                i += 1;
+                !gone
+            });
+        }
+        view.decode_upserts(model, &mut Upsert(&mut self.map)).map_err(|_| ())
+    }
+}

@@ -1,0 +1,277 @@
+use super::*;
+use crate::classes::Class;
+use crate::map::{FullPolicy, MapConfig, SemanticVoxel, VecMap};
+use crate::test_util::heap_map;
+use crate::wire::codec::{CodecModel, MapDecoder, MapEncoder};
+use crate::wire::update::{UpdateAck, UpdateView};
+use std::vec;
+use std::vec::Vec;
+
+/// A small deterministic generator (the tests' own: the session is below
+/// the simulation's layer).
+struct Lcg(u64);
+
+impl Lcg {
+    fn unit(&mut self) -> f32 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
+    }
+}
+
+const CAPACITY: usize = 3_000;
+
+fn robot_map() -> VecMap {
+    let config = MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] }, ..MapConfig::with_resolution(0.5) };
+    heap_map(CAPACITY, config)
+}
+
+/// One round of a robot driving a curve: it moves on, its map's anchor
+/// with it, and fuses 1,500 points of a street (walls either side, ground,
+/// poles) around where it is; the class of a point is its place's, one
+/// in ten wrong.
+fn drive(map: &mut VecMap, round: usize, rng: &mut Lcg) {
+    let (x, y) = (3.0 * round as f32, 0.02 * (3.0 * round as f32).powi(2) / 10.0);
+    map.move_anchor([x, y, 0.0]).unwrap();
+    for _ in 0..1_500 {
+        let (u, v) = (rng.unit(), rng.unit());
+        let along = x - 20.0 + 40.0 * u;
+        let (p, class) = match (v * 4.0) as u32 {
+            0 => ([along, y + 6.0, 3.0 * rng.unit()], Class::Building),
+            1 => ([along, y - 6.0, 3.0 * rng.unit()], Class::Vegetation),
+            2 => ([along, y - 6.0 + 12.0 * rng.unit(), 0.0], Class::Road),
+            _ => ([libm::floorf(along / 8.0) * 8.0, y + 4.0, 4.0 * rng.unit()], Class::Pole),
+        };
+        let class = if rng.unit() < 0.1 { Class::Car } else { class };
+        map.insert_point(p, class).unwrap();
+    }
+}
+
+/// `decode(encode(map))`: what a peer's copy must equal.
+fn decoded(map: &VecMap) -> Vec<SemanticVoxel> {
+    let mut scratch = vec![0u32; map.len()];
+    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
+    let mut encoder = MapEncoder::new(map, &mut scratch, &mut model).unwrap();
+    let mut copy = heap_map(map.len().max(1), *map.config());
+    let mut decoder = MapDecoder::new(map.len(), &mut back);
+    let mut chunk = vec![0u8; 1024];
+    loop {
+        let n = encoder.next_chunk(&mut model, &mut chunk).unwrap();
+        if n == 0 {
+            break;
+        }
+        decoder.decode_chunk(&mut back, &chunk[..n], &mut copy).unwrap();
+    }
+    sorted(&copy)
+}
+
+fn sorted(map: &VecMap) -> Vec<SemanticVoxel> {
+    let mut v: Vec<SemanticVoxel> = map.iter().copied().collect();
+    v.sort_by_key(|v| crate::wire::codec::morton(v.key));
+    v
+}
+
+/// The two robots' sides of one direction of a session.
+struct Ends {
+    held: Vec<ShadowEntry>,
+    sent: Vec<ShadowEntry>,
+    replica: Replica<crate::map::VecStorage>,
+    scratch: Vec<u32>,
+    out: Vec<u8>,
+}
+
+impl Ends {
+    fn new() -> Self {
+        Ends {
+            held: vec![ShadowEntry::default(); CAPACITY],
+            sent: vec![ShadowEntry::default(); CAPACITY],
+            replica: Replica::new(robot_map()),
+            scratch: vec![0u32; CAPACITY],
+            out: vec![0u8; 64 * 1024],
+        }
+    }
+}
+
+#[test]
+fn updates_keep_the_copy_equal_to_the_decoded_map() {
+    let mut ends = Ends::new();
+    let Ends { held, sent, replica, scratch, out } = &mut ends;
+    let mut publisher = Publisher::new(7, held, sent);
+    let (mut map, mut rng) = (robot_map(), Lcg(1));
+    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
+    let mut ratios = Vec::new();
+    for round in 0..40 {
+        drive(&mut map, round, &mut rng);
+        let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
+        assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied, "round {round}");
+        publisher.on_ack(&replica.answer());
+        assert_eq!(publisher.acked(), publisher.version());
+        assert_eq!(sorted(replica.map()), decoded(&map), "round {round}");
+        if round > 0 {
+            let whole = {
+                let mut held2 = vec![ShadowEntry::default(); CAPACITY];
+                let mut sent2 = vec![ShadowEntry::default(); CAPACITY];
+                let mut fresh = Publisher::new(1, &mut held2, &mut sent2);
+                let mut o = vec![0u8; 64 * 1024];
+                fresh.next_update(&map, &mut vec![0u32; CAPACITY], &mut CodecModel::new(), &mut o).unwrap()
+            };
+            ratios.push(n as f32 / whole as f32);
+        }
+    }
+    // The map filled and evicted around the moving robot.
+    assert!(map.evicted() > 0 && map.len() > CAPACITY / 2, "{} {}", map.len(), map.evicted());
+    ratios.sort_by(f32::total_cmp);
+    let median = ratios[ratios.len() / 2];
+    // An update is what changed, well below a whole map.
+    std::println!("update / snapshot: median {median:.3}, max {:.3}", ratios[ratios.len() - 1]);
+    assert!(median < 0.8, "median update / snapshot {median}");
+}
+
+/// Updates and answers lost, repeated and damaged: the copy is never
+/// taken as the peer's map unless it is one, and it is repaired (resent
+/// from what was held, or a snapshot).
+#[test]
+fn lost_repeated_and_damaged_updates_are_repaired() {
+    let mut ends = Ends::new();
+    let Ends { held, sent, replica, scratch, out } = &mut ends;
+    let mut publisher = Publisher::new(3, held, sent);
+    let (mut map, mut rng, mut faults) = (robot_map(), Lcg(2), Lcg(99));
+    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
+    let mut seen = std::collections::BTreeMap::new();
+    let mut in_sync_after_clean_round = 0;
+    for round in 0..120 {
+        drive(&mut map, round % 60, &mut rng);
+        let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
+        let mut update = out[..n].to_vec();
+        let fault = faults.unit();
+        let clean = round % 10 == 9;
+        let deliveries = if clean {
+            1
+        } else if fault < 0.2 {
+            0
+        } else if fault < 0.3 {
+            2
+        } else {
+            if fault < 0.45 {
+                let at = (faults.unit() * n as f32) as usize % n;
+                update[at] ^= 1 + (faults.unit() * 254.0) as u8;
+            }
+            1
+        };
+        for _ in 0..deliveries {
+            let what = replica.apply(&update, &mut back, scratch);
+            *seen.entry(std::format!("{what:?}")).or_insert(0) += 1;
+            if what == Applied::Applied || what == Applied::Repeated {
+                assert_eq!(sorted(replica.map()), decoded(&map), "round {round}: {what:?}");
+            }
+            let answer = replica.answer();
+            // An answer may be lost too (or arrive damaged and be dropped).
+            if clean || faults.unit() > 0.1 {
+                let bytes = answer.encode();
+                publisher.on_ack(&UpdateAck::decode(&bytes).unwrap());
+            }
+        }
+        if clean && replica.version() == publisher.version() {
+            in_sync_after_clean_round += 1;
+        }
+        if replica.version() != 0 && replica.version() == publisher.version() {
+            assert_eq!(sorted(replica.map()), decoded(&map), "round {round}");
+        }
+    }
+    // Every kind of trouble happened, and the clean rounds found the copy
+    // repaired (an update lost before a clean round is resent in it).
+    for kind in ["Applied", "Repeated", "Refused(Checksum)"] {
+        assert!(seen.contains_key(kind), "{kind} never seen: {seen:?}");
+    }
+    std::println!("{seen:?}, {in_sync_after_clean_round} of 12 clean rounds in sync");
+    assert!(in_sync_after_clean_round >= 10, "{in_sync_after_clean_round} of 12 clean rounds in sync: {seen:?}");
+}
+
+#[test]
+fn a_restarted_peer_is_noticed_and_sends_a_snapshot() {
+    let mut ends = Ends::new();
+    let Ends { held, sent, replica, scratch, out } = &mut ends;
+    let (mut map, mut rng) = (robot_map(), Lcg(5));
+    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
+    {
+        let mut first = Publisher::new(1, held, sent);
+        for round in 0..3 {
+            drive(&mut map, round, &mut rng);
+            let n = first.next_update(&map, scratch, &mut model, out).unwrap();
+            assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied);
+            first.on_ack(&replica.answer());
+        }
+    }
+    // The peer restarts (another epoch) and, wrongly, sends a delta first.
+    let mut forged = out.clone();
+    let mut held2 = vec![ShadowEntry::default(); CAPACITY];
+    let mut sent2 = vec![ShadowEntry::default(); CAPACITY];
+    let mut second = Publisher::new(2, &mut held2, &mut sent2);
+    drive(&mut map, 3, &mut rng);
+    let n = second.next_update(&map, scratch, &mut model, &mut forged).unwrap();
+    assert_eq!(UpdateView::parse(&forged[..n]).unwrap().header.base, 0, "a new publisher starts with a snapshot");
+    // A delta of the new epoch (base 5) is refused as a restart.
+    forged[3] = 5;
+    let crc = crate::wire::crc32(&forged[..n - 4]);
+    forged[n - 4..n].copy_from_slice(&crc.to_le_bytes());
+    assert_eq!(replica.apply(&forged[..n], &mut back, scratch), Applied::Restarted);
+    assert_eq!(replica.answer().version, 0);
+    second.on_ack(&replica.answer());
+    let n = second.next_update(&map, scratch, &mut model, out).unwrap();
+    assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied);
+    assert_eq!(sorted(replica.map()), decoded(&map));
+    second.on_ack(&replica.answer());
+    assert_eq!(second.acked(), second.version());
+    // An answer of the old epoch is ignored by the new publisher.
+    second.on_ack(&UpdateAck { epoch: 1, version: 0, digest: 0, capacity: 10 });
+    assert_eq!(second.acked(), second.version(), "still acknowledged");
+}
+
+/// Forged updates (bytes changed, the CRC made to match), applied to a
+/// copy at their base: never a panic, and never a copy taken as the
+/// peer's map that is not one.
+#[test]
+fn forged_updates_never_pass_as_the_map() {
+    let mut ends = Ends::new();
+    let Ends { held, sent, scratch, out, .. } = &mut ends;
+    let mut publisher = Publisher::new(9, held, sent);
+    let (mut map, mut rng, mut forge) = (robot_map(), Lcg(3), Lcg(4));
+    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
+    let (mut history, mut outcomes): (Vec<Vec<u8>>, std::collections::BTreeMap<_, usize>) = Default::default();
+    for round in 0..5 {
+        drive(&mut map, round, &mut rng);
+        let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
+        let truth = decoded(&map);
+        for _ in 0..60 {
+            let mut bytes = out[..n].to_vec();
+            for _ in 0..1 + (forge.unit() * 4.0) as usize {
+                let at = (forge.unit() * (n - 4) as f32) as usize;
+                bytes[at] = (forge.unit() * 256.0) as u8;
+            }
+            if forge.unit() < 0.2 {
+                bytes.truncate((forge.unit() * n as f32) as usize);
+            }
+            if bytes.len() > 4 {
+                let m = bytes.len() - 4;
+                let crc = crate::wire::crc32(&bytes[..m]);
+                bytes[m..].copy_from_slice(&crc.to_le_bytes());
+            }
+            let mut copy = Replica::new(robot_map());
+            for earlier in &history {
+                assert_eq!(copy.apply(earlier, &mut back, scratch), Applied::Applied);
+            }
+            let what = copy.apply(&bytes, &mut back, scratch);
+            *outcomes.entry(std::format!("{what:?}")).or_default() += 1;
+            if what == Applied::Applied {
+                assert_eq!(sorted(copy.map()), truth, "a forged update made another map");
+            }
+        }
+        history.push(out[..n].to_vec());
+        let mut copy = Replica::new(robot_map());
+        for update in &history {
+            assert_eq!(copy.apply(update, &mut back, scratch), Applied::Applied);
+        }
+        publisher.on_ack(&copy.answer());
+    }
+    std::println!("forged updates: {outcomes:?}");
+    assert!(outcomes.len() >= 3, "{outcomes:?}");
+}

@@ -1,0 +1,309 @@
+//! Map updates between robots that keep driving: what changed in a
+//! sender's map since a version its peer holds (voxels new or changed, in
+//! the codec's encoding, and the cells that left it), and the peer's
+//! answer. Each is one message, carried whole by whatever transport (the
+//! UART link, a ROS 2 topic, a test); damage is caught by its CRC-32.
+//!
+//! An update (all integers little-endian):
+//!
+//! | bytes | field |
+//! |---|---|
+//! | 1 | kind, [`UPDATE_KIND`] |
+//! | 2 | epoch: the sender's session (a restarted sender takes another) |
+//! | 4 | base: the version it applies to (0: to nothing, a snapshot) |
+//! | 4 | version: the sender's map's version it makes |
+//! | 4 | voxels: the map's voxels at `version` |
+//! | 4 | digest: the codec's digest of the map at `version` |
+//! | 4 | removals: cells removed |
+//! | 4 | upserts: voxels new or changed |
+//! | ... | the removed cells' Morton codes, ascending: the first as a varint, then each gap - 1 |
+//! | ... | the upserts in codec chunks, each a u16 length and the chunk |
+//! | 4 | CRC-32 of everything before |
+//!
+//! An answer ([`UpdateAck`], [`ACK_KIND`]): the epoch it answers, the
+//! version and digest the receiver now holds (0, 0: nothing: send a
+//! snapshot), the voxels it can hold, a CRC-32.
+
+use super::codec::{key_of, read_varint, write_varint, CodecModel, DecodeError, MapDecoder, MapEncoder, MORTON_LIMIT};
+use super::crc::crc32;
+use crate::map::{LocalMap, VoxelKey, VoxelSink, VoxelStorage};
+
+/// First byte of an update.
+pub const UPDATE_KIND: u8 = 0xD1;
+/// First byte of an answer.
+pub const ACK_KIND: u8 = 0xD2;
+/// Bytes of an update's fixed header.
+pub const UPDATE_HEADER: usize = 27;
+/// Bytes of an answer.
+pub const ACK_BYTES: usize = 1 + 2 + 4 + 4 + 4 + 4;
+/// Largest codec chunk an update holds (its length is a u16).
+pub const MAX_UPDATE_CHUNK: usize = 4096;
+
+/// An update's fixed fields.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct UpdateHeader {
+    /// The sender's session.
+    pub epoch: u16,
+    /// The version it applies to (0: a snapshot, to an empty map).
+    pub base: u32,
+    /// The version it makes.
+    pub version: u32,
+    /// The sender's map's voxels at `version`.
+    pub voxels: u32,
+    /// The codec's digest of the map at `version` ([`super::codec::map_digest`]).
+    pub digest: u32,
+    /// Cells removed.
+    pub removals: u32,
+    /// Voxels new or changed.
+    pub upserts: u32,
+}
+
+/// A receiver's answer: what it holds of the sender's map now.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct UpdateAck {
+    /// The sender's epoch it answers.
+    pub epoch: u16,
+    /// The version it holds (0: none).
+    pub version: u32,
+    /// The digest of what it holds.
+    pub digest: u32,
+    /// Voxels it can hold of the sender's map.
+    pub capacity: u32,
+}
+
+/// Why an update or an answer was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum UpdateError {
+    /// Shorter than its fixed fields, or than what they announce.
+    Truncated,
+    /// The CRC-32 does not match: damaged.
+    Checksum,
+    /// Not the kind of message expected.
+    Kind,
+    /// Counts that do not fit the message or each other.
+    Counts,
+    /// Removed cells out of order or out of range.
+    Removal,
+    /// The upserts' chunks did not decode.
+    Decode(DecodeError),
+    /// Bytes after the last chunk.
+    Trailing,
+    /// The output buffer is too small (sending).
+    Buffer,
+}
+
+impl core::fmt::Display for UpdateError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            UpdateError::Truncated => f.write_str("update truncated"),
+            UpdateError::Checksum => f.write_str("update damaged (CRC-32 mismatch)"),
+            UpdateError::Kind => f.write_str("not a map update"),
+            UpdateError::Counts => f.write_str("update counts do not fit the message"),
+            UpdateError::Removal => f.write_str("removed cells out of order or range"),
+            UpdateError::Decode(e) => write!(f, "update voxels: {e}"),
+            UpdateError::Trailing => f.write_str("bytes after the update's last chunk"),
+            UpdateError::Buffer => f.write_str("update buffer too small"),
+        }
+    }
+}
+
+impl core::error::Error for UpdateError {}
+
+fn put(out: &mut [u8], at: &mut usize, bytes: &[u8]) -> Result<(), UpdateError> {
+    let dst = out.get_mut(*at..*at + bytes.len()).ok_or(UpdateError::Buffer)?;
+    dst.copy_from_slice(bytes);
+    *at += bytes.len();
+    Ok(())
+}
+
+fn u32_at(bytes: &[u8], at: usize) -> Result<u32, UpdateError> {
+    let b = bytes.get(at..at + 4).ok_or(UpdateError::Truncated)?;
+    Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+}
+
+fn u16_at(bytes: &[u8], at: usize) -> Result<u16, UpdateError> {
+    let b = bytes.get(at..at + 2).ok_or(UpdateError::Truncated)?;
+    Ok(u16::from_le_bytes([b[0], b[1]]))
+}
+
+/// Writes an update into `out`: `header` (its `upserts` taken from
+/// `upserts`), the `removals` removed cells' Morton codes (ascending), the
+/// voxels `upserts` streams (a [`MapEncoder::subset`], or none) coded with
+/// `model`. Returns its length.
+pub fn write_update<'m, S: VoxelStorage + 'm>(
+    header: &UpdateHeader,
+    removed: impl Iterator<Item = u64>,
+    removals: usize,
+    upserts: Option<&mut MapEncoder<'_, S, &'m LocalMap<S>>>,
+    model: &mut CodecModel,
+    out: &mut [u8],
+) -> Result<usize, UpdateError> {
+    let count = upserts.as_ref().map_or(0, |e| e.count());
+    let mut at = 0;
+    put(out, &mut at, &[UPDATE_KIND])?;
+    put(out, &mut at, &header.epoch.to_le_bytes())?;
+    let fields = [header.base, header.version, header.voxels, header.digest, removals as u32, count as u32];
+    for v in fields {
+        put(out, &mut at, &v.to_le_bytes())?;
+    }
+    let (mut prev, mut written): (Option<u64>, usize) = (None, 0);
+    for code in removed {
+        written += 1;
+        let gap = match prev {
+            Some(p) if code > p => code - p - 1,
+            Some(_) => return Err(UpdateError::Removal),
+            None => code,
+        };
+        write_varint(out, &mut at, gap).map_err(|_| UpdateError::Buffer)?;
+        prev = Some(code);
+    }
+    if written != removals {
+        return Err(UpdateError::Counts);
+    }
+    if let Some(encoder) = upserts {
+        while !encoder.is_done() {
+            let room = out.len().saturating_sub(at + 2 + 4).min(MAX_UPDATE_CHUNK);
+            let end = at + 2 + room;
+            let chunk = out.get_mut(at + 2..end).ok_or(UpdateError::Buffer)?;
+            let n = encoder.next_chunk(model, chunk).map_err(|_| UpdateError::Buffer)?;
+            put(out, &mut at, &(n as u16).to_le_bytes())?;
+            at += n;
+        }
+    }
+    let crc = crc32(out.get(..at).ok_or(UpdateError::Buffer)?);
+    put(out, &mut at, &crc.to_le_bytes())?;
+    Ok(at)
+}
+
+/// An update read and checked (kind, CRC-32, counts against its length,
+/// removed cells in order): its fields, its removed cells and its voxels.
+#[derive(Clone, Copy, Debug)]
+pub struct UpdateView<'a> {
+    /// The fixed fields.
+    pub header: UpdateHeader,
+    body: &'a [u8],
+    chunks_at: usize,
+}
+
+impl<'a> UpdateView<'a> {
+    /// Reads an update; nothing in it sizes anything before it is checked
+    /// against the message's length.
+    pub fn parse(bytes: &'a [u8]) -> Result<Self, UpdateError> {
+        if bytes.len() < UPDATE_HEADER + 4 {
+            return Err(UpdateError::Truncated);
+        }
+        if bytes.first() != Some(&UPDATE_KIND) {
+            return Err(UpdateError::Kind);
+        }
+        let body = bytes.get(..bytes.len() - 4).ok_or(UpdateError::Truncated)?;
+        if crc32(body) != u32_at(bytes, bytes.len() - 4)? {
+            return Err(UpdateError::Checksum);
+        }
+        let header = UpdateHeader {
+            epoch: u16_at(body, 1)?,
+            base: u32_at(body, 3)?,
+            version: u32_at(body, 7)?,
+            voxels: u32_at(body, 11)?,
+            digest: u32_at(body, 15)?,
+            removals: u32_at(body, 19)?,
+            upserts: u32_at(body, 23)?,
+        };
+        let room = (body.len() - UPDATE_HEADER) as u64;
+        // A removal takes a byte at least, a voxel a bit at least; a
+        // snapshot removes nothing; a map holds what it says.
+        let counts_fit = u64::from(header.removals) <= room
+            && u64::from(header.upserts) <= 8 * room
+            && header.upserts <= header.voxels
+            && (header.base != 0 || (header.removals == 0 && header.upserts == header.voxels))
+            && header.version != header.base;
+        if !counts_fit {
+            return Err(UpdateError::Counts);
+        }
+        let mut at = UPDATE_HEADER;
+        let mut prev = None;
+        for _ in 0..header.removals {
+            prev = Some(next_code(body, &mut at, prev)?);
+        }
+        Ok(UpdateView { header, body, chunks_at: at })
+    }
+
+    /// The removed cells, ascending by Morton code.
+    pub fn removed(&self) -> impl Iterator<Item = VoxelKey> + '_ {
+        let (mut at, mut prev) = (UPDATE_HEADER, None);
+        (0..self.header.removals).map_while(move |_| {
+            let code = next_code(self.body, &mut at, prev).ok()?;
+            prev = Some(code);
+            key_of(code)
+        })
+    }
+
+    /// Decodes the upserts into `sink` with `model`, chunk by chunk; every
+    /// byte of the update is used, or it is an error.
+    pub fn decode_upserts<K: VoxelSink + ?Sized>(&self, model: &mut CodecModel, sink: &mut K) -> Result<(), UpdateError> {
+        let mut decoder = MapDecoder::new(self.header.upserts as usize, model);
+        let mut at = self.chunks_at;
+        while !decoder.is_complete() {
+            let len = usize::from(u16_at(self.body, at)?);
+            let chunk = self.body.get(at + 2..at + 2 + len).ok_or(UpdateError::Truncated)?;
+            decoder.decode_chunk(model, chunk, sink).map_err(UpdateError::Decode)?;
+            at += 2 + len;
+        }
+        if at != self.body.len() {
+            return Err(UpdateError::Trailing);
+        }
+        Ok(())
+    }
+
+    /// The update's bytes on the wire (with its CRC).
+    pub fn wire_len(&self) -> usize {
+        self.body.len() + 4
+    }
+}
+
+/// The next removed cell's Morton code after `prev`, read at `at`.
+fn next_code(body: &[u8], at: &mut usize, prev: Option<u64>) -> Result<u64, UpdateError> {
+    let gap = read_varint(body, at, 7).map_err(|_| UpdateError::Truncated)?;
+    match prev {
+        Some(p) => p.checked_add(gap).and_then(|c| c.checked_add(1)),
+        None => Some(gap),
+    }
+    .filter(|&c| c < MORTON_LIMIT)
+    .ok_or(UpdateError::Removal)
+}
+
+impl UpdateAck {
+    /// The answer's bytes.
+    pub fn encode(&self) -> [u8; ACK_BYTES] {
+        let mut out = [0u8; ACK_BYTES];
+        out[0] = ACK_KIND;
+        out[1..3].copy_from_slice(&self.epoch.to_le_bytes());
+        out[3..7].copy_from_slice(&self.version.to_le_bytes());
+        out[7..11].copy_from_slice(&self.digest.to_le_bytes());
+        out[11..15].copy_from_slice(&self.capacity.to_le_bytes());
+        let crc = crc32(&out[..15]);
+        out[15..19].copy_from_slice(&crc.to_le_bytes());
+        out
+    }
+
+    /// Reads an answer, its CRC-32 checked.
+    pub fn decode(bytes: &[u8]) -> Result<UpdateAck, UpdateError> {
+        if bytes.len() != ACK_BYTES {
+            return Err(UpdateError::Truncated);
+        }
+        if bytes.first() != Some(&ACK_KIND) {
+            return Err(UpdateError::Kind);
+        }
+        if crc32(bytes.get(..15).ok_or(UpdateError::Truncated)?) != u32_at(bytes, 15)? {
+            return Err(UpdateError::Checksum);
+        }
+        Ok(UpdateAck {
+            epoch: u16_at(bytes, 1)?,
+            version: u32_at(bytes, 3)?,
+            digest: u32_at(bytes, 7)?,
+            capacity: u32_at(bytes, 11)?,
+        })
+    }
+}
