@@ -40,6 +40,7 @@ pub mod sources {
     pub mod cdr_read;
     pub mod class_table;
     pub mod cloud;
+    pub mod drift;
     pub mod kitti;
     pub mod mcap_read;
     pub mod recording;
@@ -96,6 +97,7 @@ pub mod evaluation {
     pub mod eval;
     pub mod job;
     pub mod pair;
+    pub mod session;
     pub mod stats;
     pub mod team;
 }
@@ -118,5 +120,6 @@ pub mod reports {
     pub mod match_recording;
     pub mod report;
     pub mod robots;
+    pub mod session;
     pub mod team;
 }

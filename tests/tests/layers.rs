@@ -435,7 +435,8 @@ fn libraries_spell_no_flags() {
     // The check itself: a flag in a message is caught, a cargo command is not.
     let fixture = File {
         rel: "maps/x.rs".into(),
-        text: "fn f() -> String { format!(\"use --max-range\") }\nfn g() { c.args([\"build\", \"--release\"]); }\n".into(),
+        text: "fn f() -> String { format!(\"use --max-range\") }\nfn g() { c.args([\"build\", \"--release\"]); }\n"
+            .into(),
     };
     assert_eq!(flags_spelled(&[fixture]).len(), 1);
 }

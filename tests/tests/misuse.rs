@@ -41,6 +41,7 @@ fn baselines() -> BTreeMap<&'static str, &'static str> {
         ("link", "link --map {A} --listen 0 --accept-timeout 1"),
         ("relay", "relay --accept-timeout 1"),
         ("team", "team --robot {SEQ}:0:2 --robot {SEQ}:1:3"),
+        ("session", "session --robot {SEQ}:0:2 --robot {SEQ}:1:3 --every 1"),
         ("info", "info {A}"),
         ("export ply", "export ply {A} -o {OUT}/m.ply"),
         ("export scans", "export scans --data {SEQ} --frames 0:2 --format pcd -o {OUT}/scans"),

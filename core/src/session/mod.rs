@@ -9,13 +9,17 @@
 //!   `decode(encode(peer's map at version v))`, bit for bit, checked by the
 //!   digest after every update; anything else (a lost, repeated, damaged or
 //!   out-of-step update) is answered so that the sender resends or sends a
-//!   snapshot, never silently diverges.
+//!   snapshot, never silently diverges;
+//! - [`tracker`]: the peer's relative pose, prior-free until a fix, then
+//!   tracked from it, withdrawn when it stops agreeing.
 
 pub mod publisher;
 pub mod replica;
+pub mod tracker;
 
 pub use publisher::{Publisher, PublisherError, ShadowEntry};
 pub use replica::{Applied, Replica};
+pub use tracker::{Estimate, Fix, Kind, Tracker};
 
 #[cfg(test)]
 mod tests;

@@ -53,16 +53,16 @@ impl core::error::Error for PublisherError {}
 
 /// The sending side: the records of what the peer acknowledged (`held`)
 /// and of the update in flight (`sent`), both in caller-owned storage of
-/// the map's capacity.
-pub struct Publisher<'s> {
+/// the map's capacity (`&mut [ShadowEntry]` on a board, a `Vec` on a host).
+pub struct Publisher<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> {
     epoch: u16,
     /// The last version made.
     version: u32,
     /// The version the peer holds (0: none: the next update is a snapshot).
     acked: u32,
-    held: &'s mut [ShadowEntry],
+    held: R,
     held_len: usize,
-    sent: &'s mut [ShadowEntry],
+    sent: R,
     sent_len: usize,
     /// The version and digest of the update in flight.
     in_flight: Option<(u32, u32)>,
@@ -70,10 +70,10 @@ pub struct Publisher<'s> {
     peer_capacity: u32,
 }
 
-impl<'s> Publisher<'s> {
+impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
     /// A publisher of session `epoch` (a restarted robot takes another),
     /// its records in `held` and `sent` (each at least the map's capacity).
-    pub fn new(epoch: u16, held: &'s mut [ShadowEntry], sent: &'s mut [ShadowEntry]) -> Self {
+    pub fn new(epoch: u16, held: R, sent: R) -> Self {
         Publisher {
             epoch,
             version: 0,
@@ -117,15 +117,15 @@ impl<'s> Publisher<'s> {
             return Err(PublisherError::PeerCapacity);
         }
         let digest = map_digest(map, scratch)?;
-        let records = self.sent.get_mut(..n).ok_or(PublisherError::Records)?;
+        let records = self.sent.as_mut().get_mut(..n).ok_or(PublisherError::Records)?;
         for (i, (r, v)) in records.iter_mut().zip(map.iter()).enumerate() {
             *r = ShadowEntry { code: morton(v.key), hash: voxel_digest(v), index: i as u32 };
         }
         records.sort_unstable_by_key(|r| r.code);
         self.sent_len = n;
         let snapshot = self.acked == 0;
-        let held = if snapshot { &[][..] } else { self.held.get(..self.held_len).unwrap_or(&[]) };
-        let records = self.sent.get(..n).unwrap_or(&[]);
+        let held = if snapshot { &[][..] } else { self.held.as_ref().get(..self.held_len).unwrap_or(&[]) };
+        let records = self.sent.as_ref().get(..n).unwrap_or(&[]);
         // The voxels new or changed, as indices of the map.
         let mut upserts = 0;
         for change in Changes::new(held, records) {
@@ -150,8 +150,8 @@ impl<'s> Publisher<'s> {
             upserts: upserts as u32,
         };
         let mut encoder = MapEncoder::subset(map, scratch, upserts, model)?;
-        let len = write_update(&header, removed, removals, Some(&mut encoder), model, out)
-            .map_err(PublisherError::Update)?;
+        let len =
+            write_update(&header, removed, removals, Some(&mut encoder), model, out).map_err(PublisherError::Update)?;
         self.version = version;
         self.in_flight = Some((version, digest));
         Ok(len)

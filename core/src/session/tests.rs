@@ -21,7 +21,8 @@ impl Lcg {
 const CAPACITY: usize = 3_000;
 
 fn robot_map() -> VecMap {
-    let config = MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] }, ..MapConfig::with_resolution(0.5) };
+    let config =
+        MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] }, ..MapConfig::with_resolution(0.5) };
     heap_map(CAPACITY, config)
 }
 
@@ -95,7 +96,7 @@ impl Ends {
 fn updates_keep_the_copy_equal_to_the_decoded_map() {
     let mut ends = Ends::new();
     let Ends { held, sent, replica, scratch, out } = &mut ends;
-    let mut publisher = Publisher::new(7, held, sent);
+    let mut publisher = Publisher::new(7, &mut held[..], &mut sent[..]);
     let (mut map, mut rng) = (robot_map(), Lcg(1));
     let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     let mut ratios = Vec::new();
@@ -108,9 +109,9 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
         assert_eq!(sorted(replica.map()), decoded(&map), "round {round}");
         if round > 0 {
             let whole = {
-                let mut held2 = vec![ShadowEntry::default(); CAPACITY];
-                let mut sent2 = vec![ShadowEntry::default(); CAPACITY];
-                let mut fresh = Publisher::new(1, &mut held2, &mut sent2);
+                let held2 = vec![ShadowEntry::default(); CAPACITY];
+                let sent2 = vec![ShadowEntry::default(); CAPACITY];
+                let mut fresh = Publisher::new(1, held2, sent2);
                 let mut o = vec![0u8; 64 * 1024];
                 fresh.next_update(&map, &mut vec![0u32; CAPACITY], &mut CodecModel::new(), &mut o).unwrap()
             };
@@ -133,7 +134,7 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
 fn lost_repeated_and_damaged_updates_are_repaired() {
     let mut ends = Ends::new();
     let Ends { held, sent, replica, scratch, out } = &mut ends;
-    let mut publisher = Publisher::new(3, held, sent);
+    let mut publisher = Publisher::new(3, &mut held[..], &mut sent[..]);
     let (mut map, mut rng, mut faults) = (robot_map(), Lcg(2), Lcg(99));
     let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     let mut seen = std::collections::BTreeMap::new();
@@ -193,7 +194,7 @@ fn a_restarted_peer_is_noticed_and_sends_a_snapshot() {
     let (mut map, mut rng) = (robot_map(), Lcg(5));
     let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     {
-        let mut first = Publisher::new(1, held, sent);
+        let mut first = Publisher::new(1, &mut held[..], &mut sent[..]);
         for round in 0..3 {
             drive(&mut map, round, &mut rng);
             let n = first.next_update(&map, scratch, &mut model, out).unwrap();
@@ -203,9 +204,9 @@ fn a_restarted_peer_is_noticed_and_sends_a_snapshot() {
     }
     // The peer restarts (another epoch) and, wrongly, sends a delta first.
     let mut forged = out.clone();
-    let mut held2 = vec![ShadowEntry::default(); CAPACITY];
-    let mut sent2 = vec![ShadowEntry::default(); CAPACITY];
-    let mut second = Publisher::new(2, &mut held2, &mut sent2);
+    let held2 = vec![ShadowEntry::default(); CAPACITY];
+    let sent2 = vec![ShadowEntry::default(); CAPACITY];
+    let mut second = Publisher::new(2, held2, sent2);
     drive(&mut map, 3, &mut rng);
     let n = second.next_update(&map, scratch, &mut model, &mut forged).unwrap();
     assert_eq!(UpdateView::parse(&forged[..n]).unwrap().header.base, 0, "a new publisher starts with a snapshot");
@@ -233,7 +234,7 @@ fn a_restarted_peer_is_noticed_and_sends_a_snapshot() {
 fn forged_updates_never_pass_as_the_map() {
     let mut ends = Ends::new();
     let Ends { held, sent, scratch, out, .. } = &mut ends;
-    let mut publisher = Publisher::new(9, held, sent);
+    let mut publisher = Publisher::new(9, &mut held[..], &mut sent[..]);
     let (mut map, mut rng, mut forge) = (robot_map(), Lcg(3), Lcg(4));
     let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     let (mut history, mut outcomes): (Vec<Vec<u8>>, std::collections::BTreeMap<_, usize>) = Default::default();

@@ -242,7 +242,11 @@ impl<'a> UpdateView<'a> {
 
     /// Decodes the upserts into `sink` with `model`, chunk by chunk; every
     /// byte of the update is used, or it is an error.
-    pub fn decode_upserts<K: VoxelSink + ?Sized>(&self, model: &mut CodecModel, sink: &mut K) -> Result<(), UpdateError> {
+    pub fn decode_upserts<K: VoxelSink + ?Sized>(
+        &self,
+        model: &mut CodecModel,
+        sink: &mut K,
+    ) -> Result<(), UpdateError> {
         let mut decoder = MapDecoder::new(self.header.upserts as usize, model);
         let mut at = self.chunks_at;
         while !decoder.is_complete() {

@@ -9,7 +9,6 @@
 //! both directions (and can drop or corrupt bytes, to test the firmware
 //! against a bad peer).
 
-use crate::knobs::Knob;
 use crate::boards::board::Board;
 use crate::boards::emulator::{accept, reap, FeederLine};
 use crate::boards::feeds::{feeds, Feed};
@@ -17,6 +16,7 @@ use crate::boards::firmware::firmware;
 use crate::boards::pump::{pump, LineFault};
 use crate::boards::twin::host_run;
 use crate::error::Error;
+use crate::knobs::Knob;
 use crate::sources::kitti::FrameRange;
 use cosem_core::geometry::{pose_deg, Isometry3};
 use cosem_core::wire::feed::{RobotMessage, RobotReport};

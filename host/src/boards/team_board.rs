@@ -14,13 +14,13 @@
 //! [`TeamRobot`] with the same feeds over simulated clean lines, so the
 //! boards' placements must be the host's.
 
-use crate::knobs::Knob;
 use crate::boards::board::Board;
 use crate::boards::emulator::{accept, qemu, FeederLine};
 use crate::boards::feeds::Feed;
 use crate::boards::pump::{pump, LineFault};
 use crate::boards::twin::board_pyramids;
 use crate::error::Error;
+use crate::knobs::Knob;
 use crate::maps::mapping::new_map;
 use cosem_core::link::LinkBuffers;
 use cosem_core::robot::team::{port_of, TeamRobot, TABLE_WORDS};

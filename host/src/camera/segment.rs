@@ -9,10 +9,10 @@
 //! mean and deviation; one output `float32 [1, C, H, W]` of raw scores,
 //! channels 0-18 the Cityscapes training ids, any further one void.
 
-use crate::knobs::Knob;
 use crate::camera::seg_files::Fit;
 use crate::camera::seg_files::{npy_bytes, ProbabilityMap, SegImage};
 pub use crate::camera::seg_files::{read_rgb_png, write_rgb_png, RgbImage};
+use crate::knobs::Knob;
 use std::path::{Path, PathBuf};
 use tract_onnx::prelude::*;
 

@@ -14,6 +14,7 @@ mod matching;
 mod relay;
 mod robots;
 mod segment;
+mod session;
 mod synth;
 mod team;
 mod tree;
@@ -54,6 +55,9 @@ enum Command {
     /// matched both ways, matches checked around cycles, every robot placed
     /// in robot 0's frame.
     Team(team::Args),
+    /// Robots that keep driving: rounds of mapping, map updates as deltas,
+    /// each peer's pose tracked and re-checked under odometry drift.
+    Session(session::Args),
     /// Describe a map file.
     Info(info::Args),
     /// Export a map to another format.
@@ -115,6 +119,7 @@ fn run_command(cli: Cli) -> Result<u8, Error> {
         Command::Link(a) => link::run(a),
         Command::Robots(a) => robots::run(a),
         Command::Team(a) => team::run(a),
+        Command::Session(a) => done(session::run_session(a)),
         Command::Relay(a) => done(relay::run_relay(a)),
         Command::Info(a) => done(info::run(a)),
         Command::Export { format } => done(export::run(format)),

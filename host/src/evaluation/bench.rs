@@ -2,11 +2,11 @@
 //! and returns its figures (the command prints them). Times are medians of
 //! repeated single-threaded runs.
 
-use crate::knobs::Knob;
 use crate::error::Error;
 use crate::evaluation::eval::{grid, STRICT};
 use crate::evaluation::pair::{Pair, PairSpec};
 use crate::evaluation::stats::median;
+use crate::knobs::Knob;
 use crate::lines::exchange::simulate_exchange;
 use crate::maps::mapping::{new_map, HostMap, PointFilter};
 use crate::matching::align::{prepare, DEFAULT_LEVELS};

@@ -3,10 +3,10 @@
 //! through the map file encoding, match it against robot A's from a prior
 //! 5 m and 15 degrees off, and tell the estimate against the truth.
 
-use crate::knobs::Knob;
 use crate::error::Error;
 use crate::evaluation::eval::Start;
 use crate::evaluation::pair::{Pair, PairSpec};
+use crate::knobs::Knob;
 use crate::maps::mapping::{class_histogram, HostMap};
 use crate::matching::align::{prepare, DEFAULT_LEVELS};
 use crate::poses::pose_words;

@@ -490,8 +490,16 @@ pub fn evaluate(
         }
         Protocol::Global { starts, settings: s } => {
             let config = (spec.config, &spec.filter);
-            let results =
-                run_global(s.settings.method.name(), *s, &pair.map_a, &pair.frames_b, config, &pair.gt, starts, progress)?;
+            let results = run_global(
+                s.settings.method.name(),
+                *s,
+                &pair.map_a,
+                &pair.frames_b,
+                config,
+                &pair.gt,
+                starts,
+                progress,
+            )?;
             ("global", s.settings.dof.count(), results)
         }
     };

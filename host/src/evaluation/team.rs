@@ -13,8 +13,8 @@
 //! ([`cosem_core::team::solve`]). Robots connected among themselves but not
 //! to robot 0 are a separate group in the frame of their lowest index.
 
-use crate::knobs::Knob;
 use crate::error::Error;
+use crate::knobs::Knob;
 use crate::lines::exchange::simulate_exchange;
 use crate::maps::mapping::{build_map, HostMap, PointFilter};
 use crate::matching::align::{align, prepare, DEFAULT_LEVELS};

@@ -7,9 +7,7 @@ use crate::maps::mapping::HostMap;
 use cosem_core::geometry::Isometry3;
 use cosem_core::matching::global::Searched;
 use cosem_core::matching::search::SearchScratch;
-use cosem_core::matching::{
-    align_prepared, Alignment, MatchError, MatchResult, Pyramid, Role, VecPyramid,
-};
+use cosem_core::matching::{align_prepared, Alignment, MatchError, MatchResult, Pyramid, Role, VecPyramid};
 use cosem_core::pipeline::{Pipeline, Setting};
 
 /// Default number of pyramid levels: 0.2 m maps get cells up to 3.2 m.

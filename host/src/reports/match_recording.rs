@@ -58,7 +58,8 @@ pub fn write_match(
     t_model_scene: &Isometry3<f32>,
     status: &MatchJson,
 ) -> Result<(), crate::error::Error> {
-    let status_json = serde_json::to_string(status).map_err(|e| crate::error::Error::Invalid(format!("{}: {e}", path.display())))?;
+    let status_json =
+        serde_json::to_string(status).map_err(|e| crate::error::Error::Invalid(format!("{}: {e}", path.display())))?;
     let mut w = RecordingWriter::create(path)?;
     let pc = w.schema("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA)?;
     let tf = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA)?;

@@ -131,7 +131,10 @@ impl GlobalJson {
     pub fn text(&self) -> String {
         let runner_up = if self.runner_up > 0 { format!(", runner-up {}", self.runner_up) } else { String::new() };
         let searched = if self.exhausted {
-            format!("stopped by its node budget after {} nodes, not every heading and offset searched", self.evaluations)
+            format!(
+                "stopped by its node budget after {} nodes, not every heading and offset searched",
+                self.evaluations
+            )
         } else {
             format!("searched every heading and offset ({} nodes)", self.evaluations)
         };

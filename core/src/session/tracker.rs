@@ -1,0 +1,112 @@
+//! The relative pose of a peer, tracked round after round: prior-free until
+//! the first fix the verdict accepts, then from the last fix (the windowed
+//! search around it, then EM), every answer through the verdict; a fix that
+//! stops agreeing is withdrawn, and the next round searches prior-free
+//! again.
+
+use crate::geometry::Isometry3;
+use crate::matching::search::SearchScratch;
+use crate::matching::{align_prepared, Alignment, MatchError, MatchResult, MatchStatus, Pyramid, PyramidStorage};
+
+/// How an estimate was made.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Kind {
+    /// With no prior: every heading and offset searched.
+    PriorFree,
+    /// From the last fix: its window searched.
+    Tracking,
+}
+
+impl Kind {
+    /// The name reports use: `prior-free` or `tracking`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Kind::PriorFree => "prior-free",
+            Kind::Tracking => "tracking",
+        }
+    }
+}
+
+/// What became of the fix this round.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Fix {
+    /// No fix, none before.
+    None,
+    /// The estimate passed the verdict: it is the fix.
+    Held,
+    /// The fix stopped agreeing (the estimate from it failed the verdict):
+    /// withdrawn; the next round searches prior-free.
+    Withdrawn,
+}
+
+impl Fix {
+    /// The name reports use: `none`, `held` or `withdrawn`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Fix::None => "none",
+            Fix::Held => "held",
+            Fix::Withdrawn => "withdrawn",
+        }
+    }
+}
+
+/// One round's estimate of `T_own_peer`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Estimate {
+    /// How it was made.
+    pub kind: Kind,
+    /// The match (own map the model, the peer's the scene).
+    pub result: MatchResult,
+    /// What became of the fix.
+    pub fix: Fix,
+}
+
+/// A robot's track of one peer: its last fix, if any.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Tracker {
+    fix: Option<Isometry3<f32>>,
+}
+
+impl Tracker {
+    /// A track with no fix.
+    pub const fn new() -> Self {
+        Tracker { fix: None }
+    }
+
+    /// The fix held (`T_own_peer`), if any.
+    pub fn fix(&self) -> Option<&Isometry3<f32>> {
+        self.fix.as_ref()
+    }
+
+    /// Forgets the fix (the peer restarted, or its map was resent whole).
+    pub fn reset(&mut self) {
+        self.fix = None;
+    }
+
+    /// This round's estimate: `own` (the model) against the peer's copy
+    /// (`peer`, the scene), from the fix when one is held, through the one
+    /// matching path ([`align_prepared`]) as `how` says.
+    pub fn estimate<P: PyramidStorage, Q: PyramidStorage>(
+        &mut self,
+        own: &Pyramid<'_, P>,
+        peer: &Pyramid<'_, Q>,
+        how: &Alignment,
+        scratch: &mut SearchScratch<'_>,
+    ) -> Result<Estimate, MatchError> {
+        let prior = self.fix;
+        let kind = if prior.is_some() { Kind::Tracking } else { Kind::PriorFree };
+        let (result, _) = align_prepared(own, peer, prior.as_ref(), how, scratch, || {})?;
+        let fix = if result.status == MatchStatus::Converged {
+            self.fix = Some(result.transform);
+            Fix::Held
+        } else if prior.is_some() {
+            self.fix = None;
+            Fix::Withdrawn
+        } else {
+            Fix::None
+        };
+        Ok(Estimate { kind, result, fix })
+    }
+}

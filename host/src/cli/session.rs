@@ -1,0 +1,115 @@
+//! `cosem session`: robots that keep driving (see
+//! `cosem_host::evaluation::session`).
+
+use super::Error;
+use cosem_host::evaluation::session::{run, SessionSpec};
+use cosem_host::evaluation::team::RobotSpec;
+use cosem_host::reports::session::{record_text, summary_text, RecordJson, SummaryFields, SummaryJson, SESSION_SCHEMA};
+use cosem_host::sources::drift::Drift;
+
+/// The map capacity of a session's robot (voxels).
+pub const CAPACITY: usize = 8_000;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// A robot: a source of scans (a SemanticKITTI-layout folder, a ROS 2
+    /// recording .mcap, or a folder of PCD/PLY scans with poses.txt) and
+    /// its frames, PATH:START:END[:STRIDE]; 2 or 3 robots.
+    #[arg(long = "robot", required = true, num_args = 1)]
+    robots: Vec<RobotSpec>,
+    #[command(flatten)]
+    source: super::args::SourceArgs,
+    /// Scans each robot fuses a round.
+    #[arg(long, default_value_t = 2, value_parser = super::args::at_least::<1>)]
+    every: usize,
+    /// Odometry drift of every robot: S,H, a scale error S (0.01 or 1%, its
+    /// sign drawn per robot) and a heading random walk of H degrees per
+    /// 100 m (its variance grows as H^2 per 100 m driven).
+    #[arg(long, default_value = "0,0")]
+    drift: Drift,
+    /// A sudden 2 m / 10 degree jump of robot ROBOT's odometry at round
+    /// ROUND: ROBOT,ROUND.
+    #[arg(long, value_parser = cosem_host::evaluation::team::parse_robot_pair)]
+    slip: Option<(usize, usize)>,
+    /// Label noise on every scan: none, network[:SEVERITY] or iid:P (see
+    /// `cosem eval --help`).
+    #[arg(long, default_value = "none")]
+    label_noise: cosem_host::maps::noise::LabelNoise,
+    /// Seed of drift and label noise (robot i: SEED + i).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Voxel size of the robots' maps (m).
+    #[arg(long, default_value_t = super::args::ROBOT.voxel, value_parser = super::args::voxel)]
+    voxel: f32,
+    /// Voxels a robot's map holds; beyond, what is farthest from the robot goes.
+    #[arg(long, default_value_t = CAPACITY, value_parser = capacity)]
+    capacity: usize,
+    /// Points farther than this from their sensor are left out (m).
+    #[arg(long, default_value_t = super::args::ROBOT_CROP, value_parser = super::args::crop)]
+    crop: f32,
+    /// EM iterations, the verdict's thresholds, the prior-free search's budget.
+    #[command(flatten)]
+    tuning: super::args::Tuning,
+    /// JSON lines: one per robot, peer and round, then {"summary": {...}}.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `--capacity`: 64 to [`cosem_host::evaluation::session::MAX_CAPACITY`] voxels.
+fn capacity(s: &str) -> Result<usize, String> {
+    let most = cosem_host::evaluation::session::MAX_CAPACITY;
+    match s.parse::<usize>() {
+        Ok(v) if (64..=most).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}`: expected a map capacity of 64 to {most} voxels")),
+    }
+}
+
+pub fn run_session(a: Args) -> Result<(), Error> {
+    let n = a.robots.len();
+    if !(2..=3).contains(&n) {
+        return Err(format!("--robot: 2 or 3 robots, not {n}").into());
+    }
+    if let Some((robot, _)) = a.slip {
+        if robot >= n {
+            return Err(format!("--slip {robot},..: no robot {robot} of 0..{n}").into());
+        }
+    }
+    let spec = SessionSpec {
+        robots: a.robots.clone(),
+        every: a.every,
+        voxel: a.voxel,
+        capacity: a.capacity,
+        crop: a.crop,
+        drift: a.drift,
+        slip: a.slip,
+        label_noise: a.label_noise,
+        seed: a.seed,
+        source: a.source.options(),
+        alignment: a.tuning.apply(super::args::HOST.alignment),
+    };
+    let json = a.json;
+    let mut failed = None;
+    let out = run(&spec, |records| {
+        for r in records {
+            let line = if json {
+                serde_json::to_string(&RecordJson::from(r)).map_err(|e| e.to_string())
+            } else {
+                Ok(record_text(r))
+            };
+            match line {
+                Ok(l) => println!("{l}"),
+                Err(e) => failed = Some(e),
+            }
+        }
+    })?;
+    if let Some(e) = failed {
+        return Err(e.into());
+    }
+    if json {
+        let fields = SummaryFields { schema_version: SESSION_SCHEMA, rounds: out.rounds, figures: &out.summary };
+        println!("{}", serde_json::to_string(&SummaryJson { summary: fields })?);
+    } else {
+        print!("{}", summary_text(&out.summary, out.rounds));
+    }
+    Ok(())
+}

@@ -1,0 +1,176 @@
+//! The figures of a session, against the truth: wrong `Converged`,
+//! availability in meetings, rounds to the first fix, a slip caught, the
+//! updates' bytes, the cost of a tracking round.
+
+use super::robot::Robot;
+use super::{Record, SessionSpec};
+use crate::error::Error;
+use crate::evaluation::stats::{median, quantile};
+use crate::matching::align::{align, prepare, DEFAULT_LEVELS};
+use cosem_core::matching::{Alignment, MatchStatus};
+use cosem_core::session::Kind;
+use nalgebra::Isometry3;
+
+/// The conventions' strict thresholds: a correct estimate.
+const STRICT: (f64, f64) = (0.5, 1.0);
+/// A meeting: rounds with at least this true overlap.
+pub const MEETING_OVERLAP: f64 = 0.30;
+/// Rounds at a meeting's start left out of its availability.
+const SETTLING_ROUNDS: usize = 2;
+
+/// The truth `T_own_peer` of robot `a`'s estimate of robot `b`, at the
+/// pair of scans (one each, both in the current maps) closest to each
+/// other in the world: `inv(T_world_odom_a) * T_world_odom_b` there.
+pub(super) fn truth(a: &Robot, b: &Robot) -> Option<Isometry3<f64>> {
+    let (sa, sb) = (a.scans_in_map(), b.scans_in_map());
+    let mut best: Option<(f64, usize, usize)> = None;
+    for &ka in &sa {
+        for &kb in &sb {
+            let d = (a.world_position(ka) - b.world_position(kb)).norm();
+            if best.is_none_or(|(bd, _, _)| d < bd) {
+                best = Some((d, ka, kb));
+            }
+        }
+    }
+    let (_, ka, kb) = best?;
+    Some(a.world_odom(ka).inverse() * b.world_odom(kb))
+}
+
+/// Median milliseconds of three from-scratch one-shot matches of `a` and
+/// `b` (both prepared, then matched with no prior), in this process.
+pub(super) fn from_scratch_ms(
+    a: &crate::maps::mapping::HostMap,
+    b: &crate::maps::mapping::HostMap,
+    how: &Alignment,
+) -> Result<f64, Error> {
+    let mut ms = Vec::new();
+    for _ in 0..3 {
+        let t = std::time::Instant::now();
+        let (pa, pb) = (prepare(a, DEFAULT_LEVELS)?, prepare(b, DEFAULT_LEVELS)?);
+        align(*how, None, (&pa, &pb))?;
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(median(&ms).unwrap_or(0.0))
+}
+
+/// Whether a record is a correct estimate (Converged, within the strict thresholds).
+fn correct(r: &Record) -> bool {
+    converged(r) && r.errors.is_some_and(|(t, a)| t < STRICT.0 && a < STRICT.1)
+}
+
+fn converged(r: &Record) -> bool {
+    r.estimate.as_ref().is_some_and(|e| e.result.status == MatchStatus::Converged)
+}
+
+/// A session's figures.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Summary {
+    /// Estimates `Converged` but wrong (outside the strict thresholds),
+    /// over every round with a truth (a slip's two rounds exempt).
+    pub wrong_converged: usize,
+    /// Estimates with a truth.
+    pub with_truth: usize,
+    /// Correct `Converged` ÷ estimates in meetings, each meeting's first 2
+    /// rounds left out (`None`: no such estimate).
+    pub availability: Option<f64>,
+    /// Meetings (maximal runs of rounds of a pair with a true overlap of
+    /// at least 0.30).
+    pub meetings: usize,
+    /// Per meeting, the first correct round after its start (a meeting
+    /// never fixed: its length): the largest.
+    pub first_fix_rounds: Option<usize>,
+    /// An update's bytes ÷ the sender's whole map's, once the copy was
+    /// whole once: median, 95th percentile, largest.
+    pub update_bytes_ratio: Option<[f64; 3]>,
+    /// Bytes of every update and answer.
+    pub bytes: usize,
+    /// Median milliseconds of a tracking round (update applied, maps
+    /// prepared, windowed search, EM, verdict).
+    pub tracking_ms: Option<f64>,
+    /// Median milliseconds of three from-scratch matches of the last
+    /// round's maps of robots 0 and 1 (both prepared, prior-free).
+    pub from_scratch_ms: f64,
+    /// `tracking_ms` ÷ `from_scratch_ms`.
+    pub tracking_cost_ratio: Option<f64>,
+    /// With a slip: the smallest d such that from round s + d on, every
+    /// estimate of a pair with the slipped robot is not Converged or correct.
+    pub slip_caught_rounds: Option<usize>,
+}
+
+impl Summary {
+    /// The figures of `records`.
+    pub fn of(records: &[Record], spec: &SessionSpec, rounds: usize, from_scratch_ms: f64) -> Summary {
+        let n = spec.robots.len();
+        let exempt = |r: &Record| {
+            spec.slip.is_some_and(|(s, at)| (r.robot == s || r.peer == s) && (at..=at + 1).contains(&r.round))
+        };
+        let wrong_converged =
+            records.iter().filter(|r| converged(r) && r.errors.is_some() && !correct(r) && !exempt(r)).count();
+        let (mut in_meetings, mut available, mut meetings, mut first_fix) = (0usize, 0usize, 0usize, None::<usize>);
+        for i in 0..n {
+            for j in (0..n).filter(|&j| j != i) {
+                let pair: Vec<&Record> = records.iter().filter(|r| r.robot == i && r.peer == j).collect();
+                for run in meeting_runs(&pair) {
+                    meetings += 1;
+                    let fixed = run.iter().position(|r| correct(r)).unwrap_or(run.len());
+                    first_fix = Some(first_fix.map_or(fixed, |f| f.max(fixed)));
+                    for r in run.iter().skip(SETTLING_ROUNDS) {
+                        in_meetings += 1;
+                        available += usize::from(correct(r));
+                    }
+                }
+            }
+        }
+        let ratios: Vec<f64> = records.iter().filter_map(|r| r.update_ratio).collect();
+        let update_bytes_ratio = (!ratios.is_empty()).then(|| {
+            [quantile(&ratios, 0.5), quantile(&ratios, 0.95), quantile(&ratios, 1.0)]
+                .map(|v| v.unwrap_or(0.0))
+        });
+        let tracking: Vec<f64> = records
+            .iter()
+            .filter(|r| r.estimate.is_some_and(|e| e.kind == Kind::Tracking))
+            .map(|r| r.seconds * 1e3)
+            .collect();
+        let tracking_ms = median(&tracking);
+        Summary {
+            wrong_converged,
+            with_truth: records.iter().filter(|r| r.errors.is_some()).count(),
+            availability: (in_meetings > 0).then(|| available as f64 / in_meetings as f64),
+            meetings,
+            first_fix_rounds: first_fix,
+            update_bytes_ratio,
+            bytes: records.iter().map(|r| r.bytes_sent).sum(),
+            tracking_ms,
+            from_scratch_ms,
+            tracking_cost_ratio: tracking_ms.filter(|_| from_scratch_ms > 0.0).map(|t| t / from_scratch_ms),
+            slip_caught_rounds: spec.slip.map(|(s, at)| slip_caught(records, s, at, rounds)),
+        }
+    }
+}
+
+/// The meetings of one ordered pair's records (in round order).
+fn meeting_runs<'a>(pair: &[&'a Record]) -> Vec<Vec<&'a Record>> {
+    let mut runs: Vec<Vec<&Record>> = Vec::new();
+    let mut open = false;
+    for r in pair {
+        let meets = r.overlap_true.is_some_and(|o| o >= MEETING_OVERLAP);
+        match (meets, open) {
+            (true, true) => runs.last_mut().into_iter().for_each(|run| run.push(r)),
+            (true, false) => runs.push(vec![r]),
+            _ => {}
+        }
+        open = meets;
+    }
+    runs
+}
+
+/// The rounds after a slip of robot `s` at round `at` until every estimate
+/// of a pair with it is not Converged or correct for good.
+fn slip_caught(records: &[Record], s: usize, at: usize, rounds: usize) -> usize {
+    let bad_rounds: Vec<usize> = records
+        .iter()
+        .filter(|r| (r.robot == s || r.peer == s) && r.round >= at && converged(r) && !correct(r))
+        .map(|r| r.round)
+        .collect();
+    bad_rounds.iter().max().map_or(0, |last| (last + 1 - at).min(rounds.saturating_sub(at)))
+}

@@ -1,0 +1,269 @@
+//! `cosem session`: robots that keep driving. In lockstep rounds each
+//! robot fuses its next scans into its bounded map (in its own drifted
+//! odometry frame), sends each peer what changed (an update against what
+//! the peer acknowledged: [`cosem_core::session::Publisher`]), keeps each
+//! peer's map as a digest-checked copy ([`cosem_core::session::Replica`])
+//! and re-estimates each peer's relative pose
+//! ([`cosem_core::session::Tracker`]: prior-free until a fix, then from it,
+//! every answer through the verdict). The truth, where the robots share a
+//! world, is only for the figures ([`figures`]).
+
+mod figures;
+mod robot;
+
+pub use figures::Summary;
+
+use crate::error::Error;
+use crate::evaluation::team::RobotSpec;
+use crate::maps::noise::LabelNoise;
+use crate::matching::align::{prepare, DEFAULT_LEVELS};
+use crate::sources::drift::Drift;
+use crate::sources::source::{Source, SourceOptions};
+use cosem_core::geometry::pose_errors;
+use cosem_core::map::VecStorage;
+use cosem_core::matching::search::SearchScratch;
+use cosem_core::matching::{Alignment, MatchResult};
+use cosem_core::session::{Applied, Estimate, Publisher, Replica, ShadowEntry, Tracker};
+use cosem_core::wire::codec::CodecModel;
+use nalgebra::Isometry3;
+use robot::Robot;
+use std::time::Instant;
+
+/// The largest map capacity of a session's robot (voxels): 32 MiB of map,
+/// as much again of records and copies per peer.
+pub const MAX_CAPACITY: usize = 1 << 20;
+
+/// What `cosem session` runs.
+#[derive(Clone, Debug)]
+pub struct SessionSpec {
+    /// Robot i is the i-th (2 or 3).
+    pub robots: Vec<RobotSpec>,
+    /// Scans each robot fuses a round.
+    pub every: usize,
+    /// Voxel size (m).
+    pub voxel: f32,
+    /// Voxels a robot's map holds; beyond, what is farthest from the robot goes.
+    pub capacity: usize,
+    /// Points farther than this from their sensor are left out (m).
+    pub crop: f32,
+    /// Odometry drift of every robot (each its own draw).
+    pub drift: Drift,
+    /// A slip of robot `.0`'s odometry at round `.1`.
+    pub slip: Option<(usize, usize)>,
+    /// Label noise on every robot's scans.
+    pub label_noise: LabelNoise,
+    /// Seed of drift and label noise (robot i: `seed + i`).
+    pub seed: u64,
+    /// How the robots' sources are read.
+    pub source: SourceOptions,
+    /// The matcher.
+    pub alignment: Alignment,
+}
+
+/// One robot's estimate of one peer in one round.
+#[derive(Clone, Debug)]
+pub struct Record {
+    /// The round (0 first).
+    pub round: usize,
+    /// The estimating robot.
+    pub robot: usize,
+    /// The peer.
+    pub peer: usize,
+    /// The estimate (`None`: no copy of the peer's map yet).
+    pub estimate: Option<Estimate>,
+    /// The truth `T_own_peer`, where the robots share a world.
+    pub truth: Option<Isometry3<f64>>,
+    /// `(e_t, e_r)` of the estimate against the truth.
+    pub errors: Option<(f64, f64)>,
+    /// The conventions' overlap of the peer's map in the robot's under the
+    /// truth, with ground-truth classes.
+    pub overlap_true: Option<f64>,
+    /// Bytes the peer's update to this robot took this round (its answer
+    /// included).
+    pub bytes_sent: usize,
+    /// The update as a fraction of the peer's whole map encoded (once the
+    /// copy had been whole once: a repair counts).
+    pub update_ratio: Option<f64>,
+    /// What became of the update.
+    pub applied: Applied,
+    /// Seconds of the round's work for this estimate: the update applied,
+    /// both maps prepared, the match.
+    pub seconds: f64,
+}
+
+/// A session's outcome.
+#[derive(Clone, Debug)]
+pub struct SessionRun {
+    /// Rounds run.
+    pub rounds: usize,
+    /// Every robot's estimate of every peer, round by round.
+    pub records: Vec<Record>,
+    /// The figures.
+    pub summary: Summary,
+}
+
+/// One direction of a pair: robot `from` sends its updates to robot `to`.
+struct Link {
+    publisher: Publisher<Vec<ShadowEntry>>,
+    copy: Replica<VecStorage>,
+    send_model: CodecModel,
+    read_model: CodecModel,
+    /// The copy has been whole once.
+    synced: bool,
+}
+
+/// Work space shared by every link.
+struct Scratch {
+    words: Vec<u32>,
+    out: Vec<u8>,
+}
+
+impl Link {
+    fn new(epoch: u16, spec: &SessionSpec, config: cosem_core::map::MapConfig) -> Result<Link, Error> {
+        let records = || vec![ShadowEntry::default(); spec.capacity];
+        let copy = crate::maps::mapping::new_map(spec.capacity, config)?;
+        Ok(Link {
+            publisher: Publisher::new(epoch, records(), records()),
+            copy: Replica::new(copy),
+            send_model: CodecModel::new(),
+            read_model: CodecModel::new(),
+            synced: false,
+        })
+    }
+
+    /// One update from `map` to the copy, and the answer back: the bytes,
+    /// the ratio to the whole map (once synced), what became of it.
+    fn exchange(
+        &mut self,
+        map: &crate::maps::mapping::HostMap,
+        s: &mut Scratch,
+    ) -> Result<(usize, Option<f64>, Applied), Error> {
+        let n = self
+            .publisher
+            .next_update(map, &mut s.words, &mut self.send_model, &mut s.out)
+            .map_err(|e| Error::Invalid(format!("update: {e}")))?;
+        let applied = self.copy.apply(&s.out[..n], &mut self.read_model, &mut s.words);
+        let answer = self.copy.answer().encode();
+        let ack =
+            cosem_core::wire::update::UpdateAck::decode(&answer).map_err(|e| Error::Invalid(format!("answer: {e}")))?;
+        self.publisher.on_ack(&ack);
+        let bytes = n + answer.len();
+        let ratio = if self.synced { Some(bytes as f64 / whole_update(map, s)? as f64) } else { None };
+        self.synced |= applied == Applied::Applied;
+        Ok((bytes, ratio, applied))
+    }
+}
+
+/// The bytes of `map` sent whole (a snapshot update).
+fn whole_update(map: &crate::maps::mapping::HostMap, s: &mut Scratch) -> Result<usize, Error> {
+    let mut p = Publisher::new(0, vec![ShadowEntry::default(); map.len()], vec![ShadowEntry::default(); map.len()]);
+    p.next_update(map, &mut s.words, &mut CodecModel::new(), &mut s.out)
+        .map_err(|e| Error::Invalid(format!("update: {e}")))
+}
+
+/// Runs the session; `on_round` sees each round's records as they come.
+pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&[Record])) -> Result<SessionRun, Error> {
+    let n = spec.robots.len();
+    if !(2..=3).contains(&n) {
+        return Err(Error::Invalid(format!("a session has 2 or 3 robots, not {n}")));
+    }
+    if !(64..=MAX_CAPACITY).contains(&spec.capacity) || spec.every == 0 {
+        return Err(Error::Invalid(format!(
+            "a session's maps hold 64 to {MAX_CAPACITY} voxels (not {}) and fuse 1 scan a round at least (not {})",
+            spec.capacity, spec.every
+        )));
+    }
+    if let Some((robot, _)) = spec.slip.filter(|s| s.0 >= n) {
+        return Err(Error::Invalid(format!("a slip of robot {robot}: the robots are 0..{n}")));
+    }
+    let sources: Vec<Source> =
+        spec.robots.iter().map(|r| Source::open(&r.data, &spec.source)).collect::<Result<_, _>>()?;
+    let shared_world = (1..n).all(|j| sources[0].same_trajectory(&sources[j]));
+    let mut robots: Vec<Robot> = (0..n).map(|i| Robot::load(spec, i, &sources[i])).collect::<Result<_, _>>()?;
+    let rounds = robots.iter().map(|r| r.scans().div_ceil(spec.every)).max().unwrap_or(0);
+    let config = *robots[0].map.config();
+    // links[i][j]: robot i's updates to robot j.
+    let mut links: Vec<Vec<Option<Link>>> = (0..n)
+        .map(|i| (0..n).map(|j| (i != j).then(|| Link::new(i as u16 + 1, spec, config)).transpose()).collect())
+        .collect::<Result<_, _>>()?;
+    let mut trackers = vec![vec![Tracker::new(); n]; n];
+    let mut scratch = Scratch { words: vec![0; spec.capacity], out: vec![0; spec.capacity * 24 + 4096] };
+    let mut records = Vec::new();
+    for round in 0..rounds {
+        for r in &mut robots {
+            r.drive(spec.every)?;
+        }
+        let start = records.len();
+        for (i, own) in trackers.iter_mut().enumerate() {
+            for (j, tracker) in own.iter_mut().enumerate().filter(|&(j, _)| j != i) {
+                let rec = estimate_one(spec, round, (i, j), &robots, &mut links, tracker, &mut scratch, shared_world)?;
+                records.push(rec);
+            }
+        }
+        on_round(&records[start..]);
+    }
+    let cost = figures::from_scratch_ms(&robots[0].map, &robots[1].map, &spec.alignment)?;
+    let summary = Summary::of(&records, spec, rounds, cost);
+    Ok(SessionRun { rounds, records, summary })
+}
+
+/// Robot `i`'s round with peer `j`: `j`'s update applied to `i`'s copy,
+/// both maps prepared, the estimate; the truth and its figures.
+#[allow(clippy::too_many_arguments)]
+fn estimate_one(
+    spec: &SessionSpec,
+    round: usize,
+    (i, j): (usize, usize),
+    robots: &[Robot],
+    links: &mut [Vec<Option<Link>>],
+    tracker: &mut Tracker,
+    scratch: &mut Scratch,
+    shared_world: bool,
+) -> Result<Record, Error> {
+    let t0 = Instant::now();
+    let link = links[j][i].as_mut().ok_or_else(|| Error::Invalid("no link".into()))?;
+    let (bytes_sent, update_ratio, applied) = link.exchange(&robots[j].map, scratch)?;
+    if matches!(applied, Applied::Diverged | Applied::Restarted) {
+        tracker.reset();
+    }
+    let copy = link.copy.map();
+    let estimate = if copy.is_empty() {
+        None
+    } else {
+        let own = prepare(&robots[i].map, DEFAULT_LEVELS)?;
+        let peer = prepare(copy, DEFAULT_LEVELS)?;
+        let mut words = vec![0u32; SearchScratch::WINDOWED];
+        let mut search = SearchScratch::new(&mut words);
+        Some(
+            tracker
+                .estimate(&own, &peer, &spec.alignment, &mut search)
+                .map_err(|e| Error::Invalid(format!("matching: {e}")))?,
+        )
+    };
+    let seconds = t0.elapsed().as_secs_f64();
+    let truth = shared_world.then(|| figures::truth(&robots[i], &robots[j])).flatten();
+    let errors = match (&estimate, &truth) {
+        (Some(e), Some(t)) => Some(pose_errors(&e.result.transform.cast::<f64>(), t)),
+        _ => None,
+    };
+    let overlap_true = truth
+        .map(|t| f64::from(cosem_core::map::overlap(robots[i].truth_map(), robots[j].truth_map(), &t.cast::<f32>())));
+    Ok(Record {
+        round,
+        robot: i,
+        peer: j,
+        estimate,
+        truth,
+        errors,
+        overlap_true,
+        bytes_sent,
+        update_ratio,
+        applied,
+        seconds,
+    })
+}
+
+/// The estimate's transform, when there is one.
+pub fn transform_of(r: &Record) -> Option<&MatchResult> {
+    r.estimate.as_ref().map(|e| &e.result)
+}

@@ -1,0 +1,147 @@
+//! `cosem session`'s output: a line per robot, peer and round (text, or
+//! JSON lines with `--json`), then the figures (`{"summary": {...}}`).
+
+use crate::evaluation::session::{Record, Summary};
+use cosem_core::geometry::row_major;
+use serde::Serialize;
+
+/// The JSON lines' schema version.
+pub const SESSION_SCHEMA: u32 = 1;
+
+/// One robot's estimate of one peer in one round, as a JSON line.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordJson {
+    /// The round (0 first).
+    pub round: usize,
+    /// The estimating robot.
+    pub robot: usize,
+    /// The peer.
+    pub peer: usize,
+    /// The conventions' status (`NoOverlap` while no copy of the peer's map is held).
+    pub status: &'static str,
+    /// `prior-free` or `tracking`.
+    pub kind: &'static str,
+    /// What became of the fix: `none`, `held`, `withdrawn`.
+    pub fix: &'static str,
+    /// `T_own_peer`, row-major 3x4, when there is an estimate.
+    #[serde(rename = "T_own_peer", skip_serializing_if = "Option::is_none")]
+    pub t_own_peer: Option<[f64; 12]>,
+    /// Translation error against the truth (m).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub e_t: Option<f64>,
+    /// Rotation error against the truth (degrees).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub e_r: Option<f64>,
+    /// Overlap of the peer's map in the robot's under the truth.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub overlap_true: Option<f64>,
+    /// The match's own overlap and agreement.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub overlap: Option<f32>,
+    /// The match's agreement.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub agreement: Option<f32>,
+    /// Bytes of the peer's update and the answer.
+    pub bytes_sent: usize,
+    /// The update ÷ the peer's whole map (once the copy was whole once).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub update_ratio: Option<f64>,
+    /// What became of the update (`Applied`, `Repeated`, ...).
+    pub update: String,
+    /// Seconds of this estimate's work.
+    pub seconds: f64,
+}
+
+impl From<&Record> for RecordJson {
+    fn from(r: &Record) -> Self {
+        let e = r.estimate.as_ref();
+        let t = e.map(|e| {
+            let m = row_major(&e.result.transform.cast::<f64>());
+            let mut rows = [0.0; 12];
+            rows.copy_from_slice(&m[..12]);
+            rows
+        });
+        RecordJson {
+            round: r.round,
+            robot: r.robot,
+            peer: r.peer,
+            status: e.map_or("NoOverlap", |e| e.result.status.as_str()),
+            kind: e.map_or("prior-free", |e| e.kind.as_str()),
+            fix: e.map_or("none", |e| e.fix.as_str()),
+            t_own_peer: t,
+            e_t: r.errors.map(|e| e.0),
+            e_r: r.errors.map(|e| e.1),
+            overlap_true: r.overlap_true,
+            overlap: e.map(|e| e.result.overlap),
+            agreement: e.map(|e| e.result.agreement),
+            bytes_sent: r.bytes_sent,
+            update_ratio: r.update_ratio,
+            update: format!("{:?}", r.applied),
+            seconds: r.seconds,
+        }
+    }
+}
+
+/// The last line.
+#[derive(Clone, Debug, Serialize)]
+pub struct SummaryJson<'a> {
+    /// The figures.
+    pub summary: SummaryFields<'a>,
+}
+
+/// The figures and the schema version.
+#[derive(Clone, Debug, Serialize)]
+pub struct SummaryFields<'a> {
+    /// [`SESSION_SCHEMA`].
+    pub schema_version: u32,
+    /// Rounds run.
+    pub rounds: usize,
+    /// The figures.
+    #[serde(flatten)]
+    pub figures: &'a Summary,
+}
+
+/// A record as a line of text.
+pub fn record_text(r: &Record) -> String {
+    let j = RecordJson::from(r);
+    let errors = match (j.e_t, j.e_r) {
+        (Some(t), Some(a)) => format!("e_t {t:6.3} m  e_r {a:6.3} deg"),
+        _ => "(no truth)".into(),
+    };
+    let overlap = j.overlap_true.map_or(String::new(), |o| format!("  overlap_true {o:.2}"));
+    let ratio = j.update_ratio.map_or(String::new(), |q| format!(" ({:.0}% of the map)", 100.0 * q));
+    format!(
+        "round {:3}  robot {} <- {}  {:<12} {:<10} {:<9} {errors}{overlap}  update {} B{ratio} {}  {:.0} ms",
+        j.round,
+        j.robot,
+        j.peer,
+        j.status,
+        j.kind,
+        j.fix,
+        j.bytes_sent,
+        j.update,
+        j.seconds * 1e3
+    )
+}
+
+/// The figures as text.
+pub fn summary_text(s: &Summary, rounds: usize) -> String {
+    let opt = |v: Option<f64>, unit: &str| v.map_or("-".to_string(), |v| format!("{v:.3}{unit}"));
+    let ratio = s.update_bytes_ratio.map_or("-".into(), |[a, b, c]| format!("p50 {a:.3}, p95 {b:.3}, max {c:.3}"));
+    let mut out = format!(
+        "rounds {rounds}; estimates with a truth {}\nwrong Converged   {}\nmeetings          {}\navailability      {}\nfirst fix         {} rounds (largest)\nupdate / map      {ratio}\nbytes             {}\ntracking round    {} (from scratch {:.1} ms; ratio {})\n",
+        s.with_truth,
+        s.wrong_converged,
+        s.meetings,
+        opt(s.availability, ""),
+        s.first_fix_rounds.map_or("-".into(), |v| v.to_string()),
+        s.bytes,
+        opt(s.tracking_ms, " ms"),
+        s.from_scratch_ms,
+        opt(s.tracking_cost_ratio, ""),
+    );
+    if let Some(d) = s.slip_caught_rounds {
+        out.push_str(&format!("slip caught in     {d} rounds\n"));
+    }
+    out
+}

@@ -1,0 +1,95 @@
+//! `cosem session`: robots that keep driving, on real data and on data the
+//! project makes itself.
+
+use cosem_tests::{cosem_ok, cosem_usage_err, real_data, synth};
+use serde_json::Value;
+
+/// The JSON lines of a session: the records, and the summary.
+fn session(args: &[&str]) -> (Vec<Value>, Value) {
+    let mut all = vec!["session", "--json"];
+    all.extend_from_slice(args);
+    let out = cosem_ok(&all);
+    let mut lines: Vec<Value> = out.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
+    let summary = lines.pop().expect("a summary line");
+    (lines, summary["summary"].clone())
+}
+
+fn check_record_fields(r: &Value) {
+    for key in ["round", "robot", "peer", "status", "kind", "fix", "bytes_sent", "seconds", "update"] {
+        assert!(!r[key].is_null(), "{key} missing: {r}");
+    }
+    let status = r["status"].as_str().unwrap();
+    assert!(["Converged", "NotConverged", "Degenerate", "NoOverlap"].contains(&status), "{r}");
+    assert!(["prior-free", "tracking"].contains(&r["kind"].as_str().unwrap()), "{r}");
+    if let Some(t) = r["T_own_peer"].as_array() {
+        assert_eq!(t.len(), 12, "3x4 row-major: {r}");
+    }
+}
+
+/// kitti00, robot A on frames 0:10 and B on 5:10: about five rounds, no
+/// parting; every estimate Converged and right, tracked after the first.
+#[test]
+fn kitti00_robots_are_tracked_round_after_round() {
+    let Some(d) = real_data("kitti00") else { return };
+    let (a, b) = (format!("{}:0:10", d.display()), format!("{}:5:10", d.display()));
+    let (records, summary) = session(&["--robot", &a, "--robot", &b]);
+    assert_eq!(records.len(), 2 * 5, "5 rounds, both directions");
+    for r in &records {
+        check_record_fields(r);
+        assert_eq!(r["status"], "Converged", "{r}");
+        assert!(r["e_t"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0, "{r}");
+        let first = r["round"] == 0;
+        assert_eq!(r["kind"], if first { "prior-free" } else { "tracking" }, "{r}");
+        assert!(r["overlap_true"].as_f64().unwrap() > 0.3, "{r}");
+    }
+    assert_eq!(summary["schema_version"], 1);
+    assert_eq!(summary["wrong_converged"], 0, "{summary}");
+    assert_eq!(summary["availability"], 1.0, "{summary}");
+    assert!(summary["first_fix_rounds"].as_u64().unwrap() <= 2, "{summary}");
+    // After the first round, updates are what changed: less than a whole map.
+    let [p50, _, max] = [0, 1, 2].map(|k| summary["update_bytes_ratio"][k].as_f64().unwrap());
+    assert!(p50 < 0.8 && max < 1.0, "{summary}");
+}
+
+/// The project's own street, with drift: robots that meet are placed right
+/// (against the drifted truth); robots 40 m apart are never placed.
+#[test]
+fn synthetic_robots_meet_under_drift_and_apart_are_never_placed() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = dir.path().join("street");
+    synth(&s, 60, 1);
+    let seq = s.display().to_string();
+    let (records, summary) = session(&[
+        "--robot",
+        &format!("{seq}:0:18"),
+        "--robot",
+        &format!("{seq}:10:28"),
+        "--drift",
+        "1%,0.5",
+        "--seed",
+        "4",
+    ]);
+    records.iter().for_each(check_record_fields);
+    assert_eq!(summary["wrong_converged"], 0, "{summary}");
+    let right = records
+        .iter()
+        .filter(|r| r["status"] == "Converged" && r["e_t"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0)
+        .count();
+    assert!(right >= records.len() * 3 / 4, "{right} of {} right", records.len());
+    // The truth moves with the drift: the estimates of the last round are
+    // not those of the first.
+    let t = |r: &Value| r["T_own_peer"][3].as_f64().unwrap();
+    assert!((t(&records[0]) - t(records.last().unwrap())).abs() > 1e-3);
+    let (apart, summary) =
+        session(&["--robot", &format!("{seq}:0:8"), "--robot", &format!("{seq}:50:58"), "--drift", "1%,0.5"]);
+    assert!(apart.iter().all(|r| r["status"] != "Converged"), "{apart:?}");
+    assert_eq!(summary["meetings"], 0, "{summary}");
+}
+
+#[test]
+fn session_arguments_are_checked() {
+    let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", "--drift", "70%,1"]);
+    assert!(e.contains("--drift") && e.contains("70%,1"), "{e}");
+    let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", "--every", "0"]);
+    assert!(e.contains("--every"), "{e}");
+}
