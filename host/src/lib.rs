@@ -61,6 +61,7 @@ pub mod camera {
 /// camera segmentation.
 pub mod worlds {
     pub mod synth;
+    pub mod town;
 }
 
 /// Maps: frames to maps on the heap, map files, exports, label noise.

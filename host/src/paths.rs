@@ -430,6 +430,22 @@ pub fn write_file(path: impl AsRef<Path>, bytes: impl AsRef<[u8]>) -> std::io::R
     out.commit()
 }
 
+/// A folder removed when dropped.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    /// A fresh path under the system's temporary folder.
+    pub fn new(prefix: &str) -> Self {
+        TempDir(std::env::temp_dir().join(format!("{prefix}-{}", std::process::id())))
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

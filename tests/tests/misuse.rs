@@ -55,6 +55,7 @@ fn baselines() -> BTreeMap<&'static str, &'static str> {
         ("bench global", "bench global --data {SEQ} --a 0:1 --b 1:2 --repeat 1"),
         ("bench label", "bench label --frames 4 --seeds 1 --grid-stride 11"),
         ("bench segment", "bench segment --model {A} --images {SEQ}/seg_2 --frames 0:1"),
+        ("bench session", "bench session --seeds 1 --frames 4 --threads 1"),
         ("demo", "demo --frames 4"),
         // Everything up to the boards (feeds, the host's twin run), then a
         // firmware that is not an ELF ends it before QEMU starts.

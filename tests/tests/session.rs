@@ -93,3 +93,38 @@ fn session_arguments_are_checked() {
     let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", "--every", "0"]);
     assert!(e.contains("--every"), "{e}");
 }
+
+/// The built-in town: robots 0 and 1 start out of sight of each other (no
+/// overlap), meet at a corner after 80 m and are placed right there;
+/// robot folders share one world (`world.txt`), so the truth is known.
+#[test]
+fn town_robots_start_apart_and_meet() {
+    let dir = tempfile::tempdir().unwrap();
+    let town = dir.path().join("town");
+    let t = town.display().to_string();
+    cosem_ok(&["synth", "--town", "--out", &t, "--frames", "100", "--seg", "none", "--seed", "3"]);
+    for i in 0..2 {
+        let world = std::fs::read_to_string(town.join(format!("robot_{i}/world.txt"))).unwrap();
+        assert!(world.starts_with("cosem town: seed 3"), "{world}");
+    }
+    let (records, summary) = session(&[
+        "--robot",
+        &format!("{t}/robot_0:0:100"),
+        "--robot",
+        &format!("{t}/robot_1:0:100"),
+        "--drift",
+        "1%,0.5",
+        "--seed",
+        "3",
+    ]);
+    records.iter().for_each(check_record_fields);
+    assert!(records[0]["overlap_true"].as_f64().unwrap() < 0.05, "{}", records[0]);
+    assert!(records.iter().take(20).all(|r| r["status"] != "Converged"), "no fix before they meet");
+    assert!(summary["meetings"].as_u64().unwrap() >= 1, "{summary}");
+    let right = records
+        .iter()
+        .filter(|r| r["status"] == "Converged" && r["e_t"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0)
+        .count();
+    assert!(right >= 5, "{right} right estimates: {summary}");
+    assert!(summary["availability"].as_f64().unwrap() >= 0.5, "{summary}");
+}

@@ -276,3 +276,44 @@ fn forged_updates_never_pass_as_the_map() {
     std::println!("forged updates: {outcomes:?}");
     assert!(outcomes.len() >= 3, "{outcomes:?}");
 }
+
+/// The tracker: prior-free until a fix, tracking from it, the fix withdrawn
+/// when the peer's map stops agreeing, prior-free again after.
+#[test]
+fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let (mut here, mut elsewhere, mut rng) = (robot_map(), robot_map(), Lcg(11));
+    for round in 0..4 {
+        drive(&mut here, round, &mut rng);
+        drive(&mut elsewhere, round + 40, &mut rng);
+    }
+    // The peer: the same street seen again (other noise), then one 120 m on.
+    let mut again = robot_map();
+    for round in 0..4 {
+        drive(&mut again, round, &mut Lcg(12 + round as u64));
+    }
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, same, other) = (prepare(&here), prepare(&again), prepare(&elsewhere));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let mut tracker = Tracker::new();
+    let mut estimate = |t: &mut Tracker, peer| t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words)).unwrap();
+    let first = estimate(&mut tracker, &same);
+    assert_eq!((first.kind, first.result.status, first.fix), (Kind::PriorFree, MatchStatus::Converged, Fix::Held));
+    assert!(first.result.transform.translation.vector.norm() < 0.3, "{:?}", first.result.transform);
+    let next = estimate(&mut tracker, &same);
+    assert_eq!((next.kind, next.fix), (Kind::Tracking, Fix::Held));
+    let gone = estimate(&mut tracker, &other);
+    assert_eq!(gone.kind, Kind::Tracking);
+    assert_ne!(gone.result.status, MatchStatus::Converged);
+    // NoOverlap or Degenerate withdraws at once; NotConverged keeps it once.
+    if gone.fix == Fix::Kept {
+        assert_eq!(estimate(&mut tracker, &other).fix, Fix::Withdrawn);
+    } else {
+        assert_eq!(gone.fix, Fix::Withdrawn);
+    }
+    assert_eq!(tracker.fix(), None);
+    let after = estimate(&mut tracker, &other);
+    assert_eq!((after.kind, after.fix), (Kind::PriorFree, Fix::None));
+}

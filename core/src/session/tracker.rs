@@ -1,8 +1,9 @@
 //! The relative pose of a peer, tracked round after round: prior-free until
 //! the first fix the verdict accepts, then from the last fix (the windowed
 //! search around it, then EM), every answer through the verdict; a fix that
-//! stops agreeing is withdrawn, and the next round searches prior-free
-//! again.
+//! stops agreeing (the verdict says `NoOverlap` or `Degenerate` from it, or
+//! EM does not settle from it twice running) is withdrawn, and the next
+//! round searches prior-free again.
 
 use crate::geometry::Isometry3;
 use crate::matching::search::SearchScratch;
@@ -36,6 +37,9 @@ pub enum Fix {
     None,
     /// The estimate passed the verdict: it is the fix.
     Held,
+    /// From the fix, EM did not settle (`NotConverged`) for the first time:
+    /// no evidence against the fix, which stays for the next round.
+    Kept,
     /// The fix stopped agreeing (the estimate from it failed the verdict):
     /// withdrawn; the next round searches prior-free.
     Withdrawn,
@@ -47,6 +51,7 @@ impl Fix {
         match self {
             Fix::None => "none",
             Fix::Held => "held",
+            Fix::Kept => "kept",
             Fix::Withdrawn => "withdrawn",
         }
     }
@@ -67,12 +72,14 @@ pub struct Estimate {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Tracker {
     fix: Option<Isometry3<f32>>,
+    /// Rounds running in which EM did not settle from the fix.
+    unsettled: u8,
 }
 
 impl Tracker {
     /// A track with no fix.
     pub const fn new() -> Self {
-        Tracker { fix: None }
+        Tracker { fix: None, unsettled: 0 }
     }
 
     /// The fix held (`T_own_peer`), if any.
@@ -83,6 +90,7 @@ impl Tracker {
     /// Forgets the fix (the peer restarted, or its map was resent whole).
     pub fn reset(&mut self) {
         self.fix = None;
+        self.unsettled = 0;
     }
 
     /// This round's estimate: `own` (the model) against the peer's copy
@@ -98,14 +106,20 @@ impl Tracker {
         let prior = self.fix;
         let kind = if prior.is_some() { Kind::Tracking } else { Kind::PriorFree };
         let (result, _) = align_prepared(own, peer, prior.as_ref(), how, scratch, || {})?;
-        let fix = if result.status == MatchStatus::Converged {
-            self.fix = Some(result.transform);
-            Fix::Held
-        } else if prior.is_some() {
-            self.fix = None;
-            Fix::Withdrawn
-        } else {
-            Fix::None
+        let fix = match (result.status, prior.is_some()) {
+            (MatchStatus::Converged, _) => {
+                (self.fix, self.unsettled) = (Some(result.transform), 0);
+                Fix::Held
+            }
+            (MatchStatus::NotConverged, true) if self.unsettled == 0 => {
+                self.unsettled = 1;
+                Fix::Kept
+            }
+            (_, true) => {
+                self.reset();
+                Fix::Withdrawn
+            }
+            (_, false) => Fix::None,
         };
         Ok(Estimate { kind, result, fix })
     }

@@ -2,8 +2,9 @@
 //! `cosem_host::evaluation::bench`).
 
 use super::Error;
-use cosem_host::evaluation::bench::{self, TempDir};
+use cosem_host::evaluation::bench;
 use cosem_host::evaluation::pair::{Pair, PairSpec};
+use cosem_host::paths::TempDir;
 use cosem_host::sources::kitti::FrameRange;
 use std::path::{Path, PathBuf};
 
@@ -23,6 +24,25 @@ pub enum What {
     /// Camera segmentation with a network (ONNX, feature `segment`): milliseconds per image on one core
     /// and on all.
     Segment(SegmentArgs),
+    /// Robots that keep driving: `cosem session` on the built-in town with
+    /// drift (1%, 0.5 deg/100 m) over seeds, 2 and 3 robots, true and
+    /// network-like labels, and a slip: wrong Converged, availability,
+    /// first fix, update bytes, tracking cost.
+    Session(SessionArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct SessionArgs {
+    /// Seeds of the towns (and of drift and label noise).
+    #[arg(long, default_value = "1,2,3,4,5", value_delimiter = ',')]
+    seeds: Vec<u64>,
+    /// Sessions run at once (each on one thread; default: the cores).
+    #[arg(long, value_parser = super::args::threads)]
+    threads: Option<usize>,
+    /// Scans per robot of each town (default: the town's, 280; fewer for a
+    /// quick look, without the second meeting).
+    #[arg(long, value_parser = super::args::frames_count)]
+    frames: Option<usize>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -166,6 +186,7 @@ pub fn run(w: What, json: Option<&Path>) -> Result<(), Error> {
             What::Global(a) => named([("--data", &a.pair.data), ("--classes", &a.pair.source.classes)]),
             What::Label(a) => named([("--data", &a.data), ("--data", &None)]),
             What::Segment(a) => named([("--model", &a.model), ("--images", &a.images)]),
+            What::Session(_) => Vec::new(),
         };
         cosem_host::paths::check_output("--json", out, &inputs)?;
     }
@@ -176,6 +197,7 @@ pub fn run(w: What, json: Option<&Path>) -> Result<(), Error> {
         What::Global(a) => bench_global(a),
         What::Label(a) => bench_label(a, json),
         What::Segment(a) => bench_segment(a, json),
+        What::Session(a) => bench_session(a, json),
     }
 }
 
@@ -272,4 +294,61 @@ fn bench_label(a: LabelArgs, json: Option<&Path>) -> Result<(), Error> {
     println!("  (M pts/s: projection and lookup of every point of a scan, single thread; agreement over the");
     println!("   points camera 2 sees; 'in set': as Cityscapes ids can say it, trunks being vegetation there)");
     save(json, &rows.iter().map(bench::LabelRow::figures).collect::<Vec<_>>())
+}
+
+fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
+    use cosem_host::evaluation::session::bench::{bench_session, BENCH_DRIFT, BENCH_SLIP};
+    if a.seeds.is_empty() || a.seeds.len() > 100 {
+        return Err(format!("--seeds: 1 to 100 seeds, not {}", a.seeds.len()).into());
+    }
+    let tmp = TempDir::new("cosem-bench-session");
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
+    println!(
+        "bench session: the built-in town, seeds {:?}, drift {BENCH_DRIFT}, slip of robot {} at round {}; {} sessions at once",
+        a.seeds,
+        BENCH_SLIP.0,
+        BENCH_SLIP.1,
+        pool.current_num_threads()
+    );
+    let t0 = std::time::Instant::now();
+    let cases = pool.install(|| bench_session(&tmp.0, &a.seeds, a.frames))?;
+    let opt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
+    println!(
+        "  {:<7} {:<8} {:<5} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>9} {:>5}",
+        "robots",
+        "labels",
+        "slip",
+        "rounds",
+        "wrong",
+        "avail",
+        "min",
+        "meets",
+        "fix",
+        "update p50/p95/max",
+        "cost",
+        "slip"
+    );
+    for c in &cases {
+        let upd = c.update_bytes_ratio.map_or("-".into(), |[p, q, m]| format!("{p:.3}/{q:.3}/{m:.3}"));
+        println!(
+            "  {:<7} {:<8} {:<5} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>9} {:>5}",
+            c.case.robots,
+            c.case.labels,
+            c.case.slip,
+            c.rounds,
+            c.wrong_converged,
+            opt(c.availability),
+            opt(c.availability_min),
+            c.meetings,
+            c.first_fix_rounds.map_or("-".into(), |v| v.to_string()),
+            upd,
+            opt(c.tracking_cost_ratio),
+            c.slip_caught_rounds.map_or("-".into(), |v| v.to_string()),
+        );
+    }
+    println!(
+        "  (cost: a tracking round's median time / a from-scratch match's, single thread; {:.0} s in all)",
+        t0.elapsed().as_secs_f64()
+    );
+    save(json, &cases)
 }

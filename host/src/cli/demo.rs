@@ -1,8 +1,8 @@
 //! `cosem demo`: the main job on built-in data (`cosem_host::evaluation::demo`).
 
 use super::Error;
-use cosem_host::evaluation::bench::TempDir;
 use cosem_host::evaluation::demo::{run as run_demo, Demo};
+use cosem_host::paths::TempDir;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

@@ -2,25 +2,27 @@
 //! `cosem_host::evaluation::session`).
 
 use super::Error;
-use cosem_host::evaluation::session::{run, SessionSpec};
+use cosem_host::evaluation::session::{self, run, SessionSpec};
 use cosem_host::evaluation::team::RobotSpec;
 use cosem_host::reports::session::{record_text, summary_text, RecordJson, SummaryFields, SummaryJson, SESSION_SCHEMA};
 use cosem_host::sources::drift::Drift;
-
-/// The map capacity of a session's robot (voxels).
-pub const CAPACITY: usize = 8_000;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// A robot: a source of scans (a SemanticKITTI-layout folder, a ROS 2
     /// recording .mcap, or a folder of PCD/PLY scans with poses.txt) and
-    /// its frames, PATH:START:END[:STRIDE]; 2 or 3 robots.
-    #[arg(long = "robot", required = true, num_args = 1)]
+    /// its frames, PATH:START:END[:STRIDE]; 2 or 3 robots. Default: the
+    /// built-in town (`cosem synth --town`, built in a temporary folder),
+    /// its robots on all their frames.
+    #[arg(long = "robot", num_args = 1)]
     robots: Vec<RobotSpec>,
+    /// Without --robot: the town's robots, 2 or 3.
+    #[arg(long, conflicts_with = "robots", value_parser = clap::value_parser!(u8).range(2..=3))]
+    town_robots: Option<u8>,
     #[command(flatten)]
     source: super::args::SourceArgs,
     /// Scans each robot fuses a round.
-    #[arg(long, default_value_t = 2, value_parser = super::args::at_least::<1>)]
+    #[arg(long, default_value_t = session::DEFAULT_EVERY, value_parser = super::args::at_least::<1>)]
     every: usize,
     /// Odometry drift of every robot: S,H, a scale error S (0.01 or 1%, its
     /// sign drawn per robot) and a heading random walk of H degrees per
@@ -39,15 +41,16 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Voxel size of the robots' maps (m).
-    #[arg(long, default_value_t = super::args::ROBOT.voxel, value_parser = super::args::voxel)]
+    #[arg(long, default_value_t = session::DEFAULT_VOXEL, value_parser = super::args::voxel)]
     voxel: f32,
     /// Voxels a robot's map holds; beyond, what is farthest from the robot goes.
-    #[arg(long, default_value_t = CAPACITY, value_parser = capacity)]
+    #[arg(long, default_value_t = session::DEFAULT_CAPACITY, value_parser = capacity)]
     capacity: usize,
     /// Points farther than this from their sensor are left out (m).
-    #[arg(long, default_value_t = super::args::ROBOT_CROP, value_parser = super::args::crop)]
+    #[arg(long, default_value_t = session::DEFAULT_CROP, value_parser = super::args::crop)]
     crop: f32,
-    /// EM iterations, the verdict's thresholds, the prior-free search's budget.
+    /// EM iterations, the verdict's thresholds, the prior-free search's
+    /// budget (default: the robots', 30 iterations and 40,000 nodes).
     #[command(flatten)]
     tuning: super::args::Tuning,
     /// JSON lines: one per robot, peer and round, then {"summary": {...}}.
@@ -65,7 +68,17 @@ fn capacity(s: &str) -> Result<usize, String> {
 }
 
 pub fn run_session(a: Args) -> Result<(), Error> {
-    let n = a.robots.len();
+    let _town = if a.robots.is_empty() {
+        let tmp = cosem_host::paths::TempDir::new("cosem-session-town");
+        let n = a.town_robots.map_or(2, usize::from);
+        let robots = cosem_host::evaluation::session::town_robots(&tmp.0, n, a.seed, None)?;
+        eprintln!("the built-in town (seed {}): {n} robots in {}", a.seed, tmp.0.display());
+        Some((tmp, robots))
+    } else {
+        None
+    };
+    let robots = _town.as_ref().map_or_else(|| a.robots.clone(), |t| t.1.clone());
+    let n = robots.len();
     if !(2..=3).contains(&n) {
         return Err(format!("--robot: 2 or 3 robots, not {n}").into());
     }
@@ -75,7 +88,7 @@ pub fn run_session(a: Args) -> Result<(), Error> {
         }
     }
     let spec = SessionSpec {
-        robots: a.robots.clone(),
+        robots,
         every: a.every,
         voxel: a.voxel,
         capacity: a.capacity,
@@ -85,7 +98,7 @@ pub fn run_session(a: Args) -> Result<(), Error> {
         label_noise: a.label_noise,
         seed: a.seed,
         source: a.source.options(),
-        alignment: a.tuning.apply(super::args::HOST.alignment),
+        alignment: a.tuning.apply(session::DEFAULT_ALIGNMENT),
     };
     let json = a.json;
     let mut failed = None;

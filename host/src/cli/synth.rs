@@ -10,9 +10,10 @@ pub struct Args {
     /// Output folder.
     #[arg(long, value_name = "OUT")]
     out: PathBuf,
-    /// Number of frames, 1 to 100,000.
-    #[arg(long, default_value_t = 10, value_parser = super::args::frames_count)]
-    frames: usize,
+    /// Number of frames, 1 to 100,000 (default 10; with --town, per
+    /// robot, default 120).
+    #[arg(long, value_parser = super::args::frames_count)]
+    frames: Option<usize>,
     /// Seed of scene, trajectory and noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -22,9 +23,21 @@ pub struct Args {
     /// Fraction of points given a wrong random label, 0 to 1.
     #[arg(long, default_value_t = 0.0, value_parser = super::args::probability)]
     label_noise: f64,
-    /// Distance driven per frame (m), 0 to 50.
-    #[arg(long, default_value_t = SynthConfig::default().step, value_parser = super::args::within::<0, 50>)]
-    step: f64,
+    /// Distance driven per frame (m), 0 to 50 (default 0.8; with --town 4).
+    #[arg(long, value_parser = super::args::within::<0, 50>)]
+    step: Option<f64>,
+    /// A town instead of a street: a grid of blocks and a route per robot
+    /// (robot_0/, robot_1/, ...: a SemanticKITTI-layout folder each, poses in
+    /// the town's world frame). Robots 0 and 1 start at opposite corners,
+    /// meet, part and meet again.
+    #[arg(long)]
+    town: bool,
+    /// With --town: its robots, 2 or 3.
+    #[arg(long, requires = "town", value_parser = clap::value_parser!(u8).range(2..=3))]
+    robots: Option<u8>,
+    /// With --town: blocks on a side, 1 to 8.
+    #[arg(long, requires = "town", value_parser = clap::value_parser!(u8).range(1..=8))]
+    blocks: Option<u8>,
     /// Render camera 2's segmentation image per frame into seg_2/, with
     /// these ids: cityscapes (a Cityscapes-trained network's 19 training
     /// ids), semantickitti (learning-map ids, 0 unlabeled), or none.
@@ -40,7 +53,11 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<(), Error> {
-    if a.frames == 0 {
+    if a.town {
+        return town(a);
+    }
+    let frames = a.frames.unwrap_or(10);
+    if frames == 0 {
         return Err("--frames must be at least 1".into());
     }
     if !((0.0..=1.0).contains(&a.label_noise) && a.range_noise >= 0.0 && a.range_noise.is_finite()) {
@@ -52,11 +69,11 @@ pub fn run(a: Args) -> Result<(), Error> {
     let seg = a.seg.map(|classes| SegRender { classes, corrupt: a.seg_corrupt, probabilities: a.seg_probabilities });
     let cfg = SynthConfig {
         seg,
-        frames: a.frames,
+        frames,
         seed: a.seed,
         range_noise: a.range_noise,
         label_noise: a.label_noise,
-        step: a.step,
+        step: a.step.unwrap_or(SynthConfig::default().step),
         ..SynthConfig::default()
     };
     let t0 = std::time::Instant::now();
@@ -65,9 +82,52 @@ pub fn run(a: Args) -> Result<(), Error> {
     println!(
         "{}: {} frames, {} points ({:.0} per scan), seed {}, in {:.2} s",
         a.out.display(),
-        a.frames,
+        frames,
         points,
-        points as f64 / a.frames as f64,
+        points as f64 / frames as f64,
+        a.seed,
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// `cosem synth --town`.
+fn town(a: Args) -> Result<(), Error> {
+    use cosem_host::worlds::town::{write_town, TownConfig};
+    if a.label_noise > 0.0 {
+        return Err("--label-noise: a town's scans keep exact labels (give a session --label-noise instead)".into());
+    }
+    let d = TownConfig::default();
+    let seg = match a.seg {
+        Some(classes) => Some(SegRender { classes, corrupt: true, probabilities: a.seg_probabilities }),
+        None if a.seg_corrupt || a.seg_probabilities => {
+            return Err("--seg-corrupt and --seg-probabilities need --seg cityscapes|semantickitti".into())
+        }
+        None => None,
+    };
+    let cfg = TownConfig {
+        blocks: a.blocks.map_or(d.blocks, usize::from),
+        robots: a.robots.map_or(d.robots, usize::from),
+        frames: a.frames.unwrap_or(d.frames),
+        step: a.step.unwrap_or(d.step),
+        seed: a.seed,
+        range_noise: a.range_noise,
+        seg,
+        ..d
+    };
+    if cfg.step <= 0.0 {
+        return Err("--step: a town's robots drive, more than 0 m a frame".into());
+    }
+    let t0 = std::time::Instant::now();
+    let town = write_town(&a.out, &cfg).map_err(|e| format!("{}: {e}", a.out.display()))?;
+    let points: usize = town.robots.iter().flat_map(|r| &r.scans).map(|s| s.points.len()).sum();
+    println!(
+        "{}: a town of {} blocks, {} robots of {} frames ({} points), seed {}, in {:.2} s",
+        a.out.display(),
+        cfg.blocks,
+        cfg.robots,
+        cfg.frames,
+        points,
         a.seed,
         t0.elapsed().as_secs_f64()
     );

@@ -10,6 +10,7 @@ use crate::knobs::Knob;
 use crate::lines::exchange::simulate_exchange;
 use crate::maps::mapping::{new_map, HostMap, PointFilter};
 use crate::matching::align::{prepare, DEFAULT_LEVELS};
+use crate::paths::TempDir;
 use crate::sources::kitti::{Frame, FrameRange, Sequence};
 use cosem_core::classes::Class;
 use cosem_core::geometry::errors_of;
@@ -18,22 +19,6 @@ use cosem_core::matching::{MatchResult, MatchSettings};
 use cosem_core::sim::{Mix, SimConfig};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// A folder removed when dropped.
-pub struct TempDir(pub PathBuf);
-
-impl TempDir {
-    /// A fresh path under the system's temporary folder.
-    pub fn new(prefix: &str) -> Self {
-        TempDir(std::env::temp_dir().join(format!("{prefix}-{}", std::process::id())))
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 /// Seconds of `f`'s median run over `repeat` runs (at least one), and the
 /// last run's value.

@@ -21,7 +21,7 @@ pub struct RecordJson {
     pub status: &'static str,
     /// `prior-free` or `tracking`.
     pub kind: &'static str,
-    /// What became of the fix: `none`, `held`, `withdrawn`.
+    /// What became of the fix: `none`, `held`, `kept`, `withdrawn`.
     pub fix: &'static str,
     /// `T_own_peer`, row-major 3x4, when there is an estimate.
     #[serde(rename = "T_own_peer", skip_serializing_if = "Option::is_none")]

@@ -244,10 +244,34 @@ pub struct Sequence {
     /// Labels are checked to be SemanticKITTI ids (off when a user's class
     /// table reads them: [`Sequence::with_user_ids`]).
     check_ids: bool,
+    /// The world its poses are in, when `world.txt` names one (the robots
+    /// of a synthetic town): folders naming the same world share it.
+    pub world: Option<String>,
 }
 
 fn read(path: &Path) -> Result<Vec<u8>, KittiError> {
     std::fs::read(path).map_err(|source| KittiError::Io { path: path.to_path_buf(), source })
+}
+
+/// The most bytes of a `world.txt`: one line naming a world.
+const MAX_WORLD_BYTES: u64 = 4096;
+
+/// The world a folder's `world.txt` names (its first line), if it has one.
+fn read_world(path: &Path) -> Result<Option<String>, KittiError> {
+    let Ok(meta) = std::fs::metadata(path) else { return Ok(None) };
+    if meta.len() > MAX_WORLD_BYTES {
+        return Err(KittiError::Parse {
+            path: path.to_path_buf(),
+            line: 0,
+            what: format!("{} bytes: a world's name is one line of at most {MAX_WORLD_BYTES}", meta.len()),
+        });
+    }
+    let text = read_text(path)?;
+    let name = text.lines().next().unwrap_or("").trim();
+    if name.is_empty() {
+        return Err(KittiError::Parse { path: path.to_path_buf(), line: 1, what: "no world named".into() });
+    }
+    Ok(Some(name.to_string()))
 }
 
 fn read_text(path: &Path) -> Result<String, KittiError> {
@@ -376,7 +400,8 @@ impl Sequence {
         } else {
             None
         };
-        Ok(Sequence { dir, tr, projections, camera_poses, times, check_ids: true })
+        let world = read_world(&dir.join("world.txt"))?;
+        Ok(Sequence { dir, tr, projections, camera_poses, times, check_ids: true, world })
     }
 
     /// Path of a frame's scan.
@@ -403,6 +428,13 @@ impl Sequence {
     /// folders of one sequence, whose scans share one world frame.
     pub fn same_trajectory(&self, other: &Sequence) -> bool {
         self.tr == other.tr && self.camera_poses == other.camera_poses
+    }
+
+    /// Whether `other`'s poses are in this folder's world: the same
+    /// trajectory, or folders whose `world.txt` names the same world (with
+    /// the same `Tr`).
+    pub fn shares_world(&self, other: &Sequence) -> bool {
+        self.same_trajectory(other) || (self.world.is_some() && self.world == other.world && self.tr == other.tr)
     }
 
     /// Number of poses in poses.txt.

@@ -270,6 +270,16 @@ impl Source {
         }
     }
 
+    /// Whether `other`'s poses are in this source's world: one trajectory
+    /// ([`Source::same_trajectory`]), or folders of one world (a town's
+    /// robots: [`crate::sources::kitti::Sequence::shares_world`]).
+    pub fn shares_world(&self, other: &Source) -> bool {
+        match (&self.kind, &other.kind) {
+            (SourceKind::Folder(a), SourceKind::Folder(b)) => a.shares_world(b),
+            _ => self.same_trajectory(other),
+        }
+    }
+
     /// Whether `other` shares this source's world frame (the same
     /// trajectory: a folder's poses, a recording, a user's poses), so the
     /// truth between their frames is known.

@@ -83,7 +83,7 @@ const SIDEWALK_WIDTH: f64 = 2.5;
 const CURB: f64 = 0.15;
 
 #[derive(Clone, Copy, Debug)]
-enum Shape {
+pub(crate) enum Shape {
     /// Axis-aligned box.
     Box {
         min: [f64; 3],
@@ -103,15 +103,15 @@ enum Shape {
 }
 
 #[derive(Clone, Copy, Debug)]
-struct Object {
-    shape: Shape,
-    class: Class,
+pub(crate) struct Object {
+    pub(crate) shape: Shape,
+    pub(crate) class: Class,
     /// Bounding circle in xy: centre and radius.
     bound: ([f64; 2], f64),
 }
 
 impl Object {
-    fn new(shape: Shape, class: Class) -> Self {
+    pub(crate) fn new(shape: Shape, class: Class) -> Self {
         let bound = match shape {
             Shape::Box { min, max } => {
                 let c = [(min[0] + max[0]) / 2.0, (min[1] + max[1]) / 2.0];
@@ -179,11 +179,36 @@ impl Object {
     }
 }
 
-/// The procedural street.
-struct Scene {
-    objects: Vec<Object>,
+/// A straight road of a town: its centre line along x (at `y = at`) or
+/// along y (at `x = at`), from `from` to `to`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Road {
+    /// Along x (else along y).
+    pub(crate) along_x: bool,
+    /// The centre line's other coordinate.
+    pub(crate) at: f64,
+    /// Where it starts and ends along its axis.
+    pub(crate) from: f64,
+    pub(crate) to: f64,
+}
+
+impl Road {
+    fn holds(&self, x: f64, y: f64) -> bool {
+        let (along, across) = if self.along_x { (x, y) } else { (y, x) };
+        (across - self.at).abs() < ROAD_HALF && along >= self.from - ROAD_HALF && along <= self.to + ROAD_HALF
+    }
+}
+
+/// The procedural street (or, with `roads`, a town).
+pub(crate) struct Scene {
+    pub(crate) objects: Vec<Object>,
     /// x centres of the cross streets.
     cross: Vec<f64>,
+    /// A town's roads (empty: the one street along x and its cross streets).
+    pub(crate) roads: Vec<Road>,
+    /// No building reaches across a cross street (a town's, whose streets
+    /// robots drive).
+    keep_cross_clear: bool,
 }
 
 impl Scene {
@@ -191,13 +216,44 @@ impl Scene {
         self.cross.iter().any(|c| (x - c).abs() < ROAD_HALF + margin)
     }
 
+    /// Whether `[a, b]` reaches into a cross street (with `margin`).
+    fn spans_cross_street(&self, a: f64, b: f64, margin: f64) -> bool {
+        self.cross.iter().any(|c| a < c + ROAD_HALF + margin && b > c - ROAD_HALF - margin)
+    }
+
     /// Class of the ground at (x, y).
     fn ground_class(&self, x: f64, y: f64) -> Class {
-        if y.abs() < ROAD_HALF || self.in_cross_street(x, 0.0) {
+        let road = if self.roads.is_empty() {
+            y.abs() < ROAD_HALF || self.in_cross_street(x, 0.0)
+        } else {
+            self.roads.iter().any(|r| r.holds(x, y))
+        };
+        if road {
             Class::Road
         } else {
             Class::Terrain
         }
+    }
+
+    /// One street along x from `x_min` to `x_max` with cross streets at
+    /// `cross`, in its own frame (the centre line on y = 0), its objects
+    /// kept clear of the cross streets: a town's street, placed by the
+    /// caller.
+    pub(crate) fn town_street(rng: &mut Rng, x_min: f64, x_max: f64, cross: Vec<f64>) -> Vec<Object> {
+        let mut scene = Scene { objects: Vec::new(), cross, roads: Vec::new(), keep_cross_clear: true };
+        for side in [-1.0f64, 1.0] {
+            scene.sidewalks(side, x_min, x_max);
+            scene.buildings(rng, side, x_min, x_max);
+            scene.trees(rng, side, x_min, x_max);
+            scene.poles(rng, side, x_min, x_max);
+            scene.cars(rng, side, x_min, x_max);
+        }
+        scene.objects
+    }
+
+    /// A town: its objects and roads.
+    pub(crate) fn town(objects: Vec<Object>, roads: Vec<Road>) -> Scene {
+        Scene { objects, cross: Vec::new(), roads, keep_cross_clear: true }
     }
 
     fn generate(rng: &mut Rng, x_min: f64, x_max: f64) -> Scene {
@@ -207,7 +263,7 @@ impl Scene {
             cross.push(x);
             x += rng.range(60.0, 120.0);
         }
-        let mut scene = Scene { objects: Vec::new(), cross };
+        let mut scene = Scene { objects: Vec::new(), cross, roads: Vec::new(), keep_cross_clear: false };
         for side in [-1.0f64, 1.0] {
             scene.sidewalks(side, x_min, x_max);
             scene.buildings(rng, side, x_min, x_max);
@@ -248,7 +304,12 @@ impl Scene {
         while x < x_max {
             let len = rng.range(8.0, 30.0);
             let gap = rng.range(1.0, 9.0);
-            if !scene.in_cross_street(x, 3.0) && !scene.in_cross_street(x + len, 3.0) {
+            let clear = if scene.keep_cross_clear {
+                !scene.spans_cross_street(x, x + len + gap, 3.0)
+            } else {
+                !scene.in_cross_street(x, 3.0) && !scene.in_cross_street(x + len, 3.0)
+            };
+            if clear {
                 let front = ROAD_HALF + SIDEWALK_WIDTH + rng.range(1.5, 7.0);
                 let depth = rng.range(8.0, 15.0);
                 let height = rng.range(5.0, 18.0);
@@ -328,7 +389,12 @@ impl Scene {
         let mut x = x_min + rng.range(0.0, 6.0);
         while x < x_max {
             let len = rng.range(3.8, 4.9);
-            if !scene.in_cross_street(x, 1.0) && !scene.in_cross_street(x + len, 1.0) && rng.chance(0.55) {
+            let clear = if scene.keep_cross_clear {
+                !scene.spans_cross_street(x, x + len, 1.0)
+            } else {
+                !scene.in_cross_street(x, 1.0) && !scene.in_cross_street(x + len, 1.0)
+            };
+            if clear && rng.chance(0.55) {
                 let yc = side * (ROAD_HALF - 1.1);
                 let w = rng.range(1.7, 1.95) / 2.0;
                 let h = rng.range(1.35, 1.7);
@@ -458,7 +524,7 @@ impl Sectors {
 }
 
 /// Casts every beam of one revolution from `pose` through the scene.
-fn scan(scene: &Scene, pose: &Isometry3<f64>, cfg: &SynthConfig, rng: &mut Rng) -> SynthScan {
+pub(crate) fn scan(scene: &Scene, pose: &Isometry3<f64>, cfg: &SynthConfig, rng: &mut Rng) -> SynthScan {
     let t = pose.translation.vector;
     let o = [t.x, t.y, t.z];
     let rot = pose.rotation.to_rotation_matrix().into_inner();
@@ -500,7 +566,7 @@ fn projection(k: usize) -> nalgebra::Matrix3x4<f64> {
 /// Renders what a perfect segmentation network gives for camera 2 on the
 /// vehicle at LiDAR pose `velodyne` (world frame): the class of the first
 /// surface along each pixel's ray; the sky where there is none.
-fn render(scene: &Scene, velodyne: &Isometry3<f64>, classes: SegClasses) -> SegImage {
+pub(crate) fn render(scene: &Scene, velodyne: &Isometry3<f64>, classes: SegClasses) -> SegImage {
     let p2 = projection(2);
     let k = p2.fixed_view::<3, 3>(0, 0).into_owned();
     let kinv = k.try_inverse().unwrap_or_else(nalgebra::Matrix3::identity);
@@ -618,7 +684,8 @@ pub fn probabilities_of(image: &SegImage, classes: SegClasses) -> ProbabilityMap
 
 /// A synthesised sequence held in memory.
 pub struct Synthesised {
-    /// LiDAR poses relative to the first scan's.
+    /// LiDAR poses: relative to the first scan's (a street), or in the
+    /// world frame (a town's robot).
     pub poses: Vec<Isometry3<f64>>,
     /// The scans.
     pub scans: Vec<SynthScan>,
@@ -668,27 +735,27 @@ fn write_3x4(out: &mut impl Write, t: &Isometry3<f64>) -> std::io::Result<()> {
 /// with it may be written over by a new run.
 const PROVENANCE_TITLE: &str = "# Synthetic sequence made by `cosem synth`";
 
-/// Refuses a folder that holds anything but an earlier synthetic sequence
-/// (a user's data would be replaced).
-fn refuse_foreign_folder(dir: &Path) -> std::io::Result<()> {
+/// Refuses a folder that holds anything but an earlier output whose
+/// PROVENANCE.md starts with `title` (a user's data would be replaced).
+pub(crate) fn refuse_foreign(dir: &Path, title: &str) -> std::io::Result<()> {
     let Ok(mut entries) = std::fs::read_dir(dir) else { return Ok(()) };
     if entries.next().is_none() {
         return Ok(());
     }
-    let ours = std::fs::read_to_string(dir.join("PROVENANCE.md")).is_ok_and(|t| t.starts_with(PROVENANCE_TITLE));
+    let ours = std::fs::read_to_string(dir.join("PROVENANCE.md")).is_ok_and(|t| t.starts_with(title));
     if ours {
         return Ok(());
     }
     Err(std::io::Error::new(
         std::io::ErrorKind::AlreadyExists,
-        "the folder holds files that are not an earlier `cosem synth` output: choose a new or empty folder",
+        "the folder holds files that are not an earlier `cosem synth` output of the same kind: choose a new or empty folder",
     ))
 }
 
 /// Synthesises a sequence and writes it in SemanticKITTI layout to `dir`
 /// (a new or empty folder, or an earlier synthetic sequence's).
 pub fn write_sequence(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesised> {
-    refuse_foreign_folder(dir)?;
+    refuse_foreign(dir, PROVENANCE_TITLE)?;
     // Written whole into a temporary folder, then swapped into place.
     let out = crate::paths::OutputDir::create(dir)?;
     let seq = write_into(out.path(), cfg)?;
@@ -698,6 +765,28 @@ pub fn write_sequence(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesi
 
 fn write_into(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesised> {
     let seq = synthesise(cfg);
+    let mut prov = Vec::new();
+    writeln!(
+        prov,
+        "{PROVENANCE_TITLE}\n\nframes: {}\nseed: {}\nrange noise (m): {}\nlabel noise: {}\nstep (m/frame): {}\n\n\
+         A procedural street seen by a simulated 64-beam LiDAR; labels are exact \
+         SemanticKITTI ids (before label noise). Generated data, no third-party content.",
+        cfg.frames, cfg.seed, cfg.range_noise, cfg.label_noise, cfg.step
+    )?;
+    write_folder(dir, &seq, cfg.seg, prov)?;
+    Ok(seq)
+}
+
+/// Writes scans in SemanticKITTI layout into `dir`: velodyne/, labels/,
+/// poses.txt (camera poses from `seq.poses`, in whatever frame they are),
+/// times.txt (10 Hz), calib.txt, PROVENANCE.md (`prov`, then what the
+/// segmentation is) and the segmentation images.
+pub(crate) fn write_folder(
+    dir: &Path,
+    seq: &Synthesised,
+    seg: Option<SegRender>,
+    mut prov: Vec<u8>,
+) -> std::io::Result<()> {
     std::fs::create_dir_all(dir.join("velodyne"))?;
     std::fs::create_dir_all(dir.join("labels"))?;
     let tr = synthetic_tr();
@@ -723,15 +812,7 @@ fn write_into(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesised> {
     calib.extend_from_slice(b"Tr: ");
     write_3x4(&mut calib, &tr)?;
     crate::paths::write_file(dir.join("calib.txt"), calib)?;
-    let mut prov = Vec::new();
-    writeln!(
-        prov,
-        "{PROVENANCE_TITLE}\n\nframes: {}\nseed: {}\nrange noise (m): {}\nlabel noise: {}\nstep (m/frame): {}\n\n\
-         A procedural street seen by a simulated 64-beam LiDAR; labels are exact \
-         SemanticKITTI ids (before label noise). Generated data, no third-party content.",
-        cfg.frames, cfg.seed, cfg.range_noise, cfg.label_noise, cfg.step
-    )?;
-    if let Some(r) = cfg.seg {
+    if let Some(r) = seg {
         writeln!(
             prov,
             "\n{SEG_DIR}/: camera 2's segmentation per scan ({}x{} PNG of {} ids{}{}), rendered by ray casting \
@@ -744,7 +825,7 @@ fn write_into(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesised> {
         )?;
     }
     crate::paths::write_file(dir.join("PROVENANCE.md"), prov)?;
-    if let Some(r) = cfg.seg {
+    if let Some(r) = seg {
         let seg_dir = dir.join(SEG_DIR);
         std::fs::create_dir_all(&seg_dir)?;
         for (i, im) in seq.seg.iter().enumerate() {
@@ -755,5 +836,5 @@ fn write_into(dir: &Path, cfg: &SynthConfig) -> std::io::Result<Synthesised> {
             }
         }
     }
-    Ok(seq)
+    Ok(())
 }

@@ -54,7 +54,7 @@ pub(super) fn from_scratch_ms(
 }
 
 /// Whether a record is a correct estimate (Converged, within the strict thresholds).
-fn correct(r: &Record) -> bool {
+pub(super) fn correct(r: &Record) -> bool {
     converged(r) && r.errors.is_some_and(|(t, a)| t < STRICT.0 && a < STRICT.1)
 }
 
@@ -73,6 +73,10 @@ pub struct Summary {
     /// Correct `Converged` ÷ estimates in meetings, each meeting's first 2
     /// rounds left out (`None`: no such estimate).
     pub availability: Option<f64>,
+    /// Estimates in meetings (each meeting's first 2 rounds left out) ...
+    pub in_meetings: usize,
+    /// ... and of those, the correct Converged ones.
+    pub available: usize,
     /// Meetings (maximal runs of rounds of a pair with a true overlap of
     /// at least 0.30).
     pub meetings: usize,
@@ -123,8 +127,7 @@ impl Summary {
         }
         let ratios: Vec<f64> = records.iter().filter_map(|r| r.update_ratio).collect();
         let update_bytes_ratio = (!ratios.is_empty()).then(|| {
-            [quantile(&ratios, 0.5), quantile(&ratios, 0.95), quantile(&ratios, 1.0)]
-                .map(|v| v.unwrap_or(0.0))
+            [quantile(&ratios, 0.5), quantile(&ratios, 0.95), quantile(&ratios, 1.0)].map(|v| v.unwrap_or(0.0))
         });
         let tracking: Vec<f64> = records
             .iter()
@@ -136,6 +139,8 @@ impl Summary {
             wrong_converged,
             with_truth: records.iter().filter(|r| r.errors.is_some()).count(),
             availability: (in_meetings > 0).then(|| available as f64 / in_meetings as f64),
+            in_meetings,
+            available,
             meetings,
             first_fix_rounds: first_fix,
             update_bytes_ratio,

@@ -8,6 +8,7 @@
 //! every answer through the verdict). The truth, where the robots share a
 //! world, is only for the figures ([`figures`]).
 
+pub mod bench;
 mod figures;
 mod robot;
 
@@ -28,6 +29,23 @@ use cosem_core::wire::codec::CodecModel;
 use nalgebra::Isometry3;
 use robot::Robot;
 use std::time::Instant;
+
+/// The session's defaults (`cosem session`, `cosem bench session`): the
+/// robots' voxel size (the mps2 robot's pipeline, 0.5 m) ...
+pub const DEFAULT_VOXEL: f32 = cosem_core::pipeline::Pipeline::MPS2.voxel;
+/// ... and crop (25 m), ...
+pub const DEFAULT_CROP: f32 = match cosem_core::pipeline::Pipeline::MPS2.crop {
+    Some(c) => c,
+    None => 25.0,
+};
+/// ... a map of 8,000 voxels (a 25 m scan's ground and walls at 0.5 m,
+/// and some metres behind), ...
+pub const DEFAULT_CAPACITY: usize = 8_000;
+/// ... 2 scans a round (the town's scans are 1 m apart: 2 m a round) ...
+pub const DEFAULT_EVERY: usize = 2;
+/// ... and the robots' matcher (the mps2 robot's: 30 EM iterations, a
+/// prior-free search of 40,000 nodes at most, the verdict's defaults).
+pub const DEFAULT_ALIGNMENT: cosem_core::matching::Alignment = cosem_core::pipeline::Pipeline::MPS2.alignment;
 
 /// The largest map capacity of a session's robot (voxels): 32 MiB of map,
 /// as much again of records and copies per peer.
@@ -161,6 +179,24 @@ fn whole_update(map: &crate::maps::mapping::HostMap, s: &mut Scratch) -> Result<
         .map_err(|e| Error::Invalid(format!("update: {e}")))
 }
 
+/// The built-in town (`cosem synth --town`'s defaults, without camera
+/// images) of `robots` robots and `seed` (and `frames` scans a robot, by
+/// default the town's), written into `dir`: its robots, each on all its
+/// frames.
+pub fn town_robots(
+    dir: &std::path::Path,
+    robots: usize,
+    seed: u64,
+    frames: Option<usize>,
+) -> Result<Vec<RobotSpec>, Error> {
+    use crate::worlds::town::{write_town, TownConfig};
+    let d = TownConfig::default();
+    let cfg = TownConfig { robots, seed, seg: None, frames: frames.unwrap_or(d.frames), ..d };
+    write_town(dir, &cfg).map_err(|source| Error::Io { path: dir.to_path_buf(), source })?;
+    let frames = crate::sources::kitti::FrameRange { start: 0, end: cfg.frames, stride: 1 };
+    Ok((0..robots).map(|i| RobotSpec { data: dir.join(format!("robot_{i}")), frames }).collect())
+}
+
 /// Runs the session; `on_round` sees each round's records as they come.
 pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&[Record])) -> Result<SessionRun, Error> {
     let n = spec.robots.len();
@@ -178,7 +214,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&[Record])) -> Result<Se
     }
     let sources: Vec<Source> =
         spec.robots.iter().map(|r| Source::open(&r.data, &spec.source)).collect::<Result<_, _>>()?;
-    let shared_world = (1..n).all(|j| sources[0].same_trajectory(&sources[j]));
+    let shared_world = (1..n).all(|j| sources[0].shares_world(&sources[j]));
     let mut robots: Vec<Robot> = (0..n).map(|i| Robot::load(spec, i, &sources[i])).collect::<Result<_, _>>()?;
     let rounds = robots.iter().map(|r| r.scans().div_ceil(spec.every)).max().unwrap_or(0);
     let config = *robots[0].map.config();
@@ -195,9 +231,13 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&[Record])) -> Result<Se
         }
         let start = records.len();
         for (i, own) in trackers.iter_mut().enumerate() {
+            // The robot's own map prepared once a round, for every peer.
+            let t0 = Instant::now();
+            let pyramid = prepare(&robots[i].map, DEFAULT_LEVELS)?;
+            let mine = (&pyramid, t0.elapsed().as_secs_f64());
             for (j, tracker) in own.iter_mut().enumerate().filter(|&(j, _)| j != i) {
-                let rec = estimate_one(spec, round, (i, j), &robots, &mut links, tracker, &mut scratch, shared_world)?;
-                records.push(rec);
+                let at = Round { round, pair: (i, j), shared_world };
+                records.push(estimate_one(spec, at, &robots, mine, &mut links, tracker, &mut scratch)?);
             }
         }
         on_round(&records[start..]);
@@ -207,19 +247,27 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&[Record])) -> Result<Se
     Ok(SessionRun { rounds, records, summary })
 }
 
+/// Where an estimate is made: the round, the robot and its peer, whether
+/// the robots share a world (a truth).
+struct Round {
+    round: usize,
+    pair: (usize, usize),
+    shared_world: bool,
+}
+
 /// Robot `i`'s round with peer `j`: `j`'s update applied to `i`'s copy,
-/// both maps prepared, the estimate; the truth and its figures.
-#[allow(clippy::too_many_arguments)]
+/// the copy prepared, the estimate against `own` (the robot's map prepared,
+/// and the seconds that took, counted in); the truth and its figures.
 fn estimate_one(
     spec: &SessionSpec,
-    round: usize,
-    (i, j): (usize, usize),
+    at: Round,
     robots: &[Robot],
+    own: (&crate::matching::align::HostPyramid<'_>, f64),
     links: &mut [Vec<Option<Link>>],
     tracker: &mut Tracker,
     scratch: &mut Scratch,
-    shared_world: bool,
 ) -> Result<Record, Error> {
+    let Round { round, pair: (i, j), shared_world } = at;
     let t0 = Instant::now();
     let link = links[j][i].as_mut().ok_or_else(|| Error::Invalid("no link".into()))?;
     let (bytes_sent, update_ratio, applied) = link.exchange(&robots[j].map, scratch)?;
@@ -230,17 +278,16 @@ fn estimate_one(
     let estimate = if copy.is_empty() {
         None
     } else {
-        let own = prepare(&robots[i].map, DEFAULT_LEVELS)?;
         let peer = prepare(copy, DEFAULT_LEVELS)?;
         let mut words = vec![0u32; SearchScratch::WINDOWED];
         let mut search = SearchScratch::new(&mut words);
         Some(
             tracker
-                .estimate(&own, &peer, &spec.alignment, &mut search)
+                .estimate(own.0, &peer, &spec.alignment, &mut search)
                 .map_err(|e| Error::Invalid(format!("matching: {e}")))?,
         )
     };
-    let seconds = t0.elapsed().as_secs_f64();
+    let seconds = own.1 + t0.elapsed().as_secs_f64();
     let truth = shared_world.then(|| figures::truth(&robots[i], &robots[j])).flatten();
     let errors = match (&estimate, &truth) {
         (Some(e), Some(t)) => Some(pose_errors(&e.result.transform.cast::<f64>(), t)),

@@ -1,0 +1,144 @@
+//! `cosem bench session`: the session's figures on the built-in town with
+//! drift, over seeds, for 2 and 3 robots, with ground-truth labels and with
+//! a network's label errors, and a slip.
+
+use super::{run, town_robots, Record, SessionSpec};
+use crate::error::Error;
+use crate::evaluation::stats::{median, quantile};
+use crate::maps::noise::LabelNoise;
+use crate::sources::drift::Drift;
+use serde::Serialize;
+
+/// The drift of the benchmark's robots: 1% scale, 0.5 degrees per 100 m.
+pub const BENCH_DRIFT: Drift = Drift { scale: 0.01, heading_deg: 0.5 };
+/// The slip of the benchmark's slip runs: robot 1 at round 50 (robots 0
+/// and 1 meet from about round 40).
+pub const BENCH_SLIP: (usize, usize) = (1, 50);
+
+/// One configuration of the benchmark.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Case {
+    /// Robots.
+    pub robots: usize,
+    /// `none` or the label noise model.
+    pub labels: &'static str,
+    /// With the slip.
+    pub slip: bool,
+}
+
+/// The cases: 2 and 3 robots with true and noisy labels, and 2 robots with
+/// a slip.
+pub const CASES: [Case; 5] = [
+    Case { robots: 2, labels: "none", slip: false },
+    Case { robots: 2, labels: "network", slip: false },
+    Case { robots: 3, labels: "none", slip: false },
+    Case { robots: 3, labels: "network", slip: false },
+    Case { robots: 2, labels: "none", slip: true },
+];
+
+/// A case's figures over the seeds.
+#[derive(Clone, Debug, Serialize)]
+pub struct CaseFigures {
+    /// The case.
+    pub case: Case,
+    /// Seeds run.
+    pub seeds: Vec<u64>,
+    /// Rounds per session.
+    pub rounds: usize,
+    /// Converged and wrong, over every seed (the slip's rounds exempt).
+    pub wrong_converged: usize,
+    /// Correct Converged ÷ estimates in meetings (first 2 rounds of each
+    /// left out), pooled over the seeds.
+    pub availability: Option<f64>,
+    /// The lowest availability of one seed.
+    pub availability_min: Option<f64>,
+    /// Meetings over every seed.
+    pub meetings: usize,
+    /// The largest number of rounds to a meeting's first correct estimate.
+    pub first_fix_rounds: Option<usize>,
+    /// An update's bytes ÷ the sender's whole map's, pooled: median, p95, largest.
+    pub update_bytes_ratio: Option<[f64; 3]>,
+    /// Median over the seeds of the tracking cost ratio.
+    pub tracking_cost_ratio: Option<f64>,
+    /// Median tracking round (ms) and from-scratch match (ms), medians over seeds.
+    pub tracking_ms: Option<f64>,
+    /// See `tracking_ms`.
+    pub from_scratch_ms: Option<f64>,
+    /// With the slip: the largest over the seeds.
+    pub slip_caught_rounds: Option<usize>,
+    /// Seconds the case's sessions took (each on one thread).
+    pub seconds: f64,
+}
+
+/// One session of the benchmark: its records and summary.
+struct Run {
+    case: usize,
+    seed: u64,
+    out: super::SessionRun,
+    seconds: f64,
+}
+
+/// Runs every case on every seed (sessions in parallel with the
+/// `parallel` feature, each on one thread), the towns built in `dir`
+/// (`frames` scans per robot; `None`: the town's default).
+pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>) -> Result<Vec<CaseFigures>, Error> {
+    let mut jobs = Vec::new();
+    let mut towns = Vec::new();
+    for &seed in seeds {
+        let town = dir.join(format!("town-{seed}"));
+        let robots = town_robots(&town, 3, seed, frames)?;
+        towns.push(robots.clone());
+        for case in 0..CASES.len() {
+            jobs.push((case, seed, towns.len() - 1));
+        }
+    }
+    let runs = crate::evaluation::eval::for_each_start(&jobs, |&(case, seed, town)| -> Result<Run, Error> {
+        let c = CASES[case];
+        let spec = SessionSpec {
+            robots: towns[town][..c.robots].to_vec(),
+            every: super::DEFAULT_EVERY,
+            voxel: super::DEFAULT_VOXEL,
+            capacity: super::DEFAULT_CAPACITY,
+            crop: super::DEFAULT_CROP,
+            drift: BENCH_DRIFT,
+            slip: c.slip.then_some(BENCH_SLIP),
+            label_noise: if c.labels == "none" { LabelNoise::None } else { LabelNoise::Network(1.0) },
+            seed,
+            source: Default::default(),
+            alignment: super::DEFAULT_ALIGNMENT,
+        };
+        let t = std::time::Instant::now();
+        let out = run(&spec, |_| {})?;
+        Ok(Run { case, seed, out, seconds: t.elapsed().as_secs_f64() })
+    });
+    let runs: Vec<Run> = runs.into_iter().collect::<Result<_, _>>()?;
+    Ok((0..CASES.len()).map(|c| figures(c, &runs.iter().filter(|r| r.case == c).collect::<Vec<_>>())).collect())
+}
+
+/// A case's figures from its runs.
+fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
+    let summaries: Vec<&super::Summary> = runs.iter().map(|r| &r.out.summary).collect();
+    let records: Vec<&Record> = runs.iter().flat_map(|r| &r.out.records).collect();
+    let per_seed: Vec<f64> = summaries.iter().filter_map(|s| s.availability).collect();
+    let (available, in_meetings) = summaries.iter().fold((0, 0), |(a, m), s| (a + s.available, m + s.in_meetings));
+    let ratios: Vec<f64> = records.iter().filter_map(|r| r.update_ratio).collect();
+    let opt_median = |v: Vec<f64>| median(&v);
+    CaseFigures {
+        case: CASES[case],
+        seeds: runs.iter().map(|r| r.seed).collect(),
+        rounds: runs.iter().map(|r| r.out.rounds).max().unwrap_or(0),
+        wrong_converged: summaries.iter().map(|s| s.wrong_converged).sum(),
+        availability: (in_meetings > 0).then(|| available as f64 / in_meetings as f64),
+        availability_min: per_seed.iter().copied().reduce(f64::min),
+        meetings: summaries.iter().map(|s| s.meetings).sum(),
+        first_fix_rounds: summaries.iter().filter_map(|s| s.first_fix_rounds).max(),
+        update_bytes_ratio: (!ratios.is_empty()).then(|| {
+            [quantile(&ratios, 0.5), quantile(&ratios, 0.95), quantile(&ratios, 1.0)].map(|v| v.unwrap_or(0.0))
+        }),
+        tracking_cost_ratio: opt_median(summaries.iter().filter_map(|s| s.tracking_cost_ratio).collect()),
+        tracking_ms: opt_median(summaries.iter().filter_map(|s| s.tracking_ms).collect()),
+        from_scratch_ms: opt_median(summaries.iter().map(|s| s.from_scratch_ms).collect()),
+        slip_caught_rounds: summaries.iter().filter_map(|s| s.slip_caught_rounds).max(),
+        seconds: runs.iter().map(|r| r.seconds).sum(),
+    }
+}
