@@ -17,7 +17,7 @@ pub mod publisher;
 pub mod replica;
 pub mod tracker;
 
-pub use publisher::{Publisher, PublisherError, ShadowEntry};
+pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateCounts};
 pub use replica::{Applied, Replica};
 pub use tracker::{Estimate, Fix, Kind, Tracker};
 

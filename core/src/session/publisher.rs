@@ -51,6 +51,20 @@ impl core::fmt::Display for PublisherError {
 
 impl core::error::Error for PublisherError {}
 
+/// What the last update held.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct UpdateCounts {
+    /// Voxels the peer did not hold.
+    pub new: u32,
+    /// Voxels the peer held with another record.
+    pub changed: u32,
+    /// Cells removed.
+    pub removed: u32,
+    /// A snapshot (the peer held nothing).
+    pub snapshot: bool,
+}
+
 /// The sending side: the records of what the peer acknowledged (`held`)
 /// and of the update in flight (`sent`), both in caller-owned storage of
 /// the map's capacity (`&mut [ShadowEntry]` on a board, a `Vec` on a host).
@@ -68,6 +82,8 @@ pub struct Publisher<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> {
     in_flight: Option<(u32, u32)>,
     /// Voxels the peer can hold (from its answers).
     peer_capacity: u32,
+    /// What the last update held.
+    counts: UpdateCounts,
 }
 
 impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
@@ -84,6 +100,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             sent_len: 0,
             in_flight: None,
             peer_capacity: u32::MAX,
+            counts: UpdateCounts::default(),
         }
     }
 
@@ -100,6 +117,11 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
     /// The last version made.
     pub fn version(&self) -> u32 {
         self.version
+    }
+
+    /// What the last update held.
+    pub fn counts(&self) -> UpdateCounts {
+        self.counts
     }
 
     /// Writes the update that brings the peer from what it acknowledged to
@@ -127,17 +149,18 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         let held = if snapshot { &[][..] } else { self.held.as_ref().get(..self.held_len).unwrap_or(&[]) };
         let records = self.sent.as_ref().get(..n).unwrap_or(&[]);
         // The voxels new or changed, as indices of the map.
-        let mut upserts = 0;
+        let (mut upserts, mut changed) = (0, 0);
         for change in Changes::new(held, records) {
-            if let Change::Upsert(index) = change {
+            if let Change::Upsert(index, was_held) = change {
                 *scratch.get_mut(upserts).ok_or(PublisherError::Scratch)? = index;
                 upserts += 1;
+                changed += u32::from(was_held);
             }
         }
         let removals = Changes::new(held, records).filter(|c| matches!(c, Change::Remove(_))).count();
         let removed = Changes::new(held, records).filter_map(|c| match c {
             Change::Remove(code) => Some(code),
-            Change::Upsert(_) => None,
+            Change::Upsert(..) => None,
         });
         let version = self.version.wrapping_add(1).max(1);
         let header = UpdateHeader {
@@ -154,6 +177,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             write_update(&header, removed, removals, Some(&mut encoder), model, out).map_err(PublisherError::Update)?;
         self.version = version;
         self.in_flight = Some((version, digest));
+        self.counts = UpdateCounts { new: upserts as u32 - changed, changed, removed: removals as u32, snapshot };
         Ok(len)
     }
 
@@ -187,8 +211,9 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
 /// A difference between what the peer holds and the map now.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Change {
-    /// The voxel at this index of the map is new or changed.
-    Upsert(u32),
+    /// The voxel at this index of the map is new (`false`) or changed
+    /// (`true`: the peer holds another record of it).
+    Upsert(u32, bool),
     /// The cell of this Morton code left the map.
     Remove(u64),
 }
@@ -217,7 +242,7 @@ impl Iterator for Changes<'_> {
                 }
                 (None, Some(n)) => {
                     self.now = self.now.get(1..).unwrap_or(&[]);
-                    return Some(Change::Upsert(n.index));
+                    return Some(Change::Upsert(n.index, false));
                 }
                 (Some(h), Some(n)) if h.code < n.code => {
                     self.held = self.held.get(1..).unwrap_or(&[]);
@@ -225,13 +250,13 @@ impl Iterator for Changes<'_> {
                 }
                 (Some(h), Some(n)) if h.code > n.code => {
                     self.now = self.now.get(1..).unwrap_or(&[]);
-                    return Some(Change::Upsert(n.index));
+                    return Some(Change::Upsert(n.index, false));
                 }
                 (Some(h), Some(n)) => {
                     self.held = self.held.get(1..).unwrap_or(&[]);
                     self.now = self.now.get(1..).unwrap_or(&[]);
                     if h.hash != n.hash {
-                        return Some(Change::Upsert(n.index));
+                        return Some(Change::Upsert(n.index, true));
                     }
                 }
             }

@@ -48,6 +48,12 @@ pub struct RecordJson {
     pub update_ratio: Option<f64>,
     /// What became of the update (`Applied`, `Repeated`, ...).
     pub update: String,
+    /// Voxels the update brought that the copy did not hold.
+    pub update_new: u32,
+    /// Voxels it brought whose record changed.
+    pub update_changed: u32,
+    /// Cells it removed.
+    pub update_removed: u32,
     /// Seconds of this estimate's work.
     pub seconds: f64,
 }
@@ -77,6 +83,9 @@ impl From<&Record> for RecordJson {
             bytes_sent: r.bytes_sent,
             update_ratio: r.update_ratio,
             update: format!("{:?}", r.applied),
+            update_new: r.counts.new,
+            update_changed: r.counts.changed,
+            update_removed: r.counts.removed,
             seconds: r.seconds,
         }
     }

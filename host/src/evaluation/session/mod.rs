@@ -24,7 +24,7 @@ use cosem_core::geometry::pose_errors;
 use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
 use cosem_core::matching::{Alignment, MatchResult};
-use cosem_core::session::{Applied, Estimate, Publisher, Replica, ShadowEntry, Tracker};
+use cosem_core::session::{Applied, Estimate, Publisher, Replica, ShadowEntry, Tracker, UpdateCounts};
 use cosem_core::wire::codec::CodecModel;
 use nalgebra::Isometry3;
 use robot::Robot;
@@ -104,6 +104,8 @@ pub struct Record {
     pub update_ratio: Option<f64>,
     /// What became of the update.
     pub applied: Applied,
+    /// What the update held (new, changed and removed voxels).
+    pub counts: UpdateCounts,
     /// Seconds of the round's work for this estimate: the update applied,
     /// both maps prepared, the match.
     pub seconds: f64,
@@ -271,6 +273,7 @@ fn estimate_one(
     let t0 = Instant::now();
     let link = links[j][i].as_mut().ok_or_else(|| Error::Invalid("no link".into()))?;
     let (bytes_sent, update_ratio, applied) = link.exchange(&robots[j].map, scratch)?;
+    let counts = link.publisher.counts();
     if matches!(applied, Applied::Diverged | Applied::Restarted) {
         tracker.reset();
     }
@@ -306,6 +309,7 @@ fn estimate_one(
         bytes_sent,
         update_ratio,
         applied,
+        counts,
         seconds,
     })
 }
