@@ -122,5 +122,6 @@ pub mod reports {
     pub mod report;
     pub mod robots;
     pub mod session;
+    pub mod session_recording;
     pub mod team;
 }

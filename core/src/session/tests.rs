@@ -298,7 +298,8 @@ fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let how = Alignment::DEFAULT;
     let mut tracker = Tracker::new();
-    let mut estimate = |t: &mut Tracker, peer| t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words)).unwrap();
+    let mut estimate =
+        |t: &mut Tracker, peer| t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words)).unwrap();
     let first = estimate(&mut tracker, &same);
     assert_eq!((first.kind, first.result.status, first.fix), (Kind::PriorFree, MatchStatus::Converged, Fix::Held));
     assert!(first.result.transform.translation.vector.norm() < 0.3, "{:?}", first.result.transform);

@@ -5,6 +5,7 @@ use super::Error;
 use cosem_host::evaluation::session::{self, run, SessionSpec};
 use cosem_host::evaluation::team::RobotSpec;
 use cosem_host::reports::session::{record_text, summary_text, RecordJson, SummaryFields, SummaryJson, SESSION_SCHEMA};
+use cosem_host::reports::session_recording::SessionRecorder;
 use cosem_host::sources::drift::Drift;
 
 #[derive(clap::Args, Debug)]
@@ -56,6 +57,11 @@ pub struct Args {
     /// JSON lines: one per robot, peer and round, then {"summary": {...}}.
     #[arg(long)]
     json: bool,
+    /// Write the session as a ROS 2 recording (MCAP) to view in Foxglove:
+    /// each robot's map every round (/robot_<i>/map), its odometry and the
+    /// Converged estimates on /tf.
+    #[arg(long, value_name = "OUT")]
+    mcap_out: Option<std::path::PathBuf>,
 }
 
 /// `--capacity`: 64 to [`cosem_host::evaluation::session::MAX_CAPACITY`] voxels.
@@ -100,10 +106,20 @@ pub fn run_session(a: Args) -> Result<(), Error> {
         source: a.source.options(),
         alignment: a.tuning.apply(session::DEFAULT_ALIGNMENT),
     };
+    if let Some(out) = &a.mcap_out {
+        let inputs: Vec<(&str, &std::path::Path)> = spec.robots.iter().map(|r| ("--robot", r.data.as_path())).collect();
+        cosem_host::paths::check_output("--mcap-out", out, &inputs)?;
+    }
+    let mut recorder = a.mcap_out.as_deref().map(|p| SessionRecorder::create(p, spec.robots.len())).transpose()?;
     let json = a.json;
     let mut failed = None;
-    let out = run(&spec, |records| {
-        for r in records {
+    let out = run(&spec, |view| {
+        if let Some(rec) = recorder.as_mut() {
+            if let Err(e) = rec.round(view) {
+                failed = Some(e.to_string());
+            }
+        }
+        for r in view.records {
             let line = if json {
                 serde_json::to_string(&RecordJson::from(r)).map_err(|e| e.to_string())
             } else {
@@ -117,6 +133,9 @@ pub fn run_session(a: Args) -> Result<(), Error> {
     })?;
     if let Some(e) = failed {
         return Err(e.into());
+    }
+    if let Some(rec) = recorder {
+        rec.finish()?;
     }
     if json {
         let fields = SummaryFields { schema_version: SESSION_SCHEMA, rounds: out.rounds, figures: &out.summary };

@@ -13,7 +13,7 @@ use std::path::Path;
 /// (uint32: the class's colour, opaque), label (uint32: the SemanticKITTI
 /// id of the voxel's class, 0 without one), class (uint8: its index, 255
 /// without one).
-fn map_cloud(map: &HostMap, frame: &str) -> PointCloud2 {
+pub(crate) fn map_cloud(map: &HostMap, frame: &str) -> PointCloud2 {
     let step = 21u32;
     let mut data = Vec::with_capacity(map.len() * step as usize);
     for v in map.iter() {

@@ -108,7 +108,7 @@ pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>
             alignment: super::DEFAULT_ALIGNMENT,
         };
         let t = std::time::Instant::now();
-        let out = run(&spec, |_| {})?;
+        let out = run(&spec, |_: &super::RoundView<'_>| {})?;
         Ok(Run { case, seed, out, seconds: t.elapsed().as_secs_f64() })
     });
     let runs: Vec<Run> = runs.into_iter().collect::<Result<_, _>>()?;

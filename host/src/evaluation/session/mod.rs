@@ -111,6 +111,19 @@ pub struct Record {
     pub seconds: f64,
 }
 
+/// What a round leaves for those who watch it: the robots' estimates,
+/// maps and odometry poses.
+pub struct RoundView<'a> {
+    /// The round.
+    pub round: usize,
+    /// Every robot's estimate of every peer.
+    pub records: &'a [Record],
+    /// Each robot's map (in its odometry frame).
+    pub maps: Vec<&'a crate::maps::mapping::HostMap>,
+    /// Each robot's odometry pose (`T_odom_base`) at its last scan.
+    pub poses: Vec<Option<Isometry3<f64>>>,
+}
+
 /// A session's outcome.
 #[derive(Clone, Debug)]
 pub struct SessionRun {
@@ -199,8 +212,8 @@ pub fn town_robots(
     Ok((0..robots).map(|i| RobotSpec { data: dir.join(format!("robot_{i}")), frames }).collect())
 }
 
-/// Runs the session; `on_round` sees each round's records as they come.
-pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&[Record])) -> Result<SessionRun, Error> {
+/// Runs the session; `on_round` sees each round as it ends.
+pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Result<SessionRun, Error> {
     let n = spec.robots.len();
     if !(2..=3).contains(&n) {
         return Err(Error::Invalid(format!("a session has 2 or 3 robots, not {n}")));
@@ -242,7 +255,12 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&[Record])) -> Result<Se
                 records.push(estimate_one(spec, at, &robots, mine, &mut links, tracker, &mut scratch)?);
             }
         }
-        on_round(&records[start..]);
+        on_round(&RoundView {
+            round,
+            records: &records[start..],
+            maps: robots.iter().map(|r| &r.map).collect(),
+            poses: robots.iter().map(Robot::pose).collect(),
+        });
     }
     let cost = figures::from_scratch_ms(&robots[0].map, &robots[1].map, &spec.alignment)?;
     let summary = Summary::of(&records, spec, rounds, cost);

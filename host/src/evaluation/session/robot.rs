@@ -89,6 +89,11 @@ impl Robot {
         Ok(n)
     }
 
+    /// The odometry pose (`T_odom_base`) of the last scan fused.
+    pub fn pose(&self) -> Option<Isometry3<f64>> {
+        self.fused.checked_sub(1).map(|k| self.frames[k].pose)
+    }
+
     /// The map with ground-truth labels (the map itself without label noise).
     pub fn truth_map(&self) -> &HostMap {
         self.truth_map.as_ref().unwrap_or(&self.map)
