@@ -226,10 +226,16 @@ fn fixture(root: &Path) -> Fixture {
     Fixture { root: root.to_path_buf(), seq, a, b }
 }
 
-/// The command's own input: the baseline's first path in the fixture.
+/// The command's own input: the baseline's first path in the fixture (a
+/// robot's `PATH:START:END` is its folder).
 fn own_input(f: &Fixture, base: &[String]) -> Option<PathBuf> {
     let inside = f.root.join("in").display().to_string();
-    base.iter().find(|a| a.starts_with(&inside)).map(PathBuf::from)
+    let arg = base.iter().find(|a| a.starts_with(&inside))?;
+    let mut path = arg.as_str();
+    while !Path::new(path).exists() {
+        path = path.rsplit_once(':')?.0;
+    }
+    Some(PathBuf::from(path))
 }
 
 /// An output spelled as `input`: itself, inside it, `missing/..` of it, a
