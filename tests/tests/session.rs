@@ -174,3 +174,20 @@ fn a_session_is_written_as_a_recording_to_view() {
         Err(e) => eprintln!("skipped the Python decoder: {e}"),
     }
 }
+
+/// `cosem label` on a town robot's segmentation keeps the robot in the
+/// town's world (`world.txt` copied), so a session on camera labels still
+/// has its truth.
+#[test]
+fn labelled_town_robots_stay_in_their_world() {
+    let dir = tempfile::tempdir().unwrap();
+    let town = dir.path().join("town");
+    let t = town.display().to_string();
+    cosem_ok(&["synth", "--town", "--out", &t, "--frames", "6", "--seed", "2"]);
+    let (data, out) = (town.join("robot_1"), dir.path().join("labelled"));
+    let (d, o) = (data.display().to_string(), out.display().to_string());
+    cosem_ok(&["label", "--data", &d, "--seg", &format!("{d}/seg_2"), "--out", &o, "--frames", "0:6"]);
+    let world = |p: &std::path::Path| std::fs::read_to_string(p.join("world.txt")).unwrap();
+    assert_eq!(world(&out), world(&data));
+    assert_eq!(std::fs::read(out.join("poses.txt")).unwrap(), std::fs::read(data.join("poses.txt")).unwrap());
+}

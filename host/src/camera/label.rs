@@ -581,7 +581,7 @@ pub(crate) fn check_out(o: &LabelOptions, inputs: &[(&str, &Path)]) -> Result<()
 
 /// Labels a sequence from its segmentation images and writes a
 /// SemanticKITTI-layout folder at `out`: links to the scans, copies of
-/// calib.txt, poses.txt and times.txt, the new labels (and, with
+/// calib.txt, poses.txt, times.txt and world.txt, the new labels (and, with
 /// probabilities, the evidence). Written into a new folder beside `out`,
 /// then swapped into place ([`crate::paths::OutputDir`]): an input is never
 /// touched, a failed run leaves nothing behind, and `out` may only be a
@@ -671,7 +671,8 @@ fn prepare_output(o: &LabelOptions, seg: &Path) -> Result<(), LabelError> {
         let p = o.out.join("evidence");
         std::fs::create_dir_all(&p).map_err(io(&p))?;
     }
-    for f in ["calib.txt", "poses.txt", "times.txt"] {
+    // world.txt: the labelled scans stay in their world (a town's robots).
+    for f in ["calib.txt", "poses.txt", "times.txt", "world.txt"] {
         let from = o.data.join(f);
         if from.exists() {
             let to = o.out.join(f);
