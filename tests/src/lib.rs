@@ -172,3 +172,22 @@ pub fn run_within(cmd: &mut Command, limit: std::time::Duration) -> Output {
 pub fn qemu(elf: &Path) -> Command {
     cosem_host::boards::board::Board::Mps2An386.qemu_command(elf, &[])
 }
+
+/// Runs a Python script with `args` and gives its standard output, or
+/// `None` after printing why it was skipped (no python3, or a module it
+/// imports missing); any other failure fails the test.
+pub fn python_or_skip(script: &str, args: &[&str]) -> Option<String> {
+    match Command::new("python3").arg("-c").arg(script).args(args).output() {
+        Ok(o) if o.status.success() => Some(String::from_utf8_lossy(&o.stdout).into_owned()),
+        Ok(o) => {
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(err.contains("No module named"), "the Python script failed: {err}");
+            eprintln!("skipped the Python script: {err}");
+            None
+        }
+        Err(e) => {
+            eprintln!("skipped the Python script: {e}");
+            None
+        }
+    }
+}

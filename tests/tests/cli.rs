@@ -364,17 +364,8 @@ fn a_match_is_written_as_a_recording_to_view() {
               r = make_reader(open(sys.argv[1], 'rb'), decoder_factories=[DecoderFactory()])\n\
               seen = {}\nfor schema, channel, message, ros in r.iter_decoded_messages():\n    seen[channel.topic] = ros\n\
               print(json.loads(seen['/cosem/status'].data)['status'], seen['/cosem/scene'].width, seen['/tf'].transforms[0].child_frame_id)\n";
-    match std::process::Command::new("python3").args(["-c", py, &s(&bag)]).output() {
-        Ok(o) if o.status.success() => {
-            let text = String::from_utf8_lossy(&o.stdout);
-            assert_eq!(text.trim(), format!("Converged {} scene", scene.len()), "{text}");
-        }
-        Ok(o) => {
-            let err = String::from_utf8_lossy(&o.stderr);
-            assert!(err.contains("No module named"), "the Python decoder failed: {err}");
-            eprintln!("skipped the Python decoder: {err}");
-        }
-        Err(e) => eprintln!("skipped the Python decoder: {e}"),
+    if let Some(text) = cosem_tests::python_or_skip(py, &[&s(&bag)]) {
+        assert_eq!(text.trim(), format!("Converged {} scene", scene.len()), "{text}");
     }
 }
 

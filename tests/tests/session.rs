@@ -14,6 +14,12 @@ fn session(args: &[&str]) -> (Vec<Value>, Value) {
     (lines, summary["summary"].clone())
 }
 
+/// Estimates Converged within the conventions' strict thresholds.
+fn right(records: &[Value]) -> usize {
+    let strict = |r: &&Value| r["e_t"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0;
+    records.iter().filter(|r| r["status"] == "Converged").filter(strict).count()
+}
+
 fn check_record_fields(r: &Value) {
     for key in ["round", "robot", "peer", "status", "kind", "fix", "bytes_sent", "seconds", "update"] {
         assert!(!r[key].is_null(), "{key} missing: {r}");
@@ -71,10 +77,7 @@ fn synthetic_robots_meet_under_drift_and_apart_are_never_placed() {
     ]);
     records.iter().for_each(check_record_fields);
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
-    let right = records
-        .iter()
-        .filter(|r| r["status"] == "Converged" && r["e_t"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0)
-        .count();
+    let right = right(&records);
     assert!(right >= records.len() * 3 / 4, "{right} of {} right", records.len());
     // The truth moves with the drift: the estimates of the last round are
     // not those of the first.
@@ -121,10 +124,7 @@ fn town_robots_start_apart_and_meet() {
     assert!(records[0]["overlap_true"].as_f64().unwrap() < 0.05, "{}", records[0]);
     assert!(records.iter().take(20).all(|r| r["status"] != "Converged"), "no fix before they meet");
     assert!(summary["meetings"].as_u64().unwrap() >= 1, "{summary}");
-    let right = records
-        .iter()
-        .filter(|r| r["status"] == "Converged" && r["e_t"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0)
-        .count();
+    let right = right(&records);
     assert!(right >= 5, "{right} right estimates: {summary}");
     assert!(summary["availability"].as_f64().unwrap() >= 0.5, "{summary}");
 }
@@ -161,17 +161,8 @@ fn a_session_is_written_as_a_recording_to_view() {
               \x20   if channel.topic == '/robot_0/map': maps += 1\n\
               \x20   if channel.topic == '/tf': edges += sum(t.child_frame_id == 'robot_1/odom' for t in ros.transforms)\n\
               print(maps, edges)\n";
-    match std::process::Command::new("python3").args(["-c", py, &b]).output() {
-        Ok(o) if o.status.success() => {
-            let text = String::from_utf8_lossy(&o.stdout);
-            assert_eq!(text.trim(), format!("{rounds} {converged_pairs}"), "{text}");
-        }
-        Ok(o) => {
-            let err = String::from_utf8_lossy(&o.stderr);
-            assert!(err.contains("No module named"), "the Python decoder failed: {err}");
-            eprintln!("skipped the Python decoder: {err}");
-        }
-        Err(e) => eprintln!("skipped the Python decoder: {e}"),
+    if let Some(text) = cosem_tests::python_or_skip(py, &[&b]) {
+        assert_eq!(text.trim(), format!("{rounds} {converged_pairs}"), "{text}");
     }
 }
 

@@ -149,15 +149,17 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         let held = if snapshot { &[][..] } else { self.held.as_ref().get(..self.held_len).unwrap_or(&[]) };
         let records = self.sent.as_ref().get(..n).unwrap_or(&[]);
         // The voxels new or changed, as indices of the map.
-        let (mut upserts, mut changed) = (0, 0);
+        let (mut upserts, mut changed, mut removals) = (0, 0, 0);
         for change in Changes::new(held, records) {
-            if let Change::Upsert(index, was_held) = change {
-                *scratch.get_mut(upserts).ok_or(PublisherError::Scratch)? = index;
-                upserts += 1;
-                changed += u32::from(was_held);
+            match change {
+                Change::Upsert(index, was_held) => {
+                    *scratch.get_mut(upserts).ok_or(PublisherError::Scratch)? = index;
+                    upserts += 1;
+                    changed += u32::from(was_held);
+                }
+                Change::Remove(_) => removals += 1,
             }
         }
-        let removals = Changes::new(held, records).filter(|c| matches!(c, Change::Remove(_))).count();
         let removed = Changes::new(held, records).filter_map(|c| match c {
             Change::Remove(code) => Some(code),
             Change::Upsert(..) => None,

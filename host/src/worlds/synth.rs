@@ -241,14 +241,20 @@ impl Scene {
     /// caller.
     pub(crate) fn town_street(rng: &mut Rng, x_min: f64, x_max: f64, cross: Vec<f64>) -> Vec<Object> {
         let mut scene = Scene { objects: Vec::new(), cross, roads: Vec::new(), keep_cross_clear: true };
-        for side in [-1.0f64, 1.0] {
-            scene.sidewalks(side, x_min, x_max);
-            scene.buildings(rng, side, x_min, x_max);
-            scene.trees(rng, side, x_min, x_max);
-            scene.poles(rng, side, x_min, x_max);
-            scene.cars(rng, side, x_min, x_max);
-        }
+        scene.both_sides(rng, x_min, x_max);
         scene.objects
+    }
+
+    /// Both sides of the street from `x_min` to `x_max`: sidewalks,
+    /// buildings, trees, poles, parked cars.
+    fn both_sides(&mut self, rng: &mut Rng, x_min: f64, x_max: f64) {
+        for side in [-1.0f64, 1.0] {
+            self.sidewalks(side, x_min, x_max);
+            self.buildings(rng, side, x_min, x_max);
+            self.trees(rng, side, x_min, x_max);
+            self.poles(rng, side, x_min, x_max);
+            self.cars(rng, side, x_min, x_max);
+        }
     }
 
     /// A town: its objects and roads.
@@ -264,13 +270,7 @@ impl Scene {
             x += rng.range(60.0, 120.0);
         }
         let mut scene = Scene { objects: Vec::new(), cross, roads: Vec::new(), keep_cross_clear: false };
-        for side in [-1.0f64, 1.0] {
-            scene.sidewalks(side, x_min, x_max);
-            scene.buildings(rng, side, x_min, x_max);
-            scene.trees(rng, side, x_min, x_max);
-            scene.poles(rng, side, x_min, x_max);
-            scene.cars(rng, side, x_min, x_max);
-        }
+        scene.both_sides(rng, x_min, x_max);
         scene
     }
 

@@ -149,6 +149,10 @@ struct Link {
 struct Scratch {
     words: Vec<u32>,
     out: Vec<u8>,
+    /// The windowed search's cache.
+    search: Vec<u32>,
+    /// Each robot's map sent whole this round (bytes): the updates' measure.
+    whole: Vec<usize>,
 }
 
 impl Link {
@@ -165,10 +169,12 @@ impl Link {
     }
 
     /// One update from `map` to the copy, and the answer back: the bytes,
-    /// the ratio to the whole map (once synced), what became of it.
+    /// the ratio to `whole` (the map sent whole; once synced), what became
+    /// of it.
     fn exchange(
         &mut self,
         map: &crate::maps::mapping::HostMap,
+        whole: usize,
         s: &mut Scratch,
     ) -> Result<(usize, Option<f64>, Applied), Error> {
         let n = self
@@ -181,17 +187,16 @@ impl Link {
             cosem_core::wire::update::UpdateAck::decode(&answer).map_err(|e| Error::Invalid(format!("answer: {e}")))?;
         self.publisher.on_ack(&ack);
         let bytes = n + answer.len();
-        let ratio = if self.synced { Some(bytes as f64 / whole_update(map, s)? as f64) } else { None };
+        let ratio = self.synced.then(|| bytes as f64 / whole.max(1) as f64);
         self.synced |= applied == Applied::Applied;
         Ok((bytes, ratio, applied))
     }
 }
 
 /// The bytes of `map` sent whole (a snapshot update).
-fn whole_update(map: &crate::maps::mapping::HostMap, s: &mut Scratch) -> Result<usize, Error> {
+fn whole_update(map: &crate::maps::mapping::HostMap, words: &mut [u32], out: &mut [u8]) -> Result<usize, Error> {
     let mut p = Publisher::new(0, vec![ShadowEntry::default(); map.len()], vec![ShadowEntry::default(); map.len()]);
-    p.next_update(map, &mut s.words, &mut CodecModel::new(), &mut s.out)
-        .map_err(|e| Error::Invalid(format!("update: {e}")))
+    p.next_update(map, words, &mut CodecModel::new(), out).map_err(|e| Error::Invalid(format!("update: {e}")))
 }
 
 /// The built-in town (`cosem synth --town`'s defaults, without camera
@@ -238,11 +243,18 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         .map(|i| (0..n).map(|j| (i != j).then(|| Link::new(i as u16 + 1, spec, config)).transpose()).collect())
         .collect::<Result<_, _>>()?;
     let mut trackers = vec![vec![Tracker::new(); n]; n];
-    let mut scratch = Scratch { words: vec![0; spec.capacity], out: vec![0; spec.capacity * 24 + 4096] };
+    let mut scratch = Scratch {
+        words: vec![0; spec.capacity],
+        out: vec![0; spec.capacity * 24 + 4096],
+        search: vec![0; SearchScratch::WINDOWED],
+        whole: vec![0; n],
+    };
     let mut records = Vec::new();
     for round in 0..rounds {
-        for r in &mut robots {
+        for (r, whole) in robots.iter_mut().zip(&mut scratch.whole) {
             r.drive(spec.every)?;
+            // Once a robot a round, outside the timed work: only a measure.
+            *whole = whole_update(&r.map, &mut scratch.words, &mut scratch.out)?;
         }
         let start = records.len();
         for (i, own) in trackers.iter_mut().enumerate() {
@@ -290,7 +302,8 @@ fn estimate_one(
     let Round { round, pair: (i, j), shared_world } = at;
     let t0 = Instant::now();
     let link = links[j][i].as_mut().ok_or_else(|| Error::Invalid("no link".into()))?;
-    let (bytes_sent, update_ratio, applied) = link.exchange(&robots[j].map, scratch)?;
+    let whole = scratch.whole.get(j).copied().unwrap_or(0);
+    let (bytes_sent, update_ratio, applied) = link.exchange(&robots[j].map, whole, scratch)?;
     let counts = link.publisher.counts();
     if matches!(applied, Applied::Diverged | Applied::Restarted) {
         tracker.reset();
@@ -300,8 +313,7 @@ fn estimate_one(
         None
     } else {
         let peer = prepare(copy, DEFAULT_LEVELS)?;
-        let mut words = vec![0u32; SearchScratch::WINDOWED];
-        let mut search = SearchScratch::new(&mut words);
+        let mut search = SearchScratch::new(&mut scratch.search);
         Some(
             tracker
                 .estimate(own.0, &peer, &spec.alignment, &mut search)
