@@ -89,6 +89,35 @@ fn synthetic_robots_meet_under_drift_and_apart_are_never_placed() {
     assert_eq!(summary["meetings"], 0, "{summary}");
 }
 
+/// `--one-shot`, the baseline: every round the whole map again and a
+/// prior-free match, nothing carried over; on the same street and drift as
+/// above, the same robots are placed.
+#[test]
+fn one_shot_rounds_send_whole_maps_and_search_prior_free() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = dir.path().join("street");
+    synth(&s, 30, 1);
+    let seq = s.display().to_string();
+    let args = ["--robot", &format!("{seq}:0:18"), "--robot", &format!("{seq}:10:28"), "--drift", "1%,0.5"];
+    let (tracked, _) = session(&args);
+    let (records, summary) = session(&[&args[..], &["--one-shot"]].concat());
+    assert_eq!(records.len(), tracked.len());
+    for r in &records {
+        check_record_fields(r);
+        assert_eq!(r["kind"], "prior-free", "{r}");
+        assert!(r["update_new"].as_u64().unwrap() > 0, "{r}");
+        assert_eq!(r["update_changed"], 0, "a fresh copy: every voxel new: {r}");
+        let ratio = r["update_ratio"].as_f64().unwrap();
+        assert!((1.0..1.01).contains(&ratio), "the whole map (and the answer) every round: {r}");
+    }
+    // Tracked rounds after the first send less than the whole map.
+    let later = |rs: &[Value]| rs.iter().skip(2).map(|r| r["bytes_sent"].as_u64().unwrap()).sum::<u64>();
+    assert!(later(&tracked) < later(&records), "tracked updates are deltas");
+    assert!(summary["tracking_cost_ratio"].is_null(), "no tracking round: {summary}");
+    assert_eq!(summary["wrong_converged"], 0, "{summary}");
+    assert!(right(&records) >= records.len() / 2, "{summary}");
+}
+
 #[test]
 fn session_arguments_are_checked() {
     let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", "--drift", "70%,1"]);

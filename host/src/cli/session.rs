@@ -54,6 +54,10 @@ pub struct Args {
     /// budget (default: the robots', 30 iterations and 40,000 nodes).
     #[command(flatten)]
     tuning: super::args::Tuning,
+    /// Every round as a one-shot exchange, the baseline to compare with:
+    /// each robot's whole map sent afresh, each peer matched prior-free.
+    #[arg(long)]
+    one_shot: bool,
     /// JSON lines: one per robot, peer and round, then {"summary": {...}}.
     #[arg(long)]
     json: bool,
@@ -105,6 +109,7 @@ pub fn run_session(a: Args) -> Result<(), Error> {
         seed: a.seed,
         source: a.source.options(),
         alignment: a.tuning.apply(session::DEFAULT_ALIGNMENT),
+        one_shot: a.one_shot,
     };
     if let Some(out) = &a.mcap_out {
         let inputs: Vec<(&str, &std::path::Path)> = spec.robots.iter().map(|r| ("--robot", r.data.as_path())).collect();

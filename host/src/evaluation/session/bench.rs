@@ -1,6 +1,7 @@
 //! `cosem bench session`: the session's figures on the built-in town with
 //! drift, over seeds, for 2 and 3 robots, with ground-truth labels and with
-//! a network's label errors, and a slip.
+//! a network's label errors, and a slip; and beside them the one-shot
+//! exchange every round on the same data, the baseline.
 
 use super::{run, town_robots, Record, SessionSpec};
 use crate::error::Error;
@@ -24,16 +25,19 @@ pub struct Case {
     pub labels: &'static str,
     /// With the slip.
     pub slip: bool,
+    /// Every round a one-shot exchange (whole maps, prior-free), the baseline.
+    pub one_shot: bool,
 }
 
-/// The cases: 2 and 3 robots with true and noisy labels, and 2 robots with
-/// a slip.
-pub const CASES: [Case; 5] = [
-    Case { robots: 2, labels: "none", slip: false },
-    Case { robots: 2, labels: "network", slip: false },
-    Case { robots: 3, labels: "none", slip: false },
-    Case { robots: 3, labels: "network", slip: false },
-    Case { robots: 2, labels: "none", slip: true },
+/// The cases: 2 and 3 robots with true and noisy labels, 2 robots with a
+/// slip, and 2 robots exchanging one-shot every round.
+pub const CASES: [Case; 6] = [
+    Case { robots: 2, labels: "none", slip: false, one_shot: false },
+    Case { robots: 2, labels: "network", slip: false, one_shot: false },
+    Case { robots: 3, labels: "none", slip: false, one_shot: false },
+    Case { robots: 3, labels: "network", slip: false, one_shot: false },
+    Case { robots: 2, labels: "none", slip: true, one_shot: false },
+    Case { robots: 2, labels: "none", slip: false, one_shot: true },
 ];
 
 /// A case's figures over the seeds.
@@ -58,6 +62,9 @@ pub struct CaseFigures {
     pub first_fix_rounds: Option<usize>,
     /// An update's bytes ÷ the sender's whole map's, pooled: median, p95, largest.
     pub update_bytes_ratio: Option<[f64; 3]>,
+    /// Bytes on the line a robot received from a peer in a round (its
+    /// update and answer), pooled: median.
+    pub bytes_per_round: Option<f64>,
     /// Median over the seeds of the tracking cost ratio.
     pub tracking_cost_ratio: Option<f64>,
     /// Median tracking round (ms) and from-scratch match (ms), medians over seeds.
@@ -106,6 +113,7 @@ pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>
             seed,
             source: Default::default(),
             alignment: super::DEFAULT_ALIGNMENT,
+            one_shot: c.one_shot,
         };
         let t = std::time::Instant::now();
         let out = run(&spec, |_: &super::RoundView<'_>| {})?;
@@ -135,6 +143,7 @@ fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
         update_bytes_ratio: (!ratios.is_empty()).then(|| {
             [quantile(&ratios, 0.5), quantile(&ratios, 0.95), quantile(&ratios, 1.0)].map(|v| v.unwrap_or(0.0))
         }),
+        bytes_per_round: opt_median(records.iter().map(|r| r.bytes_sent as f64).collect()),
         tracking_cost_ratio: opt_median(summaries.iter().filter_map(|s| s.tracking_cost_ratio).collect()),
         tracking_ms: opt_median(summaries.iter().filter_map(|s| s.tracking_ms).collect()),
         from_scratch_ms: opt_median(summaries.iter().map(|s| s.from_scratch_ms).collect()),

@@ -76,6 +76,10 @@ pub struct SessionSpec {
     pub source: SourceOptions,
     /// The matcher.
     pub alignment: Alignment,
+    /// Every round as a one-shot exchange, the baseline a session is
+    /// measured against: each robot's whole map sent afresh, each peer
+    /// matched prior-free, nothing kept from the round before.
+    pub one_shot: bool,
 }
 
 /// One robot's estimate of one peer in one round.
@@ -263,6 +267,10 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
             let pyramid = prepare(&robots[i].map, DEFAULT_LEVELS)?;
             let mine = (&pyramid, t0.elapsed().as_secs_f64());
             for (j, tracker) in own.iter_mut().enumerate().filter(|&(j, _)| j != i) {
+                if spec.one_shot {
+                    tracker.reset();
+                    links[j][i] = Some(Link::new(round as u16 + 1, spec, config)?);
+                }
                 let at = Round { round, pair: (i, j), shared_world };
                 records.push(estimate_one(spec, at, &robots, mine, &mut links, tracker, &mut scratch)?);
             }
@@ -303,7 +311,10 @@ fn estimate_one(
     let t0 = Instant::now();
     let link = links[j][i].as_mut().ok_or_else(|| Error::Invalid("no link".into()))?;
     let whole = scratch.whole.get(j).copied().unwrap_or(0);
-    let (bytes_sent, update_ratio, applied) = link.exchange(&robots[j].map, whole, scratch)?;
+    let (bytes_sent, mut update_ratio, applied) = link.exchange(&robots[j].map, whole, scratch)?;
+    if spec.one_shot {
+        update_ratio = Some(bytes_sent as f64 / whole.max(1) as f64);
+    }
     let counts = link.publisher.counts();
     if matches!(applied, Applied::Diverged | Applied::Restarted) {
         tracker.reset();
