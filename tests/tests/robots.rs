@@ -271,6 +271,41 @@ fn a_silent_or_corrupting_line_is_a_typed_link_error() {
     }
 }
 
+/// A mixed pair that both match: robot A on mps2-an386 (a 0.5 m map of
+/// 7,000+ voxels), robot B on an STM32F405 (which holds about 3,000 of a
+/// peer's). B's `Hello` says what it holds, so A sends the part of its map
+/// nearest its anchor that fits, instead of a map B must refuse; both
+/// robots equal their host twins, and B, matching A's part, is placed.
+#[test]
+fn a_mixed_pair_runs_the_larger_robot_sending_what_fits_the_smaller() {
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let Some(data) = cosem_tests::real_data("kitti00") else { return };
+    let data = data.display().to_string();
+    let (json, _) = robots(&["--data", &data, "--a", "0:5", "--b", "5:10", "--board-b", "stm32f405", "--voxel", "0.5"]);
+    let r = json["robots"].as_array().unwrap();
+    let n = |i: usize, k: &str| r[i][k].as_u64().unwrap_or_else(|| panic!("robot {i}: no {k}: {}", r[i]));
+    assert!(r.iter().all(|x| x.get("error").is_none()), "no robot failed: {json}");
+    assert!(n(0, "map_voxels") > n(1, "received_voxels"), "A's map does not fit B: {json}");
+    assert!(n(1, "received_voxels") >= 2_000, "B holds a part of A's map: {json}");
+    assert_eq!(n(0, "received_voxels"), n(1, "map_voxels"), "B's map fits A whole");
+    let hosts = [&json["host"], &json["host_b"]];
+    for (i, robot) in r.iter().enumerate() {
+        assert_eq!(robot["status"], hosts[i]["status"], "robot {i} as its host twin: {json}");
+        let (d_t, d_r) =
+            cosem_core::geometry::pose_errors(&matrix(&robot["transform"]), &matrix(&hosts[i]["transform"]));
+        assert!(d_t < 1e-4 && d_r < 1e-3, "robot {i} differs from the host: {d_t} m, {d_r} deg");
+    }
+    assert_eq!(r[1]["status"], "Converged", "{}", r[1]);
+    let gt = matrix(&json["ground_truth"]).inverse();
+    let (e_t, e_r) = cosem_core::geometry::pose_errors(&matrix(&r[1]["transform"]), &gt);
+    assert!(e_t < 0.2 && e_r < 0.5, "robot B off the truth: {e_t} m, {e_r} deg");
+    let ram = n(1, "static_ram_bytes") + n(1, "peak_stack_bytes");
+    assert!(ram <= 192 * 1024, "robot B takes {ram} bytes of RAM with its stack");
+    check_budget(1, &r[1]);
+}
+
 /// Checks a heterogeneous pair: robot A on mps2-an386 received B's map and
 /// matched; robot B on an STM32F405 sent its map, took none, and reports
 /// A's result inverted; both near the truth and equal to the host's runs;

@@ -232,6 +232,95 @@ fn cut_from_top(hist: &[usize], target: usize) -> (usize, usize) {
     (0, above)
 }
 
+/// Which `keep` voxels of a map lie nearest a point, exactly, without a
+/// list of distances: a 256-bin histogram of distances finds the bin where
+/// the cut falls, a second histogram within that bin narrows it, and of
+/// the voxels tied in the last sub-bin the first inserted stay.
+struct NearestCut {
+    anchor: [f32; 3],
+    resolution: f32,
+    width: f32,
+    cut: usize,
+    lo: f32,
+    sub_w: f32,
+    sub: usize,
+    keep_tied: usize,
+    /// Distances at or beyond this are cut.
+    radius: f32,
+}
+
+impl NearestCut {
+    const BINS: usize = 256;
+
+    fn new(voxels: &[SemanticVoxel], resolution: f32, anchor: [f32; 3], keep: usize) -> Self {
+        let distance = |v: &SemanticVoxel| libm::sqrtf(dist_sq(v.key.center(resolution), anchor));
+        let max_d = voxels.iter().map(distance).fold(0.0f32, f32::max);
+        // Bin `b` holds distances in [b w, (b + 1) w), w = max_d / (BINS - 1).
+        let width = if max_d > 0.0 { max_d / (Self::BINS as f32 - 1.0) } else { 0.0 };
+        let mut c = NearestCut { anchor, resolution, width, cut: 0, lo: 0.0, sub_w: 0.0, sub: 0, keep_tied: 0, radius: 0.0 };
+        let target = voxels.len().saturating_sub(keep);
+        if target == 0 {
+            // Nothing is cut.
+            (c.cut, c.keep_tied, c.radius) = (Self::BINS, usize::MAX, f32::INFINITY);
+            return c;
+        }
+        // The coarse cut: bins above `cut` go whole.
+        let mut hist = [0usize; Self::BINS];
+        for v in voxels {
+            if let Some(h) = hist.get_mut(c.bin(distance(v))) {
+                *h += 1;
+            }
+        }
+        let (cut, above) = cut_from_top(&hist, target);
+        // The fine cut within bin `cut`: sub-bins above `sub` go whole.
+        (c.cut, c.lo, c.sub_w) = (cut, cut as f32 * width, width / Self::BINS as f32);
+        let mut fine = [0usize; Self::BINS];
+        for v in voxels {
+            let d = distance(v);
+            if c.bin(d) == cut {
+                if let Some(h) = fine.get_mut(c.sub_bin(d)) {
+                    *h += 1;
+                }
+            }
+        }
+        let need = target - above;
+        let (sub, above_sub) = cut_from_top(&fine, need);
+        c.sub = sub;
+        c.keep_tied = fine.get(sub).copied().unwrap_or(0).saturating_sub(need - above_sub);
+        c.radius = c.lo + sub as f32 * c.sub_w;
+        c
+    }
+
+    fn bin_in(d: f32, lo: f32, w: f32) -> usize {
+        if w <= 0.0 {
+            0
+        } else {
+            (((d - lo) / w) as usize).min(Self::BINS - 1)
+        }
+    }
+
+    fn bin(&self, d: f32) -> usize {
+        Self::bin_in(d, 0.0, self.width)
+    }
+
+    fn sub_bin(&self, d: f32) -> usize {
+        Self::bin_in(d, self.lo, self.sub_w)
+    }
+
+    /// Whether `v` stays; `tied` counts the voxels of the last sub-bin seen
+    /// so far (the voxels visited in the map's order).
+    fn keeps(&self, v: &SemanticVoxel, tied: &mut usize) -> bool {
+        let d = libm::sqrtf(dist_sq(v.key.center(self.resolution), self.anchor));
+        let (b, sb) = (self.bin(d), self.sub_bin(d));
+        b < self.cut
+            || (b == self.cut && sb < self.sub)
+            || (b == self.cut && sb == self.sub && {
+                *tied += 1;
+                *tied <= self.keep_tied
+            })
+    }
+}
+
 impl<S: VoxelStorage> LocalMap<S> {
     /// An empty map over `storage`.
     pub fn new(mut storage: S, config: MapConfig) -> Result<Self, ConfigError> {
@@ -531,67 +620,20 @@ impl<S: VoxelStorage> LocalMap<S> {
         Ok(())
     }
 
-    /// Removes the eighth of the capacity farthest from `anchor`, exactly:
-    /// a 256-bin histogram of distances finds the bin where the cut falls,
-    /// a second histogram within that bin narrows it, and of the voxels
-    /// that remain tied the latest inserted go. Later points at or beyond
-    /// the cut radius are dropped. (A small board's map keeps exactly 7/8
-    /// of its capacity.)
+    /// Removes the eighth of the capacity farthest from `anchor`, exactly
+    /// ([`NearestCut`]); of the voxels tied at the cut the latest inserted
+    /// go. Later points at or beyond the cut radius are dropped. (A small
+    /// board's map keeps exactly 7/8 of its capacity.)
     fn evict_farthest(&mut self, anchor: [f32; 3]) {
-        const BINS: usize = 256;
-        let res = self.config.resolution;
-        let distance = |v: &SemanticVoxel| libm::sqrtf(dist_sq(v.key.center(res), anchor));
-        let max_d = self.voxels().iter().map(distance).fold(0.0f32, f32::max);
-        // Bin `b` holds distances in [b w, (b + 1) w), w = max_d / (BINS - 1).
-        let width = if max_d > 0.0 { max_d / (BINS as f32 - 1.0) } else { 0.0 };
-        let bin_in = |d: f32, lo: f32, w: f32| -> usize {
-            if w <= 0.0 {
-                0
-            } else {
-                (((d - lo) / w) as usize).min(BINS - 1)
-            }
-        };
-        let bin_of = |d: f32| bin_in(d, 0.0, width);
         let target = (self.capacity() / 8).max(1).min(self.len);
-        // The coarse cut: bins above `cut` go whole.
-        let mut hist = [0usize; BINS];
-        for v in self.voxels() {
-            if let Some(h) = hist.get_mut(bin_of(distance(v))) {
-                *h += 1;
-            }
-        }
-        let (cut, above) = cut_from_top(&hist, target);
-        // The fine cut within bin `cut`: sub-bins above `sub` go whole.
-        let (lo, sub_w) = (cut as f32 * width, width / BINS as f32);
-        let sub_of = |d: f32| bin_in(d, lo, sub_w);
-        let mut fine = [0usize; BINS];
-        for v in self.voxels() {
-            let d = distance(v);
-            if bin_of(d) == cut {
-                if let Some(h) = fine.get_mut(sub_of(d)) {
-                    *h += 1;
-                }
-            }
-        }
-        let need = target - above;
-        let (sub, above_sub) = cut_from_top(&fine, need);
-        // Of the voxels in sub-bin `sub`, the first `keep_tied` stay.
-        let keep_tied = fine.get(sub).copied().unwrap_or(0).saturating_sub(need - above_sub);
-        let radius = lo + sub as f32 * sub_w;
+        let res = self.config.resolution;
+        let cut = NearestCut::new(self.voxels(), res, anchor, self.len - target);
         let len = self.len;
         let (voxels, slots) = self.storage.parts_mut();
         let (mut kept, mut tied) = (0, 0);
         for i in 0..len {
             let Some(v) = voxels.get(i).copied() else { break };
-            let d = distance(&v);
-            let (b, sb) = (bin_of(d), sub_of(d));
-            let stays = b < cut
-                || (b == cut && sb < sub)
-                || (b == cut && sb == sub && {
-                    tied += 1;
-                    tied <= keep_tied
-                });
-            if stays {
+            if cut.keeps(&v, &mut tied) {
                 if let Some(dst) = voxels.get_mut(kept) {
                     *dst = v;
                 }
@@ -601,7 +643,27 @@ impl<S: VoxelStorage> LocalMap<S> {
         self.evicted += len - kept;
         self.len = kept;
         table::rebuild(voxels.get(..kept).unwrap_or(&[]), slots);
-        self.keep_radius_sq = self.keep_radius_sq.min(radius * radius);
+        self.keep_radius_sq = self.keep_radius_sq.min(cut.radius * cut.radius);
+    }
+
+    /// The indices of the `most` voxels nearest `anchor` (all of them when
+    /// the map holds no more), written to the start of `out`, ascending;
+    /// returns how many. The same cut a full map evicts by: what a map of
+    /// `most` voxels kept around `anchor` would hold, e.g. the part of a
+    /// robot's map that fits a smaller peer.
+    pub fn nearest(&self, anchor: [f32; 3], most: usize, out: &mut [u32]) -> usize {
+        let keep = most.min(self.len).min(out.len());
+        let cut = NearestCut::new(self.voxels(), self.config.resolution, anchor, keep);
+        let (mut n, mut tied) = (0, 0);
+        for (i, v) in self.voxels().iter().enumerate() {
+            if cut.keeps(v, &mut tied) {
+                if let Some(o) = out.get_mut(n) {
+                    *o = i as u32;
+                    n += 1;
+                }
+            }
+        }
+        n
     }
 
     /// Builds the level `factor` times coarser into `out` (cleared first; its

@@ -323,6 +323,36 @@ fn eviction_removes_exactly_the_farthest_eighth() {
     }
 }
 
+/// `nearest` picks exactly the voxels a map of that many kept around the
+/// point would hold (ties included), ascending, and all of a small map.
+#[test]
+fn the_nearest_part_of_a_map_is_exactly_that_many() {
+    let mut map = heap_map(400, MapConfig::default());
+    for i in 0..20 {
+        for j in 0..20 {
+            map.insert_point([0.2 * i as f32 - 1.9, 0.2 * j as f32 - 1.9, 0.1], Class::Road).unwrap();
+        }
+    }
+    let at = [0.5, -0.3, 0.1];
+    let d = |i: u32| {
+        let c = map.voxel(i as usize).unwrap().key.center(0.2);
+        ((c[0] - at[0]).powi(2) + (c[1] - at[1]).powi(2) + (c[2] - at[2]).powi(2)).sqrt()
+    };
+    let mut out = std::vec![0u32; 400];
+    for most in [1, 37, 200, 399] {
+        let n = map.nearest(at, most, &mut out);
+        assert_eq!(n, most);
+        let picked = &out[..n];
+        assert!(picked.windows(2).all(|w| w[0] < w[1]), "ascending, none twice");
+        let farthest_in = picked.iter().map(|&i| d(i)).fold(0.0f32, f32::max);
+        let nearest_out =
+            (0..400u32).filter(|i| !picked.contains(i)).map(d).fold(f32::INFINITY, f32::min);
+        assert!(farthest_in <= nearest_out + 1e-5, "{most}: {farthest_in} > {nearest_out}");
+    }
+    assert_eq!(map.nearest(at, 1000, &mut out), 400, "a map that fits goes whole");
+    assert_eq!(map.nearest(at, 400, &mut out[..10]), 10, "never beyond the output");
+}
+
 /// 16-bit index slots: the same map as with 32-bit ones (same voxels in the
 /// same order, same lookups), and a capacity they cannot address refused.
 #[test]

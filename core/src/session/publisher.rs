@@ -1,8 +1,11 @@
 //! The sending side of map updates: what the peer holds, and what changed
-//! since.
+//! since. A peer that holds fewer voxels than the map (its answers say how
+//! many) is sent the part that fits: the voxels nearest the map's anchor,
+//! where a full map keeps them ([`LocalMap::nearest`]); the versions and
+//! digests are then those of that part.
 
-use crate::map::{LocalMap, VoxelStorage};
-use crate::wire::codec::{map_digest, morton, voxel_digest, CodecModel, EncodeError, MapEncoder};
+use crate::map::{FullPolicy, LocalMap, VoxelStorage};
+use crate::wire::codec::{morton, voxel_digest, CodecModel, EncodeError, MapEncoder};
 use crate::wire::update::{write_update, UpdateAck, UpdateError, UpdateHeader};
 
 /// One voxel's record as a peer holds it: its cell (Morton code) and the
@@ -26,8 +29,6 @@ pub enum PublisherError {
     Records,
     /// The scratch is smaller than the map.
     Scratch,
-    /// The map holds more voxels than the peer said it can hold.
-    PeerCapacity,
     /// The update did not fit the output.
     Update(UpdateError),
 }
@@ -43,7 +44,6 @@ impl core::fmt::Display for PublisherError {
         match self {
             PublisherError::Records => f.write_str("update records smaller than the map"),
             PublisherError::Scratch => f.write_str("update scratch smaller than the map"),
-            PublisherError::PeerCapacity => f.write_str("the map holds more voxels than the peer can"),
             PublisherError::Update(e) => write!(f, "{e}"),
         }
     }
@@ -134,16 +134,26 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         model: &mut CodecModel,
         out: &mut [u8],
     ) -> Result<usize, PublisherError> {
-        let n = map.len();
-        if n > self.peer_capacity as usize {
-            return Err(PublisherError::PeerCapacity);
+        // The part the peer can hold (all of a map that fits), its stream
+        // order and digest.
+        let anchor = match (map.config().when_full, map.bounds()) {
+            (FullPolicy::EvictFarthest { anchor }, _) => anchor,
+            (FullPolicy::Reject, Some((lo, hi))) => [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k])),
+            (FullPolicy::Reject, None) => [0.0; 3],
+        };
+        let n = map.nearest(anchor, self.peer_capacity as usize, scratch);
+        if n < map.len().min(self.peer_capacity as usize) {
+            return Err(PublisherError::Scratch);
         }
-        let digest = map_digest(map, scratch)?;
+        let part = MapEncoder::subset(map, &mut *scratch, n, model)?;
+        let digest = part.digest();
+        let order = part.into_scratch();
         let records = self.sent.as_mut().get_mut(..n).ok_or(PublisherError::Records)?;
-        for (i, (r, v)) in records.iter_mut().zip(map.iter()).enumerate() {
-            *r = ShadowEntry { code: morton(v.key), hash: voxel_digest(v), index: i as u32 };
+        for (r, &i) in records.iter_mut().zip(order.iter()) {
+            let v = map.voxel(i as usize).ok_or(PublisherError::Scratch)?;
+            *r = ShadowEntry { code: morton(v.key), hash: voxel_digest(v), index: i };
         }
-        records.sort_unstable_by_key(|r| r.code);
+        // In stream order already: sorted by code.
         self.sent_len = n;
         let snapshot = self.acked == 0;
         let held = if snapshot { &[][..] } else { self.held.as_ref().get(..self.held_len).unwrap_or(&[]) };

@@ -459,12 +459,13 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
         Ok(MapEncoder { map, scratch, count, next: 0, _storage: PhantomData })
     }
 
-    fn map(&self) -> &LocalMap<S> {
+    /// The map streamed (whole or in part).
+    pub fn map(&self) -> &LocalMap<S> {
         self.map.borrow()
     }
 
-    /// The voxel indices in stream (Morton) order.
-    fn order(&self) -> &[u32] {
+    /// The indices of the voxels streamed, in stream (Morton) order.
+    pub fn order(&self) -> &[u32] {
         self.scratch.get(..self.count).unwrap_or(&[])
     }
 

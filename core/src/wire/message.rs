@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 /// Version of the link protocol (in the first byte of every payload but
 /// `Data`). At most 7.
-pub const PROTOCOL_VERSION: u8 = 5;
+pub const PROTOCOL_VERSION: u8 = 6;
 
 /// `Data` offsets count stream bytes modulo this (the window is far smaller).
 pub const OFFSET_MODULUS: u32 = 1 << 14;
@@ -43,6 +43,14 @@ pub struct Hello {
     /// small microcontroller) says no: the exchange is then one-sided, its
     /// map goes out, none comes in (version 4).
     pub takes_map: bool,
+    /// Voxels of the peer's map it can hold (0 when it takes none): a
+    /// larger peer sends the part of its map that fits (version 6).
+    pub capacity: u32,
+    /// Whether it has heard the peer's `Hello`. A robot sends no map before
+    /// it knows what its peer can hold, so a `Hello` lost on the line is
+    /// sent again until answered; one that says `false` is answered with a
+    /// `Hello` (version 6).
+    pub heard: bool,
 }
 
 /// Announces a map: what the receiver must end up with.
@@ -422,8 +430,16 @@ impl MapHeader {
 /// robot that pass agree on every byte.
 pub const GOLDEN: [(Message<'static>, &[u8]); 5] = [
     (
-        Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: 0.2, max_payload: 512, takes_map: true }),
-        &[0x50, 1, 1, 205, 204, 76, 62, 128, 4, 1],
+        Message::Hello(Hello {
+            robot_id: 1,
+            class_table: 1,
+            resolution: 0.2,
+            max_payload: 512,
+            takes_map: true,
+            capacity: 3000,
+            heard: false,
+        }),
+        &[0x60, 1, 1, 205, 204, 76, 62, 128, 4, 1, 0xB8, 0x17, 0],
     ),
     (Message::Data { offset: 0x1234, poll: false, tag: 5, data: &[1, 2, 0, 255] }, &[0x92, 0x34, 5, 1, 2, 0, 255]),
     (Message::Data { offset: 7, poll: true, tag: 0xFE, data: &[9] }, &[0xC0, 7, 0xFE, 9]),
@@ -435,9 +451,9 @@ pub const GOLDEN: [(Message<'static>, &[u8]); 5] = [
             blocks: 2,
             echo: 9,
         }),
-        &[0x53, 44, 1, 1, 9, 20, 200, 1, 144, 3, 1],
+        &[0x63, 44, 1, 1, 9, 20, 200, 1, 144, 3, 1],
     ),
-    (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[0x54, 7, 2]),
+    (Message::Abort { map_id: 7, reason: AbortReason::Digest }, &[0x64, 7, 2]),
 ];
 
 /// The golden map header (a record of the map stream) and its bytes.

@@ -202,7 +202,7 @@ fn golden_messages() {
     let n = Message::Ack(ack).encode(&mut payload).unwrap();
     let mut frame = [0u8; MAX_FRAME];
     let f = encode_frame(&payload[..n], &mut frame).unwrap();
-    assert_eq!(&frame[..f], &[194, 2, 13, 104, 83, 44, 1, 2, 2, 183, 56, 183, 82, 233, 8, 199, 50, 0]);
+    assert_eq!(&frame[..f], &[194, 2, 13, 104, 99, 44, 1, 2, 2, 49, 128, 150, 243, 109, 244, 217, 218, 0]);
     assert_eq!(
         f - n + super::message::DATA_HEADER,
         super::message::DATA_OVERHEAD + super::frame::DEFAULT_PARITY,
@@ -218,27 +218,36 @@ fn bad_messages_are_typed_errors() {
     assert_eq!(Message::decode(&[0x21, 7, 0, 1]), Err(MessageError::Version(2)), "a version 2 peer's data");
     assert_eq!(Message::decode(&[0x33, 7]), Err(MessageError::Version(3)), "a version 3 peer's ack");
     assert_eq!(Message::decode(&[0x43, 44, 1, 1]), Err(MessageError::Version(4)), "a version 4 peer's ack");
-    assert_eq!(Message::decode(&[0x5F]), Err(MessageError::Malformed), "unknown tag");
-    assert_eq!(Message::decode(&[0x51]), Err(MessageError::Malformed), "version 2's data tag");
+    assert_eq!(Message::decode(&[0x6F]), Err(MessageError::Malformed), "unknown tag");
+    assert_eq!(Message::decode(&[0x53, 44, 1, 1, 9]), Err(MessageError::Version(5)), "a version 5 peer's ack");
+    assert_eq!(Message::decode(&[0x61]), Err(MessageError::Malformed), "version 2's data tag");
     assert_eq!(Message::decode(&[0x80]), Err(MessageError::Malformed), "data without its offset");
     assert_eq!(Message::decode(&[0x80, 7]), Err(MessageError::Malformed), "data without its tag");
-    assert_eq!(Message::decode(&[0x54, 7, 2, 0]), Err(MessageError::Trailing));
-    assert_eq!(Message::decode(&[0x53, 1, 0, 0]), Err(MessageError::Malformed), "an ack without its echo");
-    assert_eq!(Message::decode(&[0x53, 1, 0, 0, 0, 5]), Err(MessageError::Malformed), "a sack block cut short");
-    assert_eq!(Message::decode(&[0x53, 1, 0, 0, 0, 5, 0]), Err(MessageError::Malformed), "an empty sack block");
+    assert_eq!(Message::decode(&[0x64, 7, 2, 0]), Err(MessageError::Trailing));
+    assert_eq!(Message::decode(&[0x63, 1, 0, 0]), Err(MessageError::Malformed), "an ack without its echo");
+    assert_eq!(Message::decode(&[0x63, 1, 0, 0, 0, 5]), Err(MessageError::Malformed), "a sack block cut short");
+    assert_eq!(Message::decode(&[0x63, 1, 0, 0, 0, 5, 0]), Err(MessageError::Malformed), "an empty sack block");
     assert_eq!(
-        Message::decode(&[0x53, 1, 0, 0, 0, 1, 1, 2, 1, 3, 1, 4, 1]),
+        Message::decode(&[0x63, 1, 0, 0, 0, 1, 1, 2, 1, 3, 1, 4, 1]),
         Err(MessageError::Trailing),
         "four blocks"
     );
-    assert_eq!(Message::decode(&[0x53, 1, 0, 0, 0, 0x80, 0, 1]), Err(MessageError::Malformed), "non-canonical varint");
+    assert_eq!(Message::decode(&[0x63, 1, 0, 0, 0, 0x80, 0, 1]), Err(MessageError::Malformed), "non-canonical varint");
     let far = Message::Data { offset: 1 << 14, poll: false, tag: 0, data: &[1] };
     assert_eq!(far.encode(&mut [0u8; 8]), Err(MessageError::Malformed), "an offset beyond 14 bits");
     let nan =
-        Message::Hello(Hello { robot_id: 1, class_table: 1, resolution: f32::NAN, max_payload: 512, takes_map: true });
+        Message::Hello(Hello {
+            robot_id: 1,
+            class_table: 1,
+            resolution: f32::NAN,
+            max_payload: 512,
+            takes_map: true,
+            capacity: 10,
+            heard: true,
+        });
     assert_eq!(nan.encode(&mut [0u8; 32]), Err(MessageError::NonFinite));
     // A NaN smuggled in by hand is refused on decode.
-    let mut bytes = [0x50u8, 1, 1, 0, 0, 192, 127, 128, 4, 1];
+    let mut bytes = [0x60u8, 1, 1, 0, 0, 192, 127, 128, 4, 1, 10, 1];
     assert_eq!(Message::decode(&bytes), Err(MessageError::NonFinite));
     bytes[6] = 0x3F;
     assert!(Message::decode(&bytes).is_ok());

@@ -3,7 +3,7 @@
 
 use super::Clock;
 use crate::classes::CLASS_TABLE_VERSION;
-use crate::map::{LocalMap, VoxelSink, VoxelStorage};
+use crate::map::{FullPolicy, LocalMap, VoxelKey, VoxelSink, VoxelStorage};
 use crate::wire::block::{encode_block, BlockDeframer, BlockShape};
 use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::frame::{FrameError, MAX_FRAME, MAX_PAYLOAD};
@@ -356,6 +356,10 @@ struct Session<'a, M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> {
     peer_takes_map: Option<bool>,
     /// The peer's robot id, from its `Hello`.
     peer_id: Option<u8>,
+    /// When our last `Hello` went out: sent again until the peer's is heard.
+    hello_at: u64,
+    /// The peer has not heard our `Hello` (its own said so): answer it.
+    answer_hello: bool,
     failed: Option<LinkError>,
     stats: LinkStats,
 }
@@ -486,6 +490,8 @@ impl<'a, M: VoxelStorage, R: VoxelSink, B: LinkMemory, O: Borrow<LocalMap<M>>> E
             peer_finished: false,
             peer_takes_map: None,
             peer_id: None,
+            hello_at: 0,
+            answer_hello: false,
             failed: None,
             stats: LinkStats::default(),
         };
@@ -630,15 +636,7 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
         if !self.started {
             self.started = true;
             self.last_heard = now;
-            let hello = Hello {
-                robot_id: self.robot_id,
-                class_table: CLASS_TABLE_VERSION,
-                resolution: self.resolution,
-                max_payload: MAX_PAYLOAD as u16,
-                takes_map: self.rx.map.is_some(),
-            };
-            // Well protected: the first frame the peer judges the line by.
-            send_msg(io, &Message::Hello(hello), HELLO_PARITY, &mut self.stats)?;
+            self.send_hello(io, now)?;
         }
         // Read everything that is there.
         let mut buf = [0u8; 64];
@@ -656,6 +654,17 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
         // Half duplex: a turn whose last frame (the one asking) was lost
         // still gets its answer once the line has been quiet a while.
         let quiet = now.saturating_sub(self.last_byte) >= TURN_QUIET_MS;
+        // Our `Hello` again, while the peer's is not heard (ours may have
+        // been lost: nothing is sent before both are; on a half-duplex line
+        // only robot 0 repeats, when the line is quiet, so that two repeats
+        // never collide), or at once when the peer says it has not heard ours.
+        let hello_due = self.peer_takes_map.is_none()
+            && now.saturating_sub(self.hello_at) >= u64::from(self.config.timeout_ms)
+            && (!self.config.half_duplex || (quiet && self.robot_id == 0));
+        if self.answer_hello || hello_due {
+            self.answer_hello = false;
+            self.send_hello(io, now)?;
+        }
         if self.config.half_duplex && self.rx.unacked > 0 && quiet {
             self.rx.ack_now = true;
         }
@@ -668,7 +677,7 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
         // A data frame only when the line takes it at once: acknowledgements
         // never wait behind a queue of data.
         let may_send = (!self.config.half_duplex || self.robot_id == 0 || self.rx.done)
-            && self.peer_takes_map != Some(false)
+            && self.peer_takes_map == Some(true)
             && io.write_ready().map_err(io_error)?;
         if let (Some(tx), true) = (self.tx.as_mut(), may_send) {
             let heard = self.last_byte.max(self.last_heard);
@@ -695,6 +704,23 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
         Ok(Progress::Busy)
     }
 
+    /// Sends our `Hello`: who we are, what we take of the peer's map, and
+    /// whether we heard the peer's. Well protected: the first frame the
+    /// peer judges the line by.
+    fn send_hello<IO: Write>(&mut self, io: &mut IO, now: u64) -> Result<(), LinkError> {
+        let hello = Hello {
+            robot_id: self.robot_id,
+            class_table: CLASS_TABLE_VERSION,
+            resolution: self.resolution,
+            max_payload: MAX_PAYLOAD as u16,
+            takes_map: self.rx.map.is_some(),
+            capacity: self.rx.map.as_ref().map_or(0, |m| m.capacity().min(u32::MAX as usize) as u32),
+            heard: self.peer_takes_map.is_some(),
+        };
+        self.hello_at = now;
+        send_msg(io, &Message::Hello(hello), HELLO_PARITY, &mut self.stats).map(|_| ())
+    }
+
     fn on_byte(&mut self, b: u8, now: u64, tb: &mut TxBufs<'_>, rb: &mut RxBufs<'_>) -> Result<(), LinkError> {
         let Session {
             deframer,
@@ -707,6 +733,7 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
             peer_finished,
             peer_takes_map,
             peer_id,
+            answer_hello,
             line,
             shape,
             ..
@@ -723,8 +750,17 @@ impl<M: VoxelStorage, R: VoxelSink, O: Borrow<LocalMap<M>>> Session<'_, M, R, O>
                 if !compatible(h.class_table, h.resolution, *resolution) {
                     return Err(LinkError::Incompatible);
                 }
+                if peer_takes_map.is_none() {
+                    // First heard: our map cut to what the peer holds,
+                    // before anything of it goes out.
+                    if let Some(t) = tx.take() {
+                        *tx = Some(t.fit(h.capacity, tb.model, config)?);
+                    }
+                }
                 *peer_takes_map = Some(h.takes_map);
                 *peer_id = Some(h.robot_id);
+                // A peer that has not heard ours gets it (again).
+                *answer_hello |= !h.heard;
             }
             Message::Data { offset, poll, tag, data } => {
                 rx.echo = tag;

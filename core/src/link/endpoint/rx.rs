@@ -227,3 +227,35 @@ impl<S: VoxelSink> Rx<'_, S> {
         ack
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_util::map;
+
+    /// A sender that ignores the capacity our `Hello` said (senders cut
+    /// their map to it) is still refused at its header, before a voxel.
+    #[test]
+    fn a_header_beyond_what_we_hold_is_refused() {
+        let mut tiny = map(10);
+        let mut rx = Rx::new(Some(&mut tiny));
+        let header = MapHeader {
+            map_id: 1,
+            robot_id: 0,
+            class_table: CLASS_TABLE_VERSION,
+            anchor_time_us: 0,
+            voxel_count: 11,
+            resolution: 0.2,
+            bounds: [0.0; 6],
+            digest: 0,
+        };
+        let mut rec = [0u8; 64];
+        let n = header.encode(&mut rec).unwrap();
+        let (mut model, mut stats) = (CodecModel::new(), LinkStats::default());
+        let r = rx.record(&mut model, &rec[..n], 0.2, &mut stats);
+        assert_eq!(r, Err(LinkError::TooLarge { voxels: 11 }));
+        let fits = MapHeader { voxel_count: 10, ..header };
+        let n = fits.encode(&mut rec).unwrap();
+        assert_eq!(rx.record(&mut model, &rec[..n], 0.2, &mut stats), Ok(()));
+    }
+}

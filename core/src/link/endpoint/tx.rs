@@ -171,22 +171,54 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
         (map_id, robot_id, anchor_time_us): (u32, u8, u64),
         config: &LinkConfig,
     ) -> Result<Self, LinkError> {
-        let m: &LocalMap<S> = map.borrow();
-        let bounds = m.bounds().map(|(lo, hi)| [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]).unwrap_or([0.0; 6]);
-        let (voxel_count, resolution) = (m.len() as u32, m.resolution());
         let encoder = MapEncoder::new(map, scratch, model).map_err(|_| LinkError::Setup)?;
         let header = MapHeader {
             map_id,
             robot_id,
             class_table: CLASS_TABLE_VERSION,
             anchor_time_us,
-            voxel_count,
-            resolution,
-            bounds,
-            digest: encoder.digest(),
+            voxel_count: 0,
+            resolution: 0.0,
+            bounds: [0.0; 6],
+            digest: 0,
         };
+        Ok(Self::start(encoder, header, config))
+    }
+
+    /// The same transfer with only what a peer holding `capacity` voxels
+    /// can take: the voxels nearest the map's anchor (where a full map
+    /// keeps them; the middle of its bounds for a map with no anchor), as
+    /// many as fit ([`LocalMap::nearest`]). Unchanged when the map fits.
+    /// Only before anything went out.
+    pub(super) fn fit(self, capacity: u32, model: &mut CodecModel, config: &LinkConfig) -> Result<Self, LinkError> {
+        if self.header.voxel_count <= capacity || self.header_queued || self.produced > 0 {
+            return Ok(self);
+        }
+        let header = self.header;
+        let (map, scratch) = self.encoder.into_parts();
+        let m: &LocalMap<S> = map.borrow();
+        let anchor = match (m.config().when_full, m.bounds()) {
+            (FullPolicy::EvictFarthest { anchor }, _) => anchor,
+            (FullPolicy::Reject, Some((lo, hi))) => [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k])),
+            (FullPolicy::Reject, None) => [0.0; 3],
+        };
+        let n = m.nearest(anchor, capacity as usize, scratch);
+        let encoder = MapEncoder::subset(map, scratch, n, model).map_err(|_| LinkError::Setup)?;
+        Ok(Self::start(encoder, header, config))
+    }
+
+    /// A transfer of what `encoder` streams, announced by `header` (its
+    /// count, voxel size, bounds and digest taken from what is streamed).
+    fn start(encoder: MapEncoder<'a, S, O>, mut header: MapHeader, config: &LinkConfig) -> Self {
+        let m: &LocalMap<S> = encoder.map();
+        let keys = encoder.order().iter().filter_map(|&i| m.voxel(i as usize)).map(|v| v.key);
+        let bounds = VoxelKey::bounds(keys, m.resolution());
+        header.bounds = bounds.map(|(lo, hi)| [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]).unwrap_or([0.0; 6]);
+        header.voxel_count = encoder.count() as u32;
+        header.resolution = m.resolution();
+        header.digest = encoder.digest();
         let initial = FrameShape::initial(config);
-        let tx = Tx {
+        Tx {
             encoder,
             header,
             header_queued: false,
@@ -210,8 +242,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
             awaiting: None,
             burst: 0,
             answer_ms: None,
-        };
-        Ok(tx)
+        }
     }
 }
 
