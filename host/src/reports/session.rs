@@ -54,7 +54,8 @@ pub struct RecordJson {
     pub update_changed: u32,
     /// Cells it removed.
     pub update_removed: u32,
-    /// Seconds of this estimate's work.
+    /// Seconds of this estimate's work: the update applied, both maps
+    /// prepared, the match (the sender's writing of the update left out).
     pub seconds: f64,
 }
 

@@ -1,7 +1,8 @@
 //! `cosem bench session`: the session's figures on the built-in town with
 //! drift, over seeds, for 2 and 3 robots, with ground-truth labels and with
-//! a network's label errors, and a slip; and beside them the one-shot
-//! exchange every round on the same data, the baseline.
+//! a network's label errors, and a slip; labels from the town's camera
+//! segmentation (`cosem label`) on the first seeds; and beside them the
+//! one-shot exchange every round on the same data, the baseline.
 
 use super::{run, town_robots, Record, SessionSpec};
 use crate::error::Error;
@@ -21,7 +22,8 @@ pub const BENCH_SLIP: (usize, usize) = (1, 50);
 pub struct Case {
     /// Robots.
     pub robots: usize,
-    /// `none` or the label noise model.
+    /// `none`, the label noise model, or `camera` (`cosem label` on the
+    /// town's camera segmentation).
     pub labels: &'static str,
     /// With the slip.
     pub slip: bool,
@@ -30,15 +32,21 @@ pub struct Case {
 }
 
 /// The cases: 2 and 3 robots with true and noisy labels, 2 robots with a
-/// slip, and 2 robots exchanging one-shot every round.
-pub const CASES: [Case; 6] = [
+/// slip, 2 robots with camera labels, and 2 robots exchanging one-shot
+/// every round.
+pub const CASES: [Case; 7] = [
     Case { robots: 2, labels: "none", slip: false, one_shot: false },
     Case { robots: 2, labels: "network", slip: false, one_shot: false },
     Case { robots: 3, labels: "none", slip: false, one_shot: false },
     Case { robots: 3, labels: "network", slip: false, one_shot: false },
     Case { robots: 2, labels: "none", slip: true, one_shot: false },
+    Case { robots: 2, labels: "camera", slip: false, one_shot: false },
     Case { robots: 2, labels: "none", slip: false, one_shot: true },
 ];
+
+/// Seeds the camera case runs on (the first of the benchmark's): rendering
+/// a town's camera segmentation takes most of a minute a robot.
+pub const CAMERA_SEEDS: usize = 3;
 
 /// A case's figures over the seeds.
 #[derive(Clone, Debug, Serialize)]
@@ -99,17 +107,30 @@ pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>
             jobs.push((case, seed, towns.len() - 1));
         }
     }
+    // The camera case: its own towns with camera segmentation, labelled.
+    let camera = CASES.iter().position(|c| c.labels == "camera");
+    let camera_seeds: Vec<u64> = seeds.iter().copied().take(CAMERA_SEEDS).collect();
+    let labelled = crate::evaluation::eval::for_each_start(&camera_seeds, |&seed| camera_town(dir, seed, frames));
+    let mut camera_towns = std::collections::HashMap::new();
+    for (&seed, robots) in camera_seeds.iter().zip(labelled) {
+        camera_towns.insert(seed, robots?);
+    }
+    jobs.retain(|&(case, seed, _)| Some(case) != camera || camera_towns.contains_key(&seed));
     let runs = crate::evaluation::eval::for_each_start(&jobs, |&(case, seed, town)| -> Result<Run, Error> {
         let c = CASES[case];
+        let robots = match camera_towns.get(&seed) {
+            Some(labelled) if Some(case) == camera => labelled.clone(),
+            _ => towns[town][..c.robots].to_vec(),
+        };
         let spec = SessionSpec {
-            robots: towns[town][..c.robots].to_vec(),
+            robots,
             every: super::DEFAULT_EVERY,
             voxel: super::DEFAULT_VOXEL,
             capacity: super::DEFAULT_CAPACITY,
             crop: super::DEFAULT_CROP,
             drift: BENCH_DRIFT,
             slip: c.slip.then_some(BENCH_SLIP),
-            label_noise: if c.labels == "none" { LabelNoise::None } else { LabelNoise::Network(1.0) },
+            label_noise: if c.labels == "network" { LabelNoise::Network(1.0) } else { LabelNoise::None },
             seed,
             source: Default::default(),
             alignment: super::DEFAULT_ALIGNMENT,
@@ -150,4 +171,42 @@ fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
         slip_caught_rounds: summaries.iter().filter_map(|s| s.slip_caught_rounds).max(),
         seconds: runs.iter().map(|r| r.seconds).sum(),
     }
+}
+
+/// A 2-robot town of `seed` with camera segmentation (the town's default:
+/// Cityscapes ids, corrupted as a network's), each robot's scans labelled
+/// from it as `cosem label` does; the labelled folders keep the town's
+/// world. Their maps' classes are the camera's, and so is the overlap that
+/// defines meetings there.
+fn camera_town(dir: &std::path::Path, seed: u64, frames: Option<usize>) -> Result<Vec<crate::evaluation::team::RobotSpec>, Error> {
+    use crate::camera::label::{label_sequence, LabelOptions};
+    use crate::worlds::town::{write_town, TownConfig};
+    let d = TownConfig::default();
+    let cfg = TownConfig { robots: 2, seed, frames: frames.unwrap_or(d.frames), ..d };
+    let town = dir.join(format!("camera-town-{seed}"));
+    write_town(&town, &cfg).map_err(|source| Error::Io { path: town.clone(), source })?;
+    let range = crate::sources::kitti::FrameRange { start: 0, end: cfg.frames, stride: 1 };
+    let seg_classes = cfg.seg.map(|r| r.classes).ok_or_else(|| Error::Invalid("the town renders no camera".into()))?;
+    (0..2)
+        .map(|i| {
+            let data = town.join(format!("robot_{i}"));
+            let out = town.join(format!("labelled_{i}"));
+            let opts = LabelOptions {
+                seg: data.join("seg_2"),
+                data: data.clone(),
+                camera: 2,
+                classes: seg_classes,
+                probabilities: false,
+                image_size: None,
+                occlusion: true,
+                frames: vec![range],
+                out: out.clone(),
+                copy_scans: false,
+                void_channel: Default::default(),
+                scale_to_images: false,
+            };
+            label_sequence(&opts)?;
+            Ok(crate::evaluation::team::RobotSpec { data: out, frames: range })
+        })
+        .collect()
 }

@@ -111,7 +111,8 @@ pub struct Record {
     /// What the update held (new, changed and removed voxels).
     pub counts: UpdateCounts,
     /// Seconds of the round's work for this estimate: the update applied,
-    /// both maps prepared, the match.
+    /// both maps prepared, the match (the sender's writing of the update
+    /// left out: another robot's work).
     pub seconds: f64,
 }
 
@@ -174,17 +175,20 @@ impl Link {
 
     /// One update from `map` to the copy, and the answer back: the bytes,
     /// the ratio to `whole` (the map sent whole; once synced), what became
-    /// of it.
+    /// of it, and the seconds the sender took to write it (the sender's
+    /// work, not the receiver's round).
     fn exchange(
         &mut self,
         map: &crate::maps::mapping::HostMap,
         whole: usize,
         s: &mut Scratch,
-    ) -> Result<(usize, Option<f64>, Applied), Error> {
+    ) -> Result<(usize, Option<f64>, Applied, f64), Error> {
+        let t = Instant::now();
         let n = self
             .publisher
             .next_update(map, &mut s.words, &mut self.send_model, &mut s.out)
             .map_err(|e| Error::Invalid(format!("update: {e}")))?;
+        let writing = t.elapsed().as_secs_f64();
         let applied = self.copy.apply(&s.out[..n], &mut self.read_model, &mut s.words);
         let answer = self.copy.answer().encode();
         let ack =
@@ -193,7 +197,7 @@ impl Link {
         let bytes = n + answer.len();
         let ratio = self.synced.then(|| bytes as f64 / whole.max(1) as f64);
         self.synced |= applied == Applied::Applied;
-        Ok((bytes, ratio, applied))
+        Ok((bytes, ratio, applied, writing))
     }
 }
 
@@ -311,7 +315,7 @@ fn estimate_one(
     let t0 = Instant::now();
     let link = links[j][i].as_mut().ok_or_else(|| Error::Invalid("no link".into()))?;
     let whole = scratch.whole.get(j).copied().unwrap_or(0);
-    let (bytes_sent, mut update_ratio, applied) = link.exchange(&robots[j].map, whole, scratch)?;
+    let (bytes_sent, mut update_ratio, applied, writing) = link.exchange(&robots[j].map, whole, scratch)?;
     if spec.one_shot {
         update_ratio = Some(bytes_sent as f64 / whole.max(1) as f64);
     }
@@ -331,7 +335,7 @@ fn estimate_one(
                 .map_err(|e| Error::Invalid(format!("matching: {e}")))?,
         )
     };
-    let seconds = own.1 + t0.elapsed().as_secs_f64();
+    let seconds = own.1 + t0.elapsed().as_secs_f64() - writing;
     let truth = shared_world.then(|| figures::truth(&robots[i], &robots[j])).flatten();
     let errors = match (&estimate, &truth) {
         (Some(e), Some(t)) => Some(pose_errors(&e.result.transform.cast::<f64>(), t)),
