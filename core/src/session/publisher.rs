@@ -197,13 +197,15 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
     /// acknowledged, its records become what the peer holds; the version
     /// acknowledged before, the next update is again from it (the update
     /// was lost); anything else (another version, a digest that differs,
-    /// nothing held), the next update is a snapshot. Answers to another
-    /// epoch are ignored.
+    /// nothing held), the next update is a snapshot. Of an answer to
+    /// another epoch only the capacity is taken: a peer's first answer,
+    /// sent before any update (as a link's `Hello`), says what it holds, so
+    /// that not even the first update is more than that.
     pub fn on_ack(&mut self, ack: &UpdateAck) {
+        self.peer_capacity = ack.capacity;
         if ack.epoch != self.epoch {
             return;
         }
-        self.peer_capacity = ack.capacity;
         match self.in_flight {
             Some((v, d)) if ack.version == v && ack.digest == d => {
                 core::mem::swap(&mut self.held, &mut self.sent);

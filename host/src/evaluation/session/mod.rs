@@ -163,10 +163,13 @@ struct Scratch {
 impl Link {
     fn new(epoch: u16, spec: &SessionSpec, config: cosem_core::map::MapConfig) -> Result<Link, Error> {
         let records = || vec![ShadowEntry::default(); spec.capacity];
-        let copy = crate::maps::mapping::new_map(spec.capacity, config)?;
+        let copy = Replica::new(crate::maps::mapping::new_map(spec.capacity, config)?);
+        let mut publisher = Publisher::new(epoch, records(), records());
+        // The copy's first answer, before any update: what it holds.
+        publisher.on_ack(&copy.answer());
         Ok(Link {
-            publisher: Publisher::new(epoch, records(), records()),
-            copy: Replica::new(copy),
+            publisher,
+            copy,
             send_model: CodecModel::new(),
             read_model: CodecModel::new(),
             synced: false,
