@@ -1,7 +1,7 @@
 //! `cosem session`: robots that keep driving, on real data and on data the
 //! project makes itself.
 
-use cosem_tests::{cosem_ok, cosem_usage_err, real_data, synth};
+use cosem_tests::{cosem_err, cosem_ok, cosem_usage_err, real_data, synth};
 use serde_json::Value;
 
 /// The JSON lines of a session: the records, and the summary.
@@ -116,6 +116,39 @@ fn one_shot_rounds_send_whole_maps_and_search_prior_free() {
     assert!(summary["tracking_cost_ratio"].is_null(), "no tracking round: {summary}");
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
     assert!(right(&records) >= records.len() / 2, "{summary}");
+}
+
+/// Robots of different capacities: the larger sends the smaller the part
+/// of its map nearest itself, never more voxels than the smaller holds.
+#[test]
+fn a_robot_that_holds_less_is_sent_the_part_that_fits() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = dir.path().join("street");
+    synth(&s, 18, 1);
+    let seq = s.display().to_string();
+    let small = 1_200;
+    let (records, _) = session(&[
+        "--robot",
+        &format!("{seq}:0:12"),
+        "--robot",
+        &format!("{seq}:6:18"),
+        "--capacity",
+        &format!("6000,{small}"),
+    ]);
+    records.iter().for_each(check_record_fields);
+    let into_small: Vec<&Value> = records.iter().filter(|r| r["robot"] == 1).collect();
+    let first = into_small[0];
+    assert_eq!(first["update"], "Applied", "{first}");
+    assert_eq!(first["update_new"], small, "the first update is the part that fits: {first}");
+    for r in &into_small {
+        let upserts = r["update_new"].as_u64().unwrap() + r["update_changed"].as_u64().unwrap();
+        assert!(upserts <= small, "{r}");
+        assert_eq!(r["update"], "Applied", "{r}");
+    }
+    let e = cosem_usage_err(&["session", "--capacity", "8000,20"]);
+    assert!(e.contains("--capacity") && e.contains("8000,20"), "{e}");
+    let e = cosem_err(&["session", "--robot", &format!("{seq}:0:4"), "--robot", &format!("{seq}:4:8"), "--capacity", "900,900,900"]);
+    assert!(e.contains("--capacity") && e.contains("one per robot"), "{e}");
 }
 
 #[test]

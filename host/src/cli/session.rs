@@ -44,9 +44,12 @@ pub struct Args {
     /// Voxel size of the robots' maps (m).
     #[arg(long, default_value_t = session::DEFAULT_VOXEL, value_parser = super::args::voxel)]
     voxel: f32,
-    /// Voxels a robot's map holds; beyond, what is farthest from the robot goes.
-    #[arg(long, default_value_t = session::DEFAULT_CAPACITY, value_parser = capacity)]
-    capacity: usize,
+    /// Voxels a robot's map holds, and each of its copies of a peer's;
+    /// beyond, what is farthest from the robot goes. One for every robot,
+    /// or one per robot (8000,3000: a robot that holds less is sent the
+    /// part of a peer's map nearest the peer).
+    #[arg(long, default_value_t = Capacities(vec![session::DEFAULT_CAPACITY]), value_parser = capacity)]
+    capacity: Capacities,
     /// Points farther than this from their sensor are left out (m).
     #[arg(long, default_value_t = session::DEFAULT_CROP, value_parser = super::args::crop)]
     crop: f32,
@@ -68,12 +71,25 @@ pub struct Args {
     mcap_out: Option<std::path::PathBuf>,
 }
 
-/// `--capacity`: 64 to [`cosem_host::evaluation::session::MAX_CAPACITY`] voxels.
-fn capacity(s: &str) -> Result<usize, String> {
+/// `--capacity`: one or one per robot (at most 3), each 64 to
+/// [`cosem_host::evaluation::session::MAX_CAPACITY`] voxels.
+#[derive(Clone, Debug)]
+struct Capacities(Vec<usize>);
+
+impl std::fmt::Display for Capacities {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let parts: Vec<String> = self.0.iter().map(usize::to_string).collect();
+        f.write_str(&parts.join(","))
+    }
+}
+
+fn capacity(s: &str) -> Result<Capacities, String> {
     let most = cosem_host::evaluation::session::MAX_CAPACITY;
-    match s.parse::<usize>() {
-        Ok(v) if (64..=most).contains(&v) => Ok(v),
-        _ => Err(format!("`{s}`: expected a map capacity of 64 to {most} voxels")),
+    let each: Vec<Option<usize>> =
+        s.split(',').map(|p| p.trim().parse::<usize>().ok().filter(|v| (64..=most).contains(v))).collect();
+    match each.iter().copied().collect::<Option<Vec<usize>>>() {
+        Some(v) if (1..=3).contains(&v.len()) => Ok(Capacities(v)),
+        _ => Err(format!("`{s}`: expected a map capacity of 64 to {most} voxels, or one per robot (N,N[,N])")),
     }
 }
 
@@ -92,6 +108,10 @@ pub fn run_session(a: Args) -> Result<(), Error> {
     if !(2..=3).contains(&n) {
         return Err(format!("--robot: 2 or 3 robots, not {n}").into());
     }
+    let given = a.capacity.0.len();
+    if given != 1 && given != n {
+        return Err(format!("--capacity {}: one capacity, or one per robot ({n})", a.capacity).into());
+    }
     if let Some((robot, _)) = a.slip {
         if robot >= n {
             return Err(format!("--slip {robot},..: no robot {robot} of 0..{n}").into());
@@ -101,7 +121,7 @@ pub fn run_session(a: Args) -> Result<(), Error> {
         robots,
         every: a.every,
         voxel: a.voxel,
-        capacity: a.capacity,
+        capacity: a.capacity.0,
         crop: a.crop,
         drift: a.drift,
         slip: a.slip,

@@ -126,7 +126,7 @@ pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>
             robots,
             every: super::DEFAULT_EVERY,
             voxel: super::DEFAULT_VOXEL,
-            capacity: super::DEFAULT_CAPACITY,
+            capacity: vec![super::DEFAULT_CAPACITY],
             crop: super::DEFAULT_CROP,
             drift: BENCH_DRIFT,
             slip: c.slip.then_some(BENCH_SLIP),

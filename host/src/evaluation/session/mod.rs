@@ -60,8 +60,11 @@ pub struct SessionSpec {
     pub every: usize,
     /// Voxel size (m).
     pub voxel: f32,
-    /// Voxels a robot's map holds; beyond, what is farthest from the robot goes.
-    pub capacity: usize,
+    /// Voxels a robot's map holds, and each of its copies of a peer's;
+    /// beyond, what is farthest from the robot goes (a peer holding less
+    /// is sent the part of the map nearest the robot). One for every
+    /// robot, or one per robot.
+    pub capacity: Vec<usize>,
     /// Points farther than this from their sensor are left out (m).
     pub crop: f32,
     /// Odometry drift of every robot (each its own draw).
@@ -160,10 +163,24 @@ struct Scratch {
     whole: Vec<usize>,
 }
 
+impl SessionSpec {
+    /// Voxels robot `i`'s map and copies hold.
+    pub fn capacity_of(&self, i: usize) -> usize {
+        self.capacity.get(i).or(self.capacity.first()).copied().unwrap_or(DEFAULT_CAPACITY)
+    }
+}
+
 impl Link {
-    fn new(epoch: u16, spec: &SessionSpec, config: cosem_core::map::MapConfig) -> Result<Link, Error> {
-        let records = || vec![ShadowEntry::default(); spec.capacity];
-        let copy = Replica::new(crate::maps::mapping::new_map(spec.capacity, config)?);
+    /// Robot `from`'s updates to robot `to` (epoch `from + 1`): records for
+    /// `from`'s map, a copy of `to`'s capacity.
+    fn new(
+        (from, to): (usize, usize),
+        spec: &SessionSpec,
+        config: cosem_core::map::MapConfig,
+    ) -> Result<Link, Error> {
+        let epoch = from as u16 + 1;
+        let records = || vec![ShadowEntry::default(); spec.capacity_of(from)];
+        let copy = Replica::new(crate::maps::mapping::new_map(spec.capacity_of(to), config)?);
         let mut publisher = Publisher::new(epoch, records(), records());
         // The copy's first answer, before any update: what it holds.
         publisher.on_ack(&copy.answer());
@@ -234,12 +251,16 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
     if !(2..=3).contains(&n) {
         return Err(Error::Invalid(format!("a session has 2 or 3 robots, not {n}")));
     }
-    if !(64..=MAX_CAPACITY).contains(&spec.capacity) || spec.every == 0 {
+    let capacities: Vec<usize> = (0..n).map(|i| spec.capacity_of(i)).collect();
+    let counts_fit = spec.capacity.len() == 1 || spec.capacity.len() == n;
+    if !counts_fit || capacities.iter().any(|c| !(64..=MAX_CAPACITY).contains(c)) || spec.every == 0 {
         return Err(Error::Invalid(format!(
-            "a session's maps hold 64 to {MAX_CAPACITY} voxels (not {}) and fuse 1 scan a round at least (not {})",
+            "a session's maps hold 64 to {MAX_CAPACITY} voxels, one capacity or one per robot (not {:?}), and fuse 1 \
+             scan a round at least (not {})",
             spec.capacity, spec.every
         )));
     }
+    let most = capacities.iter().copied().max().unwrap_or(DEFAULT_CAPACITY);
     if let Some((robot, _)) = spec.slip.filter(|s| s.0 >= n) {
         return Err(Error::Invalid(format!("a slip of robot {robot}: the robots are 0..{n}")));
     }
@@ -251,12 +272,12 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
     let config = *robots[0].map.config();
     // links[i][j]: robot i's updates to robot j.
     let mut links: Vec<Vec<Option<Link>>> = (0..n)
-        .map(|i| (0..n).map(|j| (i != j).then(|| Link::new(i as u16 + 1, spec, config)).transpose()).collect())
+        .map(|i| (0..n).map(|j| (i != j).then(|| Link::new((i, j), spec, config)).transpose()).collect())
         .collect::<Result<_, _>>()?;
     let mut trackers = vec![vec![Tracker::new(); n]; n];
     let mut scratch = Scratch {
-        words: vec![0; spec.capacity],
-        out: vec![0; spec.capacity * 24 + 4096],
+        words: vec![0; most],
+        out: vec![0; most * 24 + 4096],
         search: vec![0; SearchScratch::WINDOWED],
         whole: vec![0; n],
     };
@@ -276,7 +297,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
             for (j, tracker) in own.iter_mut().enumerate().filter(|&(j, _)| j != i) {
                 if spec.one_shot {
                     tracker.reset();
-                    links[j][i] = Some(Link::new(round as u16 + 1, spec, config)?);
+                    links[j][i] = Some(Link::new((j, i), spec, config)?);
                 }
                 let at = Round { round, pair: (i, j), shared_world };
                 records.push(estimate_one(spec, at, &robots, mine, &mut links, tracker, &mut scratch)?);

@@ -58,8 +58,8 @@ impl Robot {
             when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] },
             ..MapConfig::with_resolution(spec.voxel)
         };
-        let map = new_map(spec.capacity, config)?;
-        let truth_map = truth_frames.as_ref().map(|_| new_map(spec.capacity, config)).transpose()?;
+        let map = new_map(spec.capacity_of(i), config)?;
+        let truth_map = truth_frames.as_ref().map(|_| new_map(spec.capacity_of(i), config)).transpose()?;
         let filter = PointFilter { max_range: Some(spec.crop), ..PointFilter::default() };
         Ok(Robot { frames, truth_frames, world, map, truth_map, fused: 0, filter })
     }
