@@ -187,8 +187,10 @@ fn silent_peer_is_a_typed_error_in_bounded_time() {
 /// test maps, which reject when full: the middle of their bounds).
 fn nearest_keys(map: &LocalMap<Heap>, most: usize) -> std::vec::Vec<crate::map::VoxelKey> {
     let (lo, hi) = map.bounds().unwrap();
+    let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+    assert_eq!(map.keep_centre(), centre, "a map with no anchor keeps around its middle");
     let mut idx = vec![0u32; map.len()];
-    let n = map.nearest([0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k])), most, &mut idx);
+    let n = map.nearest(centre, most, &mut idx);
     let mut keys: std::vec::Vec<_> = idx[..n].iter().map(|&i| map.voxel(i as usize).unwrap().key).collect();
     keys.sort_by_key(|k| (k.x, k.y, k.z));
     keys

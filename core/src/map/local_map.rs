@@ -646,6 +646,18 @@ impl<S: VoxelStorage> LocalMap<S> {
         self.keep_radius_sq = self.keep_radius_sq.min(cut.radius * cut.radius);
     }
 
+    /// Where the map keeps what it holds: the anchor a full map evicts
+    /// around (where the robot is), or the middle of its bounds for a map
+    /// with none (the origin when empty). What is sent of it to a peer
+    /// that holds less is the part nearest this ([`LocalMap::nearest`]).
+    pub fn keep_centre(&self) -> [f32; 3] {
+        match (self.config.when_full, self.bounds()) {
+            (FullPolicy::EvictFarthest { anchor }, _) => anchor,
+            (FullPolicy::Reject, Some((lo, hi))) => [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k])),
+            (FullPolicy::Reject, None) => [0.0; 3],
+        }
+    }
+
     /// The indices of the `most` voxels nearest `anchor` (all of them when
     /// the map holds no more), written to the start of `out`, ascending;
     /// returns how many. The same cut a full map evicts by: what a map of

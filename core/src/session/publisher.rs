@@ -1,10 +1,10 @@
 //! The sending side of map updates: what the peer holds, and what changed
 //! since. A peer that holds fewer voxels than the map (its answers say how
-//! many) is sent the part that fits: the voxels nearest the map's anchor,
-//! where a full map keeps them ([`LocalMap::nearest`]); the versions and
-//! digests are then those of that part.
+//! many) is sent the part that fits: the voxels nearest where the map
+//! keeps them ([`LocalMap::keep_centre`], [`LocalMap::nearest`]); the
+//! versions and digests are then those of that part.
 
-use crate::map::{FullPolicy, LocalMap, VoxelStorage};
+use crate::map::{LocalMap, VoxelStorage};
 use crate::wire::codec::{morton, voxel_digest, CodecModel, EncodeError, MapEncoder};
 use crate::wire::update::{write_update, UpdateAck, UpdateError, UpdateHeader};
 
@@ -136,12 +136,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
     ) -> Result<usize, PublisherError> {
         // The part the peer can hold (all of a map that fits), its stream
         // order and digest.
-        let anchor = match (map.config().when_full, map.bounds()) {
-            (FullPolicy::EvictFarthest { anchor }, _) => anchor,
-            (FullPolicy::Reject, Some((lo, hi))) => [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k])),
-            (FullPolicy::Reject, None) => [0.0; 3],
-        };
-        let n = map.nearest(anchor, self.peer_capacity as usize, scratch);
+        let n = map.nearest(map.keep_centre(), self.peer_capacity as usize, scratch);
         if n < map.len().min(self.peer_capacity as usize) {
             return Err(PublisherError::Scratch);
         }

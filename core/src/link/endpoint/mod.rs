@@ -3,7 +3,7 @@
 
 use super::Clock;
 use crate::classes::CLASS_TABLE_VERSION;
-use crate::map::{FullPolicy, LocalMap, VoxelKey, VoxelSink, VoxelStorage};
+use crate::map::{LocalMap, VoxelKey, VoxelSink, VoxelStorage};
 use crate::wire::block::{encode_block, BlockDeframer, BlockShape};
 use crate::wire::codec::{CodecModel, DecodeError, MapDecoder, MapEncoder};
 use crate::wire::frame::{FrameError, MAX_FRAME, MAX_PAYLOAD};

@@ -186,9 +186,9 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
     }
 
     /// The same transfer with only what a peer holding `capacity` voxels
-    /// can take: the voxels nearest the map's anchor (where a full map
-    /// keeps them; the middle of its bounds for a map with no anchor), as
-    /// many as fit ([`LocalMap::nearest`]). Unchanged when the map fits.
+    /// can take: the voxels nearest where the map keeps them
+    /// ([`LocalMap::keep_centre`]), as many as fit ([`LocalMap::nearest`]).
+    /// Unchanged when the map fits.
     /// Only before anything went out.
     pub(super) fn fit(self, capacity: u32, model: &mut CodecModel, config: &LinkConfig) -> Result<Self, LinkError> {
         if self.header.voxel_count <= capacity || self.header_queued || self.produced > 0 {
@@ -197,12 +197,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> Tx<'a, S, O> {
         let header = self.header;
         let (map, scratch) = self.encoder.into_parts();
         let m: &LocalMap<S> = map.borrow();
-        let anchor = match (m.config().when_full, m.bounds()) {
-            (FullPolicy::EvictFarthest { anchor }, _) => anchor,
-            (FullPolicy::Reject, Some((lo, hi))) => [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k])),
-            (FullPolicy::Reject, None) => [0.0; 3],
-        };
-        let n = m.nearest(anchor, capacity as usize, scratch);
+        let n = m.nearest(m.keep_centre(), capacity as usize, scratch);
         let encoder = MapEncoder::subset(map, scratch, n, model).map_err(|_| LinkError::Setup)?;
         Ok(Self::start(encoder, header, config))
     }
