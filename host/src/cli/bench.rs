@@ -314,13 +314,14 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
     let cases = pool.install(|| bench_session(&tmp.0, &a.seeds, a.frames))?;
     let opt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
     println!(
-        "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>8} {:>9} {:>5}",
+        "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>8} {:>9} {:>5}",
         "robots",
         "labels",
         "slip",
         "mode",
         "rounds",
         "wrong",
+        "@meet",
         "avail",
         "min",
         "meets",
@@ -333,13 +334,14 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
     for c in &cases {
         let upd = c.update_bytes_ratio.map_or("-".into(), |[p, q, m]| format!("{p:.3}/{q:.3}/{m:.3}"));
         println!(
-            "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>8} {:>9} {:>5}",
+            "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>8} {:>9} {:>5}",
             c.case.robots,
             c.case.labels,
             c.case.slip,
             if c.case.one_shot { "one-shot" } else { "tracked" },
             c.rounds,
             c.wrong_converged,
+            c.wrong_at_meeting,
             opt(c.availability),
             opt(c.availability_min),
             c.meetings,
@@ -351,7 +353,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
         );
     }
     println!(
-        "  (B/round: bytes a robot received from a peer in a round, median; cost: a tracking round's median time /\n   a from-scratch match's, single thread; one-shot: whole maps every round, matched prior-free; {:.0} s in all)",
+        "  (@meet: Converged and wrong at the meeting place, not at the odometry origins;\n   B/round: bytes a robot received from a peer in a round, median; cost: a tracking round's median time /\n   a from-scratch match's, single thread; one-shot: whole maps every round, matched prior-free; {:.0} s in all)",
         t0.elapsed().as_secs_f64()
     );
     save(json, &cases)

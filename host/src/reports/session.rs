@@ -35,6 +35,10 @@ pub struct RecordJson {
     /// Overlap of the peer's map in the robot's under the truth.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub overlap_true: Option<f64>,
+    /// Metres between where the estimate and the truth put the peer's
+    /// place at the closest pair of scans (when both are known).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub e_meeting: Option<f64>,
     /// The match's own overlap and agreement.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub overlap: Option<f32>,
@@ -79,6 +83,7 @@ impl From<&Record> for RecordJson {
             e_t: r.errors.map(|e| e.0),
             e_r: r.errors.map(|e| e.1),
             overlap_true: r.overlap_true,
+            e_meeting: r.meeting_error,
             overlap: e.map(|e| e.result.overlap),
             agreement: e.map(|e| e.result.agreement),
             bytes_sent: r.bytes_sent,

@@ -20,8 +20,10 @@ const SETTLING_ROUNDS: usize = 2;
 
 /// The truth `T_own_peer` of robot `a`'s estimate of robot `b`, at the
 /// pair of scans (one each, both in the current maps) closest to each
-/// other in the world: `inv(T_world_odom_a) * T_world_odom_b` there.
-pub(super) fn truth(a: &Robot, b: &Robot) -> Option<Isometry3<f64>> {
+/// other in the world: `inv(T_world_odom_a) * T_world_odom_b` there; and
+/// where `b` was at its scan of that pair, in `b`'s odometry frame (the
+/// meeting place, where an estimate's error is also taken).
+pub(super) fn truth(a: &Robot, b: &Robot) -> Option<(Isometry3<f64>, nalgebra::Point3<f64>)> {
     let (sa, sb) = (a.scans_in_map(), b.scans_in_map());
     let mut best: Option<(f64, usize, usize)> = None;
     for &ka in &sa {
@@ -33,7 +35,7 @@ pub(super) fn truth(a: &Robot, b: &Robot) -> Option<Isometry3<f64>> {
         }
     }
     let (_, ka, kb) = best?;
-    Some(a.world_odom(ka).inverse() * b.world_odom(kb))
+    Some((a.world_odom(ka).inverse() * b.world_odom(kb), b.odometry_position(kb)))
 }
 
 /// Median milliseconds of three from-scratch one-shot matches of `a` and
@@ -58,6 +60,16 @@ pub(super) fn correct(r: &Record) -> bool {
     converged(r) && r.errors.is_some_and(|(t, a)| t < STRICT.0 && a < STRICT.1)
 }
 
+/// Whether a record is Converged and wrong at the meeting place: its
+/// translation error there at least the strict threshold, or its rotation's.
+fn wrong_at_meeting(r: &Record) -> bool {
+    converged(r)
+        && match (r.meeting_error, r.errors) {
+            (Some(m), Some((_, a))) => m >= STRICT.0 || a >= STRICT.1,
+            _ => false,
+        }
+}
+
 fn converged(r: &Record) -> bool {
     r.estimate.as_ref().is_some_and(|e| e.result.status == MatchStatus::Converged)
 }
@@ -68,6 +80,13 @@ pub struct Summary {
     /// Estimates `Converged` but wrong (outside the strict thresholds),
     /// over every round with a truth (a slip's two rounds exempt).
     pub wrong_converged: usize,
+    /// Estimates `Converged` and wrong where the robots met: the peer's
+    /// place at the closest pair of scans mapped by the estimate at least
+    /// 0.5 m from where the truth maps it, or the rotation 1 degree off
+    /// (the slip's two rounds exempt). `wrong_converged` takes the
+    /// translation at the odometry origins, where a rotation error counts
+    /// times the distance to the meeting.
+    pub wrong_at_meeting: usize,
     /// Estimates with a truth.
     pub with_truth: usize,
     /// Correct `Converged` ÷ estimates in meetings, each meeting's first 2
@@ -110,6 +129,7 @@ impl Summary {
         };
         let wrong_converged =
             records.iter().filter(|r| converged(r) && r.errors.is_some() && !correct(r) && !exempt(r)).count();
+        let wrong_at_meeting = records.iter().filter(|r| wrong_at_meeting(r) && !exempt(r)).count();
         let (mut in_meetings, mut available, mut meetings, mut first_fix) = (0usize, 0usize, 0usize, None::<usize>);
         for i in 0..n {
             for j in (0..n).filter(|&j| j != i) {
@@ -137,6 +157,7 @@ impl Summary {
         let tracking_ms = median(&tracking);
         Summary {
             wrong_converged,
+            wrong_at_meeting,
             with_truth: records.iter().filter(|r| r.errors.is_some()).count(),
             availability: (in_meetings > 0).then(|| available as f64 / in_meetings as f64),
             in_meetings,

@@ -98,6 +98,9 @@ pub struct Record {
     pub estimate: Option<Estimate>,
     /// The truth `T_own_peer`, where the robots share a world.
     pub truth: Option<Isometry3<f64>>,
+    /// Metres between where the estimate and the truth put the peer's place
+    /// at the closest pair of scans (the meeting place).
+    pub meeting_error: Option<f64>,
     /// `(e_t, e_r)` of the estimate against the truth.
     pub errors: Option<(f64, f64)>,
     /// The conventions' overlap of the peer's map in the robot's under the
@@ -360,9 +363,14 @@ fn estimate_one(
         )
     };
     let seconds = own.1 + t0.elapsed().as_secs_f64() - writing;
-    let truth = shared_world.then(|| figures::truth(&robots[i], &robots[j])).flatten();
+    let found = shared_world.then(|| figures::truth(&robots[i], &robots[j])).flatten();
+    let truth = found.map(|(t, _)| t);
     let errors = match (&estimate, &truth) {
         (Some(e), Some(t)) => Some(pose_errors(&e.result.transform.cast::<f64>(), t)),
+        _ => None,
+    };
+    let meeting_error = match (&estimate, &found) {
+        (Some(e), Some((t, p))) => Some((e.result.transform.cast::<f64>() * p - t * p).norm()),
         _ => None,
     };
     let overlap_true = truth
@@ -373,6 +381,7 @@ fn estimate_one(
         peer: j,
         estimate,
         truth,
+        meeting_error,
         errors,
         overlap_true,
         bytes_sent,

@@ -105,6 +105,11 @@ impl Robot {
         self.world[k] * self.frames[k].pose.inverse()
     }
 
+    /// Where the odometry put scan `k` (its own frame).
+    pub fn odometry_position(&self, k: usize) -> nalgebra::Point3<f64> {
+        nalgebra::Point3::from(self.frames[k].pose.translation.vector)
+    }
+
     /// The true position of scan `k` in the world.
     pub fn world_position(&self, k: usize) -> nalgebra::Vector3<f64> {
         self.world[k].translation.vector
