@@ -119,8 +119,9 @@ pub struct SummaryFields<'a> {
 /// A record as a line of text.
 pub fn record_text(r: &Record) -> String {
     let j = RecordJson::from(r);
-    let errors = match (j.e_t, j.e_r) {
-        (Some(t), Some(a)) => format!("e_t {t:6.3} m  e_r {a:6.3} deg"),
+    let errors = match (j.e_t, j.e_r, j.e_meeting) {
+        (Some(t), Some(a), Some(m)) => format!("e_t {t:6.3} m  e_r {a:6.3} deg  e_meeting {m:6.3} m"),
+        (Some(t), Some(a), None) => format!("e_t {t:6.3} m  e_r {a:6.3} deg"),
         _ => "(no truth)".into(),
     };
     let overlap = j.overlap_true.map_or(String::new(), |o| format!("  overlap_true {o:.2}"));
@@ -144,9 +145,10 @@ pub fn summary_text(s: &Summary, rounds: usize) -> String {
     let opt = |v: Option<f64>, unit: &str| v.map_or("-".to_string(), |v| format!("{v:.3}{unit}"));
     let ratio = s.update_bytes_ratio.map_or("-".into(), |[a, b, c]| format!("p50 {a:.3}, p95 {b:.3}, max {c:.3}"));
     let mut out = format!(
-        "rounds {rounds}; estimates with a truth {}\nwrong Converged   {}\nmeetings          {}\navailability      {}\nfirst fix         {} rounds (largest)\nupdate / map      {ratio}\nbytes             {}\ntracking round    {} (from scratch {:.1} ms; ratio {})\n",
+        "rounds {rounds}; estimates with a truth {}\nwrong Converged   {} (at the meeting place: {})\nmeetings          {}\navailability      {}\nfirst fix         {} rounds (largest)\nupdate / map      {ratio}\nbytes             {}\ntracking round    {} (from scratch {:.1} ms; ratio {})\n",
         s.with_truth,
         s.wrong_converged,
+        s.wrong_at_meeting,
         s.meetings,
         opt(s.availability, ""),
         s.first_fix_rounds.map_or("-".into(), |v| v.to_string()),
