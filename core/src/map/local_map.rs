@@ -665,6 +665,13 @@ impl<S: VoxelStorage> LocalMap<S> {
     /// robot's map that fits a smaller peer.
     pub fn nearest(&self, anchor: [f32; 3], most: usize, out: &mut [u32]) -> usize {
         let keep = most.min(self.len).min(out.len());
+        if keep == self.len {
+            // All of it (a map that fits its peer, every round): no cut to find.
+            for (i, o) in out.iter_mut().take(keep).enumerate() {
+                *o = i as u32;
+            }
+            return keep;
+        }
         let cut = NearestCut::new(self.voxels(), self.config.resolution, anchor, keep);
         let (mut n, mut tied) = (0, 0);
         for (i, v) in self.voxels().iter().enumerate() {
