@@ -343,6 +343,11 @@ pub enum RobotError {
     Finished,
     /// The team's consistency check or pose graph refused its input.
     Team(crate::team::TeamError),
+    /// A session robot's line to its peer failed.
+    Courier(crate::link::courier::CourierError),
+    /// A session robot could not write its update (its buffers are too
+    /// small for its map).
+    Update(crate::session::PublisherError),
 }
 
 impl RobotError {
@@ -355,7 +360,7 @@ impl RobotError {
             | RobotError::FeederSilent { .. }
             | RobotError::PointCount { .. } => Stage::Feed,
             RobotError::Config(_) | RobotError::Points(_) | RobotError::Memory(_) => Stage::Map,
-            RobotError::Link(_) => Stage::Link,
+            RobotError::Link(_) | RobotError::Courier(_) | RobotError::Update(_) => Stage::Link,
             RobotError::Align(_) | RobotError::Team(_) | RobotError::Finished => Stage::Match,
         }
     }
@@ -377,6 +382,8 @@ impl core::fmt::Display for RobotError {
             RobotError::Align(e) => write!(f, "{e}"),
             RobotError::Team(e) => write!(f, "team: {e}"),
             RobotError::Memory(e) => write!(f, "{e}"),
+            RobotError::Courier(e) => write!(f, "session line: {e}"),
+            RobotError::Update(e) => write!(f, "update: {e}"),
             RobotError::Finished => f.write_str("the robot has finished"),
         }
     }
@@ -446,6 +453,7 @@ fn send<F: Write>(feed: &mut F, msg: &RobotMessage<'_>) {
 mod feed_in;
 pub mod memory;
 mod pair;
+pub mod session;
 pub mod team;
 mod tell;
 
@@ -454,3 +462,5 @@ pub use pair::{Robot, Sender};
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod session_tests;

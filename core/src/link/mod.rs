@@ -37,6 +37,7 @@
 //! caller's current map untouched. An exchange ends when both sides said
 //! they are finished (an acknowledgement flag), or after a linger time.
 
+pub mod courier;
 mod endpoint;
 
 pub use endpoint::{
@@ -52,3 +53,5 @@ pub trait Clock {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod courier_tests;

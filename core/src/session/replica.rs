@@ -28,6 +28,21 @@ pub enum Applied {
     Restarted,
 }
 
+impl Applied {
+    /// Its wire byte (a session robot's round report): 0 applied, 1
+    /// repeated, 2 out of step, 3 refused, 4 diverged, 5 restarted.
+    pub fn code(self) -> u8 {
+        match self {
+            Applied::Applied => 0,
+            Applied::Repeated => 1,
+            Applied::OutOfStep => 2,
+            Applied::Refused(_) => 3,
+            Applied::Diverged => 4,
+            Applied::Restarted => 5,
+        }
+    }
+}
+
 /// Decodes into a map, replacing the voxel of a cell held already.
 struct Upsert<'m, S: VoxelStorage>(&'m mut LocalMap<S>);
 

@@ -27,6 +27,12 @@ impl Kind {
             Kind::Tracking => "tracking",
         }
     }
+
+    /// Its wire byte (a session robot's round report): 0 prior-free, 1
+    /// tracking.
+    pub fn code(self) -> u8 {
+        self as u8
+    }
 }
 
 /// What became of the fix this round.
@@ -54,6 +60,11 @@ impl Fix {
             Fix::Kept => "kept",
             Fix::Withdrawn => "withdrawn",
         }
+    }
+
+    /// Its wire byte: 0 none, 1 held, 2 kept, 3 withdrawn.
+    pub fn code(self) -> u8 {
+        self as u8
     }
 }
 

@@ -69,6 +69,23 @@ pub enum FeedMessage<'a> {
         /// Robots in the team.
         robots: u8,
     },
+    /// The robot keeps driving (a session robot): after the set-up, before
+    /// the points; its scans come in rounds. Any other robot refuses it.
+    Session,
+    /// Where the robot is now (its odometry frame, m), before a scan's
+    /// points: its bounded map keeps what is nearest ([`crate::map::LocalMap::move_anchor`]).
+    Anchor {
+        /// The position.
+        at: [f32; 3],
+    },
+    /// A session robot's round of scans is complete: it sends its peer
+    /// what changed, takes the peer's, estimates and reports the round.
+    EndOfRound {
+        /// The round (0 first).
+        round: u16,
+        /// Points sent in the round.
+        points: u32,
+    },
 }
 
 /// What the prior-free alignment found, for the host.
@@ -182,6 +199,69 @@ pub enum RobotMessage<'a> {
     /// feeder sends nothing (a UART that is not enabled yet drops what
     /// arrives, as an STM32's does).
     Ready,
+    /// A session robot's round: its estimate of its peer, and what the
+    /// round moved.
+    Round(RoundReport),
+    /// A session robot's last message, after its last round.
+    SessionEnd(SessionEnd),
+}
+
+/// One round of a session robot (a robot that keeps driving).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RoundReport {
+    /// The round (0 first).
+    pub round: u16,
+    /// The estimate of `T_own_peer` (own map the model, the peer's copy the
+    /// scene); status [`super::share::NO_EXCHANGE`] while no copy is held.
+    pub result: MatchReport,
+    /// How it was made: 0 prior-free, 1 from the last fix (tracking).
+    pub kind: u8,
+    /// What became of the fix: 0 none, 1 held, 2 kept, 3 withdrawn.
+    pub fix: u8,
+    /// What became of the peer's update: 0 applied, 1 repeated, 2 out of
+    /// step, 3 refused, 4 diverged (copy emptied, snapshot asked), 5 the
+    /// peer restarted.
+    pub applied: u8,
+    /// Voxels of the robot's map.
+    pub map_voxels: u32,
+    /// Voxels of its copy of the peer's map.
+    pub copy_voxels: u32,
+    /// The version of the peer's map the copy holds (0: none).
+    pub copy_version: u32,
+    /// Bytes of the update this robot sent.
+    pub update_bytes: u32,
+    /// Voxels new, changed and cells removed in it.
+    pub update_counts: [u32; 3],
+    /// Bytes the robot wrote to and read from its peer's line this round.
+    pub line_bytes: [u32; 2],
+    /// Data frames sent again this round.
+    pub resent: u32,
+    /// Duration of the exchange (ms of the robot's clock).
+    pub exchange_ms: u32,
+    /// Instructions spent fusing the round's points.
+    pub map_instructions: u64,
+    /// Instructions spent writing the update and applying the peer's.
+    pub update_instructions: u64,
+    /// Instructions spent preparing both maps.
+    pub prepare_instructions: u64,
+    /// Instructions of the estimate (search, EM, verdict).
+    pub match_instructions: u64,
+    /// Peak stack so far (bytes).
+    pub peak_stack: u32,
+}
+
+/// A session robot's end.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SessionEnd {
+    /// Rounds run.
+    pub rounds: u16,
+    /// Bytes written to and read from the peer's line, in all.
+    pub line_bytes: [u64; 2],
+    /// Data frames sent again, in all.
+    pub resent: u32,
+    /// Peak stack (bytes).
+    pub peak_stack: u32,
 }
 
 /// One robot of a team as a team robot placed it.
@@ -353,6 +433,8 @@ impl FeedMessage<'_> {
                 }
                 Ok(())
             }
+            FeedMessage::Anchor { at } => finite(at),
+            FeedMessage::Session | FeedMessage::EndOfRound { .. } => Ok(()),
         }
     }
 }
@@ -363,7 +445,10 @@ impl RobotMessage<'_> {
             RobotMessage::Report(r) => r.result.check().map_err(FeedError::from),
             RobotMessage::Matched { report, .. } => report.result.check().map_err(FeedError::from),
             RobotMessage::Placed(p) => finite(&p.transform).and(finite(&p.covariance)),
-            RobotMessage::Failed { .. } | RobotMessage::TeamEnd(_) | RobotMessage::Ready => Ok(()),
+            RobotMessage::Round(r) => r.result.check().map_err(FeedError::from),
+            RobotMessage::Failed { .. } | RobotMessage::TeamEnd(_) | RobotMessage::Ready | RobotMessage::SessionEnd(_) => {
+                Ok(())
+            }
         }
     }
 }

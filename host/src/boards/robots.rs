@@ -191,6 +191,9 @@ fn feed_and_listen(conn: TcpStream, feed: Vec<u8>, deadline: Instant) -> Outcome
                     Ok(RobotMessage::Matched { .. } | RobotMessage::Placed(_) | RobotMessage::TeamEnd(_)) => {
                         Some(Outcome::Lost("a team robot's message from a pair robot".into()))
                     }
+                    Ok(RobotMessage::Round(_) | RobotMessage::SessionEnd(_)) => {
+                        Some(Outcome::Lost("a session robot's message from a pair robot".into()))
+                    }
                     Err(e) => Some(Outcome::Lost(format!("undecodable report: {e}"))),
                 };
                 break;

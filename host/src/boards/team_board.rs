@@ -71,6 +71,10 @@ impl TeamReports {
                 self.failed = Some(("host".into(), "a pair robot's report from a team robot".into()));
                 return true;
             }
+            Ok(RobotMessage::Round(_) | RobotMessage::SessionEnd(_)) => {
+                self.failed = Some(("host".into(), "a session robot's message from a team robot".into()));
+                return true;
+            }
             Ok(RobotMessage::Ready) => {}
             Err(e) => {
                 self.failed = Some(("host".into(), format!("undecodable message: {e}")));
@@ -226,6 +230,7 @@ fn describe(payload: &[u8]) -> String {
         }
         Ok(RobotMessage::Failed { stage, message }) => format!("stopped at {}: {message}", stage.as_str()),
         Ok(RobotMessage::Report(_)) => "a pair robot's report".into(),
+        Ok(RobotMessage::Round(_) | RobotMessage::SessionEnd(_)) => "a session robot's message".into(),
         Ok(RobotMessage::Ready) => "listening".into(),
         Err(e) => format!("undecodable message: {e}"),
     }

@@ -1,0 +1,502 @@
+//! The third role: a robot that keeps driving. Its feed comes in rounds
+//! (the anchor where the robot is before each scan, the scan's points, an
+//! end-of-round mark); each round it fuses its scans into its bounded map,
+//! sends its peer what changed ([`Publisher`]) and takes the peer's
+//! update into its copy ([`Replica`]), both over the [`Courier`] on its
+//! link port, then re-estimates the peer ([`Tracker`]: prior-free until a
+//! fix, then from it) and reports the round. The same machine runs on a
+//! board and, through the simulation driver (`crate::sim`, feature
+//! `sim`), as its host twin.
+//!
+//! Memory is the caller's ([`SessionParts`]): the map, the copy, the
+//! publisher's records, the update buffers and the pyramid storages, which
+//! are rebuilt every round (both maps change every round).
+
+use super::feed_in::FeedIn;
+use super::{map_config, Machine, Meter, Poll, RobotConfig, RobotError, FOOTPRINT_CELL, LEVELS};
+use crate::geometry::Isometry3;
+use crate::link::courier::{Courier, CourierConfig, CourierError, CourierStats, Event};
+use crate::map::{LocalMap, VoxelStorage};
+use crate::matching::search::SearchScratch;
+use crate::matching::{MatchStatus, Pyramid, PyramidStorage, SceneSource};
+use crate::pipeline::Pipeline;
+use crate::region::RegionError;
+use crate::session::{Applied, Estimate, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts};
+use crate::wire::codec::CodecModel;
+use crate::wire::frame::MAX_PAYLOAD;
+use crate::wire::feed::{FeedError, FeedMessage, RobotMessage, RoundReport, SessionEnd};
+use crate::wire::report::MatchReport;
+use crate::wire::share::NO_EXCHANGE;
+use crate::wire::update::{UpdateAck, ACK_BYTES};
+use embedded_io::{Read, ReadReady, Write, WriteReady};
+
+/// After its last round a robot answers its peer's resends this long (ms)
+/// before it reports its end: the peer may have missed its last answer.
+pub const LINGER_MS: u64 = 3000;
+
+/// What a session robot works in, all the caller's: a board's statics, a
+/// host's heap.
+pub struct SessionParts<'a, S, C, R, P, Q> {
+    /// The robot's own map's storage (its capacity: the map's).
+    pub map: S,
+    /// The copy of the peer's map (its capacity: what the robot tells the
+    /// peer it holds).
+    pub copy: C,
+    /// The publisher's two record lists, each at least the map's capacity.
+    pub records: (R, R),
+    /// A `u32` per voxel of the larger of the map and the copy.
+    pub scratch: &'a mut [u32],
+    /// The robot's update to its peer.
+    pub out: &'a mut [u8],
+    /// The peer's update.
+    pub input: &'a mut [u8],
+    /// The own map's pyramid (the model).
+    pub model: P,
+    /// The copy's pyramid (the scene).
+    pub scene: Q,
+    /// The windowed search's cache ([`SearchScratch::WINDOWED`] words).
+    pub search: &'a mut [u32],
+}
+
+enum State {
+    /// Reading the round's scans.
+    Feed,
+    /// Before the first round: each robot tells its peer what it holds
+    /// (its copy's first answer), so that not even the first update is
+    /// more.
+    Hello,
+    /// Trading updates (`len`: this robot's).
+    Exchange { len: usize, started_ms: u64 },
+    /// Estimating the peer and reporting the round.
+    Estimate,
+    /// After the last round, answering the peer's resends until `until`.
+    Linger { until: u64 },
+    Done,
+}
+
+/// What a round measured until its estimate.
+#[derive(Clone, Copy, Default)]
+struct RoundMarks {
+    points: u32,
+    map_instructions: u64,
+    update_instructions: u64,
+    update_bytes: u32,
+    counts: UpdateCounts,
+    applied: Option<Applied>,
+    exchange_ms: u32,
+    line: CourierStats,
+}
+
+/// A robot that keeps driving, driven by [`Machine::poll`] (its peer is
+/// `ports[0]`).
+pub struct SessionRobot<'a, S: VoxelStorage, C: VoxelStorage, R, P, Q>
+where
+    R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>,
+{
+    state: State,
+    fed: FeedIn,
+    session: bool,
+    map: LocalMap<S>,
+    copy: Option<C>,
+    replica: Option<Replica<C>>,
+    records: Option<(R, R)>,
+    publisher: Option<Publisher<R>>,
+    tracker: Tracker,
+    courier: Courier,
+    send_model: CodecModel,
+    read_model: CodecModel,
+    scratch: &'a mut [u32],
+    out: &'a mut [u8],
+    input: &'a mut [u8],
+    model: P,
+    scene: Q,
+    search: &'a mut [u32],
+    round: u16,
+    marks: RoundMarks,
+    stats_at_start: CourierStats,
+}
+
+impl<'a, S, C, R, P, Q> SessionRobot<'a, S, C, R, P, Q>
+where
+    S: VoxelStorage,
+    C: VoxelStorage,
+    R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>,
+    P: PyramidStorage,
+    Q: PyramidStorage,
+{
+    /// A session robot in `parts`, its line to its peer run by a courier
+    /// of `courier`'s sizes.
+    pub fn new(
+        config: RobotConfig,
+        courier: CourierConfig,
+        parts: SessionParts<'a, S, C, R, P, Q>,
+    ) -> Result<Self, RobotError> {
+        let SessionParts { map, copy, records, scratch, out, input, model, scene, search } = parts;
+        // The set-up names the voxel size; until then the map waits empty.
+        let map = LocalMap::new(map, map_config(0.5)).map_err(RobotError::Config)?;
+        let copy_capacity = copy.voxels().len();
+        let need = map.capacity().max(copy_capacity);
+        let records_have = records.0.as_ref().len().min(records.1.as_ref().len());
+        if records_have < map.capacity() {
+            return Err(RobotError::Memory(RegionError::Short { need: map.capacity(), have: records_have }));
+        }
+        if scratch.len() < need {
+            return Err(RobotError::Memory(RegionError::Short { need, have: scratch.len() }));
+        }
+        Ok(SessionRobot {
+            state: State::Feed,
+            fed: FeedIn::new(config),
+            session: false,
+            map,
+            copy: Some(copy),
+            replica: None,
+            records: Some(records),
+            publisher: None,
+            tracker: Tracker::new(),
+            courier: Courier::new(courier).map_err(RobotError::Courier)?,
+            send_model: CodecModel::new(),
+            read_model: CodecModel::new(),
+            scratch,
+            out,
+            input,
+            model,
+            scene,
+            search,
+            round: 0,
+            marks: RoundMarks::default(),
+            stats_at_start: CourierStats::default(),
+        })
+    }
+
+    /// The robot's map.
+    pub fn map(&self) -> &LocalMap<S> {
+        &self.map
+    }
+
+    /// Its copy of the peer's map, once the set-up came.
+    pub fn copy(&self) -> Option<&LocalMap<C>> {
+        self.replica.as_ref().map(Replica::map)
+    }
+
+    /// The fix held of the peer (`T_own_peer`), if any.
+    pub fn fix(&self) -> Option<&Isometry3<f32>> {
+        self.tracker.fix()
+    }
+
+    fn step<F, L, T>(&mut self, feed: &mut F, port: &mut L, now_ms: u64, meter: &T) -> Result<Poll<SessionEnd>, RobotError>
+    where
+        F: Read + Write + ReadReady,
+        L: Read + Write + ReadReady + WriteReady,
+        T: Meter,
+    {
+        match self.state {
+            State::Feed => {
+                // The last round's resends are answered meanwhile.
+                self.courier.step(port, &[], self.input, now_ms).map_err(RobotError::Courier)?;
+                self.read_feed(feed, now_ms, meter)?;
+                Ok(Poll::Busy)
+            }
+            State::Hello => {
+                self.hello(port, now_ms)?;
+                Ok(Poll::Busy)
+            }
+            State::Exchange { len, started_ms } => {
+                self.exchange(port, len, started_ms, now_ms, meter)?;
+                Ok(Poll::Busy)
+            }
+            State::Estimate => {
+                self.estimate(feed, meter)?;
+                Ok(Poll::Busy)
+            }
+            State::Linger { until } => {
+                self.courier.step(port, &[], self.input, now_ms).map_err(RobotError::Courier)?;
+                if now_ms < until {
+                    return Ok(Poll::Busy);
+                }
+                self.state = State::Done;
+                let stats = self.courier.stats();
+                Ok(Poll::Done(SessionEnd {
+                    rounds: self.round,
+                    line_bytes: [stats.bytes_sent, stats.bytes_received],
+                    resent: stats.resent,
+                    peak_stack: meter.peak_stack(),
+                }))
+            }
+            State::Done => Err(RobotError::Finished),
+        }
+    }
+
+    /// Reads the feed up to the end of a round (one byte at a time: what
+    /// follows the mark stays on the line for the next round).
+    #[inline(never)]
+    fn read_feed<F: Read + Write + ReadReady, T: Meter>(
+        &mut self,
+        feed: &mut F,
+        now_ms: u64,
+        meter: &T,
+    ) -> Result<(), RobotError> {
+        if self.fed.last_fed_ms.is_none() {
+            super::send(feed, &RobotMessage::Ready);
+        }
+        let last = *self.fed.last_fed_ms.get_or_insert(now_ms);
+        let mut byte = [0u8; 1];
+        while feed.read_ready().map_err(|_| RobotError::FeedIo)? {
+            if feed.read(&mut byte).map_err(|_| RobotError::FeedIo)? == 0 {
+                break;
+            }
+            self.fed.last_fed_ms = Some(now_ms);
+            let Some(payload) = self.fed.deframer.push(byte[0]).map_err(RobotError::Frame)? else { continue };
+            // Copied off the deframer, which the robot's other state shares.
+            let mut frame = [0u8; MAX_PAYLOAD];
+            let n = payload.len().min(MAX_PAYLOAD);
+            frame.get_mut(..n).unwrap_or(&mut []).copy_from_slice(payload.get(..n).unwrap_or(&[]));
+            let msg = FeedMessage::decode(frame.get(..n).unwrap_or(&[])).map_err(RobotError::Feed)?;
+            if self.on_feed(msg, now_ms, meter)? {
+                return Ok(());
+            }
+        }
+        if now_ms.saturating_sub(self.fed.last_fed_ms.unwrap_or(last)) > self.fed.config.feed_silence_ms {
+            return Err(RobotError::FeederSilent { points: self.fed.points });
+        }
+        Ok(())
+    }
+
+    /// One feed message; `true` when it ended the round or the feed.
+    fn on_feed<T: Meter>(&mut self, msg: FeedMessage<'_>, now_ms: u64, meter: &T) -> Result<bool, RobotError> {
+        let ready = self.fed.setup.is_some() && self.session;
+        match msg {
+            FeedMessage::Setup(s) if self.fed.setup.is_none() && s.prior.is_none() => {
+                let config = map_config(s.resolution);
+                self.map.reset(config).map_err(RobotError::Config)?;
+                let copy = self.copy.take().ok_or(RobotError::Feed(FeedError::Order))?;
+                self.replica = Some(Replica::new(LocalMap::new(copy, config).map_err(RobotError::Config)?));
+                let (held, sent) = self.records.take().ok_or(RobotError::Feed(FeedError::Order))?;
+                // A robot's epoch: its id, so that its peer tells it from
+                // the other robot of a test.
+                self.publisher = Some(Publisher::new(u16::from(s.robot_id) + 1, held, sent));
+                self.fed.setup = Some(s);
+            }
+            FeedMessage::Session if self.fed.setup.is_some() && !self.session => {
+                self.session = true;
+                // The copy's first answer, before any update: what it holds.
+                let answer = self.replica.as_ref().ok_or(RobotError::Feed(FeedError::Order))?.answer().encode();
+                let out = self.out.get_mut(..answer.len()).ok_or(RobotError::Update(PublisherError::Scratch))?;
+                out.copy_from_slice(&answer);
+                self.courier.start(0, answer.len(), now_ms).map_err(RobotError::Courier)?;
+                self.state = State::Hello;
+                return Ok(true);
+            }
+            FeedMessage::Anchor { at } if ready => self.map.move_anchor(at).map_err(RobotError::Config)?,
+            FeedMessage::Points { data, .. } if ready => {
+                let t0 = meter.instructions();
+                let n = super::insert_points(&mut self.map, data).map_err(RobotError::Points)?;
+                self.fed.points += n;
+                self.marks.points += n;
+                self.marks.map_instructions += meter.instructions().saturating_sub(t0);
+            }
+            FeedMessage::EndOfRound { round, points } if ready && round == self.round => {
+                if points != self.marks.points {
+                    return Err(RobotError::PointCount { sent: points, received: self.marks.points });
+                }
+                self.start_round(now_ms, meter)?;
+                return Ok(true);
+            }
+            FeedMessage::EndOfFeed { points, .. } if ready => {
+                if points != self.fed.points {
+                    return Err(RobotError::PointCount { sent: points, received: self.fed.points });
+                }
+                self.state = State::Linger { until: now_ms + LINGER_MS };
+                return Ok(true);
+            }
+            _ => return Err(RobotError::Feed(FeedError::Order)),
+        }
+        Ok(false)
+    }
+
+    /// Trades the copies' first answers: the peer's capacity for the
+    /// publisher.
+    fn hello<L: Read + Write + ReadReady + WriteReady>(&mut self, port: &mut L, now_ms: u64) -> Result<(), RobotError> {
+        let out = self.out.get(..ACK_BYTES).unwrap_or(&[]);
+        match self.courier.step(port, out, self.input, now_ms).map_err(RobotError::Courier)? {
+            Event::Busy => {}
+            Event::Delivered(n) => {
+                let publisher = self.publisher.as_mut().ok_or(RobotError::Feed(FeedError::Order))?;
+                let answer = self.input.get(..n).unwrap_or(&[]);
+                let ack = UpdateAck::decode(answer).map_err(|e| RobotError::Update(PublisherError::Update(e)))?;
+                publisher.on_ack(&ack);
+                self.courier.reply(&[]).map_err(RobotError::Courier)?;
+                self.courier.send_answer(port).map_err(RobotError::Courier)?;
+            }
+            Event::Done => self.state = State::Feed,
+        }
+        Ok(())
+    }
+
+    /// Writes the round's update and starts trading it (the courier's
+    /// round: the session's plus one, the hello its 0).
+    fn start_round<T: Meter>(&mut self, now_ms: u64, meter: &T) -> Result<(), RobotError> {
+        let t0 = meter.instructions();
+        let publisher = self.publisher.as_mut().ok_or(RobotError::Feed(FeedError::Order))?;
+        let len = publisher
+            .next_update(&self.map, self.scratch, &mut self.send_model, self.out)
+            .map_err(RobotError::Update)?;
+        self.marks.counts = publisher.counts();
+        self.marks.update_bytes = len as u32;
+        self.marks.update_instructions = meter.instructions().saturating_sub(t0);
+        self.stats_at_start = self.courier.stats();
+        self.courier.start(self.round.wrapping_add(1), len, now_ms).map_err(RobotError::Courier)?;
+        self.state = State::Exchange { len, started_ms: now_ms };
+        Ok(())
+    }
+
+    /// Trades the round's updates: the peer's applied to the copy and
+    /// answered, this robot's answer taken by its publisher.
+    fn exchange<L, T>(&mut self, port: &mut L, len: usize, started_ms: u64, now_ms: u64, meter: &T) -> Result<(), RobotError>
+    where
+        L: Read + Write + ReadReady + WriteReady,
+        T: Meter,
+    {
+        let out = self.out.get(..len).unwrap_or(&[]);
+        match self.courier.step(port, out, self.input, now_ms).map_err(RobotError::Courier)? {
+            Event::Busy => {}
+            Event::Delivered(n) => {
+                let t0 = meter.instructions();
+                let replica = self.replica.as_mut().ok_or(RobotError::Feed(FeedError::Order))?;
+                let update = self.input.get(..n).unwrap_or(&[]);
+                let applied = replica.apply(update, &mut self.read_model, self.scratch);
+                if matches!(applied, Applied::Diverged | Applied::Restarted) {
+                    self.tracker.reset();
+                }
+                self.marks.applied = Some(applied);
+                self.courier.reply(&replica.answer().encode()).map_err(RobotError::Courier)?;
+                self.courier.send_answer(port).map_err(RobotError::Courier)?;
+                self.marks.update_instructions += meter.instructions().saturating_sub(t0);
+            }
+            Event::Done => {
+                let publisher = self.publisher.as_mut().ok_or(RobotError::Feed(FeedError::Order))?;
+                // An answer that does not decode says nothing: the next
+                // update goes from what was acknowledged before.
+                if let Some(ack) = self.courier.answer().and_then(|a| UpdateAck::decode(a).ok()) {
+                    publisher.on_ack(&ack);
+                }
+                self.marks.exchange_ms = now_ms.saturating_sub(started_ms).min(u64::from(u32::MAX)) as u32;
+                let (a, b) = (self.courier.stats(), self.stats_at_start);
+                self.marks.line = CourierStats {
+                    bytes_sent: a.bytes_sent - b.bytes_sent,
+                    bytes_received: a.bytes_received - b.bytes_received,
+                    resent: a.resent - b.resent,
+                    bad_frames: a.bad_frames - b.bad_frames,
+                };
+                self.state = State::Estimate;
+            }
+        }
+        Ok(())
+    }
+
+    /// Estimates the peer from the copy (one long step) and reports the
+    /// round; then the next round's scans.
+    #[inline(never)]
+    fn estimate<F: Write, T: Meter>(&mut self, feed: &mut F, meter: &T) -> Result<(), RobotError> {
+        let replica = self.replica.as_ref().ok_or(RobotError::Feed(FeedError::Order))?;
+        let copy = replica.map();
+        let me = self.fed.me();
+        let t0 = meter.instructions();
+        let mut t1 = t0;
+        let estimate = if copy.is_empty() || self.map.is_empty() {
+            None
+        } else {
+            let pyramid = |e| RobotError::Align(super::AlignError::Pyramid(e));
+            let model = Pyramid::build_model(&self.map, LEVELS, FOOTPRINT_CELL, &mut self.model).map_err(pyramid)?;
+            let scene = copy.prepare_scene(LEVELS, FOOTPRINT_CELL, &mut self.scene).map_err(pyramid)?;
+            t1 = meter.instructions();
+            let scratch = &mut SearchScratch::new(self.search);
+            let how = Pipeline::MPS2.alignment;
+            let e = self.tracker.estimate(&model, &scene, &how, scratch);
+            Some(e.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?)
+        };
+        let t2 = meter.instructions();
+        let report = self.round_report(me, estimate.as_ref(), [t0, t1, t2], meter.peak_stack());
+        super::send(feed, &RobotMessage::Round(report));
+        self.round = self.round.wrapping_add(1);
+        self.marks = RoundMarks::default();
+        self.state = State::Feed;
+        Ok(())
+    }
+
+    fn round_report(&self, me: u8, e: Option<&Estimate>, t: [u64; 3], peak_stack: u32) -> RoundReport {
+        let identity = crate::geometry::rows(&Isometry3::identity());
+        let result = match e {
+            Some(e) => e.result.report(me),
+            None => MatchReport {
+                robot_id: me,
+                status: NO_EXCHANGE,
+                transform: identity,
+                iterations: 0,
+                inliers: 0,
+                overlap: 0.0,
+                rmse: 0.0,
+            },
+        };
+        let m = &self.marks;
+        RoundReport {
+            round: self.round,
+            result,
+            kind: e.map_or(0, |e| e.kind.code()),
+            fix: e.map_or(0, |e| e.fix.code()),
+            applied: m.applied.map_or(u8::MAX, Applied::code),
+            map_voxels: self.map.len() as u32,
+            copy_voxels: self.replica.as_ref().map_or(0, |r| r.map().len() as u32),
+            copy_version: self.replica.as_ref().map_or(0, Replica::version),
+            update_bytes: m.update_bytes,
+            update_counts: [m.counts.new, m.counts.changed, m.counts.removed],
+            line_bytes: [m.line.bytes_sent as u32, m.line.bytes_received as u32],
+            resent: m.line.resent,
+            exchange_ms: m.exchange_ms,
+            map_instructions: m.map_instructions,
+            update_instructions: m.update_instructions,
+            prepare_instructions: t[1].saturating_sub(t[0]),
+            match_instructions: t[2].saturating_sub(t[1]),
+            peak_stack,
+        }
+    }
+}
+
+/// Whether a round's estimate is a fix: `Converged` through the verdict.
+pub fn is_fix(report: &RoundReport) -> bool {
+    MatchStatus::from_code(report.result.status) == Some(MatchStatus::Converged)
+}
+
+impl<S, C, R, P, Q, F, L, T> Machine<F, L, T> for SessionRobot<'_, S, C, R, P, Q>
+where
+    S: VoxelStorage,
+    C: VoxelStorage,
+    R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>,
+    P: PyramidStorage,
+    Q: PyramidStorage,
+    F: Read + Write + ReadReady,
+    L: Read + Write + ReadReady + WriteReady,
+    T: Meter,
+{
+    type Report = SessionEnd;
+
+    /// Does what can be done now: reads a round's scans, trades updates
+    /// over `ports[0]`, estimates the peer (one long step) and reports the
+    /// round, and after the last round lingers and reports its end. On an
+    /// error the robot tells its feeder where and why, best effort, and
+    /// stops.
+    fn poll(&mut self, feed: &mut F, ports: &mut [L], now_ms: u64, meter: &T) -> Result<Poll<SessionEnd>, RobotError> {
+        let r = match ports.first_mut() {
+            Some(port) => self.step(feed, port, now_ms, meter),
+            None => Err(RobotError::Courier(CourierError::Config)),
+        };
+        match &r {
+            Ok(Poll::Done(end)) => super::send(feed, &RobotMessage::SessionEnd(*end)),
+            Err(RobotError::Finished) | Ok(Poll::Busy) => {}
+            Err(e) => {
+                self.state = State::Done;
+                super::send_failure(feed, e);
+            }
+        }
+        r
+    }
+}

@@ -1,0 +1,256 @@
+//! Two session robots (robots that keep driving), fed round by round and
+//! trading updates over simulated lines, as on boards.
+
+use super::session::{SessionParts, SessionRobot};
+use super::*;
+use crate::classes::Class;
+use crate::geometry::{from_xyz_rpy, rows};
+use crate::link::courier::CourierConfig;
+use crate::map::VecStorage;
+use crate::matching::{MatchStatus, VecPyramidStorage};
+use crate::session::ShadowEntry;
+use crate::sim::{self, SimConfig, SimRobot, Wire};
+use crate::test_util::heap_pyramid;
+use crate::wire::feed::{pack_point, FeedMessage, RobotMessage, RoundReport, SessionEnd, Setup, POINT_BYTES};
+use std::vec;
+use std::vec::Vec;
+
+/// A small deterministic generator.
+struct Lcg(u64);
+
+impl Lcg {
+    fn unit(&mut self) -> f32 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
+    }
+}
+
+const CAPACITY: usize = 6_000;
+const ROUNDS: u16 = 24;
+
+/// Where a robot is on the street after `s` metres (a gentle curve).
+fn place(s: f32) -> [f32; 3] {
+    [s, 0.002 * s * s, 0.0]
+}
+
+/// A number in 0..1 fixed by `k` (where the street's things stand).
+fn hash(k: i32) -> f32 {
+    let h = (k as u32).wrapping_mul(2_654_435_761) ^ 0x9E37_79B9;
+    (h.wrapping_mul(2_246_822_519) >> 8) as f32 / (1u32 << 24) as f32
+}
+
+/// 1,500 points of the street around `at`, one in ten mislabelled: a
+/// building wall on the left with gaps, hedges on the right, the road, a
+/// pole in some 8 m bays (at a place of its own in each), parked cars.
+fn scan(at: [f32; 3], rng: &mut Lcg) -> Vec<([f32; 3], Class)> {
+    let mut points = Vec::new();
+    while points.len() < 2_500 {
+        let (u, v) = (rng.unit(), rng.unit());
+        let along = at[0] - 20.0 + 40.0 * u;
+        let y = 0.002 * along * along;
+        let bay = libm::floorf(along / 8.0) as i32;
+        let lot = libm::floorf(along / 5.0) as i32;
+        let (p, class) = match (v * 5.0) as u32 {
+            0 if hash(lot) > 0.3 => ([along, y + 6.0 + 2.0 * hash(lot + 99), 3.0 * rng.unit()], Class::Building),
+            1 if hash(lot + 7) > 0.4 => ([along, y - 6.0, (1.0 + hash(lot + 3)) * rng.unit()], Class::Vegetation),
+            2 => ([along, y - 6.0 + 12.0 * rng.unit(), 0.0], Class::Road),
+            3 if hash(lot + 11) > 0.6 => ([along, y - 3.5 + rng.unit(), 1.5 * rng.unit()], Class::Car),
+            4 if hash(bay + 5) > 0.35 => {
+                let x = 8.0 * bay as f32 + 8.0 * hash(bay + 13);
+                ([x, 0.002 * x * x + 4.0, 4.0 * rng.unit()], Class::Pole)
+            }
+            _ => continue,
+        };
+        points.push((p, if rng.unit() < 0.1 { Class::Trunk } else { class }));
+    }
+    points
+}
+
+/// Robot `id`'s feed: `ROUNDS` rounds of 2 scans 1.5 m apart, starting
+/// `start` metres along the street, in its odometry frame (`T_world_odom`
+/// `odom`): the anchor before each scan, its points, the round's mark.
+fn feed(id: u8, start: f32, odom: &Isometry3<f32>) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut frame = [0u8; crate::wire::MAX_FRAME];
+    let mut push = |msg: FeedMessage<'_>| {
+        let n = msg.to_frame(&mut frame).unwrap();
+        out.extend_from_slice(&frame[..n]);
+    };
+    push(FeedMessage::Setup(Setup { robot_id: id, resolution: 0.5, prior: None, silence_ms: 60_000 }));
+    push(FeedMessage::Session);
+    let to_odom = odom.inverse();
+    let mut rng = Lcg(u64::from(id) + 1);
+    let mut total = 0u32;
+    for round in 0..ROUNDS {
+        let mut points = 0u32;
+        for k in 0..2 {
+            let at = place(start + 3.0 * f32::from(round) + 1.5 * k as f32);
+            let here = to_odom * nalgebra::Point3::from(at);
+            push(FeedMessage::Anchor { at: [here.x, here.y, here.z] });
+            let data: Vec<u8> = scan(at, &mut rng)
+                .into_iter()
+                .flat_map(|(p, c)| {
+                    let q = to_odom * nalgebra::Point3::from(p);
+                    pack_point([q.x, q.y, q.z], c)
+                })
+                .collect();
+            for part in data.chunks(crate::wire::feed::MAX_POINTS_PER_MESSAGE * POINT_BYTES) {
+                push(FeedMessage::Points { scan: k, data: part });
+            }
+            points += (data.len() / POINT_BYTES) as u32;
+        }
+        push(FeedMessage::EndOfRound { round, points });
+        total += points;
+    }
+    push(FeedMessage::EndOfFeed { scans: 2 * ROUNDS, points: total });
+    out
+}
+
+/// A session robot's memory on the heap.
+struct Memory {
+    scratch: Vec<u32>,
+    out: Vec<u8>,
+    input: Vec<u8>,
+    search: Vec<u32>,
+}
+
+impl Memory {
+    fn new() -> Self {
+        Memory {
+            scratch: vec![0; CAPACITY],
+            out: vec![0; 24 * CAPACITY],
+            input: vec![0; 24 * CAPACITY],
+            search: vec![0; crate::matching::search::SearchScratch::WINDOWED],
+        }
+    }
+}
+
+type TestRobot<'a> = SessionRobot<'a, VecStorage, VecStorage, Vec<ShadowEntry>, VecPyramidStorage, VecPyramidStorage>;
+
+fn robot(memory: &mut Memory) -> TestRobot<'_> {
+    let parts = SessionParts {
+        map: VecStorage::with_capacity(CAPACITY),
+        copy: VecStorage::with_capacity(CAPACITY),
+        records: (vec![ShadowEntry::default(); CAPACITY], vec![ShadowEntry::default(); CAPACITY]),
+        scratch: &mut memory.scratch,
+        out: &mut memory.out,
+        input: &mut memory.input,
+        model: heap_pyramid(CAPACITY, 4096, 20_000),
+        scene: heap_pyramid(CAPACITY, 4096, 20_000),
+        search: &mut memory.search,
+    };
+    SessionRobot::new(RobotConfig::default(), CourierConfig::default(), parts).unwrap()
+}
+
+/// What a robot told its feeder: its rounds and its end.
+fn told(bytes: &[u8]) -> (Vec<RoundReport>, Option<SessionEnd>) {
+    let mut deframer = crate::wire::frame::Deframer::new();
+    let (mut rounds, mut end) = (Vec::new(), None);
+    for &b in bytes {
+        if let Ok(Some(p)) = deframer.push(b) {
+            match RobotMessage::decode(p).unwrap() {
+                RobotMessage::Round(r) => rounds.push(r),
+                RobotMessage::SessionEnd(e) => end = Some(e),
+                RobotMessage::Ready => {}
+                other => panic!("{other:?}"),
+            }
+        }
+    }
+    (rounds, end)
+}
+
+/// Runs the pair over `line`: each robot's rounds and end.
+fn run_pair(feeds: &[Vec<u8>; 2], line: SimConfig) -> [(Vec<RoundReport>, SessionEnd); 2] {
+    let (mut ma, mut mb) = (Memory::new(), Memory::new());
+    let (mut a, mut b) = (robot(&mut ma), robot(&mut mb));
+    let out = sim::run(
+        &mut [&mut a as &mut SimRobot<'_, '_, SessionEnd>, &mut b],
+        &[&feeds[0], &feeds[1]],
+        &[Wire { a: 0, b: 1, line }],
+        3_600_000,
+    );
+    [0, 1].map(|i| {
+        let end = out[i].result.expect("still busy").expect("failed");
+        let (rounds, told_end) = told(&out[i].told);
+        assert_eq!(told_end, Some(end));
+        (rounds, end)
+    })
+}
+
+/// The pair's truth: robot 0's odometry is the world's; robot 1 starts 9 m
+/// behind, its odometry turned by 25 degrees and shifted.
+fn pair() -> ([Vec<u8>; 2], Isometry3<f32>) {
+    let odom_b = from_xyz_rpy(-9.0, 4.0, 0.0, 0.0, 0.0, 25f32.to_radians());
+    ([feed(0, 0.0, &Isometry3::identity()), feed(1, -9.0, &odom_b)], odom_b)
+}
+
+#[test]
+fn two_session_robots_keep_their_copies_and_track_each_other() {
+    let (feeds, truth) = pair();
+    let [(ra, ea), (rb, eb)] = run_pair(&feeds, SimConfig::clean(115_200, 5));
+    for (me, rounds, end, t) in [(0, &ra, ea, truth), (1, &rb, eb, truth.inverse())] {
+        assert_eq!(rounds.len(), usize::from(ROUNDS), "robot {me}");
+        assert_eq!(end.rounds, ROUNDS);
+        // Every update applied: the copy is the peer's map, digest checked.
+        assert!(rounds.iter().all(|r| r.applied == 0), "robot {me}: {:?}", rounds.iter().map(|r| r.applied));
+        // After the first round, updates are what changed, not the map.
+        for r in &rounds[1..] {
+            let [new, changed, _] = r.update_counts;
+            assert!(new + changed < r.map_voxels, "robot {me} round {}: {:?}", r.round, r.update_counts);
+        }
+        // Fixes, most of them tracked, and right to the street's
+        // along-track slack (no aliased place: the street's things repeat
+        // 8 m or more apart).
+        let errors = |r: &RoundReport| {
+            let d = r.result.transform() * t.inverse();
+            (d.translation.vector.norm(), d.rotation.angle().to_degrees())
+        };
+        let fixed: Vec<&RoundReport> = rounds.iter().filter(|r| r.result.status == MatchStatus::Converged.code()).collect();
+        let close = fixed.iter().filter(|r| errors(r).0 < 0.3 && errors(r).1 < 0.5).count();
+        assert!(close >= 16, "robot {me}: {close} fixes within 0.3 m and 0.5 degrees");
+        assert!(fixed.iter().all(|r| errors(r).0 < 1.0 && errors(r).1 < 1.0), "robot {me}");
+        assert!(rounds.iter().filter(|r| r.kind == 1).count() >= 12, "robot {me}: tracking");
+        std::println!(
+            "robot {me}: update bytes {:?}, line bytes {:?}",
+            rounds.iter().map(|r| r.update_bytes).collect::<Vec<_>>(),
+            end.line_bytes
+        );
+    }
+}
+
+#[test]
+fn a_damaged_line_changes_the_bytes_not_the_estimates() {
+    let (feeds, _) = pair();
+    let clean = run_pair(&feeds, SimConfig::clean(115_200, 5));
+    let damaged = SimConfig { error_rate: 0.03, ..SimConfig::clean(115_200, 6) };
+    let lossy = run_pair(&feeds, damaged);
+    for me in 0..2 {
+        let strip = |r: &RoundReport| RoundReport { line_bytes: [0; 2], resent: 0, exchange_ms: 0, ..*r };
+        let a: Vec<RoundReport> = clean[me].0.iter().map(strip).collect();
+        let b: Vec<RoundReport> = lossy[me].0.iter().map(strip).collect();
+        assert_eq!(a, b, "robot {me}");
+        assert!(lossy[me].1.resent > 0);
+    }
+    // And the same run twice is the same run.
+    assert_eq!(run_pair(&feeds, SimConfig::clean(115_200, 5)), clean);
+}
+
+#[test]
+fn a_pair_robot_refuses_a_session_feed_and_a_session_robot_a_pair_feed() {
+    let mut m = Memory::new();
+    let mut r = robot(&mut m);
+    let mut bytes = Vec::new();
+    let mut frame = [0u8; crate::wire::MAX_FRAME];
+    for msg in [
+        FeedMessage::Setup(Setup { robot_id: 0, resolution: 0.5, prior: None, silence_ms: 1000 }),
+        FeedMessage::Points { scan: 0, data: &pack_point([1.0, 1.0, 0.0], Class::Road) },
+    ] {
+        let n = msg.to_frame(&mut frame).unwrap();
+        bytes.extend_from_slice(&frame[..n]);
+    }
+    // A line to a peer that is not there.
+    let wire = Wire::clean(0, 1, 115_200, 1);
+    let out = sim::run(&mut [&mut r as &mut SimRobot<'_, '_, SessionEnd>], &[&bytes], &[wire], 10_000);
+    assert_eq!(out[0].result, Some(Err(RobotError::Feed(crate::wire::feed::FeedError::Order))));
+    let _ = rows(&Isometry3::<f32>::identity());
+}
