@@ -70,6 +70,7 @@ pub mod maps {
     pub mod mapping;
     pub mod noise;
     pub mod ply;
+    pub mod thin;
 }
 
 /// Matching on the host: heap pyramids, alignment with or without a prior.
@@ -112,6 +113,7 @@ pub mod boards {
     pub mod firmware;
     pub mod pump;
     pub mod robots;
+    pub mod session_board;
     pub mod team_board;
     pub mod twin;
 }
@@ -122,6 +124,7 @@ pub mod reports {
     pub mod report;
     pub mod robots;
     pub mod session;
+    pub mod session_board;
     pub mod session_recording;
     pub mod team;
 }

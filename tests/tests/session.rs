@@ -277,3 +277,39 @@ fn labelled_town_robots_stay_in_their_world() {
     assert_eq!(world(&out), world(&data));
     assert_eq!(std::fs::read(out.join("poses.txt")).unwrap(), std::fs::read(data.join("poses.txt")).unwrap());
 }
+
+/// Two session robots on emulated mps2-an386 boards (`--on-board`), over
+/// the town's first meeting (frames 44 to 104 of seed 1, drifted): 30
+/// rounds each, every round equal to the host's twin of the same robots,
+/// within 3e8 instructions a round, fixes in the meeting and none wrong.
+#[test]
+fn two_session_robots_run_on_boards_equal_to_their_twin() {
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let town = dir.path().join("town");
+    let t = town.display().to_string();
+    cosem_ok(&["synth", "--town", "--out", &t, "--frames", "104", "--seg", "none", "--seed", "1"]);
+    let (a, b) = (format!("{t}/robot_0:44:104"), format!("{t}/robot_1:44:104"));
+    let out = cosem_ok(&["session", "--on-board", "--json", "--robot", &a, "--robot", &b, "--drift", "1%,0.5"]);
+    let mut lines: Vec<Value> = out.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
+    let summary = lines.pop().expect("a summary line")["summary"].clone();
+    eprintln!("{summary}");
+    assert_eq!(summary["equal_to_twin"], true, "{summary}");
+    assert_eq!(summary["rounds"], 30, "{summary}");
+    for (i, board) in summary["boards"].as_array().unwrap().iter().enumerate() {
+        assert_eq!(board["rounds"], 30, "board {i}: {board}");
+        assert!(board["failed"].is_null(), "board {i}: {board}");
+        assert_eq!(board["twin_max_dt"].as_f64(), Some(0.0), "board {i}: bit for bit: {board}");
+        assert!(board["most_round_instructions"].as_u64().unwrap() <= 300_000_000, "board {i}: {board}");
+        assert!(board["converged"].as_u64().unwrap() >= 10, "board {i}: {board}");
+        assert_eq!(board["wrong_converged"], 0, "board {i}: {board}");
+    }
+    assert_eq!(lines.len(), 2 * 30);
+    for l in &lines {
+        for key in ["round", "robot", "peer", "status", "kind", "T_own_peer", "update_bytes", "line_bytes"] {
+            assert!(!l[key].is_null(), "{key} missing: {l}");
+        }
+    }
+}

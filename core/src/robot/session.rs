@@ -13,7 +13,7 @@
 //! are rebuilt every round (both maps change every round).
 
 use super::feed_in::FeedIn;
-use super::{map_config, Machine, Meter, Poll, RobotConfig, RobotError, FOOTPRINT_CELL, LEVELS};
+use super::{map_config, Machine, Meter, Poll, RobotConfig, RobotError};
 use crate::geometry::Isometry3;
 use crate::link::courier::{Courier, CourierConfig, CourierError, CourierStats, Event};
 use crate::map::{LocalMap, VoxelStorage};
@@ -29,6 +29,51 @@ use crate::wire::report::MatchReport;
 use crate::wire::share::NO_EXCHANGE;
 use crate::wire::update::{UpdateAck, ACK_BYTES};
 use embedded_io::{Read, ReadReady, Write, WriteReady};
+
+/// Voxels of a session robot's map on a board, and of its copy of its
+/// peer's (an mps2-an386 in its 1 MiB budget). What a session robot keeps
+/// between rounds is its map and the copy (28 bytes a voxel each), the
+/// publisher's records of what the peer holds and of the update in flight
+/// (32 bytes a voxel of its map), the update buffers and a scratch word a
+/// voxel; both pyramids (the map's as the model, the copy's as the scene)
+/// are rebuilt every round, since both maps change every round. About
+/// 650 KiB with 4,096 voxels: the pair robot's 8,192 do not fit beside a
+/// copy and the records.
+pub const SESSION_VOXELS: usize = 4096;
+/// Coarse pyramid entries of a session robot's pyramids (0.69 per voxel:
+/// maps of 0.5 m with a network's labels took up to 0.66).
+pub const SESSION_COARSE: usize = 2816;
+/// Bytes of each of a session robot's update buffers: a snapshot of its
+/// whole map (codec records of 1.5-2 bytes a voxel, chunk and header
+/// bytes) with room.
+pub const SESSION_UPDATE_BYTES: usize = 4 * SESSION_VOXELS + 1024;
+/// A session robot's map storage, and its copy's.
+pub type SessionMapStorage = crate::map::ArrayStorage<SESSION_VOXELS, u16>;
+/// The publisher's records of a session robot.
+pub type SessionRecords = [ShadowEntry; SESSION_VOXELS];
+/// The pyramid storage of a session robot's map (the model).
+pub type SessionModelStorage = crate::matching::ArrayPyramidStorage<SESSION_VOXELS, SESSION_COARSE, { super::MODEL_WORDS }>;
+/// The pyramid storage of its copy of the peer's map (the scene: a map's
+/// scene pyramid keeps a voxel's extras too).
+pub type SessionSceneStorage = crate::matching::ArrayPyramidStorage<SESSION_VOXELS, SESSION_COARSE, { super::SCENE_WORDS }>;
+
+/// The session robots' pipeline: the mps2 robot's, its prior-free search
+/// cut to 20,000 nodes (searched every round until a fix, on maps that
+/// share nothing it would spend the whole budget: with 40,000 nodes such a
+/// round took up to 4.6e8 instructions on an mps2-an386, over the 3e8 a
+/// round may take).
+pub const SESSION_PIPELINE: Pipeline = Pipeline {
+    alignment: crate::matching::Alignment {
+        search: crate::matching::search::GlobalSearch {
+            max_evaluations: SESSION_SEARCH_NODES,
+            ..Pipeline::MPS2.alignment.search
+        },
+        ..Pipeline::MPS2.alignment
+    },
+    ..Pipeline::MPS2
+};
+/// Nodes a session robot's prior-free search may score.
+pub const SESSION_SEARCH_NODES: u32 = 20_000;
 
 /// After its last round a robot answers its peer's resends this long (ms)
 /// before it reports its end: the peer may have missed its last answer.
@@ -406,11 +451,12 @@ where
             None
         } else {
             let pyramid = |e| RobotError::Align(super::AlignError::Pyramid(e));
-            let model = Pyramid::build_model(&self.map, LEVELS, FOOTPRINT_CELL, &mut self.model).map_err(pyramid)?;
-            let scene = copy.prepare_scene(LEVELS, FOOTPRINT_CELL, &mut self.scene).map_err(pyramid)?;
+            let (levels, cell) = (SESSION_PIPELINE.levels, SESSION_PIPELINE.footprint_cell);
+            let model = Pyramid::build_model(&self.map, levels, cell, &mut self.model).map_err(pyramid)?;
+            let scene = copy.prepare_scene(levels, cell, &mut self.scene).map_err(pyramid)?;
             t1 = meter.instructions();
             let scratch = &mut SearchScratch::new(self.search);
-            let how = Pipeline::MPS2.alignment;
+            let how = SESSION_PIPELINE.alignment;
             let e = self.tracker.estimate(&model, &scene, &how, scratch);
             Some(e.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?)
         };

@@ -86,6 +86,11 @@ pub struct Publisher<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> {
     counts: UpdateCounts,
 }
 
+impl ShadowEntry {
+    /// No record (what a board's static records start as).
+    pub const EMPTY: ShadowEntry = ShadowEntry { code: 0, hash: 0, index: 0 };
+}
+
 impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
     /// A publisher of session `epoch` (a restarted robot takes another),
     /// its records in `held` and `sent` (each at least the map's capacity).

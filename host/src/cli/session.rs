@@ -41,15 +41,17 @@ pub struct Args {
     /// Seed of drift and label noise (robot i: SEED + i).
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Voxel size of the robots' maps (m).
-    #[arg(long, default_value_t = session::DEFAULT_VOXEL, value_parser = super::args::voxel)]
-    voxel: f32,
+    /// Voxel size of the robots' maps (m) [default: 0.5; 0.7 with
+    /// --on-board].
+    #[arg(long, value_parser = super::args::voxel)]
+    voxel: Option<f32>,
     /// Voxels a robot's map holds, and each of its copies of a peer's;
     /// beyond, what is farthest from the robot goes. One for every robot,
     /// or one per robot (8000,3000: a robot that holds less is sent the
-    /// part of a peer's map nearest the peer).
-    #[arg(long, default_value_t = Capacities(vec![session::DEFAULT_CAPACITY]), value_parser = capacity)]
-    capacity: Capacities,
+    /// part of a peer's map nearest the peer) [default: 8000; with
+    /// --on-board the boards' 4096, fixed].
+    #[arg(long, value_parser = capacity)]
+    capacity: Option<Capacities>,
     /// Points farther than this from their sensor are left out (m).
     #[arg(long, default_value_t = session::DEFAULT_CROP, value_parser = super::args::crop)]
     crop: f32,
@@ -69,6 +71,18 @@ pub struct Args {
     /// Converged estimates on /tf.
     #[arg(long, value_name = "OUT")]
     mcap_out: Option<std::path::PathBuf>,
+    /// Run the two robots on emulated boards (QEMU mps2-an386, the
+    /// firmware's `session` binary): each fed its rounds over a UART,
+    /// trading updates with the other over another; every round checked
+    /// against the host's twin of the same robots.
+    #[arg(long, conflicts_with_all = ["one_shot", "mcap_out", "capacity"])]
+    on_board: bool,
+    /// With --on-board: the session firmware.
+    #[arg(long, requires = "on_board", default_value = cosem_host::boards::session_board::SESSION_FIRMWARE)]
+    firmware: std::path::PathBuf,
+    /// With --on-board: kill the emulators after this long (s).
+    #[arg(long, requires = "on_board", default_value_t = 3600.0)]
+    timeout: f64,
 }
 
 /// `--capacity`: one or one per robot (at most 3), each 64 to
@@ -108,29 +122,10 @@ pub fn run_session(a: Args) -> Result<(), Error> {
     if !(2..=3).contains(&n) {
         return Err(format!("--robot: 2 or 3 robots, not {n}").into());
     }
-    let given = a.capacity.0.len();
-    if given != 1 && given != n {
-        return Err(format!("--capacity {}: one capacity, or one per robot ({n})", a.capacity).into());
+    let spec = spec_of(&a, robots)?;
+    if a.on_board {
+        return on_board(&spec, &a);
     }
-    if let Some((robot, _)) = a.slip {
-        if robot >= n {
-            return Err(format!("--slip {robot},..: no robot {robot} of 0..{n}").into());
-        }
-    }
-    let spec = SessionSpec {
-        robots,
-        every: a.every,
-        voxel: a.voxel,
-        capacity: a.capacity.0,
-        crop: a.crop,
-        drift: a.drift,
-        slip: a.slip,
-        label_noise: a.label_noise,
-        seed: a.seed,
-        source: a.source.options(),
-        alignment: a.tuning.apply(session::DEFAULT_ALIGNMENT),
-        one_shot: a.one_shot,
-    };
     if let Some(out) = &a.mcap_out {
         let inputs: Vec<(&str, &std::path::Path)> = spec.robots.iter().map(|r| ("--robot", r.data.as_path())).collect();
         cosem_host::paths::check_output("--mcap-out", out, &inputs)?;
@@ -169,4 +164,69 @@ pub fn run_session(a: Args) -> Result<(), Error> {
         print!("{}", summary_text(&out.summary, out.rounds));
     }
     Ok(())
+}
+
+/// The session `a` asks for, its robots `robots`.
+fn spec_of(a: &Args, robots: Vec<RobotSpec>) -> Result<SessionSpec, Error> {
+    let n = robots.len();
+    let capacity = a.capacity.clone().unwrap_or(Capacities(vec![session::DEFAULT_CAPACITY]));
+    let given = capacity.0.len();
+    if given != 1 && given != n {
+        return Err(format!("--capacity {capacity}: one capacity, or one per robot ({n})").into());
+    }
+    if let Some((robot, _)) = a.slip {
+        if robot >= n {
+            return Err(format!("--slip {robot},..: no robot {robot} of 0..{n}").into());
+        }
+    }
+    let tuned = [a.tuning.em_iterations.is_some(), a.tuning.min_overlap.is_some(), a.tuning.min_agreement.is_some()];
+    if a.on_board && (tuned.contains(&true) || a.tuning.search_nodes.is_some()) {
+        return Err("--on-board: the boards run the session robots' own pipeline (no --em-iterations, --min-overlap, --min-agreement or --search-nodes)".into());
+    }
+    Ok(SessionSpec {
+        robots,
+        every: a.every,
+        voxel: a.voxel.unwrap_or(if a.on_board {
+            cosem_host::boards::session_board::BOARD_VOXEL
+        } else {
+            session::DEFAULT_VOXEL
+        }),
+        capacity: if a.on_board { vec![cosem_core::robot::session::SESSION_VOXELS] } else { capacity.0 },
+        crop: a.crop,
+        drift: a.drift,
+        slip: a.slip,
+        label_noise: a.label_noise,
+        seed: a.seed,
+        source: a.source.options(),
+        alignment: a.tuning.apply(session::DEFAULT_ALIGNMENT),
+        one_shot: a.one_shot,
+    })
+}
+
+/// `--on-board`: the session on two emulated boards, every round beside
+/// the host's twin and the truth.
+fn on_board(spec: &SessionSpec, a: &Args) -> Result<(), Error> {
+    use cosem_host::boards::session_board::{run_session_on_boards, SessionBoardsSpec};
+    if spec.robots.len() != 2 {
+        return Err(format!("--on-board: 2 robots, not {}", spec.robots.len()).into());
+    }
+    let run = run_session_on_boards(&SessionBoardsSpec {
+        session: spec,
+        firmware: &a.firmware,
+        timeout: std::time::Duration::from_secs_f64(a.timeout.clamp(1.0, 86_400.0)),
+        silence_ms: 60_000,
+    })?;
+    let report = cosem_host::reports::session_board::report(&run);
+    if a.json {
+        for line in report.lines_json()? {
+            println!("{line}");
+        }
+    } else {
+        print!("{}", report.text());
+    }
+    if report.ok() {
+        Ok(())
+    } else {
+        Err("the boards' session failed or differs from the host's twin (see above)".into())
+    }
 }

@@ -10,6 +10,9 @@
 //! - `robot`: one robot of a pair (`cosem robots`);
 //! - `team`: one robot of a team of up to five (`cosem team --on-board`):
 //!   UART1 its feeder line, UART0, 2, 3 and 4 its peers;
+//! - `session`: one robot that keeps driving (`cosem session --on-board`):
+//!   fed in rounds over UART1, trading map updates with its peer over
+//!   UART0;
 //! - `crash`: panics or faults on purpose (`-append panic|fault`), for the
 //!   tests of the exit codes.
 #![no_std]

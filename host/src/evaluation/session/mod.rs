@@ -9,6 +9,7 @@
 //! world, is only for the figures ([`figures`]).
 
 pub mod bench;
+pub mod feed;
 mod figures;
 mod robot;
 

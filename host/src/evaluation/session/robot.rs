@@ -64,6 +64,11 @@ impl Robot {
         Ok(Robot { frames, truth_frames, world, map, truth_map, fused: 0, filter })
     }
 
+    /// Scan `k` (its points and pose in the odometry frame, drifted).
+    pub fn frame(&self, k: usize) -> &Frame {
+        &self.frames[k]
+    }
+
     /// Scans the robot has.
     pub fn scans(&self) -> usize {
         self.frames.len()
