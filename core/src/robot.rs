@@ -462,5 +462,3 @@ pub use pair::{Robot, Sender};
 
 #[cfg(test)]
 mod tests;
-#[cfg(test)]
-mod session_tests;

@@ -53,5 +53,3 @@ pub trait Clock {
 
 #[cfg(test)]
 mod tests;
-#[cfg(test)]
-mod courier_tests;

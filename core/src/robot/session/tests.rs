@@ -1,8 +1,8 @@
 //! Two session robots (robots that keep driving), fed round by round and
 //! trading updates over simulated lines, as on boards.
 
-use super::session::{SessionParts, SessionRobot};
-use super::*;
+use super::super::*;
+use super::{SessionParts, SessionRobot};
 use crate::classes::Class;
 use crate::geometry::{from_xyz_rpy, rows};
 use crate::link::courier::CourierConfig;

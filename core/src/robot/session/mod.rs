@@ -546,3 +546,6 @@ where
         r
     }
 }
+
+#[cfg(test)]
+mod tests;

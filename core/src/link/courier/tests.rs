@@ -1,7 +1,7 @@
 //! The courier on seeded lines: every round's messages arrive whole and
 //! answered, on a clean line, a damaged one and one that drops bytes.
 
-use super::courier::{Courier, CourierConfig, CourierError, Event};
+use super::{Courier, CourierConfig, CourierError, Event};
 use crate::sim;
 use core::cell::RefCell;
 use std::vec;

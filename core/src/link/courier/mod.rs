@@ -724,3 +724,6 @@ impl Courier {
         )
     }
 }
+
+#[cfg(test)]
+mod tests;
