@@ -208,12 +208,12 @@ fn feed_and_collect(conn: TcpStream, feed: Vec<u8>, deadline: Instant, progress:
 }
 
 /// Runs two session boards from firmware `elf`, board i fed `feeds[i]`,
-/// their UART0s joined; every QEMU killed at `timeout`. Returns each
-/// board's run and the wall time (s).
+/// their UART0s joined through `line`; every QEMU killed at `timeout`.
+/// Returns each board's run and the wall time (s).
 pub fn run_session_boards(
     elf: &Path,
     feeds: &[Vec<u8>],
-    timeout: Duration,
+    (line, timeout): (LineFault, Duration),
     progress: bool,
 ) -> Result<(Vec<SessionBoardRun>, f64), Error> {
     if feeds.len() != 2 {
@@ -239,8 +239,8 @@ pub fn run_session_boards(
             let clone = |s: &TcpStream| s.try_clone().map_err(|e| e.to_string());
             let (l0b, l1b) = (clone(&l0)?, clone(&l1)?);
             let (c0, c1) = (Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0)));
-            std::thread::spawn(move || pump(l0, l1b, LineFault::None, 1, c0));
-            std::thread::spawn(move || pump(l1, l0b, LineFault::None, 2, c1));
+            std::thread::spawn(move || pump(l0, l1b, line, 1, c0));
+            std::thread::spawn(move || pump(l1, l0b, line, 2, c1));
             let mut listeners = Vec::new();
             for (i, (f, b)) in feeders.iter().zip(feeds).enumerate() {
                 let conn = accept(f, connect_by)?;
@@ -302,6 +302,8 @@ pub struct SessionBoardsSpec<'a> {
     pub timeout: Duration,
     /// A robot gives up on a silent peer or feeder after this long (ms).
     pub silence_ms: u32,
+    /// What the line between the boards does to bytes.
+    pub line: LineFault,
 }
 
 /// What a session on boards ran: the boards, their host twin, the truth.
@@ -326,7 +328,7 @@ pub fn run_session_on_boards(spec: &SessionBoardsSpec<'_>) -> Result<SessionBoar
     let host = host_session_twin(&feeds.feeds)?;
     let twin_s = t.elapsed().as_secs_f64();
     let elf = crate::boards::firmware::firmware(spec.firmware)?;
-    let (boards, wall_s) = run_session_boards(&elf, &feeds.feeds, spec.timeout, true)?;
+    let (boards, wall_s) = run_session_boards(&elf, &feeds.feeds, (spec.line, spec.timeout), true)?;
     Ok(SessionBoardsRun { boards, host, truth: feeds.truth, rounds: feeds.rounds, wall_s: (twin_s, wall_s) })
 }
 

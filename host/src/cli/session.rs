@@ -80,6 +80,11 @@ pub struct Args {
     /// With --on-board: the session firmware.
     #[arg(long, requires = "on_board", default_value = cosem_host::boards::session_board::SESSION_FIRMWARE)]
     firmware: std::path::PathBuf,
+    /// With --on-board: what the line between the boards' UART0s does:
+    /// none, corrupt=P (a bit of each byte flipped with probability P) or
+    /// lossy=P (bytes substituted, dropped and duplicated alike).
+    #[arg(long, requires = "on_board", default_value = "none")]
+    line: cosem_host::boards::pump::LineFault,
     /// With --on-board: kill the emulators after this long (s).
     #[arg(long, requires = "on_board", default_value_t = 3600.0)]
     timeout: f64,
@@ -215,6 +220,7 @@ fn on_board(spec: &SessionSpec, a: &Args) -> Result<(), Error> {
         firmware: &a.firmware,
         timeout: std::time::Duration::from_secs_f64(a.timeout.clamp(1.0, 86_400.0)),
         silence_ms: 60_000,
+        line: a.line,
     })?;
     let report = cosem_host::reports::session_board::report(&run);
     if a.json {

@@ -128,9 +128,14 @@ impl Memory {
 type TestRobot<'a> = SessionRobot<'a, VecStorage, VecStorage, Vec<ShadowEntry>, VecPyramidStorage, VecPyramidStorage>;
 
 fn robot(memory: &mut Memory) -> TestRobot<'_> {
+    robot_holding(memory, CAPACITY)
+}
+
+/// A robot whose copy of its peer's map holds `copy` voxels.
+fn robot_holding(memory: &mut Memory, copy: usize) -> TestRobot<'_> {
     let parts = SessionParts {
         map: VecStorage::with_capacity(CAPACITY),
-        copy: VecStorage::with_capacity(CAPACITY),
+        copy: VecStorage::with_capacity(copy),
         records: (vec![ShadowEntry::default(); CAPACITY], vec![ShadowEntry::default(); CAPACITY]),
         scratch: &mut memory.scratch,
         out: &mut memory.out,
@@ -161,8 +166,13 @@ fn told(bytes: &[u8]) -> (Vec<RoundReport>, Option<SessionEnd>) {
 
 /// Runs the pair over `line`: each robot's rounds and end.
 fn run_pair(feeds: &[Vec<u8>; 2], line: SimConfig) -> [(Vec<RoundReport>, SessionEnd); 2] {
+    run_pair_holding(feeds, line, [CAPACITY; 2])
+}
+
+/// [`run_pair`] with robot i's copy holding `copies[i]` voxels.
+fn run_pair_holding(feeds: &[Vec<u8>; 2], line: SimConfig, copies: [usize; 2]) -> [(Vec<RoundReport>, SessionEnd); 2] {
     let (mut ma, mut mb) = (Memory::new(), Memory::new());
-    let (mut a, mut b) = (robot(&mut ma), robot(&mut mb));
+    let (mut a, mut b) = (robot_holding(&mut ma, copies[0]), robot_holding(&mut mb, copies[1]));
     let out = sim::run(
         &mut [&mut a as &mut SimRobot<'_, '_, SessionEnd>, &mut b],
         &[&feeds[0], &feeds[1]],
@@ -253,4 +263,22 @@ fn a_pair_robot_refuses_a_session_feed_and_a_session_robot_a_pair_feed() {
     let out = sim::run(&mut [&mut r as &mut SimRobot<'_, '_, SessionEnd>], &[&bytes], &[wire], 10_000);
     assert_eq!(out[0].result, Some(Err(RobotError::Feed(crate::wire::feed::FeedError::Order))));
     let _ = rows(&Isometry3::<f32>::identity());
+}
+
+/// A robot that holds less of its peer's map than the peer has (a smaller
+/// board) says so before the first round and is never sent more: its copy
+/// is the part of the peer's map that fits, every update applied; the
+/// peer still holds all of the smaller robot's map.
+#[test]
+fn a_robot_that_holds_less_is_sent_what_fits() {
+    const SMALL: usize = 2_000;
+    let (feeds, _) = pair();
+    let [(ra, _), (rb, _)] = run_pair_holding(&feeds, SimConfig::clean(115_200, 7), [CAPACITY, SMALL]);
+    assert_eq!((ra.len(), rb.len()), (usize::from(ROUNDS), usize::from(ROUNDS)));
+    for (a, b) in ra.iter().zip(&rb) {
+        assert_eq!((a.applied, b.applied), (0, 0), "round {}", a.round);
+        assert_eq!(b.copy_voxels, a.map_voxels.min(SMALL as u32), "round {}: robot 1 holds what fits", a.round);
+        assert_eq!(a.copy_voxels, b.map_voxels, "round {}: robot 0 holds all", a.round);
+    }
+    assert!(ra.iter().any(|r| r.map_voxels > SMALL as u32), "robot 0's map outgrew what robot 1 holds");
 }
