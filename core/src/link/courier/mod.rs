@@ -7,13 +7,17 @@
 //! ([`crate::wire::frame`]: Reed-Solomon parity, CRC-32, COBS) carries a
 //! run of them, tagged with the round, the message's length and the first
 //! unit. The receiver acknowledges every data frame with what it holds
-//! (all units below a count, and a mask of the 64 after). The line keeps
-//! order, so a frame sent before one now acknowledged, and not
-//! acknowledged itself, was lost: it is sent again at once; a timeout
-//! (doubling while nothing moves) catches the rest. Frames shrink when
-//! they are lost and grow again while they arrive, so a line that damages
-//! many bytes still carries short frames. A whole message is handed to
-//! the caller, who answers it ([`Courier::reply`]: an update's answer,
+//! (all units below a count, and three runs held beyond it: the first two
+//! and the last). The line keeps order, so a frame sent before one now
+//! acknowledged, and not acknowledged itself, was lost: it is sent again
+//! at once; a timeout (twice the round trip, doubling only while the peer
+//! is silent) sends everything unacknowledged again. The frames' size and
+//! parity follow the line as the peer's frames judge it (the link's
+//! estimate, [`super::Endpoint`]'s: what the deframer repaired and the
+//! frames lost), each data frame's acknowledgement counted in its cost;
+//! while nothing is heard, each timeout also halves the largest frame. A
+//! whole message is handed to the caller, who answers it
+//! ([`Courier::reply`]: an update's answer,
 //! [`crate::wire::update::UpdateAck`]); the answer rides the receiver's
 //! acknowledgements. A round is over when this side holds the peer's whole
 //! message and has answered it, and the peer has acknowledged all of this
@@ -22,10 +26,12 @@
 //! A side that finished a round keeps its last acknowledgement and answers
 //! the peer's resends of that round with it (the peer may have missed it)
 //! while it fuses its next scans and starts the next round; the peer's
-//! frames of a round it has not reached yet are dropped (resent later).
+//! frames of the next round are taken as they come, before this side
+//! starts it.
 
-use crate::wire::frame::{encode_frame_parity, max_payload, Deframer, MAX_FRAME};
+use crate::wire::frame::{encode_frame_parity, frame_len, max_payload, Deframer, MAX_FRAME};
 use crate::wire::rs::MAX_PARITY;
+use super::endpoint::line::{FrameShape, LineEstimate};
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
 /// First byte of a courier's data frame (clear of the link's, the feed's
@@ -44,26 +50,28 @@ pub const MAX_REPLY: usize = 32;
 /// first unit.
 const DATA_HEADER: usize = 1 + 1 + 3 + 2;
 /// Bytes of an acknowledgement before its answer: kind, round, count,
-/// mask, flags.
-const ACK_HEADER: usize = 1 + 1 + 2 + 8 + 1;
+/// three runs held beyond it (first unit, units), flags.
+const ACK_HEADER: usize = 1 + 1 + 2 + 12 + 1;
+/// Runs of units held beyond the count an acknowledgement tells: the
+/// first two after the gap and the last (the line keeps order: what was
+/// sent before the last run and is not held was lost).
+const ACK_RUNS: usize = 3;
 /// Most frames in flight.
 const IN_FLIGHT: usize = 48;
 /// Flag of an acknowledgement: the whole message is held.
 const COMPLETE: u8 = 1;
 /// Flag: the answer follows.
 const REPLIED: u8 = 2;
-/// Frames acknowledged in a row before frames grow by a unit.
-const GROW_AFTER: u8 = 6;
 
 /// Sizes and timing of a courier.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct CourierConfig {
-    /// Most units a data frame carries (default 24: 192 bytes); frames
-    /// shrink to one unit on a line that loses them.
+    /// Most units a data frame carries (default 24: 192 bytes); on a line
+    /// that damages bytes frames carry fewer.
     pub max_units: u8,
-    /// Parity bytes of every frame (even, default 4: two bytes repaired a
-    /// frame).
+    /// Least parity bytes of every frame (even, default 4: two bytes
+    /// repaired a frame); a line that damages bytes gets more.
     pub parity: u8,
     /// Units in flight beyond the first unacknowledged one (default 192:
     /// 1.5 KiB).
@@ -161,6 +169,19 @@ impl Bits {
     fn all(&self, from: usize, to: usize) -> bool {
         (from..to).all(|k| self.get(k))
     }
+    /// The first unit at or after `from`, below `n`, held (`n` when none
+    /// is).
+    fn first_set(&self, from: usize, n: usize) -> usize {
+        let mut k = from;
+        while k < n {
+            match self.0.get(k / 32) {
+                Some(&0) if k.is_multiple_of(32) => k += 32,
+                Some(&w) if w & (1 << (k % 32)) == 0 => k += 1,
+                _ => return k.min(n),
+            }
+        }
+        n
+    }
     /// The first unit at or after `from`, below `n`, not held (`n` when
     /// all are).
     fn first_clear(&self, from: usize, n: usize) -> usize {
@@ -233,10 +254,19 @@ pub struct Courier {
     /// Frames found lost, to send again first.
     lost: heapless::Deque<Flight, IN_FLIGHT>,
     seq: u32,
+    /// Units a data frame carries, and the parity of every frame: the
+    /// shape the line estimate chose.
     frame_units: u8,
-    streak: u8,
+    parity: u8,
+    line: LineEstimate,
+    /// Most units a frame carries while the peer is not heard: halved at
+    /// each timeout that heard nothing, doubled at each acknowledgement
+    /// that moved.
+    ceiling: u8,
     last_sent_ms: u64,
     backoff: u8,
+    /// A valid frame of this round came since the last timeout.
+    heard: bool,
     /// Smoothed round trip of data frames (ms, eighths), once measured.
     srtt8: Option<u64>,
     answer: Option<Reply>,
@@ -272,9 +302,12 @@ impl Courier {
             lost: heapless::Deque::new(),
             seq: 0,
             frame_units: config.max_units,
-            streak: 0,
+            parity: config.parity,
+            line: LineEstimate::default(),
+            ceiling: config.max_units,
             last_sent_ms: 0,
             backoff: 0,
+            heard: false,
             srtt8: None,
             answer: None,
             in_round: None,
@@ -371,22 +404,33 @@ impl Courier {
             }
             self.stats.bytes_received += n as u64;
             for &b in buf.get(..n).unwrap_or(&[]) {
+                if b != 0 {
+                    self.line.byte();
+                }
                 let mut payload = [0u8; MAX_FRAME];
-                let len = match self.deframer.push(b) {
-                    Ok(Some(p)) => {
-                        let k = p.len().min(payload.len());
-                        payload.get_mut(..k).unwrap_or(&mut []).copy_from_slice(p.get(..k).unwrap_or(&[]));
+                let len = match self.deframer.push_frame(b) {
+                    Ok(Some(f)) => {
+                        self.line.frame(Some((f.damage, f.parity)));
+                        let k = f.payload.len().min(payload.len());
+                        payload.get_mut(..k).unwrap_or(&mut []).copy_from_slice(f.payload.get(..k).unwrap_or(&[]));
                         k
                     }
                     Ok(None) => continue,
-                    Err(_) => {
+                    Err(e) => {
                         self.stats.bad_frames += 1;
+                        // No header read: its bytes tell nothing of the line.
+                        if e == crate::wire::DeframeError::Header {
+                            self.line.skip();
+                        } else {
+                            self.line.frame(None);
+                        }
                         continue;
                     }
                 };
                 self.on_frame(port, payload.get(..len).unwrap_or(&[]), input, now_ms)?;
             }
         }
+        self.reshape();
         let Some(round) = self.round else { return Ok(Event::Busy) };
         if self.delivered && self.replied.is_none() && self.in_round == Some(round) {
             return Ok(Event::Delivered(self.in_len.unwrap_or(0) as usize));
@@ -409,6 +453,32 @@ impl Courier {
         Ok(Event::Busy)
     }
 
+    /// The frames' size and parity for the line as the peer's frames judge
+    /// it (the link's estimate: what the deframer repaired, the frames
+    /// lost), within the configured largest frame.
+    fn reshape(&mut self) {
+        let line = self.line.model();
+        let most = usize::from(self.config.max_units);
+        let mut best = (0.0f32, self.frame_units, self.parity);
+        for parity in (usize::from(self.config.parity)..=MAX_PARITY.min(16)).step_by(2) {
+            let room = max_payload(parity).saturating_sub(DATA_HEADER) / UNIT;
+            // Every data frame brings an acknowledgement back: its bytes count.
+            let ack = frame_len(ACK_HEADER, parity) as f32;
+            for units in 1..=most.min(room) {
+                let data = UNIT * units;
+                // The link's data header is shorter: the rest counts as data.
+                let chunk = data + DATA_HEADER - crate::wire::message::DATA_HEADER;
+                let shape = FrameShape { chunk, parity, arrival: 0.0, block: None, clean: false };
+                let bytes = frame_len(DATA_HEADER + data, parity) as f32 + ack;
+                let goodput = data as f32 / bytes * line.arrival(shape);
+                if goodput > best.0 {
+                    best = (goodput, units as u8, parity as u8);
+                }
+            }
+        }
+        (self.frame_units, self.parity) = (best.1.min(self.ceiling), best.2);
+    }
+
     /// Sends what is due: frames found lost, then new units of the window,
     /// while the line has room; after a timeout, everything in flight again
     /// (or, all acknowledged and the answer missing, the last unit, to ask).
@@ -425,26 +495,35 @@ impl Courier {
         let end = units.min(first + usize::from(self.config.window));
         // Twice the measured round trip, at least the configured timeout.
         let rtt = self.srtt8.map_or(0, |s| s / 8);
-        let timeout = u64::from(self.config.timeout_ms).max(2 * rtt) << self.backoff.min(3);
+        // All acknowledged, the answer missing: a probe is one short frame,
+        // asked again without backing off much (an answer lost on a bad
+        // line must not cost seconds).
+        let cap = if first == units { 1 } else { 3 };
+        let timeout = u64::from(self.config.timeout_ms).max(2 * rtt) << self.backoff.min(cap);
         let stalled = (self.lost.is_empty() && self.redo >= self.frontier && self.frontier >= end) || self.flights.is_full();
         if stalled && now_ms.saturating_sub(self.last_sent_ms) >= timeout {
-            self.backoff = self.backoff.saturating_add(1).min(8);
+            // Backing off only while the peer is silent: a line that
+            // carries frames loses some, it is not down.
+            self.backoff = if self.heard { 0 } else { self.backoff.saturating_add(1).min(8) };
+            if !self.heard {
+                // Nothing came back: frames too long for the line, perhaps,
+                // before any of the peer's frames could say so.
+                self.ceiling = (self.ceiling / 2).max(1);
+                self.frame_units = self.frame_units.min(self.ceiling);
+            }
+            self.heard = false;
             if first == units {
                 let last = units.saturating_sub(1) as u16;
                 self.send_units(port, out, round, (last, 1), (now_ms, true))?;
                 self.last_sent_ms = now_ms;
                 return Ok(());
             }
-            // The line lost frames, or their acknowledgements: shorter
-            // frames, and everything unacknowledged below the frontier
-            // goes again.
-            self.frame_units = (self.frame_units / 2).max(1);
-            self.streak = 0;
+            // Everything unacknowledged below the frontier goes again.
             self.flights.clear();
             self.lost.clear();
             self.redo = first;
         }
-        while port.write_ready().map_err(io)? && !self.flights.is_full() {
+        while port.write_ready().map_err(io)? && (!self.flights.is_full() || !self.lost.is_empty()) {
             let room = usize::from(self.frame_units);
             let (from, n, resend) = if let Some(f) = self.lost.pop_front() {
                 (usize::from(f.first), usize::from(f.units), true)
@@ -508,7 +587,7 @@ impl Courier {
 
     fn send<L: Write>(&mut self, port: &mut L, payload: &[u8]) -> Result<(), CourierError> {
         let mut frame = [0u8; MAX_FRAME];
-        let n = encode_frame_parity(payload, usize::from(self.config.parity), &mut frame)
+        let n = encode_frame_parity(payload, usize::from(self.parity), &mut frame)
             .map_err(|_| CourierError::Config)?;
         let bytes = frame.get(..n).unwrap_or(&[]);
         port.write_all(bytes).map_err(|e| CourierError::Io(embedded_io::Error::kind(&e)))?;
@@ -541,21 +620,32 @@ impl Courier {
                         self.receive(expected);
                     }
                     self.heard_ms = now_ms;
+                    self.heard = true;
                     self.take_units(len, first, body, input)?;
                     let ack = self.ack_now();
                     self.send_ack(port, &ack)?;
                 } else if let Some(last) = self.last.filter(|_| same(last_round)) {
                     // The peer missed the last round's answer.
-                    let ack = AckView { round: last.round, count: last.units, mask: 0, complete: true, reply: Some(last.reply) };
+                    let ack = AckView {
+                        round: last.round,
+                        count: last.units,
+                        runs: [(0, 0); ACK_RUNS],
+                        complete: true,
+                        reply: Some(last.reply),
+                    };
                     self.send_ack(port, &ack)?;
                 }
             }
             Some(COURIER_ACK) if same(self.round) && p.len() >= ACK_HEADER => {
                 let count = u16_at(2).unwrap_or(0);
-                let mask = p.get(4..12).and_then(|b| b.try_into().ok()).map_or(0, u64::from_le_bytes);
-                let flags = p.get(12).copied().unwrap_or(0);
+                let mut runs = [(0u16, 0u16); ACK_RUNS];
+                for (k, r) in runs.iter_mut().enumerate() {
+                    *r = (u16_at(4 + 4 * k).unwrap_or(0), u16_at(6 + 4 * k).unwrap_or(0));
+                }
+                let flags = p.get(ACK_HEADER - 1).copied().unwrap_or(0);
                 self.heard_ms = now_ms;
-                self.on_ack(usize::from(count), mask, now_ms);
+                self.heard = true;
+                self.on_ack(usize::from(count), &runs, now_ms);
                 if flags & REPLIED != 0 && flags & COMPLETE != 0 {
                     let reply = p.get(ACK_HEADER..).unwrap_or(&[]);
                     let mut a = [0u8; MAX_REPLY];
@@ -572,46 +662,38 @@ impl Courier {
     /// What an acknowledgement says is held: the frames it covers leave
     /// the flight; those sent before the latest of them, not covered, were
     /// lost (the line keeps order) and go out again.
-    fn on_ack(&mut self, count: usize, mask: u64, now_ms: u64) {
+    fn on_ack(&mut self, count: usize, runs: &[(u16, u16); ACK_RUNS], now_ms: u64) {
         let units = Self::units(self.out_len);
         let before = self.acked.first_clear(0, units);
         for k in 0..count.min(units) {
             self.acked.set(k);
         }
-        for b in 0..64 {
-            if mask & (1 << b) != 0 && count + 1 + b < units {
-                self.acked.set(count + 1 + b);
+        for &(start, len) in runs {
+            let start = usize::from(start);
+            for k in start..(start + usize::from(len)).min(units) {
+                self.acked.set(k);
             }
         }
         let acked = &self.acked;
         let covered = |f: &Flight| acked.all(usize::from(f.first), usize::from(f.first) + usize::from(f.units));
         let Some(latest) = self.flights.iter().filter(|f| covered(f)).map(|f| f.seq).max() else { return };
-        let mut arrived = 0u8;
         let mut kept: heapless::Deque<Flight, IN_FLIGHT> = heapless::Deque::new();
         while let Some(f) = self.flights.pop_front() {
             if covered(&f) {
-                arrived = arrived.saturating_add(1);
                 if !f.again {
                     let sample = 8 * now_ms.saturating_sub(f.sent_ms);
                     self.srtt8 = Some(self.srtt8.map_or(sample, |s| s - s / 8 + sample / 8));
                 }
             } else if f.seq < latest {
                 let _ = self.lost.push_back(f);
-                self.frame_units = (self.frame_units * 3 / 4).max(1);
-                self.streak = 0;
             } else {
                 let _ = kept.push_back(f);
             }
         }
         self.flights = kept;
-        self.streak = self.streak.saturating_add(arrived);
-        if self.streak >= GROW_AFTER {
-            self.streak = 0;
-            let grow = (self.frame_units / 4).max(1);
-            self.frame_units = self.frame_units.saturating_add(grow).min(self.config.max_units);
-        }
         if self.acked.first_clear(0, units) > before {
             self.backoff = 0;
+            self.ceiling = self.ceiling.saturating_mul(2).min(self.config.max_units);
         }
     }
 
@@ -646,16 +728,26 @@ impl Courier {
     fn ack_now(&self) -> AckView {
         let n = Self::units(self.in_len.unwrap_or(0));
         let count = self.held.first_clear(0, n);
-        let mut mask = 0u64;
-        for b in 0..64 {
-            if self.held.get(count + 1 + b) {
-                mask |= 1 << b;
+        // The runs held beyond the gap: the first two and the last.
+        let mut runs = [(0u16, 0u16); ACK_RUNS];
+        let (mut k, mut found) = (count, 0usize);
+        while k < n {
+            let start = self.held.first_set(k, n);
+            if start >= n {
+                break;
             }
+            let end = self.held.first_clear(start, n);
+            let at = found.min(ACK_RUNS - 1);
+            if let Some(r) = runs.get_mut(at) {
+                *r = (start as u16, (end - start).min(usize::from(u16::MAX)) as u16);
+            }
+            found += 1;
+            k = end;
         }
         AckView {
             round: self.in_round.unwrap_or(0),
             count: count as u16,
-            mask,
+            runs,
             complete: self.delivered,
             reply: if self.delivered { self.replied } else { None },
         }
@@ -669,7 +761,7 @@ impl Courier {
         for part in [
             &[COURIER_ACK, ack.round as u8][..],
             &ack.count.to_le_bytes(),
-            &ack.mask.to_le_bytes(),
+            &runs_bytes(&ack.runs),
             &[flags],
             reply,
         ] {
@@ -690,11 +782,22 @@ impl Courier {
     }
 }
 
+/// An acknowledgement's runs as its bytes (first unit, units: each
+/// little-endian).
+fn runs_bytes(runs: &[(u16, u16); ACK_RUNS]) -> [u8; 4 * ACK_RUNS] {
+    let mut out = [0u8; 4 * ACK_RUNS];
+    for (o, &(start, len)) in out.chunks_exact_mut(4).zip(runs) {
+        let (s, l) = (start.to_le_bytes(), len.to_le_bytes());
+        o.copy_from_slice(&[s[0], s[1], l[0], l[1]]);
+    }
+    out
+}
+
 /// An acknowledgement's fields.
 struct AckView {
     round: u16,
     count: u16,
-    mask: u64,
+    runs: [(u16, u16); ACK_RUNS],
     complete: bool,
     reply: Option<Reply>,
 }
@@ -705,7 +808,7 @@ impl Courier {
     pub(super) fn debug_state(&self) -> std::string::String {
         let units = Self::units(self.out_len);
         std::format!(
-            "round {:?} out {} acked to {} frontier {} flights {} lost {} units/frame {} backoff {} answer {} | in {:?} held to {} delivered {} replied {} last {:?} | {:?}",
+            "round {:?} out {} acked to {} frontier {} flights {} lost {} units/frame {} parity {} line {:?} backoff {} answer {} | in {:?} held to {} delivered {} replied {} last {:?} | {:?}",
             self.round,
             self.out_len,
             self.acked.first_clear(0, units),
@@ -713,6 +816,8 @@ impl Courier {
             self.flights.len(),
             self.lost.len(),
             self.frame_units,
+            self.parity,
+            self.line.model(),
             self.backoff,
             self.answer.is_some(),
             self.in_len,

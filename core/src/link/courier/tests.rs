@@ -66,7 +66,7 @@ fn run(wire: &RefCell<Line>, rounds: u16, lens: impl Fn(u8, u16) -> usize, gap: 
         }
         now += 1;
     }
-    std::println!("{}\n{}", sides[0].courier.debug_state(), sides[1].courier.debug_state());
+
     // Both answer what is left for a while (the other's last answer).
     for _ in 0..3000 {
         wire.borrow_mut().tick(now);
@@ -97,7 +97,9 @@ fn step_side(
         side.done = false;
         side.got = None;
     }
-    match side.courier.step(port, &side.out, &mut side.input, now).unwrap() {
+    let event = side.courier.step(port, &side.out, &mut side.input, now);
+    let event = event.unwrap_or_else(|e| panic!("side {me} at {now}: {e:?}: {}", side.courier.debug_state()));
+    match event {
         Event::Busy => {}
         Event::Delivered(n) => {
             let peer = 1 - me;
@@ -134,12 +136,19 @@ fn a_side_that_starts_late_still_gets_every_message_and_answer() {
     run(&wire, 6, |_, r| 900 + 300 * usize::from(r), [0, 700]);
 }
 
+/// A clean line and lines that damage 1%, 5% and 10% of bytes (a third each substituted,
+/// dropped, duplicated), six seeds each: every message arrives whole and
+/// answered; the mean time of five rounds of 2-5 KB each way is printed
+/// (virtual time at 115200 baud, lingering left out).
 #[test]
 fn damaged_lines_cost_time_never_a_message() {
-    for (seed, rate) in [(3, 0.01), (4, 0.05), (5, 0.10)] {
-        let wire = line(seed, rate);
-        let end = run(&wire, 5, |s, r| 2000 + 700 * usize::from(r) + usize::from(s), [0, 50]);
-        std::println!("error rate {rate}: {end} ms");
+    for rate in [0.0, 0.01, 0.05, 0.10] {
+        let mut total = 0u64;
+        for seed in 10..16 {
+            let wire = line(seed, rate);
+            total += run(&wire, 5, |s, r| 2000 + 700 * usize::from(r) + usize::from(s), [0, 50]) - 3000;
+        }
+        std::println!("error rate {rate}: {} ms on average", total / 6);
     }
 }
 
@@ -165,3 +174,4 @@ fn a_message_larger_than_the_receiving_buffer_is_refused() {
     assert_eq!(failed, Some(CourierError::TooLarge(5000)));
     assert_eq!(Courier::new(CourierConfig { max_units: 40, ..CourierConfig::default() }).err(), Some(CourierError::Config));
 }
+

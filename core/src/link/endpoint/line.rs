@@ -12,28 +12,28 @@ use crate::wire::rs::MAX_PARITY;
 /// What the line does, per byte: the probability of a substituted byte
 /// and of a dropped or duplicated one.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(super) struct LineModel {
-    pub(super) substitution: f32,
-    pub(super) indel: f32,
+pub(in crate::link) struct LineModel {
+    pub(in crate::link) substitution: f32,
+    pub(in crate::link) indel: f32,
 }
 
 /// How data goes out: data bytes per frame (or block), parity bytes per
 /// frame, the block's shape when data goes in blocks ([`crate::wire::block`]),
 /// and the chance that one arrives usable.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(super) struct FrameShape {
-    pub(super) chunk: usize,
-    pub(super) parity: usize,
-    pub(super) arrival: f32,
-    pub(super) block: Option<BlockShape>,
+pub(in crate::link) struct FrameShape {
+    pub(in crate::link) chunk: usize,
+    pub(in crate::link) parity: usize,
+    pub(in crate::link) arrival: f32,
+    pub(in crate::link) block: Option<BlockShape>,
     /// The line looks clean (fewer than 2 damaged bytes in 1000): a
     /// frame not acknowledged in time is late, not lost.
-    pub(super) clean: bool,
+    pub(in crate::link) clean: bool,
 }
 
 impl FrameShape {
     /// Before anything arrived: the largest frames with the default parity.
-    pub(super) fn initial(config: &super::LinkConfig) -> Self {
+    pub(in crate::link) fn initial(config: &super::LinkConfig) -> Self {
         let chunk = usize::from(config.max_chunk).min(max_payload(DEFAULT_PARITY) - DATA_HEADER);
         FrameShape { chunk, parity: DEFAULT_PARITY, arrival: 1.0, block: None, clean: true }
     }
@@ -45,7 +45,7 @@ impl FrameShape {
     /// instead of 2.14 s, simulated; weighing frames so too kept 20% at
     /// 13-16 s, where otherwise frames were chosen: 24.6 s, one map of 40
     /// undelivered).
-    pub(super) fn for_line(line: LineModel, config: &super::LinkConfig) -> Self {
+    pub(in crate::link) fn for_line(line: LineModel, config: &super::LinkConfig) -> Self {
         let shape = line.best_shape(usize::from(config.min_chunk), usize::from(config.max_chunk));
         let frames =
             FrameShape { arrival: line.arrival(shape), clean: line.substitution + line.indel < 0.002, ..shape };
@@ -86,7 +86,7 @@ impl LineModel {
     /// codeword a damage the deframer repairs (substitutions up to half the
     /// parity, one edit with one parity equation spent and one kept, two
     /// edits on short codewords with two or three spent).
-    pub(super) fn arrival(&self, shape: FrameShape) -> f32 {
+    pub(in crate::link) fn arrival(&self, shape: FrameShape) -> f32 {
         let n = shape.chunk + DATA_OVERHEAD - HEADER - 1 + shape.parity;
         self.header() * self.codeword(n, shape.parity)
     }
@@ -128,7 +128,7 @@ impl LineModel {
     /// costs a wait besides its bytes), that figure, and the chance a block
     /// arrives: when a descriptor copy does and at least its data segments'
     /// count of segments (binomial, the spares added one by one).
-    pub(super) fn best_block(&self, chunk: usize) -> Option<(BlockShape, f32, f32)> {
+    pub(in crate::link) fn best_block(&self, chunk: usize) -> Option<(BlockShape, f32, f32)> {
         let payload = chunk + DATA_HEADER;
         let desc = self.header() * self.codeword(DESCRIPTOR_FRAME - HEADER - 1, DESCRIPTOR_PARITY);
         let desc = 1.0 - (1.0 - desc) * (1.0 - desc);
@@ -165,7 +165,7 @@ impl LineModel {
     /// The shape with the most data per byte of line, data between
     /// `min_chunk` and `max_chunk`: every even parity, each with sizes on a
     /// coarse grid refined around its best.
-    pub(super) fn best_shape(&self, min_chunk: usize, max_chunk: usize) -> FrameShape {
+    pub(in crate::link) fn best_shape(&self, min_chunk: usize, max_chunk: usize) -> FrameShape {
         let mut best =
             (FrameShape { chunk: min_chunk, parity: DEFAULT_PARITY, arrival: 0.0, block: None, clean: false }, -1.0f32);
         for parity in (0..=MAX_PARITY).step_by(2) {
@@ -207,17 +207,17 @@ impl LineModel {
 /// underestimate, as the frames with the most damage are the ones lost).
 /// Counts halve now and then, to follow a line that changes.
 #[derive(Clone, Copy, Debug, Default)]
-pub(super) struct LineEstimate {
-    pub(super) frames: u32,
-    pub(super) bytes: f32,
-    pub(super) substituted: f32,
-    pub(super) indels: f32,
+pub(in crate::link) struct LineEstimate {
+    pub(in crate::link) frames: u32,
+    pub(in crate::link) bytes: f32,
+    pub(in crate::link) substituted: f32,
+    pub(in crate::link) indels: f32,
     /// Errors attributed to lost frames.
-    pub(super) lost_errors: f32,
+    pub(in crate::link) lost_errors: f32,
     /// Bytes of the frame being received.
-    pub(super) current: u32,
+    pub(in crate::link) current: u32,
     /// Parity of the last frame decoded (what the peer is using).
-    pub(super) parity: u8,
+    pub(in crate::link) parity: u8,
 }
 
 /// `E[K | K > t]` for `K` Poisson with mean `mean`.
@@ -236,12 +236,12 @@ fn mean_beyond(mean: f32, t: usize) -> f32 {
 }
 
 impl LineEstimate {
-    pub(super) fn byte(&mut self) {
+    pub(in crate::link) fn byte(&mut self) {
         self.current = self.current.saturating_add(1);
     }
 
     /// A frame arrived: with `damage` repaired, or (`None`) lost.
-    pub(super) fn frame(&mut self, damage: Option<(Damage, u8)>) {
+    pub(in crate::link) fn frame(&mut self, damage: Option<(Damage, u8)>) {
         let len = core::mem::take(&mut self.current) as f32 + 1.0;
         if let Some((_, parity)) = damage {
             self.parity = parity;
@@ -250,13 +250,13 @@ impl LineEstimate {
     }
 
     /// Bytes that told nothing of the line (no header could be read).
-    pub(super) fn skip(&mut self) {
+    pub(in crate::link) fn skip(&mut self) {
         self.current = 0;
     }
 
     /// A block's segment or descriptor of `bytes` bytes, `parity` of them
     /// parity, arrived with `damage` repaired, or (`None`) lost.
-    pub(super) fn piece(&mut self, bytes: u16, damage: Option<Damage>, parity: u8) {
+    pub(in crate::link) fn piece(&mut self, bytes: u16, damage: Option<Damage>, parity: u8) {
         self.current = 0;
         self.record(f32::from(bytes), damage, parity);
     }
@@ -287,7 +287,7 @@ impl LineEstimate {
     /// The estimate, with a prior of one error in 2000 bytes (a third
     /// substitutions) worth 100 bytes; errors of lost frames split as the
     /// repaired ones are.
-    pub(super) fn model(&self) -> LineModel {
+    pub(in crate::link) fn model(&self) -> LineModel {
         const PRIOR_BYTES: f32 = 100.0;
         const PRIOR_RATE: f32 = 1.0 / 2000.0;
         let bytes = self.bytes + PRIOR_BYTES;

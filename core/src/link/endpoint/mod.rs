@@ -14,7 +14,7 @@ use crate::wire::message::{
 use core::borrow::Borrow;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
-mod line;
+pub(in crate::link) mod line;
 mod rx;
 mod tx;
 
