@@ -150,7 +150,15 @@ fn a_robot_that_holds_less_is_sent_the_part_that_fits() {
     }
     let e = cosem_usage_err(&["session", "--capacity", "8000,20"]);
     assert!(e.contains("--capacity") && e.contains("8000,20"), "{e}");
-    let e = cosem_err(&["session", "--robot", &format!("{seq}:0:4"), "--robot", &format!("{seq}:4:8"), "--capacity", "900,900,900"]);
+    let e = cosem_err(&[
+        "session",
+        "--robot",
+        &format!("{seq}:0:4"),
+        "--robot",
+        &format!("{seq}:4:8"),
+        "--capacity",
+        "900,900,900",
+    ]);
     assert!(e.contains("--capacity") && e.contains("one per robot"), "{e}");
 }
 
@@ -295,7 +303,8 @@ fn two_session_robots_run_on_boards_equal_to_their_twin() {
     let t = town.display().to_string();
     cosem_ok(&["synth", "--town", "--out", &t, "--frames", "104", "--seg", "none", "--seed", "1"]);
     let (a, b) = (format!("{t}/robot_0:44:104"), format!("{t}/robot_1:44:104"));
-    let args = ["session", "--on-board", "--json", "--robot", &a, "--robot", &b, "--drift", "1%,0.5", "--line", "lossy=0.02"];
+    let args =
+        ["session", "--on-board", "--json", "--robot", &a, "--robot", &b, "--drift", "1%,0.5", "--line", "lossy=0.02"];
     let out = cosem_ok(&args);
     let mut lines: Vec<Value> = out.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
     let summary = lines.pop().expect("a summary line")["summary"].clone();

@@ -257,7 +257,8 @@ impl NearestCut {
         let max_d = voxels.iter().map(distance).fold(0.0f32, f32::max);
         // Bin `b` holds distances in [b w, (b + 1) w), w = max_d / (BINS - 1).
         let width = if max_d > 0.0 { max_d / (Self::BINS as f32 - 1.0) } else { 0.0 };
-        let mut c = NearestCut { anchor, resolution, width, cut: 0, lo: 0.0, sub_w: 0.0, sub: 0, keep_tied: 0, radius: 0.0 };
+        let mut c =
+            NearestCut { anchor, resolution, width, cut: 0, lo: 0.0, sub_w: 0.0, sub: 0, keep_tied: 0, radius: 0.0 };
         let target = voxels.len().saturating_sub(keep);
         if target == 0 {
             // Nothing is cut.

@@ -345,8 +345,7 @@ fn the_nearest_part_of_a_map_is_exactly_that_many() {
         let picked = &out[..n];
         assert!(picked.windows(2).all(|w| w[0] < w[1]), "ascending, none twice");
         let farthest_in = picked.iter().map(|&i| d(i)).fold(0.0f32, f32::max);
-        let nearest_out =
-            (0..400u32).filter(|i| !picked.contains(i)).map(d).fold(f32::INFINITY, f32::min);
+        let nearest_out = (0..400u32).filter(|i| !picked.contains(i)).map(d).fold(f32::INFINITY, f32::min);
         assert!(farthest_in <= nearest_out + 1e-5, "{most}: {farthest_in} > {nearest_out}");
     }
     assert_eq!(map.nearest(at, 1000, &mut out), 400, "a map that fits goes whole");

@@ -446,9 +446,10 @@ impl RobotMessage<'_> {
             RobotMessage::Matched { report, .. } => report.result.check().map_err(FeedError::from),
             RobotMessage::Placed(p) => finite(&p.transform).and(finite(&p.covariance)),
             RobotMessage::Round(r) => r.result.check().map_err(FeedError::from),
-            RobotMessage::Failed { .. } | RobotMessage::TeamEnd(_) | RobotMessage::Ready | RobotMessage::SessionEnd(_) => {
-                Ok(())
-            }
+            RobotMessage::Failed { .. }
+            | RobotMessage::TeamEnd(_)
+            | RobotMessage::Ready
+            | RobotMessage::SessionEnd(_) => Ok(()),
         }
     }
 }

@@ -235,16 +235,15 @@ fn bad_messages_are_typed_errors() {
     assert_eq!(Message::decode(&[0x63, 1, 0, 0, 0, 0x80, 0, 1]), Err(MessageError::Malformed), "non-canonical varint");
     let far = Message::Data { offset: 1 << 14, poll: false, tag: 0, data: &[1] };
     assert_eq!(far.encode(&mut [0u8; 8]), Err(MessageError::Malformed), "an offset beyond 14 bits");
-    let nan =
-        Message::Hello(Hello {
-            robot_id: 1,
-            class_table: 1,
-            resolution: f32::NAN,
-            max_payload: 512,
-            takes_map: true,
-            capacity: 10,
-            heard: true,
-        });
+    let nan = Message::Hello(Hello {
+        robot_id: 1,
+        class_table: 1,
+        resolution: f32::NAN,
+        max_payload: 512,
+        takes_map: true,
+        capacity: 10,
+        heard: true,
+    });
     assert_eq!(nan.encode(&mut [0u8; 32]), Err(MessageError::NonFinite));
     // A NaN smuggled in by hand is refused on decode.
     let mut bytes = [0x60u8, 1, 1, 0, 0, 192, 127, 128, 4, 1, 10, 1];

@@ -194,7 +194,10 @@ fn feed_and_collect(conn: TcpStream, feed: Vec<u8>, deadline: Instant, progress:
                 }
                 let done = out.take(payload);
                 if let (Some(i), Some(r)) = (progress, out.rounds.last().filter(|_| !done)) {
-                    eprintln!("board {i}: round {} status {} ({} ms exchanging)", r.round, r.result.status, r.exchange_ms);
+                    eprintln!(
+                        "board {i}: round {} status {} ({} ms exchanging)",
+                        r.round, r.result.status, r.exchange_ms
+                    );
                 }
                 if done {
                     break 'read;

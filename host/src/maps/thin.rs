@@ -44,4 +44,3 @@ pub fn thin_scan(frame: &Frame, resolution: f32, crop: f32, filter: &PointFilter
         })
         .collect()
 }
-

@@ -29,9 +29,9 @@
 //! frames of the next round are taken as they come, before this side
 //! starts it.
 
+use super::endpoint::line::{FrameShape, LineEstimate};
 use crate::wire::frame::{encode_frame_parity, frame_len, max_payload, Deframer, MAX_FRAME};
 use crate::wire::rs::MAX_PARITY;
-use super::endpoint::line::{FrameShape, LineEstimate};
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
 /// First byte of a courier's data frame (clear of the link's, the feed's
@@ -500,7 +500,8 @@ impl Courier {
         // line must not cost seconds).
         let cap = if first == units { 1 } else { 3 };
         let timeout = u64::from(self.config.timeout_ms).max(2 * rtt) << self.backoff.min(cap);
-        let stalled = (self.lost.is_empty() && self.redo >= self.frontier && self.frontier >= end) || self.flights.is_full();
+        let stalled =
+            (self.lost.is_empty() && self.redo >= self.frontier && self.frontier >= end) || self.flights.is_full();
         if stalled && now_ms.saturating_sub(self.last_sent_ms) >= timeout {
             // Backing off only while the peer is silent: a line that
             // carries frames loses some, it is not down.
@@ -587,8 +588,7 @@ impl Courier {
 
     fn send<L: Write>(&mut self, port: &mut L, payload: &[u8]) -> Result<(), CourierError> {
         let mut frame = [0u8; MAX_FRAME];
-        let n = encode_frame_parity(payload, usize::from(self.parity), &mut frame)
-            .map_err(|_| CourierError::Config)?;
+        let n = encode_frame_parity(payload, usize::from(self.parity), &mut frame).map_err(|_| CourierError::Config)?;
         let bytes = frame.get(..n).unwrap_or(&[]);
         port.write_all(bytes).map_err(|e| CourierError::Io(embedded_io::Error::kind(&e)))?;
         self.stats.bytes_sent += n as u64;
@@ -758,13 +758,9 @@ impl Courier {
         let reply = ack.reply.as_ref().and_then(|(a, n)| a.get(..usize::from(*n))).unwrap_or(&[]);
         let flags = (u8::from(ack.complete) * COMPLETE) | (u8::from(ack.reply.is_some()) * REPLIED);
         let mut at = 0;
-        for part in [
-            &[COURIER_ACK, ack.round as u8][..],
-            &ack.count.to_le_bytes(),
-            &runs_bytes(&ack.runs),
-            &[flags],
-            reply,
-        ] {
+        for part in
+            [&[COURIER_ACK, ack.round as u8][..], &ack.count.to_le_bytes(), &runs_bytes(&ack.runs), &[flags], reply]
+        {
             p.get_mut(at..at + part.len()).ok_or(CourierError::Reply)?.copy_from_slice(part);
             at += part.len();
         }

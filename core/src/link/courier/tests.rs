@@ -172,6 +172,8 @@ fn a_message_larger_than_the_receiving_buffer_is_refused() {
         }
     }
     assert_eq!(failed, Some(CourierError::TooLarge(5000)));
-    assert_eq!(Courier::new(CourierConfig { max_units: 40, ..CourierConfig::default() }).err(), Some(CourierError::Config));
+    assert_eq!(
+        Courier::new(CourierConfig { max_units: 40, ..CourierConfig::default() }).err(),
+        Some(CourierError::Config)
+    );
 }
-

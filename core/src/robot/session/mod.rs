@@ -23,8 +23,8 @@ use crate::pipeline::Pipeline;
 use crate::region::RegionError;
 use crate::session::{Applied, Estimate, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts};
 use crate::wire::codec::CodecModel;
-use crate::wire::frame::MAX_PAYLOAD;
 use crate::wire::feed::{FeedError, FeedMessage, RobotMessage, RoundReport, SessionEnd};
+use crate::wire::frame::MAX_PAYLOAD;
 use crate::wire::report::MatchReport;
 use crate::wire::share::NO_EXCHANGE;
 use crate::wire::update::{UpdateAck, ACK_BYTES};
@@ -52,10 +52,12 @@ pub type SessionMapStorage = crate::map::ArrayStorage<SESSION_VOXELS, u16>;
 /// The publisher's records of a session robot.
 pub type SessionRecords = [ShadowEntry; SESSION_VOXELS];
 /// The pyramid storage of a session robot's map (the model).
-pub type SessionModelStorage = crate::matching::ArrayPyramidStorage<SESSION_VOXELS, SESSION_COARSE, { super::MODEL_WORDS }>;
+pub type SessionModelStorage =
+    crate::matching::ArrayPyramidStorage<SESSION_VOXELS, SESSION_COARSE, { super::MODEL_WORDS }>;
 /// The pyramid storage of its copy of the peer's map (the scene: a map's
 /// scene pyramid keeps a voxel's extras too).
-pub type SessionSceneStorage = crate::matching::ArrayPyramidStorage<SESSION_VOXELS, SESSION_COARSE, { super::SCENE_WORDS }>;
+pub type SessionSceneStorage =
+    crate::matching::ArrayPyramidStorage<SESSION_VOXELS, SESSION_COARSE, { super::SCENE_WORDS }>;
 
 /// The session robots' pipeline: the mps2 robot's, its prior-free search
 /// cut to 20,000 nodes (searched every round until a fix, on maps that
@@ -111,11 +113,16 @@ enum State {
     /// more.
     Hello,
     /// Trading updates (`len`: this robot's).
-    Exchange { len: usize, started_ms: u64 },
+    Exchange {
+        len: usize,
+        started_ms: u64,
+    },
     /// Estimating the peer and reporting the round.
     Estimate,
     /// After the last round, answering the peer's resends until `until`.
-    Linger { until: u64 },
+    Linger {
+        until: u64,
+    },
     Done,
 }
 
@@ -228,7 +235,13 @@ where
         self.tracker.fix()
     }
 
-    fn step<F, L, T>(&mut self, feed: &mut F, port: &mut L, now_ms: u64, meter: &T) -> Result<Poll<SessionEnd>, RobotError>
+    fn step<F, L, T>(
+        &mut self,
+        feed: &mut F,
+        port: &mut L,
+        now_ms: u64,
+        meter: &T,
+    ) -> Result<Poll<SessionEnd>, RobotError>
     where
         F: Read + Write + ReadReady,
         L: Read + Write + ReadReady + WriteReady,
@@ -396,7 +409,14 @@ where
 
     /// Trades the round's updates: the peer's applied to the copy and
     /// answered, this robot's answer taken by its publisher.
-    fn exchange<L, T>(&mut self, port: &mut L, len: usize, started_ms: u64, now_ms: u64, meter: &T) -> Result<(), RobotError>
+    fn exchange<L, T>(
+        &mut self,
+        port: &mut L,
+        len: usize,
+        started_ms: u64,
+        now_ms: u64,
+        meter: &T,
+    ) -> Result<(), RobotError>
     where
         L: Read + Write + ReadReady + WriteReady,
         T: Meter,

@@ -215,7 +215,8 @@ fn two_session_robots_keep_their_copies_and_track_each_other() {
             let d = r.result.transform() * t.inverse();
             (d.translation.vector.norm(), d.rotation.angle().to_degrees())
         };
-        let fixed: Vec<&RoundReport> = rounds.iter().filter(|r| r.result.status == MatchStatus::Converged.code()).collect();
+        let fixed: Vec<&RoundReport> =
+            rounds.iter().filter(|r| r.result.status == MatchStatus::Converged.code()).collect();
         let close = fixed.iter().filter(|r| errors(r).0 < 0.3 && errors(r).1 < 0.5).count();
         assert!(close >= 16, "robot {me}: {close} fixes within 0.3 m and 0.5 degrees");
         assert!(fixed.iter().all(|r| errors(r).0 < 1.0 && errors(r).1 < 1.0), "robot {me}");

@@ -181,7 +181,11 @@ fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
 /// from it as `cosem label` does; the labelled folders keep the town's
 /// world. Their maps' classes are the camera's, and so is the overlap that
 /// defines meetings there.
-fn camera_town(dir: &std::path::Path, seed: u64, frames: Option<usize>) -> Result<Vec<crate::evaluation::team::RobotSpec>, Error> {
+fn camera_town(
+    dir: &std::path::Path,
+    seed: u64,
+    frames: Option<usize>,
+) -> Result<Vec<crate::evaluation::team::RobotSpec>, Error> {
     use crate::camera::label::{label_sequence, LabelOptions};
     use crate::worlds::town::{write_town, TownConfig};
     let d = TownConfig::default();

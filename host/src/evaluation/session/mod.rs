@@ -177,24 +177,14 @@ impl SessionSpec {
 impl Link {
     /// Robot `from`'s updates to robot `to` (epoch `from + 1`): records for
     /// `from`'s map, a copy of `to`'s capacity.
-    fn new(
-        (from, to): (usize, usize),
-        spec: &SessionSpec,
-        config: cosem_core::map::MapConfig,
-    ) -> Result<Link, Error> {
+    fn new((from, to): (usize, usize), spec: &SessionSpec, config: cosem_core::map::MapConfig) -> Result<Link, Error> {
         let epoch = from as u16 + 1;
         let records = || vec![ShadowEntry::default(); spec.capacity_of(from)];
         let copy = Replica::new(crate::maps::mapping::new_map(spec.capacity_of(to), config)?);
         let mut publisher = Publisher::new(epoch, records(), records());
         // The copy's first answer, before any update: what it holds.
         publisher.on_ack(&copy.answer());
-        Ok(Link {
-            publisher,
-            copy,
-            send_model: CodecModel::new(),
-            read_model: CodecModel::new(),
-            synced: false,
-        })
+        Ok(Link { publisher, copy, send_model: CodecModel::new(), read_model: CodecModel::new(), synced: false })
     }
 
     /// One update from `map` to the copy, and the answer back: the bytes,
