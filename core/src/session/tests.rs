@@ -298,8 +298,10 @@ fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let how = Alignment::DEFAULT;
     let mut tracker = Tracker::new();
-    let mut estimate =
-        |t: &mut Tracker, peer| t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words)).unwrap();
+    let mut estimate = |t: &mut Tracker, peer| {
+        let view = PeerView { estimate: None, at: [0.0; 3] };
+        t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
     let first = estimate(&mut tracker, &same);
     assert_eq!((first.kind, first.result.status, first.fix), (Kind::PriorFree, MatchStatus::Converged, Fix::Held));
     assert!(first.result.transform.translation.vector.norm() < 0.3, "{:?}", first.result.transform);
@@ -353,4 +355,55 @@ fn a_smaller_peer_is_sent_the_part_of_the_map_that_fits() {
         }
         assert_eq!(sorted(replica.map()), decoded(&nearest), "round {round}");
     }
+}
+
+/// A fix is reported Converged only once the peer's estimate agrees with
+/// it where the robot is; one that disagrees leaves it unconfirmed, and a
+/// prior-free fix starts unconfirmed again.
+#[test]
+fn a_fix_is_reported_once_the_peers_estimate_agrees() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let (mut here, mut rng) = (robot_map(), Lcg(21));
+    let mut again = robot_map();
+    for round in 0..4 {
+        drive(&mut here, round, &mut rng);
+        drive(&mut again, round, &mut Lcg(30 + round as u64));
+    }
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&here), prepare(&again));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let mut tracker = Tracker::new();
+    let at = [9.0, 0.0, 0.0];
+    let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
+        let view = PeerView { estimate: theirs, at };
+        t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
+    // Nothing heard: held, not reported.
+    let first = estimate(&mut tracker, None);
+    assert_eq!((first.result.status, first.fix, first.confirmed), (MatchStatus::Converged, Fix::Held, false));
+    assert_eq!(first.status(), MatchStatus::NotConverged);
+    // The peer's estimate 3 m and 5 degrees off: still not.
+    let off = crate::geometry::from_xyz_rpy(3.0, 0.0, 0.0, 0.0, 0.0, 0.09) * first.result.transform.inverse();
+    assert!(!estimate(&mut tracker, Some(off)).confirmed);
+    // The inverse of ours: confirmed (EM from the fix may slide along
+    // this street now and then: that round is not Converged), and it stays
+    // so while the fix holds.
+    let theirs = first.result.transform.inverse();
+    let agreeing: Vec<Estimate> = (0..4).map(|_| estimate(&mut tracker, Some(theirs))).collect();
+    let converged: Vec<&Estimate> = agreeing.iter().filter(|e| e.result.status == MatchStatus::Converged).collect();
+    assert!(!converged.is_empty());
+    for e in &agreeing {
+        assert_eq!(e.status() == MatchStatus::Converged, e.result.status == MatchStatus::Converged && e.confirmed);
+    }
+    assert!(converged.iter().all(|e| e.confirmed && agree(&e.result.transform, &theirs, at)));
+    if tracker.fix().is_some() && agreeing.last().is_some_and(|e| e.confirmed) {
+        let next = estimate(&mut tracker, None);
+        assert_eq!(next.confirmed, next.result.status == MatchStatus::Converged, "stays confirmed");
+    }
+    // A new chain (the fix forgotten) starts unconfirmed.
+    tracker.reset();
+    assert_eq!(estimate(&mut tracker, None).status(), MatchStatus::NotConverged);
+    assert!(agree(&first.result.transform, &first.result.transform.inverse(), at));
 }

@@ -68,6 +68,23 @@ impl Fix {
     }
 }
 
+/// Two robots' estimates of each other agree when they compose to within
+/// this many metres of the identity where the robot is ...
+pub const AGREE_M: f32 = 1.0;
+/// ... and this many degrees.
+pub const AGREE_DEG: f32 = 2.0;
+
+/// What a robot knows of its peer's estimate of it, and where it is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PeerView {
+    /// The peer's last estimate of `T_peer_own` that passed its verdict,
+    /// if any.
+    pub estimate: Option<Isometry3<f32>>,
+    /// Where the robot is (its own frame): the agreement is judged there,
+    /// not at the odometry origins, which drift puts a lever arm away.
+    pub at: [f32; 3],
+}
+
 /// One round's estimate of `T_own_peer`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Estimate {
@@ -77,6 +94,27 @@ pub struct Estimate {
     pub result: MatchResult,
     /// What became of the fix.
     pub fix: Fix,
+    /// The fix agrees with the peer's estimate (now or since it was made).
+    pub confirmed: bool,
+}
+
+impl Estimate {
+    /// The status reported: the match's, but `NotConverged` for a fix the
+    /// peer's estimate has not agreed with yet.
+    pub fn status(&self) -> MatchStatus {
+        match self.result.status {
+            MatchStatus::Converged if !self.confirmed => MatchStatus::NotConverged,
+            s => s,
+        }
+    }
+}
+
+/// Whether `ours` (`T_own_peer`) and the peer's `theirs` (`T_peer_own`)
+/// compose to about the identity at `at`.
+pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3]) -> bool {
+    let loop_ = ours * theirs;
+    let p = nalgebra::Point3::from(at);
+    (loop_ * p - p).norm() < AGREE_M && loop_.rotation.angle() < AGREE_DEG.to_radians()
 }
 
 /// A robot's track of one peer: its last fix, if any.
@@ -85,12 +123,14 @@ pub struct Tracker {
     fix: Option<Isometry3<f32>>,
     /// Rounds running in which EM did not settle from the fix.
     unsettled: u8,
+    /// The fix has agreed with the peer's estimate.
+    confirmed: bool,
 }
 
 impl Tracker {
     /// A track with no fix.
     pub const fn new() -> Self {
-        Tracker { fix: None, unsettled: 0 }
+        Tracker { fix: None, unsettled: 0, confirmed: false }
     }
 
     /// The fix held (`T_own_peer`), if any.
@@ -102,20 +142,27 @@ impl Tracker {
     pub fn reset(&mut self) {
         self.fix = None;
         self.unsettled = 0;
+        self.confirmed = false;
     }
 
     /// This round's estimate: `own` (the model) against the peer's copy
     /// (`peer`, the scene), from the fix when one is held, through the one
-    /// matching path ([`align_prepared`]) as `how` says.
+    /// matching path ([`align_prepared`]) as `how` says; confirmed when it
+    /// agrees with what `view` says of the peer's estimate.
     pub fn estimate<P: PyramidStorage, Q: PyramidStorage>(
         &mut self,
         own: &Pyramid<'_, P>,
         peer: &Pyramid<'_, Q>,
         how: &Alignment,
         scratch: &mut SearchScratch<'_>,
+        view: &PeerView,
     ) -> Result<Estimate, MatchError> {
         let prior = self.fix;
         let kind = if prior.is_some() { Kind::Tracking } else { Kind::PriorFree };
+        if prior.is_none() {
+            // A new fix, if any, starts unconfirmed.
+            self.confirmed = false;
+        }
         let (result, _) = align_prepared(own, peer, prior.as_ref(), how, scratch, || {})?;
         let fix = match (result.status, prior.is_some()) {
             (MatchStatus::Converged, _) => {
@@ -132,6 +179,10 @@ impl Tracker {
             }
             (_, false) => Fix::None,
         };
-        Ok(Estimate { kind, result, fix })
+        let converged = result.status == MatchStatus::Converged;
+        if converged && view.estimate.is_some_and(|theirs| agree(&result.transform, &theirs, view.at)) {
+            self.confirmed = true;
+        }
+        Ok(Estimate { kind, result, fix, confirmed: converged && self.confirmed })
     }
 }

@@ -5,8 +5,9 @@ use crate::evaluation::session::{Record, Summary};
 use cosem_core::geometry::row_major;
 use serde::Serialize;
 
-/// The JSON lines' schema version.
-pub const SESSION_SCHEMA: u32 = 1;
+/// The JSON lines' schema version: 2 since `status` is `Converged` only
+/// for a fix the peer's estimate agreed with (`confirmed`).
+pub const SESSION_SCHEMA: u32 = 2;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]
@@ -23,6 +24,9 @@ pub struct RecordJson {
     pub kind: &'static str,
     /// What became of the fix: `none`, `held`, `kept`, `withdrawn`.
     pub fix: &'static str,
+    /// The fix agreed with the peer's estimate of the robot (now or since
+    /// it was made): only then is the status `Converged`.
+    pub confirmed: bool,
     /// `T_own_peer`, row-major 3x4, when there is an estimate.
     #[serde(rename = "T_own_peer", skip_serializing_if = "Option::is_none")]
     pub t_own_peer: Option<[f64; 12]>,
@@ -76,9 +80,10 @@ impl From<&Record> for RecordJson {
             round: r.round,
             robot: r.robot,
             peer: r.peer,
-            status: e.map_or("NoOverlap", |e| e.result.status.as_str()),
+            status: e.map_or("NoOverlap", |e| e.status().as_str()),
             kind: e.map_or("prior-free", |e| e.kind.as_str()),
             fix: e.map_or("none", |e| e.fix.as_str()),
+            confirmed: e.is_some_and(|e| e.confirmed),
             t_own_peer: t,
             e_t: r.errors.map(|e| e.0),
             e_r: r.errors.map(|e| e.1),

@@ -48,7 +48,7 @@ impl<'p> SessionRecorder<'p> {
             }
         }
         for r in view.records.iter().filter(|r| r.robot < r.peer) {
-            if let Some(e) = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged) {
+            if let Some(e) = r.estimate.as_ref().filter(|e| e.status() == MatchStatus::Converged) {
                 let t: nalgebra::Isometry3<f64> = nalgebra::convert(e.result.transform);
                 transforms.push(edge(format!("robot_{}/odom", r.robot), format!("robot_{}/odom", r.peer), &t));
             }

@@ -21,7 +21,9 @@ use crate::matching::search::SearchScratch;
 use crate::matching::{MatchStatus, Pyramid, PyramidStorage, SceneSource};
 use crate::pipeline::Pipeline;
 use crate::region::RegionError;
-use crate::session::{Applied, Estimate, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts};
+use crate::session::{
+    Applied, Estimate, PeerView, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts,
+};
 use crate::wire::codec::CodecModel;
 use crate::wire::feed::{FeedError, FeedMessage, RobotMessage, RoundReport, SessionEnd};
 use crate::wire::frame::MAX_PAYLOAD;
@@ -166,6 +168,10 @@ where
     round: u16,
     marks: RoundMarks,
     stats_at_start: CourierStats,
+    /// This robot's last estimate of its peer that passed the verdict.
+    last_estimate: Option<Isometry3<f32>>,
+    /// The peer's, as its last message said.
+    heard: Option<Isometry3<f32>>,
 }
 
 impl<'a, S, C, R, P, Q> SessionRobot<'a, S, C, R, P, Q>
@@ -217,6 +223,8 @@ where
             round: 0,
             marks: RoundMarks::default(),
             stats_at_start: CourierStats::default(),
+            last_estimate: None,
+            heard: None,
         })
     }
 
@@ -395,11 +403,15 @@ where
     fn start_round<T: Meter>(&mut self, now_ms: u64, meter: &T) -> Result<(), RobotError> {
         let t0 = meter.instructions();
         let publisher = self.publisher.as_mut().ok_or(RobotError::Feed(FeedError::Order))?;
-        let len = publisher
-            .next_update(&self.map, self.scratch, &mut self.send_model, self.out)
-            .map_err(RobotError::Update)?;
+        // The message: this robot's last estimate of its peer, then the update.
+        let (head, rest) =
+            self.out.split_at_mut_checked(ESTIMATE_BYTES).ok_or(RobotError::Update(PublisherError::Scratch))?;
+        write_estimate(self.last_estimate.as_ref(), head);
+        let len =
+            publisher.next_update(&self.map, self.scratch, &mut self.send_model, rest).map_err(RobotError::Update)?;
         self.marks.counts = publisher.counts();
         self.marks.update_bytes = len as u32;
+        let len = ESTIMATE_BYTES + len;
         self.marks.update_instructions = meter.instructions().saturating_sub(t0);
         self.stats_at_start = self.courier.stats();
         self.courier.start(self.round.wrapping_add(1), len, now_ms).map_err(RobotError::Courier)?;
@@ -427,7 +439,9 @@ where
             Event::Delivered(n) => {
                 let t0 = meter.instructions();
                 let replica = self.replica.as_mut().ok_or(RobotError::Feed(FeedError::Order))?;
-                let update = self.input.get(..n).unwrap_or(&[]);
+                let message = self.input.get(..n).unwrap_or(&[]);
+                let (head, update) = message.split_at_checked(ESTIMATE_BYTES).unwrap_or((&[], message));
+                self.heard = read_estimate(head);
                 let applied = replica.apply(update, &mut self.read_model, self.scratch);
                 if matches!(applied, Applied::Diverged | Applied::Restarted) {
                     self.tracker.reset();
@@ -477,10 +491,13 @@ where
             t1 = meter.instructions();
             let scratch = &mut SearchScratch::new(self.search);
             let how = SESSION_PIPELINE.alignment;
-            let e = self.tracker.estimate(&model, &scene, &how, scratch);
+            let view = PeerView { estimate: self.heard, at: self.map.keep_centre() };
+            let e = self.tracker.estimate(&model, &scene, &how, scratch, &view);
             Some(e.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?)
         };
         let t2 = meter.instructions();
+        let passed = estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged);
+        self.last_estimate = passed.map(|e| e.result.transform);
         let report = self.round_report(me, estimate.as_ref(), [t0, t1, t2], meter.peak_stack());
         super::send(feed, &RobotMessage::Round(report));
         self.round = self.round.wrapping_add(1);
@@ -492,7 +509,7 @@ where
     fn round_report(&self, me: u8, e: Option<&Estimate>, t: [u64; 3], peak_stack: u32) -> RoundReport {
         let identity = crate::geometry::rows(&Isometry3::identity());
         let result = match e {
-            Some(e) => e.result.report(me),
+            Some(e) => MatchReport { status: e.status().code(), ..e.result.report(me) },
             None => MatchReport {
                 robot_id: me,
                 status: NO_EXCHANGE,
@@ -525,6 +542,36 @@ where
             peak_stack,
         }
     }
+}
+
+/// Bytes of the estimate ahead of a round's update: a flag (1: an
+/// estimate follows), then `T_sender_receiver`'s top three rows, row by
+/// row, little-endian `f32`.
+pub const ESTIMATE_BYTES: usize = 1 + 48;
+
+/// Writes `estimate` (or none) as a message's head.
+fn write_estimate(estimate: Option<&Isometry3<f32>>, out: &mut [u8]) {
+    out.fill(0);
+    if let (Some(t), Some((flag, rows))) = (estimate, out.split_first_mut()) {
+        *flag = 1;
+        for (o, v) in rows.chunks_exact_mut(4).zip(crate::geometry::rows(t)) {
+            o.copy_from_slice(&v.to_le_bytes());
+        }
+    }
+}
+
+/// The estimate a message's head carries; `None` when it says none, or a
+/// number in it is not finite.
+fn read_estimate(head: &[u8]) -> Option<Isometry3<f32>> {
+    let (&flag, rest) = head.split_first()?;
+    if flag != 1 || rest.len() != 48 {
+        return None;
+    }
+    let mut rows = [0f32; 12];
+    for (r, b) in rows.iter_mut().zip(rest.chunks_exact(4)) {
+        *r = f32::from_le_bytes(b.try_into().ok()?);
+    }
+    rows.iter().all(|v| v.is_finite()).then(|| crate::geometry::from_rows(&rows))
 }
 
 /// Whether a round's estimate is a fix: `Converged` through the verdict.

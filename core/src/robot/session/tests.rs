@@ -218,7 +218,8 @@ fn two_session_robots_keep_their_copies_and_track_each_other() {
         let fixed: Vec<&RoundReport> =
             rounds.iter().filter(|r| r.result.status == MatchStatus::Converged.code()).collect();
         let close = fixed.iter().filter(|r| errors(r).0 < 0.3 && errors(r).1 < 0.5).count();
-        assert!(close >= 16, "robot {me}: {close} fixes within 0.3 m and 0.5 degrees");
+        // (A fix is reported once the peer's estimate agreed: a round late.)
+        assert!(close >= 14, "robot {me}: {close} fixes within 0.3 m and 0.5 degrees");
         assert!(fixed.iter().all(|r| errors(r).0 < 1.0 && errors(r).1 < 1.0), "robot {me}");
         assert!(rounds.iter().filter(|r| r.kind == 1).count() >= 12, "robot {me}: tracking");
         std::println!(

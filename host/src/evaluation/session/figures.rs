@@ -71,7 +71,7 @@ fn wrong_at_meeting(r: &Record) -> bool {
 }
 
 fn converged(r: &Record) -> bool {
-    r.estimate.as_ref().is_some_and(|e| e.result.status == MatchStatus::Converged)
+    r.estimate.as_ref().is_some_and(|e| e.status() == MatchStatus::Converged)
 }
 
 /// A session's figures.

@@ -24,8 +24,8 @@ use crate::sources::source::{Source, SourceOptions};
 use cosem_core::geometry::pose_errors;
 use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
-use cosem_core::matching::{Alignment, MatchResult};
-use cosem_core::session::{Applied, Estimate, Publisher, Replica, ShadowEntry, Tracker, UpdateCounts};
+use cosem_core::matching::{Alignment, MatchResult, MatchStatus};
+use cosem_core::session::{Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateCounts};
 use cosem_core::wire::codec::CodecModel;
 use nalgebra::Isometry3;
 use robot::Robot;
@@ -282,6 +282,9 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
             // Once a robot a round, outside the timed work: only a measure.
             *whole = whole_update(&r.map, &mut scratch.words, &mut scratch.out)?;
         }
+        // What each robot heard of its peers' estimates: the last round's
+        // (a robot's answer carries it), those that passed the verdict.
+        let heard = last_estimates(&records, n);
         let start = records.len();
         for (i, own) in trackers.iter_mut().enumerate() {
             // The robot's own map prepared once a round, for every peer.
@@ -293,7 +296,12 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                     tracker.reset();
                     links[j][i] = Some(Link::new((j, i), spec, config)?);
                 }
-                let at = Round { round, pair: (i, j), shared_world };
+                let here = robots[i].pose().map_or([0.0; 3], |p| {
+                    let t = p.translation.vector.cast::<f32>();
+                    [t.x, t.y, t.z]
+                });
+                let view = PeerView { estimate: heard[j][i], at: here };
+                let at = Round { round, pair: (i, j), shared_world, view };
                 records.push(estimate_one(spec, at, &robots, mine, &mut links, tracker, &mut scratch)?);
             }
         }
@@ -310,11 +318,26 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
 }
 
 /// Where an estimate is made: the round, the robot and its peer, whether
-/// the robots share a world (a truth).
+/// the robots share a world (a truth), what the robot heard of the peer's
+/// estimate of it.
 struct Round {
     round: usize,
     pair: (usize, usize),
     shared_world: bool,
+    view: PeerView,
+}
+
+/// Each robot's estimate of each peer in the last round (`[i][j]`:
+/// `T_i_j`), where it passed the verdict.
+fn last_estimates(records: &[Record], n: usize) -> Vec<Vec<Option<cosem_core::geometry::Isometry3<f32>>>> {
+    let mut out = vec![vec![None; n]; n];
+    let last = records.last().map(|r| r.round);
+    for r in records.iter().rev().take_while(|r| Some(r.round) == last) {
+        if let Some(e) = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged) {
+            out[r.robot][r.peer] = Some(e.result.transform);
+        }
+    }
+    out
 }
 
 /// Robot `i`'s round with peer `j`: `j`'s update applied to `i`'s copy,
@@ -329,7 +352,7 @@ fn estimate_one(
     tracker: &mut Tracker,
     scratch: &mut Scratch,
 ) -> Result<Record, Error> {
-    let Round { round, pair: (i, j), shared_world } = at;
+    let Round { round, pair: (i, j), shared_world, view } = at;
     let t0 = Instant::now();
     let link = links[j][i].as_mut().ok_or_else(|| Error::Invalid("no link".into()))?;
     let whole = scratch.whole.get(j).copied().unwrap_or(0);
@@ -349,7 +372,7 @@ fn estimate_one(
         let mut search = SearchScratch::new(&mut scratch.search);
         Some(
             tracker
-                .estimate(own.0, &peer, &spec.alignment, &mut search)
+                .estimate(own.0, &peer, &spec.alignment, &mut search, &view)
                 .map_err(|e| Error::Invalid(format!("matching: {e}")))?,
         )
     };
