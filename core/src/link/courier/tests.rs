@@ -177,3 +177,50 @@ fn a_message_larger_than_the_receiving_buffer_is_refused() {
         Some(CourierError::Config)
     );
 }
+
+/// Frames whose CRC holds but whose fields are anything (the courier's
+/// kinds with random rounds, lengths, units and runs, other kinds, empty
+/// payloads) and bytes that are no frame at all: the courier never panics,
+/// and says what it refuses with a typed error.
+#[test]
+fn any_frame_is_taken_or_refused_never_a_panic() {
+    use crate::wire::frame::encode_frame_parity;
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        seed
+    };
+    for case in 0..300 {
+        let wire = line(case, 0.0);
+        let (mut p0, mut p1) = Line::ports(&wire);
+        let mut c = Courier::new(CourierConfig::default()).unwrap();
+        let out = vec![7u8; 3000];
+        let mut input = vec![0u8; 4000];
+        c.start((next() % 3) as u16, out.len(), 0).unwrap();
+        let mut now = 0;
+        for _ in 0..20 {
+            let len = (next() % 120) as usize;
+            let mut payload: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+            if let Some(first) = payload.first_mut() {
+                *first = [0x0E, 0x0F, 0x0E, 0x0F, next() as u8][(next() % 5) as usize];
+            }
+            let mut frame = [0u8; crate::wire::MAX_FRAME];
+            let bytes: Vec<u8> = match encode_frame_parity(&payload, [0, 4, 8][(next() % 3) as usize], &mut frame) {
+                Ok(n) if next() % 4 != 0 => frame[..n].to_vec(),
+                _ => (0..len).map(|_| next() as u8).collect(),
+            };
+            embedded_io::Write::write_all(&mut p1, &bytes).unwrap();
+            for _ in 0..40 {
+                wire.borrow_mut().tick(now);
+                match c.step(&mut p0, &out, &mut input, now) {
+                    Ok(_) => {}
+                    Err(CourierError::TooLarge(_) | CourierError::Silent) => break,
+                    Err(e) => panic!("case {case}: {e:?}"),
+                }
+                now += 1;
+            }
+        }
+    }
+}
