@@ -73,6 +73,51 @@ impl FeederLine {
     }
 }
 
+/// Feeds one board over `conn` (once it said it listens) and hands each
+/// other message it sends to `on_message` until that says it was the last
+/// (`true`); why it ended otherwise: the deadline passed, the robot closed
+/// its line, the line failed.
+pub(crate) fn feed_and_collect(
+    conn: TcpStream,
+    feed: Vec<u8>,
+    deadline: Instant,
+    mut on_message: impl FnMut(&[u8]) -> bool,
+) -> Result<(), String> {
+    use cosem_core::wire::feed::RobotMessage;
+    use std::io::Read;
+    let mut reader = conn.try_clone().map_err(|e| e.to_string())?;
+    let mut line = FeederLine::new(conn, feed);
+    let mut deframer = cosem_core::wire::frame::Deframer::new();
+    let mut buf = [0u8; 1024];
+    let ended = 'read: loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            break Err("no last message before the deadline".to_string());
+        }
+        let _ = reader.set_read_timeout(Some(left.min(Duration::from_millis(500))));
+        let k = match reader.read(&mut buf) {
+            Ok(0) => break Err("the robot closed its feeder line".to_string()),
+            Ok(k) => k,
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
+            Err(e) => break Err(e.to_string()),
+        };
+        for &b in &buf[..k] {
+            if let Ok(Some(payload)) = deframer.push(b) {
+                if RobotMessage::decode(payload) == Ok(RobotMessage::Ready) {
+                    line.ready();
+                    continue;
+                }
+                if on_message(payload) {
+                    break 'read Ok(());
+                }
+            }
+        }
+    };
+    drop(reader);
+    line.finish();
+    ended
+}
+
 /// Exit code of a firmware that panicked (its panic handler exits through
 /// semihosting at once).
 pub const EXIT_PANIC: i32 = cosem_core::robot::EXIT_PANIC as i32;

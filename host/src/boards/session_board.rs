@@ -6,7 +6,7 @@
 //! a board must equal its twin's.
 
 use crate::boards::board::Board;
-use crate::boards::emulator::{accept, reap, FeederLine};
+use crate::boards::emulator::{accept, reap};
 use crate::boards::pump::{pump, LineFault};
 use crate::error::Error;
 use cosem_core::link::courier::CourierConfig;
@@ -18,7 +18,6 @@ use cosem_core::session::ShadowEntry;
 use cosem_core::sim::{self, SimRobot, Wire};
 use cosem_core::wire::feed::{RobotMessage, RoundReport, SessionEnd};
 use cosem_core::wire::frame::Deframer;
-use std::io::Read;
 use std::net::{TcpListener, TcpStream};
 use std::path::Path;
 use std::sync::atomic::AtomicU64;
@@ -157,56 +156,16 @@ pub struct SessionBoardRun {
 /// `progress`, tells each round on stderr.
 fn feed_and_collect(conn: TcpStream, feed: Vec<u8>, deadline: Instant, progress: Option<usize>) -> SessionReports {
     let mut out = SessionReports::default();
-    let mut reader = match conn.try_clone() {
-        Ok(r) => r,
-        Err(e) => {
-            out.failed = Some(("host".into(), e.to_string()));
-            return out;
+    let ended = crate::boards::emulator::feed_and_collect(conn, feed, deadline, |payload| {
+        let done = out.take(payload);
+        if let (Some(i), Some(r)) = (progress, out.rounds.last().filter(|_| !done)) {
+            eprintln!("board {i}: round {} status {} ({} ms exchanging)", r.round, r.result.status, r.exchange_ms);
         }
-    };
-    let mut line = FeederLine::new(conn, feed);
-    let mut deframer = Deframer::new();
-    let mut buf = [0u8; 1024];
-    'read: loop {
-        let left = deadline.saturating_duration_since(Instant::now());
-        if left.is_zero() {
-            out.failed = Some(("host".into(), "no last message before the deadline".into()));
-            break;
-        }
-        let _ = reader.set_read_timeout(Some(left.min(Duration::from_millis(500))));
-        let k = match reader.read(&mut buf) {
-            Ok(0) => {
-                out.failed = Some(("host".into(), "the robot closed its feeder line".into()));
-                break;
-            }
-            Ok(k) => k,
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
-            Err(e) => {
-                out.failed = Some(("host".into(), e.to_string()));
-                break;
-            }
-        };
-        for &b in &buf[..k] {
-            if let Ok(Some(payload)) = deframer.push(b) {
-                if RobotMessage::decode(payload) == Ok(RobotMessage::Ready) {
-                    line.ready();
-                    continue;
-                }
-                let done = out.take(payload);
-                if let (Some(i), Some(r)) = (progress, out.rounds.last().filter(|_| !done)) {
-                    eprintln!(
-                        "board {i}: round {} status {} ({} ms exchanging)",
-                        r.round, r.result.status, r.exchange_ms
-                    );
-                }
-                if done {
-                    break 'read;
-                }
-            }
-        }
+        done
+    });
+    if let Err(why) = ended {
+        out.failed = Some(("host".into(), why));
     }
-    drop(reader);
-    line.finish();
     out
 }
 

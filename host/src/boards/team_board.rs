@@ -15,7 +15,7 @@
 //! boards' placements must be the host's.
 
 use crate::boards::board::Board;
-use crate::boards::emulator::{accept, qemu, FeederLine};
+use crate::boards::emulator::{accept, qemu};
 use crate::boards::feeds::Feed;
 use crate::boards::pump::{pump, LineFault};
 use crate::boards::twin::board_pyramids;
@@ -28,7 +28,6 @@ use cosem_core::robot::{self, RobotConfig};
 use cosem_core::sim::{self, SimRobot, Wire};
 use cosem_core::wire::feed::{PlacedRobot, RobotMessage, RobotReport, TeamEnd};
 use cosem_core::wire::frame::Deframer;
-use std::io::Read;
 use std::net::{TcpListener, TcpStream};
 use std::path::Path;
 use std::sync::atomic::AtomicU64;
@@ -168,52 +167,15 @@ pub struct BoardRun {
 /// Feeds one board and collects its messages until its last.
 fn feed_and_collect(conn: TcpStream, feed: Vec<u8>, deadline: Instant, progress: Option<usize>) -> TeamReports {
     let mut out = TeamReports::default();
-    let mut reader = match conn.try_clone() {
-        Ok(r) => r,
-        Err(e) => {
-            out.failed = Some(("host".into(), e.to_string()));
-            return out;
+    let ended = crate::boards::emulator::feed_and_collect(conn, feed, deadline, |payload| {
+        if let Some(i) = progress {
+            eprintln!("board {i}: {}", describe(payload));
         }
-    };
-    let mut line = FeederLine::new(conn, feed);
-    let mut deframer = Deframer::new();
-    let mut buf = [0u8; 1024];
-    'read: loop {
-        let left = deadline.saturating_duration_since(Instant::now());
-        if left.is_zero() {
-            out.failed = Some(("host".into(), "no last message before the deadline".into()));
-            break;
-        }
-        let _ = reader.set_read_timeout(Some(left.min(Duration::from_millis(500))));
-        let k = match reader.read(&mut buf) {
-            Ok(0) => {
-                out.failed = Some(("host".into(), "the robot closed its feeder line".into()));
-                break;
-            }
-            Ok(k) => k,
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
-            Err(e) => {
-                out.failed = Some(("host".into(), e.to_string()));
-                break;
-            }
-        };
-        for &b in &buf[..k] {
-            if let Ok(Some(payload)) = deframer.push(b) {
-                if RobotMessage::decode(payload) == Ok(RobotMessage::Ready) {
-                    line.ready();
-                    continue;
-                }
-                if let Some(i) = progress {
-                    eprintln!("board {i}: {}", describe(payload));
-                }
-                if out.take(payload) {
-                    break 'read;
-                }
-            }
-        }
+        out.take(payload)
+    });
+    if let Err(why) = ended {
+        out.failed = Some(("host".into(), why));
     }
-    drop(reader);
-    line.finish();
     out
 }
 

@@ -397,6 +397,11 @@ impl Courier {
     ) -> Result<Event, CourierError> {
         let io = |e: L::Error| CourierError::Io(embedded_io::Error::kind(&e));
         let mut buf = [0u8; 64];
+        // A whole frame's payload, copied off the deframer (which the
+        // frame's handling may not borrow across).
+        let mut payload = [0u8; MAX_FRAME];
+        // The line estimate changed: frames to be shaped anew.
+        let mut judged = false;
         while port.read_ready().map_err(io)? {
             let n = port.read(&mut buf).map_err(io)?;
             if n == 0 {
@@ -407,10 +412,10 @@ impl Courier {
                 if b != 0 {
                     self.line.byte();
                 }
-                let mut payload = [0u8; MAX_FRAME];
                 let len = match self.deframer.push_frame(b) {
                     Ok(Some(f)) => {
                         self.line.frame(Some((f.damage, f.parity)));
+                        judged = true;
                         let k = f.payload.len().min(payload.len());
                         payload.get_mut(..k).unwrap_or(&mut []).copy_from_slice(f.payload.get(..k).unwrap_or(&[]));
                         k
@@ -423,6 +428,7 @@ impl Courier {
                             self.line.skip();
                         } else {
                             self.line.frame(None);
+                            judged = true;
                         }
                         continue;
                     }
@@ -430,7 +436,9 @@ impl Courier {
                 self.on_frame(port, payload.get(..len).unwrap_or(&[]), input, now_ms)?;
             }
         }
-        self.reshape();
+        if judged {
+            self.reshape();
+        }
         let Some(round) = self.round else { return Ok(Event::Busy) };
         if self.delivered && self.replied.is_none() && self.in_round == Some(round) {
             return Ok(Event::Delivered(self.in_len.unwrap_or(0) as usize));

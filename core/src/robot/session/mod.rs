@@ -574,11 +574,6 @@ fn read_estimate(head: &[u8]) -> Option<Isometry3<f32>> {
     rows.iter().all(|v| v.is_finite()).then(|| crate::geometry::from_rows(&rows))
 }
 
-/// Whether a round's estimate is a fix: `Converged` through the verdict.
-pub fn is_fix(report: &RoundReport) -> bool {
-    MatchStatus::from_code(report.result.status) == Some(MatchStatus::Converged)
-}
-
 impl<S, C, R, P, Q, F, L, T> Machine<F, L, T> for SessionRobot<'_, S, C, R, P, Q>
 where
     S: VoxelStorage,
