@@ -31,7 +31,7 @@ fn check_record_fields(r: &Value) {
         assert_eq!(t.len(), 12, "3x4 row-major: {r}");
     }
     if !r["e_t"].is_null() {
-        assert!(r["e_meeting"].as_f64().is_some_and(|m| m >= 0.0), "an error at the meeting place: {r}");
+        assert!(r["e_t_origin"].as_f64().is_some_and(|m| m >= 0.0), "an error at the odometry origin: {r}");
     }
 }
 
@@ -54,7 +54,7 @@ fn kitti00_robots_are_tracked_round_after_round() {
         assert_eq!(r["kind"], if first { "prior-free" } else { "tracking" }, "{r}");
         assert!(r["overlap_true"].as_f64().unwrap() > 0.3, "{r}");
     }
-    assert_eq!(summary["schema_version"], 2);
+    assert_eq!(summary["schema_version"], 3);
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
     assert_eq!(summary["availability"], 1.0, "{summary}");
     assert!(summary["first_fix_rounds"].as_u64().unwrap() <= 2, "{summary}");
@@ -209,7 +209,7 @@ fn town_robots_start_apart_and_meet() {
 /// where the robots met and still miss the strict threshold at the
 /// odometry origins, by its rotation error times the distance (town seed
 /// 1: 0.38 degrees at about 80 m). Every Converged estimate is right at
-/// the meeting place; the summary counts both.
+/// the meeting place (`e_t`); the summary counts both.
 #[test]
 fn under_drift_estimates_are_right_where_the_robots_met() {
     let dir = tempfile::tempdir().unwrap();
@@ -222,15 +222,15 @@ fn under_drift_estimates_are_right_where_the_robots_met() {
     let converged: Vec<&Value> = records.iter().filter(|r| r["status"] == "Converged").collect();
     assert!(converged.len() >= 20, "{summary}");
     for r in &converged {
-        assert!(r["e_meeting"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0, "{r}");
+        assert!(r["e_t"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0, "{r}");
     }
-    assert_eq!(summary["wrong_at_meeting"], 0, "{summary}");
-    let wrong = summary["wrong_converged"].as_u64().unwrap();
+    assert_eq!(summary["wrong_converged"], 0, "{summary}");
+    let wrong = summary["wrong_at_origin"].as_u64().unwrap();
     assert!(wrong >= 1, "the origins' metric counts the lever arm: {summary}");
-    for r in converged.iter().filter(|r| r["e_t"].as_f64().unwrap() >= 0.5) {
+    for r in converged.iter().filter(|r| r["e_t_origin"].as_f64().unwrap() >= 0.5) {
         // The lever arm: the rotation error times the distance from the
         // odometry origin to the meeting place (tens of metres).
-        let lever = r["e_t"].as_f64().unwrap() / r["e_r"].as_f64().unwrap().to_radians();
+        let lever = r["e_t_origin"].as_f64().unwrap() / r["e_r"].as_f64().unwrap().to_radians();
         assert!(lever > 30.0, "{r}");
     }
 }

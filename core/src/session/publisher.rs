@@ -3,20 +3,27 @@
 //! many) is sent the part that fits: the voxels nearest where the map
 //! keeps them ([`LocalMap::keep_centre`], [`LocalMap::nearest`]); the
 //! versions and digests are then those of that part.
+//!
+//! A voxel already held is resent only when its record moved more than one
+//! quantisation step ([`within_step`]): a LiDAR that keeps driving nudges
+//! the mean and confidence of every voxel it sees, and resending each nudge
+//! made an update half the map. What the peer holds, and what the digests
+//! cover, is the map as published: each voxel's record as last sent, never
+//! more than a step from the map's.
 
 use crate::map::{LocalMap, VoxelStorage};
-use crate::wire::codec::{morton, voxel_digest, CodecModel, EncodeError, MapEncoder};
+use crate::wire::codec::{morton, records_digest, voxel_record, within_step, CodecModel, EncodeError, MapEncoder};
 use crate::wire::update::{write_update, UpdateAck, UpdateError, UpdateHeader};
 
-/// One voxel's record as a peer holds it: its cell (Morton code) and the
-/// hash of what the wire carries of it ([`voxel_digest`]); where it is in
-/// the sender's map now.
+/// One voxel's record as a peer holds it: its cell (Morton code) and what
+/// the wire carried of it ([`voxel_record`]); where it is in the sender's
+/// map now.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ShadowEntry {
     /// Morton code of the cell.
     pub code: u64,
-    /// [`voxel_digest`] of the voxel.
-    pub hash: u32,
+    /// The voxel's [`voxel_record`] as published.
+    pub record: u32,
     /// Its index in the sender's map when the record was taken.
     pub index: u32,
 }
@@ -88,7 +95,7 @@ pub struct Publisher<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> {
 
 impl ShadowEntry {
     /// No record (what a board's static records start as).
-    pub const EMPTY: ShadowEntry = ShadowEntry { code: 0, hash: 0, index: 0 };
+    pub const EMPTY: ShadowEntry = ShadowEntry { code: 0, record: 0, index: 0 };
 }
 
 impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
@@ -124,6 +131,16 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         self.version
     }
 
+    /// The map as the last update published it, in code order: each
+    /// voxel's cell and record, exactly what a copy that applied it holds
+    /// (each record within a step of the map's then).
+    pub fn published(&self) -> &[ShadowEntry] {
+        match self.in_flight {
+            Some(_) => self.sent.as_ref().get(..self.sent_len).unwrap_or(&[]),
+            None => self.held.as_ref().get(..self.held_len).unwrap_or(&[]),
+        }
+    }
+
     /// What the last update held.
     pub fn counts(&self) -> UpdateCounts {
         self.counts
@@ -146,18 +163,19 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             return Err(PublisherError::Scratch);
         }
         let part = MapEncoder::subset(map, &mut *scratch, n, model)?;
-        let digest = part.digest();
         let order = part.into_scratch();
         let records = self.sent.as_mut().get_mut(..n).ok_or(PublisherError::Records)?;
         for (r, &i) in records.iter_mut().zip(order.iter()) {
             let v = map.voxel(i as usize).ok_or(PublisherError::Scratch)?;
-            *r = ShadowEntry { code: morton(v.key), hash: voxel_digest(v), index: i };
+            *r = ShadowEntry { code: morton(v.key), record: voxel_record(v), index: i };
         }
         // In stream order already: sorted by code.
         self.sent_len = n;
         let snapshot = self.acked == 0;
         let held = if snapshot { &[][..] } else { self.held.as_ref().get(..self.held_len).unwrap_or(&[]) };
+        keep_held_within_step(held, records);
         let records = self.sent.as_ref().get(..n).unwrap_or(&[]);
+        let digest = records_digest(records.iter().map(|r| (r.code, r.record)));
         // The voxels new or changed, as indices of the map.
         let (mut upserts, mut changed, mut removals) = (0, 0, 0);
         for change in Changes::new(held, records) {
@@ -171,7 +189,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             }
         }
         let removed = Changes::new(held, records).filter_map(|c| match c {
-            Change::Remove(code) => Some(code),
+            Change::Remove(rank) => Some(rank),
             Change::Upsert(..) => None,
         });
         let version = self.version.wrapping_add(1).max(1);
@@ -222,25 +240,49 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
     }
 }
 
+/// Gives each voxel of `now` (the map's records, sorted by code) that
+/// `held` (the peer's, sorted by code) has within a step the held record:
+/// it is not resent.
+fn keep_held_within_step(held: &[ShadowEntry], now: &mut [ShadowEntry]) {
+    let mut held = held.iter().peekable();
+    for r in now.iter_mut() {
+        while held.next_if(|h| h.code < r.code).is_some() {}
+        if let Some(h) = held.next_if(|h| h.code == r.code) {
+            if within_step(h.record, r.record) {
+                r.record = h.record;
+            }
+        }
+    }
+}
+
 /// A difference between what the peer holds and the map now.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Change {
     /// The voxel at this index of the map is new (`false`) or changed
     /// (`true`: the peer holds another record of it).
     Upsert(u32, bool),
-    /// The cell of this Morton code left the map.
-    Remove(u64),
+    /// The cell of this rank in what the peer holds (in code order) left
+    /// the map.
+    Remove(u32),
 }
 
 /// The differences of two record lists, each sorted by code, in code order.
 struct Changes<'a> {
     held: &'a [ShadowEntry],
     now: &'a [ShadowEntry],
+    /// The rank of `held`'s first record in what the peer holds.
+    rank: u32,
 }
 
 impl<'a> Changes<'a> {
     fn new(held: &'a [ShadowEntry], now: &'a [ShadowEntry]) -> Self {
-        Changes { held, now }
+        Changes { held, now, rank: 0 }
+    }
+
+    fn skip_held(&mut self) -> u32 {
+        self.held = self.held.get(1..).unwrap_or(&[]);
+        self.rank += 1;
+        self.rank - 1
     }
 }
 
@@ -250,26 +292,20 @@ impl Iterator for Changes<'_> {
         loop {
             match (self.held.first(), self.now.first()) {
                 (None, None) => return None,
-                (Some(h), None) => {
-                    self.held = self.held.get(1..).unwrap_or(&[]);
-                    return Some(Change::Remove(h.code));
-                }
+                (Some(_), None) => return Some(Change::Remove(self.skip_held())),
                 (None, Some(n)) => {
                     self.now = self.now.get(1..).unwrap_or(&[]);
                     return Some(Change::Upsert(n.index, false));
                 }
-                (Some(h), Some(n)) if h.code < n.code => {
-                    self.held = self.held.get(1..).unwrap_or(&[]);
-                    return Some(Change::Remove(h.code));
-                }
+                (Some(h), Some(n)) if h.code < n.code => return Some(Change::Remove(self.skip_held())),
                 (Some(h), Some(n)) if h.code > n.code => {
                     self.now = self.now.get(1..).unwrap_or(&[]);
                     return Some(Change::Upsert(n.index, false));
                 }
                 (Some(h), Some(n)) => {
-                    self.held = self.held.get(1..).unwrap_or(&[]);
+                    self.skip_held();
                     self.now = self.now.get(1..).unwrap_or(&[]);
-                    if h.hash != n.hash {
+                    if h.record != n.record {
                         return Some(Change::Upsert(n.index, true));
                     }
                 }

@@ -2,7 +2,7 @@
 //! `decode(encode(peer's map at version v))`.
 
 use crate::map::{ConfigError, InsertError, LocalMap, MapConfig, SemanticVoxel, VoxelSink, VoxelStorage};
-use crate::wire::codec::{map_digest, CodecModel};
+use crate::wire::codec::{map_digest, stream_order, CodecModel};
 use crate::wire::update::{UpdateAck, UpdateError, UpdateView};
 
 /// What became of an update.
@@ -150,19 +150,25 @@ impl<S: VoxelStorage> Replica<S> {
 
     /// The update's removals and upserts applied to the copy.
     fn patch(&mut self, view: &UpdateView<'_>, model: &mut CodecModel, scratch: &mut [u32]) -> Result<(), ()> {
-        let words = self.map.len().div_ceil(32);
-        let marks = scratch.get_mut(..words).ok_or(())?;
-        marks.fill(0);
-        for key in view.removed() {
-            let i = self.map.index_of(key).ok_or(())?;
-            *marks.get_mut(i / 32).ok_or(())? |= 1 << (i % 32);
-        }
         if view.header.removals > 0 {
-            let mut i = 0usize;
+            // The copy in code order (the base's ranks), then the indices
+            // of the ranks removed moved to its front (rank k is at or
+            // after slot k: nothing unread is overwritten), sorted.
+            let order = stream_order(&self.map, scratch).map_err(|_| ())?;
+            let mut gone = 0;
+            for rank in view.removed() {
+                let i = *order.get(rank as usize).ok_or(())?;
+                *order.get_mut(gone).ok_or(())? = i;
+                gone += 1;
+            }
+            let gone = order.get_mut(..gone).ok_or(())?;
+            gone.sort_unstable();
+            let (mut i, mut next) = (0u32, 0usize);
             self.map.retain(|_| {
-                let gone = marks.get(i / 32).is_some_and(|w| w & (1 << (i % 32)) != 0);
+                let drop = gone.get(next) == Some(&i);
+                next += usize::from(drop);
                 i += 1;
-                !gone
+                !drop
             });
         }
         view.decode_upserts(model, &mut Upsert(&mut self.map)).map_err(|_| ())

@@ -2,7 +2,7 @@ use super::*;
 use crate::classes::Class;
 use crate::map::{FullPolicy, MapConfig, SemanticVoxel, VecMap};
 use crate::test_util::heap_map;
-use crate::wire::codec::{CodecModel, MapDecoder, MapEncoder};
+use crate::wire::codec::{voxel_record, within_step, CodecModel, MapDecoder, MapEncoder};
 use crate::wire::update::{UpdateAck, UpdateView};
 use std::vec;
 use std::vec::Vec;
@@ -65,6 +65,25 @@ fn decoded(map: &VecMap) -> Vec<SemanticVoxel> {
     sorted(&copy)
 }
 
+/// A copy's voxels as records (cell code, [`voxel_record`]), in code order.
+fn records(map: &VecMap) -> Vec<(u64, u32)> {
+    sorted(map).iter().map(|v| (crate::wire::codec::morton(v.key), voxel_record(v))).collect()
+}
+
+/// The copy holds the map as published, bit for bit (the publisher's
+/// records), and that is the map decoded but for records a step apart.
+fn assert_published(copy: &VecMap, published: &[ShadowEntry], map: &VecMap, what: &str) {
+    let held = records(copy);
+    let want: Vec<(u64, u32)> = published.iter().map(|r| (r.code, r.record)).collect();
+    assert_eq!(held, want, "{what}: the copy is not the map as published");
+    let truth = decoded(map);
+    assert_eq!(held.len(), truth.len(), "{what}");
+    for ((code, record), t) in held.iter().zip(&truth) {
+        assert_eq!(*code, crate::wire::codec::morton(t.key), "{what}");
+        assert!(within_step(*record, voxel_record(t)), "{what}: {record:#x} against {:#x}", voxel_record(t));
+    }
+}
+
 fn sorted(map: &VecMap) -> Vec<SemanticVoxel> {
     let mut v: Vec<SemanticVoxel> = map.iter().copied().collect();
     v.sort_by_key(|v| crate::wire::codec::morton(v.key));
@@ -106,7 +125,7 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
         assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied, "round {round}");
         publisher.on_ack(&replica.answer());
         assert_eq!(publisher.acked(), publisher.version());
-        assert_eq!(sorted(replica.map()), decoded(&map), "round {round}");
+        assert_published(replica.map(), publisher.published(), &map, &std::format!("round {round}"));
         if round > 0 {
             let whole = {
                 let held2 = vec![ShadowEntry::default(); CAPACITY];
@@ -162,7 +181,7 @@ fn lost_repeated_and_damaged_updates_are_repaired() {
             let what = replica.apply(&update, &mut back, scratch);
             *seen.entry(std::format!("{what:?}")).or_insert(0) += 1;
             if what == Applied::Applied || what == Applied::Repeated {
-                assert_eq!(sorted(replica.map()), decoded(&map), "round {round}: {what:?}");
+                assert_published(replica.map(), publisher.published(), &map, &std::format!("round {round}: {what:?}"));
             }
             let answer = replica.answer();
             // An answer may be lost too (or arrive damaged and be dropped).
@@ -175,7 +194,7 @@ fn lost_repeated_and_damaged_updates_are_repaired() {
             in_sync_after_clean_round += 1;
         }
         if replica.version() != 0 && replica.version() == publisher.version() {
-            assert_eq!(sorted(replica.map()), decoded(&map), "round {round}");
+            assert_published(replica.map(), publisher.published(), &map, &std::format!("round {round}"));
         }
     }
     // Every kind of trouble happened, and the clean rounds found the copy
@@ -241,7 +260,7 @@ fn forged_updates_never_pass_as_the_map() {
     for round in 0..5 {
         drive(&mut map, round, &mut rng);
         let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
-        let truth = decoded(&map);
+        let truth: Vec<(u64, u32)> = publisher.published().iter().map(|r| (r.code, r.record)).collect();
         for _ in 0..60 {
             let mut bytes = out[..n].to_vec();
             for _ in 0..1 + (forge.unit() * 4.0) as usize {
@@ -263,7 +282,7 @@ fn forged_updates_never_pass_as_the_map() {
             let what = copy.apply(&bytes, &mut back, scratch);
             *outcomes.entry(std::format!("{what:?}")).or_default() += 1;
             if what == Applied::Applied {
-                assert_eq!(sorted(copy.map()), truth, "a forged update made another map");
+                assert_eq!(records(copy.map()), truth, "a forged update made another map");
             }
         }
         history.push(out[..n].to_vec());
@@ -353,7 +372,7 @@ fn a_smaller_peer_is_sent_the_part_of_the_map_that_fits() {
         for &i in &part[..k] {
             nearest.upsert_voxel(*map.voxel(i as usize).unwrap()).unwrap();
         }
-        assert_eq!(sorted(replica.map()), decoded(&nearest), "round {round}");
+        assert_published(replica.map(), publisher.published(), &nearest, &std::format!("round {round}"));
     }
 }
 
@@ -406,4 +425,49 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     tracker.reset();
     assert_eq!(estimate(&mut tracker, None).status(), MatchStatus::NotConverged);
     assert!(agree(&first.result.transform, &first.result.transform.inverse(), at));
+}
+
+/// A voxel nudged by a step in a field is not resent (the copy keeps the
+/// record it has, a step from the map's); moved further, or relabelled,
+/// it is.
+#[test]
+fn a_voxel_is_resent_only_when_it_moved_more_than_a_step() {
+    let mut ends = Ends::new();
+    let Ends { held, sent, replica, scratch, out } = &mut ends;
+    let mut publisher = Publisher::new(4, &mut held[..], &mut sent[..]);
+    let (mut map, mut rng) = (robot_map(), Lcg(21));
+    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
+    drive(&mut map, 0, &mut rng);
+    let v = *map.voxel(0).unwrap();
+    let with_x = |x: u16| {
+        let m = v.mean_raw();
+        SemanticVoxel::from_parts(v.key, [x, m[1], m[2]], v.occupancy_raw(), v.hits(), v.labels)
+    };
+    let mut exchange = |map: &VecMap, publisher: &mut Publisher<&mut [ShadowEntry]>| {
+        let n = publisher.next_update(map, scratch, &mut model, out).unwrap();
+        assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied);
+        publisher.on_ack(&replica.answer());
+        assert_published(replica.map(), publisher.published(), map, "exchange");
+        (publisher.counts().changed, records(replica.map()))
+    };
+    // Step 0 of the mean's x, then step 1: not resent, the copy keeps step 0.
+    map.upsert_voxel(with_x(0x1000)).unwrap();
+    let (_, before) = exchange(&map, &mut publisher);
+    map.upsert_voxel(with_x(0x5000)).unwrap();
+    let (changed, after) = exchange(&map, &mut publisher);
+    assert_eq!((changed, &after), (0, &before), "a nudge of one step was resent");
+    // Step 2: two from what the copy holds: resent.
+    map.upsert_voxel(with_x(0x9000)).unwrap();
+    let (changed, after) = exchange(&map, &mut publisher);
+    assert_eq!(changed, 1);
+    let code = crate::wire::codec::morton(v.key);
+    let held = after.iter().find(|r| r.0 == code).unwrap().1;
+    assert_eq!(held, voxel_record(&with_x(0x9000)));
+    // Relabelled: resent, however little else moved.
+    let mut labels = crate::map::LabelDistribution::EMPTY;
+    let other = if v.class() == Some(Class::Road) { Class::Building } else { Class::Road };
+    labels.observe(other, 1000);
+    let m = with_x(0x9000).mean_raw();
+    map.upsert_voxel(SemanticVoxel::from_parts(v.key, m, v.occupancy_raw(), v.hits(), labels)).unwrap();
+    assert_eq!(exchange(&map, &mut publisher).0, 1);
 }

@@ -192,16 +192,22 @@ fn quantise(v: &SemanticVoxel) -> Quantised {
     }
 }
 
-/// Feeds one voxel's canonical record (6 bytes of code, 4 of quantised
-/// fields) into a digest: the same in the encoder and the decoder, whatever
-/// the chunking.
-fn digest_voxel(crc: &mut Crc32, code: u64, q: &Quantised) {
-    let packed = q.class
+/// One voxel's quantised fields packed in 32 bits (class 5 bits,
+/// confidence 3, occupancy 2, then 4 bits an axis of the mean): the record
+/// the digests cover and an update compares.
+fn pack(q: &Quantised) -> u32 {
+    q.class
         | (q.confidence << 5)
         | (q.occupancy << 8)
         | (q.position[0] << 10)
         | (q.position[1] << 14)
-        | (q.position[2] << 18);
+        | (q.position[2] << 18)
+}
+
+/// Feeds one voxel's canonical record (6 bytes of code, 4 of packed
+/// fields) into a digest: the same in the encoder and the decoder, whatever
+/// the chunking.
+fn digest_voxel(crc: &mut Crc32, code: u64, packed: u32) {
     let c = code.to_le_bytes();
     crc.update(&c[..6]);
     crc.update(&packed.to_le_bytes());
@@ -559,13 +565,16 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
 fn digest_in_order<S: VoxelStorage>(map: &LocalMap<S>, order: &[u32]) -> u32 {
     let mut crc = Crc32::new();
     for v in order.iter().filter_map(|&i| map.voxel(i as usize)) {
-        digest_voxel(&mut crc, morton(v.key), &quantise(v));
+        digest_voxel(&mut crc, morton(v.key), pack(&quantise(v)));
     }
     crc.finish()
 }
 
 /// The order of `map`'s voxels in the stream (Morton order), in `scratch`.
-fn stream_order<'s, S: VoxelStorage>(map: &LocalMap<S>, scratch: &'s mut [u32]) -> Result<&'s mut [u32], EncodeError> {
+pub(crate) fn stream_order<'s, S: VoxelStorage>(
+    map: &LocalMap<S>,
+    scratch: &'s mut [u32],
+) -> Result<&'s mut [u32], EncodeError> {
     let order = scratch.get_mut(..map.len()).ok_or(EncodeError::Scratch)?;
     for (i, o) in order.iter_mut().enumerate() {
         *o = i as u32;
@@ -575,13 +584,33 @@ fn stream_order<'s, S: VoxelStorage>(map: &LocalMap<S>, scratch: &'s mut [u32]) 
     Ok(order)
 }
 
-/// A voxel's record as the encoding keeps it (its cell and quantised
-/// fields), hashed: equal for two voxels exactly when the wire would carry
-/// them alike (up to CRC-32 collisions). What an update compares to find
-/// the voxels that changed.
-pub fn voxel_digest(v: &SemanticVoxel) -> u32 {
+/// A voxel's record as the wire carries it (its quantised class,
+/// confidence, occupancy and mean, packed): equal for two voxels of one
+/// cell exactly when the wire would carry them alike. What an update
+/// compares to find the voxels that changed.
+pub fn voxel_record(v: &SemanticVoxel) -> u32 {
+    pack(&quantise(v))
+}
+
+/// Whether a voxel's record `now` is within one quantisation step of the
+/// record `held` a peer has: the same class, and the confidence, the
+/// occupancy and each axis of the mean at most one step apart. An update
+/// resends a voxel only when it moved further (its deadband), so a peer's
+/// copy is never more than one step from the map in any field.
+pub fn within_step(held: u32, now: u32) -> bool {
+    let field = |r: u32, shift: u32, bits: u32| (r >> shift) & ((1 << bits) - 1);
+    let near = |shift, bits| field(held, shift, bits).abs_diff(field(now, shift, bits)) <= 1;
+    field(held, 0, 5) == field(now, 0, 5) && near(5, 3) && near(8, 2) && near(10, 4) && near(14, 4) && near(18, 4)
+}
+
+/// The digest of a map whose voxels, in stream (Morton) order, have these
+/// cells' codes and records ([`voxel_record`]): what [`MapEncoder::digest`]
+/// and [`MapDecoder::digest`] give for such a map.
+pub fn records_digest(records: impl Iterator<Item = (u64, u32)>) -> u32 {
     let mut crc = Crc32::new();
-    digest_voxel(&mut crc, morton(v.key), &quantise(v));
+    for (code, record) in records {
+        digest_voxel(&mut crc, code, record);
+    }
     crc.finish()
 }
 
@@ -664,7 +693,7 @@ impl MapDecoder {
                 InsertError::DuplicateKey => DecodeError::Order,
                 _ => DecodeError::Full,
             })?;
-            digest_voxel(&mut self.digest, code, &q);
+            digest_voxel(&mut self.digest, code, pack(&q));
             self.last = Some(code);
             self.decoded += 1;
         }

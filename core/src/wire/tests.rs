@@ -495,3 +495,40 @@ proptest! {
         }
     }
 }
+
+/// An update's removals are runs of ranks: written and read back in order,
+/// refused out of order, and a message whose runs lie is a typed error
+/// (never a panic, never ranks past what it holds).
+#[test]
+fn update_removals_are_runs_of_ranks() {
+    use super::update::{write_update, UpdateError, UpdateHeader, UpdateView};
+    let header =
+        |removals: u32| UpdateHeader { epoch: 1, base: 4, version: 5, voxels: 10, digest: 0, removals, upserts: 0 };
+    let ranks = [0u32, 1, 2, 9, 10, 40, 1000, 1001];
+    let mut out = vec![0u8; 256];
+    let none: Option<&mut MapEncoder<'_, Heap, &LocalMap<Heap>>> = None;
+    let n = write_update(&header(8), ranks.iter().copied(), 8, none, &mut CodecModel::new(), &mut out).unwrap();
+    // Header, 4 runs of 2 bytes but the last's gap (959: 2 bytes), the CRC.
+    assert_eq!(n, super::update::UPDATE_HEADER + 9 + 4);
+    let view = UpdateView::parse(&out[..n]).unwrap();
+    assert_eq!(view.removed().collect::<Vec<_>>(), ranks);
+    let none: Option<&mut MapEncoder<'_, Heap, &LocalMap<Heap>>> = None;
+    let disorder = write_update(&header(2), [5u32, 3].into_iter(), 2, none, &mut CodecModel::new(), &mut out);
+    assert_eq!(disorder, Err(UpdateError::Removal));
+    // Runs that lie: more removals announced than the runs hold, and a run
+    // past u32::MAX (the CRC made to match).
+    let forged = |body: &[u8], removals: u32| {
+        let mut bytes = vec![super::update::UPDATE_KIND, 1, 0];
+        for v in [4u32, 5, 10, 0, removals, 0] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+        bytes.extend_from_slice(body);
+        let crc = super::crc32(&bytes);
+        bytes.extend_from_slice(&crc.to_le_bytes());
+        UpdateView::parse(&bytes).map(|v| v.removed().count())
+    };
+    assert_eq!(forged(&[0, 2], 3), Ok(3));
+    assert_eq!(forged(&[0, 2], 4), Err(UpdateError::Truncated));
+    assert_eq!(forged(&[0, 2], 2), Err(UpdateError::Counts), "a run past the removals announced");
+    assert_eq!(forged(&[0xFF, 0xFF, 0xFF, 0xFF, 0x0F, 5], 6), Err(UpdateError::Removal));
+}

@@ -275,7 +275,7 @@ pub struct SessionBoardsRun {
     /// The host twin's run of each robot.
     pub host: Vec<SessionReports>,
     /// Per round, robot 0's truth of robot 1 and robot 1's of robot 0.
-    pub truth: Vec<[Option<nalgebra::Isometry3<f64>>; 2]>,
+    pub truth: Vec<[Option<crate::evaluation::session::Truth>; 2]>,
     /// Rounds fed.
     pub rounds: usize,
     /// Wall time of the twin (s) and of the boards (s).
@@ -336,7 +336,8 @@ mod tests {
                 .filter(|x| x.result.status == cosem_core::matching::MatchStatus::Converged.code())
                 .filter_map(|x| {
                     let t = feeds.truth[usize::from(x.round)][i]?;
-                    Some(cosem_core::geometry::pose_errors(&x.result.transform().cast::<f64>(), &t))
+                    let (e_t, e_r, _) = t.errors(&x.result.transform().cast::<f64>());
+                    Some((e_t, e_r))
                 })
                 .collect();
             eprintln!("robot {i}: fixes (e_t, e_r) {fixes:.2?}");

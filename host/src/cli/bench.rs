@@ -321,7 +321,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
         "mode",
         "rounds",
         "wrong",
-        "@meet",
+        "@origin",
         "avail",
         "min",
         "meets",
@@ -341,7 +341,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
             if c.case.one_shot { "one-shot" } else { "tracked" },
             c.rounds,
             c.wrong_converged,
-            c.wrong_at_meeting,
+            c.wrong_at_origin,
             opt(c.availability),
             opt(c.availability_min),
             c.meetings,
@@ -353,7 +353,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
         );
     }
     println!(
-        "  (@meet: Converged and wrong at the meeting place, not at the odometry origins;\n   B/round: bytes a robot received from a peer in a round, median; cost: a tracking round's median time /\n   a from-scratch match's, single thread; one-shot: whole maps every round, matched prior-free; {:.0} s in all)",
+        "  (wrong: Converged and e_t at the meeting place or e_r over the strict thresholds; @origin: with e_t at the odometry origins;\n   B/round: bytes a robot received from a peer in a round, median; cost: a tracking round's median time /\n   a from-scratch match's, single thread; one-shot: whole maps every round, matched prior-free; {:.0} s in all)",
         t0.elapsed().as_secs_f64()
     );
     save(json, &cases)

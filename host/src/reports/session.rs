@@ -6,8 +6,11 @@ use cosem_core::geometry::row_major;
 use serde::Serialize;
 
 /// The JSON lines' schema version: 2 since `status` is `Converged` only
-/// for a fix the peer's estimate agreed with (`confirmed`).
-pub const SESSION_SCHEMA: u32 = 2;
+/// for a fix the peer's estimate agreed with (`confirmed`); 3 since `e_t`
+/// is taken at the meeting place (was `e_meeting`), the odometry origin's
+/// in `e_t_origin`, and the summary's `wrong_at_meeting` became
+/// `wrong_at_origin`.
+pub const SESSION_SCHEMA: u32 = 3;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]
@@ -30,25 +33,35 @@ pub struct RecordJson {
     /// `T_own_peer`, row-major 3x4, when there is an estimate.
     #[serde(rename = "T_own_peer", skip_serializing_if = "Option::is_none")]
     pub t_own_peer: Option<[f64; 12]>,
-    /// Translation error against the truth (m).
+    /// Translation error against the truth (m), at the meeting place:
+    /// between where the estimate and the truth put the peer's place at the
+    /// closest pair of scans (the conventions' `e_t` with the model frame's
+    /// origin moved there).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub e_t: Option<f64>,
+    /// The conventions' `e_t` at the robot's odometry origin (m): a drift's
+    /// rotation error times the distance to the meeting.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub e_t_origin: Option<f64>,
     /// Rotation error against the truth (degrees).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub e_r: Option<f64>,
     /// Overlap of the peer's map in the robot's under the truth.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub overlap_true: Option<f64>,
-    /// Metres between where the estimate and the truth put the peer's
-    /// place at the closest pair of scans (when both are known).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub e_meeting: Option<f64>,
     /// The match's own overlap and agreement.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub overlap: Option<f32>,
     /// The match's agreement.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub agreement: Option<f32>,
+    /// EM iterations the match used (all levels).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub iterations: Option<u32>,
+    /// The match's degeneracy (the normalised smallest eigenvalue of its
+    /// information; below the settings' threshold: `Degenerate`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub degeneracy: Option<f32>,
     /// Bytes of the peer's update and the answer.
     pub bytes_sent: usize,
     /// The update ÷ the peer's whole map (once the copy was whole once).
@@ -86,11 +99,13 @@ impl From<&Record> for RecordJson {
             confirmed: e.is_some_and(|e| e.confirmed),
             t_own_peer: t,
             e_t: r.errors.map(|e| e.0),
+            e_t_origin: r.origin_error,
             e_r: r.errors.map(|e| e.1),
             overlap_true: r.overlap_true,
-            e_meeting: r.meeting_error,
             overlap: e.map(|e| e.result.overlap),
             agreement: e.map(|e| e.result.agreement),
+            iterations: e.map(|e| e.result.iterations),
+            degeneracy: e.map(|e| e.result.degeneracy),
             bytes_sent: r.bytes_sent,
             update_ratio: r.update_ratio,
             update: format!("{:?}", r.applied),
@@ -124,8 +139,8 @@ pub struct SummaryFields<'a> {
 /// A record as a line of text.
 pub fn record_text(r: &Record) -> String {
     let j = RecordJson::from(r);
-    let errors = match (j.e_t, j.e_r, j.e_meeting) {
-        (Some(t), Some(a), Some(m)) => format!("e_t {t:6.3} m  e_r {a:6.3} deg  e_meeting {m:6.3} m"),
+    let errors = match (j.e_t, j.e_r, j.e_t_origin) {
+        (Some(t), Some(a), Some(o)) => format!("e_t {t:6.3} m  e_r {a:6.3} deg  e_t_origin {o:6.3} m"),
         (Some(t), Some(a), None) => format!("e_t {t:6.3} m  e_r {a:6.3} deg"),
         _ => "(no truth)".into(),
     };
@@ -150,10 +165,10 @@ pub fn summary_text(s: &Summary, rounds: usize) -> String {
     let opt = |v: Option<f64>, unit: &str| v.map_or("-".to_string(), |v| format!("{v:.3}{unit}"));
     let ratio = s.update_bytes_ratio.map_or("-".into(), |[a, b, c]| format!("p50 {a:.3}, p95 {b:.3}, max {c:.3}"));
     let mut out = format!(
-        "rounds {rounds}; estimates with a truth {}\nwrong Converged   {} (at the meeting place: {})\nmeetings          {}\navailability      {}\nfirst fix         {} rounds (largest)\nupdate / map      {ratio}\nbytes             {}\ntracking round    {} (from scratch {:.1} ms; ratio {})\n",
+        "rounds {rounds}; estimates with a truth {}\nwrong Converged   {} (by e_t at the odometry origin: {})\nmeetings          {}\navailability      {}\nfirst fix         {} rounds (largest)\nupdate / map      {ratio}\nbytes             {}\ntracking round    {} (from scratch {:.1} ms; ratio {})\n",
         s.with_truth,
         s.wrong_converged,
-        s.wrong_at_meeting,
+        s.wrong_at_origin,
         s.meetings,
         opt(s.availability, ""),
         s.first_fix_rounds.map_or("-".into(), |v| v.to_string()),

@@ -4,13 +4,13 @@
 //! equal their twin.
 
 use crate::boards::session_board::{round_difference, SessionBoardsRun};
-use cosem_core::geometry::pose_errors;
 use cosem_core::matching::MatchStatus;
 use cosem_core::wire::feed::RoundReport;
 use serde::Serialize;
 
-/// The JSON lines' schema version.
-pub const SESSION_BOARD_SCHEMA: u32 = 1;
+/// The JSON lines' schema version: 2 since `e_t` is taken at the meeting
+/// place, the odometry origin's in `e_t_origin`.
+pub const SESSION_BOARD_SCHEMA: u32 = 2;
 
 /// A board's figure must equal its twin's to this (m).
 pub const TWIN_TOLERANCE_M: f64 = 1e-4;
@@ -34,12 +34,16 @@ pub struct BoardRoundJson {
     /// `T_own_peer`, row-major 3x4.
     #[serde(rename = "T_own_peer")]
     pub t_own_peer: [f64; 12],
-    /// Translation error against the truth (m).
+    /// Translation error against the truth at the meeting place (m), as
+    /// `cosem session`'s.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub e_t: Option<f64>,
     /// Rotation error against the truth (degrees).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub e_r: Option<f64>,
+    /// The conventions' `e_t` at the odometry origin (m).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub e_t_origin: Option<f64>,
     /// Metres between the board's and the twin's translation.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub twin_dt: Option<f64>,
@@ -71,7 +75,7 @@ impl SessionBoardReport<'_> {
     fn line(&self, robot: usize, r: &RoundReport) -> BoardRoundJson {
         let truth = self.run.truth.get(usize::from(r.round)).and_then(|t| t[robot]);
         let t = r.result.transform().cast::<f64>();
-        let e = truth.filter(|_| MatchStatus::from_code(r.result.status).is_some()).map(|g| pose_errors(&t, &g));
+        let e = truth.filter(|_| MatchStatus::from_code(r.result.status).is_some()).map(|g| g.errors(&t));
         let twin = self.run.host.get(robot).and_then(|h| h.rounds.iter().find(|x| x.round == r.round));
         BoardRoundJson {
             round: r.round,
@@ -82,6 +86,7 @@ impl SessionBoardReport<'_> {
             t_own_peer: r.result.transform.map(f64::from),
             e_t: e.map(|e| e.0),
             e_r: e.map(|e| e.1),
+            e_t_origin: e.map(|e| e.2),
             twin_dt: twin.and_then(|w| round_difference(std::slice::from_ref(r), std::slice::from_ref(w)).map(|d| d.0)),
             update_bytes: r.update_bytes,
             line_bytes: r.line_bytes,

@@ -59,8 +59,8 @@ pub struct CaseFigures {
     pub rounds: usize,
     /// Converged and wrong, over every seed (the slip's rounds exempt).
     pub wrong_converged: usize,
-    /// Converged and wrong at the meeting place ([`super::Summary::wrong_at_meeting`]).
-    pub wrong_at_meeting: usize,
+    /// Converged and wrong by `e_t` at the odometry origin ([`super::Summary::wrong_at_origin`]).
+    pub wrong_at_origin: usize,
     /// Correct Converged ÷ estimates in meetings (first 2 rounds of each
     /// left out), pooled over the seeds.
     pub availability: Option<f64>,
@@ -159,7 +159,7 @@ fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
         seeds: runs.iter().map(|r| r.seed).collect(),
         rounds: runs.iter().map(|r| r.out.rounds).max().unwrap_or(0),
         wrong_converged: summaries.iter().map(|s| s.wrong_converged).sum(),
-        wrong_at_meeting: summaries.iter().map(|s| s.wrong_at_meeting).sum(),
+        wrong_at_origin: summaries.iter().map(|s| s.wrong_at_origin).sum(),
         availability: (in_meetings > 0).then(|| available as f64 / in_meetings as f64),
         availability_min: per_seed.iter().copied().reduce(f64::min),
         meetings: summaries.iter().map(|s| s.meetings).sum(),

@@ -5,13 +5,13 @@
 //! `cosem session` takes it.
 
 use super::robot::Robot;
+use super::Truth;
 use super::{figures, SessionSpec};
 use crate::error::Error;
 use crate::maps::mapping::PointFilter;
 use crate::sources::source::Source;
 use cosem_core::wire::feed::{FeedMessage, Setup, MAX_POINTS_PER_MESSAGE};
 use cosem_core::wire::frame::MAX_FRAME;
-use nalgebra::Isometry3;
 
 /// What the boards of a session are fed, and what their rounds are
 /// measured against.
@@ -20,10 +20,9 @@ pub struct BoardFeeds {
     pub feeds: Vec<Vec<u8>>,
     /// Rounds.
     pub rounds: usize,
-    /// Per round, each robot's truth `T_own_peer` of the other (robot 0's
-    /// of robot 1, then robot 1's of robot 0), where the robots share a
-    /// world.
-    pub truth: Vec<[Option<Isometry3<f64>>; 2]>,
+    /// Per round, each robot's truth of the other (robot 0's of robot 1,
+    /// then robot 1's of robot 0), where the robots share a world.
+    pub truth: Vec<[Option<Truth>; 2]>,
 }
 
 /// The feeds of a two-robot session (`spec`'s robots, drift, slip and
@@ -49,8 +48,7 @@ pub fn board_feeds(spec: &SessionSpec, silence_ms: u32) -> Result<BoardFeeds, Er
         for r in &mut robots {
             r.drive(spec.every)?;
         }
-        let at =
-            |a: usize, b: usize| shared_world.then(|| figures::truth(&robots[a], &robots[b]).map(|(t, _)| t)).flatten();
+        let at = |a: usize, b: usize| shared_world.then(|| figures::truth(&robots[a], &robots[b])).flatten();
         truth.push([at(0, 1), at(1, 0)]);
     }
     Ok(BoardFeeds { feeds, rounds, truth })
