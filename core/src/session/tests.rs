@@ -329,7 +329,7 @@ fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
     let gone = estimate(&mut tracker, &other);
     assert_eq!(gone.kind, Kind::Tracking);
     assert_ne!(gone.result.status, MatchStatus::Converged);
-    // NoOverlap or Degenerate withdraws at once; NotConverged keeps it once.
+    // NoOverlap withdraws at once; NotConverged or Degenerate keeps it once.
     if gone.fix == Fix::Kept {
         assert_eq!(estimate(&mut tracker, &other).fix, Fix::Withdrawn);
     } else {

@@ -1,9 +1,9 @@
 //! The relative pose of a peer, tracked round after round: prior-free until
 //! the first fix the verdict accepts, then from the last fix (the windowed
 //! search around it, then EM), every answer through the verdict; a fix that
-//! stops agreeing (the verdict says `NoOverlap` or `Degenerate` from it, or
-//! EM does not settle from it twice running) is withdrawn, and the next
-//! round searches prior-free again.
+//! stops agreeing (the verdict says `NoOverlap` from it, or EM does not
+//! settle from it or the answer is `Degenerate` twice running) is
+//! withdrawn, and the next round searches prior-free again.
 
 use crate::geometry::Isometry3;
 use crate::matching::search::SearchScratch;
@@ -121,7 +121,8 @@ pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3]) -> bo
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Tracker {
     fix: Option<Isometry3<f32>>,
-    /// Rounds running in which EM did not settle from the fix.
+    /// Rounds running in which EM did not settle from the fix, or its
+    /// answer was Degenerate.
     unsettled: u8,
     /// The fix has agreed with the peer's estimate.
     confirmed: bool,
@@ -169,7 +170,10 @@ impl Tracker {
                 (self.fix, self.unsettled) = (Some(result.transform), 0);
                 Fix::Held
             }
-            (MatchStatus::NotConverged, true) if self.unsettled == 0 => {
+            // A street seen along its length is Degenerate for a round or
+            // two (nothing holds the match along it) while the fix is still
+            // right: kept once, as an answer that did not settle.
+            (MatchStatus::NotConverged | MatchStatus::Degenerate, true) if self.unsettled == 0 => {
                 self.unsettled = 1;
                 Fix::Kept
             }
