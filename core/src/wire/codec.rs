@@ -192,16 +192,22 @@ fn quantise(v: &SemanticVoxel) -> Quantised {
     }
 }
 
-/// One voxel's quantised fields packed in 32 bits (class 5 bits,
-/// confidence 3, occupancy 2, then 4 bits an axis of the mean): the record
-/// the digests cover and an update compares.
+/// Where each quantised field sits in a packed record, `(shift, bits)`:
+/// class, confidence, occupancy, then the mean's three axes (4 bits each,
+/// room for [`POSITION_BITS`]). The one layout the digests cover and an
+/// update's deadband compares ([`within_step`]).
+const CLASS_FIELD: (u32, u32) = (0, 5);
+const STEPPED_FIELDS: [(u32, u32); 5] = [(5, 3), (8, 2), (10, 4), (14, 4), (18, 4)];
+
+/// One voxel's quantised fields packed in 32 bits (the layout above).
 fn pack(q: &Quantised) -> u32 {
-    q.class
-        | (q.confidence << 5)
-        | (q.occupancy << 8)
-        | (q.position[0] << 10)
-        | (q.position[1] << 14)
-        | (q.position[2] << 18)
+    let values = [q.confidence, q.occupancy, q.position[0], q.position[1], q.position[2]];
+    STEPPED_FIELDS.iter().zip(values).fold(q.class << CLASS_FIELD.0, |r, (&(shift, _), v)| r | (v << shift))
+}
+
+/// A packed record's field.
+fn field(record: u32, (shift, bits): (u32, u32)) -> u32 {
+    (record >> shift) & ((1 << bits) - 1)
 }
 
 /// Feeds one voxel's canonical record (6 bytes of code, 4 of packed
@@ -563,11 +569,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
 }
 
 fn digest_in_order<S: VoxelStorage>(map: &LocalMap<S>, order: &[u32]) -> u32 {
-    let mut crc = Crc32::new();
-    for v in order.iter().filter_map(|&i| map.voxel(i as usize)) {
-        digest_voxel(&mut crc, morton(v.key), pack(&quantise(v)));
-    }
-    crc.finish()
+    records_digest(order.iter().filter_map(|&i| map.voxel(i as usize)).map(|v| (morton(v.key), voxel_record(v))))
 }
 
 /// The order of `map`'s voxels in the stream (Morton order), in `scratch`.
@@ -598,9 +600,8 @@ pub fn voxel_record(v: &SemanticVoxel) -> u32 {
 /// resends a voxel only when it moved further (its deadband), so a peer's
 /// copy is never more than one step from the map in any field.
 pub fn within_step(held: u32, now: u32) -> bool {
-    let field = |r: u32, shift: u32, bits: u32| (r >> shift) & ((1 << bits) - 1);
-    let near = |shift, bits| field(held, shift, bits).abs_diff(field(now, shift, bits)) <= 1;
-    field(held, 0, 5) == field(now, 0, 5) && near(5, 3) && near(8, 2) && near(10, 4) && near(14, 4) && near(18, 4)
+    field(held, CLASS_FIELD) == field(now, CLASS_FIELD)
+        && STEPPED_FIELDS.iter().all(|&f| field(held, f).abs_diff(field(now, f)) <= 1)
 }
 
 /// The digest of a map whose voxels, in stream (Morton) order, have these
