@@ -6,7 +6,7 @@ use super::pyramid::{Level, Pyramid, PyramidStorage, Role, MAX_LEVELS};
 use super::result::{MatchResult, MatchStatus};
 use super::search::{search_in, SearchScratch};
 use super::settings::{MatchSettings, Method};
-use super::solve::{apply, min_eigenvalue, normalised_min_eigenvalue, step};
+use super::solve::{apply, min_eigenvalue, normalised_min_eigenvalue, step, step_held};
 use nalgebra::{Isometry3, Matrix6};
 
 /// Why a match could not be run at all (a run that fails to align returns a
@@ -125,18 +125,41 @@ impl Matcher {
         init: &Isometry3<f32>,
         scratch: &mut SearchScratch<'_>,
     ) -> Result<MatchResult, MatchError> {
-        let first = self.align_once(model, scene, init, None, scratch)?;
+        let first = self.align_once(model, scene, init, None, false, scratch)?;
         if first.status != MatchStatus::Converged {
             return Ok(first);
         }
         let Some((shifted, step)) = self.look_alike(model, scene, &first) else { return Ok(first) };
         // EM from the level whose cells hold the shift's error (half a step),
         // not from the coarsest, which would blur the two apart again.
-        let second = self.align_once(model, scene, &shifted, Some(step), scratch)?;
+        let second = self.align_once(model, scene, &shifted, Some(step), false, scratch)?;
         if second.status == MatchStatus::Converged && second.agreement > first.agreement + LOOK_ALIKE_MARGIN {
             return Ok(MatchResult { iterations: first.iterations + second.iterations, ..second });
         }
         Ok(first)
+    }
+
+    /// Estimates `T_model_scene` again from `fix`, an earlier answer that
+    /// passed the verdict (a robot tracking its peer round after round):
+    /// EM at the finest level only, from the fix, with no search and no
+    /// look-alike check. Between two rounds the answer moves by the
+    /// odometry's drift over a round, centimetres, well within a cell; a
+    /// search of the window, or EM from the coarse levels, lets a look-alike
+    /// a period along the street win instead (on the town: estimates 1.2 m
+    /// off, every few rounds). The directions the pairs do not constrain (a
+    /// street seen along its length) are held at the fix ([`step_held`]),
+    /// so such an answer is not `Degenerate`: its `degeneracy` still says
+    /// how weakly the maps hold it, and the caller decides how long a fix
+    /// may hold a direction (the session's tracker: a few metres of
+    /// driving).
+    pub fn track_in<A: PyramidStorage, B: PyramidStorage>(
+        &self,
+        model: &Pyramid<'_, A>,
+        scene: &Pyramid<'_, B>,
+        fix: &Isometry3<f32>,
+    ) -> Result<MatchResult, MatchError> {
+        let cell = model.level(0).map_or(0.0, |l| l.resolution());
+        self.align_once(model, scene, fix, Some(cell), true, &mut SearchScratch::new(&mut []))
     }
 
     /// The placement shifted from `found` along its least constrained
@@ -191,7 +214,9 @@ impl Matcher {
     /// One refinement from `init`: the coarse search of the window (when
     /// the settings have one), then EM down the pyramid. With `near`, `init`
     /// is within about that many metres: no search, and EM from the finest
-    /// level whose cells are at least that large.
+    /// level whose cells are at least that large. With `hold`, the
+    /// directions the pairs do not constrain stay where `init` put them, and
+    /// the answer is not `Degenerate` for them ([`Matcher::track_in`]).
     // Not inlined: two inlined copies would share one frame with both
     // copies' locals, and a robot's stack is small. Its stages are inlined
     // into it (one frame, as when they were one function).
@@ -202,17 +227,18 @@ impl Matcher {
         scene: &Pyramid<'_, B>,
         init: &Isometry3<f32>,
         near: Option<f32>,
+        hold: bool,
         scratch: &mut SearchScratch<'_>,
     ) -> Result<MatchResult, MatchError> {
         let levels = self.check_pair(model, scene, init)?;
         let (start, top) = self.start(model, scene, init, near, levels, scratch);
-        let mut refined = self.refine(model, scene, start, top);
+        let mut refined = self.refine(model, scene, start, top, hold);
         if !finite_iso(&refined.transform) {
             // Cannot happen with finite steps; guard the promise anyway.
             refined.transform = *init;
             refined.converged = false;
         }
-        self.verdict(model, scene, refined)
+        self.verdict(model, scene, refined, hold)
     }
 
     /// The settings, the roles, `init` and the levels' resolutions checked;
@@ -284,6 +310,7 @@ impl Matcher {
         scene: &Pyramid<'_, B>,
         mut t: Isometry3<f32>,
         top: usize,
+        hold: bool,
     ) -> Refined {
         let s = &self.settings;
         let mut used = 0u32;
@@ -309,7 +336,13 @@ impl Matcher {
                 if n.pairs < 6 {
                     break;
                 }
-                let Some(delta) = step(&n.h, &n.g, s.dof) else { break };
+                let delta = if hold {
+                    let lever = if n.sum_w > 0.0 { libm::sqrtf(n.sum_wq2 / n.sum_w) } else { 0.0 };
+                    step_held(&n.h, &n.g, n.sum_w, lever, s.dof, s.degeneracy_threshold)
+                } else {
+                    step(&n.h, &n.g, s.dof)
+                };
+                let Some(delta) = delta else { break };
                 if l == 0 {
                     last = Some(n);
                 }
@@ -338,6 +371,7 @@ impl Matcher {
         model: &Pyramid<'_, A>,
         scene: &Pyramid<'_, B>,
         r: Refined,
+        hold: bool,
     ) -> Result<MatchResult, MatchError> {
         let s = &self.settings;
         let t = r.transform;
@@ -376,7 +410,7 @@ impl Matcher {
         // what both maps saw standing must agree.
         let status = if agree.inliers < s.min_inliers || agree.overlap < s.min_overlap {
             MatchStatus::NoOverlap
-        } else if degeneracy < s.degeneracy_threshold {
+        } else if degeneracy < s.degeneracy_threshold && !hold {
             MatchStatus::Degenerate
         } else if agree.agreement < s.min_agreement {
             MatchStatus::NoOverlap

@@ -40,6 +40,56 @@ pub(crate) fn step(h: &Matrix6<f32>, g: &Vector6<f32>, dof: Dof) -> Option<Vecto
     delta.iter().all(|v| v.is_finite()).then_some(delta)
 }
 
+/// The step of [`step`] confined to the directions the pairs constrain:
+/// `H` normalised as [`normalised_min_eigenvalue`] does (rotations by the
+/// lever arm, per unit weight), solved over its eigenvectors whose
+/// eigenvalue is at least `threshold` (a pseudo-inverse); the others, the
+/// directions a street seen along its length leaves free, are not moved.
+/// Tracking from a fix uses it: there the fix holds what the maps do not.
+/// `None` when no direction is constrained or the inputs are not finite.
+pub(crate) fn step_held(
+    h: &Matrix6<f32>,
+    g: &Vector6<f32>,
+    sum_w: f32,
+    lever: f32,
+    dof: Dof,
+    threshold: f32,
+) -> Option<Vector6<f32>> {
+    if !(sum_w > 0.0 && lever > 0.0 && sum_w.is_finite() && lever.is_finite()) {
+        return None;
+    }
+    let s = |i: usize| if i < 3 { 1.0 } else { 1.0 / lever };
+    let dims: &[usize] = match dof {
+        Dof::Six => &[0, 1, 2, 3, 4, 5],
+        Dof::Four => &FOUR,
+    };
+    let mut n = Matrix6::zeros();
+    let mut b = Vector6::zeros();
+    for (a, &ia) in dims.iter().enumerate() {
+        b[a] = -g[ia] * s(ia) / sum_w;
+        for (c, &ic) in dims.iter().enumerate() {
+            n[(a, c)] = h[(ia, ic)] * s(ia) * s(ic) / sum_w;
+        }
+    }
+    // The unused block of a 4-DoF system is zero: its eigenvalues 0, never
+    // solved over.
+    let eig = nalgebra::SymmetricEigen::new(n);
+    let mut x = Vector6::zeros();
+    let mut any = false;
+    for (k, &lambda) in eig.eigenvalues.iter().enumerate() {
+        if lambda >= threshold && lambda > 0.0 && lambda.is_finite() {
+            let v = eig.eigenvectors.column(k);
+            x += v * (v.dot(&b) / lambda);
+            any = true;
+        }
+    }
+    let mut delta = Vector6::zeros();
+    for (a, &ia) in dims.iter().enumerate() {
+        delta[ia] = x[a] * s(ia);
+    }
+    (any && delta.iter().all(|v| v.is_finite())).then_some(delta)
+}
+
 /// `Exp(delta) * t`: translation part first three, rotation vector last three.
 pub(crate) fn apply(delta: &Vector6<f32>, t: &Isometry3<f32>) -> Isometry3<f32> {
     let rot = UnitQuaternion::from_scaled_axis(Vector3::new(delta[3], delta[4], delta[5]));

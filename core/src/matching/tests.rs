@@ -495,3 +495,50 @@ fn narrow_and_wide_coarse_indexes_agree() {
     );
     assert_eq!(ra, rb);
 }
+
+/// A straight street from `x0` to `x1` (tenths of a metre): its two walls
+/// and nothing else (no floor: where it meets a wall, the edge's voxels,
+/// not planar, are matched point to point and hold the street along it
+/// by their grid), so nothing holds a match along it, nor up.
+fn bare_street(map: &mut Map, t: &Isometry3<f32>, (x0, x1): (i32, i32)) {
+    let mut put = |p: [f32; 3], c: Class| {
+        map.insert_point(crate::geometry::transform_point(t, p), c).unwrap();
+    };
+    for i in x0..x1 {
+        let x = i as f32 * 0.1;
+        for k in 0..40 {
+            put([x, 5.0, k as f32 * 0.1], Class::Building);
+            put([x, -5.0, k as f32 * 0.1], Class::Vegetation);
+        }
+    }
+}
+
+/// From a fix, `track_in` corrects what a bare street constrains (across
+/// it, the heading) and holds what it does not (along it) where the fix
+/// put it: the answer is not Degenerate, its degeneracy says how weakly
+/// the maps hold it. `align` from the same start finds it Degenerate.
+#[test]
+fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
+    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
+    let mut model = new_map();
+    bare_street(&mut model, &Isometry3::identity(), (0, 400));
+    // The scene's part of the street ends well inside the model's: no end
+    // holds it along the street.
+    let mut scene = new_map();
+    bare_street(&mut scene, &gt.inverse(), (100, 300));
+    let (pm, ps) = (pyramid(&model), pyramid(&scene));
+    // The fix: 0.4 m along the street, 0.1 m across it and 0.3 degrees off
+    // (within a cell: these maps are of 0.2 m).
+    let fix = from_xyz_rpy(0.4, 0.1, 0.0, 0.0, 0.0, 0.3f32.to_radians()) * gt;
+    let m = Matcher::default();
+    let held = m.track_in(&pm, &ps, &fix).unwrap();
+    assert_eq!(held.status, MatchStatus::Converged, "{held:?}");
+    assert!(held.degeneracy < m.settings.degeneracy_threshold, "{held:?}");
+    let off = held.transform * gt.inverse();
+    let (along, across) = (off.translation.vector.x, off.translation.vector.y);
+    assert!((along - 0.4).abs() < 0.05, "along the street: {along} (the fix: 0.4)");
+    assert!(across.abs() < 0.05 && off.rotation.angle().to_degrees() < 0.2, "{off:?}");
+    assert_eq!(m.align(&pm, &ps, &fix).unwrap().status, MatchStatus::Degenerate);
+    // Bit for bit repeatable.
+    assert_eq!(m.track_in(&pm, &ps, &fix).unwrap(), held);
+}

@@ -471,3 +471,68 @@ fn a_voxel_is_resent_only_when_it_moved_more_than_a_step() {
     map.upsert_voxel(SemanticVoxel::from_parts(v.key, m, v.occupancy_raw(), v.hits(), labels)).unwrap();
     assert_eq!(exchange(&map, &mut publisher).0, 1);
 }
+
+/// A straight street seen from `t` (`T_robot_street`): two walls from `x0`
+/// to `x1` (tenths of a metre), with poles at uneven spacing (`poles`: the
+/// maps hold a match in every direction) or none (nothing holds it along
+/// the street where it does not end, nor up).
+fn street(poles: bool, t: &crate::geometry::Isometry3<f32>, (x0, x1): (i32, i32)) -> VecMap {
+    let mut map = crate::test_util::map(40_000);
+    let mut put = |p: [f32; 3], c: Class| {
+        map.insert_point(crate::geometry::transform_point(t, p), c).unwrap();
+    };
+    for i in x0..x1 {
+        let x = i as f32 * 0.1;
+        for k in 0..40 {
+            put([x, 5.0, k as f32 * 0.1], Class::Building);
+            put([x, -5.0, k as f32 * 0.1], Class::Vegetation);
+        }
+    }
+    for px in [12.0f32, 17.5, 21.0, 26.5].iter().filter(|_| poles) {
+        for k in 0..60 {
+            put([*px, 3.5, k as f32 * 0.1], Class::Pole);
+        }
+    }
+    map
+}
+
+/// From a fix the maps held in every direction, a street that holds
+/// nothing along it is tracked with that direction held where the fix put
+/// it (Converged, its degeneracy low), for up to `HOLD_M` of driving;
+/// beyond, the answer is Degenerate: the fix kept once, then withdrawn.
+#[test]
+fn a_street_is_held_where_the_fix_put_it_for_a_few_metres() {
+    use crate::geometry::{from_xyz_rpy, Isometry3};
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
+    // The peer's part of the street ends well inside the robot's.
+    let maps = [street(true, &Isometry3::identity(), (0, 400)), street(true, &gt.inverse(), (100, 300))];
+    let bare = [street(false, &Isometry3::identity(), (0, 400)), street(false, &gt.inverse(), (100, 300))];
+    // 0.2 m maps: four levels, the coarsest of 1.6 m (the verdict's cover).
+    let prepare = |m| Pyramid::build_vec(m, 4, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&maps[0]), prepare(&maps[1]));
+    let (own_bare, peer_bare) = (prepare(&bare[0]), prepare(&bare[1]));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let mut tracker = Tracker::new();
+    let mut estimate = |t: &mut Tracker, (own, peer), x: f32| {
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0] };
+        t.estimate(own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
+    let error = |e: &Estimate| (e.result.transform * gt.inverse()).translation.vector.norm();
+    let first = estimate(&mut tracker, (&own, &peer), 0.0);
+    assert_eq!((first.kind, first.result.status), (Kind::PriorFree, MatchStatus::Converged), "{first:?}");
+    assert!(first.result.degeneracy >= how.settings.degeneracy_threshold && error(&first) < 0.1, "{first:?}");
+    let held = estimate(&mut tracker, (&own_bare, &peer_bare), 0.5 * HOLD_M);
+    assert_eq!((held.kind, held.result.status, held.fix), (Kind::Tracking, MatchStatus::Converged, Fix::Held));
+    assert!(held.result.degeneracy < how.settings.degeneracy_threshold && error(&held) < 0.1, "{held:?}");
+    let far = estimate(&mut tracker, (&own_bare, &peer_bare), HOLD_M + 1.0);
+    assert_eq!((far.result.status, far.fix), (MatchStatus::Degenerate, Fix::Kept), "{far:?}");
+    let farther = estimate(&mut tracker, (&own_bare, &peer_bare), HOLD_M + 2.0);
+    assert_eq!(farther.fix, Fix::Withdrawn);
+    // A fix made whole again holds for another HOLD_M from there.
+    assert_eq!(estimate(&mut tracker, (&own, &peer), HOLD_M + 3.0).result.status, MatchStatus::Converged);
+    let again = estimate(&mut tracker, (&own_bare, &peer_bare), 1.5 * HOLD_M + 3.0);
+    assert_eq!(again.result.status, MatchStatus::Converged, "{again:?}");
+}

@@ -1,13 +1,20 @@
 //! The relative pose of a peer, tracked round after round: prior-free until
-//! the first fix the verdict accepts, then from the last fix (the windowed
-//! search around it, then EM), every answer through the verdict; a fix that
-//! stops agreeing (the verdict says `NoOverlap` from it, or EM does not
-//! settle from it or the answer is `Degenerate` twice running) is
-//! withdrawn, and the next round searches prior-free again.
+//! the first fix the verdict accepts, then from the last fix (EM at the
+//! finest level from it, [`Matcher::track_in`]), every answer through the
+//! verdict; a fix that stops agreeing (the verdict says `NoOverlap` from
+//! it, or EM does not settle from it or the answer is `Degenerate` twice
+//! running) is withdrawn, and the next round searches prior-free again.
+//!
+//! A street seen along its length does not hold the match along it: from a
+//! fix, that direction is held where the fix put it, for as long as the
+//! robot has driven less than [`HOLD_M`] since the last fix the maps held
+//! in every direction (beyond, the answer is `Degenerate`).
 
 use crate::geometry::Isometry3;
 use crate::matching::search::SearchScratch;
-use crate::matching::{align_prepared, Alignment, MatchError, MatchResult, MatchStatus, Pyramid, PyramidStorage};
+use crate::matching::{
+    align_prepared, Alignment, MatchError, MatchResult, MatchStatus, Matcher, Pyramid, PyramidStorage,
+};
 
 /// How an estimate was made.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,6 +81,13 @@ pub const AGREE_M: f32 = 1.0;
 /// ... and this many degrees.
 pub const AGREE_DEG: f32 = 2.0;
 
+/// How far (m) a robot may drive, since its last fix the maps held in
+/// every direction, with the directions its maps do not constrain held at
+/// that fix. The odometry's scale error moves them by about 1-2% of the
+/// distance driven (the two robots' errors together): 10 m keep them
+/// within 0.2-0.4 m, under the conventions' 0.5 m.
+pub const HOLD_M: f32 = 10.0;
+
 /// What a robot knows of its peer's estimate of it, and where it is.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PeerView {
@@ -109,6 +123,11 @@ impl Estimate {
     }
 }
 
+fn distance(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    libm::sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+}
+
 /// Whether `ours` (`T_own_peer`) and the peer's `theirs` (`T_peer_own`)
 /// compose to about the identity at `at`.
 pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3]) -> bool {
@@ -126,12 +145,15 @@ pub struct Tracker {
     unsettled: u8,
     /// The fix has agreed with the peer's estimate.
     confirmed: bool,
+    /// Where the robot was (its own frame) at the last fix the maps held in
+    /// every direction: directions are held from it up to [`HOLD_M`].
+    whole_at: Option<[f32; 3]>,
 }
 
 impl Tracker {
     /// A track with no fix.
     pub const fn new() -> Self {
-        Tracker { fix: None, unsettled: 0, confirmed: false }
+        Tracker { fix: None, unsettled: 0, confirmed: false, whole_at: None }
     }
 
     /// The fix held (`T_own_peer`), if any.
@@ -144,12 +166,29 @@ impl Tracker {
         self.fix = None;
         self.unsettled = 0;
         self.confirmed = false;
+        self.whole_at = None;
+    }
+
+    /// `result` as reported: Converged with what the maps leave free held
+    /// at the fix only up to [`HOLD_M`] from where the last whole fix was
+    /// made (beyond: Degenerate); a whole answer moves that place here.
+    fn limit_hold(&mut self, mut result: MatchResult, how: &Alignment, view: &PeerView) -> MatchResult {
+        if result.status == MatchStatus::Converged {
+            if result.degeneracy >= how.settings.degeneracy_threshold {
+                self.whole_at = Some(view.at);
+            } else if self.whole_at.is_none_or(|w| distance(w, view.at) > HOLD_M) {
+                // Held for too long: what the maps leave free has drifted.
+                result.status = MatchStatus::Degenerate;
+            }
+        }
+        result
     }
 
     /// This round's estimate: `own` (the model) against the peer's copy
-    /// (`peer`, the scene), from the fix when one is held, through the one
-    /// matching path ([`align_prepared`]) as `how` says; confirmed when it
-    /// agrees with what `view` says of the peer's estimate.
+    /// (`peer`, the scene), from the fix when one is held
+    /// ([`Matcher::track_in`]), else prior-free ([`align_prepared`]), as
+    /// `how` says; confirmed when it agrees with what `view` says of the
+    /// peer's estimate.
     pub fn estimate<P: PyramidStorage, Q: PyramidStorage>(
         &mut self,
         own: &Pyramid<'_, P>,
@@ -164,7 +203,25 @@ impl Tracker {
             // A new fix, if any, starts unconfirmed.
             self.confirmed = false;
         }
-        let (result, _) = align_prepared(own, peer, prior.as_ref(), how, scratch, || {})?;
+        let result = match prior.as_ref() {
+            Some(fix) => {
+                let tracked = self.limit_hold(Matcher::new(how.settings).track_in(own, peer, fix)?, how, view);
+                if tracked.status == MatchStatus::Converged {
+                    tracked
+                } else {
+                    // The fix no longer explains the maps from where it is
+                    // (a prior-free fix a little off, a slip): its window is
+                    // searched before it is given up.
+                    let searched = align_prepared(own, peer, prior.as_ref(), how, scratch, || {})?.0;
+                    if searched.status == MatchStatus::Converged {
+                        self.limit_hold(searched, how, view)
+                    } else {
+                        tracked
+                    }
+                }
+            }
+            None => self.limit_hold(align_prepared(own, peer, None, how, scratch, || {})?.0, how, view),
+        };
         let fix = match (result.status, prior.is_some()) {
             (MatchStatus::Converged, _) => {
                 (self.fix, self.unsettled) = (Some(result.transform), 0);

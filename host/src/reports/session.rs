@@ -9,8 +9,12 @@ use serde::Serialize;
 /// for a fix the peer's estimate agreed with (`confirmed`); 3 since `e_t`
 /// is taken at the meeting place (was `e_meeting`), the odometry origin's
 /// in `e_t_origin`, and the summary's `wrong_at_meeting` became
-/// `wrong_at_origin`.
-pub const SESSION_SCHEMA: u32 = 3;
+/// `wrong_at_origin`; 4 since the summary's `from_scratch_ms` is timed on
+/// the maps of tracking rounds (every [`FROM_SCRATCH_EVERY`]th), not on
+/// the last round's.
+///
+/// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
+pub const SESSION_SCHEMA: u32 = 4;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]

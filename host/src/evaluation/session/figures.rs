@@ -59,15 +59,16 @@ pub(super) fn truth(a: &Robot, b: &Robot) -> Option<Truth> {
     Some(Truth { transform: a.world_odom(ka).inverse() * b.world_odom(kb), place: b.odometry_position(kb) })
 }
 
-/// Median milliseconds of three from-scratch one-shot matches of `a` and
+/// Median milliseconds of `runs` from-scratch one-shot matches of `a` and
 /// `b` (both prepared, then matched with no prior), in this process.
 pub(super) fn from_scratch_ms(
     a: &crate::maps::mapping::HostMap,
     b: &crate::maps::mapping::HostMap,
     how: &Alignment,
+    runs: usize,
 ) -> Result<f64, Error> {
     let mut ms = Vec::new();
-    for _ in 0..3 {
+    for _ in 0..runs {
         let t = std::time::Instant::now();
         let (pa, pb) = (prepare(a, DEFAULT_LEVELS)?, prepare(b, DEFAULT_LEVELS)?);
         align(*how, None, (&pa, &pb))?;
@@ -128,10 +129,14 @@ pub struct Summary {
     /// Bytes of every update and answer.
     pub bytes: usize,
     /// Median milliseconds of a tracking round (update applied, maps
-    /// prepared, windowed search, EM, verdict).
+    /// prepared, EM from the fix, verdict; the window searched when that
+    /// fails).
     pub tracking_ms: Option<f64>,
-    /// Median milliseconds of three from-scratch matches of the last
-    /// round's maps of robots 0 and 1 (both prepared, prior-free).
+    /// Median milliseconds of from-scratch matches (both maps prepared,
+    /// prior-free) on the maps of every
+    /// [`FROM_SCRATCH_EVERY`](super::FROM_SCRATCH_EVERY)th tracking
+    /// estimate; with none, of three on the last round's maps of robots 0
+    /// and 1.
     pub from_scratch_ms: f64,
     /// `tracking_ms` ÷ `from_scratch_ms`.
     pub tracking_cost_ratio: Option<f64>,

@@ -60,6 +60,14 @@ pub const DEFAULT_ALIGNMENT: cosem_core::matching::Alignment = {
 /// as much again of records and copies per peer.
 pub const MAX_CAPACITY: usize = 1 << 20;
 
+/// Every this many tracking estimates (the 1st, the 11th, ...), a
+/// from-scratch match on the maps that estimate used (the robot's map and
+/// its copy of the peer's) is timed: the cost ratio's denominator is their
+/// median, a from-scratch match where the robots track (not on the last
+/// round's maps, which may not overlap at all, and are then rejected
+/// early).
+pub const FROM_SCRATCH_EVERY: usize = 10;
+
 /// What `cosem session` runs.
 #[derive(Clone, Debug)]
 pub struct SessionSpec {
@@ -288,6 +296,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         whole: vec![0; n],
     };
     let mut records = Vec::new();
+    let (mut tracked, mut from_scratch) = (0usize, Vec::new());
     for round in 0..rounds {
         for (r, whole) in robots.iter_mut().zip(&mut scratch.whole) {
             r.drive(spec.every)?;
@@ -317,6 +326,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                 records.push(estimate_one(spec, at, &robots, mine, &mut links, tracker, &mut scratch)?);
             }
         }
+        time_from_scratch(&records[start..], (&robots, &links), &spec.alignment, &mut tracked, &mut from_scratch)?;
         on_round(&RoundView {
             round,
             records: &records[start..],
@@ -324,9 +334,33 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
             poses: robots.iter().map(Robot::pose).collect(),
         });
     }
-    let cost = figures::from_scratch_ms(&robots[0].map, &robots[1].map, &spec.alignment)?;
+    let cost = match crate::evaluation::stats::median(&from_scratch) {
+        Some(ms) => ms,
+        None => figures::from_scratch_ms(&robots[0].map, &robots[1].map, &spec.alignment, 3)?,
+    };
     let summary = Summary::of(&records, spec, rounds, cost);
     Ok(SessionRun { rounds, records, summary })
+}
+
+/// A from-scratch match timed on the maps of every
+/// [`FROM_SCRATCH_EVERY`]th tracking estimate of `round` (`tracked`: those
+/// counted so far), into `ms`.
+fn time_from_scratch(
+    round: &[Record],
+    (robots, links): (&[Robot], &[Vec<Option<Link>>]),
+    how: &Alignment,
+    tracked: &mut usize,
+    ms: &mut Vec<f64>,
+) -> Result<(), Error> {
+    for r in round {
+        if r.estimate.as_ref().is_some_and(|e| e.kind == cosem_core::session::Kind::Tracking) {
+            *tracked += 1;
+            if let Some(link) = links[r.peer][r.robot].as_ref().filter(|_| *tracked % FROM_SCRATCH_EVERY == 1) {
+                ms.push(figures::from_scratch_ms(&robots[r.robot].map, link.copy.map(), how, 1)?);
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Where an estimate is made: the round, the robot and its peer, whether
