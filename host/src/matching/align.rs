@@ -47,6 +47,18 @@ pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::e
     Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, Role::Model)?)
 }
 
+/// Prepares a map only ever matched as the scene ([`Role::Scene`]): no
+/// normals fitted and no coarse level indexed (the matcher reads neither
+/// of a scene), the same answers as [`prepare`]'s. A session's copy of a
+/// peer's map is one (the robot's own map is the model).
+pub fn prepare_scene(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::error::Error> {
+    let r = map.resolution();
+    if Setting::Voxel.check(f64::from(r)).is_err() {
+        return Err(crate::maps::mapping::BuildError::Voxel(r).into());
+    }
+    Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, Role::Scene)?)
+}
+
 /// Why two maps could not be aligned.
 #[derive(Debug, thiserror::Error)]
 pub enum AlignError {

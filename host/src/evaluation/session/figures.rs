@@ -6,7 +6,7 @@ use super::robot::Robot;
 use super::{Record, SessionSpec};
 use crate::error::Error;
 use crate::evaluation::stats::{median, quantile};
-use crate::matching::align::{align, prepare, DEFAULT_LEVELS};
+use crate::matching::align::{align, prepare, prepare_scene, DEFAULT_LEVELS};
 use cosem_core::geometry::pose_errors;
 use cosem_core::matching::{Alignment, MatchStatus};
 use cosem_core::session::Kind;
@@ -60,7 +60,8 @@ pub(super) fn truth(a: &Robot, b: &Robot) -> Option<Truth> {
 }
 
 /// Median milliseconds of `runs` from-scratch one-shot matches of `a` and
-/// `b` (both prepared, then matched with no prior), in this process.
+/// `b` (`a` prepared as the model, `b` as the scene, then matched with no
+/// prior), in this process.
 pub(super) fn from_scratch_ms(
     a: &crate::maps::mapping::HostMap,
     b: &crate::maps::mapping::HostMap,
@@ -70,7 +71,7 @@ pub(super) fn from_scratch_ms(
     let mut ms = Vec::new();
     for _ in 0..runs {
         let t = std::time::Instant::now();
-        let (pa, pb) = (prepare(a, DEFAULT_LEVELS)?, prepare(b, DEFAULT_LEVELS)?);
+        let (pa, pb) = (prepare(a, DEFAULT_LEVELS)?, prepare_scene(b, DEFAULT_LEVELS)?);
         align(*how, None, (&pa, &pb))?;
         ms.push(t.elapsed().as_secs_f64() * 1e3);
     }

@@ -18,7 +18,7 @@ pub use figures::{Summary, Truth};
 use crate::error::Error;
 use crate::evaluation::team::RobotSpec;
 use crate::maps::noise::LabelNoise;
-use crate::matching::align::{prepare, DEFAULT_LEVELS};
+use crate::matching::align::{prepare, prepare_scene, DEFAULT_LEVELS};
 use crate::sources::drift::Drift;
 use crate::sources::source::{Source, SourceOptions};
 use cosem_core::map::VecStorage;
@@ -414,7 +414,7 @@ fn estimate_one(
     let estimate = if copy.is_empty() {
         None
     } else {
-        let peer = prepare(copy, DEFAULT_LEVELS)?;
+        let peer = prepare_scene(copy, DEFAULT_LEVELS)?;
         let mut search = SearchScratch::new(&mut scratch.search);
         Some(
             tracker
