@@ -536,3 +536,43 @@ fn a_street_is_held_where_the_fix_put_it_for_a_few_metres() {
     let again = estimate(&mut tracker, (&own_bare, &peer_bare), 1.5 * HOLD_M + 3.0);
     assert_eq!(again.result.status, MatchStatus::Converged, "{again:?}");
 }
+
+/// A fix found this round is confirmed in this round by the peer's
+/// estimate of the same round (heard in its answer) where they agree, not
+/// where they do not; only the fix held now is, and it stays confirmed.
+#[test]
+fn a_fix_is_confirmed_by_the_peers_estimate_of_the_same_round() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let (mut here, mut again, mut rng) = (robot_map(), robot_map(), Lcg(21));
+    for round in 0..4 {
+        drive(&mut here, round, &mut rng);
+        drive(&mut again, round, &mut Lcg(30 + round as u64));
+    }
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&here), prepare(&again));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let at = [9.0, 0.0, 0.0];
+    let view = PeerView { estimate: None, at };
+    let mut tracker = Tracker::new();
+    let mut first = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
+    assert_eq!((first.result.status, first.confirmed), (MatchStatus::Converged, false));
+    // A peer's estimate 3 m and 5 degrees off: not confirmed.
+    let off = crate::geometry::from_xyz_rpy(3.0, 0.0, 0.0, 0.0, 0.0, 0.09) * first.result.transform.inverse();
+    tracker.confirm(&mut first, &off, at);
+    assert!(!first.confirmed);
+    // An estimate that is not the fix held is not confirmed either.
+    let mut stale = first;
+    stale.result.transform = crate::geometry::from_xyz_rpy(0.5, 0.0, 0.0, 0.0, 0.0, 0.0) * first.result.transform;
+    let inverse = stale.result.transform.inverse();
+    tracker.confirm(&mut stale, &inverse, at);
+    assert!(!stale.confirmed);
+    // The inverse of the fix: confirmed now, reported Converged, and the
+    // next round's estimate from the fix stays confirmed.
+    let theirs = first.result.transform.inverse();
+    tracker.confirm(&mut first, &theirs, at);
+    assert!(first.confirmed && first.status() == MatchStatus::Converged);
+    let next = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
+    assert_eq!(next.confirmed, next.result.status == MatchStatus::Converged, "{next:?}");
+}

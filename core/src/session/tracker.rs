@@ -246,4 +246,19 @@ impl Tracker {
         }
         Ok(Estimate { kind, result, fix, confirmed: converged && self.confirmed })
     }
+
+    /// Confirms this round's fix (`estimate`, updated) with the peer's
+    /// estimate of the same round, `theirs` (`T_peer_own`, one that passed
+    /// the peer's verdict), heard once both have estimated: a robot that
+    /// answers a peer's update after its own estimate can carry that
+    /// estimate in the answer, so a fix both find in one round is reported
+    /// in that round, not the next. The same test as [`Tracker::estimate`]'s
+    /// ([`agree`] at `at`).
+    pub fn confirm(&mut self, estimate: &mut Estimate, theirs: &Isometry3<f32>, at: [f32; 3]) {
+        let current = estimate.result.status == MatchStatus::Converged && self.fix == Some(estimate.result.transform);
+        if current && agree(&estimate.result.transform, theirs, at) {
+            self.confirmed = true;
+            estimate.confirmed = true;
+        }
+    }
 }

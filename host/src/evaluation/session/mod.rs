@@ -303,10 +303,11 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
             // Once a robot a round, outside the timed work: only a measure.
             *whole = whole_update(&r.map, &mut scratch.words, &mut scratch.out)?;
         }
-        // What each robot heard of its peers' estimates: the last round's
-        // (a robot's answer carries it), those that passed the verdict.
+        // What each robot heard of its peers' estimates before its own: the
+        // last round's, those that passed the verdict.
         let heard = last_estimates(&records, n);
         let start = records.len();
+        let places: Vec<[f32; 3]> = robots.iter().map(Robot::place).collect();
         for (i, own) in trackers.iter_mut().enumerate() {
             // The robot's own map prepared once a round, for every peer.
             let t0 = Instant::now();
@@ -317,15 +318,14 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                     tracker.reset();
                     links[j][i] = Some(Link::new((j, i), spec, config)?);
                 }
-                let here = robots[i].pose().map_or([0.0; 3], |p| {
-                    let t = p.translation.vector.cast::<f32>();
-                    [t.x, t.y, t.z]
-                });
-                let view = PeerView { estimate: heard[j][i], at: here };
+                let view = PeerView { estimate: heard[j][i], at: places[i] };
                 let at = Round { round, pair: (i, j), shared_world, view };
                 records.push(estimate_one(spec, at, &robots, mine, &mut links, tracker, &mut scratch)?);
             }
         }
+        // Then this round's, each robot's answer to its peer's update sent
+        // after its estimate, carrying it.
+        confirm_in_round(&mut records[start..], &mut trackers, &places);
         time_from_scratch(&records[start..], (&robots, &links), &spec.alignment, &mut tracked, &mut from_scratch)?;
         on_round(&RoundView {
             round,
@@ -340,6 +340,30 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
     };
     let summary = Summary::of(&records, spec, rounds, cost);
     Ok(SessionRun { rounds, records, summary })
+}
+
+/// Each fix of `round` not yet confirmed, confirmed by the peer's
+/// estimate of the same round where they agree ([`Tracker::confirm`]):
+/// what the peer's answer to the robot's update, sent after the peer's
+/// estimate, carries.
+fn confirm_in_round(round: &mut [Record], trackers: &mut [Vec<Tracker>], places: &[[f32; 3]]) {
+    let theirs: Vec<(usize, usize, Isometry3<f32>)> = round
+        .iter()
+        .filter_map(|r| {
+            let e = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged)?;
+            Some((r.robot, r.peer, e.result.transform))
+        })
+        .collect();
+    for r in round.iter_mut() {
+        let (Some(e), Some(tracker)) = (r.estimate.as_mut(), trackers.get_mut(r.robot).and_then(|t| t.get_mut(r.peer)))
+        else {
+            continue;
+        };
+        if let Some((_, _, t)) = theirs.iter().find(|(i, j, _)| (*i, *j) == (r.peer, r.robot)).filter(|_| !e.confirmed)
+        {
+            tracker.confirm(e, t, places.get(r.robot).copied().unwrap_or([0.0; 3]));
+        }
+    }
 }
 
 /// A from-scratch match timed on the maps of every

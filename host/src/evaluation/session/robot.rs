@@ -110,6 +110,15 @@ impl Robot {
         self.world[k] * self.frames[k].pose.inverse()
     }
 
+    /// Where the robot is (its own frame, the last scan fused; the origin
+    /// before any): where its estimates are judged against its peers'.
+    pub fn place(&self) -> [f32; 3] {
+        self.pose().map_or([0.0; 3], |p| {
+            let t = p.translation.vector.cast::<f32>();
+            [t.x, t.y, t.z]
+        })
+    }
+
     /// Where the odometry put scan `k` (its own frame).
     pub fn odometry_position(&self, k: usize) -> nalgebra::Point3<f64> {
         nalgebra::Point3::from(self.frames[k].pose.translation.vector)
