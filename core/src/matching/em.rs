@@ -147,7 +147,7 @@ impl Matcher {
     /// search of the window, or EM from the coarse levels, lets a look-alike
     /// a period along the street win instead (on the town: estimates 1.2 m
     /// off, every few rounds). The directions the pairs do not constrain (a
-    /// street seen along its length) are held at the fix ([`step_held`]),
+    /// street seen along its length) are held at the fix (`solve::step_held`),
     /// so such an answer is not `Degenerate`: its `degeneracy` still says
     /// how weakly the maps hold it, and the caller decides how long a fix
     /// may hold a direction (the session's tracker: a few metres of
