@@ -24,6 +24,31 @@ pub fn heap_pyramid(voxels: usize, entries: usize, words: usize) -> VecPyramidSt
     VecPyramidStorage::new(PyramidCapacity { voxels, entries, slots: 2 * entries, words })
 }
 
+/// A straight street seen from `t` (`T_map_street`), inserted into `map`:
+/// its two walls from `x0` to `x1` (tenths of a metre), and with `poles`
+/// poles at uneven spacing. No floor: where one meets a wall, the edge's
+/// voxels (not planar) are matched point to point and hold the street
+/// along it by their grid. So without poles nothing holds a match along
+/// the street where it does not end, nor up; with them, everything does.
+pub fn street(map: &mut VecMap, t: &crate::geometry::Isometry3<f32>, (x0, x1): (i32, i32), poles: bool) {
+    use crate::classes::Class;
+    let mut put = |p: [f32; 3], c: Class| {
+        map.insert_point(crate::geometry::transform_point(t, p), c).unwrap();
+    };
+    for i in x0..x1 {
+        let x = i as f32 * 0.1;
+        for k in 0..40 {
+            put([x, 5.0, k as f32 * 0.1], Class::Building);
+            put([x, -5.0, k as f32 * 0.1], Class::Vegetation);
+        }
+    }
+    for px in [12.0f32, 17.5, 21.0, 26.5].iter().filter(|_| poles) {
+        for k in 0..60 {
+            put([*px, 3.5, k as f32 * 0.1], Class::Pole);
+        }
+    }
+}
+
 #[test]
 fn selftest_converges_and_encodes_consistently() {
     use crate::selftest::*;

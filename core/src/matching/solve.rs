@@ -58,21 +58,15 @@ pub(crate) fn step_held(
     if !(sum_w > 0.0 && lever > 0.0 && sum_w.is_finite() && lever.is_finite()) {
         return None;
     }
-    let s = |i: usize| if i < 3 { 1.0 } else { 1.0 / lever };
-    let dims: &[usize] = match dof {
-        Dof::Six => &[0, 1, 2, 3, 4, 5],
-        Dof::Four => &FOUR,
-    };
-    let mut n = Matrix6::zeros();
-    let mut b = Vector6::zeros();
-    for (a, &ia) in dims.iter().enumerate() {
-        b[a] = -g[ia] * s(ia) / sum_w;
-        for (c, &ic) in dims.iter().enumerate() {
-            n[(a, c)] = h[(ia, ic)] * s(ia) * s(ic) / sum_w;
-        }
+    // Roll and pitch, not solved for in 4 DoF: their rows and columns zero,
+    // their eigenvalues 0, never solved over.
+    let unsolved = |i: usize| matches!(dof, Dof::Four) && !FOUR.contains(&i);
+    let mut n = normalised(h, sum_w, lever);
+    for i in (0..6).filter(|&i| unsolved(i)) {
+        n.row_mut(i).fill(0.0);
+        n.column_mut(i).fill(0.0);
     }
-    // The unused block of a 4-DoF system is zero: its eigenvalues 0, never
-    // solved over.
+    let b = Vector6::from_fn(|i, _| if unsolved(i) { 0.0 } else { -g[i] * lever_scale(i, lever) / sum_w });
     let eig = nalgebra::SymmetricEigen::new(n);
     let mut x = Vector6::zeros();
     let mut any = false;
@@ -83,11 +77,26 @@ pub(crate) fn step_held(
             any = true;
         }
     }
-    let mut delta = Vector6::zeros();
-    for (a, &ia) in dims.iter().enumerate() {
-        delta[ia] = x[a] * s(ia);
-    }
+    let delta = Vector6::from_fn(|i, _| if unsolved(i) { 0.0 } else { x[i] * lever_scale(i, lever) });
     (any && delta.iter().all(|v| v.is_finite())).then_some(delta)
+}
+
+/// What a coordinate of a step is scaled by to make it dimensionless:
+/// translations 1, rotations `1 / lever` (a rotation as the metres it moves
+/// a point `lever` away).
+fn lever_scale(i: usize, lever: f32) -> f32 {
+    if i < 3 {
+        1.0
+    } else {
+        1.0 / lever
+    }
+}
+
+/// `h` normalised ([`lever_scale`] on both sides, then per unit of the
+/// total weight `sum_w`): dimensionless, its eigenvalues comparable with
+/// the verdict's degeneracy threshold.
+fn normalised(h: &Matrix6<f32>, sum_w: f32, lever: f32) -> Matrix6<f32> {
+    Matrix6::from_fn(|a, b| h[(a, b)] * lever_scale(a, lever) * lever_scale(b, lever) / sum_w)
 }
 
 /// `Exp(delta) * t`: translation part first three, rotation vector last three.
@@ -107,13 +116,7 @@ pub(crate) fn normalised_min_eigenvalue(h: &Matrix6<f32>, sum_w: f32, lever: f32
     if !(sum_w > 0.0 && lever > 0.0) {
         return 0.0;
     }
-    let s = |i: usize| if i < 3 { 1.0 } else { 1.0 / lever };
-    let mut n = Matrix6::zeros();
-    for a in 0..6 {
-        for b in 0..6 {
-            n[(a, b)] = h[(a, b)] * s(a) * s(b) / sum_w;
-        }
-    }
+    let n = normalised(h, sum_w, lever);
     let ev = match dof {
         Dof::Six => nalgebra::SymmetricEigen::new(n).eigenvalues.iter().fold(f32::INFINITY, |a, v| a.min(*v)),
         Dof::Four => {

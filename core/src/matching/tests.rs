@@ -496,23 +496,6 @@ fn narrow_and_wide_coarse_indexes_agree() {
     assert_eq!(ra, rb);
 }
 
-/// A straight street from `x0` to `x1` (tenths of a metre): its two walls
-/// and nothing else (no floor: where it meets a wall, the edge's voxels,
-/// not planar, are matched point to point and hold the street along it
-/// by their grid), so nothing holds a match along it, nor up.
-fn bare_street(map: &mut Map, t: &Isometry3<f32>, (x0, x1): (i32, i32)) {
-    let mut put = |p: [f32; 3], c: Class| {
-        map.insert_point(crate::geometry::transform_point(t, p), c).unwrap();
-    };
-    for i in x0..x1 {
-        let x = i as f32 * 0.1;
-        for k in 0..40 {
-            put([x, 5.0, k as f32 * 0.1], Class::Building);
-            put([x, -5.0, k as f32 * 0.1], Class::Vegetation);
-        }
-    }
-}
-
 /// From a fix, `track_in` corrects what a bare street constrains (across
 /// it, the heading) and holds what it does not (along it) where the fix
 /// put it: the answer is not Degenerate, its degeneracy says how weakly
@@ -521,11 +504,11 @@ fn bare_street(map: &mut Map, t: &Isometry3<f32>, (x0, x1): (i32, i32)) {
 fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
     let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
     let mut model = new_map();
-    bare_street(&mut model, &Isometry3::identity(), (0, 400));
+    crate::test_util::street(&mut model, &Isometry3::identity(), (0, 400), false);
     // The scene's part of the street ends well inside the model's: no end
     // holds it along the street.
     let mut scene = new_map();
-    bare_street(&mut scene, &gt.inverse(), (100, 300));
+    crate::test_util::street(&mut scene, &gt.inverse(), (100, 300), false);
     let (pm, ps) = (pyramid(&model), pyramid(&scene));
     // The fix: 0.4 m along the street, 0.1 m across it and 0.3 degrees off
     // (within a cell: these maps are of 0.2 m).

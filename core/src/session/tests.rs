@@ -376,6 +376,17 @@ fn a_smaller_peer_is_sent_the_part_of_the_map_that_fits() {
     }
 }
 
+/// Two robots' maps of one street driven alike for four rounds, each with
+/// its own noise: a pair that matches.
+fn one_street_seen_twice() -> (VecMap, VecMap) {
+    let (mut here, mut again, mut rng) = (robot_map(), robot_map(), Lcg(21));
+    for round in 0..4 {
+        drive(&mut here, round, &mut rng);
+        drive(&mut again, round, &mut Lcg(30 + round as u64));
+    }
+    (here, again)
+}
+
 /// A fix is reported Converged only once the peer's estimate agrees with
 /// it where the robot is; one that disagrees leaves it unconfirmed, and a
 /// prior-free fix starts unconfirmed again.
@@ -383,12 +394,7 @@ fn a_smaller_peer_is_sent_the_part_of_the_map_that_fits() {
 fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     use crate::matching::search::SearchScratch;
     use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
-    let (mut here, mut rng) = (robot_map(), Lcg(21));
-    let mut again = robot_map();
-    for round in 0..4 {
-        drive(&mut here, round, &mut rng);
-        drive(&mut again, round, &mut Lcg(30 + round as u64));
-    }
+    let (here, again) = one_street_seen_twice();
     let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
     let (own, peer) = (prepare(&here), prepare(&again));
     let mut words = vec![0u32; SearchScratch::WINDOWED];
@@ -472,27 +478,10 @@ fn a_voxel_is_resent_only_when_it_moved_more_than_a_step() {
     assert_eq!(exchange(&map, &mut publisher).0, 1);
 }
 
-/// A straight street seen from `t` (`T_robot_street`): two walls from `x0`
-/// to `x1` (tenths of a metre), with poles at uneven spacing (`poles`: the
-/// maps hold a match in every direction) or none (nothing holds it along
-/// the street where it does not end, nor up).
-fn street(poles: bool, t: &crate::geometry::Isometry3<f32>, (x0, x1): (i32, i32)) -> VecMap {
+/// `test_util::street` in a map of its own.
+fn street(poles: bool, t: &crate::geometry::Isometry3<f32>, range: (i32, i32)) -> VecMap {
     let mut map = crate::test_util::map(40_000);
-    let mut put = |p: [f32; 3], c: Class| {
-        map.insert_point(crate::geometry::transform_point(t, p), c).unwrap();
-    };
-    for i in x0..x1 {
-        let x = i as f32 * 0.1;
-        for k in 0..40 {
-            put([x, 5.0, k as f32 * 0.1], Class::Building);
-            put([x, -5.0, k as f32 * 0.1], Class::Vegetation);
-        }
-    }
-    for px in [12.0f32, 17.5, 21.0, 26.5].iter().filter(|_| poles) {
-        for k in 0..60 {
-            put([*px, 3.5, k as f32 * 0.1], Class::Pole);
-        }
-    }
+    crate::test_util::street(&mut map, t, range, poles);
     map
 }
 
@@ -544,11 +533,7 @@ fn a_street_is_held_where_the_fix_put_it_for_a_few_metres() {
 fn a_fix_is_confirmed_by_the_peers_estimate_of_the_same_round() {
     use crate::matching::search::SearchScratch;
     use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
-    let (mut here, mut again, mut rng) = (robot_map(), robot_map(), Lcg(21));
-    for round in 0..4 {
-        drive(&mut here, round, &mut rng);
-        drive(&mut again, round, &mut Lcg(30 + round as u64));
-    }
+    let (here, again) = one_street_seen_twice();
     let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
     let (own, peer) = (prepare(&here), prepare(&again));
     let mut words = vec![0u32; SearchScratch::WINDOWED];
