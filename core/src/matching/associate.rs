@@ -124,6 +124,16 @@ pub(crate) struct Normal {
 }
 
 impl Normal {
+    /// The pairs' RMS distance from the model frame's origin (weighted):
+    /// the lever arm that makes a rotation comparable with a translation.
+    pub fn lever(&self) -> f32 {
+        if self.sum_w > 0.0 {
+            libm::sqrtf(self.sum_wq2 / self.sum_w)
+        } else {
+            0.0
+        }
+    }
+
     fn new() -> Self {
         Normal {
             h: Matrix6::zeros(),

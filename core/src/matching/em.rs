@@ -337,8 +337,7 @@ impl Matcher {
                     break;
                 }
                 let delta = if hold {
-                    let lever = if n.sum_w > 0.0 { libm::sqrtf(n.sum_wq2 / n.sum_w) } else { 0.0 };
-                    step_held(&n.h, &n.g, n.sum_w, lever, s.dof, s.degeneracy_threshold)
+                    step_held(&n.h, &n.g, n.sum_w, n.lever(), s.dof, s.degeneracy_threshold)
                 } else {
                     step(&n.h, &n.g, s.dof)
                 };
@@ -403,8 +402,7 @@ impl Matcher {
         let floor = 0.01 * cell;
         let var = if n.sum_w > 0.0 { (n.sum_wr2 / n.sum_w).max(floor * floor) } else { 1.0 };
         let information: Matrix6<f32> = n.h_all / var;
-        let lever = if n.sum_w > 0.0 { libm::sqrtf(n.sum_wq2 / n.sum_w) } else { 0.0 };
-        let degeneracy = normalised_min_eigenvalue(&n.h, n.sum_w, lever, s.dof);
+        let degeneracy = normalised_min_eigenvalue(&n.h, n.sum_w, n.lever(), s.dof);
         // The geometry decides first whether an answer is possible at all
         // (a flat road alone is Degenerate, whatever agrees on it); then
         // what both maps saw standing must agree.

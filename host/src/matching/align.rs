@@ -40,11 +40,7 @@ pub fn levels_for(resolution: f32, levels: usize) -> usize {
 /// with at least `levels` levels ([`levels_for`]). Maps finer than
 /// [`MIN_VOXEL`] are refused with the reason.
 pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::error::Error> {
-    let r = map.resolution();
-    if Setting::Voxel.check(f64::from(r)).is_err() {
-        return Err(crate::maps::mapping::BuildError::Voxel(r).into());
-    }
-    Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, Role::Model)?)
+    prepare_as(map, levels, Role::Model)
 }
 
 /// Prepares a map only ever matched as the scene ([`Role::Scene`]): no
@@ -52,11 +48,15 @@ pub fn prepare(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::e
 /// of a scene), the same answers as [`prepare`]'s. A session's copy of a
 /// peer's map is one (the robot's own map is the model).
 pub fn prepare_scene(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, crate::error::Error> {
+    prepare_as(map, levels, Role::Scene)
+}
+
+fn prepare_as(map: &HostMap, levels: usize, role: Role) -> Result<HostPyramid<'_>, crate::error::Error> {
     let r = map.resolution();
     if Setting::Voxel.check(f64::from(r)).is_err() {
         return Err(crate::maps::mapping::BuildError::Voxel(r).into());
     }
-    Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, Role::Scene)?)
+    Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, role)?)
 }
 
 /// Why two maps could not be aligned.

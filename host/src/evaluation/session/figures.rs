@@ -59,6 +59,20 @@ pub(super) fn truth(a: &Robot, b: &Robot) -> Option<Truth> {
     Some(Truth { transform: a.world_odom(ka).inverse() * b.world_odom(kb), place: b.odometry_position(kb) })
 }
 
+/// The cost ratio's denominator (ms): the median of `timed` (from-scratch
+/// matches on the maps of tracking rounds), or with none, of three on
+/// `last` (the last round's maps of robots 0 and 1).
+pub(super) fn cost_denominator(
+    timed: &[f64],
+    last: (&crate::maps::mapping::HostMap, &crate::maps::mapping::HostMap),
+    how: &Alignment,
+) -> Result<f64, Error> {
+    match median(timed) {
+        Some(ms) => Ok(ms),
+        None => from_scratch_ms(last.0, last.1, how, 3),
+    }
+}
+
 /// Median milliseconds of `runs` from-scratch one-shot matches of `a` and
 /// `b` (`a` prepared as the model, `b` as the scene, then matched with no
 /// prior), in this process.

@@ -334,10 +334,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
             poses: robots.iter().map(Robot::pose).collect(),
         });
     }
-    let cost = match crate::evaluation::stats::median(&from_scratch) {
-        Some(ms) => ms,
-        None => figures::from_scratch_ms(&robots[0].map, &robots[1].map, &spec.alignment, 3)?,
-    };
+    let cost = figures::cost_denominator(&from_scratch, (&robots[0].map, &robots[1].map), &spec.alignment)?;
     let summary = Summary::of(&records, spec, rounds, cost);
     Ok(SessionRun { rounds, records, summary })
 }
@@ -359,8 +356,7 @@ fn confirm_in_round(round: &mut [Record], trackers: &mut [Vec<Tracker>], places:
         else {
             continue;
         };
-        if let Some((_, _, t)) = theirs.iter().find(|(i, j, _)| (*i, *j) == (r.peer, r.robot)).filter(|_| !e.confirmed)
-        {
+        if let Some((_, _, t)) = theirs.iter().find(|(i, j, _)| (*i, *j) == (r.peer, r.robot)) {
             tracker.confirm(e, t, places.get(r.robot).copied().unwrap_or([0.0; 3]));
         }
     }
