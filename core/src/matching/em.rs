@@ -2,7 +2,7 @@
 //! annealed within each level, one iteration budget across all of them.
 
 use super::associate::{accumulate, agreement, standing_agreement, Normal, Pass, Sampling};
-use super::pyramid::{Level, Pyramid, PyramidStorage, Role, MAX_LEVELS};
+use super::pyramid::{Level, Pyramid, PyramidStorage, Role, COVER_RESOLUTION, MAX_LEVELS};
 use super::result::{MatchResult, MatchStatus};
 use super::search::{search_in, SearchScratch};
 use super::settings::{MatchSettings, Method};
@@ -24,6 +24,9 @@ pub enum MatchError {
     /// The model was prepared as a scene ([`super::Role::Scene`]): it has
     /// no normals and no index to look its cells up.
     SceneAsModel,
+    /// A pyramid prepared for tracking only ([`super::Pyramid::build_tracked`])
+    /// was given to a search or to EM down the levels.
+    TrackingOnly,
 }
 
 impl core::fmt::Display for MatchError {
@@ -33,6 +36,7 @@ impl core::fmt::Display for MatchError {
             MatchError::ResolutionMismatch => "model and scene pyramids have different resolutions",
             MatchError::Settings => "match settings out of range",
             MatchError::SceneAsModel => "the model pyramid was prepared as a scene",
+            MatchError::TrackingOnly => "a pyramid prepared for tracking only was given to a search",
         })
     }
 }
@@ -48,8 +52,20 @@ const LOOK_ALIKE_MARGIN: f32 = 0.02;
 /// The model's level of cells of about 1.5 m: it says where the model saw
 /// anything (the agreement's coverage).
 fn cover<'p, A: PyramidStorage>(model: &'p Pyramid<'_, A>) -> Option<Level<'p>> {
-    let l = (0..model.levels()).find(|&l| model.level(l).is_some_and(|lv| lv.resolution() >= 1.5))?;
+    let l = (0..model.levels()).find(|&l| model.level(l).is_some_and(|lv| lv.resolution() >= COVER_RESOLUTION))?;
     model.level(l)
+}
+
+/// Both pyramids prepared whole: not for tracking only (a search and EM
+/// down the levels read what [`super::Pyramid::build_tracked`] leaves out).
+pub(crate) fn whole<A: PyramidStorage, B: PyramidStorage>(
+    model: &Pyramid<'_, A>,
+    scene: &Pyramid<'_, B>,
+) -> Result<(), MatchError> {
+    if model.is_tracked() || scene.is_tracked() {
+        return Err(MatchError::TrackingOnly);
+    }
+    Ok(())
 }
 
 /// Aligns a scene map to a model map.
@@ -231,6 +247,9 @@ impl Matcher {
         scratch: &mut SearchScratch<'_>,
     ) -> Result<MatchResult, MatchError> {
         let levels = self.check_pair(model, scene, init)?;
+        if near.is_none() {
+            whole(model, scene)?;
+        }
         let (start, top) = self.start(model, scene, init, near, levels, scratch);
         let mut refined = self.refine(model, scene, start, top, hold);
         if !finite_iso(&refined.transform) {

@@ -65,6 +65,7 @@ pub fn align_searched_in<A: PyramidStorage, B: PyramidStorage>(
     mut searched: impl FnMut(),
     scratch: &mut SearchScratch<'_>,
 ) -> Result<(MatchResult, Option<Searched>), MatchError> {
+    super::em::whole(model, scene)?;
     let semantic = matcher.settings.method != Method::Geometric;
     let (Some(fm), Some(fs)) = (model.footprint(), scene.footprint()) else {
         return Ok((MatchResult::no_overlap(), None));

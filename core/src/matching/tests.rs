@@ -525,3 +525,40 @@ fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
     // Bit for bit repeatable.
     assert_eq!(m.track_in(&pm, &ps, &fix).unwrap(), held);
 }
+
+/// Pyramids prepared for tracking only (a model's levels up to its cover,
+/// normals at level 0; a scene's level 0; no footprints) track as the
+/// whole ones do, bit for bit, from a fix right or off; a search, or EM
+/// down the levels, refuses them.
+#[test]
+fn pyramids_prepared_for_tracking_track_as_whole_ones_and_refuse_a_search() {
+    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
+    let mut model = new_map();
+    crate::test_util::street(&mut model, &Isometry3::identity(), (0, 400), true);
+    let mut scene = new_map();
+    crate::test_util::street(&mut scene, &gt.inverse(), (100, 300), true);
+    let (pm, ps) = (pyramid(&model), pyramid(&scene));
+    let tm = Pyramid::build_vec_tracked(&model, Role::Model).unwrap();
+    let ts = Pyramid::build_vec_tracked(&scene, Role::Scene).unwrap();
+    assert!(tm.is_tracked() && ts.is_tracked() && !pm.is_tracked());
+    // 0.2 m cells: 0.2, 0.4, 0.8 and 1.6 m (the cover).
+    assert_eq!((tm.levels(), ts.levels()), (4, 1));
+    assert!(tm.footprint().is_none() && ts.footprint().is_none());
+    let m = Matcher::default();
+    for fix in [
+        gt,
+        from_xyz_rpy(0.4, 0.1, 0.0, 0.0, 0.0, 0.3f32.to_radians()) * gt,
+        from_xyz_rpy(3.0, 2.0, 0.0, 0.0, 0.0, 0.2) * gt,
+    ] {
+        let whole = m.track_in(&pm, &ps, &fix).unwrap();
+        assert_eq!(m.track_in(&tm, &ts, &fix).unwrap(), whole);
+        assert_eq!(m.track_in(&tm, &ps, &fix).unwrap(), whole);
+    }
+    assert_eq!(m.align(&tm, &ps, &gt), Err(MatchError::TrackingOnly));
+    assert_eq!(m.align(&pm, &ts, &gt), Err(MatchError::TrackingOnly));
+    let how = Alignment::default();
+    let mut words = vec![0u32; search::SearchScratch::WINDOWED];
+    let mut scratch = search::SearchScratch::new(&mut words);
+    let searched = align_prepared(&tm, &ts, None, &how, &mut scratch, || {});
+    assert_eq!(searched.map(|r| r.0), Err(MatchError::TrackingOnly));
+}

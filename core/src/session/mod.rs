@@ -19,7 +19,7 @@ pub mod tracker;
 
 pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateCounts};
 pub use replica::{Applied, Replica};
-pub use tracker::{agree, Estimate, Fix, Kind, PeerView, Tracker, AGREE_DEG, AGREE_M, HOLD_M};
+pub use tracker::{agree, Estimate, Fix, Kind, PeerView, Tracked, Tracker, AGREE_DEG, AGREE_M, HOLD_M};
 
 #[cfg(test)]
 mod tests;

@@ -526,6 +526,51 @@ fn a_street_is_held_where_the_fix_put_it_for_a_few_metres() {
     assert_eq!(again.result.status, MatchStatus::Converged, "{again:?}");
 }
 
+/// A round begun on pyramids prepared for tracking ([`Tracker::track`])
+/// and finished on whole ones only when a search is needed
+/// ([`Tracker::search`]) gives what [`Tracker::estimate`] gives on whole
+/// pyramids, round by round: a prior-free fix, held answers, one held too
+/// far (kept, then withdrawn), a fix made again.
+#[test]
+fn a_round_tracked_first_estimates_as_a_round_on_whole_pyramids() {
+    use crate::geometry::{from_xyz_rpy, Isometry3};
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, Pyramid, Role};
+    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
+    let maps = [street(true, &Isometry3::identity(), (0, 400)), street(true, &gt.inverse(), (100, 300))];
+    let bare = [street(false, &Isometry3::identity(), (0, 400)), street(false, &gt.inverse(), (100, 300))];
+    let whole = |m| Pyramid::build_vec(m, 4, 1.0, Role::Model).unwrap();
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let (mut one, mut other) = (Tracker::new(), Tracker::new());
+    let (mut searched, mut tracked) = (0, 0);
+    for (pair, x) in
+        [(&maps, 0.0), (&bare, 0.5 * HOLD_M), (&bare, HOLD_M + 1.0), (&bare, HOLD_M + 2.0), (&maps, HOLD_M + 3.0)]
+            .into_iter()
+            .chain([(&bare, 1.5 * HOLD_M + 3.0)])
+    {
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0] };
+        let (own, peer) = (whole(&pair[0]), whole(&pair[1]));
+        let expected = one.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
+        let t = Pyramid::build_vec_tracked(&pair[0], Role::Model).unwrap();
+        let u = Pyramid::build_vec_tracked(&pair[1], Role::Scene).unwrap();
+        let begun = other.track(&t, &u, &how, &view).unwrap();
+        let got = match begun.estimate() {
+            Some(e) => {
+                tracked += 1;
+                *e
+            }
+            None => {
+                searched += 1;
+                other.search(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view, begun).unwrap()
+            }
+        };
+        assert_eq!(got, expected, "at {x} m");
+        assert_eq!(other, one, "at {x} m");
+    }
+    assert!(tracked >= 2 && searched >= 3, "{tracked} tracked, {searched} searched");
+}
+
 /// A fix found this round is confirmed in this round by the peer's
 /// estimate of the same round (heard in its answer) where they agree, not
 /// where they do not; only the fix held now is, and it stays confirmed.

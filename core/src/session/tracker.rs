@@ -136,6 +136,27 @@ pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3]) -> bo
     (loop_ * p - p).norm() < AGREE_M && loop_.rotation.angle() < AGREE_DEG.to_radians()
 }
 
+/// What tracking from the fix gave ([`Tracker::track`]): the round's
+/// estimate, or what [`Tracker::search`] needs to finish the round.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tracked {
+    done: Option<Estimate>,
+    /// The answer from the fix, when it did not pass the verdict.
+    answer: Option<MatchResult>,
+}
+
+impl Tracked {
+    /// The round's estimate, when tracking from the fix made it.
+    pub fn estimate(&self) -> Option<&Estimate> {
+        self.done.as_ref()
+    }
+
+    /// Whether the round needs [`Tracker::search`] with whole pyramids.
+    pub fn needs_search(&self) -> bool {
+        self.done.is_none()
+    }
+}
+
 /// A robot's track of one peer: its last fix, if any.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Tracker {
@@ -188,7 +209,9 @@ impl Tracker {
     /// (`peer`, the scene), from the fix when one is held
     /// ([`Matcher::track_in`]), else prior-free ([`align_prepared`]), as
     /// `how` says; confirmed when it agrees with what `view` says of the
-    /// peer's estimate.
+    /// peer's estimate. Both pyramids whole; [`Tracker::track`] then
+    /// [`Tracker::search`] do the same with pyramids prepared for tracking
+    /// first, and whole ones only when a search is needed.
     pub fn estimate<P: PyramidStorage, Q: PyramidStorage>(
         &mut self,
         own: &Pyramid<'_, P>,
@@ -197,32 +220,78 @@ impl Tracker {
         scratch: &mut SearchScratch<'_>,
         view: &PeerView,
     ) -> Result<Estimate, MatchError> {
-        let prior = self.fix;
-        let kind = if prior.is_some() { Kind::Tracking } else { Kind::PriorFree };
-        if prior.is_none() {
-            // A new fix, if any, starts unconfirmed.
-            self.confirmed = false;
-        }
-        let result = match prior.as_ref() {
-            Some(fix) => {
-                let tracked = self.limit_hold(Matcher::new(how.settings).track_in(own, peer, fix)?, how, view);
-                if tracked.status == MatchStatus::Converged {
-                    tracked
-                } else {
-                    // The fix no longer explains the maps from where it is
-                    // (a prior-free fix a little off, a slip): its window is
-                    // searched before it is given up.
-                    let searched = align_prepared(own, peer, prior.as_ref(), how, scratch, || {})?.0;
-                    if searched.status == MatchStatus::Converged {
-                        self.limit_hold(searched, how, view)
-                    } else {
-                        tracked
-                    }
-                }
-            }
-            None => self.limit_hold(align_prepared(own, peer, None, how, scratch, || {})?.0, how, view),
+        let tracked = self.track(own, peer, how, view)?;
+        self.search(own, peer, how, scratch, view, tracked)
+    }
+
+    /// This round's estimate from the fix, if one is held: EM at the finest
+    /// level from it ([`Matcher::track_in`]), which reads only what a
+    /// pyramid prepared for tracking holds ([`Pyramid::build_tracked`], or
+    /// a whole one). An answer that passes the verdict is the round's
+    /// estimate ([`Tracked::estimate`]); otherwise (no fix, or EM did not
+    /// settle from it) [`Tracker::search`] finishes the round with whole
+    /// pyramids.
+    pub fn track<P: PyramidStorage, Q: PyramidStorage>(
+        &mut self,
+        own: &Pyramid<'_, P>,
+        peer: &Pyramid<'_, Q>,
+        how: &Alignment,
+        view: &PeerView,
+    ) -> Result<Tracked, MatchError> {
+        let Some(fix) = self.fix else {
+            return Ok(Tracked { done: None, answer: None });
         };
-        let fix = match (result.status, prior.is_some()) {
+        let tracked = self.limit_hold(Matcher::new(how.settings).track_in(own, peer, &fix)?, how, view);
+        if tracked.status == MatchStatus::Converged {
+            let done = self.settle(Kind::Tracking, tracked, view);
+            Ok(Tracked { done: Some(done), answer: None })
+        } else {
+            Ok(Tracked { done: None, answer: Some(tracked) })
+        }
+    }
+
+    /// Finishes the round [`Tracker::track`] began: its estimate, if it
+    /// made one; else, with whole pyramids, the fix's window searched (a
+    /// prior-free fix a little off, a slip) and, when that fails too, the
+    /// tracked answer; with no fix, the prior-free search.
+    pub fn search<P: PyramidStorage, Q: PyramidStorage>(
+        &mut self,
+        own: &Pyramid<'_, P>,
+        peer: &Pyramid<'_, Q>,
+        how: &Alignment,
+        scratch: &mut SearchScratch<'_>,
+        view: &PeerView,
+        tracked: Tracked,
+    ) -> Result<Estimate, MatchError> {
+        if let Some(done) = tracked.done {
+            return Ok(done);
+        }
+        let (kind, result) = match (self.fix, tracked.answer) {
+            (Some(fix), Some(tracked)) => {
+                // The fix no longer explains the maps from where it is: its
+                // window is searched before it is given up.
+                let searched = align_prepared(own, peer, Some(&fix), how, scratch, || {})?.0;
+                let result = if searched.status == MatchStatus::Converged {
+                    self.limit_hold(searched, how, view)
+                } else {
+                    tracked
+                };
+                (Kind::Tracking, result)
+            }
+            // No fix (or it was forgotten since): a new fix, if any, starts
+            // unconfirmed.
+            _ => {
+                self.reset();
+                (Kind::PriorFree, self.limit_hold(align_prepared(own, peer, None, how, scratch, || {})?.0, how, view))
+            }
+        };
+        Ok(self.settle(kind, result, view))
+    }
+
+    /// The fix after `result` (made from the fix for [`Kind::Tracking`]),
+    /// and the estimate reported.
+    fn settle(&mut self, kind: Kind, result: MatchResult, view: &PeerView) -> Estimate {
+        let fix = match (result.status, kind == Kind::Tracking) {
             (MatchStatus::Converged, _) => {
                 (self.fix, self.unsettled) = (Some(result.transform), 0);
                 Fix::Held
@@ -244,7 +313,7 @@ impl Tracker {
         if converged && view.estimate.is_some_and(|theirs| agree(&result.transform, &theirs, view.at)) {
             self.confirmed = true;
         }
-        Ok(Estimate { kind, result, fix, confirmed: converged && self.confirmed })
+        Estimate { kind, result, fix, confirmed: converged && self.confirmed }
     }
 
     /// Confirms this round's fix (`estimate`, updated) with the peer's

@@ -51,12 +51,27 @@ pub fn prepare_scene(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, cr
     prepare_as(map, levels, Role::Scene)
 }
 
+/// Prepares a map for tracking from a fix only
+/// ([`cosem_core::matching::Pyramid::build_tracked`]): a model's levels up
+/// to its cover with normals at level 0, a scene's level 0; what tracking
+/// reads, the same answers as from [`prepare`]'s and [`prepare_scene`]'s.
+pub fn prepare_tracked(map: &HostMap, role: Role) -> Result<HostPyramid<'_>, crate::error::Error> {
+    voxel_checked(map)?;
+    Ok(Pyramid::build_vec_tracked(map, role)?)
+}
+
 fn prepare_as(map: &HostMap, levels: usize, role: Role) -> Result<HostPyramid<'_>, crate::error::Error> {
+    let r = voxel_checked(map)?;
+    Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, role)?)
+}
+
+/// The map's voxel size, where the matcher supports it.
+fn voxel_checked(map: &HostMap) -> Result<f32, crate::error::Error> {
     let r = map.resolution();
     if Setting::Voxel.check(f64::from(r)).is_err() {
         return Err(crate::maps::mapping::BuildError::Voxel(r).into());
     }
-    Ok(Pyramid::build_vec(map, levels_for(r, levels), FOOTPRINT_CELL, role)?)
+    Ok(r)
 }
 
 /// Why two maps could not be aligned.

@@ -67,6 +67,20 @@ use normals::*;
 /// Most levels a pyramid has.
 pub const MAX_LEVELS: usize = 8;
 
+/// A model's cover is its first level of cells at least this large (m): it
+/// says where the model saw anything (the verdict's coverage).
+pub const COVER_RESOLUTION: f32 = 1.5;
+
+/// Levels a model prepared for tracking has ([`Pyramid::build_tracked`]):
+/// up to its cover ([`COVER_RESOLUTION`]), at most [`MAX_LEVELS`].
+pub fn tracking_levels(resolution: f32) -> usize {
+    let mut n = 1;
+    while n < MAX_LEVELS && resolution * ((1u32 << (n - 1)) as f32) < COVER_RESOLUTION {
+        n += 1;
+    }
+    n
+}
+
 /// A unit surface normal in 32 bits (octahedral mapping, 16 bits per
 /// coordinate: about 0.003 degrees), or none where the neighbourhood is not
 /// planar.
@@ -423,6 +437,8 @@ pub struct Pyramid<'m, S: PyramidStorage> {
     levels: [LevelInfo; MAX_LEVELS],
     count: usize,
     footprint: Option<FootprintInfo>,
+    /// Prepared only for tracking from a fix ([`Pyramid::build_tracked`]).
+    tracked: bool,
 }
 
 #[derive(Clone, Copy)]
@@ -704,7 +720,38 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         storage: S,
     ) -> Result<Self, PyramidError> {
         let base = Base::Map { voxels: map.voxels(), index: map.index_slots() };
-        Self::build_base(base, map.resolution(), levels, footprint_cell, role, storage)
+        Self::build_base(base, map.resolution(), (levels, footprint_cell), role, false, storage)
+    }
+
+    /// Prepares `map` only for tracking from a fix ([`Matcher::track_in`],
+    /// which reads level 0 of both maps and a model's cover alone): as a
+    /// model ([`Role::Model`]), its levels up to the cover
+    /// ([`tracking_levels`]) with normals fitted at level 0 only; as a
+    /// scene, level 0 alone; no footprint either way. Tracking from it
+    /// gives what it gives from the whole pyramid, bit for bit, at about
+    /// half a model's preparation and a quarter of a scene's; anything
+    /// else refuses it ([`MatchError::TrackingOnly`]). A robot that keeps
+    /// driving prepares its maps this way every round it holds a fix.
+    ///
+    /// [`Matcher::track_in`]: crate::matching::Matcher::track_in
+    /// [`MatchError::TrackingOnly`]: crate::matching::MatchError::TrackingOnly
+    pub fn build_tracked<V: VoxelStorage>(map: &'m LocalMap<V>, role: Role, storage: S) -> Result<Self, PyramidError> {
+        let base = Base::Map { voxels: map.voxels(), index: map.index_slots() };
+        let levels = Self::tracked_levels(map.resolution(), role);
+        Self::build_base(base, map.resolution(), (levels, f32::NAN), role, true, storage)
+    }
+
+    /// Levels of a pyramid prepared for tracking ([`Pyramid::build_tracked`]).
+    pub fn tracked_levels(resolution: f32, role: Role) -> usize {
+        match role {
+            Role::Model => tracking_levels(resolution),
+            Role::Scene => 1,
+        }
+    }
+
+    /// Prepared only for tracking from a fix ([`Pyramid::build_tracked`]).
+    pub fn is_tracked(&self) -> bool {
+        self.tracked
     }
 
     /// Prepares `map` as a model ([`Role::Model`]) like [`Pyramid::build`],
@@ -740,7 +787,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         storage: S,
     ) -> Result<Self, PyramidError> {
         let base = Base::Copied { len: copied.len, slots: copied.slots };
-        Self::build_base(base, copied.resolution, levels, footprint_cell, Role::Model, storage)
+        Self::build_base(base, copied.resolution, (levels, footprint_cell), Role::Model, false, storage)
     }
 
     /// Prepares a received [`SceneMap`] as a scene ([`Role::Scene`]): the
@@ -754,15 +801,17 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         storage: S,
     ) -> Result<Self, PyramidError> {
         let base = Base::Scene { points: scene.points() };
-        Self::build_base(base, scene.resolution(), levels, footprint_cell, Role::Scene, storage)
+        Self::build_base(base, scene.resolution(), (levels, footprint_cell), Role::Scene, false, storage)
     }
 
+    /// The pyramid over `base`: `levels` levels and a footprint of cells of
+    /// `footprint_cell` (m); `tracked`, normals at level 0 only.
     fn build_base(
         base: Base<'m>,
         resolution: f32,
-        levels: usize,
-        footprint_cell: f32,
+        (levels, footprint_cell): (usize, f32),
         role: Role,
+        tracked: bool,
         mut storage: S,
     ) -> Result<Self, PyramidError> {
         if base.len() == 0 {
@@ -815,7 +864,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 slot_start += slot_len;
             }
         }
-        let mut pyramid = Pyramid { base, role, storage, levels: info, count: levels, footprint: None };
+        let mut pyramid = Pyramid { base, role, storage, levels: info, count: levels, footprint: None, tracked };
         // Normals (a model's), level by level: fitted against the read-only
         // level, then written. Coarse levels are sorted in sweep order;
         // level 0 (the map, in insertion order) is visited through a
@@ -838,7 +887,9 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
     #[inline(never)]
     fn fit_normals(&mut self) -> Result<(), PyramidError> {
         let base = self.base;
-        for l in 0..self.count {
+        // A tracked model's coarse levels serve its cover alone: no normals.
+        let fitted = if self.tracked { 1 } else { self.count };
+        for l in 0..fitted {
             let li = self.levels[l];
             let permuted = l == 0 && {
                 let PyramidPartsMut { words, points, .. } = self.storage.parts_mut();
@@ -932,8 +983,8 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
             LevelData::Coarse {
                 entries: parts.entries.get(li.start..li.start + li.len)?,
                 normals: match self.role {
-                    Role::Model => parts.normals.get(li.start..li.start + li.len)?,
-                    Role::Scene => &[],
+                    Role::Model if !self.tracked => parts.normals.get(li.start..li.start + li.len)?,
+                    _ => &[],
                 },
                 slots: parts.slots.get(li.slot_start..li.slot_start + li.slot_len)?,
                 narrow: li.narrow,

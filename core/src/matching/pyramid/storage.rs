@@ -453,4 +453,12 @@ impl<'m> Pyramid<'m, VecPyramidStorage> {
         let storage = VecPyramidStorage::new(PyramidCapacity::for_map(map, levels, footprint_cell, role));
         Self::build_as(map, levels, footprint_cell, role, storage)
     }
+
+    /// Prepares `map` for tracking only ([`Pyramid::build_tracked`]) in
+    /// storage sized for it.
+    pub fn build_vec_tracked<V: VoxelStorage>(map: &'m LocalMap<V>, role: Role) -> Result<Self, PyramidError> {
+        let levels = Self::tracked_levels(map.resolution(), role);
+        let storage = VecPyramidStorage::new(PyramidCapacity::for_map(map, levels, f32::NAN, role));
+        Self::build_tracked(map, role, storage)
+    }
 }

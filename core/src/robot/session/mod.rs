@@ -18,7 +18,7 @@ use crate::geometry::Isometry3;
 use crate::link::courier::{Courier, CourierConfig, CourierError, CourierStats, Event};
 use crate::map::{LocalMap, VoxelStorage};
 use crate::matching::search::SearchScratch;
-use crate::matching::{MatchStatus, Pyramid, PyramidStorage, SceneSource};
+use crate::matching::{MatchStatus, Pyramid, PyramidStorage, Role, SceneSource};
 use crate::pipeline::Pipeline;
 use crate::region::RegionError;
 use crate::session::{
@@ -485,15 +485,35 @@ where
             None
         } else {
             let pyramid = |e| RobotError::Align(super::AlignError::Pyramid(e));
-            let (levels, cell) = (SESSION_PIPELINE.levels, SESSION_PIPELINE.footprint_cell);
-            let model = Pyramid::build_model(&self.map, levels, cell, &mut self.model).map_err(pyramid)?;
-            let scene = copy.prepare_scene(levels, cell, &mut self.scene).map_err(pyramid)?;
-            t1 = meter.instructions();
-            let scratch = &mut SearchScratch::new(self.search);
+            let matching = |e| RobotError::Align(super::AlignError::Match(e));
             let how = SESSION_PIPELINE.alignment;
             let view = PeerView { estimate: self.heard, at: self.map.keep_centre() };
-            let e = self.tracker.estimate(&model, &scene, &how, scratch, &view);
-            Some(e.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?)
+            // From a fix, first only what tracking reads; the whole pyramids
+            // when a search is needed (no fix, or EM did not settle from it).
+            let tracked = match self.tracker.fix() {
+                Some(_) => {
+                    let model = Pyramid::build_tracked(&self.map, Role::Model, &mut self.model).map_err(pyramid)?;
+                    let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
+                    t1 = meter.instructions();
+                    Some(self.tracker.track(&model, &scene, &how, &view).map_err(matching)?)
+                }
+                None => None,
+            };
+            match tracked.and_then(|t| t.estimate().copied()) {
+                Some(e) => Some(e),
+                None => {
+                    let (levels, cell) = (SESSION_PIPELINE.levels, SESSION_PIPELINE.footprint_cell);
+                    let model = Pyramid::build_model(&self.map, levels, cell, &mut self.model).map_err(pyramid)?;
+                    let scene = copy.prepare_scene(levels, cell, &mut self.scene).map_err(pyramid)?;
+                    t1 = meter.instructions();
+                    let scratch = &mut SearchScratch::new(self.search);
+                    let e = match tracked {
+                        Some(t) => self.tracker.search(&model, &scene, &how, scratch, &view, t),
+                        None => self.tracker.estimate(&model, &scene, &how, scratch, &view),
+                    };
+                    Some(e.map_err(matching)?)
+                }
+            }
         };
         let t2 = meter.instructions();
         let passed = estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged);

@@ -11,6 +11,7 @@
 pub mod bench;
 pub mod feed;
 mod figures;
+mod prepared;
 mod robot;
 
 pub use figures::{Summary, Truth};
@@ -18,15 +19,15 @@ pub use figures::{Summary, Truth};
 use crate::error::Error;
 use crate::evaluation::team::RobotSpec;
 use crate::maps::noise::LabelNoise;
-use crate::matching::align::{prepare, prepare_scene, DEFAULT_LEVELS};
 use crate::sources::drift::Drift;
 use crate::sources::source::{Source, SourceOptions};
 use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
-use cosem_core::matching::{Alignment, MatchResult, MatchStatus};
+use cosem_core::matching::{Alignment, MatchResult, MatchStatus, Role};
 use cosem_core::session::{Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateCounts};
 use cosem_core::wire::codec::CodecModel;
 use nalgebra::Isometry3;
+use prepared::Prepared;
 use robot::Robot;
 use std::time::Instant;
 
@@ -309,10 +310,9 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         let start = records.len();
         let places: Vec<[f32; 3]> = robots.iter().map(Robot::place).collect();
         for (i, own) in trackers.iter_mut().enumerate() {
-            // The robot's own map prepared once a round, for every peer.
-            let t0 = Instant::now();
-            let pyramid = prepare(&robots[i].map, DEFAULT_LEVELS)?;
-            let mine = (&pyramid, t0.elapsed().as_secs_f64());
+            // The robot's own map prepared once a round, for every peer, as
+            // far as they need it.
+            let mut mine = Prepared::new(&robots[i].map, Role::Model);
             for (j, tracker) in own.iter_mut().enumerate().filter(|&(j, _)| j != i) {
                 if spec.one_shot {
                     tracker.reset();
@@ -320,7 +320,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                 }
                 let view = PeerView { estimate: heard[j][i], at: places[i] };
                 let at = Round { round, pair: (i, j), shared_world, view };
-                records.push(estimate_one(spec, at, &robots, mine, &mut links, tracker, &mut scratch)?);
+                records.push(estimate_one(spec, at, &robots, &mut mine, &mut links, tracker, &mut scratch)?);
             }
         }
         // Then this round's, each robot's answer to its peer's update sent
@@ -407,13 +407,14 @@ fn last_estimates(records: &[Record], n: usize) -> Vec<Vec<Option<cosem_core::ge
 }
 
 /// Robot `i`'s round with peer `j`: `j`'s update applied to `i`'s copy,
-/// the copy prepared, the estimate against `own` (the robot's map prepared,
-/// and the seconds that took, counted in); the truth and its figures.
+/// the copy prepared, the estimate against `own` (the robot's map, prepared
+/// as far as the estimate needs: the seconds that took counted in); the
+/// truth and its figures.
 fn estimate_one(
     spec: &SessionSpec,
     at: Round,
     robots: &[Robot],
-    own: (&crate::matching::align::HostPyramid<'_>, f64),
+    own: &mut Prepared<'_>,
     links: &mut [Vec<Option<Link>>],
     tracker: &mut Tracker,
     scratch: &mut Scratch,
@@ -431,18 +432,13 @@ fn estimate_one(
         tracker.reset();
     }
     let copy = link.copy.map();
-    let estimate = if copy.is_empty() {
-        None
+    let (estimate, preparing) = if copy.is_empty() {
+        (None, 0.0)
     } else {
-        let peer = prepare_scene(copy, DEFAULT_LEVELS)?;
-        let mut search = SearchScratch::new(&mut scratch.search);
-        Some(
-            tracker
-                .estimate(own.0, &peer, &spec.alignment, &mut search, &view)
-                .map_err(|e| Error::Invalid(format!("matching: {e}")))?,
-        )
+        let (e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, &mut scratch.search)?;
+        (Some(e), own_s)
     };
-    let seconds = own.1 + t0.elapsed().as_secs_f64() - writing;
+    let seconds = preparing + t0.elapsed().as_secs_f64() - writing;
     let found = shared_world.then(|| figures::truth(&robots[i], &robots[j])).flatten();
     let truth = found.map(|t| t.transform);
     let (errors, origin_error) = match (&estimate, &found) {
@@ -469,6 +465,41 @@ fn estimate_one(
         counts,
         seconds,
     })
+}
+
+/// The round's estimate of the peer whose copy is `copy`: tracked on
+/// pyramids prepared for tracking, searched on whole ones when that
+/// fails; with the seconds `own`'s preparations took (they may have been
+/// made for another peer: counted for each).
+fn estimate_on(
+    own: &mut Prepared<'_>,
+    copy: &crate::maps::mapping::HostMap,
+    tracker: &mut Tracker,
+    how: &Alignment,
+    view: &PeerView,
+    search: &mut [u32],
+) -> Result<(Estimate, f64), Error> {
+    let matching = |e: cosem_core::matching::MatchError| Error::Invalid(format!("matching: {e}"));
+    let mut peer = Prepared::new(copy, Role::Scene);
+    let (mut own_s, mut tracked) = (0.0, None);
+    // A whole pyramid made for another peer serves tracking too: its
+    // seconds are counted once, below.
+    let whole_first = own.is_whole();
+    if tracker.fix().is_some() {
+        let (o, s) = own.tracked()?;
+        own_s += if whole_first { 0.0 } else { s };
+        tracked = Some(tracker.track(o, peer.tracked()?.0, how, view).map_err(matching)?);
+    }
+    if let Some(e) = tracked.as_ref().and_then(|t| t.estimate()) {
+        return Ok((*e, if whole_first { own.whole()?.1 } else { own_s }));
+    }
+    let (o, s) = own.whole()?;
+    let mut scratch = SearchScratch::new(search);
+    let e = match tracked {
+        Some(t) => tracker.search(o, peer.whole()?.0, how, &mut scratch, view, t),
+        None => tracker.estimate(o, peer.whole()?.0, how, &mut scratch, view),
+    };
+    Ok((e.map_err(matching)?, own_s + s))
 }
 
 /// The estimate's transform, when there is one.
