@@ -12,6 +12,7 @@ use super::footprint::GROUP_BITS;
 use super::pyramid::{Entry, Level};
 use super::settings::{Cost, Method};
 use crate::classes::NUM_CLASSES;
+use crate::map::VoxelKey;
 use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
 
 /// `exp(x)` for `x <= 0`, to about 1e-4 relative: a weight, not a
@@ -176,31 +177,70 @@ impl Normal {
     }
 }
 
+/// A scene entry's 2x2x2 block of model cells as the last E-step found it
+/// (the block's cell and side, each cell's run of model entries): the next
+/// E-step, whose transform moved by millimetres once EM is near an answer,
+/// finds the same block for most entries and skips its eight lookups. The
+/// same cells give the same entries in the same order, so the sums are the
+/// same, bit for bit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Reach {
+    block: u64,
+    runs: [(u32, u32); 8],
+}
+
+impl Reach {
+    /// A reach that holds no block.
+    pub const EMPTY: Reach = Reach { block: u64::MAX, runs: [(0, 0); 8] };
+}
+
+/// A block's cell and side in one word (never `u64::MAX`).
+fn block_code(key: VoxelKey, side: [i32; 3]) -> u64 {
+    let axis = |v: i16| u64::from(v as u16);
+    let sides = side.iter().enumerate().fold(0u64, |acc, (i, &d)| acc | (u64::from(d > 0) << i));
+    axis(key.x) | (axis(key.y) << 16) | (axis(key.z) << 32) | (sides << 48)
+}
+
 /// The model entry a moved scene entry associates with, its weight and
 /// squared distance. It looks at the 2x2x2 block of cells on `q`'s side of
 /// its cell, which holds every model entry within half a cell of `q` (and
-/// some farther ones, up to `radius`).
+/// some farther ones, up to `radius`); with `reach`, the block the last
+/// E-step found for this entry, looked up again only when it moved.
 #[inline]
 fn best_match(
     model: &Level<'_>,
     s: &Entry,
     q: &Point3<f32>,
-    sigma: f32,
-    radius: f32,
-    method: Method,
+    (sigma, radius, method): (f32, f32, Method),
+    reach: Option<&mut Reach>,
 ) -> Option<(Entry, f32, f32)> {
     let cell = model.locate_with_fraction([q.x, q.y, q.z])?;
     let (key, f) = (cell.key, cell.fraction);
     let step = |v: f32| if v < 0.5 { -1 } else { 1 };
     let (sx, sy, sz) = (step(f[0]), step(f[1]), step(f[2]));
+    let block = [(0, 0, 0), (sx, 0, 0), (0, sy, 0), (0, 0, sz), (sx, sy, 0), (sx, 0, sz), (0, sy, sz), (sx, sy, sz)];
+    let look = |(dx, dy, dz): (i32, i32, i32)| {
+        key.offset(dx, dy, dz).map_or((0, 0), |k| {
+            let (a, b) = model.cell_run(k);
+            (a as u32, b as u32)
+        })
+    };
+    let runs = match reach {
+        Some(r) => {
+            let code = block_code(key, [sx, sy, sz]);
+            if r.block != code {
+                *r = Reach { block: code, runs: block.map(look) };
+            }
+            r.runs
+        }
+        None => block.map(look),
+    };
     let inv_two_sigma_sq = 0.5 / (sigma * sigma);
     let radius_sq = radius * radius;
     let mut best: Option<(Entry, f32, f32)> = None;
-    for (dx, dy, dz) in
-        [(0, 0, 0), (sx, 0, 0), (0, sy, 0), (0, 0, sz), (sx, sy, 0), (sx, 0, sz), (0, sy, sz), (sx, sy, sz)]
-    {
-        let Some(k) = key.offset(dx, dy, dz) else { continue };
-        for m in model.cell(k) {
+    for (a, b) in runs {
+        for i in a..b {
+            let Some(m) = model.entry(i as usize) else { break };
             let d = [q.x - m.position[0], q.y - m.position[1], q.z - m.position[2]];
             let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
             if d2 > radius_sq {
@@ -238,9 +278,19 @@ pub(crate) struct Pass {
 
 /// One E-step at one level: associates every scene entry and accumulates the
 /// normal equations of the M-step at the transform `t`.
-pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32>, pass: &Pass) -> Normal {
+///
+/// `reach`: the blocks of the last E-step at this level, one per entry taken
+/// in order (fewer: the rest looked up every time), kept for the next.
+pub(crate) fn accumulate(
+    model: &Level<'_>,
+    scene: &Level<'_>,
+    t: &Isometry3<f32>,
+    pass: &Pass,
+    reach: &mut [Reach],
+) -> Normal {
     let Pass { sigma, radius, method, cost, sampling, information } = *pass;
     let mut n = Normal::new();
+    let mut reach = reach.iter_mut();
     // Countdown per class: an entry is used when its class's reaches zero.
     let mut skip = [0u32; SAMPLING_SLOTS];
     for i in 0..scene.len() {
@@ -255,7 +305,7 @@ pub(crate) fn accumulate(model: &Level<'_>, scene: &Level<'_>, t: &Isometry3<f32
         let Some(s) = scene.entry(i) else { continue };
         let scale = information.then_some(stride as f32);
         let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
-        let Some((m, w, _)) = best_match(model, &s, &q, sigma, radius, method) else { continue };
+        let Some((m, w, _)) = best_match(model, &s, &q, (sigma, radius, method), reach.next()) else { continue };
         if w.is_nan() || w <= 0.0 {
             continue;
         }

@@ -167,15 +167,17 @@ impl Matcher {
     /// so such an answer is not `Degenerate`: its `degeneracy` still says
     /// how weakly the maps hold it, and the caller decides how long a fix
     /// may hold a direction (the session's tracker: a few metres of
-    /// driving).
+    /// driving). Of `scratch`, only EM's room to remember blocks is used
+    /// ([`SearchScratch::with_reach`]; none: the same answer, more lookups).
     pub fn track_in<A: PyramidStorage, B: PyramidStorage>(
         &self,
         model: &Pyramid<'_, A>,
         scene: &Pyramid<'_, B>,
         fix: &Isometry3<f32>,
+        scratch: &mut SearchScratch<'_>,
     ) -> Result<MatchResult, MatchError> {
         let cell = model.level(0).map_or(0.0, |l| l.resolution());
-        self.align_once(model, scene, fix, Some(cell), true, &mut SearchScratch::new(&mut []))
+        self.align_once(model, scene, fix, Some(cell), true, scratch)
     }
 
     /// The placement shifted from `found` along its least constrained
@@ -251,7 +253,7 @@ impl Matcher {
             whole(model, scene)?;
         }
         let (start, top) = self.start(model, scene, init, near, levels, scratch);
-        let mut refined = self.refine(model, scene, start, top, hold);
+        let mut refined = self.refine(model, scene, start, top, hold, scratch);
         if !finite_iso(&refined.transform) {
             // Cannot happen with finite steps; guard the promise anyway.
             refined.transform = *init;
@@ -330,6 +332,7 @@ impl Matcher {
         mut t: Isometry3<f32>,
         top: usize,
         hold: bool,
+        scratch: &mut SearchScratch<'_>,
     ) -> Refined {
         let s = &self.settings;
         let mut used = 0u32;
@@ -345,9 +348,11 @@ impl Matcher {
             let remaining = s.max_iterations.saturating_sub(used);
             let sampling = Sampling::balanced(&c, s.max_scene_entries as usize);
             let budget = if l == 0 { remaining } else { s.max_iterations_per_level.min(remaining / 2) };
+            // Each level samples its own entries: what was reached is forgotten.
+            let reach = scratch.reach();
             for _ in 0..budget {
                 let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, sampling, information: l == 0 };
-                let n = accumulate(&m, &c, &t, &pass);
+                let n = accumulate(&m, &c, &t, &pass, reach);
                 used += 1;
                 if let Some(p) = per_level.get_mut(l) {
                     *p = p.saturating_add(1);
@@ -415,7 +420,7 @@ impl Matcher {
                     sampling,
                     information: true,
                 };
-                accumulate(&m0, &c0, &t, &pass)
+                accumulate(&m0, &c0, &t, &pass, &mut [])
             }
         };
         let floor = 0.01 * cell;

@@ -52,6 +52,7 @@ pub mod settings;
 pub mod solve;
 
 pub use align::{align_prepared, Alignment};
+pub use associate::Reach;
 pub use em::{MatchError, Matcher};
 pub use footprint::Footprint;
 pub use pyramid::tracking_levels;

@@ -11,6 +11,7 @@
 //! exact optimum of the score over the window's lattice, found in a
 //! deterministic order (ties go to the candidate nearest the prior).
 
+use super::associate::Reach;
 use super::footprint::{Footprint, Grid, POOL_LEVELS};
 use crate::region::{words_for, Region};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
@@ -122,6 +123,9 @@ impl<'s> YawCells<'s> {
 /// and [`search_global`] take them from the stack.
 pub struct SearchScratch<'s> {
     words: &'s mut [u32],
+    /// EM's memory of each scene entry's block between iterations
+    /// ([`SearchScratch::with_reach`]).
+    reach: &'s mut [Reach],
 }
 
 impl<'s> SearchScratch<'s> {
@@ -139,7 +143,24 @@ impl<'s> SearchScratch<'s> {
 
     /// Scratch in `words` (any contents).
     pub fn new(words: &'s mut [u32]) -> Self {
-        SearchScratch { words }
+        SearchScratch { words, reach: &mut [] }
+    }
+
+    /// The same, with room for EM to remember, between its iterations, the
+    /// block of model cells each sampled scene entry reached ([`Reach`]:
+    /// one per entry, [`MatchSettings::max_scene_entries`] for all of them;
+    /// with fewer, the rest are looked up every iteration). The answers are
+    /// the same bit for bit, with or without; EM's lookups are fewer.
+    ///
+    /// [`MatchSettings::max_scene_entries`]: super::MatchSettings::max_scene_entries
+    pub fn with_reach(self, reach: &'s mut [Reach]) -> Self {
+        SearchScratch { words: self.words, reach }
+    }
+
+    /// EM's room to remember blocks, emptied (a new level or new maps).
+    pub(crate) fn reach(&mut self) -> &mut [Reach] {
+        self.reach.fill(Reach::EMPTY);
+        &mut *self.reach
     }
 
     /// The scene cells a windowed search caches: all of them up to what the

@@ -514,7 +514,8 @@ fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
     // (within a cell: these maps are of 0.2 m).
     let fix = from_xyz_rpy(0.4, 0.1, 0.0, 0.0, 0.0, 0.3f32.to_radians()) * gt;
     let m = Matcher::default();
-    let held = m.track_in(&pm, &ps, &fix).unwrap();
+    let none = &mut search::SearchScratch::new(&mut []);
+    let held = m.track_in(&pm, &ps, &fix, none).unwrap();
     assert_eq!(held.status, MatchStatus::Converged, "{held:?}");
     assert!(held.degeneracy < m.settings.degeneracy_threshold, "{held:?}");
     let off = held.transform * gt.inverse();
@@ -523,7 +524,7 @@ fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
     assert!(across.abs() < 0.05 && off.rotation.angle().to_degrees() < 0.2, "{off:?}");
     assert_eq!(m.align(&pm, &ps, &fix).unwrap().status, MatchStatus::Degenerate);
     // Bit for bit repeatable.
-    assert_eq!(m.track_in(&pm, &ps, &fix).unwrap(), held);
+    assert_eq!(m.track_in(&pm, &ps, &fix, none).unwrap(), held);
 }
 
 /// Pyramids prepared for tracking only (a model's levels up to its cover,
@@ -550,9 +551,14 @@ fn pyramids_prepared_for_tracking_track_as_whole_ones_and_refuse_a_search() {
         from_xyz_rpy(0.4, 0.1, 0.0, 0.0, 0.0, 0.3f32.to_radians()) * gt,
         from_xyz_rpy(3.0, 2.0, 0.0, 0.0, 0.0, 0.2) * gt,
     ] {
-        let whole = m.track_in(&pm, &ps, &fix).unwrap();
-        assert_eq!(m.track_in(&tm, &ts, &fix).unwrap(), whole);
-        assert_eq!(m.track_in(&tm, &ps, &fix).unwrap(), whole);
+        let whole = m.track_in(&pm, &ps, &fix, &mut search::SearchScratch::new(&mut [])).unwrap();
+        // With EM's memory of the blocks, for every entry and for a few.
+        for n in [m.settings.max_scene_entries as usize, 50] {
+            let mut reach = vec![Reach::EMPTY; n];
+            let scratch = &mut search::SearchScratch::new(&mut []).with_reach(&mut reach);
+            assert_eq!(m.track_in(&tm, &ts, &fix, scratch).unwrap(), whole);
+            assert_eq!(m.track_in(&tm, &ps, &fix, scratch).unwrap(), whole);
+        }
     }
     assert_eq!(m.align(&tm, &ps, &gt), Err(MatchError::TrackingOnly));
     assert_eq!(m.align(&pm, &ts, &gt), Err(MatchError::TrackingOnly));

@@ -554,7 +554,9 @@ fn a_round_tracked_first_estimates_as_a_round_on_whole_pyramids() {
         let expected = one.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
         let t = Pyramid::build_vec_tracked(&pair[0], Role::Model).unwrap();
         let u = Pyramid::build_vec_tracked(&pair[1], Role::Scene).unwrap();
-        let begun = other.track(&t, &u, &how, &view).unwrap();
+        let mut reach = vec![crate::matching::Reach::EMPTY; 700];
+        let scratch = &mut SearchScratch::new(&mut []).with_reach(&mut reach);
+        let begun = other.track(&t, &u, &how, scratch, &view).unwrap();
         let got = match begun.estimate() {
             Some(e) => {
                 tracked += 1;

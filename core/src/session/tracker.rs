@@ -220,7 +220,7 @@ impl Tracker {
         scratch: &mut SearchScratch<'_>,
         view: &PeerView,
     ) -> Result<Estimate, MatchError> {
-        let tracked = self.track(own, peer, how, view)?;
+        let tracked = self.track(own, peer, how, scratch, view)?;
         self.search(own, peer, how, scratch, view, tracked)
     }
 
@@ -230,18 +230,20 @@ impl Tracker {
     /// a whole one). An answer that passes the verdict is the round's
     /// estimate ([`Tracked::estimate`]); otherwise (no fix, or EM did not
     /// settle from it) [`Tracker::search`] finishes the round with whole
-    /// pyramids.
+    /// pyramids. Of `scratch`, EM's room to remember blocks is used
+    /// ([`SearchScratch::with_reach`]).
     pub fn track<P: PyramidStorage, Q: PyramidStorage>(
         &mut self,
         own: &Pyramid<'_, P>,
         peer: &Pyramid<'_, Q>,
         how: &Alignment,
+        scratch: &mut SearchScratch<'_>,
         view: &PeerView,
     ) -> Result<Tracked, MatchError> {
         let Some(fix) = self.fix else {
             return Ok(Tracked { done: None, answer: None });
         };
-        let tracked = self.limit_hold(Matcher::new(how.settings).track_in(own, peer, &fix)?, how, view);
+        let tracked = self.limit_hold(Matcher::new(how.settings).track_in(own, peer, &fix, scratch)?, how, view);
         if tracked.status == MatchStatus::Converged {
             let done = self.settle(Kind::Tracking, tracked, view);
             Ok(Tracked { done: Some(done), answer: None })

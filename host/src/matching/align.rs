@@ -7,7 +7,7 @@ use crate::maps::mapping::HostMap;
 use cosem_core::geometry::Isometry3;
 use cosem_core::matching::global::Searched;
 use cosem_core::matching::search::SearchScratch;
-use cosem_core::matching::{align_prepared, Alignment, MatchError, MatchResult, Pyramid, Role, VecPyramid};
+use cosem_core::matching::{align_prepared, Alignment, MatchError, MatchResult, Pyramid, Reach, Role, VecPyramid};
 use cosem_core::pipeline::{Pipeline, Setting};
 
 /// Default number of pyramid levels: 0.2 m maps get cells up to 3.2 m.
@@ -97,8 +97,18 @@ pub fn align(
 ) -> Result<(MatchResult, Option<Searched>), AlignError> {
     let how: Alignment = how.into();
     let mut words = [0u32; SearchScratch::WINDOWED];
-    let scratch = &mut SearchScratch::new(&mut words);
+    // EM remembers the blocks its sampled entries reached (the same
+    // answers, fewer lookups).
+    let mut reach = vec![Reach::EMPTY; reach_room(&how)];
+    let scratch = &mut SearchScratch::new(&mut words).with_reach(&mut reach);
     align_prepared(pyramids.0, pyramids.1, prior, &how, scratch, || {}).map_err(AlignError::Match)
+}
+
+/// EM's room to remember the blocks of its sampled scene entries
+/// ([`SearchScratch::with_reach`]): one per entry the settings sample, at
+/// most 65,536 (beyond, the rest are looked up each iteration).
+pub fn reach_room(how: &Alignment) -> usize {
+    (how.settings.max_scene_entries as usize).min(1 << 16)
 }
 
 /// Two maps prepared and matched, with the times it took: what `cosem

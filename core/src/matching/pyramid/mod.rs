@@ -604,7 +604,14 @@ impl<'a> Level<'a> {
     /// ([`Role::Scene`]) have no index: nothing is found there.
     #[inline]
     pub fn cell(&self, key: VoxelKey) -> Cell<'a> {
-        let (next, end) = match self.data {
+        let (next, end) = self.cell_run(key);
+        Cell { level: *self, next, end }
+    }
+
+    /// The run of entries (`start..end`) in the cell `key`; empty when
+    /// nothing is there.
+    pub(crate) fn cell_run(&self, key: VoxelKey) -> (usize, usize) {
+        match self.data {
             LevelData::Voxels { voxels, index, .. } => match probe_index(voxels, index, key) {
                 Probe::Found(i) => (i, i + 1),
                 Probe::Vacant(_) => (0, 0),
@@ -615,8 +622,7 @@ impl<'a> Level<'a> {
                 Probe::Vacant(_) => (0, 0),
             },
             LevelData::Coarse { entries, slots, narrow, .. } => coarse_run(entries, slots, narrow, key),
-        };
-        Cell { level: *self, next, end }
+        }
     }
 
     /// The cell holding point `p`.

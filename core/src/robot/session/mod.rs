@@ -495,7 +495,8 @@ where
                     let model = Pyramid::build_tracked(&self.map, Role::Model, &mut self.model).map_err(pyramid)?;
                     let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
                     t1 = meter.instructions();
-                    Some(self.tracker.track(&model, &scene, &how, &view).map_err(matching)?)
+                    let scratch = &mut SearchScratch::new(&mut []);
+                    Some(self.tracker.track(&model, &scene, &how, scratch, &view).map_err(matching)?)
                 }
                 None => None,
             };

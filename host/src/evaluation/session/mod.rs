@@ -23,7 +23,7 @@ use crate::sources::drift::Drift;
 use crate::sources::source::{Source, SourceOptions};
 use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
-use cosem_core::matching::{Alignment, MatchResult, MatchStatus, Role};
+use cosem_core::matching::{Alignment, MatchResult, MatchStatus, Reach, Role};
 use cosem_core::session::{Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateCounts};
 use cosem_core::wire::codec::CodecModel;
 use nalgebra::Isometry3;
@@ -184,6 +184,8 @@ struct Scratch {
     out: Vec<u8>,
     /// The windowed search's cache.
     search: Vec<u32>,
+    /// EM's memory of the blocks its scene entries reached.
+    reach: Vec<Reach>,
     /// Each robot's map sent whole this round (bytes): the updates' measure.
     whole: Vec<usize>,
 }
@@ -294,6 +296,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         words: vec![0; most],
         out: vec![0; most * 24 + 4096],
         search: vec![0; SearchScratch::WINDOWED],
+        reach: vec![Reach::EMPTY; crate::matching::align::reach_room(&spec.alignment)],
         whole: vec![0; n],
     };
     let mut records = Vec::new();
@@ -435,7 +438,8 @@ fn estimate_one(
     let (estimate, preparing) = if copy.is_empty() {
         (None, 0.0)
     } else {
-        let (e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, &mut scratch.search)?;
+        let room = (&mut scratch.search[..], &mut scratch.reach[..]);
+        let (e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, room)?;
         (Some(e), own_s)
     };
     let seconds = preparing + t0.elapsed().as_secs_f64() - writing;
@@ -477,7 +481,7 @@ fn estimate_on(
     tracker: &mut Tracker,
     how: &Alignment,
     view: &PeerView,
-    search: &mut [u32],
+    (search, reach): (&mut [u32], &mut [Reach]),
 ) -> Result<(Estimate, f64), Error> {
     let matching = |e: cosem_core::matching::MatchError| Error::Invalid(format!("matching: {e}"));
     let mut peer = Prepared::new(copy, Role::Scene);
@@ -488,13 +492,14 @@ fn estimate_on(
     if tracker.fix().is_some() {
         let (o, s) = own.tracked()?;
         own_s += if whole_first { 0.0 } else { s };
-        tracked = Some(tracker.track(o, peer.tracked()?.0, how, view).map_err(matching)?);
+        let scratch = &mut SearchScratch::new(&mut []).with_reach(&mut *reach);
+        tracked = Some(tracker.track(o, peer.tracked()?.0, how, scratch, view).map_err(matching)?);
     }
     if let Some(e) = tracked.as_ref().and_then(|t| t.estimate()) {
         return Ok((*e, if whole_first { own.whole()?.1 } else { own_s }));
     }
     let (o, s) = own.whole()?;
-    let mut scratch = SearchScratch::new(search);
+    let mut scratch = SearchScratch::new(search).with_reach(reach);
     let e = match tracked {
         Some(t) => tracker.search(o, peer.whole()?.0, how, &mut scratch, view, t),
         None => tracker.estimate(o, peer.whole()?.0, how, &mut scratch, view),
