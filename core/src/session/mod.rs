@@ -21,5 +21,16 @@ pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateCounts};
 pub use replica::{Applied, Replica};
 pub use tracker::{agree, Estimate, Fix, Kind, PeerView, Tracked, Tracker, AGREE_DEG, AGREE_M, HOLD_M};
 
+/// The verdict's least overlap in a session: 0.25, where a one-shot
+/// match takes 0.2 ([`crate::matching::MatchSettings::min_overlap`]). A
+/// robot that keeps driving matches again next round, so an answer on a
+/// sliver of overlap buys little and risks much: its rotation rests on a
+/// short lever and, on maps a drift has bent, the town's sessions (five
+/// seeds, 2 and 3 robots, true and network-like labels) had it just over a
+/// degree off at measured overlaps of 0.22-0.23 as robots parted, while no
+/// right answer inside a meeting (true overlap 0.30 and more) measured
+/// under 0.25.
+pub const MIN_OVERLAP: f32 = 0.25;
+
 #[cfg(test)]
 mod tests;

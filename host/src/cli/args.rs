@@ -61,14 +61,15 @@ pub struct Tuning {
     #[arg(long, value_parser = em_iterations)]
     pub em_iterations: Option<u32>,
     /// The verdict's least overlap: the share of the smaller map's voxels
-    /// with a match (default 0.2).
+    /// with a match (default 0.2; `cosem session`: 0.25).
     #[arg(long, value_parser = min_overlap)]
     pub min_overlap: Option<f32>,
     /// The verdict's least agreement of what both maps saw (default 0.40):
     /// to measure other operating points.
     #[arg(long, value_parser = min_agreement)]
     pub min_agreement: Option<f32>,
-    /// The prior-free search's budget of nodes (default: unbounded).
+    /// The prior-free search's budget of nodes (default: unbounded;
+    /// `cosem session`: 60,000).
     #[arg(long, value_parser = search_nodes)]
     pub search_nodes: Option<u32>,
 }

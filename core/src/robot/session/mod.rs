@@ -65,14 +65,18 @@ pub type SessionSceneStorage =
 /// cut to 20,000 nodes (searched every round until a fix, on maps that
 /// share nothing it would spend the whole budget: with 40,000 nodes such a
 /// round took up to 4.6e8 instructions on an mps2-an386, over the 3e8 a
-/// round may take).
+/// round may take), the verdict's least overlap a session's
+/// ([`crate::session::MIN_OVERLAP`]).
 pub const SESSION_PIPELINE: Pipeline = Pipeline {
     alignment: crate::matching::Alignment {
         search: crate::matching::search::GlobalSearch {
             max_evaluations: SESSION_SEARCH_NODES,
             ..Pipeline::MPS2.alignment.search
         },
-        ..Pipeline::MPS2.alignment
+        settings: crate::matching::MatchSettings {
+            min_overlap: crate::session::MIN_OVERLAP,
+            ..Pipeline::MPS2.alignment.settings
+        },
     },
     ..Pipeline::MPS2
 };

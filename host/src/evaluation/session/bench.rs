@@ -118,6 +118,9 @@ pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>
         camera_towns.insert(seed, robots?);
     }
     jobs.retain(|&(case, seed, _)| Some(case) != camera || camera_towns.contains_key(&seed));
+    // The longest first (3 robots: three pairs a round), so that the last
+    // sessions left to run are short ones and no core waits long on them.
+    jobs.sort_by_key(|&(case, seed, _)| (std::cmp::Reverse(CASES[case].robots), case, seed));
     let runs = crate::evaluation::eval::for_each_start(&jobs, |&(case, seed, town)| -> Result<Run, Error> {
         let c = CASES[case];
         let robots = match camera_towns.get(&seed) {

@@ -44,18 +44,34 @@ pub const DEFAULT_CROP: f32 = match cosem_core::pipeline::Pipeline::MPS2.crop {
 pub const DEFAULT_CAPACITY: usize = 8_000;
 /// ... 2 scans a round (the town's scans are 1 m apart: 2 m a round) ...
 pub const DEFAULT_EVERY: usize = 2;
-/// ... and the robots' matcher (the mps2 robot's: a prior-free search of
-/// 40,000 nodes at most, the verdict's defaults) with the matcher's own 50
-/// EM iterations, not the board's 30: on maps a drift has bent, EM from a
-/// tracked fix often needs more than 30 to settle, and an answer that has
-/// not settled is `NotConverged` (30 left availability at 0.74 over five
-/// seeds where 50 gives 0.85; 80 gave 0.87; a tracking round's median time
-/// did not move: most settle in far fewer).
+/// ... and the robots' matcher (the mps2 robot's, the verdict's least
+/// overlap a session's: [`cosem_core::session::MIN_OVERLAP`]) with the
+/// matcher's own 50 EM iterations, not the board's 30: on maps a drift has
+/// bent, EM from a tracked fix often needs more than 30 to settle, and an
+/// answer that has not settled is `NotConverged` (30 left availability at
+/// 0.74 over five seeds where 50 gives 0.85; 80 gave 0.87; a tracking
+/// round's median time did not move: most settle in far fewer); and a
+/// prior-free search of [`DEFAULT_SEARCH_NODES`].
 pub const DEFAULT_ALIGNMENT: cosem_core::matching::Alignment = {
     let mut a = cosem_core::pipeline::Pipeline::MPS2.alignment;
     a.settings.max_iterations = cosem_core::matching::MatchSettings::DEFAULT.max_iterations;
+    a.settings.min_overlap = cosem_core::session::MIN_OVERLAP;
+    a.search.max_evaluations = DEFAULT_SEARCH_NODES;
     a
 };
+
+/// Nodes the host's prior-free search may score in a session: 60,000,
+/// not the mps2 robot's 40,000 (a board's instructions bound its search;
+/// the host's round does not). Where a meeting starts, with network-like
+/// labels, the best placement the search finds first is often a junction
+/// turned by 90 degrees, which the verdict refuses; the right one is among
+/// the next candidates, which a search cut short never refines (five
+/// seeds, 2 robots, network-like labels: availability 0.90, the worst seed
+/// 0.71, with 40,000 nodes; 0.92 and 0.80 with 60,000; 0.95 and 0.86 with
+/// 150,000). Every round without a fix searches, on maps that mostly share
+/// nothing, so the time grows with the budget: with 150,000, `cosem bench
+/// session` took 13 minutes, over its 10.
+pub const DEFAULT_SEARCH_NODES: u32 = 60_000;
 
 /// The largest map capacity of a session's robot (voxels): 32 MiB of map,
 /// as much again of records and copies per peer.
@@ -473,8 +489,9 @@ fn estimate_one(
 
 /// The round's estimate of the peer whose copy is `copy`: tracked on
 /// pyramids prepared for tracking, searched on whole ones when that
-/// fails; with the seconds `own`'s preparations took (they may have been
-/// made for another peer: counted for each).
+/// fails; with the seconds of `own`'s preparations it used that were made
+/// before it, for another peer (counted for each; those made in it are in
+/// the caller's timing already).
 fn estimate_on(
     own: &mut Prepared<'_>,
     copy: &crate::maps::mapping::HostMap,
@@ -485,6 +502,10 @@ fn estimate_on(
 ) -> Result<(Estimate, f64), Error> {
     let matching = |e: cosem_core::matching::MatchError| Error::Invalid(format!("matching: {e}"));
     let mut peer = Prepared::new(copy, Role::Scene);
+    // What `own` took to prepare before this call (for another peer) is
+    // not in the caller's timing: counted here, for each peer it serves.
+    let before = own.spent();
+    let earlier = |own: &Prepared<'_>, used: f64| used - (own.spent() - before);
     let (mut own_s, mut tracked) = (0.0, None);
     // A whole pyramid made for another peer serves tracking too: its
     // seconds are counted once, below.
@@ -496,7 +517,8 @@ fn estimate_on(
         tracked = Some(tracker.track(o, peer.tracked()?.0, how, scratch, view).map_err(matching)?);
     }
     if let Some(e) = tracked.as_ref().and_then(|t| t.estimate()) {
-        return Ok((*e, if whole_first { own.whole()?.1 } else { own_s }));
+        let used = if whole_first { own.whole()?.1 } else { own_s };
+        return Ok((*e, earlier(own, used)));
     }
     let (o, s) = own.whole()?;
     let mut scratch = SearchScratch::new(search).with_reach(reach);
@@ -504,7 +526,8 @@ fn estimate_on(
         Some(t) => tracker.search(o, peer.whole()?.0, how, &mut scratch, view, t),
         None => tracker.estimate(o, peer.whole()?.0, how, &mut scratch, view),
     };
-    Ok((e.map_err(matching)?, own_s + s))
+    let used = own_s + s;
+    Ok((e.map_err(matching)?, earlier(own, used)))
 }
 
 /// The estimate's transform, when there is one.

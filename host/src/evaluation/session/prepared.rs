@@ -40,6 +40,11 @@ impl<'m> Prepared<'m> {
         Ok((p, *s))
     }
 
+    /// Seconds spent preparing it so far (tracked and whole).
+    pub(super) fn spent(&self) -> f64 {
+        self.tracked.as_ref().map_or(0.0, |t| t.1) + self.whole.as_ref().map_or(0.0, |w| w.1)
+    }
+
     /// Whether it has been prepared whole.
     pub(super) fn is_whole(&self) -> bool {
         self.whole.is_some()
