@@ -10,6 +10,7 @@
 
 use super::footprint::GROUP_BITS;
 use super::pyramid::{Entry, Level};
+use super::search::Reach;
 use super::settings::{Cost, Method};
 use crate::classes::NUM_CLASSES;
 use crate::map::VoxelKey;
@@ -175,23 +176,6 @@ impl Normal {
             }
         }
     }
-}
-
-/// A scene entry's 2x2x2 block of model cells as the last E-step found it
-/// (the block's cell and side, each cell's run of model entries): the next
-/// E-step, whose transform moved by millimetres once EM is near an answer,
-/// finds the same block for most entries and skips its eight lookups. The
-/// same cells give the same entries in the same order, so the sums are the
-/// same, bit for bit.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Reach {
-    block: u64,
-    runs: [(u32, u32); 8],
-}
-
-impl Reach {
-    /// A reach that holds no block.
-    pub const EMPTY: Reach = Reach { block: u64::MAX, runs: [(0, 0); 8] };
 }
 
 /// A block's cell and side in one word (never `u64::MAX`).

@@ -52,7 +52,6 @@ pub mod settings;
 pub mod solve;
 
 pub use align::{align_prepared, Alignment};
-pub use associate::Reach;
 pub use em::{MatchError, Matcher};
 pub use footprint::Footprint;
 pub use pyramid::tracking_levels;
@@ -64,7 +63,7 @@ pub use pyramid::{
 #[cfg(any(test, feature = "alloc"))]
 pub use pyramid::{VecPyramid, VecPyramidStorage};
 pub use result::{MatchResult, MatchStatus};
-pub use search::{SearchOutcome, SearchWindow};
+pub use search::{Reach, SearchOutcome, SearchWindow};
 pub use settings::{Cost, Dof, MatchSettings, Method};
 
 #[cfg(test)]
