@@ -9,8 +9,7 @@
 //! least-squares M-step: far pairs fade out instead of pulling.
 
 use super::footprint::GROUP_BITS;
-use super::pyramid::{Entry, Level};
-use super::search::Reach;
+use super::pyramid::{Entry, Level, Reach};
 use super::settings::{Cost, Method};
 use crate::classes::NUM_CLASSES;
 use crate::map::VoxelKey;

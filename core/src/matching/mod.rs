@@ -54,16 +54,16 @@ pub mod solve;
 pub use align::{align_prepared, Alignment};
 pub use em::{MatchError, Matcher};
 pub use footprint::Footprint;
-pub use pyramid::tracking_levels;
 pub use pyramid::{
     ArrayPyramidStorage, ArraySceneStorage, CoarseEntry, CopiedBase, CopiedLevel, CopiedRoom, CopiedSlices, Entry,
     Level, ModelPoint, PackedNormal, Pyramid, PyramidCapacity, PyramidError, PyramidParts, PyramidPartsMut,
-    PyramidStorage, Role, SceneSource, SplitStorage, VoxelExtra, COVER_RESOLUTION, MAX_FOOTPRINT_CELLS, MAX_LEVELS,
+    PyramidStorage, Reach, Role, SceneSource, SplitStorage, VoxelExtra, COVER_RESOLUTION, MAX_FOOTPRINT_CELLS,
+    MAX_LEVELS,
 };
 #[cfg(any(test, feature = "alloc"))]
 pub use pyramid::{VecPyramid, VecPyramidStorage};
 pub use result::{MatchResult, MatchStatus};
-pub use search::{Reach, SearchOutcome, SearchWindow};
+pub use search::{SearchOutcome, SearchWindow};
 pub use settings::{Cost, Dof, MatchSettings, Method};
 
 #[cfg(test)]

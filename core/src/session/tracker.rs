@@ -150,11 +150,6 @@ impl Tracked {
     pub fn estimate(&self) -> Option<&Estimate> {
         self.done.as_ref()
     }
-
-    /// Whether the round needs [`Tracker::search`] with whole pyramids.
-    pub fn needs_search(&self) -> bool {
-        self.done.is_none()
-    }
 }
 
 /// A robot's track of one peer: its last fix, if any.

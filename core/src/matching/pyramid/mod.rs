@@ -42,6 +42,7 @@ mod storage;
 
 pub use storage::*;
 
+pub use index::Reach;
 pub use index::NARROW_LIMIT;
 use index::*;
 /// A map base's per-voxel extras (class, confidence; normals come later)
@@ -70,16 +71,6 @@ pub const MAX_LEVELS: usize = 8;
 /// A model's cover is its first level of cells at least this large (m): it
 /// says where the model saw anything (the verdict's coverage).
 pub const COVER_RESOLUTION: f32 = 1.5;
-
-/// Levels a model prepared for tracking has ([`Pyramid::build_tracked`]):
-/// up to its cover ([`COVER_RESOLUTION`]), at most [`MAX_LEVELS`].
-pub fn tracking_levels(resolution: f32) -> usize {
-    let mut n = 1;
-    while n < MAX_LEVELS && resolution * ((1u32 << (n - 1)) as f32) < COVER_RESOLUTION {
-        n += 1;
-    }
-    n
-}
 
 /// A unit surface normal in 32 bits (octahedral mapping, 16 bits per
 /// coordinate: about 0.003 degrees), or none where the neighbourhood is not
@@ -732,7 +723,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
     /// Prepares `map` only for tracking from a fix ([`Matcher::track_in`],
     /// which reads level 0 of both maps and a model's cover alone): as a
     /// model ([`Role::Model`]), its levels up to the cover
-    /// ([`tracking_levels`]) with normals fitted at level 0 only; as a
+    /// ([`Pyramid::tracked_levels`]) with normals fitted at level 0 only; as a
     /// scene, level 0 alone; no footprint either way. Tracking from it
     /// gives what it gives from the whole pyramid, bit for bit, at about
     /// half a model's preparation and a quarter of a scene's; anything
@@ -747,12 +738,15 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         Self::build_base(base, map.resolution(), (levels, f32::NAN), role, true, storage)
     }
 
-    /// Levels of a pyramid prepared for tracking ([`Pyramid::build_tracked`]).
+    /// Levels of a pyramid prepared for tracking ([`Pyramid::build_tracked`]):
+    /// a model's up to its cover ([`COVER_RESOLUTION`]), at most
+    /// [`MAX_LEVELS`]; a scene's one.
     pub fn tracked_levels(resolution: f32, role: Role) -> usize {
-        match role {
-            Role::Model => tracking_levels(resolution),
-            Role::Scene => 1,
+        let mut n = 1;
+        while role == Role::Model && n < MAX_LEVELS && resolution * ((1u32 << (n - 1)) as f32) < COVER_RESOLUTION {
+            n += 1;
         }
+        n
     }
 
     /// Prepared only for tracking from a fix ([`Pyramid::build_tracked`]).

@@ -505,29 +505,30 @@ fn estimate_on(
     // What `own` took to prepare before this call (for another peer) is
     // not in the caller's timing: counted here, for each peer it serves.
     let before = own.spent();
-    let earlier = |own: &Prepared<'_>, used: f64| used - (own.spent() - before);
-    let (mut own_s, mut tracked) = (0.0, None);
-    // A whole pyramid made for another peer serves tracking too: its
-    // seconds are counted once, below.
+    // A whole pyramid made for another peer serves tracking too, and is
+    // counted once.
     let whole_first = own.is_whole();
+    let (mut used, mut tracked) = (0.0, None);
     if tracker.fix().is_some() {
         let (o, s) = own.tracked()?;
-        own_s += if whole_first { 0.0 } else { s };
+        used = s;
         let scratch = &mut SearchScratch::new(&mut []).with_reach(&mut *reach);
         tracked = Some(tracker.track(o, peer.tracked()?.0, how, scratch, view).map_err(matching)?);
     }
-    if let Some(e) = tracked.as_ref().and_then(|t| t.estimate()) {
-        let used = if whole_first { own.whole()?.1 } else { own_s };
-        return Ok((*e, earlier(own, used)));
-    }
-    let (o, s) = own.whole()?;
-    let mut scratch = SearchScratch::new(search).with_reach(reach);
-    let e = match tracked {
-        Some(t) => tracker.search(o, peer.whole()?.0, how, &mut scratch, view, t),
-        None => tracker.estimate(o, peer.whole()?.0, how, &mut scratch, view),
+    let e = match tracked.as_ref().and_then(|t| t.estimate()) {
+        Some(e) => *e,
+        None => {
+            let (o, s) = own.whole()?;
+            used = if whole_first { s } else { used + s };
+            let mut scratch = SearchScratch::new(search).with_reach(reach);
+            let e = match tracked {
+                Some(t) => tracker.search(o, peer.whole()?.0, how, &mut scratch, view, t),
+                None => tracker.estimate(o, peer.whole()?.0, how, &mut scratch, view),
+            };
+            e.map_err(matching)?
+        }
     };
-    let used = own_s + s;
-    Ok((e.map_err(matching)?, earlier(own, used)))
+    Ok((e, used - (own.spent() - before)))
 }
 
 /// The estimate's transform, when there is one.
