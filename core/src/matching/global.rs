@@ -75,6 +75,15 @@ pub fn align_searched_in<A: PyramidStorage, B: PyramidStorage>(
     let deg = core::f32::consts::PI / 180.0;
     let window = SearchWindow { translation: 4.0, yaw: (2.0 * settings.yaw_step).max(6.0 * deg) };
     let local = Matcher::new(MatchSettings { search: Some(window), ..matcher.settings });
+    // One search for the few best, each refined in turn (not the best
+    // alone first: `GlobalSearch::best_alone_first`).
+    if !settings.best_alone_first {
+        let Some(search) = search_global_in(fm, fs, settings, semantic, scratch) else {
+            return Ok((MatchResult::no_overlap(), None));
+        };
+        searched();
+        return refine_in_turn(&local, model, scene, search, None, settings.exclusion, scratch);
+    }
     // The best placement alone first (the cheap search); only when its
     // refinement fails, the few best distinct ones, with what is left of
     // the node budget. The second search explores the first one's tree
@@ -104,24 +113,42 @@ pub fn align_searched_in<A: PyramidStorage, B: PyramidStorage>(
         return Ok((first, Some(Searched { search, chosen: 0, refined: 1 })));
     };
     more.evaluations = more.evaluations.saturating_add(spent);
-    // The first search's placement is refined already (a cut second
-    // search may not have found it first, or at all).
-    let same = |c: &Candidate| {
-        let d = c.transform.inverse() * best.transform;
-        d.translation.vector.xy().norm() < settings.exclusion.0 && d.rotation.angle() < settings.exclusion.1
+    refine_in_turn(&local, model, scene, more, Some((best, first)), settings.exclusion, scratch)
+}
+
+/// Refines `search`'s candidates in turn, best first, until one passes the
+/// verdict; `done`, a placement refined already and its result, is not
+/// refined again (a cut second search may not have found it first, or at
+/// all), and is the answer when none passes; otherwise the best
+/// candidate's result is.
+fn refine_in_turn<A: PyramidStorage, B: PyramidStorage>(
+    local: &Matcher,
+    model: &Pyramid<'_, A>,
+    scene: &Pyramid<'_, B>,
+    search: GlobalSearchOutcome,
+    done: Option<(Candidate, MatchResult)>,
+    exclusion: (f32, f32),
+    scratch: &mut SearchScratch<'_>,
+) -> Result<(MatchResult, Option<Searched>), MatchError> {
+    let same = |c: &Candidate, d: &Candidate| {
+        let d = c.transform.inverse() * d.transform;
+        d.translation.vector.xy().norm() < exclusion.0 && d.rotation.angle() < exclusion.1
     };
-    let mut refined = 1;
-    for (k, c) in more.candidates.iter().enumerate() {
-        if same(c) {
+    let mut refined = usize::from(done.is_some());
+    let mut answer = done.as_ref().map(|(_, r)| *r);
+    for (k, c) in search.candidates.iter().enumerate() {
+        if done.as_ref().is_some_and(|(d, _)| same(c, d)) {
             continue;
         }
         refined += 1;
         let r = local.align_in(model, scene, &c.transform, scratch)?;
         if r.status == MatchStatus::Converged {
-            return Ok((r, Some(Searched { search: more.clone(), chosen: k, refined })));
+            return Ok((r, Some(Searched { search, chosen: k, refined })));
         }
+        answer.get_or_insert(r);
     }
-    Ok((first, Some(Searched { search: more, chosen: 0, refined })))
+    let answer = answer.unwrap_or_else(MatchResult::no_overlap);
+    Ok((answer, Some(Searched { search, chosen: 0, refined })))
 }
 
 #[cfg(test)]
@@ -195,6 +222,45 @@ mod tests {
         let po = build(&other, Role::Scene);
         let (r, _) = align_searched(&matcher, &pm, &po, &GlobalSearch::default(), || {}).unwrap();
         assert_ne!(r.status, MatchStatus::Converged, "{r:?}");
+    }
+
+    /// One search for the few best, refined in turn: the search is the
+    /// one that keeps them all (no first search for the best alone), the
+    /// right placement is found as with the best alone first, and when
+    /// none passes every candidate was refined and the best's result is
+    /// the answer.
+    #[test]
+    fn one_search_for_the_few_best_refines_them_in_turn() {
+        let model = corner(&crate::geometry::Isometry3::identity());
+        let t = from_xyz_rpy(6.0, -3.0, 0.0, 0.0, 0.0, 150f32.to_radians());
+        let scene = corner(&t.inverse());
+        let build = |m, role| crate::matching::Pyramid::build_vec(m, 3, 1.0, role).unwrap();
+        let (pm, ps) = (build(&model, Role::Model), build(&scene, Role::Scene));
+        let matcher = Matcher::new(MatchSettings::default());
+        let settings = GlobalSearch { best_alone_first: false, max_evaluations: 200_000, ..GlobalSearch::default() };
+        let (r, found) = align_searched(&matcher, &pm, &ps, &settings, || {}).unwrap();
+        let (r0, _) = align_searched(&matcher, &pm, &ps, &GlobalSearch::default(), || {}).unwrap();
+        assert_eq!(r.status, MatchStatus::Converged, "{r:?}");
+        assert_eq!(r.transform, r0.transform);
+        let found = found.unwrap();
+        let alone = search_global(pm.footprint().unwrap(), ps.footprint().unwrap(), &settings, true).unwrap();
+        assert_eq!(found.search, alone);
+        assert!(alone.candidates.len() > 1, "{alone:?}");
+        assert_eq!(found.refined, found.chosen + 1);
+        // Nothing in common: every candidate refined, none passes.
+        let mut other = heap_map(20_000, crate::map::MapConfig::with_resolution(0.5));
+        for i in -40..40 {
+            for k in 0..16 {
+                let _ = other.insert_point([i as f32 * 0.25, 3.0 + (i % 5) as f32, k as f32 * 0.25], Class::Fence);
+                let _ = other.insert_point([i as f32 * 0.25, k as f32 * 0.5, -1.7], Class::Terrain);
+            }
+        }
+        let po = build(&other, Role::Scene);
+        let (r, found) = align_searched(&matcher, &pm, &po, &settings, || {}).unwrap();
+        let found = found.unwrap();
+        assert_ne!(r.status, MatchStatus::Converged, "{r:?}");
+        assert_eq!(found.refined, found.search.candidates.len());
+        assert!(found.refined > 1, "{found:?}");
     }
 
     /// The node budget: a search that has it all finds what an unbounded

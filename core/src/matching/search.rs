@@ -513,6 +513,17 @@ pub struct GlobalSearch {
     /// `NoOverlap` that waits for the next meeting), never make a wrong one
     /// pass.
     pub max_evaluations: u32,
+    /// Whether the prior-free alignment searches for the best placement
+    /// alone first and refines it, searching again for the few best only
+    /// when it fails (default): the cheapest way when the best placement is
+    /// usually right, as in a one-shot exchange. Otherwise one search keeps
+    /// [`GlobalSearch::candidates`] placements and each is refined in turn:
+    /// a session's robot searches every round until it has a fix, mostly on
+    /// maps that share nothing (the best placement refused), where the
+    /// second search would score most of the first one's nodes again, and
+    /// where a meeting starts the right placement is often the second or
+    /// third (a junction turned by 90 degrees scores best).
+    pub best_alone_first: bool,
 }
 
 impl GlobalSearch {
@@ -524,6 +535,7 @@ impl GlobalSearch {
         candidates: 3,
         exclusion: (4.0, 15.0 * (core::f32::consts::PI / 180.0)),
         max_evaluations: u32::MAX,
+        best_alone_first: true,
     };
 }
 
