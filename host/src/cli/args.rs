@@ -57,7 +57,7 @@ impl MatchOpts {
 /// ([`cosem_core::pipeline::Setting`]); unset: the host pipeline's.
 #[derive(clap::Args, Debug, Clone, Copy, Default)]
 pub struct Tuning {
-    /// EM iterations at most (default 50).
+    /// EM iterations at most (default 50; `cosem session`: 80).
     #[arg(long, value_parser = em_iterations)]
     pub em_iterations: Option<u32>,
     /// The verdict's least overlap: the share of the smaller map's voxels
