@@ -196,13 +196,32 @@ mod tests {
         m
     }
 
+    /// The corner seen from the origin (the model) and from a frame turned
+    /// by 150 degrees, 6 m away (the scene), and `T_model_scene`.
+    fn turned_corner() -> (crate::map::VecMap, crate::map::VecMap, crate::geometry::Isometry3<f32>) {
+        let t = from_xyz_rpy(6.0, -3.0, 0.0, 0.0, 0.0, 150f32.to_radians());
+        (corner(&crate::geometry::Isometry3::identity()), corner(&t.inverse()), t)
+    }
+
+    /// A map of only a floor and a wall of `class` somewhere else.
+    fn floor_and_wall(class: Class, y: impl Fn(i32) -> f32) -> crate::map::VecMap {
+        let mut other = heap_map(20_000, crate::map::MapConfig::with_resolution(0.5));
+        for i in -40..40 {
+            for k in 0..16 {
+                let _ = other.insert_point([i as f32 * 0.25, y(i), k as f32 * 0.25], class);
+                let _ = other.insert_point([i as f32 * 0.25, k as f32 * 0.5, -1.7], Class::Terrain);
+            }
+        }
+        other
+    }
+
+    fn build(m: &crate::map::VecMap, role: Role) -> crate::matching::VecPyramid<'_> {
+        crate::matching::Pyramid::build_vec(m, 3, 1.0, role).unwrap()
+    }
+
     #[test]
     fn finds_a_turned_and_shifted_scene_and_refuses_another_place() {
-        let model = corner(&crate::geometry::Isometry3::identity());
-        // The scene sees the same corner from a frame turned by 150 degrees, 6 m away.
-        let t = from_xyz_rpy(6.0, -3.0, 0.0, 0.0, 0.0, 150f32.to_radians());
-        let scene = corner(&t.inverse());
-        let build = |m, role| crate::matching::Pyramid::build_vec(m, 3, 1.0, role).unwrap();
+        let (model, scene, t) = turned_corner();
         let (pm, ps) = (build(&model, Role::Model), build(&scene, Role::Scene));
         let matcher = Matcher::new(MatchSettings::default());
         let (r, found) = align_searched(&matcher, &pm, &ps, &GlobalSearch::default(), || {}).unwrap();
@@ -211,14 +230,7 @@ mod tests {
         assert!(d.translation.vector.norm() < 0.1 && d.rotation.angle() < 0.01, "{d:?}");
         assert!(found.is_some_and(|f| f.search.evaluations > 0));
         // A map of only a floor and a wall elsewhere: refused, not guessed.
-        let mut other = heap_map(20_000, crate::map::MapConfig::with_resolution(0.5));
-        for i in -40..40 {
-            for k in 0..16 {
-                let _ =
-                    other.insert_point([i as f32 * 0.25, -6.0 + (i % 7) as f32, k as f32 * 0.25], Class::Vegetation);
-                let _ = other.insert_point([i as f32 * 0.25, k as f32 * 0.5, -1.7], Class::Terrain);
-            }
-        }
+        let other = floor_and_wall(Class::Vegetation, |i| -6.0 + (i % 7) as f32);
         let po = build(&other, Role::Scene);
         let (r, _) = align_searched(&matcher, &pm, &po, &GlobalSearch::default(), || {}).unwrap();
         assert_ne!(r.status, MatchStatus::Converged, "{r:?}");
@@ -231,10 +243,7 @@ mod tests {
     /// the answer.
     #[test]
     fn one_search_for_the_few_best_refines_them_in_turn() {
-        let model = corner(&crate::geometry::Isometry3::identity());
-        let t = from_xyz_rpy(6.0, -3.0, 0.0, 0.0, 0.0, 150f32.to_radians());
-        let scene = corner(&t.inverse());
-        let build = |m, role| crate::matching::Pyramid::build_vec(m, 3, 1.0, role).unwrap();
+        let (model, scene, _) = turned_corner();
         let (pm, ps) = (build(&model, Role::Model), build(&scene, Role::Scene));
         let matcher = Matcher::new(MatchSettings::default());
         let settings = GlobalSearch { best_alone_first: false, max_evaluations: 200_000, ..GlobalSearch::default() };
@@ -248,13 +257,7 @@ mod tests {
         assert!(alone.candidates.len() > 1, "{alone:?}");
         assert_eq!(found.refined, found.chosen + 1);
         // Nothing in common: every candidate refined, none passes.
-        let mut other = heap_map(20_000, crate::map::MapConfig::with_resolution(0.5));
-        for i in -40..40 {
-            for k in 0..16 {
-                let _ = other.insert_point([i as f32 * 0.25, 3.0 + (i % 5) as f32, k as f32 * 0.25], Class::Fence);
-                let _ = other.insert_point([i as f32 * 0.25, k as f32 * 0.5, -1.7], Class::Terrain);
-            }
-        }
+        let other = floor_and_wall(Class::Fence, |i| 3.0 + (i % 5) as f32);
         let po = build(&other, Role::Scene);
         let (r, found) = align_searched(&matcher, &pm, &po, &settings, || {}).unwrap();
         let found = found.unwrap();
@@ -268,10 +271,7 @@ mod tests {
     /// search leaves no second one, so the alignment refines once.
     #[test]
     fn the_node_budget_cuts_a_search_and_the_second_chance() {
-        let model = corner(&crate::geometry::Isometry3::identity());
-        let t = from_xyz_rpy(6.0, -3.0, 0.0, 0.0, 0.0, 150f32.to_radians());
-        let scene = corner(&t.inverse());
-        let build = |m, role| crate::matching::Pyramid::build_vec(m, 3, 1.0, role).unwrap();
+        let (model, scene, _) = turned_corner();
         let (pm, ps) = (build(&model, Role::Model), build(&scene, Role::Scene));
         let (fm, fs) = (pm.footprint().unwrap(), ps.footprint().unwrap());
         let one = GlobalSearch { candidates: 1, ..GlobalSearch::default() };
