@@ -197,7 +197,8 @@ fn quantise(v: &SemanticVoxel) -> Quantised {
 /// room for [`POSITION_BITS`]). The one layout the digests cover and an
 /// update's deadband compares ([`within_step`]).
 const CLASS_FIELD: (u32, u32) = (0, 5);
-const STEPPED_FIELDS: [(u32, u32); 5] = [(5, 3), (8, 2), (10, 4), (14, 4), (18, 4)];
+const STEPPED_FIELDS: [(u32, u32); 5] = [(5, 3), OCCUPANCY_FIELD, (10, 4), (14, 4), (18, 4)];
+const OCCUPANCY_FIELD: (u32, u32) = (8, 2);
 
 /// One voxel's quantised fields packed in 32 bits (the layout above).
 fn pack(q: &Quantised) -> u32 {
@@ -595,13 +596,20 @@ pub fn voxel_record(v: &SemanticVoxel) -> u32 {
 }
 
 /// Whether a voxel's record `now` is within one quantisation step of the
-/// record `held` a peer has: the same class, and the confidence, the
-/// occupancy and each axis of the mean at most one step apart. An update
-/// resends a voxel only when it moved further (its deadband), so a peer's
-/// copy is never more than one step from the map in any field.
+/// record `held` a peer has: the same class, and the confidence and each
+/// axis of the mean at most one step apart. An update resends a voxel only
+/// when it moved further (its deadband), so a peer's copy is never more
+/// than one step from the map in these fields. The occupancy is not
+/// compared: nothing that matches reads it (a pyramid keeps a voxel's
+/// mean, class and confidence), and a young voxel's climbs a level with
+/// most scans that see it (resending those was about an eighth of an
+/// update's bytes); it goes out, current, whenever the voxel does.
 pub fn within_step(held: u32, now: u32) -> bool {
     field(held, CLASS_FIELD) == field(now, CLASS_FIELD)
-        && STEPPED_FIELDS.iter().all(|&f| field(held, f).abs_diff(field(now, f)) <= 1)
+        && STEPPED_FIELDS
+            .iter()
+            .filter(|&&f| f != OCCUPANCY_FIELD)
+            .all(|&f| field(held, f).abs_diff(field(now, f)) <= 1)
 }
 
 /// The digest of a map whose voxels, in stream (Morton) order, have these
@@ -700,6 +708,26 @@ impl MapDecoder {
         }
         // Every byte of the chunk, and no more.
         d.finish().map_err(|over| if over { DecodeError::Truncated } else { DecodeError::Trailing }).map(|()| n)
+    }
+}
+
+#[cfg(test)]
+mod deadband_tests {
+    use super::*;
+
+    /// The deadband: a step in the confidence or an axis of the mean is
+    /// within it, two are not, another class never is; the occupancy is
+    /// not compared at all.
+    #[test]
+    fn the_deadband_compares_class_confidence_and_mean_not_occupancy() {
+        let q = Quantised { class: 3, confidence: 2, occupancy: 0, position: [5, 5, 5] };
+        let held = pack(&q);
+        assert!(within_step(held, pack(&Quantised { occupancy: 3, ..q })));
+        assert!(within_step(held, pack(&Quantised { confidence: 3, position: [6, 4, 5], ..q })));
+        assert!(!within_step(held, pack(&Quantised { confidence: 4, ..q })));
+        assert!(!within_step(held, pack(&Quantised { position: [5, 7, 5], ..q })));
+        assert!(!within_step(held, pack(&Quantised { class: 4, ..q })));
+        assert!(!within_step(held, pack(&Quantised { class: NO_CLASS, ..q })));
     }
 }
 
