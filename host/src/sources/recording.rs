@@ -284,6 +284,18 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
         let frames = what.frames.map_or("all".into(), |r| r.to_string());
         return Err(msg_err(format!("{}: {seen} messages, frames {frames} ask for {asked}", what.points)));
     }
+    clouds_in_world(path, what, &tree, clouds)
+}
+
+/// The kept clouds (`(index, message)`) read, each with its pose in
+/// `what.pose_frame` from `tree` at its stamp, re-anchored at the first.
+fn clouds_in_world(
+    path: &Path,
+    what: &RecordingScans<'_>,
+    tree: &Tree,
+    clouds: Vec<(usize, Vec<u8>)>,
+) -> Result<ScansInWorld, RecordingError> {
+    let msg_err = |what: String| RecordingError::Message { path: path.to_owned(), what };
     let mut frames = Vec::with_capacity(clouds.len());
     let mut world = Vec::with_capacity(clouds.len());
     let mut skipped = 0;
