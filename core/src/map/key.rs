@@ -132,17 +132,23 @@ impl VoxelKey {
     /// The axis-aligned bounds (m) of cells of `resolution` m: the lowest
     /// corner and the highest cell's upper corner; `None` without a cell.
     pub fn bounds(keys: impl IntoIterator<Item = VoxelKey>, resolution: f32) -> Option<([f32; 3], [f32; 3])> {
+        let (lo, hi) = VoxelKey::extent(keys)?;
+        let r = resolution;
+        let top = hi.corner(r);
+        Some((lo.corner(r), [top[0] + r, top[1] + r, top[2] + r]))
+    }
+
+    /// The least and greatest cell index along each axis of `keys`, as the
+    /// keys of the two extreme corners; `None` without a cell.
+    pub fn extent(keys: impl IntoIterator<Item = VoxelKey>) -> Option<(VoxelKey, VoxelKey)> {
         let mut keys = keys.into_iter();
         let first = keys.next()?;
-        let (lo, hi) = keys.fold((first, first), |(lo, hi), k| {
+        Some(keys.fold((first, first), |(lo, hi), k| {
             (
                 VoxelKey::new(lo.x.min(k.x), lo.y.min(k.y), lo.z.min(k.z)),
                 VoxelKey::new(hi.x.max(k.x), hi.y.max(k.y), hi.z.max(k.z)),
             )
-        });
-        let r = resolution;
-        let top = hi.corner(r);
-        Some((lo.corner(r), [top[0] + r, top[1] + r, top[2] + r]))
+        }))
     }
 
     /// Lower corner of the cell in metres.

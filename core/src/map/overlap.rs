@@ -20,7 +20,7 @@ pub fn overlap<A: VoxelStorage, B: VoxelStorage>(
     // The model's cells' extent: a scene voxel more than a cell outside it
     // has no neighbour to look up (maps that do not meet, most of a robot
     // team's pairs, cost one pass, not 27 lookups a voxel).
-    let within = key_extent(model);
+    let within = VoxelKey::extent(model.iter().map(|v| v.key));
     let (mut hits, mut classed) = (0usize, 0usize);
     for v in scene.iter() {
         let Some(class) = v.class() else { continue };
@@ -45,18 +45,10 @@ pub fn overlap<A: VoxelStorage, B: VoxelStorage>(
     hits as f32 / classed as f32
 }
 
-/// The least and greatest cell index along each axis of `map`'s cells.
-fn key_extent<S: VoxelStorage>(map: &LocalMap<S>) -> Option<([i16; 3], [i16; 3])> {
-    map.iter().map(|v| [v.key.x, v.key.y, v.key.z]).fold(None, |acc, k| {
-        let (lo, hi) = acc.unwrap_or((k, k));
-        Some(([lo[0].min(k[0]), lo[1].min(k[1]), lo[2].min(k[2])], [hi[0].max(k[0]), hi[1].max(k[1]), hi[2].max(k[2])]))
-    })
-}
-
 /// Whether `key`'s 27-neighbourhood can hold a cell inside `lo..=hi`.
-fn near_extent(key: VoxelKey, lo: [i16; 3], hi: [i16; 3]) -> bool {
+fn near_extent(key: VoxelKey, lo: VoxelKey, hi: VoxelKey) -> bool {
     [key.x, key.y, key.z]
         .into_iter()
-        .zip(lo.into_iter().zip(hi))
+        .zip([lo.x, lo.y, lo.z].into_iter().zip([hi.x, hi.y, hi.z]))
         .all(|(k, (l, h))| (i32::from(l) - 1..=i32::from(h) + 1).contains(&i32::from(k)))
 }

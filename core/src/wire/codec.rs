@@ -602,7 +602,7 @@ pub fn voxel_record(v: &SemanticVoxel) -> u32 {
 /// than one step from the map in these fields. The occupancy is not
 /// compared: nothing that matches reads it (a pyramid keeps a voxel's
 /// mean, class and confidence), and a young voxel's climbs a level with
-/// most scans that see it (resending those was about an eighth of an
+/// most scans that see it (resending those was about a tenth of an
 /// update's bytes); it goes out, current, whenever the voxel does.
 pub fn within_step(held: u32, now: u32) -> bool {
     field(held, CLASS_FIELD) == field(now, CLASS_FIELD)

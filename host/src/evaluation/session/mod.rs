@@ -54,8 +54,8 @@ pub const DEFAULT_EVERY: usize = 2;
 /// second search that would find the right one ran in few rounds: only
 /// when the first took less than half the nodes (five seeds, 2 robots,
 /// network-like labels: availability 0.924 to 0.952, the worst seed 0.80
-/// to 0.86; true labels unchanged at 0.978; a session's time about a
-/// fifth more, the extra candidates' refinement).
+/// to 0.86; true labels unchanged at 0.978; `cosem bench session` 491 to
+/// 528 s, the extra candidates' refinement).
 pub const DEFAULT_ALIGNMENT: cosem_core::matching::Alignment = {
     let mut a = cosem_core::pipeline::Pipeline::MPS2.alignment;
     a.settings.max_iterations = SESSION_EM_ITERATIONS;
