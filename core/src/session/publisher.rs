@@ -92,6 +92,11 @@ pub struct Publisher<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> {
     peer_capacity: u32,
     /// What the last update held.
     counts: UpdateCounts,
+    /// The codec model as encoding the update the peer acknowledged left
+    /// it, and as encoding the update in flight did: the next update is
+    /// coded from the first ([`crate::wire::update`]).
+    held_model: CodecModel,
+    sent_model: CodecModel,
 }
 
 impl ShadowEntry {
@@ -114,6 +119,8 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             in_flight: None,
             peer_capacity: u32::MAX,
             counts: UpdateCounts::default(),
+            held_model: CodecModel::new(),
+            sent_model: CodecModel::new(),
         }
     }
 
@@ -149,7 +156,9 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
 
     /// Writes the update that brings the peer from what it acknowledged to
     /// `map` now into `out` (a snapshot when it acknowledged nothing), and
-    /// returns its length. `scratch`: a `u32` per voxel of the map.
+    /// returns its length. `scratch`: a `u32` per voxel of the map;
+    /// `model`: room for the codec model (the publisher keeps the models
+    /// updates are coded from). It supersedes the update in flight.
     pub fn next_update<S: VoxelStorage>(
         &mut self,
         map: &LocalMap<S>,
@@ -157,6 +166,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         model: &mut CodecModel,
         out: &mut [u8],
     ) -> Result<usize, PublisherError> {
+        self.in_flight = None;
         // The part the peer can hold (all of a map that fits), its stream
         // order and digest.
         let n = map.nearest(map.keep_centre(), self.peer_capacity as usize, scratch);
@@ -203,9 +213,11 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             removals: removals as u32,
             upserts: upserts as u32,
         };
-        let mut encoder = MapEncoder::subset(map, scratch, upserts, model)?;
+        *model = if snapshot { CodecModel::new() } else { self.held_model };
+        let mut encoder = MapEncoder::subset_continuing(map, scratch, upserts)?;
         let len =
             write_update(&header, removed, removals, Some(&mut encoder), model, out).map_err(PublisherError::Update)?;
+        self.sent_model = *model;
         self.version = version;
         self.in_flight = Some((version, digest));
         self.counts = UpdateCounts { new: upserts as u32 - changed, changed, removed: removals as u32, snapshot };
@@ -228,6 +240,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         match self.in_flight {
             Some((v, d)) if ack.version == v && ack.digest == d => {
                 core::mem::swap(&mut self.held, &mut self.sent);
+                self.held_model = self.sent_model;
                 self.held_len = self.sent_len;
                 self.acked = v;
                 self.in_flight = None;

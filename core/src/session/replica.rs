@@ -74,13 +74,16 @@ pub struct Replica<S: VoxelStorage> {
     epoch: Option<u16>,
     version: u32,
     digest: u32,
+    /// The codec model as decoding the update that made `version` left it:
+    /// the next update is decoded from it ([`crate::wire::update`]).
+    model: CodecModel,
 }
 
 impl<S: VoxelStorage> Replica<S> {
     /// An empty copy over `map` (its configuration: the peer's voxel size).
     pub fn new(mut map: LocalMap<S>) -> Self {
         map.clear();
-        Replica { map, epoch: None, version: 0, digest: 0 }
+        Replica { map, epoch: None, version: 0, digest: 0, model: CodecModel::new() }
     }
 
     /// The copy (the peer's map at [`Replica::version`]).
@@ -110,8 +113,9 @@ impl<S: VoxelStorage> Replica<S> {
     }
 
     /// Applies an update (`scratch`: a `u32` per voxel of the copy's
-    /// capacity), and says what became of it; [`Replica::answer`] is what
-    /// to send back.
+    /// capacity; `model`: room for the codec model, the replica keeps the
+    /// one updates are decoded from), and says what became of it;
+    /// [`Replica::answer`] is what to send back.
     pub fn apply(&mut self, bytes: &[u8], model: &mut CodecModel, scratch: &mut [u32]) -> Applied {
         let view = match UpdateView::parse(bytes) {
             Ok(v) => v,
@@ -134,6 +138,7 @@ impl<S: VoxelStorage> Replica<S> {
         if h.base == 0 {
             self.forget();
         }
+        *model = self.model;
         if self.patch(&view, model, scratch).is_err() {
             self.forget();
             return Applied::Diverged;
@@ -145,6 +150,7 @@ impl<S: VoxelStorage> Replica<S> {
         }
         self.version = h.version;
         self.digest = h.digest;
+        self.model = *model;
         Applied::Applied
     }
 

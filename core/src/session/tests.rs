@@ -20,10 +20,12 @@ impl Lcg {
 
 const CAPACITY: usize = 3_000;
 
+fn map_config() -> MapConfig {
+    MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] }, ..MapConfig::with_resolution(0.5) }
+}
+
 fn robot_map() -> VecMap {
-    let config =
-        MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] }, ..MapConfig::with_resolution(0.5) };
-    heap_map(CAPACITY, config)
+    heap_map(CAPACITY, map_config())
 }
 
 /// One round of a robot driving a curve: it moves on, its map's anchor
@@ -144,6 +146,45 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
     // An update is what changed, well below a whole map.
     std::println!("update / snapshot: median {median:.3}, max {:.3}", ratios[ratios.len() - 1]);
     assert!(median < 0.8, "median update / snapshot {median}");
+}
+
+/// An update's voxels are coded with the codec model the update to its
+/// base left (a snapshot: a fresh one): a receiver that kept that model
+/// reads them, one with a fresh model does not, and the models follow a
+/// lost update (the next is coded from the acknowledged one's).
+#[test]
+fn an_update_is_coded_with_the_model_its_base_left() {
+    let mut ends = Ends::new();
+    let Ends { held, sent, replica, scratch, out } = &mut ends;
+    let mut publisher = Publisher::new(5, &mut held[..], &mut sent[..]);
+    let (mut map, mut rng) = (robot_map(), Lcg(8));
+    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
+    // The receiver's model, kept beside the replica's by decoding each
+    // update applied.
+    let mut mirror = CodecModel::new();
+    let upserts = |bytes: &[u8], m: &mut CodecModel| {
+        let mut sink = heap_map(CAPACITY, map_config());
+        UpdateView::parse(bytes).unwrap().decode_upserts(m, &mut sink).map(|()| records(&sink))
+    };
+    for round in 0..12 {
+        drive(&mut map, round, &mut rng);
+        let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
+        if round == 8 {
+            // Lost: the next update is from the acknowledged version, and
+            // coded from its model.
+            continue;
+        }
+        assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied, "round {round}");
+        publisher.on_ack(&replica.answer());
+        let mine = upserts(&out[..n], &mut mirror).unwrap();
+        if round > 0 {
+            let header = UpdateView::parse(&out[..n]).unwrap().header;
+            assert!(header.base != 0 && header.upserts > 50, "round {round}: {header:?}");
+            let fresh = upserts(&out[..n], &mut CodecModel::new());
+            assert!(fresh.as_ref() != Ok(&mine), "round {round}: read with a fresh model");
+        }
+        assert_published(replica.map(), publisher.published(), &map, &std::format!("round {round}"));
+    }
 }
 
 /// Updates and answers lost, repeated and damaged: the copy is never

@@ -458,6 +458,15 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
     /// of `scratch` (each a voxel of `map`, none twice): the changed voxels
     /// of an update. They are put in stream order here; resets `model`.
     pub fn subset(map: O, scratch: &'a mut [u32], count: usize, model: &mut CodecModel) -> Result<Self, EncodeError> {
+        let encoder = Self::subset_continuing(map, scratch, count)?;
+        model.reset();
+        Ok(encoder)
+    }
+
+    /// [`MapEncoder::subset`] without resetting the model: the stream
+    /// continues one whose model its decoder kept (an update, coded with
+    /// the model the update to its base left: [`crate::wire::update`]).
+    pub fn subset_continuing(map: O, scratch: &'a mut [u32], count: usize) -> Result<Self, EncodeError> {
         let m = map.borrow();
         let order = scratch.get_mut(..count).ok_or(EncodeError::Scratch)?;
         if order.iter().any(|&i| i as usize >= m.len()) {
@@ -468,7 +477,6 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
         if order.windows(2).any(|w| w[0] == w[1]) {
             return Err(EncodeError::Scratch);
         }
-        model.reset();
         Ok(MapEncoder { map, scratch, count, next: 0, _storage: PhantomData })
     }
 
@@ -644,6 +652,13 @@ impl MapDecoder {
     /// decodes every chunk.
     pub fn new(voxels: usize, model: &mut CodecModel) -> Self {
         model.reset();
+        Self::continuing(voxels)
+    }
+
+    /// [`MapDecoder::new`] without resetting the model: for a stream coded
+    /// with [`MapEncoder::subset_continuing`], decoded with the model the
+    /// stream it continues left.
+    pub fn continuing(voxels: usize) -> Self {
         MapDecoder { expected: voxels, decoded: 0, last: None, digest: Crc32::new() }
     }
 
