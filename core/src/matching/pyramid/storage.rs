@@ -348,12 +348,13 @@ impl PyramidCapacity {
         let listed = cells.min(len);
         let entries = len.saturating_mul(levels.saturating_sub(1));
         // A model's words hold level 0's sweep order while normals are
-        // fitted (one per voxel); a scene's hold the merge's hash table
-        // while its coarse levels are built (two per entry of a level).
-        // Slots of 16 bits, two to a word, below NARROW_LIMIT entries.
+        // fitted (two per voxel: each index sorted beside its key, the
+        // faster sort); a scene's hold the merge's hash table while its
+        // coarse levels are built (two per entry of a level). Slots of 16
+        // bits, two to a word, below NARROW_LIMIT entries.
         let per_entry = if entries < NARROW_LIMIT { 1 } else { 2 };
         let scratch = match role {
-            Role::Model => len,
+            Role::Model => 2 * len,
             Role::Scene => per_entry * len,
         };
         PyramidCapacity {

@@ -328,7 +328,8 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         .collect::<Result<_, _>>()?;
     let mut trackers = vec![vec![Tracker::new(); n]; n];
     let mut scratch = Scratch {
-        words: vec![0; most],
+        // Two words a voxel: the faster Morton ordering (wire::codec).
+        words: vec![0; 2 * most],
         out: vec![0; most * 24 + 4096],
         search: vec![0; SearchScratch::WINDOWED],
         reach: vec![Reach::EMPTY; crate::matching::align::reach_room(&spec.alignment)],

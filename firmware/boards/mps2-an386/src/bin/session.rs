@@ -31,7 +31,8 @@ static MAP: ConstStaticCell<SessionMapStorage> = ConstStaticCell::new(SessionMap
 static COPY: ConstStaticCell<SessionMapStorage> = ConstStaticCell::new(SessionMapStorage::new());
 static HELD: ConstStaticCell<SessionRecords> = ConstStaticCell::new([ShadowEntry::EMPTY; SESSION_VOXELS]);
 static SENT: ConstStaticCell<SessionRecords> = ConstStaticCell::new([ShadowEntry::EMPTY; SESSION_VOXELS]);
-static SCRATCH: ConstStaticCell<[u32; SESSION_VOXELS]> = ConstStaticCell::new([0; SESSION_VOXELS]);
+/// Two words a voxel: the faster Morton ordering of `wire::codec`.
+static SCRATCH: ConstStaticCell<[u32; 2 * SESSION_VOXELS]> = ConstStaticCell::new([0; 2 * SESSION_VOXELS]);
 static OUT: ConstStaticCell<[u8; SESSION_UPDATE_BYTES]> = ConstStaticCell::new([0; SESSION_UPDATE_BYTES]);
 static IN: ConstStaticCell<[u8; SESSION_UPDATE_BYTES]> = ConstStaticCell::new([0; SESSION_UPDATE_BYTES]);
 static MODEL: ConstStaticCell<SessionModelStorage> = ConstStaticCell::new(SessionModelStorage::new());
