@@ -13,8 +13,8 @@
 //! than a step from the map's in class, confidence and mean.
 
 use crate::map::{LocalMap, VoxelStorage};
-use crate::wire::codec::{morton, records_digest, voxel_record, within_step, CodecModel, EncodeError, MapEncoder};
-use crate::wire::update::{write_update, UpdateAck, UpdateError, UpdateHeader};
+use crate::wire::codec::{morton, voxel_record, within_step, CodecModel, EncodeError, MapEncoder};
+use crate::wire::update::{digest_of, write_update, UpdateAck, UpdateError, UpdateHeader};
 
 /// One voxel's record as a peer holds it: its cell (Morton code) and what
 /// the wire carried of it ([`voxel_record`]); where it is in the sender's
@@ -186,7 +186,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         let held = if snapshot { &[][..] } else { self.held.as_ref().get(..self.held_len).unwrap_or(&[]) };
         keep_held_within_step(held, records);
         let records = self.sent.as_ref().get(..n).unwrap_or(&[]);
-        let digest = records_digest(records.iter().map(|r| (r.code, r.record)));
+        let digest = digest_of(records.iter().map(|r| (r.code, r.record)));
         // The voxels new or changed, as indices of the map.
         let (mut upserts, mut changed, mut removals) = (0, 0, 0);
         for change in Changes::new(held, records) {

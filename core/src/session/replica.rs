@@ -2,8 +2,8 @@
 //! `decode(encode(peer's map at version v))`.
 
 use crate::map::{ConfigError, InsertError, LocalMap, MapConfig, SemanticVoxel, VoxelSink, VoxelStorage};
-use crate::wire::codec::{map_digest, stream_order, CodecModel};
-use crate::wire::update::{UpdateAck, UpdateError, UpdateView};
+use crate::wire::codec::{morton, stream_order, voxel_record, CodecModel};
+use crate::wire::update::{voxel_hash, UpdateAck, UpdateError, UpdateView};
 
 /// What became of an update.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -43,27 +43,42 @@ impl Applied {
     }
 }
 
-/// Decodes into a map, replacing the voxel of a cell held already.
-struct Upsert<'m, S: VoxelStorage>(&'m mut LocalMap<S>);
+/// A voxel's share of the copy's digest.
+fn hash_of(v: &SemanticVoxel) -> u32 {
+    voxel_hash(morton(v.key), voxel_record(v))
+}
+
+/// Decodes into a map, replacing the voxel of a cell held already, and
+/// keeps the map's digest (the voxel replaced out, the one written in).
+struct Upsert<'m, S: VoxelStorage> {
+    map: &'m mut LocalMap<S>,
+    digest: &'m mut u32,
+}
 
 impl<S: VoxelStorage> VoxelSink for Upsert<'_, S> {
     fn len(&self) -> usize {
-        self.0.len()
+        self.map.len()
     }
     fn capacity(&self) -> usize {
-        self.0.capacity()
+        self.map.capacity()
     }
     fn resolution(&self) -> f32 {
-        self.0.resolution()
+        self.map.resolution()
     }
     fn clear(&mut self) {
-        self.0.clear();
+        self.map.clear();
+        *self.digest = 0;
     }
     fn configure(&mut self, config: MapConfig) -> Result<(), ConfigError> {
-        self.0.reset(config)
+        self.map.reset(config)?;
+        *self.digest = 0;
+        Ok(())
     }
     fn accept(&mut self, voxel: SemanticVoxel) -> Result<(), InsertError> {
-        self.0.upsert_voxel(voxel)
+        let replaced = self.map.get(voxel.key).map(hash_of);
+        self.map.upsert_voxel(voxel)?;
+        *self.digest = self.digest.wrapping_sub(replaced.unwrap_or(0)).wrapping_add(hash_of(&voxel));
+        Ok(())
     }
 }
 
@@ -139,12 +154,13 @@ impl<S: VoxelStorage> Replica<S> {
             self.forget();
         }
         *model = self.model;
-        if self.patch(&view, model, scratch).is_err() {
+        // The copy's digest kept as the update is applied (0: emptied).
+        let mut digest = self.digest;
+        if self.patch(&view, model, scratch, &mut digest).is_err() {
             self.forget();
             return Applied::Diverged;
         }
-        let digest = map_digest(&self.map, scratch).ok();
-        if digest != Some(h.digest) || self.map.len() != h.voxels as usize {
+        if digest != h.digest || self.map.len() != h.voxels as usize {
             self.forget();
             return Applied::Diverged;
         }
@@ -155,7 +171,13 @@ impl<S: VoxelStorage> Replica<S> {
     }
 
     /// The update's removals and upserts applied to the copy.
-    fn patch(&mut self, view: &UpdateView<'_>, model: &mut CodecModel, scratch: &mut [u32]) -> Result<(), ()> {
+    fn patch(
+        &mut self,
+        view: &UpdateView<'_>,
+        model: &mut CodecModel,
+        scratch: &mut [u32],
+        digest: &mut u32,
+    ) -> Result<(), ()> {
         if view.header.removals > 0 {
             // The copy in code order (the base's ranks), then the indices
             // of the ranks removed moved to its front (rank k is at or
@@ -166,6 +188,8 @@ impl<S: VoxelStorage> Replica<S> {
                 let i = *order.get(rank as usize).ok_or(())?;
                 *order.get_mut(gone).ok_or(())? = i;
                 gone += 1;
+                let v = self.map.voxel(i as usize).ok_or(())?;
+                *digest = digest.wrapping_sub(hash_of(v));
             }
             let gone = order.get_mut(..gone).ok_or(())?;
             gone.sort_unstable();
@@ -177,6 +201,6 @@ impl<S: VoxelStorage> Replica<S> {
                 !drop
             });
         }
-        view.decode_upserts(model, &mut Upsert(&mut self.map)).map_err(|_| ())
+        view.decode_upserts(model, &mut Upsert { map: &mut self.map, digest }).map_err(|_| ())
     }
 }

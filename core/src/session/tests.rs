@@ -3,7 +3,7 @@ use crate::classes::Class;
 use crate::map::{FullPolicy, MapConfig, SemanticVoxel, VecMap};
 use crate::test_util::heap_map;
 use crate::wire::codec::{voxel_record, within_step, CodecModel, MapDecoder, MapEncoder};
-use crate::wire::update::{UpdateAck, UpdateView};
+use crate::wire::update::{digest_of, UpdateAck, UpdateView};
 use std::vec;
 use std::vec::Vec;
 
@@ -128,6 +128,8 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
         publisher.on_ack(&replica.answer());
         assert_eq!(publisher.acked(), publisher.version());
         assert_published(replica.map(), publisher.published(), &map, &std::format!("round {round}"));
+        // The digest kept as updates apply is the copy's, summed afresh.
+        assert_eq!(replica.answer().digest, digest_of(records(replica.map()).into_iter()), "round {round}");
         if round > 0 {
             let whole = {
                 let held2 = vec![ShadowEntry::default(); CAPACITY];
@@ -221,6 +223,8 @@ fn lost_repeated_and_damaged_updates_are_repaired() {
         for _ in 0..deliveries {
             let what = replica.apply(&update, &mut back, scratch);
             *seen.entry(std::format!("{what:?}")).or_insert(0) += 1;
+            // Whatever became of it, the digest answered is the copy's.
+            assert_eq!(replica.answer().digest, digest_of(records(replica.map()).into_iter()), "round {round}");
             if what == Applied::Applied || what == Applied::Repeated {
                 assert_published(replica.map(), publisher.published(), &map, &std::format!("round {round}: {what:?}"));
             }

@@ -145,6 +145,29 @@ fn the_stream_order_is_the_same_with_or_without_room_beside_it() {
     assert!(MapEncoder::subset(&m, &mut b, 60, &mut model).is_err(), "an index twice");
 }
 
+/// An update's digest: the same hash of a voxel on every platform (golden
+/// values), summed in any order, every voxel's record in it.
+#[test]
+fn an_update_digest_is_a_sum_of_voxel_hashes() {
+    use super::update::{digest_of, voxel_hash};
+    assert_eq!(
+        [voxel_hash(0, 0), voxel_hash(1, 0), voxel_hash(0, 1), voxel_hash(0xABCD_1234_5678, 0x2A_5F3C)],
+        [GOLDEN_HASHES[0], GOLDEN_HASHES[1], GOLDEN_HASHES[2], GOLDEN_HASHES[3]]
+    );
+    let m = street(100);
+    let recs: Vec<(u64, u32)> = m.iter().map(|v| (morton(v.key), voxel_record(v))).collect();
+    let forward = digest_of(recs.iter().copied());
+    assert_eq!(forward, digest_of(recs.iter().rev().copied()));
+    assert_eq!(digest_of(core::iter::empty()), 0);
+    let mut other = recs.clone();
+    other[7].1 ^= 1 << 10;
+    assert_ne!(forward, digest_of(other.iter().copied()), "a record changed");
+    assert_ne!(forward, digest_of(recs.iter().skip(1).copied()), "a voxel missing");
+}
+
+/// `voxel_hash` of (0, 0), (1, 0), (0, 1) and (0xABCD_1234_5678, 0x2A_5F3C).
+const GOLDEN_HASHES: [u32; 4] = [1_129_584_368, 232_706_675, 3_424_891_686, 1_229_442_652];
+
 #[test]
 fn round_trip_is_lossy_but_idempotent() {
     let m = street(500);

@@ -13,7 +13,7 @@
 //! | 4 | base: the version it applies to (0: to nothing, a snapshot) |
 //! | 4 | version: the sender's map's version it makes |
 //! | 4 | voxels: the map's voxels at `version` |
-//! | 4 | digest: the codec's digest of the map at `version` |
+//! | 4 | digest: the map at `version`'s digest ([`digest_of`]) |
 //! | 4 | removals: cells removed |
 //! | 4 | upserts: voxels new or changed |
 //! | ... | the removed cells as runs of their ranks in the base map's Morton order: per run two varints, its start less the end of the run before (0 at first), its length - 1 |
@@ -29,6 +29,14 @@
 //! when they carried over). Both sides keep the model of the version the
 //! update builds on, which the base and version already pair.
 //!
+//! The digest is a sum over the map's voxels, each voxel's hash of its
+//! cell and record ([`voxel_hash`]), not a CRC over the map in Morton
+//! order: the receiver keeps it as it applies an update (less the voxels
+//! removed or replaced, plus those written) instead of ordering and
+//! hashing its whole copy each round (about 0.6 ms of a 9 ms round on
+//! the host). It still covers every voxel the copy holds: a voxel missing,
+//! extra or with another record changes it (but for a 2^-32 chance).
+//!
 //! Removals go by rank, not by Morton code: the receiver holds the base
 //! map, so a rank names a cell as well, and a full map evicts the far side
 //! of its region, whole runs of ranks: about 0.3 bytes a removal, where
@@ -43,8 +51,9 @@ use super::crc::crc32;
 use crate::map::{LocalMap, VoxelSink, VoxelStorage};
 
 /// First byte of an update (0xD1 was the first format, its removals as
-/// Morton codes; 0xD3 reset the codec model for each update).
-pub const UPDATE_KIND: u8 = 0xD4;
+/// Morton codes; 0xD3 reset the codec model for each update; 0xD4's
+/// digest was a CRC over the map in Morton order).
+pub const UPDATE_KIND: u8 = 0xD5;
 /// First byte of an answer.
 pub const ACK_KIND: u8 = 0xD2;
 /// Bytes of an update's fixed header.
@@ -66,7 +75,7 @@ pub struct UpdateHeader {
     pub version: u32,
     /// The sender's map's voxels at `version`.
     pub voxels: u32,
-    /// The codec's digest of the map at `version` ([`super::codec::map_digest`]).
+    /// The digest of the map at `version` ([`digest_of`]).
     pub digest: u32,
     /// Cells removed.
     pub removals: u32,
@@ -126,6 +135,27 @@ impl core::fmt::Display for UpdateError {
 }
 
 impl core::error::Error for UpdateError {}
+
+/// One voxel's share of a map's digest: a hash of its cell's Morton code
+/// and its record ([`super::codec::voxel_record`]), 32-bit arithmetic
+/// only (murmur3's finaliser, three times), the same on every platform.
+pub fn voxel_hash(code: u64, record: u32) -> u32 {
+    fn mix(mut h: u32) -> u32 {
+        h ^= h >> 16;
+        h = h.wrapping_mul(0x85EB_CA6B);
+        h ^= h >> 13;
+        h = h.wrapping_mul(0xC2B2_AE35);
+        h ^ (h >> 16)
+    }
+    mix(mix(mix(record ^ 0x2545_F491) ^ (code >> 32) as u32) ^ code as u32)
+}
+
+/// The digest of a map whose voxels have these cells' codes and records:
+/// the wrapping sum of their [`voxel_hash`]es (0 for an empty map), in any
+/// order.
+pub fn digest_of(records: impl Iterator<Item = (u64, u32)>) -> u32 {
+    records.fold(0u32, |d, (code, record)| d.wrapping_add(voxel_hash(code, record)))
+}
 
 fn put(out: &mut [u8], at: &mut usize, bytes: &[u8]) -> Result<(), UpdateError> {
     let dst = out.get_mut(*at..*at + bytes.len()).ok_or(UpdateError::Buffer)?;
