@@ -28,6 +28,7 @@
 //! voxel besides the map and its footprint.
 
 use super::footprint::{self, Footprint, FootprintInfo};
+use crate::map::key::sort_indices_by_code;
 use crate::map::table::{probe_index, probe_keys, walk, walk_by, MapIndex, Probe, Slot};
 use crate::map::voxel::mean_position;
 use crate::map::{
@@ -46,45 +47,21 @@ pub use index::Reach;
 pub use index::NARROW_LIMIT;
 use index::*;
 /// Writes into `words` the indices `0..len` sorted by their keys' sweep
-/// order ([`VoxelKey::sweep`]); false when `words` is too short. With two
-/// words an index (and at most 2^16 of them) each index is sorted beside
-/// its key, not the key read again at each comparison: the same order (a
-/// level's keys are unique) in a fraction of the time (a 7,500-voxel map:
-/// about 0.5 ms a round less).
+/// order ([`VoxelKey::sweep`]; [`sort_indices_by_code`] on the keys in
+/// offset binary, x then y then z: the same order in 48 bits); false when
+/// `words` is too short.
 fn sweep_permutation(words: &mut [u32], len: usize, key: impl Fn(usize) -> Option<VoxelKey>) -> bool {
-    if words.len() < len || len >= u32::MAX as usize {
-        return false;
+    let Some(order) = words.get_mut(..len).filter(|_| len < u32::MAX as usize) else { return false };
+    for (i, w) in order.iter_mut().enumerate() {
+        *w = i as u32;
     }
-    let fits = len <= 1 << 16 && words.len() >= 2 * len && (0..len).all(|i| key(i).is_some());
-    match words.get_mut(..2 * len).filter(|_| fits) {
-        Some(pairs) => {
-            // Index i's pair at 2i: the key's x and y, then its z above the
-            // index (offset binary: the order of the signed coordinates).
-            for i in (0..len).rev() {
-                let [x, y, z] =
-                    key(i).map_or([u32::from(u16::MAX); 3], |k| [k.x, k.y, k.z].map(|v| u32::from(v as u16 ^ 0x8000)));
-                if let Some(p) = pairs.get_mut(2 * i..2 * i + 2) {
-                    p.copy_from_slice(&[(x << 16) | y, (z << 16) | i as u32]);
-                }
-            }
-            let as_pairs: &mut [[u32; 2]] = bytemuck::cast_slice_mut(pairs);
-            as_pairs.sort_unstable();
-            for i in 0..len {
-                let index = pairs.get(2 * i + 1).map_or(0, |w| w & 0xFFFF);
-                if let Some(w) = pairs.get_mut(i) {
-                    *w = index;
-                }
-            }
-        }
-        None => {
-            let order = words.get_mut(..len).unwrap_or(&mut []);
-            for (i, w) in order.iter_mut().enumerate() {
-                *w = i as u32;
-            }
-            order.sort_unstable_by_key(|&i| key(i as usize).map_or(u64::MAX, |k| k.sweep()));
-        }
-    }
-    true
+    let code = |i: u32| {
+        key(i as usize).map_or(u64::MAX, |k| {
+            let [x, y, z] = [k.x, k.y, k.z].map(|v| u64::from(v as u16 ^ 0x8000));
+            (x << 32) | (y << 16) | z
+        })
+    };
+    sort_indices_by_code(words, len, len, code)
 }
 
 /// A map base's per-voxel extras (class, confidence; normals come later)
