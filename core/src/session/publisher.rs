@@ -156,14 +156,12 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
 
     /// Writes the update that brings the peer from what it acknowledged to
     /// `map` now into `out` (a snapshot when it acknowledged nothing), and
-    /// returns its length. `scratch`: a `u32` per voxel of the map;
-    /// `model`: room for the codec model (the publisher keeps the models
-    /// updates are coded from). It supersedes the update in flight.
+    /// returns its length. `scratch`: a `u32` per voxel of the map (two:
+    /// faster). It supersedes the update in flight.
     pub fn next_update<S: VoxelStorage>(
         &mut self,
         map: &LocalMap<S>,
         scratch: &mut [u32],
-        model: &mut CodecModel,
         out: &mut [u8],
     ) -> Result<usize, PublisherError> {
         self.in_flight = None;
@@ -173,7 +171,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         if n < map.len().min(self.peer_capacity as usize) {
             return Err(PublisherError::Scratch);
         }
-        let part = MapEncoder::subset(map, &mut *scratch, n, model)?;
+        let part = MapEncoder::subset_continuing(map, &mut *scratch, n)?;
         let order = part.into_scratch();
         let records = self.sent.as_mut().get_mut(..n).ok_or(PublisherError::Records)?;
         for (r, &i) in records.iter_mut().zip(order.iter()) {
@@ -213,11 +211,11 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             removals: removals as u32,
             upserts: upserts as u32,
         };
-        *model = if snapshot { CodecModel::new() } else { self.held_model };
+        // Coded from the acknowledged update's model, into the one in flight.
+        self.sent_model = if snapshot { CodecModel::new() } else { self.held_model };
         let mut encoder = MapEncoder::subset_continuing(map, scratch, upserts)?;
-        let len =
-            write_update(&header, removed, removals, Some(&mut encoder), model, out).map_err(PublisherError::Update)?;
-        self.sent_model = *model;
+        let len = write_update(&header, removed, removals, Some(&mut encoder), &mut self.sent_model, out)
+            .map_err(PublisherError::Update)?;
         self.version = version;
         self.in_flight = Some((version, digest));
         self.counts = UpdateCounts { new: upserts as u32 - changed, changed, removed: removals as u32, snapshot };

@@ -128,10 +128,9 @@ impl<S: VoxelStorage> Replica<S> {
     }
 
     /// Applies an update (`scratch`: a `u32` per voxel of the copy's
-    /// capacity; `model`: room for the codec model, the replica keeps the
-    /// one updates are decoded from), and says what became of it;
+    /// capacity; two: faster), and says what became of it;
     /// [`Replica::answer`] is what to send back.
-    pub fn apply(&mut self, bytes: &[u8], model: &mut CodecModel, scratch: &mut [u32]) -> Applied {
+    pub fn apply(&mut self, bytes: &[u8], scratch: &mut [u32]) -> Applied {
         let view = match UpdateView::parse(bytes) {
             Ok(v) => v,
             Err(e) => return Applied::Refused(e),
@@ -153,10 +152,9 @@ impl<S: VoxelStorage> Replica<S> {
         if h.base == 0 {
             self.forget();
         }
-        *model = self.model;
         // The copy's digest kept as the update is applied (0: emptied).
         let mut digest = self.digest;
-        if self.patch(&view, model, scratch, &mut digest).is_err() {
+        if self.patch(&view, scratch, &mut digest).is_err() {
             self.forget();
             return Applied::Diverged;
         }
@@ -166,18 +164,13 @@ impl<S: VoxelStorage> Replica<S> {
         }
         self.version = h.version;
         self.digest = h.digest;
-        self.model = *model;
         Applied::Applied
     }
 
-    /// The update's removals and upserts applied to the copy.
-    fn patch(
-        &mut self,
-        view: &UpdateView<'_>,
-        model: &mut CodecModel,
-        scratch: &mut [u32],
-        digest: &mut u32,
-    ) -> Result<(), ()> {
+    /// The update's removals and upserts applied to the copy, its digest
+    /// and codec model kept (a failure empties the copy: the next update is
+    /// a snapshot, from a fresh model).
+    fn patch(&mut self, view: &UpdateView<'_>, scratch: &mut [u32], digest: &mut u32) -> Result<(), ()> {
         if view.header.removals > 0 {
             // The copy in code order (the base's ranks), then the indices
             // of the ranks removed moved to its front (rank k is at or
@@ -201,6 +194,6 @@ impl<S: VoxelStorage> Replica<S> {
                 !drop
             });
         }
-        view.decode_upserts(model, &mut Upsert { map: &mut self.map, digest }).map_err(|_| ())
+        view.decode_upserts(&mut self.model, &mut Upsert { map: &mut self.map, digest }).map_err(|_| ())
     }
 }

@@ -119,12 +119,11 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
     let Ends { held, sent, replica, scratch, out } = &mut ends;
     let mut publisher = Publisher::new(7, &mut held[..], &mut sent[..]);
     let (mut map, mut rng) = (robot_map(), Lcg(1));
-    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     let mut ratios = Vec::new();
     for round in 0..40 {
         drive(&mut map, round, &mut rng);
-        let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
-        assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied, "round {round}");
+        let n = publisher.next_update(&map, scratch, out).unwrap();
+        assert_eq!(replica.apply(&out[..n], scratch), Applied::Applied, "round {round}");
         publisher.on_ack(&replica.answer());
         assert_eq!(publisher.acked(), publisher.version());
         assert_published(replica.map(), publisher.published(), &map, &std::format!("round {round}"));
@@ -136,7 +135,7 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
                 let sent2 = vec![ShadowEntry::default(); CAPACITY];
                 let mut fresh = Publisher::new(1, held2, sent2);
                 let mut o = vec![0u8; 64 * 1024];
-                fresh.next_update(&map, &mut vec![0u32; CAPACITY], &mut CodecModel::new(), &mut o).unwrap()
+                fresh.next_update(&map, &mut vec![0u32; CAPACITY], &mut o).unwrap()
             };
             ratios.push(n as f32 / whole as f32);
         }
@@ -160,7 +159,6 @@ fn an_update_is_coded_with_the_model_its_base_left() {
     let Ends { held, sent, replica, scratch, out } = &mut ends;
     let mut publisher = Publisher::new(5, &mut held[..], &mut sent[..]);
     let (mut map, mut rng) = (robot_map(), Lcg(8));
-    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     // The receiver's model, kept beside the replica's by decoding each
     // update applied.
     let mut mirror = CodecModel::new();
@@ -170,13 +168,13 @@ fn an_update_is_coded_with_the_model_its_base_left() {
     };
     for round in 0..12 {
         drive(&mut map, round, &mut rng);
-        let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
+        let n = publisher.next_update(&map, scratch, out).unwrap();
         if round == 8 {
             // Lost: the next update is from the acknowledged version, and
             // coded from its model.
             continue;
         }
-        assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied, "round {round}");
+        assert_eq!(replica.apply(&out[..n], scratch), Applied::Applied, "round {round}");
         publisher.on_ack(&replica.answer());
         let mine = upserts(&out[..n], &mut mirror).unwrap();
         if round > 0 {
@@ -198,12 +196,11 @@ fn lost_repeated_and_damaged_updates_are_repaired() {
     let Ends { held, sent, replica, scratch, out } = &mut ends;
     let mut publisher = Publisher::new(3, &mut held[..], &mut sent[..]);
     let (mut map, mut rng, mut faults) = (robot_map(), Lcg(2), Lcg(99));
-    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     let mut seen = std::collections::BTreeMap::new();
     let mut in_sync_after_clean_round = 0;
     for round in 0..120 {
         drive(&mut map, round % 60, &mut rng);
-        let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
+        let n = publisher.next_update(&map, scratch, out).unwrap();
         let mut update = out[..n].to_vec();
         let fault = faults.unit();
         let clean = round % 10 == 9;
@@ -221,7 +218,7 @@ fn lost_repeated_and_damaged_updates_are_repaired() {
             1
         };
         for _ in 0..deliveries {
-            let what = replica.apply(&update, &mut back, scratch);
+            let what = replica.apply(&update, scratch);
             *seen.entry(std::format!("{what:?}")).or_insert(0) += 1;
             // Whatever became of it, the digest answered is the copy's.
             assert_eq!(replica.answer().digest, digest_of(records(replica.map()).into_iter()), "round {round}");
@@ -256,13 +253,12 @@ fn a_restarted_peer_is_noticed_and_sends_a_snapshot() {
     let mut ends = Ends::new();
     let Ends { held, sent, replica, scratch, out } = &mut ends;
     let (mut map, mut rng) = (robot_map(), Lcg(5));
-    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     {
         let mut first = Publisher::new(1, &mut held[..], &mut sent[..]);
         for round in 0..3 {
             drive(&mut map, round, &mut rng);
-            let n = first.next_update(&map, scratch, &mut model, out).unwrap();
-            assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied);
+            let n = first.next_update(&map, scratch, out).unwrap();
+            assert_eq!(replica.apply(&out[..n], scratch), Applied::Applied);
             first.on_ack(&replica.answer());
         }
     }
@@ -272,17 +268,17 @@ fn a_restarted_peer_is_noticed_and_sends_a_snapshot() {
     let sent2 = vec![ShadowEntry::default(); CAPACITY];
     let mut second = Publisher::new(2, held2, sent2);
     drive(&mut map, 3, &mut rng);
-    let n = second.next_update(&map, scratch, &mut model, &mut forged).unwrap();
+    let n = second.next_update(&map, scratch, &mut forged).unwrap();
     assert_eq!(UpdateView::parse(&forged[..n]).unwrap().header.base, 0, "a new publisher starts with a snapshot");
     // A delta of the new epoch (base 5) is refused as a restart.
     forged[3] = 5;
     let crc = crate::wire::crc32(&forged[..n - 4]);
     forged[n - 4..n].copy_from_slice(&crc.to_le_bytes());
-    assert_eq!(replica.apply(&forged[..n], &mut back, scratch), Applied::Restarted);
+    assert_eq!(replica.apply(&forged[..n], scratch), Applied::Restarted);
     assert_eq!(replica.answer().version, 0);
     second.on_ack(&replica.answer());
-    let n = second.next_update(&map, scratch, &mut model, out).unwrap();
-    assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied);
+    let n = second.next_update(&map, scratch, out).unwrap();
+    assert_eq!(replica.apply(&out[..n], scratch), Applied::Applied);
     assert_eq!(sorted(replica.map()), decoded(&map));
     second.on_ack(&replica.answer());
     assert_eq!(second.acked(), second.version());
@@ -300,11 +296,10 @@ fn forged_updates_never_pass_as_the_map() {
     let Ends { held, sent, scratch, out, .. } = &mut ends;
     let mut publisher = Publisher::new(9, &mut held[..], &mut sent[..]);
     let (mut map, mut rng, mut forge) = (robot_map(), Lcg(3), Lcg(4));
-    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     let (mut history, mut outcomes): (Vec<Vec<u8>>, std::collections::BTreeMap<_, usize>) = Default::default();
     for round in 0..5 {
         drive(&mut map, round, &mut rng);
-        let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
+        let n = publisher.next_update(&map, scratch, out).unwrap();
         let truth: Vec<(u64, u32)> = publisher.published().iter().map(|r| (r.code, r.record)).collect();
         for _ in 0..60 {
             let mut bytes = out[..n].to_vec();
@@ -322,9 +317,9 @@ fn forged_updates_never_pass_as_the_map() {
             }
             let mut copy = Replica::new(robot_map());
             for earlier in &history {
-                assert_eq!(copy.apply(earlier, &mut back, scratch), Applied::Applied);
+                assert_eq!(copy.apply(earlier, scratch), Applied::Applied);
             }
-            let what = copy.apply(&bytes, &mut back, scratch);
+            let what = copy.apply(&bytes, scratch);
             *outcomes.entry(std::format!("{what:?}")).or_default() += 1;
             if what == Applied::Applied {
                 assert_eq!(records(copy.map()), truth, "a forged update made another map");
@@ -333,7 +328,7 @@ fn forged_updates_never_pass_as_the_map() {
         history.push(out[..n].to_vec());
         let mut copy = Replica::new(robot_map());
         for update in &history {
-            assert_eq!(copy.apply(update, &mut back, scratch), Applied::Applied);
+            assert_eq!(copy.apply(update, scratch), Applied::Applied);
         }
         publisher.on_ack(&copy.answer());
     }
@@ -399,14 +394,13 @@ fn a_smaller_peer_is_sent_the_part_of_the_map_that_fits() {
     let Ends { held, sent, replica, scratch, out } = &mut ends;
     let mut publisher = Publisher::new(2, &mut held[..], &mut sent[..]);
     let (mut map, mut rng) = (robot_map(), Lcg(9));
-    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     // The copy's first answer, before any update, says what it holds.
     publisher.on_ack(&replica.answer());
     for round in 0..12 {
         drive(&mut map, round, &mut rng);
         assert!(map.len() > SMALL);
-        let n = publisher.next_update(&map, scratch, &mut model, out).unwrap();
-        let applied = replica.apply(&out[..n], &mut back, scratch);
+        let n = publisher.next_update(&map, scratch, out).unwrap();
+        let applied = replica.apply(&out[..n], scratch);
         publisher.on_ack(&replica.answer());
         assert_eq!(applied, Applied::Applied, "round {round}");
         assert_eq!(replica.map().len(), SMALL.min(map.len()), "round {round}");
@@ -487,7 +481,6 @@ fn a_voxel_is_resent_only_when_it_moved_more_than_a_step() {
     let Ends { held, sent, replica, scratch, out } = &mut ends;
     let mut publisher = Publisher::new(4, &mut held[..], &mut sent[..]);
     let (mut map, mut rng) = (robot_map(), Lcg(21));
-    let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
     drive(&mut map, 0, &mut rng);
     let v = *map.voxel(0).unwrap();
     let with_x = |x: u16| {
@@ -495,8 +488,8 @@ fn a_voxel_is_resent_only_when_it_moved_more_than_a_step() {
         SemanticVoxel::from_parts(v.key, [x, m[1], m[2]], v.occupancy_raw(), v.hits(), v.labels)
     };
     let mut exchange = |map: &VecMap, publisher: &mut Publisher<&mut [ShadowEntry]>| {
-        let n = publisher.next_update(map, scratch, &mut model, out).unwrap();
-        assert_eq!(replica.apply(&out[..n], &mut back, scratch), Applied::Applied);
+        let n = publisher.next_update(map, scratch, out).unwrap();
+        assert_eq!(replica.apply(&out[..n], scratch), Applied::Applied);
         publisher.on_ack(&replica.answer());
         assert_published(replica.map(), publisher.published(), map, "exchange");
         (publisher.counts().changed, records(replica.map()))

@@ -24,7 +24,6 @@ use crate::region::RegionError;
 use crate::session::{
     Applied, Estimate, PeerView, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts,
 };
-use crate::wire::codec::CodecModel;
 use crate::wire::feed::{FeedError, FeedMessage, RobotMessage, RoundReport, SessionEnd};
 use crate::wire::frame::MAX_PAYLOAD;
 use crate::wire::report::MatchReport;
@@ -161,8 +160,6 @@ where
     publisher: Option<Publisher<R>>,
     tracker: Tracker,
     courier: Courier,
-    send_model: CodecModel,
-    read_model: CodecModel,
     scratch: &'a mut [u32],
     out: &'a mut [u8],
     input: &'a mut [u8],
@@ -216,8 +213,6 @@ where
             publisher: None,
             tracker: Tracker::new(),
             courier: Courier::new(courier).map_err(RobotError::Courier)?,
-            send_model: CodecModel::new(),
-            read_model: CodecModel::new(),
             scratch,
             out,
             input,
@@ -411,8 +406,7 @@ where
         let (head, rest) =
             self.out.split_at_mut_checked(ESTIMATE_BYTES).ok_or(RobotError::Update(PublisherError::Scratch))?;
         write_estimate(self.last_estimate.as_ref(), head);
-        let len =
-            publisher.next_update(&self.map, self.scratch, &mut self.send_model, rest).map_err(RobotError::Update)?;
+        let len = publisher.next_update(&self.map, self.scratch, rest).map_err(RobotError::Update)?;
         self.marks.counts = publisher.counts();
         self.marks.update_bytes = len as u32;
         let len = ESTIMATE_BYTES + len;
@@ -446,7 +440,7 @@ where
                 let message = self.input.get(..n).unwrap_or(&[]);
                 let (head, update) = message.split_at_checked(ESTIMATE_BYTES).unwrap_or((&[], message));
                 self.heard = read_estimate(head);
-                let applied = replica.apply(update, &mut self.read_model, self.scratch);
+                let applied = replica.apply(update, self.scratch);
                 if matches!(applied, Applied::Diverged | Applied::Restarted) {
                     self.tracker.reset();
                 }

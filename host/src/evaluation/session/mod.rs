@@ -25,7 +25,6 @@ use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
 use cosem_core::matching::{Alignment, MatchResult, MatchStatus, Reach, Role};
 use cosem_core::session::{Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateCounts};
-use cosem_core::wire::codec::CodecModel;
 use nalgebra::Isometry3;
 use prepared::Prepared;
 use robot::Robot;
@@ -207,8 +206,6 @@ pub struct SessionRun {
 struct Link {
     publisher: Publisher<Vec<ShadowEntry>>,
     copy: Replica<VecStorage>,
-    send_model: CodecModel,
-    read_model: CodecModel,
     /// The copy has been whole once.
     synced: bool,
 }
@@ -242,7 +239,7 @@ impl Link {
         let mut publisher = Publisher::new(epoch, records(), records());
         // The copy's first answer, before any update: what it holds.
         publisher.on_ack(&copy.answer());
-        Ok(Link { publisher, copy, send_model: CodecModel::new(), read_model: CodecModel::new(), synced: false })
+        Ok(Link { publisher, copy, synced: false })
     }
 
     /// One update from `map` to the copy, and the answer back: the bytes,
@@ -258,10 +255,10 @@ impl Link {
         let t = Instant::now();
         let n = self
             .publisher
-            .next_update(map, &mut s.words, &mut self.send_model, &mut s.out)
+            .next_update(map, &mut s.words, &mut s.out)
             .map_err(|e| Error::Invalid(format!("update: {e}")))?;
         let writing = t.elapsed().as_secs_f64();
-        let applied = self.copy.apply(&s.out[..n], &mut self.read_model, &mut s.words);
+        let applied = self.copy.apply(&s.out[..n], &mut s.words);
         let answer = self.copy.answer().encode();
         let ack =
             cosem_core::wire::update::UpdateAck::decode(&answer).map_err(|e| Error::Invalid(format!("answer: {e}")))?;
@@ -276,7 +273,7 @@ impl Link {
 /// The bytes of `map` sent whole (a snapshot update).
 fn whole_update(map: &crate::maps::mapping::HostMap, words: &mut [u32], out: &mut [u8]) -> Result<usize, Error> {
     let mut p = Publisher::new(0, vec![ShadowEntry::default(); map.len()], vec![ShadowEntry::default(); map.len()]);
-    p.next_update(map, words, &mut CodecModel::new(), out).map_err(|e| Error::Invalid(format!("update: {e}")))
+    p.next_update(map, words, out).map_err(|e| Error::Invalid(format!("update: {e}")))
 }
 
 /// The built-in town (`cosem synth --town`'s defaults, without camera
