@@ -409,6 +409,40 @@ fn standing_agreement_equals_the_full_pass() {
     assert!(seen >= 4, "{seen}");
 }
 
+/// The agreement pass skips a scene entry whose neighbourhood a coarser
+/// level (the cover) says is empty, with the same inliers, overlap and
+/// RMSE as looking up all 27 cells: aligned, partly overlapping (half the
+/// scene's entries skipped) and far off, with covers two and four cells
+/// wide.
+#[test]
+fn skipping_where_the_cover_is_empty_changes_no_agreement() {
+    use super::associate::agreement;
+    let mut a = new_map();
+    corner(&mut a, &Isometry3::identity());
+    let mut b = new_map();
+    corner(&mut b, &from_xyz_rpy(0.3, -0.2, 0.0, 0.0, 0.0, 0.05));
+    let (pa, pb) = (pyramid(&a), pyramid(&b));
+    let (m0, c0) = (pa.level(0).unwrap(), pb.level(0).unwrap());
+    let mut matched = 0;
+    for (i, t) in [(0.0, 0.0, 0.0), (0.3, -0.2, 0.05), (4.0, 1.5, 0.3), (-6.0, 3.0, 0.4), (40.0, 0.0, 0.0)]
+        .iter()
+        .map(|&(x, y, yaw)| from_xyz_rpy(x, y, 0.0, 0.0, 0.0, yaw))
+        .enumerate()
+    {
+        for stride in [1, 3] {
+            let every = agreement(&m0, None, &c0, &t, stride);
+            for l in [1, 2] {
+                let skipping = agreement(&m0, pa.level(l).as_ref(), &c0, &t, stride);
+                assert_eq!(skipping.inliers, every.inliers, "case {i} stride {stride} cover level {l}");
+                assert_eq!(skipping.overlap.to_bits(), every.overlap.to_bits(), "case {i} stride {stride} level {l}");
+                assert_eq!(skipping.rmse.to_bits(), every.rmse.to_bits(), "case {i} stride {stride} level {l}");
+            }
+            matched += usize::from(every.inliers > 0);
+        }
+    }
+    assert!(matched >= 6, "{matched}");
+}
+
 /// A received map kept as a [`crate::map::SceneMap`] (what a robot holds)
 /// prepares into the same scene as the same voxels in a `LocalMap`, to the
 /// bit: the same levels and footprint, so the same match, with a prior and
