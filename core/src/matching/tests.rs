@@ -348,9 +348,10 @@ fn scene_role_pyramid_matches_like_a_model() {
 }
 
 /// The normal sweep (sorted cursors) gives the 27-lookup fit's normals to
-/// the bit at every level, with and without room for level 0's
-/// permutation (which falls back to lookups), on a map that spans
-/// negative and positive cells on every axis.
+/// the bit at every level, with room for level 0's permutation and its
+/// entries gathered in sweep order, with room for the permutation alone
+/// (read from the level), and without room (which falls back to lookups),
+/// on a map that spans negative and positive cells on every axis.
 #[test]
 fn swept_normals_equal_looked_up_normals() {
     let mut m = new_map();
@@ -367,13 +368,15 @@ fn swept_normals_equal_looked_up_normals() {
     let n = m.len();
     let roomy = Pyramid::build(&m, 3, 1.0, heap_pyramid(n, 3 * n, 400_000)).unwrap();
     let tight = Pyramid::build(&m, 3, 0.0, heap_pyramid(n, 3 * n, 0)).unwrap();
+    let sorted = Pyramid::build(&m, 3, 0.0, heap_pyramid(n, 3 * n, 2 * n)).unwrap();
     let mut planar = 0;
     for l in 0..3 {
-        let (a, b) = (roomy.level(l).unwrap(), tight.level(l).unwrap());
+        let (a, b, c) = (roomy.level(l).unwrap(), tight.level(l).unwrap(), sorted.level(l).unwrap());
         assert_eq!(a.len(), b.len());
         for i in 0..a.len() {
             let e = a.entry(i).unwrap();
             assert_eq!(e.normal, b.entry(i).unwrap().normal, "level {l} entry {i}");
+            assert_eq!(e.normal, c.entry(i).unwrap().normal, "level {l} entry {i}");
             assert_eq!(e.normal, super::pyramid::fit_normal_for_tests(&a, &e), "level {l} entry {i}");
             planar += usize::from(e.is_planar());
         }

@@ -12,8 +12,10 @@ use crate::error::Error;
 use cosem_core::link::courier::CourierConfig;
 use cosem_core::map::VecStorage;
 use cosem_core::matching::{PyramidCapacity, VecPyramidStorage};
-use cosem_core::robot::session::{SessionParts, SessionRobot, SESSION_COARSE, SESSION_UPDATE_BYTES, SESSION_VOXELS};
-use cosem_core::robot::{RobotConfig, MODEL_WORDS, SCENE_WORDS};
+use cosem_core::robot::session::{
+    SessionParts, SessionRobot, SESSION_COARSE, SESSION_MODEL_WORDS, SESSION_UPDATE_BYTES, SESSION_VOXELS,
+};
+use cosem_core::robot::{RobotConfig, SCENE_WORDS};
 use cosem_core::session::ShadowEntry;
 use cosem_core::sim::{self, SimRobot, Wire};
 use cosem_core::wire::feed::{RobotMessage, RoundReport, SessionEnd};
@@ -113,7 +115,7 @@ fn twin_robot(m: &mut TwinMemory) -> Result<TwinRobot<'_>, Error> {
         scratch: &mut m.scratch,
         out: &mut m.out,
         input: &mut m.input,
-        model: pyramid(MODEL_WORDS),
+        model: pyramid(SESSION_MODEL_WORDS),
         scene: pyramid(SCENE_WORDS),
         search: &mut m.search,
     };

@@ -147,6 +147,69 @@ impl NormalSweep {
     }
 }
 
+/// Words a [`SweepPoint`] takes.
+pub(super) const SWEEP_POINT_WORDS: usize = 6;
+
+/// A level's entry gathered in sweep order for [`fit_gathered`]: its cell
+/// as a sweep code (x, y, z of 18 bits each, offset so that one cell beyond
+/// the key's range still orders) and its position and weight, read once
+/// instead of once per neighbour.
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub(super) struct SweepPoint {
+    code: [u32; 2],
+    position: [f32; 3],
+    weight: f32,
+}
+
+/// One cell along an axis of [`SweepPoint`]'s code.
+const X_STEP: i64 = 1 << 36;
+const Y_STEP: i64 = 1 << 18;
+
+impl SweepPoint {
+    pub(super) fn new(key: VoxelKey, (position, weight): ([f32; 3], f32)) -> Self {
+        let axis = |v: i16| (i64::from(v) + 0x1_0000) as u64;
+        let code = (axis(key.x) << 36) | (axis(key.y) << 18) | axis(key.z);
+        SweepPoint { code: [(code >> 32) as u32, code as u32], position, weight }
+    }
+
+    fn code(&self) -> i64 {
+        ((u64::from(self.code[0]) << 32) | u64::from(self.code[1])) as i64
+    }
+}
+
+/// [`NormalSweep::fit`] over entries gathered in sweep order (`points`):
+/// the normal of the entry of rank `r`, with the same entries added in the
+/// same order (to the bit), but reading contiguous memory. Calls come in
+/// rank order.
+pub(super) fn fit_gathered(cursors: &mut [usize; 9], points: &[SweepPoint], r: usize, resolution: f32) -> PackedNormal {
+    let Some(e) = points.get(r) else { return PackedNormal::NONE };
+    let r = 1.5 * resolution;
+    let mut m = Moments { centre: e.position, radius_sq: r * r, sum_w: 0.0, m1: [0.0; 3], m2: [0.0; 6], count: 0 };
+    let centre = e.code();
+    let mut columns = cursors.iter_mut();
+    for dx in -1..=1 {
+        for dy in -1..=1 {
+            let Some(cursor) = columns.next() else { break };
+            let column = centre + dx * X_STEP + dy * Y_STEP;
+            let (lo, hi) = (column - 1, column + 1);
+            let mut c = *cursor;
+            while points.get(c).is_some_and(|p| p.code() < lo) {
+                c += 1;
+            }
+            *cursor = c;
+            while let Some(p) = points.get(c) {
+                if p.code() > hi {
+                    break;
+                }
+                m.add((p.position, p.weight));
+                c += 1;
+            }
+        }
+    }
+    m.normal()
+}
+
 /// Newton steps for the cubic's smallest root (quadratic convergence from
 /// a simple root: about five are taken).
 pub(super) const NEWTON_STEPS: usize = 24;

@@ -348,13 +348,14 @@ impl PyramidCapacity {
         let listed = cells.min(len);
         let entries = len.saturating_mul(levels.saturating_sub(1));
         // A model's words hold level 0's sweep order while normals are
-        // fitted (two per voxel: each index sorted beside its key, the
-        // faster sort); a scene's hold the merge's hash table while its
-        // coarse levels are built (two per entry of a level). Slots of 16
-        // bits, two to a word, below NARROW_LIMIT entries.
+        // fitted and, beside it, its entries gathered in that order (one
+        // word and six per voxel: the faster sort and the faster fit); a
+        // scene's hold the merge's hash table while its coarse levels are
+        // built (two per entry of a level). Slots of 16 bits, two to a
+        // word, below NARROW_LIMIT entries.
         let per_entry = if entries < NARROW_LIMIT { 1 } else { 2 };
         let scratch = match role {
-            Role::Model => 2 * len,
+            Role::Model => (1 + super::normals::SWEEP_POINT_WORDS) * len,
             Role::Scene => per_entry * len,
         };
         PyramidCapacity {

@@ -52,9 +52,22 @@ pub const SESSION_UPDATE_BYTES: usize = 4 * SESSION_VOXELS + 1024;
 pub type SessionMapStorage = crate::map::ArrayStorage<SESSION_VOXELS, u16>;
 /// The publisher's records of a session robot.
 pub type SessionRecords = [ShadowEntry; SESSION_VOXELS];
+/// Words of a session robot's model pyramid: a pair robot's (the
+/// footprint of a prior-free round), or, when more, a word and six a voxel
+/// (level 0's sweep order and its entries gathered in that order while its
+/// normals are fitted: a tracking round's normals three times faster, the
+/// same normals).
+pub const SESSION_MODEL_WORDS: usize = {
+    let gathered = 7 * SESSION_VOXELS;
+    if gathered > super::MODEL_WORDS {
+        gathered
+    } else {
+        super::MODEL_WORDS
+    }
+};
 /// The pyramid storage of a session robot's map (the model).
 pub type SessionModelStorage =
-    crate::matching::ArrayPyramidStorage<SESSION_VOXELS, SESSION_COARSE, { super::MODEL_WORDS }>;
+    crate::matching::ArrayPyramidStorage<SESSION_VOXELS, SESSION_COARSE, SESSION_MODEL_WORDS>;
 /// The pyramid storage of its copy of the peer's map (the scene: a map's
 /// scene pyramid keeps a voxel's extras too).
 pub type SessionSceneStorage =
