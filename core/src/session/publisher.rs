@@ -4,13 +4,14 @@
 //! keeps them ([`LocalMap::keep_centre`], [`LocalMap::nearest`]); the
 //! versions and digests are then those of that part.
 //!
-//! A voxel already held is resent only when its record moved more than one
-//! quantisation step ([`within_step`]; its occupancy, which matching never
-//! reads, not compared): a LiDAR that keeps driving nudges the mean and
+//! A voxel already held is resent only when its record moved beyond the
+//! deadband ([`within_step`]: its class, a step of its confidence, two
+//! quarter cells of its mean; its occupancy, which matching never reads,
+//! not compared): a LiDAR that keeps driving nudges the mean and
 //! confidence of every voxel it sees, and resending each nudge made an
 //! update half the map. What the peer holds, and what the digests cover,
-//! is the map as published: each voxel's record as last sent, never more
-//! than a step from the map's in class, confidence and mean.
+//! is the map as published: each voxel's record as last sent, never
+//! further than the deadband from the map's.
 
 use crate::map::{LocalMap, VoxelStorage};
 use crate::wire::codec::{morton, voxel_record, within_step, CodecModel, EncodeError, MapEncoder};

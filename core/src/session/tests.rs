@@ -472,11 +472,11 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     assert!(agree(&first.result.transform, &first.result.transform.inverse(), at));
 }
 
-/// A voxel nudged by a step in a field is not resent (the copy keeps the
-/// record it has, a step from the map's); moved further, or relabelled,
-/// it is.
+/// A voxel nudged within the deadband (a step of the confidence, two of
+/// an axis of the mean) is not resent (the copy keeps the record it has);
+/// moved further, or relabelled, it is.
 #[test]
-fn a_voxel_is_resent_only_when_it_moved_more_than_a_step() {
+fn a_voxel_is_resent_only_when_it_moved_beyond_the_deadband() {
     let mut ends = Ends::new();
     let Ends { held, sent, replica, scratch, out } = &mut ends;
     let mut publisher = Publisher::new(4, &mut held[..], &mut sent[..]);
@@ -494,24 +494,27 @@ fn a_voxel_is_resent_only_when_it_moved_more_than_a_step() {
         assert_published(replica.map(), publisher.published(), map, "exchange");
         (publisher.counts().changed, records(replica.map()))
     };
-    // Step 0 of the mean's x, then step 1: not resent, the copy keeps step 0.
+    // Step 0 of the mean's x, then steps 1 and 2: not resent, the copy
+    // keeps step 0.
     map.upsert_voxel(with_x(0x1000)).unwrap();
     let (_, before) = exchange(&map, &mut publisher);
-    map.upsert_voxel(with_x(0x5000)).unwrap();
-    let (changed, after) = exchange(&map, &mut publisher);
-    assert_eq!((changed, &after), (0, &before), "a nudge of one step was resent");
-    // Step 2: two from what the copy holds: resent.
-    map.upsert_voxel(with_x(0x9000)).unwrap();
+    for x in [0x5000, 0x9000] {
+        map.upsert_voxel(with_x(x)).unwrap();
+        let (changed, after) = exchange(&map, &mut publisher);
+        assert_eq!((changed, &after), (0, &before), "a nudge within the deadband was resent: {x:#x}");
+    }
+    // Step 3: three from what the copy holds: resent.
+    map.upsert_voxel(with_x(0xD000)).unwrap();
     let (changed, after) = exchange(&map, &mut publisher);
     assert_eq!(changed, 1);
     let code = crate::wire::codec::morton(v.key);
     let held = after.iter().find(|r| r.0 == code).unwrap().1;
-    assert_eq!(held, voxel_record(&with_x(0x9000)));
+    assert_eq!(held, voxel_record(&with_x(0xD000)));
     // Relabelled: resent, however little else moved.
     let mut labels = crate::map::LabelDistribution::EMPTY;
     let other = if v.class() == Some(Class::Road) { Class::Building } else { Class::Road };
     labels.observe(other, 1000);
-    let m = with_x(0x9000).mean_raw();
+    let m = with_x(0xD000).mean_raw();
     map.upsert_voxel(SemanticVoxel::from_parts(v.key, m, v.occupancy_raw(), v.hits(), labels)).unwrap();
     assert_eq!(exchange(&map, &mut publisher).0, 1);
 }
