@@ -562,6 +562,16 @@ fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
     assert_eq!(m.align(&pm, &ps, &fix).unwrap().status, MatchStatus::Degenerate);
     // Bit for bit repeatable.
     assert_eq!(m.track_in(&pm, &ps, &fix, none).unwrap(), held);
+    // Its verdict reads the scene at twice a match's stride (a matcher
+    // whose sample is a few hundred entries, well under the scene's).
+    use super::associate::agreement;
+    let small = Matcher::new(MatchSettings { max_agreement_entries: 300, ..MatchSettings::DEFAULT });
+    let tracked = small.track_in(&pm, &ps, &fix, none).unwrap();
+    let (m0, c0, cover) = (pm.level(0).unwrap(), ps.level(0).unwrap(), pm.level(3));
+    assert!(c0.len() > 1000, "{}", c0.len());
+    let read = |n: usize| agreement(&m0, cover.as_ref(), &c0, &tracked.transform, c0.len().div_ceil(n));
+    assert_eq!((tracked.inliers, tracked.overlap), (read(150).inliers, read(150).overlap));
+    assert_ne!((tracked.inliers, tracked.overlap), (read(300).inliers, read(300).overlap));
 }
 
 /// Pyramids prepared for tracking only (a model's levels up to its cover,
