@@ -384,23 +384,33 @@ fn swept_normals_equal_looked_up_normals() {
     assert!(planar > n / 2, "{planar} planar of {n}");
 }
 
+/// Two maps of one corner, the second seen 0.3 m, -0.2 m and 0.05 rad
+/// away.
+fn corners_apart() -> (Map, Map) {
+    let mut a = new_map();
+    corner(&mut a, &Isometry3::identity());
+    let mut b = new_map();
+    corner(&mut b, &from_xyz_rpy(0.3, -0.2, 0.0, 0.0, 0.0, 0.05));
+    (a, b)
+}
+
+/// Placements in the plane, `(x, y, yaw)`, numbered.
+fn placements(xy_yaw: &[(f32, f32, f32)]) -> impl Iterator<Item = (usize, Isometry3<f32>)> + '_ {
+    xy_yaw.iter().map(|&(x, y, yaw)| from_xyz_rpy(x, y, 0.0, 0.0, 0.0, yaw)).enumerate()
+}
+
 /// The look-alike check's agreement-only pass gives the full pass's
 /// agreement to the bit, aligned, shifted and far off.
 #[test]
 fn standing_agreement_equals_the_full_pass() {
     use super::associate::{agreement, standing_agreement};
-    let mut a = new_map();
-    corner(&mut a, &Isometry3::identity());
-    let mut b = new_map();
-    corner(&mut b, &from_xyz_rpy(0.3, -0.2, 0.0, 0.0, 0.0, 0.05));
+    let (a, b) = corners_apart();
     let (pa, pb) = (pyramid(&a), pyramid(&b));
     let (m0, c0) = (pa.level(0).unwrap(), pb.level(0).unwrap());
     let cover = pa.level(2);
     let mut seen = 0;
-    for (i, t) in [(0.0, 0.0, 0.0), (0.3, -0.2, 0.05), (1.0, 0.5, -0.1), (-2.0, 3.0, 0.4), (40.0, 0.0, 0.0)]
-        .iter()
-        .map(|&(x, y, yaw)| from_xyz_rpy(x, y, 0.0, 0.0, 0.0, yaw))
-        .enumerate()
+    for (i, t) in
+        placements(&[(0.0, 0.0, 0.0), (0.3, -0.2, 0.05), (1.0, 0.5, -0.1), (-2.0, 3.0, 0.4), (40.0, 0.0, 0.0)])
     {
         for stride in [1, 3] {
             let full = agreement(&m0, cover.as_ref(), &c0, &t, stride).agreement;
@@ -420,17 +430,11 @@ fn standing_agreement_equals_the_full_pass() {
 #[test]
 fn skipping_where_the_cover_is_empty_changes_no_agreement() {
     use super::associate::agreement;
-    let mut a = new_map();
-    corner(&mut a, &Isometry3::identity());
-    let mut b = new_map();
-    corner(&mut b, &from_xyz_rpy(0.3, -0.2, 0.0, 0.0, 0.0, 0.05));
+    let (a, b) = corners_apart();
     let (pa, pb) = (pyramid(&a), pyramid(&b));
     let (m0, c0) = (pa.level(0).unwrap(), pb.level(0).unwrap());
     let mut matched = 0;
-    for (i, t) in [(0.0, 0.0, 0.0), (0.3, -0.2, 0.05), (4.0, 1.5, 0.3), (-6.0, 3.0, 0.4), (40.0, 0.0, 0.0)]
-        .iter()
-        .map(|&(x, y, yaw)| from_xyz_rpy(x, y, 0.0, 0.0, 0.0, yaw))
-        .enumerate()
+    for (i, t) in placements(&[(0.0, 0.0, 0.0), (0.3, -0.2, 0.05), (4.0, 1.5, 0.3), (-6.0, 3.0, 0.4), (40.0, 0.0, 0.0)])
     {
         for stride in [1, 3] {
             let every = agreement(&m0, None, &c0, &t, stride);
