@@ -976,7 +976,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         let PyramidPartsMut { extras, words, points, point_slots, .. } = self.storage.parts_mut();
         let Some((order, rest)) = words.split_at_mut_checked(len) else { return Ok(false) };
         let Some(room) = rest.get_mut(..len.saturating_mul(SWEEP_POINT_WORDS)) else { return Ok(false) };
-        let gathered: &mut [SweepPoint] = bytemuck::cast_slice_mut(room);
+        let Ok(gathered) = bytemuck::try_cast_slice_mut::<u32, SweepPoint>(room) else { return Ok(false) };
         {
             let level = Level::new(base.level0(extras, points, point_slots), resolution);
             for (g, &i) in gathered.iter_mut().zip(order.iter()) {
