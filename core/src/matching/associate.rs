@@ -371,46 +371,7 @@ pub(crate) fn agreement(
             // No model entry within one cell: not an inlier, no agreement.
             continue;
         }
-        let f = cell.fraction;
-        let side = |v: f32| if v < 0.5 { -1 } else { 1 };
-        let (sx, sy, sz) = (side(f[0]), side(f[1]), side(f[2]));
-        let in_block =
-            |dx: i32, dy: i32, dz: i32| (dx == 0 || dx == sx) && (dy == 0 || dy == sy) && (dz == 0 || dz == sz);
-        // (nearest squared distance within one cell, a same-class entry
-        // there, a same-group entry there)
-        let mut found = (f32::INFINITY, false, false);
-        let visit = |found: &mut (f32, bool, bool), dx: i32, dy: i32, dz: i32| {
-            let Some(k) = cell.key.offset(dx, dy, dz) else { return };
-            for m in model.cell(k) {
-                let d = [q.x - m.position[0], q.y - m.position[1], q.z - m.position[2]];
-                let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-                if d2 <= res_sq {
-                    found.0 = found.0.min(d2);
-                    found.1 |= known && m.class == s.class;
-                    found.2 |= g != 0 && group(m.class) == g;
-                }
-            }
-        };
-        for (dx, dy, dz) in
-            [(0, 0, 0), (sx, 0, 0), (0, sy, 0), (0, 0, sz), (sx, sy, 0), (sx, 0, sz), (0, sy, sz), (sx, sy, sz)]
-        {
-            visit(&mut found, dx, dy, dz);
-        }
-        // Settled: the nearest is within half a cell (so nothing outside the
-        // block is nearer) and a same-class entry was found (an entry of an
-        // unknown class looks for none: its nearest is all it needs).
-        if !((found.1 || !known) && (found.2 || g == 0) && found.0 <= 0.25 * res_sq) {
-            for dx in -1..=1 {
-                for dy in -1..=1 {
-                    for dz in -1..=1 {
-                        if !in_block(dx, dy, dz) {
-                            visit(&mut found, dx, dy, dz);
-                        }
-                    }
-                }
-            }
-        }
-        let (nearest, same_class, same_group) = found;
+        let (nearest, same_class, same_group) = nearest_within_a_cell(model, &cell, &q, (known, s.class, g));
         if nearest <= res_sq {
             inliers += 1;
             sum_d2 += nearest;
@@ -428,6 +389,60 @@ pub(crate) fn agreement(
         agreement: agreeing as f32 / covered.max(1) as f32,
         coverage: covered as f32 / standing.max(1) as f32,
     }
+}
+
+/// Around a moved scene entry `q` in `cell` of the finest level: the
+/// nearest model entry's squared distance within one cell, and whether a
+/// model entry there has the entry's class (`known` and `class`) and its
+/// footprint group (`g`, 0 for none). The 2x2x2 block on `q`'s side first;
+/// the other 19 cells only when the block does not settle it.
+fn nearest_within_a_cell(
+    model: &Level<'_>,
+    cell: &crate::map::CellPoint,
+    q: &Point3<f32>,
+    (known, class, g): (bool, u8, u32),
+) -> (f32, bool, bool) {
+    let res_sq = model.resolution() * model.resolution();
+    let group = |c: u8| GROUP_BITS.get(usize::from(c)).copied().unwrap_or(0);
+    let f = cell.fraction;
+    let side = |v: f32| if v < 0.5 { -1 } else { 1 };
+    let (sx, sy, sz) = (side(f[0]), side(f[1]), side(f[2]));
+    let in_block = |dx: i32, dy: i32, dz: i32| (dx == 0 || dx == sx) && (dy == 0 || dy == sy) && (dz == 0 || dz == sz);
+    // (nearest squared distance within one cell, a same-class entry
+    // there, a same-group entry there)
+    let mut found = (f32::INFINITY, false, false);
+    let visit = |found: &mut (f32, bool, bool), dx: i32, dy: i32, dz: i32| {
+        let Some(k) = cell.key.offset(dx, dy, dz) else { return };
+        for m in model.cell(k) {
+            let d = [q.x - m.position[0], q.y - m.position[1], q.z - m.position[2]];
+            let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            if d2 <= res_sq {
+                found.0 = found.0.min(d2);
+                found.1 |= known && m.class == class;
+                found.2 |= g != 0 && group(m.class) == g;
+            }
+        }
+    };
+    for (dx, dy, dz) in
+        [(0, 0, 0), (sx, 0, 0), (0, sy, 0), (0, 0, sz), (sx, sy, 0), (sx, 0, sz), (0, sy, sz), (sx, sy, sz)]
+    {
+        visit(&mut found, dx, dy, dz);
+    }
+    // Settled: the nearest is within half a cell (so nothing outside the
+    // block is nearer) and a same-class entry was found (an entry of an
+    // unknown class looks for none: its nearest is all it needs).
+    if !((found.1 || !known) && (found.2 || g == 0) && found.0 <= 0.25 * res_sq) {
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    if !in_block(dx, dy, dz) {
+                        visit(&mut found, dx, dy, dz);
+                    }
+                }
+            }
+        }
+    }
+    found
 }
 
 /// Whether the 27 cells of the finest level around a cell are all empty,
