@@ -305,7 +305,10 @@ impl Matcher {
         if !finite_iso(init) {
             return Err(MatchError::NonFiniteInit);
         }
-        let levels = model.levels().min(scene.levels());
+        // A pyramid prepared for tracking has level 0 and a cover (which is
+        // not matched): its levels above 0 are not the whole pyramid's.
+        let tracked = model.is_tracked() || scene.is_tracked();
+        let levels = if tracked { 1 } else { model.levels().min(scene.levels()) };
         for l in 0..levels {
             let (Some(m), Some(c)) = (model.level(l), scene.level(l)) else {
                 return Err(MatchError::ResolutionMismatch);

@@ -593,8 +593,9 @@ fn pyramids_prepared_for_tracking_track_as_whole_ones_and_refuse_a_search() {
     let tm = Pyramid::build_vec_tracked(&model, Role::Model).unwrap();
     let ts = Pyramid::build_vec_tracked(&scene, Role::Scene).unwrap();
     assert!(tm.is_tracked() && ts.is_tracked() && !pm.is_tracked());
-    // 0.2 m cells: 0.2, 0.4, 0.8 and 1.6 m (the cover).
-    assert_eq!((tm.levels(), ts.levels()), (4, 1));
+    // 0.2 m cells: 0.2 m and the cover, 1.6 m, as the whole pyramid's.
+    assert_eq!((tm.levels(), ts.levels()), (2, 1));
+    assert_eq!(tm.level(1).map(|l| l.resolution()), pm.level(3).map(|l| l.resolution()));
     assert!(tm.footprint().is_none() && ts.footprint().is_none());
     let m = Matcher::default();
     for fix in [

@@ -99,7 +99,7 @@ pub(super) fn index_level(entries: &[CoarseEntry], slots: &mut [u32], narrow: bo
     }
 }
 
-/// Merges the entries of `src` by (cell twice as large, class) into `dst`,
+/// Merges the entries of `src` by (cell `factor` times as large, class) into `dst`,
 /// with `table` (zeroed here) as a scratch hash index of two slots per
 /// entry of `dst` at most (16-bit slots, two to a word, when `narrow`: a
 /// storage of fewer than [`NARROW_LIMIT`] entries); returns the count.
@@ -108,16 +108,17 @@ pub(super) fn merge_level(
     dst: &mut [CoarseEntry],
     table: &mut [u32],
     narrow: bool,
+    factor: u16,
 ) -> Result<usize, PyramidError> {
     let n = if narrow { (2 * table.len()).min(2 * dst.len()) } else { table.len().min(2 * dst.len()) };
     let table = table.get_mut(..if narrow { n.div_ceil(2) } else { n }).ok_or(PyramidError::Full)?;
     table.fill(0);
     let get = |t: &[u32], k: usize| if narrow { half(t, k) } else { t.get(k).copied().unwrap_or(0) };
-    let resolution = 2.0 * src.resolution();
+    let resolution = f32::from(factor) * src.resolution();
     let mut out = 0usize;
     for i in 0..src.len() {
         let Some(e) = src.entry(i) else { continue };
-        let key = e.key.coarsen(2);
+        let key = e.key.coarsen(factor);
         let hash = key.hash32() ^ u32::from(e.class).wrapping_mul(0x9E37_79B9);
         let same = |v: u32| dst.get((v - 1) as usize).is_some_and(|a| a.key == key && a.class == e.class);
         match walk_by(n, |k| get(table, k), hash, same) {

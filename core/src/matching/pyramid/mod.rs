@@ -91,6 +91,17 @@ pub const MAX_LEVELS: usize = 8;
 /// says where the model saw anything (the verdict's coverage).
 pub const COVER_RESOLUTION: f32 = 1.5;
 
+/// Level 0's cells to a cover cell along an axis: the least power of two
+/// (at most `2^(MAX_LEVELS - 1)`) that makes them [`COVER_RESOLUTION`] wide,
+/// the cells of the whole pyramid's cover.
+fn cover_factor(resolution: f32) -> u16 {
+    let mut f = 1u16;
+    while f < (1 << (MAX_LEVELS - 1)) && resolution * f32::from(f) < COVER_RESOLUTION {
+        f *= 2;
+    }
+    f
+}
+
 /// A unit surface normal in 32 bits (octahedral mapping, 16 bits per
 /// coordinate: about 0.003 degrees), or none where the neighbourhood is not
 /// planar.
@@ -741,9 +752,11 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
 
     /// Prepares `map` only for tracking from a fix ([`Matcher::track_in`],
     /// which reads level 0 of both maps and a model's cover alone): as a
-    /// model ([`Role::Model`]), its levels up to the cover
-    /// ([`Pyramid::tracked_levels`]) with normals fitted at level 0 only; as a
-    /// scene, level 0 alone; no footprint either way. Tracking from it
+    /// model ([`Role::Model`]), level 0 with its normals and the cover
+    /// ([`Pyramid::tracked_levels`]), merged from level 0 at once (its cells
+    /// the power of two of level 0's that is at least [`COVER_RESOLUTION`],
+    /// the whole pyramid's cover: the same cells, which is all that is read
+    /// of it); as a scene, level 0 alone; no footprint either way. Tracking from it
     /// gives what it gives from the whole pyramid, bit for bit, at about
     /// half a model's preparation and a quarter of a scene's; anything
     /// else refuses it ([`MatchError::TrackingOnly`]). A robot that keeps
@@ -758,14 +771,14 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
     }
 
     /// Levels of a pyramid prepared for tracking ([`Pyramid::build_tracked`]):
-    /// a model's up to its cover ([`COVER_RESOLUTION`]), at most
-    /// [`MAX_LEVELS`]; a scene's one.
+    /// a model's two, level 0 and its cover (one, when level 0's cells are
+    /// at least [`COVER_RESOLUTION`]); a scene's one.
     pub fn tracked_levels(resolution: f32, role: Role) -> usize {
-        let mut n = 1;
-        while role == Role::Model && n < MAX_LEVELS && resolution * ((1u32 << (n - 1)) as f32) < COVER_RESOLUTION {
-            n += 1;
+        if role == Role::Model && cover_factor(resolution) > 1 {
+            2
+        } else {
+            1
         }
-        n
     }
 
     /// Prepared only for tracking from a fix ([`Pyramid::build_tracked`]).
@@ -870,7 +883,9 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 };
                 let table = if model { slots.get_mut(slot_start..) } else { Some(&mut *words) };
                 let table = table.ok_or(PyramidError::Full)?;
-                let len = merge_level(&src, rest, table, narrow)?;
+                // A tracked model's one coarse level is its cover.
+                let factor = if tracked { cover_factor(resolution) } else { 2 };
+                let len = merge_level(&src, rest, table, narrow, factor)?;
                 let slot_len = if model {
                     let level_slots = table.get_mut(..words_per_entry * len).ok_or(PyramidError::Full)?;
                     index_level(rest.get(..len).ok_or(PyramidError::Full)?, level_slots, narrow);
@@ -878,7 +893,14 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 } else {
                     0
                 };
-                info[l] = LevelInfo { start, len, slot_start, slot_len, resolution: prev.resolution * 2.0, narrow };
+                info[l] = LevelInfo {
+                    start,
+                    len,
+                    slot_start,
+                    slot_len,
+                    resolution: prev.resolution * f32::from(factor),
+                    narrow,
+                };
                 start += len;
                 slot_start += slot_len;
             }
