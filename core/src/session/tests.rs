@@ -337,7 +337,8 @@ fn forged_updates_never_pass_as_the_map() {
 }
 
 /// The tracker: prior-free until a fix, tracking from it, the fix withdrawn
-/// when the peer's map stops agreeing, prior-free again after.
+/// when the peer's map stops agreeing, prior-free again after; met again,
+/// found from the last fix's window; prior-free once reset.
 #[test]
 fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
     use crate::matching::search::SearchScratch;
@@ -378,6 +379,15 @@ fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
     assert_eq!(tracker.fix(), None);
     let after = estimate(&mut tracker, &other);
     assert_eq!((after.kind, after.fix), (Kind::PriorFree, Fix::None));
+    // Met again: the last fix's window holds the peer, found from it.
+    assert!(tracker.last().is_some());
+    let again = estimate(&mut tracker, &same);
+    assert_eq!((again.kind, again.result.status, again.fix), (Kind::Tracking, MatchStatus::Converged, Fix::Held));
+    assert!(again.result.transform.translation.vector.norm() < 0.3, "{:?}", again.result.transform);
+    // Forgotten (a restarted peer): prior-free again.
+    tracker.reset();
+    assert_eq!(tracker.last(), None);
+    assert_eq!(estimate(&mut tracker, &same).kind, Kind::PriorFree);
 }
 
 /// A peer that holds fewer voxels than the map (a smaller board) is sent

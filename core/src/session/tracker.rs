@@ -3,7 +3,9 @@
 //! finest level from it, [`Matcher::track_in`]), every answer through the
 //! verdict; a fix that stops agreeing (the verdict says `NoOverlap` from
 //! it, or EM does not settle from it or the answer is `Degenerate` twice
-//! running) is withdrawn, and the next round searches prior-free again.
+//! running) is withdrawn, and the next round searches again: the last
+//! fix's window first (the robots meeting again, the transform between
+//! their odometry frames moved only by the drift), then prior-free.
 //!
 //! A street seen along its length does not hold the match along it: from a
 //! fix, that direction is held where the fix put it, for as long as the
@@ -164,12 +166,15 @@ pub struct Tracker {
     /// Where the robot was (its own frame) at the last fix the maps held in
     /// every direction: directions are held from it up to [`HOLD_M`].
     whole_at: Option<[f32; 3]>,
+    /// The last fix held, kept when it is withdrawn: the transform between
+    /// two odometry frames outlives a meeting.
+    last: Option<Isometry3<f32>>,
 }
 
 impl Tracker {
     /// A track with no fix.
     pub const fn new() -> Self {
-        Tracker { fix: None, unsettled: 0, confirmed: false, whole_at: None }
+        Tracker { fix: None, unsettled: 0, confirmed: false, whole_at: None, last: None }
     }
 
     /// The fix held (`T_own_peer`), if any.
@@ -177,12 +182,22 @@ impl Tracker {
         self.fix.as_ref()
     }
 
-    /// Forgets the fix (the peer restarted, or its map was resent whole).
+    /// Forgets the fix and the last one held (the peer restarted, or its
+    /// map was resent whole; a one-shot exchange's every round).
     pub fn reset(&mut self) {
-        self.fix = None;
-        self.unsettled = 0;
-        self.confirmed = false;
-        self.whole_at = None;
+        *self = Tracker::new();
+    }
+
+    /// Withdraws the fix; the last one held is kept to be searched around
+    /// when the robots meet again ([`Tracker::search`]).
+    fn withdraw(&mut self) {
+        *self = Tracker { last: self.last, ..Tracker::new() };
+    }
+
+    /// The last fix held, kept when it was withdrawn (until
+    /// [`Tracker::reset`]).
+    pub fn last(&self) -> Option<&Isometry3<f32>> {
+        self.last.as_ref()
     }
 
     /// `result` as reported: Converged with what the maps leave free held
@@ -250,7 +265,18 @@ impl Tracker {
     /// Finishes the round [`Tracker::track`] began: its estimate, if it
     /// made one; else, with whole pyramids, the fix's window searched (a
     /// prior-free fix a little off, a slip) and, when that fails too, the
-    /// tracked answer; with no fix, the prior-free search.
+    /// tracked answer; with no fix, the window of the last fix held, if
+    /// any ([`Tracker::last`]), then the prior-free search.
+    ///
+    /// The transform between two robots' odometry frames outlives the
+    /// meeting that found it: by the next meeting, anywhere in the town,
+    /// only the drift has moved it, by metres and a degree or two, well
+    /// inside the window ([`crate::matching::MatchSettings::search`]). There
+    /// the prior-free search often ranks a junction turned by 90 degrees or
+    /// a street slid along itself first. A placement from the last fix's
+    /// window is a tracking estimate, judged by the same verdict (and
+    /// [`HOLD_M`]) and reported `Converged` only once the peer's estimate
+    /// agrees; one that fails leaves the round to the prior-free search.
     pub fn search<P: PyramidStorage, Q: PyramidStorage>(
         &mut self,
         own: &Pyramid<'_, P>,
@@ -275,14 +301,35 @@ impl Tracker {
                 };
                 (Kind::Tracking, result)
             }
-            // No fix (or it was forgotten since): a new fix, if any, starts
+            // No fix (or it was withdrawn since): a new fix, if any, starts
             // unconfirmed.
             _ => {
-                self.reset();
-                (Kind::PriorFree, self.limit_hold(align_prepared(own, peer, None, how, scratch, || {})?.0, how, view))
+                self.withdraw();
+                match self.recall(own, peer, how, scratch, view)? {
+                    Some(recalled) => (Kind::Tracking, recalled),
+                    None => {
+                        let found = align_prepared(own, peer, None, how, scratch, || {})?.0;
+                        (Kind::PriorFree, self.limit_hold(found, how, view))
+                    }
+                }
             }
         };
         Ok(self.settle(kind, result, view))
+    }
+
+    /// The last fix's window searched ([`Tracker::search`]): the answer,
+    /// when it passes the verdict and the hold's limit.
+    fn recall<P: PyramidStorage, Q: PyramidStorage>(
+        &mut self,
+        own: &Pyramid<'_, P>,
+        peer: &Pyramid<'_, Q>,
+        how: &Alignment,
+        scratch: &mut SearchScratch<'_>,
+        view: &PeerView,
+    ) -> Result<Option<MatchResult>, MatchError> {
+        let Some(last) = self.last else { return Ok(None) };
+        let found = self.limit_hold(align_prepared(own, peer, Some(&last), how, scratch, || {})?.0, how, view);
+        Ok(Some(found).filter(|r| r.status == MatchStatus::Converged))
     }
 
     /// The fix after `result` (made from the fix for [`Kind::Tracking`]),
@@ -291,6 +338,7 @@ impl Tracker {
         let fix = match (result.status, kind == Kind::Tracking) {
             (MatchStatus::Converged, _) => {
                 (self.fix, self.unsettled) = (Some(result.transform), 0);
+                self.last = self.fix;
                 Fix::Held
             }
             // A street seen along its length is Degenerate for a round or
@@ -301,7 +349,7 @@ impl Tracker {
                 Fix::Kept
             }
             (_, true) => {
-                self.reset();
+                self.withdraw();
                 Fix::Withdrawn
             }
             (_, false) => Fix::None,
