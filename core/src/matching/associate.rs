@@ -73,18 +73,6 @@ fn sampling_slot(class: u8) -> usize {
 }
 
 impl Sampling {
-    /// The same sample with the strides of the thinned classes times `k`:
-    /// the classes taken whole (poles, trunks, signs: few, and what pins a
-    /// street's direction) stay whole.
-    pub fn thinned(mut self, k: u32) -> Self {
-        for s in &mut self.stride {
-            if *s > 1 {
-                *s = s.saturating_mul(k.max(1));
-            }
-        }
-        self
-    }
-
     /// About `budget` entries of `level`, shared equally among classes.
     pub fn balanced(level: &Level<'_>, budget: usize) -> Self {
         let mut count = [0usize; SAMPLING_SLOTS];
@@ -573,17 +561,5 @@ mod tests {
         }
         assert_eq!(super::exp_weight(-100.0), 0.0);
         assert_eq!(super::exp_weight(f32::NAN), 0.0);
-    }
-
-    #[test]
-    fn thinning_spares_the_classes_taken_whole() {
-        let mut stride = [1u32; super::SAMPLING_SLOTS];
-        stride[0] = 4;
-        stride[9] = 3;
-        stride[super::SAMPLING_SLOTS - 1] = u32::MAX;
-        let thinned = super::Sampling { stride }.thinned(2).stride;
-        assert_eq!((thinned[0], thinned[9], thinned[1]), (8, 6, 1));
-        assert_eq!(thinned[super::SAMPLING_SLOTS - 1], u32::MAX, "saturates");
-        assert_eq!(super::Sampling { stride }.thinned(0).stride, stride, "0 thins nothing");
     }
 }

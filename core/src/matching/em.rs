@@ -19,18 +19,6 @@ use nalgebra::{Isometry3, Matrix6};
 /// keeps the whole sample: a first fix is judged on all it can read.
 pub const TRACKED_AGREEMENT_SHARE: u32 = 2;
 
-/// A tracked answer's EM reads the classes a match thins
-/// ([`MatchSettings::max_scene_entries`], shared among classes) at this
-/// many times their stride; the classes a match takes whole stay whole.
-/// From a fix EM starts within a cell and takes about five iterations, each
-/// over every sampled entry: on the town (0.5 m maps of 7,500 voxels, seed
-/// 1, one thread of a 2-core host) EM and the verdict took 3.6-4.1 ms of a
-/// 8-9 ms tracking round, 2.7-3.0 ms thinned. The answers move by less
-/// than the drift's spread: `e_t` at the median 0.112 to 0.115 m, its p90
-/// 0.183 to 0.196 m (five seeds, two robots, true labels); the same
-/// verdicts. A search's refinement keeps the whole sample.
-pub const TRACKED_EM_THINNING: u32 = 2;
-
 /// Why a match could not be run at all (a run that fails to align returns a
 /// [`MatchResult`] with a status instead).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -192,8 +180,7 @@ impl Matcher {
     /// driving). Of `scratch`, only EM's room to remember blocks is used
     /// ([`SearchScratch::with_reach`]; none: the same answer, more lookups).
     /// Its verdict reads a [`TRACKED_AGREEMENT_SHARE`] of the scene entries
-    /// a match's does, its EM the thinned classes'
-    /// [`TRACKED_EM_THINNING`] times more sparsely.
+    /// a match's does.
     pub fn track_in<A: PyramidStorage, B: PyramidStorage>(
         &self,
         model: &Pyramid<'_, A>,
@@ -376,10 +363,7 @@ impl Matcher {
             let floor = s.sigma_end * cell;
             let mut sigma = s.sigma_start * cell;
             let remaining = s.max_iterations.saturating_sub(used);
-            let mut sampling = Sampling::balanced(&c, s.max_scene_entries as usize);
-            if hold {
-                sampling = sampling.thinned(TRACKED_EM_THINNING);
-            }
+            let sampling = Sampling::balanced(&c, s.max_scene_entries as usize);
             let budget = if l == 0 { remaining } else { s.max_iterations_per_level.min(remaining / 2) };
             // Each level samples its own entries: what was reached is forgotten.
             let reach = scratch.reach();
