@@ -6,7 +6,7 @@
 //! `MatchSettings::min_agreement`). None passing is an honest `NoOverlap`,
 //! never a guess.
 
-use super::search::{search_global_in, Candidate, GlobalSearch, GlobalSearchOutcome, SearchScratch, SearchWindow};
+use super::search::{search_global_in, Candidate, GlobalSearch, GlobalSearchOutcome, SearchScratch};
 use super::{MatchError, MatchResult, MatchSettings, MatchStatus, Matcher, Method, Pyramid, PyramidStorage};
 
 /// What the prior-free alignment tried.
@@ -70,11 +70,7 @@ pub fn align_searched_in<A: PyramidStorage, B: PyramidStorage>(
     let (Some(fm), Some(fs)) = (model.footprint(), scene.footprint()) else {
         return Ok((MatchResult::no_overlap(), None));
     };
-    // Candidates are exact on the search's lattice: a window of a few cells
-    // and degrees around each holds its error.
-    let deg = core::f32::consts::PI / 180.0;
-    let window = SearchWindow { translation: 4.0, yaw: (2.0 * settings.yaw_step).max(6.0 * deg) };
-    let local = Matcher::new(MatchSettings { search: Some(window), ..matcher.settings });
+    let local = Matcher::new(MatchSettings { search: Some(settings.refinement_window()), ..matcher.settings });
     // One search for the few best, each refined in turn (not the best
     // alone first: `GlobalSearch::best_alone_first`).
     if !settings.best_alone_first {

@@ -19,9 +19,7 @@ pub mod tracker;
 
 pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateCounts};
 pub use replica::{Applied, Replica};
-pub use tracker::{
-    agree, Estimate, Fix, Kind, PeerView, Tracked, Tracker, AGREE_DEG, AGREE_M, HOLD_M, RECALL_DEG, RECALL_M,
-};
+pub use tracker::{agree, Estimate, Fix, Kind, PeerView, Tracked, Tracker, AGREE_DEG, AGREE_M, HOLD_M};
 
 /// The verdict's least overlap in a session: 0.25, where a one-shot
 /// match takes 0.2 ([`crate::matching::MatchSettings::min_overlap`]). A

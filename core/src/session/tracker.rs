@@ -13,7 +13,7 @@
 //! in every direction (beyond, the answer is `Degenerate`).
 
 use crate::geometry::Isometry3;
-use crate::matching::search::{SearchScratch, SearchWindow};
+use crate::matching::search::SearchScratch;
 use crate::matching::{
     align_prepared, Alignment, MatchError, MatchResult, MatchSettings, MatchStatus, Matcher, Pyramid, PyramidStorage,
 };
@@ -89,17 +89,6 @@ pub const AGREE_DEG: f32 = 2.0;
 /// distance driven (the two robots' errors together): 10 m keep them
 /// within 0.2-0.4 m, under the conventions' 0.5 m.
 pub const HOLD_M: f32 = 10.0;
-
-/// The window (m, degrees) searched around the last fix when the robots
-/// meet again ([`Tracker::search`]): what the drift moves the transform
-/// between two odometry frames from one meeting to the next (metres and a
-/// degree or two), the window a prior-free candidate is refined in. A
-/// round without a fix searches it before the prior-free search, on maps
-/// that mostly share nothing: the matcher's own window (15 m, 30 degrees)
-/// made a session's prior-free rounds about twice as long.
-pub const RECALL_M: f32 = 4.0;
-/// See [`RECALL_M`].
-pub const RECALL_DEG: f32 = 6.0;
 
 /// What a robot knows of its peer's estimate of it, and where it is.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -282,7 +271,11 @@ impl Tracker {
     /// The transform between two robots' odometry frames outlives the
     /// meeting that found it: by the next meeting, anywhere in the town,
     /// only the drift has moved it, by metres and a degree or two, inside
-    /// the window ([`RECALL_M`], [`RECALL_DEG`]). There
+    /// the window a prior-free candidate is refined in
+    /// ([`crate::matching::search::GlobalSearch::refinement_window`]: 4 m and 6 degrees; the
+    /// matcher's own, 15 m and 30 degrees, searched on maps that mostly
+    /// share nothing in every round without a fix, added about 6% to a
+    /// session's time). There
     /// the prior-free search often ranks a junction turned by 90 degrees or
     /// a street slid along itself first. A placement from the last fix's
     /// window is a tracking estimate, judged by the same verdict (and
@@ -339,7 +332,7 @@ impl Tracker {
         view: &PeerView,
     ) -> Result<Option<MatchResult>, MatchError> {
         let Some(last) = self.last else { return Ok(None) };
-        let window = SearchWindow { translation: RECALL_M, yaw: RECALL_DEG.to_radians() };
+        let window = how.search.refinement_window();
         let narrow = Alignment { settings: MatchSettings { search: Some(window), ..how.settings }, ..*how };
         let found = self.limit_hold(align_prepared(own, peer, Some(&last), &narrow, scratch, || {})?.0, how, view);
         Ok(Some(found).filter(|r| r.status == MatchStatus::Converged))

@@ -67,6 +67,16 @@ impl GlobalSearch {
     };
 }
 
+impl GlobalSearch {
+    /// The window a placement it proposes is refined in: its candidates are
+    /// exact on the search's lattice, so a few cells (4 m) and two yaw steps
+    /// (at least 6 degrees) around one hold its error.
+    pub fn refinement_window(&self) -> super::SearchWindow {
+        let deg = core::f32::consts::PI / 180.0;
+        super::SearchWindow { translation: 4.0, yaw: (2.0 * self.yaw_step).max(6.0 * deg) }
+    }
+}
+
 impl Default for GlobalSearch {
     fn default() -> Self {
         GlobalSearch::DEFAULT
