@@ -620,3 +620,26 @@ fn pyramids_prepared_for_tracking_track_as_whole_ones_and_refuse_a_search() {
     let searched = align_prepared(&tm, &ts, None, &how, &mut scratch, || {});
     assert_eq!(searched.map(|r| r.0), Err(MatchError::TrackingOnly));
 }
+
+#[test]
+fn a_placement_that_agrees_with_nothing_is_not_refined_at_the_finest_level() {
+    let gt = from_xyz_rpy(1.5, -0.7, 0.05, 0.0, 0.0, 0.2);
+    let mut model = new_map();
+    corner(&mut model, &Isometry3::identity());
+    let mut scene = new_map();
+    corner(&mut scene, &gt.inverse());
+    let (pm, ps) = (pyramid(&model), pyramid(&scene));
+    // Handed down 30 m off, where nothing of the model stands: judged at
+    // once, never Converged.
+    // (No search of a window around it: EM from where it is put.)
+    let em = Matcher::new(MatchSettings { search: None, ..MatchSettings::default() });
+    let far = from_xyz_rpy(30.0, 0.0, 0.0, 0.0, 0.0, 0.0) * gt;
+    let r = em.align(&pm, &ps, &far).unwrap();
+    assert_eq!(r.iterations_per_level[0], 0, "{r:?}");
+    assert_ne!(r.status, MatchStatus::Converged, "{r:?}");
+    // Near the truth it agrees at once and is refined there.
+    let near = from_xyz_rpy(0.3, -0.2, 0.0, 0.0, 0.0, 0.02) * gt;
+    let r = em.align(&pm, &ps, &near).unwrap();
+    assert!(r.iterations_per_level[0] > 0, "{r:?}");
+    assert_eq!(r.status, MatchStatus::Converged, "{r:?}");
+}
