@@ -99,23 +99,29 @@ struct Run {
 /// `parallel` feature, each on one thread), the towns built in `dir`
 /// (`frames` scans per robot; `None`: the town's default).
 pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>) -> Result<Vec<CaseFigures>, Error> {
-    let mut jobs = Vec::new();
-    let mut towns = Vec::new();
-    for &seed in seeds {
-        let town = dir.join(format!("town-{seed}"));
-        let robots = town_robots(&town, 3, seed, frames)?;
-        towns.push(robots.clone());
+    // The towns, built in parallel: the LiDAR towns (3 robots) of every
+    // seed, and the camera case's own towns with camera segmentation,
+    // labelled, of the first seeds.
+    let camera = CASES.iter().position(|c| c.labels == "camera");
+    let builds: Vec<(u64, bool)> = seeds
+        .iter()
+        .map(|&seed| (seed, false))
+        .chain(seeds.iter().take(CAMERA_SEEDS).map(|&seed| (seed, true)))
+        .collect();
+    let built = crate::evaluation::eval::for_each_start(&builds, |&(seed, with_camera)| match with_camera {
+        true => camera_town(dir, seed, frames),
+        false => town_robots(&dir.join(format!("town-{seed}")), 3, seed, frames),
+    });
+    let (mut jobs, mut towns, mut camera_towns) = (Vec::new(), Vec::new(), std::collections::HashMap::new());
+    for (&(seed, with_camera), robots) in builds.iter().zip(built) {
+        if with_camera {
+            camera_towns.insert(seed, robots?);
+            continue;
+        }
+        towns.push(robots?);
         for case in 0..CASES.len() {
             jobs.push((case, seed, towns.len() - 1));
         }
-    }
-    // The camera case: its own towns with camera segmentation, labelled.
-    let camera = CASES.iter().position(|c| c.labels == "camera");
-    let camera_seeds: Vec<u64> = seeds.iter().copied().take(CAMERA_SEEDS).collect();
-    let labelled = crate::evaluation::eval::for_each_start(&camera_seeds, |&seed| camera_town(dir, seed, frames));
-    let mut camera_towns = std::collections::HashMap::new();
-    for (&seed, robots) in camera_seeds.iter().zip(labelled) {
-        camera_towns.insert(seed, robots?);
     }
     jobs.retain(|&(case, seed, _)| Some(case) != camera || camera_towns.contains_key(&seed));
     // The longest first (3 robots: three pairs a round), so that the last
