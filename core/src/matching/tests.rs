@@ -54,6 +54,16 @@ fn corner(map: &mut Map, t: &Isometry3<f32>) {
     }
 }
 
+/// The corner as the model, and as a scene whose frame is `gt` in the
+/// model's (`T_model_scene`).
+fn corner_seen_from(gt: &Isometry3<f32>) -> (Map, Map) {
+    let mut model = new_map();
+    corner(&mut model, &Isometry3::identity());
+    let mut scene = new_map();
+    corner(&mut scene, &gt.inverse());
+    (model, scene)
+}
+
 fn errors(a: &Isometry3<f32>, b: &Isometry3<f32>) -> (f32, f32) {
     let d = a * b.inverse();
     (d.translation.vector.norm(), d.rotation.angle().to_degrees())
@@ -62,10 +72,7 @@ fn errors(a: &Isometry3<f32>, b: &Isometry3<f32>) -> (f32, f32) {
 #[test]
 fn converges_from_far_starts_to_the_truth() {
     let gt = from_xyz_rpy(1.5, -0.7, 0.05, 0.0, 0.0, 0.2);
-    let mut model = new_map();
-    corner(&mut model, &Isometry3::identity());
-    let mut scene = new_map();
-    corner(&mut scene, &gt.inverse());
+    let (model, scene) = corner_seen_from(&gt);
     let (pm, ps) = (pyramid(&model), pyramid(&scene));
     for (dx, dy, dyaw) in [(0.0, 0.0, 0.0), (6.0, -6.0, 20.0), (-6.0, 6.0, -20.0)] {
         let d = from_xyz_rpy(dx, dy, 0.0, 0.0, 0.0, f32::to_radians(dyaw));
@@ -171,10 +178,7 @@ fn far_apart_maps_do_not_match() {
 #[test]
 fn four_dof_keeps_roll_and_pitch_of_the_start() {
     let gt = from_xyz_rpy(1.0, 0.5, 0.0, 0.0, 0.0, 0.1);
-    let mut model = new_map();
-    corner(&mut model, &Isometry3::identity());
-    let mut scene = new_map();
-    corner(&mut scene, &gt.inverse());
+    let (model, scene) = corner_seen_from(&gt);
     let settings = MatchSettings { dof: Dof::Four, ..MatchSettings::default() };
     let r = Matcher::new(settings)
         .align(&pyramid(&model), &pyramid(&scene), &from_xyz_rpy(2.0, 0.0, 0.0, 0.0, 0.0, 0.3))
@@ -624,10 +628,7 @@ fn pyramids_prepared_for_tracking_track_as_whole_ones_and_refuse_a_search() {
 #[test]
 fn a_placement_that_agrees_with_nothing_is_not_refined_at_the_finest_level() {
     let gt = from_xyz_rpy(1.5, -0.7, 0.05, 0.0, 0.0, 0.2);
-    let mut model = new_map();
-    corner(&mut model, &Isometry3::identity());
-    let mut scene = new_map();
-    corner(&mut scene, &gt.inverse());
+    let (model, scene) = corner_seen_from(&gt);
     let (pm, ps) = (pyramid(&model), pyramid(&scene));
     // Handed down 30 m off, where nothing of the model stands: judged at
     // once, never Converged.

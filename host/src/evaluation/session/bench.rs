@@ -108,9 +108,12 @@ pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>
         .map(|&seed| (seed, false))
         .chain(seeds.iter().take(CAMERA_SEEDS).map(|&seed| (seed, true)))
         .collect();
-    let built = crate::evaluation::eval::for_each_start(&builds, |&(seed, with_camera)| match with_camera {
-        true => camera_town(dir, seed, frames),
-        false => town_robots(&dir.join(format!("town-{seed}")), 3, seed, frames),
+    let built = crate::evaluation::eval::for_each_start(&builds, |&(seed, with_camera)| {
+        if with_camera {
+            camera_town(dir, seed, frames)
+        } else {
+            town_robots(&dir.join(format!("town-{seed}")), 3, seed, frames)
+        }
     });
     let (mut jobs, mut towns, mut camera_towns) = (Vec::new(), Vec::new(), std::collections::HashMap::new());
     for (&(seed, with_camera), robots) in builds.iter().zip(built) {
