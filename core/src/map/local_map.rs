@@ -16,7 +16,8 @@ pub enum FullPolicy {
     /// Keep the voxels nearest to `anchor` (usually the anchor frame's origin):
     /// evict the farthest eighth of the capacity at once, then drop every later
     /// point at or beyond the distance where eviction cut, so that the map
-    /// stays a consistent ball around the anchor instead of a patchwork.
+    /// stays a consistent ball around the anchor instead of a patchwork, also
+    /// as the anchor moves ([`LocalMap::move_anchor`]).
     EvictFarthest {
         /// Point whose neighbourhood is kept, in map coordinates.
         anchor: [f32; 3],
@@ -607,24 +608,30 @@ impl<S: VoxelStorage> LocalMap<S> {
     /// Moves the point whose neighbourhood a full map keeps
     /// ([`FullPolicy::EvictFarthest`]) to where the robot is now: a robot
     /// that keeps driving evicts what is farthest from itself, not from
-    /// where it started. The radius of the last cut no longer holds (it
-    /// was about the old point). Nothing changes under [`FullPolicy::Reject`];
-    /// a point that is not finite is refused.
+    /// where it started. The radius of the last cut moves with it: the map
+    /// stays a ball of that radius around the robot, and a point beyond it
+    /// is dropped, not fused only to be evicted at the next cut. (Opening
+    /// the ball at every move let each scan fill the map with what the
+    /// sensor saw farthest away, which the next cut evicted again: on the
+    /// town, a sixth of the voxels a robot published to its peers lived
+    /// four rounds or less.) The radius follows each cut, so a map that
+    /// drives into sparser ground grows its ball again. Nothing changes
+    /// under [`FullPolicy::Reject`]; a point that is not finite is refused.
     pub fn move_anchor(&mut self, anchor: [f32; 3]) -> Result<(), ConfigError> {
         if !anchor.iter().all(|v| v.is_finite()) {
             return Err(ConfigError::Anchor);
         }
         if let FullPolicy::EvictFarthest { .. } = self.config.when_full {
             self.config.when_full = FullPolicy::EvictFarthest { anchor };
-            self.keep_radius_sq = f32::INFINITY;
         }
         Ok(())
     }
 
     /// Removes the eighth of the capacity farthest from `anchor`, exactly
     /// ([`NearestCut`]); of the voxels tied at the cut the latest inserted
-    /// go. Later points at or beyond the cut radius are dropped. (A small
-    /// board's map keeps exactly 7/8 of its capacity.)
+    /// go. Later points at or beyond the cut radius are dropped, until the
+    /// next cut sets another. (A small board's map keeps exactly 7/8 of its
+    /// capacity.)
     fn evict_farthest(&mut self, anchor: [f32; 3]) {
         let target = (self.capacity() / 8).max(1).min(self.len);
         let res = self.config.resolution;
@@ -644,7 +651,7 @@ impl<S: VoxelStorage> LocalMap<S> {
         self.evicted += len - kept;
         self.len = kept;
         table::rebuild(voxels.get(..kept).unwrap_or(&[]), slots);
-        self.keep_radius_sq = self.keep_radius_sq.min(cut.radius * cut.radius);
+        self.keep_radius_sq = cut.radius * cut.radius;
     }
 
     /// Where the map keeps what it holds: the anchor a full map evicts

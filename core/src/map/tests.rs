@@ -323,6 +323,43 @@ fn eviction_removes_exactly_the_farthest_eighth() {
     }
 }
 
+/// A map that keeps driving stays a ball around the robot: after a cut,
+/// moving the anchor keeps the cut's radius around the new point, so what
+/// the sensor sees beyond it is dropped, not fused and evicted again at the
+/// next cut; the next cut sets the radius anew, larger where the ground
+/// ahead holds less.
+#[test]
+fn a_moving_map_keeps_its_ball_around_the_robot() {
+    let config = MapConfig { when_full: FullPolicy::EvictFarthest { anchor: [0.0; 3] }, ..MapConfig::default() };
+    let mut map = heap_map(64, config);
+    // A dense line along x, out to 20 m: the map fills and cuts.
+    for i in 0..100 {
+        let _ = map.insert_point([0.1 + 0.2 * i as f32, 0.1, 0.1], Class::Road).unwrap();
+    }
+    let r = map.keep_radius().expect("a cut was made");
+    // The robot moves 1 m along y: the ball moves with it.
+    map.move_anchor([0.0, 1.0, 0.0]).unwrap();
+    assert_eq!(map.keep_radius(), Some(r), "the radius outlives the move");
+    let before = map.len();
+    let far = [0.1, 1.0 + r + 0.5, 0.1];
+    assert_eq!(map.insert_point(far, Class::Pole), Ok(Insertion::Dropped), "beyond the ball");
+    let near = [0.1, 1.0 + 0.5 * r, 0.1];
+    assert_eq!(map.insert_point(near, Class::Pole), Ok(Insertion::Created), "inside the ball");
+    assert_eq!(map.len(), before + 1);
+    // Sparse ground ahead: a cut far out grows the radius again.
+    map.move_anchor([0.0, 40.0, 0.0]).unwrap();
+    for i in 0..80 {
+        let _ = map.insert_point([0.1, 40.0 + 0.05 * r * i as f32, 0.1], Class::Road).unwrap();
+    }
+    let grown = map.keep_radius().expect("cut again");
+    assert!(grown > r && grown.is_finite(), "{grown} after {r}");
+    for v in map.iter() {
+        let p = v.position(0.2);
+        let d = ((p[0] - 0.0).powi(2) + (p[1] - 40.0).powi(2)).sqrt();
+        assert!(d < grown + 0.4, "voxel {d} m from the robot, beyond the ball {grown}");
+    }
+}
+
 /// `nearest` picks exactly the voxels a map of that many kept around the
 /// point would hold (ties included), ascending, and all of a small map.
 #[test]
