@@ -190,6 +190,8 @@ pub struct LocalMap<S: VoxelStorage> {
     /// Squared radius beyond which points are dropped, after an eviction.
     keep_radius_sq: f32,
     evicted: usize,
+    /// Where the last cut was made about, if any.
+    last_cut: Option<[f32; 3]>,
 }
 
 fn dist_sq(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -346,6 +348,7 @@ impl<S: VoxelStorage> LocalMap<S> {
             max_units: 0,
             keep_radius_sq: f32::INFINITY,
             evicted: 0,
+            last_cut: None,
         };
         map.set_config(config)?;
         Ok(map)
@@ -433,6 +436,7 @@ impl<S: VoxelStorage> LocalMap<S> {
         self.len = 0;
         self.keep_radius_sq = f32::INFINITY;
         self.evicted = 0;
+        self.last_cut = None;
     }
 
     /// The voxels, in insertion order.
@@ -652,6 +656,14 @@ impl<S: VoxelStorage> LocalMap<S> {
         self.len = kept;
         table::rebuild(voxels.get(..kept).unwrap_or(&[]), slots);
         self.keep_radius_sq = cut.radius * cut.radius;
+        self.last_cut = Some(anchor);
+    }
+
+    /// The point the last eviction cut about ([`FullPolicy::EvictFarthest`]),
+    /// if any: where the robot was when its map last evicted, which may be
+    /// a scan or two behind [`LocalMap::keep_centre`].
+    pub fn last_cut_centre(&self) -> Option<[f32; 3]> {
+        self.last_cut
     }
 
     /// Where the map keeps what it holds: the anchor a full map evicts

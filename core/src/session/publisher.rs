@@ -12,10 +12,15 @@
 //! update half the map. What the peer holds, and what the digests cover,
 //! is the map as published: each voxel's record as last sent, never
 //! further than the deadband from the map's.
+//!
+//! The cells that left the map go by a [`Cut`] where they can: every cell
+//! the peer holds at least as far from where the map keeps its voxels (or
+//! where it last evicted, whichever names more) as the farthest one it
+//! keeps; the rest by rank.
 
 use crate::map::{LocalMap, VoxelStorage};
-use crate::wire::codec::{morton, voxel_record, within_step, CodecModel, EncodeError, MapEncoder};
-use crate::wire::update::{digest_of, write_update, UpdateAck, UpdateError, UpdateHeader};
+use crate::wire::codec::{key_of, morton, voxel_record, within_step, CodecModel, EncodeError, MapEncoder};
+use crate::wire::update::{digest_of, write_update, Cut, UpdateAck, UpdateError, UpdateHeader};
 
 /// One voxel's record as a peer holds it: its cell (Morton code) and what
 /// the wire carried of it ([`voxel_record`]); where it is in the sender's
@@ -186,8 +191,17 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         keep_held_within_step(held, records);
         let records = self.sent.as_ref().get(..n).unwrap_or(&[]);
         let digest = digest_of(records.iter().map(|r| (r.code, r.record)));
+        // The cells beyond the farthest one kept go by the cut.
+        // About where the map keeps its voxels, or where it last evicted
+        // (a scan or two behind): whichever leaves fewer cells to name.
+        let about = |c: [f32; 3]| cut_for(held, records, Cut::about(c, map.resolution()));
+        let (mut cut, left) = about(map.keep_centre());
+        if let Some((other, _)) = map.last_cut_centre().map(about).filter(|&(_, n)| n < left) {
+            cut = other;
+        }
+        let by_cut = |code: u64| cut.is_some_and(|c| key_of(code).is_some_and(|k| c.removes(k)));
         // The voxels new or changed, as indices of the map.
-        let (mut upserts, mut changed, mut removals) = (0, 0, 0);
+        let (mut upserts, mut changed, mut removals, mut cut_away) = (0, 0, 0, 0);
         for change in Changes::new(held, records) {
             match change {
                 Change::Upsert(index, was_held) => {
@@ -195,12 +209,13 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
                     upserts += 1;
                     changed += u32::from(was_held);
                 }
-                Change::Remove(_) => removals += 1,
+                Change::Remove(_, code) if by_cut(code) => cut_away += 1,
+                Change::Remove(..) => removals += 1,
             }
         }
         let removed = Changes::new(held, records).filter_map(|c| match c {
-            Change::Remove(rank) => Some(rank),
-            Change::Upsert(..) => None,
+            Change::Remove(rank, code) if !by_cut(code) => Some(rank),
+            Change::Remove(..) | Change::Upsert(..) => None,
         });
         let version = self.version.wrapping_add(1).max(1);
         let header = UpdateHeader {
@@ -215,11 +230,12 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         // Coded from the acknowledged update's model, into the one in flight.
         self.sent_model = if snapshot { CodecModel::new() } else { self.held_model };
         let mut encoder = MapEncoder::subset_continuing(map, scratch, upserts)?;
-        let len = write_update(&header, removed, removals, Some(&mut encoder), &mut self.sent_model, out)
+        let len = write_update(&header, cut.as_ref(), removed, removals, Some(&mut encoder), &mut self.sent_model, out)
             .map_err(PublisherError::Update)?;
         self.version = version;
         self.in_flight = Some((version, digest));
-        self.counts = UpdateCounts { new: upserts as u32 - changed, changed, removed: removals as u32, snapshot };
+        let removed = (removals + cut_away) as u32;
+        self.counts = UpdateCounts { new: upserts as u32 - changed, changed, removed, snapshot };
         Ok(len)
     }
 
@@ -268,15 +284,42 @@ fn keep_held_within_step(held: &[ShadowEntry], now: &mut [ShadowEntry]) {
     }
 }
 
+/// The cut that removes every cell of `held` (sorted by code) at least as
+/// far from `about`'s centre as the farthest one `now` (sorted by code)
+/// still has: none when that removes nothing (nothing left, or only
+/// nearer cells did). On a map that keeps driving, the far side of its
+/// ball.
+fn cut_for(held: &[ShadowEntry], now: &[ShadowEntry], about: Cut) -> (Option<Cut>, usize) {
+    let kept = |now: &mut core::iter::Peekable<core::slice::Iter<'_, ShadowEntry>>, h: &ShadowEntry| {
+        while now.next_if(|n| n.code < h.code).is_some() {}
+        now.peek().is_some_and(|n| n.code == h.code)
+    };
+    let distance = |h: &ShadowEntry| key_of(h.code).map_or(0, |k| about.distance_sq(k));
+    let mut it = now.iter().peekable();
+    let far_kept = held.iter().filter(|h| kept(&mut it, h)).map(distance).max();
+    let threshold = far_kept.map_or(0, |d| d + 1);
+    // The cells gone, by the cut or else by rank.
+    let (mut cut_away, mut ranked) = (0usize, 0usize);
+    let mut it = now.iter().peekable();
+    for h in held.iter().filter(|h| !kept(&mut it, h)) {
+        if distance(h) >= threshold {
+            cut_away += 1;
+        } else {
+            ranked += 1;
+        }
+    }
+    ((cut_away > 0).then_some(Cut { threshold, ..about }), ranked)
+}
+
 /// A difference between what the peer holds and the map now.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Change {
     /// The voxel at this index of the map is new (`false`) or changed
     /// (`true`: the peer holds another record of it).
     Upsert(u32, bool),
-    /// The cell of this rank in what the peer holds (in code order) left
-    /// the map.
-    Remove(u32),
+    /// The cell of this rank in what the peer holds (in code order), of
+    /// this code, left the map.
+    Remove(u32, u64),
 }
 
 /// The differences of two record lists, each sorted by code, in code order.
@@ -297,6 +340,10 @@ impl<'a> Changes<'a> {
         self.rank += 1;
         self.rank - 1
     }
+
+    fn remove_held(&mut self, code: u64) -> Change {
+        Change::Remove(self.skip_held(), code)
+    }
 }
 
 impl Iterator for Changes<'_> {
@@ -305,12 +352,12 @@ impl Iterator for Changes<'_> {
         loop {
             match (self.held.first(), self.now.first()) {
                 (None, None) => return None,
-                (Some(_), None) => return Some(Change::Remove(self.skip_held())),
+                (Some(h), None) => return Some(self.remove_held(h.code)),
                 (None, Some(n)) => {
                     self.now = self.now.get(1..).unwrap_or(&[]);
                     return Some(Change::Upsert(n.index, false));
                 }
-                (Some(h), Some(n)) if h.code < n.code => return Some(Change::Remove(self.skip_held())),
+                (Some(h), Some(n)) if h.code < n.code => return Some(self.remove_held(h.code)),
                 (Some(h), Some(n)) if h.code > n.code => {
                     self.now = self.now.get(1..).unwrap_or(&[]);
                     return Some(Change::Upsert(n.index, false));

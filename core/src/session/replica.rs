@@ -171,26 +171,31 @@ impl<S: VoxelStorage> Replica<S> {
     /// and codec model kept (a failure empties the copy: the next update is
     /// a snapshot, from a fresh model).
     fn patch(&mut self, view: &UpdateView<'_>, scratch: &mut [u32], digest: &mut u32) -> Result<(), ()> {
-        if view.header.removals > 0 {
+        if view.header.removals > 0 || view.cut.is_some() {
             // The copy in code order (the base's ranks), then the indices
             // of the ranks removed moved to its front (rank k is at or
             // after slot k: nothing unread is overwritten), sorted.
-            let order = stream_order(&self.map, scratch).map_err(|_| ())?;
             let mut gone = 0;
-            for rank in view.removed() {
-                let i = *order.get(rank as usize).ok_or(())?;
-                *order.get_mut(gone).ok_or(())? = i;
-                gone += 1;
-                let v = self.map.voxel(i as usize).ok_or(())?;
-                *digest = digest.wrapping_sub(hash_of(v));
+            if view.header.removals > 0 {
+                let order = stream_order(&self.map, scratch).map_err(|_| ())?;
+                for rank in view.removed() {
+                    let i = *order.get(rank as usize).ok_or(())?;
+                    *order.get_mut(gone).ok_or(())? = i;
+                    gone += 1;
+                }
             }
-            let gone = order.get_mut(..gone).ok_or(())?;
+            let gone = scratch.get_mut(..gone).ok_or(())?;
             gone.sort_unstable();
+            // Each cell goes once, named by rank, by the cut or both.
             let (mut i, mut next) = (0u32, 0usize);
-            self.map.retain(|_| {
-                let drop = gone.get(next) == Some(&i);
-                next += usize::from(drop);
+            self.map.retain(|v| {
+                let ranked = gone.get(next) == Some(&i);
+                next += usize::from(ranked);
                 i += 1;
+                let drop = ranked || view.cut.is_some_and(|c| c.removes(v.key));
+                if drop {
+                    *digest = digest.wrapping_sub(hash_of(v));
+                }
                 !drop
             });
         }

@@ -120,9 +120,12 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
     let mut publisher = Publisher::new(7, &mut held[..], &mut sent[..]);
     let (mut map, mut rng) = (robot_map(), Lcg(1));
     let mut ratios = Vec::new();
+    let (mut removed, mut by_rank) = (0, 0);
     for round in 0..40 {
         drive(&mut map, round, &mut rng);
         let n = publisher.next_update(&map, scratch, out).unwrap();
+        removed += publisher.counts().removed;
+        by_rank += UpdateView::parse(&out[..n]).unwrap().header.removals;
         assert_eq!(replica.apply(&out[..n], scratch), Applied::Applied, "round {round}");
         publisher.on_ack(&replica.answer());
         assert_eq!(publisher.acked(), publisher.version());
@@ -140,8 +143,11 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
             ratios.push(n as f32 / whole as f32);
         }
     }
-    // The map filled and evicted around the moving robot.
+    // The map filled and evicted around the moving robot; the far side of
+    // its ball left the copy by the updates' cuts, not cell by cell.
     assert!(map.evicted() > 0 && map.len() > CAPACITY / 2, "{} {}", map.len(), map.evicted());
+    std::println!("removed {removed}, by rank {by_rank}");
+    assert!(removed > 1_000 && by_rank * 10 < removed, "removed {removed}, by rank {by_rank}");
     ratios.sort_by(f32::total_cmp);
     let median = ratios[ratios.len() / 2];
     // An update is what changed, well below a whole map.

@@ -563,13 +563,15 @@ fn update_removals_are_runs_of_ranks() {
     let ranks = [0u32, 1, 2, 9, 10, 40, 1000, 1001];
     let mut out = vec![0u8; 256];
     let none: Option<&mut MapEncoder<'_, Heap, &LocalMap<Heap>>> = None;
-    let n = write_update(&header(8), ranks.iter().copied(), 8, none, &mut CodecModel::new(), &mut out).unwrap();
-    // Header, 4 runs of 2 bytes but the last's gap (959: 2 bytes), the CRC.
-    assert_eq!(n, super::update::UPDATE_HEADER + 9 + 4);
+    let n = write_update(&header(8), None, ranks.iter().copied(), 8, none, &mut CodecModel::new(), &mut out).unwrap();
+    // Header, no cut (a byte), 4 runs of 2 bytes but the last's gap (959:
+    // 2 bytes), the CRC.
+    assert_eq!(n, super::update::UPDATE_HEADER + 1 + 9 + 4);
     let view = UpdateView::parse(&out[..n]).unwrap();
     assert_eq!(view.removed().collect::<Vec<_>>(), ranks);
+    assert_eq!(view.cut, None);
     let none: Option<&mut MapEncoder<'_, Heap, &LocalMap<Heap>>> = None;
-    let disorder = write_update(&header(2), [5u32, 3].into_iter(), 2, none, &mut CodecModel::new(), &mut out);
+    let disorder = write_update(&header(2), None, [5u32, 3].into_iter(), 2, none, &mut CodecModel::new(), &mut out);
     assert_eq!(disorder, Err(UpdateError::Removal));
     // Runs that lie: more removals announced than the runs hold, and a run
     // past u32::MAX (the CRC made to match).
@@ -578,6 +580,7 @@ fn update_removals_are_runs_of_ranks() {
         for v in [4u32, 5, 10, 0, removals, 0] {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
+        bytes.push(0); // no cut
         bytes.extend_from_slice(body);
         let crc = super::crc32(&bytes);
         bytes.extend_from_slice(&crc.to_le_bytes());
@@ -587,4 +590,57 @@ fn update_removals_are_runs_of_ranks() {
     assert_eq!(forged(&[0, 2], 4), Err(UpdateError::Truncated));
     assert_eq!(forged(&[0, 2], 2), Err(UpdateError::Counts), "a run past the removals announced");
     assert_eq!(forged(&[0xFF, 0xFF, 0xFF, 0xFF, 0x0F, 5], 6), Err(UpdateError::Removal));
+}
+
+/// An update's cut names every cell at least its threshold from its centre
+/// (in 32nds of a cell, integers: both sides find the same cells); it reads
+/// back as written, beside ranks, and a cut that lies (a centre out of
+/// range, a threshold longer than any distance, a cut in a snapshot) is a
+/// typed error.
+#[test]
+fn an_update_cut_names_the_far_cells_and_is_checked() {
+    use super::update::{write_update, Cut, UpdateError, UpdateHeader, UpdateView};
+    use crate::map::VoxelKey;
+    let cut = Cut { threshold: 1000, ..Cut::about([1.0, -2.0, 0.0], 0.5) };
+    assert_eq!(cut.centre, [64, -128, 0]);
+    // Cell (2, -4, 0)'s centre is (80, -112, 16): 16 from the centre's on
+    // each axis.
+    assert_eq!(cut.distance_sq(VoxelKey::new(2, -4, 0)), 3 * 16 * 16);
+    assert!(!cut.removes(VoxelKey::new(2, -4, 0)));
+    // Cell (7, -4, 0): 176, 16, 16.
+    assert_eq!(cut.distance_sq(VoxelKey::new(7, -4, 0)), 176 * 176 + 2 * 16 * 16);
+    assert!(cut.removes(VoxelKey::new(7, -4, 0)));
+    // Far keys and a centre not finite do not overflow or panic.
+    let wild = Cut { threshold: 0, ..Cut::about([f32::NAN, 1e30, -1e30], 0.5) };
+    assert_eq!(wild.centre, [0, Cut::MAX_CENTRE, -Cut::MAX_CENTRE]);
+    assert!(wild.removes(VoxelKey::new(i16::MIN, i16::MAX, 0)));
+    let header =
+        |base: u32| UpdateHeader { epoch: 1, base, version: 5, voxels: 10, digest: 0, removals: 2, upserts: 0 };
+    let mut out = vec![0u8; 256];
+    let none: Option<&mut MapEncoder<'_, Heap, &LocalMap<Heap>>> = None;
+    let n =
+        write_update(&header(4), Some(&cut), [3u32, 4].into_iter(), 2, none, &mut CodecModel::new(), &mut out).unwrap();
+    let view = UpdateView::parse(&out[..n]).unwrap();
+    assert_eq!(view.cut, Some(cut));
+    assert_eq!(view.removed().collect::<Vec<_>>(), [3, 4]);
+    // Forged: the cut's bytes as given (the CRC made to match).
+    let forged = |cut: &[u8], base: u32| {
+        let mut bytes = vec![super::update::UPDATE_KIND, 1, 0];
+        for v in [base, 5, 10, 0, 0, 0] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+        bytes.extend_from_slice(cut);
+        let crc = super::crc32(&bytes);
+        bytes.extend_from_slice(&crc.to_le_bytes());
+        UpdateView::parse(&bytes).map(|v| v.cut)
+    };
+    // 1001 (the threshold + 1), then 64, -128 and 0 zigzagged.
+    let good = [0xE9, 0x07, 0x80, 0x01, 0xFF, 0x01, 0];
+    assert_eq!(forged(&good, 4), Ok(Some(cut)));
+    // A centre of 2^23: past the largest.
+    assert_eq!(forged(&[0xE9, 0x07, 0x80, 0x80, 0x80, 0x08, 0, 0], 4), Err(UpdateError::Counts));
+    let endless = [0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0x01, 0, 0, 0];
+    assert_eq!(forged(&endless, 4), Err(UpdateError::Counts), "a threshold past any distance");
+    assert_eq!(forged(&good[..6], 4), Err(UpdateError::Counts), "a centre cut short");
+    assert_eq!(forged(&good, 0), Err(UpdateError::Counts), "a snapshot has nothing to cut");
 }
