@@ -303,11 +303,11 @@ fn forged_updates_never_pass_as_the_map() {
     let mut publisher = Publisher::new(9, &mut held[..], &mut sent[..]);
     let (mut map, mut rng, mut forge) = (robot_map(), Lcg(3), Lcg(4));
     let (mut history, mut outcomes): (Vec<Vec<u8>>, std::collections::BTreeMap<_, usize>) = Default::default();
-    for round in 0..5 {
+    for round in 0..7 {
         drive(&mut map, round, &mut rng);
         let n = publisher.next_update(&map, scratch, out).unwrap();
         let truth: Vec<(u64, u32)> = publisher.published().iter().map(|r| (r.code, r.record)).collect();
-        for _ in 0..60 {
+        for _ in 0..40 {
             let mut bytes = out[..n].to_vec();
             for _ in 0..1 + (forge.unit() * 4.0) as usize {
                 let at = (forge.unit() * (n - 4) as f32) as usize;
@@ -340,6 +340,8 @@ fn forged_updates_never_pass_as_the_map() {
     }
     std::println!("forged updates: {outcomes:?}");
     assert!(outcomes.len() >= 3, "{outcomes:?}");
+    // The map evicted: some of the updates forged named cells by a cut.
+    assert!(history.iter().any(|u| UpdateView::parse(u).unwrap().cut.is_some()), "no update with a cut");
 }
 
 /// The tracker: prior-free until a fix, tracking from it, the fix withdrawn
