@@ -191,9 +191,9 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         keep_held_within_step(held, records);
         let records = self.sent.as_ref().get(..n).unwrap_or(&[]);
         let digest = digest_of(records.iter().map(|r| (r.code, r.record)));
-        // The cells beyond the farthest one kept go by the cut.
-        // About where the map keeps its voxels, or where it last evicted
-        // (a scan or two behind): whichever leaves fewer cells to name.
+        // The cells beyond the farthest one kept go by the cut, about where
+        // the map keeps its voxels or where it last evicted (a scan or two
+        // behind): whichever leaves fewer cells to name by rank.
         let about = |c: [f32; 3]| cut_for(held, records, Cut::about(c, map.resolution()));
         let (mut cut, left) = about(map.keep_centre());
         if let Some((other, _)) = map.last_cut_centre().map(about).filter(|&(_, n)| n < left) {

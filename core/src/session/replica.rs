@@ -172,9 +172,10 @@ impl<S: VoxelStorage> Replica<S> {
     /// a snapshot, from a fresh model).
     fn patch(&mut self, view: &UpdateView<'_>, scratch: &mut [u32], digest: &mut u32) -> Result<(), ()> {
         if view.header.removals > 0 || view.cut.is_some() {
-            // The copy in code order (the base's ranks), then the indices
-            // of the ranks removed moved to its front (rank k is at or
-            // after slot k: nothing unread is overwritten), sorted.
+            // Cells named by rank: the copy in code order (the base's
+            // ranks) in the scratch, then the indices of the ranks removed
+            // moved to its front (rank k is at or after slot k: nothing
+            // unread is overwritten), sorted.
             let mut gone = 0;
             if view.header.removals > 0 {
                 let order = stream_order(&self.map, scratch).map_err(|_| ())?;
