@@ -11,7 +11,8 @@
 //! confidence of every voxel it sees, and resending each nudge made an
 //! update half the map. What the peer holds, and what the digests cover,
 //! is the map as published: each voxel's record as last sent, never
-//! further than the deadband from the map's.
+//! further than the deadband from the map's. An update carries no
+//! occupancy ([`update_record`]): the peer holds each voxel at one hit.
 //!
 //! The cells that left the map go by a [`Cut`] where they can: every cell
 //! the peer holds at least as far from where the map keeps its voxels (or
@@ -19,17 +20,17 @@
 //! keeps; the rest by rank.
 
 use crate::map::{LocalMap, VoxelStorage};
-use crate::wire::codec::{key_of, morton, voxel_record, within_step, CodecModel, EncodeError, MapEncoder};
-use crate::wire::update::{digest_of, write_update, Cut, UpdateAck, UpdateError, UpdateHeader};
+use crate::wire::codec::{key_of, morton, update_record, within_step, EncodeError, MapEncoder};
+use crate::wire::update::{digest_of, write_update, Cut, Removed, UpdateAck, UpdateError, UpdateHeader, UpdateModel};
 
 /// One voxel's record as a peer holds it: its cell (Morton code) and what
-/// the wire carried of it ([`voxel_record`]); where it is in the sender's
+/// the wire carried of it ([`update_record`]); where it is in the sender's
 /// map now.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ShadowEntry {
     /// Morton code of the cell.
     pub code: u64,
-    /// The voxel's [`voxel_record`] as published.
+    /// The voxel's [`update_record`] as published.
     pub record: u32,
     /// Its index in the sender's map when the record was taken.
     pub index: u32,
@@ -98,11 +99,11 @@ pub struct Publisher<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> {
     peer_capacity: u32,
     /// What the last update held.
     counts: UpdateCounts,
-    /// The codec model as encoding the update the peer acknowledged left
-    /// it, and as encoding the update in flight did: the next update is
+    /// The codec models as encoding the update the peer acknowledged left
+    /// them, and as encoding the update in flight did: the next update is
     /// coded from the first ([`crate::wire::update`]).
-    held_model: CodecModel,
-    sent_model: CodecModel,
+    held_model: UpdateModel,
+    sent_model: UpdateModel,
 }
 
 impl ShadowEntry {
@@ -125,8 +126,8 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             in_flight: None,
             peer_capacity: u32::MAX,
             counts: UpdateCounts::default(),
-            held_model: CodecModel::new(),
-            sent_model: CodecModel::new(),
+            held_model: UpdateModel::new(),
+            sent_model: UpdateModel::new(),
         }
     }
 
@@ -182,7 +183,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         let records = self.sent.as_mut().get_mut(..n).ok_or(PublisherError::Records)?;
         for (r, &i) in records.iter_mut().zip(order.iter()) {
             let v = map.voxel(i as usize).ok_or(PublisherError::Scratch)?;
-            *r = ShadowEntry { code: morton(v.key), record: voxel_record(v), index: i };
+            *r = ShadowEntry { code: morton(v.key), record: update_record(v), index: i };
         }
         // In stream order already: sorted by code.
         self.sent_len = n;
@@ -200,22 +201,26 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             cut = other;
         }
         let by_cut = |code: u64| cut.is_some_and(|c| key_of(code).is_some_and(|k| c.removes(k)));
-        // The voxels new or changed, as indices of the map.
+        // The voxels new, as indices of the map.
         let (mut upserts, mut changed, mut removals, mut cut_away) = (0, 0, 0, 0);
         for change in Changes::new(held, records) {
             match change {
-                Change::Upsert(index, was_held) => {
+                Change::New(index) => {
                     *scratch.get_mut(upserts).ok_or(PublisherError::Scratch)? = index;
                     upserts += 1;
-                    changed += u32::from(was_held);
                 }
+                Change::Changed { .. } => changed += 1,
                 Change::Remove(_, code) if by_cut(code) => cut_away += 1,
                 Change::Remove(..) => removals += 1,
             }
         }
-        let removed = Changes::new(held, records).filter_map(|c| match c {
+        let ranks = Changes::new(held, records).filter_map(|c| match c {
             Change::Remove(rank, code) if !by_cut(code) => Some(rank),
-            Change::Remove(..) | Change::Upsert(..) => None,
+            _ => None,
+        });
+        let changes = Changes::new(held, records).filter_map(|c| match c {
+            Change::Changed { rank, held, now } => Some((rank, held, now)),
+            _ => None,
         });
         let version = self.version.wrapping_add(1).max(1);
         let header = UpdateHeader {
@@ -226,16 +231,18 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             digest,
             removals: removals as u32,
             upserts: upserts as u32,
+            changed,
         };
         // Coded from the acknowledged update's model, into the one in flight.
-        self.sent_model = if snapshot { CodecModel::new() } else { self.held_model };
-        let mut encoder = MapEncoder::subset_continuing(map, scratch, upserts)?;
-        let len = write_update(&header, cut.as_ref(), removed, removals, Some(&mut encoder), &mut self.sent_model, out)
+        self.sent_model = if snapshot { UpdateModel::new() } else { self.held_model };
+        let mut encoder = MapEncoder::subset_continuing(map, scratch, upserts)?.without_occupancy();
+        let removed = Removed { cut, ranks, count: removals };
+        let len = write_update(&header, removed, changes, Some(&mut encoder), &mut self.sent_model, out)
             .map_err(PublisherError::Update)?;
         self.version = version;
         self.in_flight = Some((version, digest));
         let removed = (removals + cut_away) as u32;
-        self.counts = UpdateCounts { new: upserts as u32 - changed, changed, removed, snapshot };
+        self.counts = UpdateCounts { new: upserts as u32, changed, removed, snapshot };
         Ok(len)
     }
 
@@ -314,9 +321,11 @@ fn cut_for(held: &[ShadowEntry], now: &[ShadowEntry], about: Cut) -> (Option<Cut
 /// A difference between what the peer holds and the map now.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Change {
-    /// The voxel at this index of the map is new (`false`) or changed
-    /// (`true`: the peer holds another record of it).
-    Upsert(u32, bool),
+    /// The voxel at this index of the map is new.
+    New(u32),
+    /// The cell of this rank in what the peer holds (in code order) has
+    /// another record now.
+    Changed { rank: u32, held: u32, now: u32 },
     /// The cell of this rank in what the peer holds (in code order), of
     /// this code, left the map.
     Remove(u32, u64),
@@ -355,18 +364,18 @@ impl Iterator for Changes<'_> {
                 (Some(h), None) => return Some(self.remove_held(h.code)),
                 (None, Some(n)) => {
                     self.now = self.now.get(1..).unwrap_or(&[]);
-                    return Some(Change::Upsert(n.index, false));
+                    return Some(Change::New(n.index));
                 }
                 (Some(h), Some(n)) if h.code < n.code => return Some(self.remove_held(h.code)),
                 (Some(h), Some(n)) if h.code > n.code => {
                     self.now = self.now.get(1..).unwrap_or(&[]);
-                    return Some(Change::Upsert(n.index, false));
+                    return Some(Change::New(n.index));
                 }
                 (Some(h), Some(n)) => {
-                    self.skip_held();
+                    let rank = self.skip_held();
                     self.now = self.now.get(1..).unwrap_or(&[]);
                     if h.record != n.record {
-                        return Some(Change::Upsert(n.index, true));
+                        return Some(Change::Changed { rank, held: h.record, now: n.record });
                     }
                 }
             }

@@ -2,8 +2,8 @@
 //! `decode(encode(peer's map at version v))`.
 
 use crate::map::{ConfigError, InsertError, LocalMap, MapConfig, SemanticVoxel, VoxelSink, VoxelStorage};
-use crate::wire::codec::{morton, stream_order, voxel_record, CodecModel};
-use crate::wire::update::{voxel_hash, UpdateAck, UpdateError, UpdateView};
+use crate::wire::codec::{morton, stream_order, update_record, voxel_of_record, DecodeError};
+use crate::wire::update::{voxel_hash, ChangeSink, UpdateAck, UpdateError, UpdateModel, UpdateView};
 
 /// What became of an update.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -45,7 +45,7 @@ impl Applied {
 
 /// A voxel's share of the copy's digest.
 fn hash_of(v: &SemanticVoxel) -> u32 {
-    voxel_hash(morton(v.key), voxel_record(v))
+    voxel_hash(morton(v.key), update_record(v))
 }
 
 /// Decodes into a map, replacing the voxel of a cell held already, and
@@ -82,6 +82,34 @@ impl<S: VoxelStorage> VoxelSink for Upsert<'_, S> {
     }
 }
 
+/// Gives cells of the copy, named by their rank in its Morton order
+/// (`order`: the copy's indices in that order), the records an update's
+/// changed voxels carry, and keeps the copy's digest.
+struct Rewrite<'m, S: VoxelStorage> {
+    map: &'m mut LocalMap<S>,
+    order: &'m [u32],
+    digest: &'m mut u32,
+}
+
+impl<S: VoxelStorage> Rewrite<'_, S> {
+    fn voxel(&self, rank: u32) -> Option<&SemanticVoxel> {
+        self.order.get(rank as usize).and_then(|&i| self.map.voxel(i as usize))
+    }
+}
+
+impl<S: VoxelStorage> ChangeSink for Rewrite<'_, S> {
+    fn held(&mut self, rank: u32) -> Option<u32> {
+        self.voxel(rank).map(update_record)
+    }
+    fn change(&mut self, rank: u32, record: u32) -> Result<(), DecodeError> {
+        let old = *self.voxel(rank).ok_or(DecodeError::Range)?;
+        let new = voxel_of_record(old.key, record)?;
+        self.map.upsert_voxel(new).map_err(|_| DecodeError::Full)?;
+        *self.digest = self.digest.wrapping_sub(hash_of(&old)).wrapping_add(hash_of(&new));
+        Ok(())
+    }
+}
+
 /// A robot's copy of its peer's map, in caller-owned storage (at least
 /// the capacity the robot announces in its answers).
 pub struct Replica<S: VoxelStorage> {
@@ -89,16 +117,16 @@ pub struct Replica<S: VoxelStorage> {
     epoch: Option<u16>,
     version: u32,
     digest: u32,
-    /// The codec model as decoding the update that made `version` left it:
-    /// the next update is decoded from it ([`crate::wire::update`]).
-    model: CodecModel,
+    /// The codec models as decoding the update that made `version` left
+    /// them: the next update is decoded from them ([`crate::wire::update`]).
+    model: UpdateModel,
 }
 
 impl<S: VoxelStorage> Replica<S> {
     /// An empty copy over `map` (its configuration: the peer's voxel size).
     pub fn new(mut map: LocalMap<S>) -> Self {
         map.clear();
-        Replica { map, epoch: None, version: 0, digest: 0, model: CodecModel::new() }
+        Replica { map, epoch: None, version: 0, digest: 0, model: UpdateModel::new() }
     }
 
     /// The copy (the peer's map at [`Replica::version`]).
@@ -167,18 +195,23 @@ impl<S: VoxelStorage> Replica<S> {
         Applied::Applied
     }
 
-    /// The update's removals and upserts applied to the copy, its digest
-    /// and codec model kept (a failure empties the copy: the next update is
-    /// a snapshot, from a fresh model).
+    /// The update's changes, removals and upserts applied to the copy, its
+    /// digest and codec models kept (a failure empties the copy: the next
+    /// update is a snapshot, from fresh models).
     fn patch(&mut self, view: &UpdateView<'_>, scratch: &mut [u32], digest: &mut u32) -> Result<(), ()> {
+        // Cells named by rank: the copy in code order (the base's ranks) in
+        // the scratch. A changed voxel keeps its place in the copy.
+        let ranked = view.header.removals > 0 || view.header.changed > 0;
+        let order = if ranked { stream_order(&self.map, scratch).map_err(|_| ())? } else { &mut [][..] };
+        let mut rewrite = Rewrite { map: &mut self.map, order, digest: &mut *digest };
+        view.decode_changes(&mut self.model.changes, &mut rewrite).map_err(|_| ())?;
         if view.header.removals > 0 || view.cut.is_some() {
-            // Cells named by rank: the copy in code order (the base's
-            // ranks) in the scratch, then the indices of the ranks removed
-            // moved to its front (rank k is at or after slot k: nothing
-            // unread is overwritten), sorted.
+            // The indices of the ranks removed moved to the front of the
+            // order (rank k is at or after slot k: nothing unread is
+            // overwritten), sorted.
             let mut gone = 0;
             if view.header.removals > 0 {
-                let order = stream_order(&self.map, scratch).map_err(|_| ())?;
+                let order = scratch.get_mut(..self.map.len()).ok_or(())?;
                 for rank in view.removed() {
                     let i = *order.get(rank as usize).ok_or(())?;
                     *order.get_mut(gone).ok_or(())? = i;
@@ -200,6 +233,6 @@ impl<S: VoxelStorage> Replica<S> {
                 !drop
             });
         }
-        view.decode_upserts(&mut self.model, &mut Upsert { map: &mut self.map, digest }).map_err(|_| ())
+        view.decode_upserts(&mut self.model.voxels, &mut Upsert { map: &mut self.map, digest }).map_err(|_| ())
     }
 }

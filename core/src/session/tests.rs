@@ -2,7 +2,7 @@ use super::*;
 use crate::classes::Class;
 use crate::map::{FullPolicy, MapConfig, SemanticVoxel, VecMap};
 use crate::test_util::heap_map;
-use crate::wire::codec::{voxel_record, within_step, CodecModel, MapDecoder, MapEncoder};
+use crate::wire::codec::{update_record, voxel_record, within_step, CodecModel, MapDecoder, MapEncoder};
 use crate::wire::update::{digest_of, UpdateAck, UpdateView};
 use std::vec;
 use std::vec::Vec;
@@ -49,13 +49,14 @@ fn drive(map: &mut VecMap, round: usize, rng: &mut Lcg) {
     }
 }
 
-/// `decode(encode(map))`: what a peer's copy must equal.
+/// `decode(encode(map))` as an update carries it (no occupancy): what a
+/// peer's copy must equal.
 fn decoded(map: &VecMap) -> Vec<SemanticVoxel> {
     let mut scratch = vec![0u32; map.len()];
     let (mut model, mut back) = (CodecModel::new(), CodecModel::new());
-    let mut encoder = MapEncoder::new(map, &mut scratch, &mut model).unwrap();
+    let mut encoder = MapEncoder::new(map, &mut scratch, &mut model).unwrap().without_occupancy();
     let mut copy = heap_map(map.len().max(1), *map.config());
-    let mut decoder = MapDecoder::new(map.len(), &mut back);
+    let mut decoder = MapDecoder::new(map.len(), &mut back).without_occupancy();
     let mut chunk = vec![0u8; 1024];
     loop {
         let n = encoder.next_chunk(&mut model, &mut chunk).unwrap();
@@ -76,6 +77,8 @@ fn records(map: &VecMap) -> Vec<(u64, u32)> {
 /// records), and that is the map decoded but for records a step apart.
 fn assert_published(copy: &VecMap, published: &[ShadowEntry], map: &VecMap, what: &str) {
     let held = records(copy);
+    // An update carries no occupancy: the copy holds each voxel at one hit.
+    assert!(copy.iter().all(|v| voxel_record(v) == update_record(v)), "{what}: the copy holds an occupancy");
     let want: Vec<(u64, u32)> = published.iter().map(|r| (r.code, r.record)).collect();
     assert_eq!(held, want, "{what}: the copy is not the map as published");
     let truth = decoded(map);
@@ -527,7 +530,7 @@ fn a_voxel_is_resent_only_when_it_moved_beyond_the_deadband() {
     assert_eq!(changed, 1);
     let code = crate::wire::codec::morton(v.key);
     let held = after.iter().find(|r| r.0 == code).unwrap().1;
-    assert_eq!(held, voxel_record(&with_x(0xD000)));
+    assert_eq!(held, update_record(&with_x(0xD000)));
     // Relabelled: resent, however little else moved.
     let mut labels = crate::map::LabelDistribution::EMPTY;
     let other = if v.class() == Some(Class::Road) { Class::Building } else { Class::Road };

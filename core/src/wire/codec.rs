@@ -213,6 +213,44 @@ fn field(record: u32, (shift, bits): (u32, u32)) -> u32 {
     (record >> shift) & ((1 << bits) - 1)
 }
 
+/// A record's class index ([`NO_CLASS`] for none).
+pub(crate) fn record_class(record: u32) -> u32 {
+    field(record, CLASS_FIELD)
+}
+
+/// A record's confidence level.
+pub(crate) fn record_confidence(record: u32) -> u32 {
+    field(record, CONFIDENCE_FIELD)
+}
+
+/// A record's mean on `axis` (0-2), in steps of the cell.
+pub(crate) fn record_position(record: u32, axis: usize) -> u32 {
+    STEPPED_FIELDS.get(2 + axis).map_or(0, |&f| field(record, f))
+}
+
+/// The record (no occupancy: [`update_record`]) of a class symbol
+/// ([`class_symbol`]), a confidence level and a mean.
+pub(crate) fn record_of(symbol: usize, confidence: u32, position: [u32; 3]) -> u32 {
+    let class = if symbol >= NUM_CLASSES { NO_CLASS } else { symbol as u32 };
+    pack(&Quantised { class, confidence, occupancy: 0, position })
+}
+
+/// The voxel of cell `key` a record decodes to (what a copy holds for it);
+/// an error for a class beyond the table or a level beyond the scale.
+pub(crate) fn voxel_of_record(key: VoxelKey, record: u32) -> Result<SemanticVoxel, DecodeError> {
+    let values = STEPPED_FIELDS.map(|f| field(record, f));
+    let q = Quantised {
+        class: field(record, CLASS_FIELD),
+        confidence: values[0],
+        occupancy: values[1],
+        position: [values[2], values[3], values[4]],
+    };
+    if q.position.iter().any(|&p| p >= 1 << POSITION_BITS) || q.occupancy > 3 {
+        return Err(DecodeError::Range);
+    }
+    rebuild(key, &q)
+}
+
 /// Feeds one voxel's canonical record (6 bytes of code, 4 of packed
 /// fields) into a digest: the same in the encoder and the decoder, whatever
 /// the chunking.
@@ -311,7 +349,7 @@ impl CodecModel {
 }
 
 /// The symbol of a class index (none: after the classes).
-fn class_symbol(class: u32) -> usize {
+pub(crate) fn class_symbol(class: u32) -> usize {
     if class == NO_CLASS {
         NUM_CLASSES
     } else {
@@ -321,7 +359,7 @@ fn class_symbol(class: u32) -> usize {
 
 /// A gap as its bit length `len` (of `gap + 1`), the two bits below the
 /// leading one, and the rest.
-fn gap_parts(gap: u64) -> (u32, u32, u32, u64, u32) {
+pub(crate) fn gap_parts(gap: u64) -> (u32, u32, u32, u64, u32) {
     let v = gap.saturating_add(1);
     let len = 64 - v.leading_zeros();
     let below = len - 1;
@@ -331,13 +369,15 @@ fn gap_parts(gap: u64) -> (u32, u32, u32, u64, u32) {
 }
 
 /// Codes one voxel: its gap to the previous one (not coded when `coded`
-/// is false: the chunk header holds it) and its fields.
+/// is false: the chunk header holds it) and its fields (the occupancy only
+/// when `occupancy`).
 fn encode_voxel(
     e: &mut RangeEncoder<'_>,
     m: &mut CodecModel,
     gap: u64,
     coded: bool,
     q: &Quantised,
+    occupancy: bool,
 ) -> Result<(), super::range::Full> {
     use super::range::Full;
     if coded {
@@ -353,7 +393,9 @@ fn encode_voxel(
     e.tree(m.class.get_mut(m.prev_class as usize).ok_or(Full)?, cls as u32, 5)?;
     m.prev_class = cls as u32;
     e.tree(m.confidence.get_mut(cls).ok_or(Full)?, q.confidence, 3)?;
-    e.tree(m.occupancy.get_mut(cls).ok_or(Full)?, q.occupancy, 2)?;
+    if occupancy {
+        e.tree(m.occupancy.get_mut(cls).ok_or(Full)?, q.occupancy, 2)?;
+    }
     for (axis, &p) in q.position.iter().enumerate() {
         let ctx = position_context(cls);
         e.tree(m.position.get_mut(axis).and_then(|a| a.get_mut(ctx)).ok_or(Full)?, p, POSITION_BITS)?;
@@ -361,9 +403,16 @@ fn encode_voxel(
     Ok(())
 }
 
-/// Decodes one voxel's gap (when `coded`; else `gap` is it) and fields;
+/// Decodes one voxel's gap (when `coded`; else `gap` is it) and fields
+/// (the occupancy only when `occupancy`; else the lowest level, one hit);
 /// `None` for a class symbol beyond the table.
-fn decode_voxel(d: &mut RangeDecoder<'_>, m: &mut CodecModel, mut gap: u64, coded: bool) -> Option<(u64, Quantised)> {
+fn decode_voxel(
+    d: &mut RangeDecoder<'_>,
+    m: &mut CodecModel,
+    mut gap: u64,
+    coded: bool,
+    with_occupancy: bool,
+) -> Option<(u64, Quantised)> {
     if coded {
         let ctx = m.prev_len.min(7) as usize;
         let len = d.tree(m.gap_len.get_mut(ctx)?, 6)? + 1;
@@ -382,7 +431,7 @@ fn decode_voxel(d: &mut RangeDecoder<'_>, m: &mut CodecModel, mut gap: u64, code
     }
     m.prev_class = cls as u32;
     let confidence = d.tree(m.confidence.get_mut(cls)?, 3)?;
-    let occupancy = d.tree(m.occupancy.get_mut(cls)?, 2)?;
+    let occupancy = if with_occupancy { d.tree(m.occupancy.get_mut(cls)?, 2)? } else { 0 };
     let mut position = [0u32; 3];
     for (axis, p) in position.iter_mut().enumerate() {
         let ctx = position_context(cls);
@@ -443,6 +492,8 @@ pub struct MapEncoder<'a, S: VoxelStorage, O: Borrow<LocalMap<S>> = &'a LocalMap
     /// Voxels streamed: the map's, or a subset's.
     count: usize,
     next: usize,
+    /// Whether each voxel's occupancy goes out ([`MapEncoder::without_occupancy`]).
+    occupancy: bool,
     _storage: PhantomData<S>,
 }
 
@@ -453,7 +504,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
         stream_order(map.borrow(), scratch)?;
         model.reset();
         let count = map.borrow().len();
-        Ok(MapEncoder { map, scratch, count, next: 0, _storage: PhantomData })
+        Ok(MapEncoder { map, scratch, count, next: 0, occupancy: true, _storage: PhantomData })
     }
 
     /// Streams only the voxels whose indices are the first `count` entries
@@ -479,7 +530,14 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
         if order.windows(2).any(|w| w[0] == w[1]) {
             return Err(EncodeError::Scratch);
         }
-        Ok(MapEncoder { map, scratch, count, next: 0, _storage: PhantomData })
+        Ok(MapEncoder { map, scratch, count, next: 0, occupancy: true, _storage: PhantomData })
+    }
+
+    /// Streams no occupancy: each voxel as an update carries it
+    /// ([`update_record`]), decoded by a [`MapDecoder::without_occupancy`].
+    pub fn without_occupancy(mut self) -> Self {
+        self.occupancy = false;
+        self
     }
 
     /// The map streamed (whole or in part).
@@ -560,7 +618,7 @@ impl<'a, S: VoxelStorage, O: Borrow<LocalMap<S>>> MapEncoder<'a, S, O> {
             }
             let code = morton(v.key);
             let gap = if n > 0 { code - prev_code - 1 } else { lead };
-            encode_voxel(&mut e, model, gap, n > 0, &quantise(v)).map_err(|_| EncodeError::Buffer)?;
+            encode_voxel(&mut e, model, gap, n > 0, &quantise(v), self.occupancy).map_err(|_| EncodeError::Buffer)?;
             prev_code = code;
             n += 1;
         }
@@ -611,6 +669,16 @@ fn sort_by_code(voxels: &[SemanticVoxel], scratch: &mut [u32], count: usize) -> 
 /// compares to find the voxels that changed.
 pub fn voxel_record(v: &SemanticVoxel) -> u32 {
     pack(&quantise(v))
+}
+
+/// A voxel's record as a map update carries it: its [`voxel_record`] at
+/// the lowest occupancy level. An update sends no occupancy
+/// ([`MapEncoder::without_occupancy`]): nothing that matches reads it (a
+/// pyramid keeps a voxel's mean, class and confidence), and it was about a
+/// tenth of an update's bytes. A peer's copy holds each voxel at one hit,
+/// whose record is this.
+pub fn update_record(v: &SemanticVoxel) -> u32 {
+    pack(&Quantised { occupancy: 0, ..quantise(v) })
 }
 
 /// Steps of each axis of the mean a held record may be from the map's
@@ -664,6 +732,8 @@ pub struct MapDecoder {
     decoded: usize,
     last: Option<u64>,
     digest: Crc32,
+    /// Whether each voxel's occupancy is in the stream.
+    occupancy: bool,
 }
 
 impl MapDecoder {
@@ -678,7 +748,14 @@ impl MapDecoder {
     /// with [`MapEncoder::subset_continuing`], decoded with the model the
     /// stream it continues left.
     pub fn continuing(voxels: usize) -> Self {
-        MapDecoder { expected: voxels, decoded: 0, last: None, digest: Crc32::new() }
+        MapDecoder { expected: voxels, decoded: 0, last: None, digest: Crc32::new(), occupancy: true }
+    }
+
+    /// Decodes a stream of a [`MapEncoder::without_occupancy`]: each voxel
+    /// at the lowest occupancy level, one hit ([`update_record`]).
+    pub fn without_occupancy(mut self) -> Self {
+        self.occupancy = false;
+        self
     }
 
     /// Voxels decoded so far.
@@ -721,7 +798,7 @@ impl MapDecoder {
         };
         let mut d = RangeDecoder::new(chunk.get(at..).unwrap_or(&[]));
         for i in 0..n {
-            let (gap, q) = decode_voxel(&mut d, model, lead, i > 0).ok_or(DecodeError::Class)?;
+            let (gap, q) = decode_voxel(&mut d, model, lead, i > 0, self.occupancy).ok_or(DecodeError::Class)?;
             if i > 0 {
                 code = code.checked_add(gap).and_then(|c| c.checked_add(1)).ok_or(DecodeError::Range)?;
             }

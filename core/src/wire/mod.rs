@@ -4,6 +4,8 @@
 //!
 //! - [`crc`]: CRC-32 of frames and map files;
 //! - [`range`]: the adaptive binary range coder the codec uses;
+//! - [`change`]: the voxels an update changes, coded against the records
+//!   the peer holds;
 //! - [`codec`]: the compact, chunked voxel encoding (Morton order, range
 //!   coded in context: gaps, quantised labels, occupancy and position);
 //! - [`rs`]: Reed-Solomon over GF(256), the forward error correction;
@@ -24,6 +26,7 @@
 //! on-target self-test check, and a fuzz target in `core/fuzz`.
 
 pub mod block;
+pub mod change;
 pub mod codec;
 pub mod crc;
 pub mod feed;

@@ -15,13 +15,21 @@
 //! | 4 | voxels: the map's voxels at `version` |
 //! | 4 | digest: the map at `version`'s digest ([`digest_of`]) |
 //! | 4 | removals: cells removed by rank (besides the cut's) |
-//! | 4 | upserts: voxels new or changed |
+//! | 4 | upserts: voxels new |
+//! | 4 | changed: voxels held with another record |
 //! | ... | the cut: a varint, 0 (none) or its threshold + 1; then, with one, its centre, three zigzag varints ([`Cut`]) |
 //! | ... | the cells removed by rank, as runs of their ranks in the base map's Morton order: per run two varints, its start less the end of the run before (0 at first), its length - 1 |
-//! | ... | the upserts in codec chunks, each a u16 length and the chunk |
+//! | ... | with changed voxels: a varint, their bytes, then the range-coded changed voxels, each by its rank in the base map's Morton order and its record against the one held ([`super::change`]) |
+//! | ... | the upserts in codec chunks, each a u16 length and the chunk, without occupancy ([`super::codec::update_record`]) |
 //! | 4 | CRC-32 of everything before |
 //!
-//! The upserts' codec model is not reset for each update: an update is
+//! New voxels are the cells the base map does not hold; a cell it holds
+//! whose record changed goes among the changed voxels, named by its rank
+//! and coded against the record it replaces: about 12 bits where it took
+//! 14 as a new voxel (town, true labels), and a third of an update's voxels
+//! with a network's labels.
+//!
+//! The codec models are not reset for each update: an update is
 //! coded with the model the update to its base left (at the sender, the
 //! model after encoding it; at the receiver, after decoding it), a
 //! snapshot with a fresh one. An update's few hundred voxels left the
@@ -56,19 +64,22 @@
 //! version and digest the receiver now holds (0, 0: nothing: send a
 //! snapshot), the voxels it can hold, a CRC-32.
 
+use super::change::{decode_gap, decode_record, encode_change, ChangeModel};
 use super::codec::{read_varint, write_varint, CodecModel, DecodeError, MapDecoder, MapEncoder};
 use super::crc::crc32;
+use super::range::{RangeDecoder, RangeEncoder};
 use crate::map::{LocalMap, VoxelKey, VoxelSink, VoxelStorage};
 
 /// First byte of an update (0xD1 was the first format, its removals as
 /// Morton codes; 0xD3 reset the codec model for each update; 0xD4's
 /// digest was a CRC over the map in Morton order; 0xD5 had no cut, every
-/// removal by rank).
-pub const UPDATE_KIND: u8 = 0xD6;
+/// removal by rank; 0xD6 carried each voxel's occupancy and coded a
+/// changed voxel as a new one).
+pub const UPDATE_KIND: u8 = 0xD7;
 /// First byte of an answer.
 pub const ACK_KIND: u8 = 0xD2;
 /// Bytes of an update's fixed header.
-pub const UPDATE_HEADER: usize = 27;
+pub const UPDATE_HEADER: usize = 31;
 /// Bytes of an answer.
 pub const ACK_BYTES: usize = 1 + 2 + 4 + 4 + 4 + 4;
 /// Largest codec chunk an update holds (its length is a u16).
@@ -90,8 +101,54 @@ pub struct UpdateHeader {
     pub digest: u32,
     /// Cells removed by rank (those of the [`Cut`] besides).
     pub removals: u32,
-    /// Voxels new or changed.
+    /// Voxels new: cells the base map does not hold.
     pub upserts: u32,
+    /// Voxels the base map holds with another record.
+    pub changed: u32,
+}
+
+/// The codec models an update is coded with, its new voxels' and its
+/// changed voxels', as the update to its base left them (fresh for a
+/// snapshot): the sender and the receiver each keep the pair.
+#[derive(Clone, Copy, Default)]
+pub struct UpdateModel {
+    /// The new voxels' model.
+    pub voxels: CodecModel,
+    /// The changed voxels' model.
+    pub changes: ChangeModel,
+}
+
+impl UpdateModel {
+    /// Models that have seen nothing.
+    pub const fn new() -> Self {
+        UpdateModel { voxels: CodecModel::new(), changes: ChangeModel::new() }
+    }
+
+    /// Forgets everything, in place.
+    pub fn reset(&mut self) {
+        self.voxels.reset();
+        self.changes.reset();
+    }
+}
+
+/// The cells an update removes: by a [`Cut`], and by their ranks in the
+/// base map's Morton order (ascending), `count` of them.
+pub struct Removed<I: Iterator<Item = u32>> {
+    /// The cut, if any.
+    pub cut: Option<Cut>,
+    /// The ranks of the cells removed besides the cut's.
+    pub ranks: I,
+    /// How many ranks.
+    pub count: usize,
+}
+
+/// Where an update's changed voxels go: the copy of its base map.
+pub trait ChangeSink {
+    /// The record held for the cell of this rank in the base map's Morton
+    /// order ([`super::codec::update_record`]); `None`: no such rank.
+    fn held(&mut self, rank: u32) -> Option<u32>;
+    /// Gives that cell the record `record`.
+    fn change(&mut self, rank: u32, record: u32) -> Result<(), DecodeError>;
 }
 
 /// The cells an update removes by distance: every cell of the base map
@@ -213,6 +270,8 @@ pub enum UpdateError {
     Counts,
     /// Removed ranks out of order or out of range.
     Removal,
+    /// Changed voxels out of order, beyond the base map or not a record.
+    Changed,
     /// The upserts' chunks did not decode.
     Decode(DecodeError),
     /// Bytes after the last chunk.
@@ -229,6 +288,7 @@ impl core::fmt::Display for UpdateError {
             UpdateError::Kind => f.write_str("not a map update"),
             UpdateError::Counts => f.write_str("update counts do not fit the message"),
             UpdateError::Removal => f.write_str("removed ranks out of order or range"),
+            UpdateError::Changed => f.write_str("changed voxels out of order or range, or not a record"),
             UpdateError::Decode(e) => write!(f, "update voxels: {e}"),
             UpdateError::Trailing => f.write_str("bytes after the update's last chunk"),
             UpdateError::Buffer => f.write_str("update buffer too small"),
@@ -239,7 +299,7 @@ impl core::fmt::Display for UpdateError {
 impl core::error::Error for UpdateError {}
 
 /// One voxel's share of a map's digest: a hash of its cell's Morton code
-/// and its record ([`super::codec::voxel_record`]), 32-bit arithmetic
+/// and its record ([`super::codec::update_record`]), 32-bit arithmetic
 /// only (murmur3's finaliser, three times), the same on every platform.
 pub fn voxel_hash(code: u64, record: u32) -> u32 {
     fn mix(mut h: u32) -> u32 {
@@ -277,37 +337,39 @@ fn u16_at(bytes: &[u8], at: usize) -> Result<u16, UpdateError> {
 }
 
 /// Writes an update into `out`: `header` (its `upserts` taken from
-/// `upserts`), the `cut` (none for a snapshot), the `removals` cells
-/// removed besides it as their ranks in the base map's Morton order
-/// (ascending), the voxels `upserts` streams (a
-/// [`MapEncoder::subset_continuing`], or none) coded with `model`: the
-/// model encoding the update to the base left, fresh for a snapshot.
-/// Returns its length.
+/// `upserts`), the cells `removed` (no cut for a snapshot), the
+/// `header.changed` voxels `changed` (each its rank in the base map's
+/// Morton order, ascending, the record held and the record now), the
+/// voxels `upserts` streams (a [`MapEncoder::subset_continuing`]
+/// [`MapEncoder::without_occupancy`] of the new voxels, or none) coded
+/// with `model`: the models encoding the update to the base left, fresh
+/// for a snapshot. Returns its length.
 pub fn write_update<'m, S: VoxelStorage + 'm>(
     header: &UpdateHeader,
-    cut: Option<&Cut>,
-    removed: impl Iterator<Item = u32>,
-    removals: usize,
+    removed: Removed<impl Iterator<Item = u32>>,
+    changed: impl Iterator<Item = (u32, u32, u32)>,
     upserts: Option<&mut MapEncoder<'_, S, &'m LocalMap<S>>>,
-    model: &mut CodecModel,
+    model: &mut UpdateModel,
     out: &mut [u8],
 ) -> Result<usize, UpdateError> {
     let count = upserts.as_ref().map_or(0, |e| e.count());
     let mut at = 0;
     put(out, &mut at, &[UPDATE_KIND])?;
     put(out, &mut at, &header.epoch.to_le_bytes())?;
-    let fields = [header.base, header.version, header.voxels, header.digest, removals as u32, count as u32];
+    let fields =
+        [header.base, header.version, header.voxels, header.digest, removed.count as u32, count as u32, header.changed];
     for v in fields {
         put(out, &mut at, &v.to_le_bytes())?;
     }
-    write_cut(out, &mut at, cut)?;
-    write_removals(out, &mut at, removed, removals)?;
+    write_cut(out, &mut at, removed.cut.as_ref())?;
+    write_removals(out, &mut at, removed.ranks, removed.count)?;
+    write_changes(out, &mut at, changed, header.changed, &mut model.changes)?;
     if let Some(encoder) = upserts {
         while !encoder.is_done() {
             let room = out.len().saturating_sub(at + 2 + 4).min(MAX_UPDATE_CHUNK);
             let end = at + 2 + room;
             let chunk = out.get_mut(at + 2..end).ok_or(UpdateError::Buffer)?;
-            let n = encoder.next_chunk(model, chunk).map_err(|_| UpdateError::Buffer)?;
+            let n = encoder.next_chunk(&mut model.voxels, chunk).map_err(|_| UpdateError::Buffer)?;
             put(out, &mut at, &(n as u16).to_le_bytes())?;
             at += n;
         }
@@ -328,6 +390,7 @@ pub struct UpdateView<'a> {
     pub cut: Option<Cut>,
     body: &'a [u8],
     runs_at: usize,
+    changes_at: usize,
     chunks_at: usize,
 }
 
@@ -353,14 +416,15 @@ impl<'a> UpdateView<'a> {
             digest: u32_at(body, 15)?,
             removals: u32_at(body, 19)?,
             upserts: u32_at(body, 23)?,
+            changed: u32_at(body, 27)?,
         };
         let room = (body.len() - UPDATE_HEADER) as u64;
         // A run of removals takes two bytes at least, a voxel a bit at
         // least; a snapshot removes nothing; a map holds what it says.
         let counts_fit = (header.removals == 0 || room >= 2)
-            && u64::from(header.upserts) <= 8 * room
-            && header.upserts <= header.voxels
-            && (header.base != 0 || (header.removals == 0 && header.upserts == header.voxels))
+            && u64::from(header.upserts) + u64::from(header.changed) <= 8 * room
+            && u64::from(header.upserts) + u64::from(header.changed) <= u64::from(header.voxels)
+            && (header.base != 0 || (header.removals == 0 && header.changed == 0 && header.upserts == header.voxels))
             && header.version != header.base;
         if !counts_fit {
             return Err(UpdateError::Counts);
@@ -382,7 +446,16 @@ impl<'a> UpdateView<'a> {
         if total != u64::from(header.removals) {
             return Err(UpdateError::Counts);
         }
-        Ok(UpdateView { header, cut, body, runs_at, chunks_at: at })
+        let mut changes_at = at;
+        if header.changed > 0 {
+            let len = read_varint(body, &mut at, 5).map_err(|_| UpdateError::Truncated)?;
+            changes_at = at;
+            at = usize::try_from(len).ok().and_then(|l| at.checked_add(l)).ok_or(UpdateError::Truncated)?;
+            if at > body.len() {
+                return Err(UpdateError::Truncated);
+            }
+        }
+        Ok(UpdateView { header, cut, body, runs_at, changes_at, chunks_at: at })
     }
 
     /// The ranks in the base map's Morton order of the cells removed
@@ -399,6 +472,35 @@ impl<'a> UpdateView<'a> {
         })
     }
 
+    /// Applies the changed voxels to `sink` (the copy of the base map), in
+    /// rank order, with `model`: the model decoding the update to the base
+    /// left (a snapshot resets it here); every byte of their section is
+    /// used, or it is an error.
+    pub fn decode_changes<K: ChangeSink + ?Sized>(
+        &self,
+        model: &mut ChangeModel,
+        sink: &mut K,
+    ) -> Result<(), UpdateError> {
+        if self.header.base == 0 {
+            model.reset();
+        }
+        if self.header.changed == 0 {
+            return Ok(());
+        }
+        let bytes = self.body.get(self.changes_at..self.chunks_at).ok_or(UpdateError::Truncated)?;
+        let mut d = RangeDecoder::new(bytes);
+        let mut next = 0u64;
+        for _ in 0..self.header.changed {
+            let gap = decode_gap(&mut d, model).ok_or(UpdateError::Changed)?;
+            let rank = next.checked_add(gap).and_then(|r| u32::try_from(r).ok()).ok_or(UpdateError::Changed)?;
+            let held = sink.held(rank).ok_or(UpdateError::Changed)?;
+            let record = decode_record(&mut d, model, held).ok_or(UpdateError::Changed)?;
+            sink.change(rank, record).map_err(|_| UpdateError::Changed)?;
+            next = u64::from(rank) + 1;
+        }
+        d.finish().map_err(|over| if over { UpdateError::Truncated } else { UpdateError::Trailing })
+    }
+
     /// Decodes the upserts into `sink`, chunk by chunk, with `model`: the
     /// model decoding the update to the base left (a snapshot resets it
     /// here); every byte of the update is used, or it is an error.
@@ -410,7 +512,7 @@ impl<'a> UpdateView<'a> {
         if self.header.base == 0 {
             model.reset();
         }
-        let mut decoder = MapDecoder::continuing(self.header.upserts as usize);
+        let mut decoder = MapDecoder::continuing(self.header.upserts as usize).without_occupancy();
         let mut at = self.chunks_at;
         while !decoder.is_complete() {
             let len = usize::from(u16_at(self.body, at)?);
@@ -430,7 +532,41 @@ impl<'a> UpdateView<'a> {
     }
 }
 
-/// The next removed cell's Morton code after `prev`, read at `at`.
+/// Writes the changed voxels (rank, record held, record now; ranks
+/// ascending), `count` of them: a varint, their bytes, then the range-coded
+/// voxels ([`super::change`]).
+fn write_changes(
+    out: &mut [u8],
+    at: &mut usize,
+    changed: impl Iterator<Item = (u32, u32, u32)>,
+    count: u32,
+    model: &mut ChangeModel,
+) -> Result<(), UpdateError> {
+    if count == 0 {
+        return if changed.count() == 0 { Ok(()) } else { Err(UpdateError::Counts) };
+    }
+    // The voxels after room for the longest length, then moved up.
+    const ROOM: usize = 5;
+    let body = out.get_mut(*at + ROOM..).ok_or(UpdateError::Buffer)?;
+    let mut e = RangeEncoder::new(body);
+    let (mut written, mut next) = (0u32, 0u64);
+    for (rank, held, now) in changed {
+        let gap = u64::from(rank).checked_sub(next).ok_or(UpdateError::Changed)?;
+        encode_change(&mut e, model, gap, held, now).map_err(|_| UpdateError::Buffer)?;
+        next = u64::from(rank) + 1;
+        written += 1;
+    }
+    if written != count {
+        return Err(UpdateError::Counts);
+    }
+    let len = e.finish().map_err(|_| UpdateError::Buffer)?;
+    let start = *at + ROOM;
+    write_varint(out, at, len as u64).map_err(|_| UpdateError::Buffer)?;
+    out.copy_within(start..start + len, *at);
+    *at += len;
+    Ok(())
+}
+
 /// Writes the removed ranks (ascending) as runs: per run, its start less
 /// the end of the run before, and its length - 1, as varints.
 fn write_removals(
