@@ -12,7 +12,7 @@ fuzz_target!(|data: &[u8]| {
     let mut model = CodecModel::new();
     let mut dec = MapDecoder::new(usize::from(n), &mut model);
     for chunk in rest.split(|&b| b == 0xFF) {
-        if dec.decode_chunk(chunk, &mut map).is_err() {
+        if dec.decode_chunk(&mut model, chunk, &mut map).is_err() {
             break;
         }
     }
