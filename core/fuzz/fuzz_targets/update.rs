@@ -1,9 +1,9 @@
 //! Any bytes as a map update to a copy that holds a peer's map, its CRC-32
-//! made to match (and, for an odd first byte, its kind, epoch and base
-//! those of a delta to the copy's version, so that the body's sections are
-//! reached): no panic, no hang, and the copy is left as it was (refused,
-//! out of step, repeated), emptied (diverged, restarted) or at the
-//! update's version.
+//! made to match (and, for an odd first byte, its kind and epoch those of
+//! the copy's peer and its base, after a digest of four bytes, the copy's
+//! version, so that the body's sections are reached): no panic, no hang,
+//! and the copy is left as it was (refused, out of step, repeated),
+//! emptied (diverged, restarted) or at the update's version.
 #![no_main]
 
 use cosem_core::classes::Class;
@@ -26,12 +26,16 @@ fuzz_target!(|data: &[u8]| {
     let n = publisher.next_update(&map, &mut scratch, &mut out).unwrap();
     assert_eq!(replica.apply(&out[..n], &mut scratch), Applied::Applied);
     let (version, len) = (replica.version(), replica.map().len());
-    let Some((&first, rest)) = data.split_first() else { return };
-    let mut bytes = Vec::with_capacity(data.len() + 11);
+    let Some((&first, mut rest)) = data.split_first() else { return };
+    let mut bytes = Vec::with_capacity(data.len() + 8);
     if first % 2 == 1 {
+        let Some((digest, after)) = rest.split_first_chunk::<4>() else { return };
         bytes.push(UPDATE_KIND);
         bytes.extend_from_slice(&1u16.to_le_bytes());
-        bytes.extend_from_slice(&version.to_le_bytes());
+        bytes.extend_from_slice(digest);
+        // The copy holds a small version: a varint of one byte.
+        bytes.push(u8::try_from(version).unwrap());
+        rest = after;
     }
     bytes.extend_from_slice(rest);
     let crc = crc32(&bytes);

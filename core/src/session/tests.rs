@@ -279,8 +279,9 @@ fn a_restarted_peer_is_noticed_and_sends_a_snapshot() {
     drive(&mut map, 3, &mut rng);
     let n = second.next_update(&map, scratch, &mut forged).unwrap();
     assert_eq!(UpdateView::parse(&forged[..n]).unwrap().header.base, 0, "a new publisher starts with a snapshot");
-    // A delta of the new epoch (base 5) is refused as a restart.
-    forged[3] = 5;
+    // A delta of the new epoch (base 5: the first varint after the fixed
+    // fields) is refused as a restart.
+    forged[crate::wire::update::UPDATE_HEADER] = 5;
     let crc = crate::wire::crc32(&forged[..n - 4]);
     forged[n - 4..n].copy_from_slice(&crc.to_le_bytes());
     assert_eq!(replica.apply(&forged[..n], scratch), Applied::Restarted);

@@ -574,9 +574,9 @@ fn update_removals_are_runs_of_ranks() {
     let none: Option<&mut MapEncoder<'_, Heap, &LocalMap<Heap>>> = None;
     let removed = Removed { cut: None, ranks: ranks.iter().copied(), count: 8 };
     let n = write_update(&header(8), removed, unchanged, none, &mut UpdateModel::new(), &mut out).unwrap();
-    // Header, no cut (a byte), 4 runs of 2 bytes but the last's gap (959:
-    // 2 bytes), the CRC.
-    assert_eq!(n, super::update::UPDATE_HEADER + 1 + 9 + 4);
+    // Fixed fields, six varints of a byte, no cut (a byte), 4 runs of 2
+    // bytes but the last's gap (959: 2 bytes), the CRC.
+    assert_eq!(n, super::update::UPDATE_HEADER + 6 + 1 + 9 + 4);
     let view = UpdateView::parse(&out[..n]).unwrap();
     assert_eq!(view.removed().collect::<Vec<_>>(), ranks);
     assert_eq!(view.cut, None);
@@ -586,11 +586,9 @@ fn update_removals_are_runs_of_ranks() {
     assert_eq!(disorder, Err(UpdateError::Removal));
     // Runs that lie: more removals announced than the runs hold, and a run
     // past u32::MAX (the CRC made to match).
-    let forged = |body: &[u8], removals: u32| {
-        let mut bytes = vec![super::update::UPDATE_KIND, 1, 0];
-        for v in [4u32, 5, 10, 0, removals, 0, 0] {
-            bytes.extend_from_slice(&v.to_le_bytes());
-        }
+    let forged = |body: &[u8], removals: u8| {
+        // Epoch 1, digest 0; base 4, version 5 (a step of 1), 10 voxels.
+        let mut bytes = vec![super::update::UPDATE_KIND, 1, 0, 0, 0, 0, 0, 4, 1, 10, removals, 0, 0];
         bytes.push(0); // no cut
         bytes.extend_from_slice(body);
         let crc = super::crc32(&bytes);
@@ -598,6 +596,15 @@ fn update_removals_are_runs_of_ranks() {
         UpdateView::parse(&bytes).map(|v| v.removed().count())
     };
     assert_eq!(forged(&[0, 2], 3), Ok(3));
+    // A header varint beyond 32 bits, or one that does not end: refused.
+    let mut wide = vec![super::update::UPDATE_KIND, 1, 0, 0, 0, 0, 0, 0x80, 0x80, 0x80, 0x80, 0x10, 1, 10, 0, 0, 0, 0];
+    let crc = super::crc32(&wide);
+    wide.extend_from_slice(&crc.to_le_bytes());
+    assert_eq!(UpdateView::parse(&wide).map(|_| ()), Err(UpdateError::Counts));
+    let mut endless = vec![super::update::UPDATE_KIND, 1, 0, 0, 0, 0, 0, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF];
+    let crc = super::crc32(&endless);
+    endless.extend_from_slice(&crc.to_le_bytes());
+    assert_eq!(UpdateView::parse(&endless).map(|_| ()), Err(UpdateError::Truncated));
     assert_eq!(forged(&[0, 2], 4), Err(UpdateError::Truncated));
     assert_eq!(forged(&[0, 2], 2), Err(UpdateError::Counts), "a run past the removals announced");
     assert_eq!(forged(&[0xFF, 0xFF, 0xFF, 0xFF, 0x0F, 5], 6), Err(UpdateError::Removal));
@@ -643,11 +650,9 @@ fn an_update_cut_names_the_far_cells_and_is_checked() {
     assert_eq!(view.cut, Some(cut));
     assert_eq!(view.removed().collect::<Vec<_>>(), [3, 4]);
     // Forged: the cut's bytes as given (the CRC made to match).
-    let forged = |cut: &[u8], base: u32| {
-        let mut bytes = vec![super::update::UPDATE_KIND, 1, 0];
-        for v in [base, 5, 10, 0, 0, 0, 0] {
-            bytes.extend_from_slice(&v.to_le_bytes());
-        }
+    let forged = |cut: &[u8], base: u8| {
+        // Epoch 1, digest 0; the base, version 5, 10 voxels, nothing else.
+        let mut bytes = vec![super::update::UPDATE_KIND, 1, 0, 0, 0, 0, 0, base, 5 - base, 10, 0, 0, 0];
         bytes.extend_from_slice(cut);
         let crc = super::crc32(&bytes);
         bytes.extend_from_slice(&crc.to_le_bytes());
@@ -719,7 +724,9 @@ fn update_changes_are_ranks_and_records_against_the_held_ones() {
     assert_eq!(r, Err(UpdateError::Changed));
     // Every byte of the section changed in turn (the CRC made to match):
     // an error or some records, never a panic; cut short: an error.
-    let at = super::update::UPDATE_HEADER + 1;
+    // The section's length after the fixed fields, six varints of a byte
+    // and the cut's byte.
+    let at = super::update::UPDATE_HEADER + 6 + 1;
     for i in at..n - 4 {
         for b in [0u8, 0x55, 0xFF] {
             let mut forged = out[..n].to_vec();

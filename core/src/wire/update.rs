@@ -4,19 +4,20 @@
 //! answer. Each is one message, carried whole by whatever transport (the
 //! UART link, a ROS 2 topic, a test); damage is caught by its CRC-32.
 //!
-//! An update (all integers little-endian):
+//! An update (fixed integers little-endian; varints LEB128, each at most
+//! five bytes and within 32 bits):
 //!
 //! | bytes | field |
 //! |---|---|
 //! | 1 | kind, [`UPDATE_KIND`] |
 //! | 2 | epoch: the sender's session (a restarted sender takes another) |
-//! | 4 | base: the version it applies to (0: to nothing, a snapshot) |
-//! | 4 | version: the sender's map's version it makes |
-//! | 4 | voxels: the map's voxels at `version` |
 //! | 4 | digest: the map at `version`'s digest ([`digest_of`]) |
-//! | 4 | removals: cells removed by rank (besides the cut's) |
-//! | 4 | upserts: voxels new |
-//! | 4 | changed: voxels held with another record |
+//! | varint | base: the version it applies to (0: to nothing, a snapshot) |
+//! | varint | the version it makes less the base (wrapping; never 0) |
+//! | varint | voxels: the map's voxels at `version` |
+//! | varint | removals: cells removed by rank (besides the cut's) |
+//! | varint | upserts: voxels new |
+//! | varint | changed: voxels held with another record |
 //! | ... | the cut: a varint, 0 (none) or its threshold + 1; then, with one, its centre, three zigzag varints ([`Cut`]) |
 //! | ... | the cells removed by rank, as runs of their ranks in the base map's Morton order: per run two varints, its start less the end of the run before (0 at first), its length - 1 |
 //! | ... | with changed voxels: a varint, their bytes, then the range-coded changed voxels, each by its rank in the base map's Morton order and its record against the one held ([`super::change`]) |
@@ -74,12 +75,14 @@ use crate::map::{LocalMap, VoxelKey, VoxelSink, VoxelStorage};
 /// Morton codes; 0xD3 reset the codec model for each update; 0xD4's
 /// digest was a CRC over the map in Morton order; 0xD5 had no cut, every
 /// removal by rank; 0xD6 carried each voxel's occupancy and coded a
-/// changed voxel as a new one).
-pub const UPDATE_KIND: u8 = 0xD7;
+/// changed voxel as a new one; 0xD7's header was 31 bytes of fixed
+/// fields, about 16 more than its varints take).
+pub const UPDATE_KIND: u8 = 0xD8;
 /// First byte of an answer.
 pub const ACK_KIND: u8 = 0xD2;
-/// Bytes of an update's fixed header.
-pub const UPDATE_HEADER: usize = 31;
+/// Bytes of an update's fixed fields (kind, epoch, digest); its varints
+/// follow.
+pub const UPDATE_HEADER: usize = 7;
 /// Bytes of an answer.
 pub const ACK_BYTES: usize = 1 + 2 + 4 + 4 + 4 + 4;
 /// Largest codec chunk an update holds (its length is a u16).
@@ -356,10 +359,11 @@ pub fn write_update<'m, S: VoxelStorage + 'm>(
     let mut at = 0;
     put(out, &mut at, &[UPDATE_KIND])?;
     put(out, &mut at, &header.epoch.to_le_bytes())?;
-    let fields =
-        [header.base, header.version, header.voxels, header.digest, removed.count as u32, count as u32, header.changed];
+    put(out, &mut at, &header.digest.to_le_bytes())?;
+    let step = header.version.wrapping_sub(header.base);
+    let fields = [header.base, step, header.voxels, removed.count as u32, count as u32, header.changed];
     for v in fields {
-        put(out, &mut at, &v.to_le_bytes())?;
+        write_varint(out, &mut at, u64::from(v)).map_err(|_| UpdateError::Buffer)?;
     }
     write_cut(out, &mut at, removed.cut.as_ref())?;
     write_removals(out, &mut at, removed.ranks, removed.count)?;
@@ -408,17 +412,24 @@ impl<'a> UpdateView<'a> {
         if crc32(body) != u32_at(bytes, bytes.len() - 4)? {
             return Err(UpdateError::Checksum);
         }
+        let mut at = UPDATE_HEADER;
+        let mut field = || {
+            let v = read_varint(body, &mut at, 5).map_err(|_| UpdateError::Truncated)?;
+            u32::try_from(v).map_err(|_| UpdateError::Counts)
+        };
+        let (base, step) = (field()?, field()?);
+        let (voxels, removals, upserts, changed) = (field()?, field()?, field()?, field()?);
         let header = UpdateHeader {
             epoch: u16_at(body, 1)?,
-            base: u32_at(body, 3)?,
-            version: u32_at(body, 7)?,
-            voxels: u32_at(body, 11)?,
-            digest: u32_at(body, 15)?,
-            removals: u32_at(body, 19)?,
-            upserts: u32_at(body, 23)?,
-            changed: u32_at(body, 27)?,
+            base,
+            version: base.wrapping_add(step),
+            voxels,
+            digest: u32_at(body, 3)?,
+            removals,
+            upserts,
+            changed,
         };
-        let room = (body.len() - UPDATE_HEADER) as u64;
+        let room = body.len().saturating_sub(at) as u64;
         // A run of removals takes two bytes at least, a voxel a bit at
         // least; a snapshot removes nothing; a map holds what it says.
         let counts_fit = (header.removals == 0 || room >= 2)
@@ -429,7 +440,6 @@ impl<'a> UpdateView<'a> {
         if !counts_fit {
             return Err(UpdateError::Counts);
         }
-        let mut at = UPDATE_HEADER;
         let cut = read_cut(body, &mut at)?;
         if cut.is_some() && header.base == 0 {
             // A snapshot applies to nothing: it has nothing to cut.
