@@ -24,7 +24,8 @@
 //! ([`super::update`]).
 
 use super::codec::{
-    class_symbol, gap_parts, record_class, record_confidence, record_of, record_position, POSITION_BITS,
+    class_symbol, decode_gap as decode_code_gap, encode_gap, record_class, record_confidence, record_of,
+    record_position, POSITION_BITS,
 };
 use super::range::{Full, RangeDecoder, RangeEncoder, PROB_INIT};
 use crate::classes::NUM_CLASSES;
@@ -83,12 +84,7 @@ pub(crate) fn encode_change(
     held: u32,
     now: u32,
 ) -> Result<(), Full> {
-    let (len, top_bits, top, rest_bits, rest) = gap_parts(gap);
-    let ctx = m.prev_len.min(7) as usize;
-    e.tree(m.gap_len.get_mut(ctx).ok_or(Full)?, len - 1, 6)?;
-    e.tree(m.gap_top.get_mut(len as usize).ok_or(Full)?, top_bits, top)?;
-    e.direct(rest_bits, rest)?;
-    m.prev_len = len;
+    encode_gap(e, &mut m.gap_len, &mut m.gap_top, &mut m.prev_len, gap)?;
     let (was, is) = (class_symbol(record_class(held)), class_symbol(record_class(now)));
     let same = was == is;
     e.tree(m.same_class.get_mut(was).ok_or(Full)?, u32::from(same), 1)?;
@@ -106,15 +102,7 @@ pub(crate) fn encode_change(
 
 /// Decodes the next changed voxel's rank gap ([`encode_change`]).
 pub(crate) fn decode_gap(d: &mut RangeDecoder<'_>, m: &mut ChangeModel) -> Option<u64> {
-    let ctx = m.prev_len.min(7) as usize;
-    let len = d.tree(m.gap_len.get_mut(ctx)?, 6)? + 1;
-    let below = len - 1;
-    let top = below.min(2);
-    let top_bits = d.tree(m.gap_top.get_mut(len as usize)?, top)?;
-    let rest = below - top;
-    let rest_bits = d.direct(rest);
-    m.prev_len = len;
-    Some(((1u64 << below) | (u64::from(top_bits) << rest) | rest_bits) - 1)
+    decode_code_gap(d, &mut m.gap_len, &mut m.gap_top, &mut m.prev_len)
 }
 
 /// Decodes a changed voxel's record against the record `held` it

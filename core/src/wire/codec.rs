@@ -359,13 +359,51 @@ pub(crate) fn class_symbol(class: u32) -> usize {
 
 /// A gap as its bit length `len` (of `gap + 1`), the two bits below the
 /// leading one, and the rest.
-pub(crate) fn gap_parts(gap: u64) -> (u32, u32, u32, u64, u32) {
+fn gap_parts(gap: u64) -> (u32, u32, u32, u64, u32) {
     let v = gap.saturating_add(1);
     let len = 64 - v.leading_zeros();
     let below = len - 1;
     let top = below.min(2);
     let rest = below - top;
     (len, ((v >> rest) & ((1 << top) - 1)) as u32, top, v & ((1u64 << rest) - 1), rest)
+}
+
+/// Codes a gap (between Morton codes, or ranks): its bit length in the
+/// context of the previous gap's (`prev_len`, updated), the two bits below
+/// the leading one in the context of the length, the rest at even odds.
+pub(crate) fn encode_gap(
+    e: &mut RangeEncoder<'_>,
+    gap_len: &mut [[u16; 64]; 8],
+    gap_top: &mut [[u16; 4]],
+    prev_len: &mut u32,
+    gap: u64,
+) -> Result<(), super::range::Full> {
+    use super::range::Full;
+    let (len, top_bits, top, rest_bits, rest) = gap_parts(gap);
+    let ctx = (*prev_len).min(7) as usize;
+    e.tree(gap_len.get_mut(ctx).ok_or(Full)?, len - 1, 6)?;
+    e.tree(gap_top.get_mut(len as usize).ok_or(Full)?, top_bits, top)?;
+    e.direct(rest_bits, rest)?;
+    *prev_len = len;
+    Ok(())
+}
+
+/// Decodes a gap coded by [`encode_gap`] with the same probabilities.
+pub(crate) fn decode_gap(
+    d: &mut RangeDecoder<'_>,
+    gap_len: &mut [[u16; 64]; 8],
+    gap_top: &mut [[u16; 4]],
+    prev_len: &mut u32,
+) -> Option<u64> {
+    let ctx = (*prev_len).min(7) as usize;
+    let len = d.tree(gap_len.get_mut(ctx)?, 6)? + 1;
+    let below = len - 1;
+    let top = below.min(2);
+    let top_bits = d.tree(gap_top.get_mut(len as usize)?, top)?;
+    let rest = below - top;
+    let rest_bits = d.direct(rest);
+    *prev_len = len;
+    Some(((1u64 << below) | (u64::from(top_bits) << rest) | rest_bits) - 1)
 }
 
 /// Codes one voxel: its gap to the previous one (not coded when `coded`
@@ -381,13 +419,7 @@ fn encode_voxel(
 ) -> Result<(), super::range::Full> {
     use super::range::Full;
     if coded {
-        let g = gap;
-        let (len, top_bits, top, rest_bits, rest) = gap_parts(g);
-        let ctx = m.prev_len.min(7) as usize;
-        e.tree(m.gap_len.get_mut(ctx).ok_or(Full)?, len - 1, 6)?;
-        e.tree(m.gap_top.get_mut(len as usize).ok_or(Full)?, top_bits, top)?;
-        e.direct(rest_bits, rest)?;
-        m.prev_len = len;
+        encode_gap(e, &mut m.gap_len, &mut m.gap_top, &mut m.prev_len, gap)?;
     }
     let cls = class_symbol(q.class);
     e.tree(m.class.get_mut(m.prev_class as usize).ok_or(Full)?, cls as u32, 5)?;
@@ -414,16 +446,7 @@ fn decode_voxel(
     with_occupancy: bool,
 ) -> Option<(u64, Quantised)> {
     if coded {
-        let ctx = m.prev_len.min(7) as usize;
-        let len = d.tree(m.gap_len.get_mut(ctx)?, 6)? + 1;
-        let below = len - 1;
-        let top = below.min(2);
-        let top_bits = d.tree(m.gap_top.get_mut(len as usize)?, top)?;
-        let rest = below - top;
-        let rest_bits = d.direct(rest);
-        let v = (1u64 << below) | (u64::from(top_bits) << rest) | rest_bits;
-        gap = v - 1;
-        m.prev_len = len;
+        gap = decode_gap(d, &mut m.gap_len, &mut m.gap_top, &mut m.prev_len)?;
     }
     let cls = d.tree(m.class.get_mut(m.prev_class as usize)?, 5)? as usize;
     if cls >= CLASS_SYMBOLS {
