@@ -101,11 +101,12 @@ impl<S: VoxelStorage> ChangeSink for Rewrite<'_, S> {
     fn held(&mut self, rank: u32) -> Option<u32> {
         self.voxel(rank).map(update_record)
     }
-    fn change(&mut self, rank: u32, record: u32) -> Result<(), DecodeError> {
-        let old = *self.voxel(rank).ok_or(DecodeError::Range)?;
-        let new = voxel_of_record(old.key, record)?;
+    fn change(&mut self, rank: u32, held: u32, record: u32) -> Result<(), DecodeError> {
+        let key = self.voxel(rank).ok_or(DecodeError::Range)?.key;
+        let new = voxel_of_record(key, record)?;
         self.map.upsert_voxel(new).map_err(|_| DecodeError::Full)?;
-        *self.digest = self.digest.wrapping_sub(hash_of(&old)).wrapping_add(hash_of(&new));
+        let old = voxel_hash(morton(key), held);
+        *self.digest = self.digest.wrapping_sub(old).wrapping_add(hash_of(&new));
         Ok(())
     }
 }

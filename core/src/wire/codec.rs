@@ -213,6 +213,12 @@ fn field(record: u32, (shift, bits): (u32, u32)) -> u32 {
     (record >> shift) & ((1 << bits) - 1)
 }
 
+/// The fields [`pack`] packed.
+fn unpack(record: u32) -> Quantised {
+    let [confidence, occupancy, x, y, z] = STEPPED_FIELDS.map(|f| field(record, f));
+    Quantised { class: field(record, CLASS_FIELD), confidence, occupancy, position: [x, y, z] }
+}
+
 /// A record's class index ([`NO_CLASS`] for none).
 pub(crate) fn record_class(record: u32) -> u32 {
     field(record, CLASS_FIELD)
@@ -238,14 +244,8 @@ pub(crate) fn record_of(symbol: usize, confidence: u32, position: [u32; 3]) -> u
 /// The voxel of cell `key` a record decodes to (what a copy holds for it);
 /// an error for a class beyond the table or a level beyond the scale.
 pub(crate) fn voxel_of_record(key: VoxelKey, record: u32) -> Result<SemanticVoxel, DecodeError> {
-    let values = STEPPED_FIELDS.map(|f| field(record, f));
-    let q = Quantised {
-        class: field(record, CLASS_FIELD),
-        confidence: values[0],
-        occupancy: values[1],
-        position: [values[2], values[3], values[4]],
-    };
-    if q.position.iter().any(|&p| p >= 1 << POSITION_BITS) || q.occupancy > 3 {
+    let q = unpack(record);
+    if q.position.iter().any(|&p| p >= 1 << POSITION_BITS) {
         return Err(DecodeError::Range);
     }
     rebuild(key, &q)

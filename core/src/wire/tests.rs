@@ -686,7 +686,7 @@ fn update_changes_are_ranks_and_records_against_the_held_ones() {
         fn held(&mut self, rank: u32) -> Option<u32> {
             self.0.get(rank as usize).copied()
         }
-        fn change(&mut self, rank: u32, record: u32) -> Result<(), super::DecodeError> {
+        fn change(&mut self, rank: u32, _held: u32, record: u32) -> Result<(), super::DecodeError> {
             self.1.push((rank, record));
             Ok(())
         }

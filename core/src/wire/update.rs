@@ -150,8 +150,8 @@ pub trait ChangeSink {
     /// The record held for the cell of this rank in the base map's Morton
     /// order ([`super::codec::update_record`]); `None`: no such rank.
     fn held(&mut self, rank: u32) -> Option<u32>;
-    /// Gives that cell the record `record`.
-    fn change(&mut self, rank: u32, record: u32) -> Result<(), DecodeError>;
+    /// Gives that cell, which held `held`, the record `record`.
+    fn change(&mut self, rank: u32, held: u32, record: u32) -> Result<(), DecodeError>;
 }
 
 /// The cells an update removes by distance: every cell of the base map
@@ -430,11 +430,12 @@ impl<'a> UpdateView<'a> {
             changed,
         };
         let room = body.len().saturating_sub(at) as u64;
+        let sent = u64::from(header.upserts) + u64::from(header.changed);
         // A run of removals takes two bytes at least, a voxel a bit at
         // least; a snapshot removes nothing; a map holds what it says.
         let counts_fit = (header.removals == 0 || room >= 2)
-            && u64::from(header.upserts) + u64::from(header.changed) <= 8 * room
-            && u64::from(header.upserts) + u64::from(header.changed) <= u64::from(header.voxels)
+            && sent <= 8 * room
+            && sent <= u64::from(header.voxels)
             && (header.base != 0 || (header.removals == 0 && header.changed == 0 && header.upserts == header.voxels))
             && header.version != header.base;
         if !counts_fit {
@@ -505,7 +506,7 @@ impl<'a> UpdateView<'a> {
             let rank = next.checked_add(gap).and_then(|r| u32::try_from(r).ok()).ok_or(UpdateError::Changed)?;
             let held = sink.held(rank).ok_or(UpdateError::Changed)?;
             let record = decode_record(&mut d, model, held).ok_or(UpdateError::Changed)?;
-            sink.change(rank, record).map_err(|_| UpdateError::Changed)?;
+            sink.change(rank, held, record).map_err(|_| UpdateError::Changed)?;
             next = u64::from(rank) + 1;
         }
         d.finish().map_err(|over| if over { UpdateError::Truncated } else { UpdateError::Trailing })
