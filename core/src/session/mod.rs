@@ -32,5 +32,18 @@ pub use tracker::{agree, Estimate, Fix, Kind, PeerView, Tracked, Tracker, AGREE_
 /// under 0.25.
 pub const MIN_OVERLAP: f32 = 0.25;
 
+/// Bytes a session robot's update may take by default: 1,024, about 5 KB/s
+/// at the session's five rounds a second (two scans of a 10 Hz LiDAR a
+/// round), under half of a 115,200-baud UART's 11.5 KB/s, so that a line
+/// also carries the frames' overhead, resends and answers. A round that
+/// changed more (a robot turning into a new street changes twice what a
+/// straight one does) sends what is nearest the robot, and the rest
+/// follows ([`Publisher::set_budget`]).
+pub const DEFAULT_UPDATE_BUDGET: u32 = 1024;
+
+/// The least budget an update may be given: room for its header, its
+/// removals and a few voxels.
+pub const MIN_UPDATE_BUDGET: u32 = 64;
+
 #[cfg(test)]
 mod tests;

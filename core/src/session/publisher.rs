@@ -14,6 +14,11 @@
 //! further than the deadband from the map's. An update carries no
 //! occupancy ([`update_record`]): the peer holds each voxel at one hit.
 //!
+//! An update may be bounded ([`Publisher::set_budget`]): what changed
+//! beyond the budget waits for the next rounds, changed voxels before new
+//! ones and the farthest from the robot first; what the peer holds is then
+//! the map as published with those held back.
+//!
 //! The cells that left the map go by a [`Cut`] where they can: every cell
 //! the peer holds at least as far from where the map keeps its voxels (or
 //! where it last evicted, whichever names more) as the farthest one it
@@ -76,6 +81,9 @@ pub struct UpdateCounts {
     pub changed: u32,
     /// Cells removed.
     pub removed: u32,
+    /// New or changed voxels held back for a later update: beyond the
+    /// budget ([`Publisher::set_budget`]).
+    pub deferred: u32,
     /// A snapshot (the peer held nothing).
     pub snapshot: bool,
 }
@@ -104,6 +112,8 @@ pub struct Publisher<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> {
     /// coded from the first ([`crate::wire::update`]).
     held_model: UpdateModel,
     sent_model: UpdateModel,
+    /// Bytes an update (not a snapshot) may take, if bounded.
+    budget: Option<u32>,
 }
 
 impl ShadowEntry {
@@ -128,7 +138,22 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             counts: UpdateCounts::default(),
             held_model: UpdateModel::new(),
             sent_model: UpdateModel::new(),
+            budget: None,
         }
+    }
+
+    /// Bounds each update to `bytes` (`None`: unbounded; a snapshot never
+    /// is: the peer needs it whole). A round that changed more sends what
+    /// changed nearest the map's keep centre (the robot), changed voxels
+    /// after new ones, and holds the rest back, as the peer holds it, for
+    /// the next rounds: a link's rate bounds what a round may send, and a
+    /// robot that turns into a new street changes twice what a straight one
+    /// does. The cells that left the map and the header are always sent, so
+    /// an update exceeds the budget only when they alone do. Set in place:
+    /// a publisher holds two codec models, which a board's stack should not
+    /// carry by value.
+    pub fn set_budget(&mut self, bytes: Option<u32>) {
+        self.budget = bytes;
     }
 
     /// The session's epoch.
@@ -188,9 +213,50 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         // In stream order already: sorted by code.
         self.sent_len = n;
         let snapshot = self.acked == 0;
-        let held = if snapshot { &[][..] } else { self.held.as_ref().get(..self.held_len).unwrap_or(&[]) };
-        keep_held_within_step(held, records);
-        let records = self.sent.as_ref().get(..n).unwrap_or(&[]);
+        let held = if snapshot { 0 } else { self.held_len };
+        keep_held_within_step(self.held.as_ref().get(..held).unwrap_or(&[]), records);
+        let mut written = self.write(map, held, scratch, out)?;
+        let mut deferred = 0;
+        if let Some(budget) = self.budget.filter(|_| !snapshot) {
+            let centre = Cut::about(map.keep_centre(), map.resolution());
+            for _ in 0..MAX_BUDGET_PASSES {
+                if written.len <= budget as usize || written.candidates == 0 {
+                    break;
+                }
+                // Bytes a voxel sent, over-counted by the header and the
+                // removals: a pass defers a little more than it must.
+                let over = written.len - budget as usize;
+                let want = (over * written.candidates).div_ceil(written.len) + 1;
+                let held_records = self.held.as_ref().get(..held).unwrap_or(&[]);
+                let records = self.sent.as_mut().get_mut(..self.sent_len).ok_or(PublisherError::Records)?;
+                let (kept, d) = defer_farthest(held_records, records, centre, want);
+                self.sent_len = kept;
+                deferred += d;
+                written = self.write(map, held, scratch, out)?;
+            }
+        }
+        let version = self.version.wrapping_add(1).max(1);
+        self.version = version;
+        self.in_flight = Some((version, written.digest));
+        self.counts = UpdateCounts { deferred, snapshot, ..written.counts };
+        Ok(written.len)
+    }
+
+    /// Writes the update from the first `held` records the peer holds to
+    /// the records in flight (as the next version), from the acknowledged
+    /// update's codec model. Never inlined: its codec model and encoder
+    /// stay one frame on a board's stack, not one per call site.
+    #[inline(never)]
+    fn write<S: VoxelStorage>(
+        &mut self,
+        map: &LocalMap<S>,
+        held: usize,
+        scratch: &mut [u32],
+        out: &mut [u8],
+    ) -> Result<Written, PublisherError> {
+        let held = self.held.as_ref().get(..held).unwrap_or(&[]);
+        let records = self.sent.as_ref().get(..self.sent_len).unwrap_or(&[]);
+        let snapshot = self.acked == 0;
         let digest = digest_of(records.iter().map(|r| (r.code, r.record)));
         // The cells beyond the farthest one kept go by the cut, about where
         // the map keeps its voxels or where it last evicted (a scan or two
@@ -222,12 +288,11 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
             Change::Changed { rank, held, now } => Some((rank, held, now)),
             _ => None,
         });
-        let version = self.version.wrapping_add(1).max(1);
         let header = UpdateHeader {
             epoch: self.epoch,
             base: if snapshot { 0 } else { self.acked },
-            version,
-            voxels: n as u32,
+            version: self.version.wrapping_add(1).max(1),
+            voxels: records.len() as u32,
             digest,
             removals: removals as u32,
             upserts: upserts as u32,
@@ -239,11 +304,9 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         let removed = Removed { cut, ranks, count: removals };
         let len = write_update(&header, removed, changes, Some(&mut encoder), &mut self.sent_model, out)
             .map_err(PublisherError::Update)?;
-        self.version = version;
-        self.in_flight = Some((version, digest));
         let removed = (removals + cut_away) as u32;
-        self.counts = UpdateCounts { new: upserts as u32, changed, removed, snapshot };
-        Ok(len)
+        let counts = UpdateCounts { new: upserts as u32, changed, removed, deferred: 0, snapshot };
+        Ok(Written { len, digest, counts, candidates: upserts + changed as usize })
     }
 
     /// Takes the peer's answer: what it holds now. The update in flight
@@ -289,6 +352,97 @@ fn keep_held_within_step(held: &[ShadowEntry], now: &mut [ShadowEntry]) {
             }
         }
     }
+}
+
+/// An update written: its length, digest and counts, and how many of its
+/// voxels (new or changed) a budget could hold back.
+struct Written {
+    len: usize,
+    digest: u32,
+    counts: UpdateCounts,
+    candidates: usize,
+}
+
+/// Passes of writing an update within its budget: each defers a little
+/// more than the last one's excess asked, so two mostly do.
+const MAX_BUDGET_PASSES: usize = 6;
+
+/// Cells from the keep centre, at most: the histogram's last bin holds the
+/// rest.
+const DEFER_BINS: usize = 128;
+
+/// A record's code while it is being dropped: beyond any Morton code (48
+/// bits).
+const DROPPED: u64 = u64::MAX;
+
+/// Calls `f` on each record of `now` (sorted by code) that `held` (sorted
+/// by code) does not hold, or holds with another record (then given).
+fn for_each_candidate(held: &[ShadowEntry], now: &mut [ShadowEntry], mut f: impl FnMut(&mut ShadowEntry, Option<u32>)) {
+    let mut held = held.iter().peekable();
+    for r in now.iter_mut() {
+        while held.next_if(|h| h.code < r.code).is_some() {}
+        match held.next_if(|h| h.code == r.code) {
+            Some(h) if h.record != r.record => f(r, Some(h.record)),
+            Some(_) => {}
+            None => f(r, None),
+        }
+    }
+}
+
+/// Holds back `want` of the voxels `now` (sorted by code) has new or
+/// changed against `held` (sorted by code) (all of them, if fewer), the
+/// farthest from `centre` first by whole cells of distance (within a cell's
+/// distance, in code order), changed ones before new ones: a new one leaves the records,
+/// a changed one takes its held record again (as the deadband does).
+/// Returns the records' new length and how many were held back.
+#[inline(never)]
+fn defer_farthest(held: &[ShadowEntry], now: &mut [ShadowEntry], centre: Cut, want: usize) -> (usize, u32) {
+    // Whole cells from the centre (the cut's units are 32nds of a cell).
+    let bin = |code: u64| {
+        let d = key_of(code).map_or(u64::MAX, |k| centre.distance_sq(k));
+        (d.isqrt() / 32).min(DEFER_BINS as u64 - 1) as usize
+    };
+    // Changed voxels are held back before new ones (the peer holds them
+    // already, a little off), each the farthest first.
+    let rank = |r: &ShadowEntry, held: Option<u32>| bin(r.code) + if held.is_some() { DEFER_BINS } else { 0 };
+    let mut histogram = [0u32; 2 * DEFER_BINS];
+    for_each_candidate(held, now, |r, h| {
+        if let Some(n) = histogram.get_mut(rank(r, h)) {
+            *n += 1;
+        }
+    });
+    // The lowest rank from which on `want` are held back: all of the ranks
+    // above it, and of its own the first in code order that make up the
+    // rest.
+    let (mut from, mut total) = (histogram.len(), 0usize);
+    while from > 0 && total < want {
+        from -= 1;
+        total += histogram.get(from).copied().unwrap_or(0) as usize;
+    }
+    let mut at_from = (want + histogram.get(from).copied().unwrap_or(0) as usize).saturating_sub(total);
+    let mut deferred = 0u32;
+    for_each_candidate(held, now, |r, held_record| {
+        let rank = rank(r, held_record);
+        let defer = rank > from || (rank == from && at_from > 0);
+        if defer {
+            at_from -= usize::from(rank == from);
+            deferred += 1;
+            match held_record {
+                Some(h) => r.record = h,
+                None => r.code = DROPPED,
+            }
+        }
+    });
+    // The new ones held back leave the records, the order kept.
+    let mut kept = 0;
+    for i in 0..now.len() {
+        let Some(r) = now.get(i).copied().filter(|r| r.code != DROPPED) else { continue };
+        if let Some(slot) = now.get_mut(kept) {
+            *slot = r;
+        }
+        kept += 1;
+    }
+    (kept, deferred)
 }
 
 /// The cut that removes every cell of `held` (sorted by code) at least as

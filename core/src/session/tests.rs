@@ -158,6 +158,65 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
     assert!(median < 0.8, "median update / snapshot {median}");
 }
 
+/// An update bounded by a budget: no update (but the snapshot) is longer;
+/// what waits is what changed farthest from the robot, changed voxels
+/// before new ones; the copy is always the map as published; and once the
+/// robot stops, what waited follows until the copy is the map decoded.
+#[test]
+fn a_budget_bounds_each_update_and_what_waits_follows() {
+    const BUDGET: usize = 300;
+    let mut ends = Ends::new();
+    let Ends { held, sent, replica, scratch, out } = &mut ends;
+    let mut publisher = Publisher::new(4, &mut held[..], &mut sent[..]);
+    publisher.set_budget(Some(BUDGET as u32));
+    let (mut map, mut rng) = (robot_map(), Lcg(3));
+    let (mut deferred_new, mut deferred) = (0, 0);
+    let whole_cells = |code: u64, map: &VecMap| {
+        let k = crate::wire::codec::key_of(code).unwrap();
+        let c = map.keep_centre();
+        let r = map.resolution();
+        let d = [k.x, k.y, k.z].iter().zip(c).map(|(&k, c)| ((f32::from(k) + 0.5) * r - c).powi(2)).sum::<f32>();
+        libm::floorf(libm::sqrtf(d) / r)
+    };
+    for round in 0..80 {
+        // Driving for 40 rounds, then standing still.
+        if round < 40 {
+            drive(&mut map, round, &mut rng);
+        }
+        let before: Vec<u64> = publisher.published().iter().map(|r| r.code).collect();
+        let n = publisher.next_update(&map, scratch, out).unwrap();
+        let counts = publisher.counts();
+        assert!(round == 0 || n <= BUDGET, "round {round}: {n} bytes");
+        deferred += counts.deferred;
+        assert_eq!(replica.apply(&out[..n], scratch), Applied::Applied, "round {round}");
+        publisher.on_ack(&replica.answer());
+        let published = publisher.published();
+        let want: Vec<(u64, u32)> = published.iter().map(|r| (r.code, r.record)).collect();
+        assert_eq!(records(replica.map()), want, "round {round}: the copy is not the map as published");
+        // The cells the map has and the copy lacks waited; those the
+        // update sent new were nearer, by whole cells, and no changed
+        // voxel went while a new one waited.
+        let codes: std::collections::BTreeSet<u64> = published.iter().map(|r| r.code).collect();
+        let waiting: Vec<u64> =
+            map.iter().map(|v| crate::wire::codec::morton(v.key)).filter(|c| !codes.contains(c)).collect();
+        let sent_new: Vec<u64> = codes.iter().copied().filter(|c| before.binary_search(c).is_err()).collect();
+        if round > 0 && !waiting.is_empty() {
+            deferred_new += 1;
+            assert_eq!(counts.changed, 0, "round {round}: a changed voxel sent while a new one waited");
+            let nearest_waiting = waiting.iter().map(|&c| whole_cells(c, &map)).fold(f32::INFINITY, f32::min);
+            let farthest_sent = sent_new.iter().map(|&c| whole_cells(c, &map)).fold(0.0, f32::max);
+            assert!(farthest_sent <= nearest_waiting + 1.0, "round {round}: {farthest_sent} {nearest_waiting}");
+        }
+    }
+    assert!(
+        deferred_new > 5 && deferred > 1_000,
+        "the budget held back {deferred} ({deferred_new} rounds with new ones)"
+    );
+    // Standing still, everything that waited went: the copy is the map.
+    assert_eq!(publisher.counts().deferred, 0);
+    assert_published(replica.map(), publisher.published(), &map, "after the robot stopped");
+}
+
 /// An update's voxels are coded with the codec model the update to its
 /// base left (a snapshot: a fresh one): a receiver that kept that model
 /// reads them, one with a fresh model does not, and the models follow a

@@ -20,7 +20,7 @@ use crate::classes::{Class, NUM_CLASSES};
 use serde::{Deserialize, Serialize};
 
 /// Version byte of the feed protocol.
-pub const FEED_VERSION: u8 = 4;
+pub const FEED_VERSION: u8 = 5;
 /// Bytes of one fed point: x, y, z in centimetres (i16, little endian) and
 /// the class index.
 pub const POINT_BYTES: usize = 7;
@@ -71,7 +71,12 @@ pub enum FeedMessage<'a> {
     },
     /// The robot keeps driving (a session robot): after the set-up, before
     /// the points; its scans come in rounds. Any other robot refuses it.
-    Session,
+    Session {
+        /// Bytes each of its updates may take (0: unbounded; else at least
+        /// [`crate::session::MIN_UPDATE_BUDGET`]):
+        /// [`crate::session::Publisher::set_budget`].
+        update_budget: u32,
+    },
     /// Where the robot is now (its odometry frame, m), before a scan's
     /// points: its bounded map keeps what is nearest ([`crate::map::LocalMap::move_anchor`]).
     Anchor {
@@ -434,7 +439,13 @@ impl FeedMessage<'_> {
                 Ok(())
             }
             FeedMessage::Anchor { at } => finite(at),
-            FeedMessage::Session | FeedMessage::EndOfRound { .. } => Ok(()),
+            FeedMessage::Session { update_budget } => {
+                if (1..crate::session::MIN_UPDATE_BUDGET).contains(update_budget) {
+                    return Err(FeedError::Malformed);
+                }
+                Ok(())
+            }
+            FeedMessage::EndOfRound { .. } => Ok(()),
         }
     }
 }
@@ -499,7 +510,7 @@ pub const GOLDEN_REPORT: RobotReport = RobotReport {
 };
 
 /// Every feed message with its exact bytes: the feed format, frozen.
-pub const GOLDEN_FEED: [(FeedMessage<'static>, &[u8]); 4] = [
+pub const GOLDEN_FEED: [(FeedMessage<'static>, &[u8]); 5] = [
     (
         FeedMessage::Setup(Setup {
             robot_id: 1,
@@ -508,19 +519,20 @@ pub const GOLDEN_FEED: [(FeedMessage<'static>, &[u8]); 4] = [
             silence_ms: 30_000,
         }),
         &[
-            4, 0, 1, 0, 0, 0, 63, 1, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0,
+            5, 0, 1, 0, 0, 0, 63, 1, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0,
             0, 0, 0, 0, 0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 176, 234, 1,
         ],
     ),
     (
         FeedMessage::Setup(Setup { robot_id: 0, resolution: 0.5, prior: None, silence_ms: 30_000 }),
-        &[4, 0, 0, 0, 0, 0, 63, 0, 176, 234, 1],
+        &[5, 0, 0, 0, 0, 0, 63, 0, 176, 234, 1],
     ),
     (
         FeedMessage::Points { scan: 3, data: &[100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8] },
-        &[4, 1, 3, 14, 100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8],
+        &[5, 1, 3, 14, 100, 0, 6, 255, 25, 0, 17, 0, 0, 0, 0, 0, 0, 8],
     ),
-    (FeedMessage::EndOfFeed { scans: 5, points: 26_309 }, &[4, 2, 5, 197, 205, 1]),
+    (FeedMessage::EndOfFeed { scans: 5, points: 26_309 }, &[5, 2, 5, 197, 205, 1]),
+    (FeedMessage::Session { update_budget: 1024 }, &[5, 4, 128, 8]),
 ];
 
 /// Every robot message with its exact bytes.
@@ -528,7 +540,7 @@ pub const GOLDEN_ROBOT: [(RobotMessage<'static>, &[u8]); 2] = [
     (
         RobotMessage::Report(GOLDEN_REPORT),
         &[
-            4, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0,
+            5, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 32, 64, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 0,
             0, 128, 191, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 128, 63, 0, 0, 0, 0, 17, 210, 9, 0, 0, 64, 63, 0, 0, 0, 62, 197,
             205, 1, 197, 58, 220, 55, 202, 207, 1, 164, 199, 1, 2, 169, 18, 128, 236, 184, 11, 192, 175, 213, 140, 1,
             128, 252, 164, 2, 192, 158, 134, 71, 1, 138, 1, 83, 2, 1, 216, 142, 3, 176, 128, 3, 210, 9,
@@ -536,7 +548,7 @@ pub const GOLDEN_ROBOT: [(RobotMessage<'static>, &[u8]); 2] = [
     ),
     (
         RobotMessage::Failed { stage: Stage::Link, message: "peer silent" },
-        &[4, 1, 2, 11, 112, 101, 101, 114, 32, 115, 105, 108, 101, 110, 116],
+        &[5, 1, 2, 11, 112, 101, 101, 114, 32, 115, 105, 108, 101, 110, 116],
     ),
 ];
 

@@ -63,6 +63,11 @@ pub struct Args {
     /// each robot's whole map sent afresh, each peer matched prior-free.
     #[arg(long)]
     one_shot: bool,
+    /// Bytes each robot's update to a peer may take a round, or `none`:
+    /// what changed beyond it waits for the next rounds, what is farthest
+    /// from the robot first (a snapshot is sent whole).
+    #[arg(long, default_value_t = Budget(Some(session::DEFAULT_UPDATE_BUDGET)))]
+    update_budget: Budget,
     /// JSON lines: one per robot, peer and round, then {"summary": {...}}.
     #[arg(long)]
     json: bool,
@@ -88,6 +93,40 @@ pub struct Args {
     /// With --on-board: kill the emulators after this long (s).
     #[arg(long, requires = "on_board", default_value_t = 3600.0)]
     timeout: f64,
+}
+
+/// `--update-budget`: bytes (at least
+/// [`cosem_core::session::MIN_UPDATE_BUDGET`]), or `none`.
+#[derive(Clone, Copy, Debug)]
+struct Budget(Option<u32>);
+
+impl std::fmt::Display for Budget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.0 {
+            Some(b) => write!(f, "{b}"),
+            None => f.write_str("none"),
+        }
+    }
+}
+
+impl std::str::FromStr for Budget {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Budget, String> {
+        match s.trim() {
+            "none" => Ok(Budget(None)),
+            t => t
+                .parse::<u32>()
+                .ok()
+                .filter(|&b| b >= cosem_core::session::MIN_UPDATE_BUDGET)
+                .map(|b| Budget(Some(b)))
+                .ok_or_else(|| {
+                    format!(
+                        "`{s}`: expected an update's bytes ({} or more), or `none`",
+                        cosem_core::session::MIN_UPDATE_BUDGET
+                    )
+                }),
+        }
+    }
 }
 
 /// `--capacity`: one or one per robot (at most 3), each 64 to
@@ -205,6 +244,7 @@ fn spec_of(a: &Args, robots: Vec<RobotSpec>) -> Result<SessionSpec, Error> {
         source: a.source.options(),
         alignment: a.tuning.apply(session::DEFAULT_ALIGNMENT),
         one_shot: a.one_shot,
+        update_budget: a.update_budget.0,
     })
 }
 

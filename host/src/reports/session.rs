@@ -11,10 +11,11 @@ use serde::Serialize;
 /// in `e_t_origin`, and the summary's `wrong_at_meeting` became
 /// `wrong_at_origin`; 4 since the summary's `from_scratch_ms` is timed on
 /// the maps of tracking rounds (every [`FROM_SCRATCH_EVERY`]th), not on
-/// the last round's.
+/// the last round's; 5 since each line has `update_deferred` and updates
+/// are bounded by a budget (`--update-budget`, by default 1,024 bytes).
 ///
 /// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
-pub const SESSION_SCHEMA: u32 = 4;
+pub const SESSION_SCHEMA: u32 = 5;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]
@@ -79,6 +80,9 @@ pub struct RecordJson {
     pub update_changed: u32,
     /// Cells it removed.
     pub update_removed: u32,
+    /// New or changed voxels the sender held back for later rounds: beyond
+    /// its update budget (`--update-budget`).
+    pub update_deferred: u32,
     /// Seconds of this estimate's work: the update applied, both maps
     /// prepared, the match (the sender's writing of the update left out).
     pub seconds: f64,
@@ -116,6 +120,7 @@ impl From<&Record> for RecordJson {
             update_new: r.counts.new,
             update_changed: r.counts.changed,
             update_removed: r.counts.removed,
+            update_deferred: r.counts.deferred,
             seconds: r.seconds,
         }
     }

@@ -354,8 +354,12 @@ where
                 self.publisher = Some(Publisher::new(u16::from(s.robot_id) + 1, held, sent));
                 self.fed.setup = Some(s);
             }
-            FeedMessage::Session if self.fed.setup.is_some() && !self.session => {
+            FeedMessage::Session { update_budget } if self.fed.setup.is_some() && !self.session => {
                 self.session = true;
+                let budget = (update_budget > 0).then_some(update_budget);
+                if let Some(p) = self.publisher.as_mut() {
+                    p.set_budget(budget);
+                }
                 // The copy's first answer, before any update: what it holds.
                 let answer = self.replica.as_ref().ok_or(RobotError::Feed(FeedError::Order))?.answer().encode();
                 let out = self.out.get_mut(..answer.len()).ok_or(RobotError::Update(PublisherError::Scratch))?;

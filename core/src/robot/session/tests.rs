@@ -68,8 +68,9 @@ fn scan(at: [f32; 3], rng: &mut Lcg) -> Vec<([f32; 3], Class)> {
 
 /// Robot `id`'s feed: `ROUNDS` rounds of 2 scans 1.5 m apart, starting
 /// `start` metres along the street, in its odometry frame (`T_world_odom`
-/// `odom`): the anchor before each scan, its points, the round's mark.
-fn feed(id: u8, start: f32, odom: &Isometry3<f32>) -> Vec<u8> {
+/// `odom`): the anchor before each scan, its points, the round's mark; its
+/// updates bounded to `budget` bytes (0: unbounded).
+fn feed(id: u8, start: f32, odom: &Isometry3<f32>, budget: u32) -> Vec<u8> {
     let mut out = Vec::new();
     let mut frame = [0u8; crate::wire::MAX_FRAME];
     let mut push = |msg: FeedMessage<'_>| {
@@ -77,7 +78,7 @@ fn feed(id: u8, start: f32, odom: &Isometry3<f32>) -> Vec<u8> {
         out.extend_from_slice(&frame[..n]);
     };
     push(FeedMessage::Setup(Setup { robot_id: id, resolution: 0.5, prior: None, silence_ms: 60_000 }));
-    push(FeedMessage::Session);
+    push(FeedMessage::Session { update_budget: budget });
     let to_odom = odom.inverse();
     let mut rng = Lcg(u64::from(id) + 1);
     let mut total = 0u32;
@@ -190,8 +191,13 @@ fn run_pair_holding(feeds: &[Vec<u8>; 2], line: SimConfig, copies: [usize; 2]) -
 /// The pair's truth: robot 0's odometry is the world's; robot 1 starts 9 m
 /// behind, its odometry turned by 25 degrees and shifted.
 fn pair() -> ([Vec<u8>; 2], Isometry3<f32>) {
+    pair_bounded(crate::session::DEFAULT_UPDATE_BUDGET)
+}
+
+/// [`pair`] with updates bounded to `budget` bytes (0: unbounded).
+fn pair_bounded(budget: u32) -> ([Vec<u8>; 2], Isometry3<f32>) {
     let odom_b = from_xyz_rpy(-9.0, 4.0, 0.0, 0.0, 0.0, 25f32.to_radians());
-    ([feed(0, 0.0, &Isometry3::identity()), feed(1, -9.0, &odom_b)], odom_b)
+    ([feed(0, 0.0, &Isometry3::identity(), budget), feed(1, -9.0, &odom_b, budget)], odom_b)
 }
 
 #[test]
@@ -203,10 +209,12 @@ fn two_session_robots_keep_their_copies_and_track_each_other() {
         assert_eq!(end.rounds, ROUNDS);
         // Every update applied: the copy is the peer's map, digest checked.
         assert!(rounds.iter().all(|r| r.applied == 0), "robot {me}: {:?}", rounds.iter().map(|r| r.applied));
-        // After the first round, updates are what changed, not the map.
+        // After the first round, updates are what changed, not the map,
+        // within the budget.
         for r in &rounds[1..] {
             let [new, changed, _] = r.update_counts;
             assert!(new + changed < r.map_voxels, "robot {me} round {}: {:?}", r.round, r.update_counts);
+            assert!(r.update_bytes <= crate::session::DEFAULT_UPDATE_BUDGET, "robot {me} round {}", r.round);
         }
         // Fixes, most of them tracked, and right to the street's
         // along-track slack (no aliased place: the street's things repeat
@@ -222,6 +230,9 @@ fn two_session_robots_keep_their_copies_and_track_each_other() {
         assert!(close >= 14, "robot {me}: {close} fixes within 0.3 m and 0.5 degrees");
         assert!(fixed.iter().all(|r| errors(r).0 < 1.0 && errors(r).1 < 1.0), "robot {me}");
         assert!(rounds.iter().filter(|r| r.kind == 1).count() >= 12, "robot {me}: tracking");
+        // The first rounds after the snapshot change more than the budget.
+        let budget = crate::session::DEFAULT_UPDATE_BUDGET;
+        assert!(rounds[1..].iter().any(|r| r.update_bytes + 32 >= budget), "robot {me}: the budget never bound");
         std::println!(
             "robot {me}: update bytes {:?}, line bytes {:?}",
             rounds.iter().map(|r| r.update_bytes).collect::<Vec<_>>(),
@@ -274,7 +285,8 @@ fn a_pair_robot_refuses_a_session_feed_and_a_session_robot_a_pair_feed() {
 #[test]
 fn a_robot_that_holds_less_is_sent_what_fits() {
     const SMALL: usize = 2_000;
-    let (feeds, _) = pair();
+    // Unbounded updates: every copy holds all that fits, every round.
+    let (feeds, _) = pair_bounded(0);
     let [(ra, _), (rb, _)] = run_pair_holding(&feeds, SimConfig::clean(115_200, 7), [CAPACITY, SMALL]);
     assert_eq!((ra.len(), rb.len()), (usize::from(ROUNDS), usize::from(ROUNDS)));
     for (a, b) in ra.iter().zip(&rb) {

@@ -149,6 +149,7 @@ pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>
             source: Default::default(),
             alignment: super::DEFAULT_ALIGNMENT,
             one_shot: c.one_shot,
+            update_budget: Some(super::DEFAULT_UPDATE_BUDGET),
         };
         let t = std::time::Instant::now();
         let out = run(&spec, |_: &super::RoundView<'_>| {})?;

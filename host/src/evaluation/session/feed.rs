@@ -41,7 +41,7 @@ pub fn board_feeds(spec: &SessionSpec, silence_ms: u32) -> Result<BoardFeeds, Er
     let mut feeds = Vec::new();
     for (i, r) in robots.iter().enumerate() {
         let setup = Setup { robot_id: i as u8, resolution: spec.voxel, prior: None, silence_ms };
-        feeds.push(robot_feed(r, setup, (rounds, spec.every), spec.crop, &filter)?);
+        feeds.push(robot_feed(r, setup, (rounds, spec.every), spec.update_budget, spec.crop, &filter)?);
     }
     let mut truth = Vec::new();
     for _ in 0..rounds {
@@ -60,6 +60,7 @@ fn robot_feed(
     r: &Robot,
     setup: Setup,
     (rounds, every): (usize, usize),
+    budget: Option<u32>,
     crop: f32,
     filter: &PointFilter,
 ) -> Result<Vec<u8>, Error> {
@@ -71,7 +72,7 @@ fn robot_feed(
         Ok(())
     };
     push(FeedMessage::Setup(setup))?;
-    push(FeedMessage::Session)?;
+    push(FeedMessage::Session { update_budget: budget.unwrap_or(0) })?;
     let (mut scans, mut total) = (0u16, 0u32);
     for round in 0..rounds {
         let mut points = 0u32;

@@ -103,6 +103,10 @@ pub const MAX_CAPACITY: usize = 1 << 20;
 /// early).
 pub const FROM_SCRATCH_EVERY: usize = 10;
 
+/// Bytes an update may take by default (the robots'):
+/// [`cosem_core::session::DEFAULT_UPDATE_BUDGET`].
+pub const DEFAULT_UPDATE_BUDGET: u32 = cosem_core::session::DEFAULT_UPDATE_BUDGET;
+
 /// What `cosem session` runs.
 #[derive(Clone, Debug)]
 pub struct SessionSpec {
@@ -135,6 +139,10 @@ pub struct SessionSpec {
     /// measured against: each robot's whole map sent afresh, each peer
     /// matched prior-free, nothing kept from the round before.
     pub one_shot: bool,
+    /// Bytes each update may take (`None`: unbounded; a snapshot never is):
+    /// what changed beyond it, farthest from the robot first, waits for
+    /// the next rounds ([`Publisher::set_budget`]).
+    pub update_budget: Option<u32>,
 }
 
 /// One robot's estimate of one peer in one round.
@@ -237,6 +245,7 @@ impl Link {
         let records = || vec![ShadowEntry::default(); spec.capacity_of(from)];
         let copy = Replica::new(crate::maps::mapping::new_map(spec.capacity_of(to), config)?);
         let mut publisher = Publisher::new(epoch, records(), records());
+        publisher.set_budget(spec.update_budget);
         // The copy's first answer, before any update: what it holds.
         publisher.on_ack(&copy.answer());
         Ok(Link { publisher, copy, synced: false })
@@ -307,6 +316,12 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
             "a session's maps hold 64 to {MAX_CAPACITY} voxels, one capacity or one per robot (not {:?}), and fuse 1 \
              scan a round at least (not {})",
             spec.capacity, spec.every
+        )));
+    }
+    if let Some(b) = spec.update_budget.filter(|&b| b < cosem_core::session::MIN_UPDATE_BUDGET) {
+        return Err(Error::Invalid(format!(
+            "an update's budget is {} bytes or more (not {b})",
+            cosem_core::session::MIN_UPDATE_BUDGET
         )));
     }
     let most = capacities.iter().copied().max().unwrap_or(DEFAULT_CAPACITY);
