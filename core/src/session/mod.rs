@@ -41,9 +41,7 @@ pub const MIN_OVERLAP: f32 = 0.25;
 /// follows ([`Publisher::set_budget`]).
 pub const DEFAULT_UPDATE_BUDGET: u32 = 1024;
 
-/// The least budget an update may be given: room for its header, its
-/// removals and a few voxels.
-pub const MIN_UPDATE_BUDGET: u32 = 64;
+pub use crate::wire::update::MIN_UPDATE_BUDGET;
 
 #[cfg(test)]
 mod tests;

@@ -73,8 +73,8 @@ pub enum FeedMessage<'a> {
     /// the points; its scans come in rounds. Any other robot refuses it.
     Session {
         /// Bytes each of its updates may take (0: unbounded; else at least
-        /// [`crate::session::MIN_UPDATE_BUDGET`]):
-        /// [`crate::session::Publisher::set_budget`].
+        /// [`super::update::MIN_UPDATE_BUDGET`]): what changed beyond it waits for the
+        /// next rounds (the session's publisher).
         update_budget: u32,
     },
     /// Where the robot is now (its odometry frame, m), before a scan's
@@ -440,7 +440,7 @@ impl FeedMessage<'_> {
             }
             FeedMessage::Anchor { at } => finite(at),
             FeedMessage::Session { update_budget } => {
-                if (1..crate::session::MIN_UPDATE_BUDGET).contains(update_budget) {
+                if (1..super::update::MIN_UPDATE_BUDGET).contains(update_budget) {
                     return Err(FeedError::Malformed);
                 }
                 Ok(())

@@ -71,6 +71,10 @@ use super::crc::crc32;
 use super::range::{RangeDecoder, RangeEncoder};
 use crate::map::{LocalMap, VoxelKey, VoxelSink, VoxelStorage};
 
+/// The least budget (bytes) an update may be given: room for its header,
+/// its removals and a few voxels.
+pub const MIN_UPDATE_BUDGET: u32 = 64;
+
 /// First byte of an update (0xD1 was the first format, its removals as
 /// Morton codes; 0xD3 reset the codec model for each update; 0xD4's
 /// digest was a CRC over the map in Morton order; 0xD5 had no cut, every
