@@ -21,7 +21,8 @@ fn right(records: &[Value]) -> usize {
 }
 
 fn check_record_fields(r: &Value) {
-    for key in ["round", "robot", "peer", "status", "kind", "fix", "bytes_sent", "seconds", "update"] {
+    for key in ["round", "robot", "peer", "status", "kind", "fix", "bytes_sent", "seconds", "update", "update_deferred"]
+    {
         assert!(!r[key].is_null(), "{key} missing: {r}");
     }
     let status = r["status"].as_str().unwrap();
@@ -55,7 +56,7 @@ fn kitti00_robots_are_tracked_round_after_round() {
         assert_eq!(r["kind"], if first { "prior-free" } else { "tracking" }, "{r}");
         assert!(r["overlap_true"].as_f64().unwrap() > 0.3, "{r}");
     }
-    assert_eq!(summary["schema_version"], 4);
+    assert_eq!(summary["schema_version"], 5);
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
     assert_eq!(summary["availability"], 1.0, "{summary}");
     assert_eq!(summary["first_fix_rounds"], 0, "{summary}");
@@ -172,6 +173,10 @@ fn session_arguments_are_checked() {
     assert!(e.contains("--drift") && e.contains("70%,1"), "{e}");
     let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", "--every", "0"]);
     assert!(e.contains("--every"), "{e}");
+    for budget in ["10", "0", "lots"] {
+        let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", "--update-budget", budget]);
+        assert!(e.contains("--update-budget") && e.contains(budget), "{e}");
+    }
 }
 
 /// The built-in town: robots 0 and 1 start out of sight of each other (no
@@ -204,6 +209,11 @@ fn town_robots_start_apart_and_meet() {
     let right = right(&records);
     assert!(right >= 5, "{right} right estimates: {summary}");
     assert!(summary["availability"].as_f64().unwrap() >= 0.5, "{summary}");
+    // After the first sync every update is within the default budget (the
+    // bytes on the line add the answer), and some rounds held part back.
+    let synced: Vec<&Value> = records.iter().filter(|r| !r["update_ratio"].is_null()).collect();
+    assert!(synced.iter().all(|r| r["bytes_sent"].as_u64().unwrap() <= 1024 + 64), "over the budget");
+    assert!(synced.iter().any(|r| r["update_deferred"].as_u64().unwrap() > 0), "the budget never bound");
 }
 
 /// Under drift the truth moves along the maps: an estimate can be right
