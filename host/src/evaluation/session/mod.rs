@@ -364,15 +364,25 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
             // The robot's own map prepared once a round, for every peer, as
             // far as they need it.
             let mut mine = Prepared::new(&robots[i].map, Role::Model);
-            for (j, tracker) in own.iter_mut().enumerate().filter(|&(j, _)| j != i) {
+            // The peers tracked from a fix first: each takes the map
+            // prepared for tracking alone (its time a 2-robot round's),
+            // before a peer that needs a search prepares it whole. The
+            // records in peer order.
+            let mut peers: Vec<usize> = (0..n).filter(|&j| j != i).collect();
+            peers.sort_by_key(|&j| spec.one_shot || own[j].fix().is_none());
+            let mut mine_records = Vec::with_capacity(peers.len());
+            for j in peers {
+                let tracker = &mut own[j];
                 if spec.one_shot {
                     tracker.reset();
                     links[j][i] = Some(Link::new((j, i), spec, config)?);
                 }
                 let view = PeerView { estimate: heard[j][i], at: places[i] };
                 let at = Round { round, pair: (i, j), shared_world, view };
-                records.push(estimate_one(spec, at, &robots, &mut mine, &mut links, tracker, &mut scratch)?);
+                mine_records.push(estimate_one(spec, at, &robots, &mut mine, &mut links, tracker, &mut scratch)?);
             }
+            mine_records.sort_by_key(|r| r.peer);
+            records.extend(mine_records);
         }
         // Then this round's, each robot's answer to its peer's update sent
         // after its estimate, carrying it.
