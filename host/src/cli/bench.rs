@@ -314,7 +314,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
     let cases = pool.install(|| bench_session(&tmp.0, &a.seeds, a.frames))?;
     let opt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
     println!(
-        "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>8} {:>9} {:>5}",
+        "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>12} {:>8} {:>9} {:>5}",
         "robots",
         "labels",
         "slip",
@@ -327,14 +327,16 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
         "meets",
         "fix",
         "update p50/p95/max",
+        "held p50/p95",
         "B/round",
         "cost",
         "slip"
     );
     for c in &cases {
         let upd = c.update_bytes_ratio.map_or("-".into(), |[p, q, m]| format!("{p:.3}/{q:.3}/{m:.3}"));
+        let held = c.update_deferred.map_or("-".into(), |[p, q, _]| format!("{p:.0}/{q:.0}"));
         println!(
-            "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>8} {:>9} {:>5}",
+            "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>12} {:>8} {:>9} {:>5}",
             c.case.robots,
             c.case.labels,
             c.case.slip,
@@ -347,13 +349,14 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
             c.meetings,
             c.first_fix_rounds.map_or("-".into(), |v| v.to_string()),
             upd,
+            held,
             c.bytes_per_round.map_or("-".into(), |b| format!("{b:.0}")),
             opt(c.tracking_cost_ratio),
             c.slip_caught_rounds.map_or("-".into(), |v| v.to_string()),
         );
     }
     println!(
-        "  (wrong: Converged and e_t at the meeting place or e_r over the strict thresholds; @origin: with e_t at the odometry origins;\n   B/round: bytes a robot received from a peer in a round, median; cost: a tracking round's median time /\n   a from-scratch match's, single thread; one-shot: whole maps every round, matched prior-free; {:.0} s in all)",
+        "  (wrong: Converged and e_t at the meeting place or e_r over the strict thresholds; @origin: with e_t at the odometry origins;\n   held: voxels an update held back for later rounds (its budget); B/round: bytes a robot received from a peer in a round, median; cost: a tracking round's median time /\n   a from-scratch match's, single thread; one-shot: whole maps every round, matched prior-free; {:.0} s in all)",
         t0.elapsed().as_secs_f64()
     );
     save(json, &cases)

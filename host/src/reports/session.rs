@@ -11,8 +11,9 @@ use serde::Serialize;
 /// in `e_t_origin`, and the summary's `wrong_at_meeting` became
 /// `wrong_at_origin`; 4 since the summary's `from_scratch_ms` is timed on
 /// the maps of tracking rounds (every [`FROM_SCRATCH_EVERY`]th), not on
-/// the last round's; 5 since each line has `update_deferred` and updates
-/// are bounded by a budget (`--update-budget`, by default 1,024 bytes).
+/// the last round's; 5 since each line has `update_deferred` and the
+/// summary `update_deferred` (p50, p95, max), updates being bounded by a
+/// budget (`--update-budget`, by default 1,024 bytes).
 ///
 /// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
 pub const SESSION_SCHEMA: u32 = 5;
@@ -173,8 +174,9 @@ pub fn record_text(r: &Record) -> String {
 pub fn summary_text(s: &Summary, rounds: usize) -> String {
     let opt = |v: Option<f64>, unit: &str| v.map_or("-".to_string(), |v| format!("{v:.3}{unit}"));
     let ratio = s.update_bytes_ratio.map_or("-".into(), |[a, b, c]| format!("p50 {a:.3}, p95 {b:.3}, max {c:.3}"));
+    let deferred = s.update_deferred.map_or("-".into(), |[a, b, c]| format!("p50 {a:.0}, p95 {b:.0}, max {c:.0}"));
     let mut out = format!(
-        "rounds {rounds}; estimates with a truth {}\nwrong Converged   {} (by e_t at the odometry origin: {})\nmeetings          {}\navailability      {}\nfirst fix         {} rounds (largest)\nupdate / map      {ratio}\nbytes             {}\ntracking round    {} (from scratch {:.1} ms; ratio {})\n",
+        "rounds {rounds}; estimates with a truth {}\nwrong Converged   {} (by e_t at the odometry origin: {})\nmeetings          {}\navailability      {}\nfirst fix         {} rounds (largest)\nupdate / map      {ratio}\nheld back         {deferred} voxels an update\nbytes             {}\ntracking round    {} (from scratch {:.1} ms; ratio {})\n",
         s.with_truth,
         s.wrong_converged,
         s.wrong_at_origin,

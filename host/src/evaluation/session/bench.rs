@@ -72,6 +72,9 @@ pub struct CaseFigures {
     pub first_fix_rounds: Option<usize>,
     /// An update's bytes ÷ the sender's whole map's, pooled: median, p95, largest.
     pub update_bytes_ratio: Option<[f64; 3]>,
+    /// Voxels an update held back (its budget), over the same updates,
+    /// pooled: median, p95, largest.
+    pub update_deferred: Option<[f64; 3]>,
     /// Bytes on the line a robot received from a peer in a round (its
     /// update and answer), pooled: median.
     pub bytes_per_round: Option<f64>,
@@ -166,6 +169,9 @@ fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
     let per_seed: Vec<f64> = summaries.iter().filter_map(|s| s.availability).collect();
     let (available, in_meetings) = summaries.iter().fold((0, 0), |(a, m), s| (a + s.available, m + s.in_meetings));
     let ratios: Vec<f64> = records.iter().filter_map(|r| r.update_ratio).collect();
+    let deferred: Vec<f64> =
+        records.iter().filter(|r| r.update_ratio.is_some()).map(|r| f64::from(r.counts.deferred)).collect();
+    let spread = |v: &[f64]| (!v.is_empty()).then(|| [0.5, 0.95, 1.0].map(|q| quantile(v, q).unwrap_or(0.0)));
     let opt_median = |v: Vec<f64>| median(&v);
     CaseFigures {
         case: CASES[case],
@@ -177,9 +183,8 @@ fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
         availability_min: per_seed.iter().copied().reduce(f64::min),
         meetings: summaries.iter().map(|s| s.meetings).sum(),
         first_fix_rounds: summaries.iter().filter_map(|s| s.first_fix_rounds).max(),
-        update_bytes_ratio: (!ratios.is_empty()).then(|| {
-            [quantile(&ratios, 0.5), quantile(&ratios, 0.95), quantile(&ratios, 1.0)].map(|v| v.unwrap_or(0.0))
-        }),
+        update_bytes_ratio: spread(&ratios),
+        update_deferred: spread(&deferred),
         bytes_per_round: opt_median(records.iter().map(|r| r.bytes_sent as f64).collect()),
         tracking_cost_ratio: opt_median(summaries.iter().filter_map(|s| s.tracking_cost_ratio).collect()),
         tracking_ms: opt_median(summaries.iter().filter_map(|s| s.tracking_ms).collect()),

@@ -141,6 +141,10 @@ pub struct Summary {
     /// An update's bytes ÷ the sender's whole map's, once the copy was
     /// whole once: median, 95th percentile, largest.
     pub update_bytes_ratio: Option<[f64; 3]>,
+    /// Voxels an update held back for later rounds (beyond its budget),
+    /// over the same updates: median, 95th percentile, largest. How far a
+    /// copy lags the map as the sender has it.
+    pub update_deferred: Option<[f64; 3]>,
     /// Bytes of every update and answer.
     pub bytes: usize,
     /// Median milliseconds of a tracking round (update applied, maps
@@ -186,9 +190,11 @@ impl Summary {
             }
         }
         let ratios: Vec<f64> = records.iter().filter_map(|r| r.update_ratio).collect();
-        let update_bytes_ratio = (!ratios.is_empty()).then(|| {
-            [quantile(&ratios, 0.5), quantile(&ratios, 0.95), quantile(&ratios, 1.0)].map(|v| v.unwrap_or(0.0))
-        });
+        let spread = |v: &[f64]| (!v.is_empty()).then(|| [0.5, 0.95, 1.0].map(|q| quantile(v, q).unwrap_or(0.0)));
+        let update_bytes_ratio = spread(&ratios);
+        let deferred: Vec<f64> =
+            records.iter().filter(|r| r.update_ratio.is_some()).map(|r| f64::from(r.counts.deferred)).collect();
+        let update_deferred = spread(&deferred);
         let tracking: Vec<f64> = records
             .iter()
             .filter(|r| r.estimate.is_some_and(|e| e.kind == Kind::Tracking))
@@ -205,6 +211,7 @@ impl Summary {
             meetings,
             first_fix_rounds: first_fix,
             update_bytes_ratio,
+            update_deferred,
             bytes: records.iter().map(|r| r.bytes_sent).sum(),
             tracking_ms,
             from_scratch_ms,
