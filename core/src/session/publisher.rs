@@ -343,15 +343,11 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
 /// `held` (the peer's, sorted by code) has within a step the held record:
 /// it is not resent.
 fn keep_held_within_step(held: &[ShadowEntry], now: &mut [ShadowEntry]) {
-    let mut held = held.iter().peekable();
-    for r in now.iter_mut() {
-        while held.next_if(|h| h.code < r.code).is_some() {}
-        if let Some(h) = held.next_if(|h| h.code == r.code) {
-            if within_step(h.record, r.record) {
-                r.record = h.record;
-            }
+    for_each_candidate(held, now, |r, h| {
+        if let Some(h) = h.filter(|&h| within_step(h, r.record)) {
+            r.record = h;
         }
-    }
+    });
 }
 
 /// An update written: its length, digest and counts, and how many of its

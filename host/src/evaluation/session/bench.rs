@@ -6,7 +6,7 @@
 
 use super::{run, town_robots, Record, SessionSpec};
 use crate::error::Error;
-use crate::evaluation::stats::{median, quantile};
+use crate::evaluation::stats::median;
 use crate::maps::noise::LabelNoise;
 use crate::sources::drift::Drift;
 use serde::Serialize;
@@ -168,10 +168,7 @@ fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
     let records: Vec<&Record> = runs.iter().flat_map(|r| &r.out.records).collect();
     let per_seed: Vec<f64> = summaries.iter().filter_map(|s| s.availability).collect();
     let (available, in_meetings) = summaries.iter().fold((0, 0), |(a, m), s| (a + s.available, m + s.in_meetings));
-    let ratios: Vec<f64> = records.iter().filter_map(|r| r.update_ratio).collect();
-    let deferred: Vec<f64> =
-        records.iter().filter(|r| r.update_ratio.is_some()).map(|r| f64::from(r.counts.deferred)).collect();
-    let spread = |v: &[f64]| (!v.is_empty()).then(|| [0.5, 0.95, 1.0].map(|q| quantile(v, q).unwrap_or(0.0)));
+    let (update_bytes_ratio, update_deferred) = super::figures::update_figures(records.iter().copied());
     let opt_median = |v: Vec<f64>| median(&v);
     CaseFigures {
         case: CASES[case],
@@ -183,8 +180,8 @@ fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
         availability_min: per_seed.iter().copied().reduce(f64::min),
         meetings: summaries.iter().map(|s| s.meetings).sum(),
         first_fix_rounds: summaries.iter().filter_map(|s| s.first_fix_rounds).max(),
-        update_bytes_ratio: spread(&ratios),
-        update_deferred: spread(&deferred),
+        update_bytes_ratio,
+        update_deferred,
         bytes_per_round: opt_median(records.iter().map(|r| r.bytes_sent as f64).collect()),
         tracking_cost_ratio: opt_median(summaries.iter().filter_map(|s| s.tracking_cost_ratio).collect()),
         tracking_ms: opt_median(summaries.iter().filter_map(|s| s.tracking_ms).collect()),

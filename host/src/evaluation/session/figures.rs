@@ -189,12 +189,7 @@ impl Summary {
                 }
             }
         }
-        let ratios: Vec<f64> = records.iter().filter_map(|r| r.update_ratio).collect();
-        let spread = |v: &[f64]| (!v.is_empty()).then(|| [0.5, 0.95, 1.0].map(|q| quantile(v, q).unwrap_or(0.0)));
-        let update_bytes_ratio = spread(&ratios);
-        let deferred: Vec<f64> =
-            records.iter().filter(|r| r.update_ratio.is_some()).map(|r| f64::from(r.counts.deferred)).collect();
-        let update_deferred = spread(&deferred);
+        let (update_bytes_ratio, update_deferred) = update_figures(records.iter());
         let tracking: Vec<f64> = records
             .iter()
             .filter(|r| r.estimate.is_some_and(|e| e.kind == Kind::Tracking))
@@ -219,6 +214,19 @@ impl Summary {
             slip_caught_rounds: spec.slip.map(|(s, at)| slip_caught(records, s, at, rounds)),
         }
     }
+}
+
+/// Over the updates after a copy's first sync: the bytes ÷ the sender's
+/// whole map's, and the voxels held back (each median, p95, largest).
+pub(super) fn update_figures<'a>(
+    records: impl Iterator<Item = &'a Record> + Clone,
+) -> (Option<[f64; 3]>, Option<[f64; 3]>) {
+    let spread = |v: Vec<f64>| (!v.is_empty()).then(|| [0.5, 0.95, 1.0].map(|q| quantile(&v, q).unwrap_or(0.0)));
+    let synced = records.filter(|r| r.update_ratio.is_some());
+    (
+        spread(synced.clone().filter_map(|r| r.update_ratio).collect()),
+        spread(synced.map(|r| f64::from(r.counts.deferred)).collect()),
+    )
 }
 
 /// The meetings of one ordered pair's records (in round order).

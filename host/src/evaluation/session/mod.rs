@@ -306,28 +306,7 @@ pub fn town_robots(
 /// Runs the session; `on_round` sees each round as it ends.
 pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Result<SessionRun, Error> {
     let n = spec.robots.len();
-    if !(2..=3).contains(&n) {
-        return Err(Error::Invalid(format!("a session has 2 or 3 robots, not {n}")));
-    }
-    let capacities: Vec<usize> = (0..n).map(|i| spec.capacity_of(i)).collect();
-    let counts_fit = spec.capacity.len() == 1 || spec.capacity.len() == n;
-    if !counts_fit || capacities.iter().any(|c| !(64..=MAX_CAPACITY).contains(c)) || spec.every == 0 {
-        return Err(Error::Invalid(format!(
-            "a session's maps hold 64 to {MAX_CAPACITY} voxels, one capacity or one per robot (not {:?}), and fuse 1 \
-             scan a round at least (not {})",
-            spec.capacity, spec.every
-        )));
-    }
-    if let Some(b) = spec.update_budget.filter(|&b| b < cosem_core::session::MIN_UPDATE_BUDGET) {
-        return Err(Error::Invalid(format!(
-            "an update's budget is {} bytes or more (not {b})",
-            cosem_core::session::MIN_UPDATE_BUDGET
-        )));
-    }
-    let most = capacities.iter().copied().max().unwrap_or(DEFAULT_CAPACITY);
-    if let Some((robot, _)) = spec.slip.filter(|s| s.0 >= n) {
-        return Err(Error::Invalid(format!("a slip of robot {robot}: the robots are 0..{n}")));
-    }
+    let most = checked_capacities(spec)?.into_iter().max().unwrap_or(DEFAULT_CAPACITY);
     let sources: Vec<Source> =
         spec.robots.iter().map(|r| Source::open(&r.data, &spec.source)).collect::<Result<_, _>>()?;
     let shared_world = (1..n).all(|j| sources[0].shares_world(&sources[j]));
@@ -398,6 +377,35 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
     let cost = figures::cost_denominator(&from_scratch, (&robots[0].map, &robots[1].map), &spec.alignment)?;
     let summary = Summary::of(&records, spec, rounds, cost);
     Ok(SessionRun { rounds, records, summary })
+}
+
+/// The spec's robots' capacities, once its figures are checked: 2 or 3
+/// robots, capacities, scans a round, the update budget, the slipping
+/// robot.
+fn checked_capacities(spec: &SessionSpec) -> Result<Vec<usize>, Error> {
+    let n = spec.robots.len();
+    if !(2..=3).contains(&n) {
+        return Err(Error::Invalid(format!("a session has 2 or 3 robots, not {n}")));
+    }
+    let capacities: Vec<usize> = (0..n).map(|i| spec.capacity_of(i)).collect();
+    let counts_fit = spec.capacity.len() == 1 || spec.capacity.len() == n;
+    if !counts_fit || capacities.iter().any(|c| !(64..=MAX_CAPACITY).contains(c)) || spec.every == 0 {
+        return Err(Error::Invalid(format!(
+            "a session's maps hold 64 to {MAX_CAPACITY} voxels, one capacity or one per robot (not {:?}), and fuse 1 \
+             scan a round at least (not {})",
+            spec.capacity, spec.every
+        )));
+    }
+    if let Some(b) = spec.update_budget.filter(|&b| b < cosem_core::session::MIN_UPDATE_BUDGET) {
+        return Err(Error::Invalid(format!(
+            "an update's budget is {} bytes or more (not {b})",
+            cosem_core::session::MIN_UPDATE_BUDGET
+        )));
+    }
+    if let Some((robot, _)) = spec.slip.filter(|s| s.0 >= n) {
+        return Err(Error::Invalid(format!("a slip of robot {robot}: the robots are 0..{n}")));
+    }
+    Ok(capacities)
 }
 
 /// Each fix of `round` not yet confirmed, confirmed by the peer's
