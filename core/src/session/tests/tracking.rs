@@ -1,0 +1,246 @@
+//! The tracker's tests: fixes found, tracked, held, confirmed and
+//! withdrawn (the update protocol's are in the parent module).
+
+use super::*;
+
+/// The tracker: prior-free until a fix, tracking from it, the fix withdrawn
+/// when the peer's map stops agreeing, prior-free again after; met again,
+/// found from the last fix's window; prior-free once reset.
+#[test]
+fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let (mut here, mut elsewhere, mut rng) = (robot_map(), robot_map(), Lcg(11));
+    for round in 0..4 {
+        drive(&mut here, round, &mut rng);
+        drive(&mut elsewhere, round + 40, &mut rng);
+    }
+    // The peer: the same street seen again (other noise), then one 120 m on.
+    let mut again = robot_map();
+    for round in 0..4 {
+        drive(&mut again, round, &mut Lcg(12 + round as u64));
+    }
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, same, other) = (prepare(&here), prepare(&again), prepare(&elsewhere));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let mut tracker = Tracker::new();
+    let mut estimate = |t: &mut Tracker, peer| {
+        let view = PeerView { estimate: None, at: [0.0; 3] };
+        t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
+    let first = estimate(&mut tracker, &same);
+    assert_eq!((first.kind, first.result.status, first.fix), (Kind::PriorFree, MatchStatus::Converged, Fix::Held));
+    assert!(first.result.transform.translation.vector.norm() < 0.3, "{:?}", first.result.transform);
+    let next = estimate(&mut tracker, &same);
+    assert_eq!((next.kind, next.fix), (Kind::Tracking, Fix::Held));
+    let gone = estimate(&mut tracker, &other);
+    assert_eq!(gone.kind, Kind::Tracking);
+    assert_ne!(gone.result.status, MatchStatus::Converged);
+    // NoOverlap withdraws at once; NotConverged or Degenerate keeps it once.
+    if gone.fix == Fix::Kept {
+        assert_eq!(estimate(&mut tracker, &other).fix, Fix::Withdrawn);
+    } else {
+        assert_eq!(gone.fix, Fix::Withdrawn);
+    }
+    assert_eq!(tracker.fix(), None);
+    let after = estimate(&mut tracker, &other);
+    assert_eq!((after.kind, after.fix), (Kind::PriorFree, Fix::None));
+    // Met again: the last fix's window holds the peer, found from it.
+    assert!(tracker.last().is_some());
+    let again = estimate(&mut tracker, &same);
+    assert_eq!((again.kind, again.result.status, again.fix), (Kind::Tracking, MatchStatus::Converged, Fix::Held));
+    assert!(again.result.transform.translation.vector.norm() < 0.3, "{:?}", again.result.transform);
+    // Forgotten (a restarted peer): prior-free again.
+    tracker.reset();
+    assert_eq!(tracker.last(), None);
+    assert_eq!(estimate(&mut tracker, &same).kind, Kind::PriorFree);
+}
+
+/// Two robots' maps of one street driven alike for four rounds, each with
+/// its own noise: a pair that matches.
+fn one_street_seen_twice() -> (VecMap, VecMap) {
+    let (mut here, mut again, mut rng) = (robot_map(), robot_map(), Lcg(21));
+    for round in 0..4 {
+        drive(&mut here, round, &mut rng);
+        drive(&mut again, round, &mut Lcg(30 + round as u64));
+    }
+    (here, again)
+}
+
+/// A fix is reported Converged only once the peer's estimate agrees with
+/// it where the robot is; one that disagrees leaves it unconfirmed, and a
+/// prior-free fix starts unconfirmed again.
+#[test]
+fn a_fix_is_reported_once_the_peers_estimate_agrees() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let (here, again) = one_street_seen_twice();
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&here), prepare(&again));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let mut tracker = Tracker::new();
+    let at = [9.0, 0.0, 0.0];
+    let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
+        let view = PeerView { estimate: theirs, at };
+        t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
+    // Nothing heard: held, not reported.
+    let first = estimate(&mut tracker, None);
+    assert_eq!((first.result.status, first.fix, first.confirmed), (MatchStatus::Converged, Fix::Held, false));
+    assert_eq!(first.status(), MatchStatus::NotConverged);
+    // The peer's estimate 3 m and 5 degrees off: still not.
+    let off = crate::geometry::from_xyz_rpy(3.0, 0.0, 0.0, 0.0, 0.0, 0.09) * first.result.transform.inverse();
+    assert!(!estimate(&mut tracker, Some(off)).confirmed);
+    // The inverse of ours: confirmed (EM from the fix may slide along
+    // this street now and then: that round is not Converged), and it stays
+    // so while the fix holds.
+    let theirs = first.result.transform.inverse();
+    let agreeing: Vec<Estimate> = (0..4).map(|_| estimate(&mut tracker, Some(theirs))).collect();
+    let converged: Vec<&Estimate> = agreeing.iter().filter(|e| e.result.status == MatchStatus::Converged).collect();
+    assert!(!converged.is_empty());
+    for e in &agreeing {
+        assert_eq!(e.status() == MatchStatus::Converged, e.result.status == MatchStatus::Converged && e.confirmed);
+    }
+    assert!(converged.iter().all(|e| e.confirmed && agree(&e.result.transform, &theirs, at)));
+    if tracker.fix().is_some() && agreeing.last().is_some_and(|e| e.confirmed) {
+        let next = estimate(&mut tracker, None);
+        assert_eq!(next.confirmed, next.result.status == MatchStatus::Converged, "stays confirmed");
+    }
+    // A new chain (the fix forgotten) starts unconfirmed.
+    tracker.reset();
+    assert_eq!(estimate(&mut tracker, None).status(), MatchStatus::NotConverged);
+    assert!(agree(&first.result.transform, &first.result.transform.inverse(), at));
+}
+
+/// `test_util::street` in a map of its own.
+fn street(poles: bool, t: &crate::geometry::Isometry3<f32>, range: (i32, i32)) -> VecMap {
+    let mut map = crate::test_util::map(40_000);
+    crate::test_util::street(&mut map, t, range, poles);
+    map
+}
+
+/// From a fix the maps held in every direction, a street that holds
+/// nothing along it is tracked with that direction held where the fix put
+/// it (Converged, its degeneracy low), for up to `HOLD_M` of driving;
+/// beyond, the answer is Degenerate: the fix kept once, then withdrawn.
+#[test]
+fn a_street_is_held_where_the_fix_put_it_for_a_few_metres() {
+    use crate::geometry::{from_xyz_rpy, Isometry3};
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
+    // The peer's part of the street ends well inside the robot's.
+    let maps = [street(true, &Isometry3::identity(), (0, 400)), street(true, &gt.inverse(), (100, 300))];
+    let bare = [street(false, &Isometry3::identity(), (0, 400)), street(false, &gt.inverse(), (100, 300))];
+    // 0.2 m maps: four levels, the coarsest of 1.6 m (the verdict's cover).
+    let prepare = |m| Pyramid::build_vec(m, 4, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&maps[0]), prepare(&maps[1]));
+    let (own_bare, peer_bare) = (prepare(&bare[0]), prepare(&bare[1]));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let mut tracker = Tracker::new();
+    let mut estimate = |t: &mut Tracker, (own, peer), x: f32| {
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0] };
+        t.estimate(own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
+    let error = |e: &Estimate| (e.result.transform * gt.inverse()).translation.vector.norm();
+    let first = estimate(&mut tracker, (&own, &peer), 0.0);
+    assert_eq!((first.kind, first.result.status), (Kind::PriorFree, MatchStatus::Converged), "{first:?}");
+    assert!(first.result.degeneracy >= how.settings.degeneracy_threshold && error(&first) < 0.1, "{first:?}");
+    let held = estimate(&mut tracker, (&own_bare, &peer_bare), 0.5 * HOLD_M);
+    assert_eq!((held.kind, held.result.status, held.fix), (Kind::Tracking, MatchStatus::Converged, Fix::Held));
+    assert!(held.result.degeneracy < how.settings.degeneracy_threshold && error(&held) < 0.1, "{held:?}");
+    let far = estimate(&mut tracker, (&own_bare, &peer_bare), HOLD_M + 1.0);
+    assert_eq!((far.result.status, far.fix), (MatchStatus::Degenerate, Fix::Kept), "{far:?}");
+    let farther = estimate(&mut tracker, (&own_bare, &peer_bare), HOLD_M + 2.0);
+    assert_eq!(farther.fix, Fix::Withdrawn);
+    // A fix made whole again holds for another HOLD_M from there.
+    assert_eq!(estimate(&mut tracker, (&own, &peer), HOLD_M + 3.0).result.status, MatchStatus::Converged);
+    let again = estimate(&mut tracker, (&own_bare, &peer_bare), 1.5 * HOLD_M + 3.0);
+    assert_eq!(again.result.status, MatchStatus::Converged, "{again:?}");
+}
+
+/// A round begun on pyramids prepared for tracking ([`Tracker::track`])
+/// and finished on whole ones only when a search is needed
+/// ([`Tracker::search`]) gives what [`Tracker::estimate`] gives on whole
+/// pyramids, round by round: a prior-free fix, held answers, one held too
+/// far (kept, then withdrawn), a fix made again.
+#[test]
+fn a_round_tracked_first_estimates_as_a_round_on_whole_pyramids() {
+    use crate::geometry::{from_xyz_rpy, Isometry3};
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, Pyramid, Role};
+    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
+    let maps = [street(true, &Isometry3::identity(), (0, 400)), street(true, &gt.inverse(), (100, 300))];
+    let bare = [street(false, &Isometry3::identity(), (0, 400)), street(false, &gt.inverse(), (100, 300))];
+    let whole = |m| Pyramid::build_vec(m, 4, 1.0, Role::Model).unwrap();
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let (mut one, mut other) = (Tracker::new(), Tracker::new());
+    let (mut searched, mut tracked) = (0, 0);
+    for (pair, x) in
+        [(&maps, 0.0), (&bare, 0.5 * HOLD_M), (&bare, HOLD_M + 1.0), (&bare, HOLD_M + 2.0), (&maps, HOLD_M + 3.0)]
+            .into_iter()
+            .chain([(&bare, 1.5 * HOLD_M + 3.0)])
+    {
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0] };
+        let (own, peer) = (whole(&pair[0]), whole(&pair[1]));
+        let expected = one.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
+        let t = Pyramid::build_vec_tracked(&pair[0], Role::Model).unwrap();
+        let u = Pyramid::build_vec_tracked(&pair[1], Role::Scene).unwrap();
+        let mut reach = vec![crate::matching::Reach::EMPTY; 700];
+        let scratch = &mut SearchScratch::new(&mut []).with_reach(&mut reach);
+        let begun = other.track(&t, &u, &how, scratch, &view).unwrap();
+        let got = match begun.estimate() {
+            Some(e) => {
+                tracked += 1;
+                *e
+            }
+            None => {
+                searched += 1;
+                other.search(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view, begun).unwrap()
+            }
+        };
+        assert_eq!(got, expected, "at {x} m");
+        assert_eq!(other, one, "at {x} m");
+    }
+    assert!(tracked >= 2 && searched >= 3, "{tracked} tracked, {searched} searched");
+}
+
+/// A fix found this round is confirmed in this round by the peer's
+/// estimate of the same round (heard in its answer) where they agree, not
+/// where they do not; only the fix held now is, and it stays confirmed.
+#[test]
+fn a_fix_is_confirmed_by_the_peers_estimate_of_the_same_round() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let (here, again) = one_street_seen_twice();
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&here), prepare(&again));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let at = [9.0, 0.0, 0.0];
+    let view = PeerView { estimate: None, at };
+    let mut tracker = Tracker::new();
+    let mut first = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
+    assert_eq!((first.result.status, first.confirmed), (MatchStatus::Converged, false));
+    // A peer's estimate 3 m and 5 degrees off: not confirmed.
+    let off = crate::geometry::from_xyz_rpy(3.0, 0.0, 0.0, 0.0, 0.0, 0.09) * first.result.transform.inverse();
+    tracker.confirm(&mut first, &off, at);
+    assert!(!first.confirmed);
+    // An estimate that is not the fix held is not confirmed either.
+    let mut stale = first;
+    stale.result.transform = crate::geometry::from_xyz_rpy(0.5, 0.0, 0.0, 0.0, 0.0, 0.0) * first.result.transform;
+    let inverse = stale.result.transform.inverse();
+    tracker.confirm(&mut stale, &inverse, at);
+    assert!(!stale.confirmed);
+    // The inverse of the fix: confirmed now, reported Converged, and the
+    // next round's estimate from the fix stays confirmed.
+    let theirs = first.result.transform.inverse();
+    tracker.confirm(&mut first, &theirs, at);
+    assert!(first.confirmed && first.status() == MatchStatus::Converged);
+    let next = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
+    assert_eq!(next.confirmed, next.result.status == MatchStatus::Converged, "{next:?}");
+}
