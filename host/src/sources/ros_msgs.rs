@@ -1,6 +1,12 @@
 //! The ROS 2 messages cosem reads and writes (`sensor_msgs/PointCloud2`,
-//! `tf2_msgs/TFMessage`, `nav_msgs/Odometry`, `std_msgs/String`), as
-//! serde types in CDR field order, and their `ros2msg` definitions.
+//! `tf2_msgs/TFMessage`, `nav_msgs/Odometry`, `std_msgs/String`,
+//! `geometry_msgs/PoseWithCovarianceStamped`,
+//! `diagnostic_msgs/DiagnosticArray` and cosem's own
+//! `cosem_msgs/MapUpdate`), as serde types in CDR field order, and their
+//! `ros2msg` definitions ([`definitions`]). Plain CDR (XCDR1, final
+//! types, little-endian): what a ROS 2 Jazzy node sends and expects,
+//! checked byte for byte against the `mcap_ros2` Python package
+//! (`tests/tests/ros_messages.rs`).
 
 use serde::{Deserialize, Serialize};
 
@@ -188,3 +194,184 @@ pub struct StringMsg {
 
 /// The `ros2msg` definition of `std_msgs/msg/String`.
 pub const STRING_SCHEMA: &str = "string data\n";
+
+/// `geometry_msgs/msg/PoseWithCovarianceStamped`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PoseWithCovarianceStamped {
+    /// Stamp and the frame the pose is in.
+    pub header: Header,
+    /// The pose and its covariance (ROS's convention: on the pose in
+    /// `header.frame_id`, order x, y, z, rotation about x, y, z).
+    pub pose: PoseWithCovariance,
+}
+
+/// `diagnostic_msgs/msg/KeyValue`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct KeyValue {
+    /// The name.
+    pub key: String,
+    /// Its value, as text.
+    pub value: String,
+}
+
+/// `diagnostic_msgs/msg/DiagnosticStatus`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DiagnosticStatus {
+    /// [`DiagnosticStatus::OK`], `WARN`, `ERROR` or `STALE`.
+    pub level: u8,
+    /// What is reported on.
+    pub name: String,
+    /// Its state, in words.
+    pub message: String,
+    /// The hardware it runs on.
+    pub hardware_id: String,
+    /// The figures.
+    pub values: Vec<KeyValue>,
+}
+
+impl DiagnosticStatus {
+    /// Level: all is well.
+    pub const OK: u8 = 0;
+    /// Level: a warning.
+    pub const WARN: u8 = 1;
+    /// Level: an error.
+    pub const ERROR: u8 = 2;
+    /// Level: nothing heard for too long.
+    pub const STALE: u8 = 3;
+}
+
+/// `diagnostic_msgs/msg/DiagnosticArray`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DiagnosticArray {
+    /// Stamp.
+    pub header: Header,
+    /// One status per thing reported on.
+    pub status: Vec<DiagnosticStatus>,
+}
+
+/// `cosem_msgs/msg/MapUpdate`: one message of cosem's map-update protocol
+/// between robots (an update, a snapshot or an answer, in the compact
+/// wire format of `cosem_core::wire::update`, its CRC-32 included),
+/// carried whole. Its definition is `host/ros/cosem_msgs/msg/MapUpdate.msg`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MapUpdate {
+    /// When it was sent, and the sender's odometry frame.
+    pub header: Header,
+    /// The sender's name.
+    pub robot: String,
+    /// The robot an answer is for (empty: an update, for every peer).
+    pub peer: String,
+    /// The protocol's version ([`MAP_UPDATE_PROTOCOL`]): a message of
+    /// another is dropped before its payload is read.
+    pub protocol: u32,
+    /// The wire message.
+    pub payload: Vec<u8>,
+}
+
+/// The version of the map-update protocol a [`MapUpdate`] carries: raised
+/// whenever the payload's format changes.
+pub const MAP_UPDATE_PROTOCOL: u32 = 1;
+
+const SEPARATOR: &str = "================================================================================\n";
+const TIME_DEF: &str = "int32 sec\nuint32 nanosec\n";
+const HEADER_DEF: &str = "builtin_interfaces/Time stamp\nstring frame_id\n";
+const POINT_DEF: &str = "float64 x\nfloat64 y\nfloat64 z\n";
+const QUATERNION_DEF: &str = "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n";
+const POSE_DEF: &str = "Point position\nQuaternion orientation\n";
+const POSE_COV_DEF: &str = "Pose pose\nfloat64[36] covariance\n";
+const KEY_VALUE_DEF: &str = "string key\nstring value\n";
+const STATUS_DEF: &str = "byte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\nbyte level\nstring name\nstring message\nstring hardware_id\nKeyValue[] values\n";
+
+/// A `ros2msg` definition: the message's own text, then each dependency
+/// under its `MSG:` line.
+fn definition(own: &str, deps: &[(&str, &str)]) -> String {
+    let mut text = own.to_string();
+    for (name, def) in deps {
+        text.push_str(SEPARATOR);
+        text.push_str("MSG: ");
+        text.push_str(name);
+        text.push('\n');
+        text.push_str(def);
+    }
+    text
+}
+
+/// The `ros2msg` definition of `geometry_msgs/msg/PoseWithCovarianceStamped`.
+pub fn pose_with_covariance_stamped_schema() -> String {
+    definition(
+        "std_msgs/Header header\nPoseWithCovariance pose\n",
+        &[
+            ("std_msgs/Header", HEADER_DEF),
+            ("builtin_interfaces/Time", TIME_DEF),
+            ("geometry_msgs/PoseWithCovariance", POSE_COV_DEF),
+            ("geometry_msgs/Pose", POSE_DEF),
+            ("geometry_msgs/Point", POINT_DEF),
+            ("geometry_msgs/Quaternion", QUATERNION_DEF),
+        ],
+    )
+}
+
+/// The `ros2msg` definition of `diagnostic_msgs/msg/DiagnosticArray`.
+pub fn diagnostic_array_schema() -> String {
+    definition(
+        "std_msgs/Header header\nDiagnosticStatus[] status\n",
+        &[
+            ("std_msgs/Header", HEADER_DEF),
+            ("builtin_interfaces/Time", TIME_DEF),
+            ("diagnostic_msgs/DiagnosticStatus", STATUS_DEF),
+            ("diagnostic_msgs/KeyValue", KEY_VALUE_DEF),
+        ],
+    )
+}
+
+/// The `ros2msg` definition of `nav_msgs/msg/Odometry`.
+pub fn odometry_schema() -> String {
+    definition(
+        "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\ngeometry_msgs/TwistWithCovariance twist\n",
+        &[
+            ("std_msgs/Header", HEADER_DEF),
+            ("builtin_interfaces/Time", TIME_DEF),
+            ("geometry_msgs/PoseWithCovariance", POSE_COV_DEF),
+            ("geometry_msgs/Pose", POSE_DEF),
+            ("geometry_msgs/Point", POINT_DEF),
+            ("geometry_msgs/Quaternion", QUATERNION_DEF),
+            ("geometry_msgs/TwistWithCovariance", "Twist twist\nfloat64[36] covariance\n"),
+            ("geometry_msgs/Twist", "Vector3 linear\nVector3 angular\n"),
+            ("geometry_msgs/Vector3", POINT_DEF),
+        ],
+    )
+}
+
+/// The text of `host/ros/cosem_msgs/msg/MapUpdate.msg` (its comments left out).
+pub const MAP_UPDATE_DEF: &str =
+    "uint32 PROTOCOL=1\nstd_msgs/Header header\nstring robot\nstring peer\nuint32 protocol\nuint8[] payload\n";
+
+/// The `ros2msg` definition of `cosem_msgs/msg/MapUpdate`.
+pub fn map_update_schema() -> String {
+    definition(MAP_UPDATE_DEF, &[("std_msgs/Header", HEADER_DEF), ("builtin_interfaces/Time", TIME_DEF)])
+}
+
+/// Every message type cosem reads or writes, by its full name, with its
+/// `ros2msg` definition.
+pub fn definitions() -> Vec<(&'static str, String)> {
+    vec![
+        ("sensor_msgs/msg/PointCloud2", POINTCLOUD2_SCHEMA.to_string()),
+        ("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA.to_string()),
+        ("std_msgs/msg/String", STRING_SCHEMA.to_string()),
+        ("nav_msgs/msg/Odometry", odometry_schema()),
+        ("geometry_msgs/msg/PoseWithCovarianceStamped", pose_with_covariance_stamped_schema()),
+        ("diagnostic_msgs/msg/DiagnosticArray", diagnostic_array_schema()),
+        ("cosem_msgs/msg/MapUpdate", map_update_schema()),
+    ]
+}
+
+/// `msg` in plain CDR, little-endian, with its 4-byte encapsulation
+/// header: a ROS 2 message's bytes on the wire and in a recording.
+pub fn to_cdr<T: Serialize>(msg: &T) -> Result<Vec<u8>, String> {
+    cdr::serialize::<_, _, cdr::CdrLe>(msg, cdr::Infinite).map_err(|e| format!("CDR: {e}"))
+}
+
+/// A message of type `T` from its CDR bytes ([`to_cdr`]'s).
+pub fn from_cdr<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
+    cdr::deserialize::<T>(bytes).map_err(|e| format!("CDR: {e}"))
+}
