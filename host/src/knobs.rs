@@ -57,11 +57,19 @@ pub enum Knob {
     VoidChannel,
     /// The camera projection scaled to the segmentation's size.
     ScaleToImages,
+    /// A DDS domain id.
+    Domain,
+    /// Scans a second where a source has no timestamps.
+    Rate,
+    /// Times a recording's rate.
+    Speed,
+    /// Readers each topic waits for before the first message.
+    WaitReaders,
 }
 
 impl Knob {
     /// Every knob (for a front end's table and its tests).
-    pub const ALL: [Knob; 23] = [
+    pub const ALL: [Knob; 27] = [
         Knob::Classes,
         Knob::MaxRange,
         Knob::KeepMoving,
@@ -85,6 +93,10 @@ impl Knob {
         Knob::File,
         Knob::VoidChannel,
         Knob::ScaleToImages,
+        Knob::Domain,
+        Knob::Rate,
+        Knob::Speed,
+        Knob::WaitReaders,
     ];
 
     /// The knob's plain name: the library's (and the Python keyword's).
@@ -113,6 +125,10 @@ impl Knob {
             Knob::File => "file",
             Knob::VoidChannel => "void_channel",
             Knob::ScaleToImages => "scale_to_images",
+            Knob::Domain => "domain",
+            Knob::Rate => "rate",
+            Knob::Speed => "speed",
+            Knob::WaitReaders => "wait_readers",
         }
     }
 

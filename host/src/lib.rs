@@ -23,7 +23,9 @@
 //! - [`evaluation`]: the map pipeline, pairs, protocols, teams on the
 //!   host, benchmarks, the demo;
 //! - [`boards`]: the robots' pipelines on emulated boards (QEMU);
-//! - [`reports`]: the commands' JSON (stable field names) and text.
+//! - [`reports`]: the commands' JSON (stable field names) and text;
+//! - `ros` (feature `ros`, on by default): ROS 2 over DDS, pure Rust
+//!   (`cosem ros play`).
 //!
 //! Transforms are nalgebra `Isometry3` throughout, with the conventions'
 //! pose syntax and error measures from [`cosem_core::geometry`].
@@ -127,4 +129,12 @@ pub mod reports {
     pub mod session_board;
     pub mod session_recording;
     pub mod team;
+}
+
+/// ROS 2 over DDS (ros2-client on RustDDS, pure Rust): topics and QoS,
+/// `cosem ros play`.
+#[cfg(feature = "ros")]
+pub mod ros {
+    pub mod dds;
+    pub mod play;
 }

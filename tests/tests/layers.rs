@@ -45,6 +45,8 @@ const HOST: Layers = &[
     ("evaluation", &["evaluation"]),
     ("boards", &["boards"]),
     ("reports", &["reports"]),
+    // ROS 2 over DDS: the live node and player (feature `ros`).
+    ("ros", &["ros"]),
     // The `cosem` binary.
     ("cli", &["cli", "main"]),
 ];

@@ -8,6 +8,10 @@
 //! tmpfs in a mount namespace where `unshare -m` works, else skipped and
 //! counted) and under the writer's test-only cap (`COSEM_TEST_WRITE_CAP`).
 //!
+//! `cosem ros` cases run in a network namespace of their own with no
+//! interface up (`unshare -n`), never on the machine's network; where one
+//! cannot be made they are skipped and counted.
+//!
 //! Each case asserts: an exit within 30 s, no panic or signal; a refusal
 //! names the argument or the file; every input identical afterwards
 //! (content, mode, link target); nothing partial left beside the outputs.
@@ -60,6 +64,8 @@ fn baselines() -> BTreeMap<&'static str, &'static str> {
         // Everything up to the boards (feeds, the host's twin run), then a
         // firmware that is not an ELF ends it before QEMU starts.
         ("robots", "robots --data {SEQ} --a 0:1 --b 1:2 --firmware {A}"),
+        // Run in a network namespace of its own (`run`).
+        ("ros play", "ros play --robot {SEQ}:0:2 --delay 0 --domain 7"),
     ])
 }
 
@@ -181,7 +187,14 @@ struct Outcome {
 
 fn run(args: &[String], env: &[(String, String)], cwd: &Path) -> Outcome {
     let t = Instant::now();
-    let mut cmd = Command::new(cosem_bin());
+    // DDS never on the machine's network: `ros` in a namespace of its own.
+    let mut cmd = if args.first().is_some_and(|a| a == "ros") {
+        let mut c = Command::new("unshare");
+        c.arg("-n").arg(cosem_bin());
+        c
+    } else {
+        Command::new(cosem_bin())
+    };
     cmd.args(args).current_dir(cwd).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::piped());
     cmd.env("COSEM_DATA", cwd.join("no-data"));
     for (k, v) in env {
@@ -357,8 +370,13 @@ fn unreadable_bites(scratch: &Path) -> bool {
 
 /// Whether `unshare -m` works here (root in a kernel that allows it).
 fn can_unshare() -> bool {
+    can_unshare_with("-m")
+}
+
+/// Whether `unshare FLAG` works here.
+fn can_unshare_with(flag: &str) -> bool {
     Command::new("unshare")
-        .args(["-m", "true"])
+        .args([flag, "true"])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .status()
@@ -406,7 +424,7 @@ fn every_command_refuses_misuse_cleanly() {
     );
     if !skipped.is_empty() {
         println!(
-            "misuse table: {} \"unreadable input\" cases skipped: a file of mode 000 is readable here (root): {}",
+            "misuse table: {} cases skipped (\"unreadable input\": a file of mode 000 is readable here, as root): {}",
             skipped.len(),
             skipped.join(", ")
         );
@@ -432,6 +450,10 @@ fn table(f: &Fixture, tree: &[Value], scratch: &Path) -> (Vec<(usize, Case)>, Ve
             }
         }
         for case in cases(f, &command, &args, template, &scratch.join("work")) {
+            if command[0] == "ros" && !can_unshare_with("-n") {
+                skipped.push(format!("{name} [{}] (no network namespace: unshare -n)", case.what));
+                continue;
+            }
             if case.what.ends_with(" unreadable") && !unreadable_bites(scratch) {
                 skipped.push(format!("{name} [{}]", case.what));
                 continue;

@@ -30,15 +30,26 @@ fn cov() -> [[f64; 6]; 6] {
     c
 }
 
+/// `m` in CDR, checked to read back as itself.
+fn both<T: Serialize + DeserializeOwned + PartialEq + std::fmt::Debug>(m: T) -> Vec<u8> {
+    let bytes = to_cdr(&m).unwrap();
+    assert_eq!(from_cdr::<T>(&bytes).unwrap(), m, "read back differs");
+    bytes
+}
+
+fn pose(x: f64, y: f64, z: f64) -> PoseWithCovariance {
+    PoseWithCovariance { pose: Pose { position: vec3(x, y, z), orientation: QUAT }, covariance: cov() }
+}
+
 /// The messages of `tests/python/ros_golden.py`, as cosem's types, in CDR.
 fn messages() -> Vec<(&'static str, Vec<u8>)> {
-    fn both<T: Serialize + DeserializeOwned + PartialEq + std::fmt::Debug>(m: T) -> Vec<u8> {
-        let bytes = to_cdr(&m).unwrap();
-        assert_eq!(from_cdr::<T>(&bytes).unwrap(), m, "read back differs");
-        bytes
-    }
-    let pose =
-        |x, y, z| PoseWithCovariance { pose: Pose { position: vec3(x, y, z), orientation: QUAT }, covariance: cov() };
+    let mut all = inputs();
+    all.extend(outputs());
+    all
+}
+
+/// What a robot's stack gives cosem: scans, transforms, odometry.
+fn inputs() -> Vec<(&'static str, Vec<u8>)> {
     vec![
         (
             "sensor_msgs/msg/PointCloud2",
@@ -87,6 +98,12 @@ fn messages() -> Vec<(&'static str, Vec<u8>)> {
                 },
             }),
         ),
+    ]
+}
+
+/// What cosem gives: poses, diagnostics, map updates.
+fn outputs() -> Vec<(&'static str, Vec<u8>)> {
+    vec![
         (
             "geometry_msgs/msg/PoseWithCovarianceStamped",
             both(PoseWithCovarianceStamped { header: header(9, 10, "robot_a/odom"), pose: pose(-4.0, 5.5, 0.25) }),

@@ -121,6 +121,14 @@ pub fn positive(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A finite number, zero or more (m, s, ...).
+pub fn non_negative(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("`{s}`: expected a number, zero or more")),
+    }
+}
+
 /// A baud rate: a positive whole number of bits a second.
 pub fn baud(s: &str) -> Result<u32, String> {
     match s.parse::<u32>() {
@@ -349,6 +357,10 @@ pub fn flag(k: cosem_host::knobs::Knob) -> &'static str {
         Knob::File => "FILE",
         Knob::VoidChannel => "--void-channel",
         Knob::ScaleToImages => "--scale-to-images",
+        Knob::Domain => "--domain",
+        Knob::Rate => "--rate",
+        Knob::Speed => "--speed",
+        Knob::WaitReaders => "--wait-readers",
     }
 }
 

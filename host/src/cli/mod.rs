@@ -13,6 +13,7 @@ mod map;
 mod matching;
 mod relay;
 mod robots;
+mod ros;
 mod segment;
 mod session;
 mod synth;
@@ -58,6 +59,12 @@ enum Command {
     /// Robots that keep driving: rounds of mapping, map updates as deltas,
     /// each peer's pose tracked and re-checked under odometry drift.
     Session(session::Args),
+    /// cosem beside a robot's ROS 2 stack, over DDS (pure Rust, no ROS
+    /// installation).
+    Ros {
+        #[command(subcommand)]
+        what: ros::What,
+    },
     /// Describe a map file.
     Info(info::Args),
     /// Export a map to another format.
@@ -121,6 +128,7 @@ fn run_command(cli: Cli) -> Result<u8, Error> {
         Command::Team(a) => team::run(a),
         Command::Session(a) => done(session::run_session(a)),
         Command::Relay(a) => done(relay::run_relay(a)),
+        Command::Ros { what } => done(ros::run(what)),
         Command::Info(a) => done(info::run(a)),
         Command::Export { format } => done(export::run(format)),
         Command::Label(a) => done(label::run(a)),
