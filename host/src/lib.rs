@@ -137,4 +137,5 @@ pub mod reports {
 pub mod ros {
     pub mod dds;
     pub mod play;
+    pub mod pose;
 }
