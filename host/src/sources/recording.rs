@@ -374,6 +374,27 @@ fn cloud_points(
     Ok(cloud)
 }
 
+/// The points of a PointCloud2 heard live on `topic` (not read from a
+/// file): its fields, sizes and row steps checked against its data before
+/// any point is read, as a recording's are; an error names the topic and
+/// what lies.
+pub fn live_cloud(pc: &PointCloud2, label_field: &str, topic: &str) -> Result<Cloud, crate::error::Error> {
+    let msg = crate::sources::cdr_read::CloudMsg {
+        header: pc.header.clone(),
+        height: pc.height,
+        width: pc.width,
+        fields: pc.fields.iter().map(|f| (f.name.clone(), f.offset, f.datatype, f.count)).collect(),
+        is_bigendian: pc.is_bigendian,
+        point_step: pc.point_step,
+        row_step: pc.row_step,
+        data: &pc.data,
+    };
+    cloud_points(&msg, label_field, Path::new(topic)).map_err(|e| match e {
+        CloudRead::Message(what) => crate::error::Error::Invalid(format!("{topic}: {what}")),
+        CloudRead::Cloud(e) => e.into(),
+    })
+}
+
 /// How a recording's chunks are written.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ChunkCompression {
@@ -649,6 +670,28 @@ mod tests {
         one_cloud(&p, &pc);
         let (frames, _) = read_one(&p).unwrap();
         assert!(frames[0].points.is_empty());
+    }
+
+    /// A live cloud is checked as a recorded one is: what lies is named
+    /// with the topic, nothing is read past the data.
+    #[test]
+    fn a_live_cloud_that_lies_is_refused_by_name() {
+        let t = "/robot_0/points";
+        let ok = live_cloud(&two_points(), "label", t).unwrap();
+        assert_eq!((ok.points.len(), ok.labels.clone()), (2, vec![40, 50]));
+        let refused = |pc: PointCloud2, field: &str| live_cloud(&pc, field, t).unwrap_err().to_string();
+        let e = refused(PointCloud2 { height: 2, width: 1, row_step: 8, ..two_points() }, "label");
+        assert!(e.contains(t) && e.contains("row_step 8"), "{e}");
+        let e = refused(PointCloud2 { width: 3, row_step: 48, ..two_points() }, "label");
+        assert!(e.contains(t) && e.contains("data holds 32 bytes"), "{e}");
+        let mut beyond = two_points();
+        beyond.fields[3].offset = 14;
+        let e = refused(beyond, "label");
+        assert!(e.contains(t) && e.contains("point_step"), "{e}");
+        let e = refused(PointCloud2 { is_bigendian: true, ..two_points() }, "label");
+        assert!(e.contains("big-endian"), "{e}");
+        let e = refused(two_points(), "semantic");
+        assert!(e.contains("semantic"), "{e}");
     }
 
     #[test]
