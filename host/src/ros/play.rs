@@ -15,7 +15,7 @@ use crate::error::Error;
 use crate::evaluation::team::RobotSpec;
 use crate::knobs::Knob;
 use crate::sources::kitti::Frame;
-use crate::sources::recording::transform_of;
+use crate::sources::recording::{labelled_cloud, transform_of};
 use crate::sources::ros_msgs::*;
 use crate::sources::source::{Source, SourceOptions};
 use nalgebra::{Isometry3, Matrix4, Translation3, UnitQuaternion, Vector3 as V3};
@@ -95,19 +95,7 @@ fn sensor_cloud(frame: &Frame, crop: Option<f32>, sensor: &str) -> PointCloud2 {
         [q.x as f32, q.y as f32, q.z as f32]
     });
     let labels: Vec<u32> = idx.iter().map(|&k| frame.labels[k]).collect();
-    let data = crate::sources::cloud::records(points, &labels);
-    let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
-    PointCloud2 {
-        header: Header { stamp: Time::default(), frame_id: sensor.into() },
-        height: 1,
-        width: labels.len() as u32,
-        fields: vec![field("x", 0, 7), field("y", 4, 7), field("z", 8, 7), field("label", 12, 6)],
-        is_bigendian: false,
-        point_step: 16,
-        row_step: 16 * labels.len() as u32,
-        data,
-        is_dense: true,
-    }
+    labelled_cloud(Header { stamp: Time::default(), frame_id: sensor.into() }, points, &labels)
 }
 
 fn track(i: usize, r: &RobotSpec, spec: &PlaySpec) -> Result<Track, Error> {

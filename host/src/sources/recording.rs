@@ -501,26 +501,33 @@ pub fn write_scans<'a>(
                 transform: transform_of(&scan.pose),
             }],
         };
-        let count = scan.points.len().min(scan.labels.len());
-        let data = crate::sources::cloud::records(scan.points.iter().copied(), scan.labels);
-        let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
-        let pc = PointCloud2 {
-            header: header("velodyne"),
-            height: 1,
-            width: count as u32,
-            fields: vec![field("x", 0, 7), field("y", 4, 7), field("z", 8, 7), field("label", 12, 6)],
-            is_bigendian: false,
-            point_step: 16,
-            row_step: 16 * count as u32,
-            data,
-            is_dense: true,
-        };
+        let pc = labelled_cloud(header("velodyne"), scan.points.iter().copied(), scan.labels);
         w.write(tf_channel, k as u32, log_time, &tf)?;
         w.write(pc_channel, k as u32, log_time, &pc)?;
         n += 1;
     }
     w.finish()?;
     Ok(n)
+}
+
+/// A labelled scan as cosem writes and publishes it: an unorganised
+/// PointCloud2 of x, y, z (float32) and label (uint32), 16 bytes a point,
+/// as many points as both `points` and `labels` hold.
+pub fn labelled_cloud(header: Header, points: impl Iterator<Item = [f32; 3]>, labels: &[u32]) -> PointCloud2 {
+    let data = crate::sources::cloud::records(points, labels);
+    let count = (data.len() / 16) as u32;
+    let field = |name: &str, offset, datatype| PointField { name: name.into(), offset, datatype, count: 1 };
+    PointCloud2 {
+        header,
+        height: 1,
+        width: count,
+        fields: vec![field("x", 0, 7), field("y", 4, 7), field("z", 8, 7), field("label", 12, 6)],
+        is_bigendian: false,
+        point_step: 16,
+        row_step: 16 * count,
+        data,
+        is_dense: true,
+    }
 }
 
 /// A ROS 2 recording being written (zstd chunks, `ros2msg` schemas, CDR

@@ -296,19 +296,20 @@ fn definition(own: &str, deps: &[(&str, &str)]) -> String {
     text
 }
 
+/// A header and a pose with covariance: the dependencies
+/// `PoseWithCovarianceStamped` and `Odometry` share, in their order.
+const STAMPED_POSE_DEPS: [(&str, &str); 6] = [
+    ("std_msgs/Header", HEADER_DEF),
+    ("builtin_interfaces/Time", TIME_DEF),
+    ("geometry_msgs/PoseWithCovariance", POSE_COV_DEF),
+    ("geometry_msgs/Pose", POSE_DEF),
+    ("geometry_msgs/Point", POINT_DEF),
+    ("geometry_msgs/Quaternion", QUATERNION_DEF),
+];
+
 /// The `ros2msg` definition of `geometry_msgs/msg/PoseWithCovarianceStamped`.
 pub fn pose_with_covariance_stamped_schema() -> String {
-    definition(
-        "std_msgs/Header header\nPoseWithCovariance pose\n",
-        &[
-            ("std_msgs/Header", HEADER_DEF),
-            ("builtin_interfaces/Time", TIME_DEF),
-            ("geometry_msgs/PoseWithCovariance", POSE_COV_DEF),
-            ("geometry_msgs/Pose", POSE_DEF),
-            ("geometry_msgs/Point", POINT_DEF),
-            ("geometry_msgs/Quaternion", QUATERNION_DEF),
-        ],
-    )
+    definition("std_msgs/Header header\nPoseWithCovariance pose\n", &STAMPED_POSE_DEPS)
 }
 
 /// The `ros2msg` definition of `diagnostic_msgs/msg/DiagnosticArray`.
@@ -326,19 +327,15 @@ pub fn diagnostic_array_schema() -> String {
 
 /// The `ros2msg` definition of `nav_msgs/msg/Odometry`.
 pub fn odometry_schema() -> String {
+    let twist = [
+        ("geometry_msgs/TwistWithCovariance", "Twist twist\nfloat64[36] covariance\n"),
+        ("geometry_msgs/Twist", "Vector3 linear\nVector3 angular\n"),
+        ("geometry_msgs/Vector3", POINT_DEF),
+    ];
+    let deps: Vec<(&str, &str)> = STAMPED_POSE_DEPS.iter().chain(&twist).copied().collect();
     definition(
         "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\ngeometry_msgs/TwistWithCovariance twist\n",
-        &[
-            ("std_msgs/Header", HEADER_DEF),
-            ("builtin_interfaces/Time", TIME_DEF),
-            ("geometry_msgs/PoseWithCovariance", POSE_COV_DEF),
-            ("geometry_msgs/Pose", POSE_DEF),
-            ("geometry_msgs/Point", POINT_DEF),
-            ("geometry_msgs/Quaternion", QUATERNION_DEF),
-            ("geometry_msgs/TwistWithCovariance", "Twist twist\nfloat64[36] covariance\n"),
-            ("geometry_msgs/Twist", "Vector3 linear\nVector3 angular\n"),
-            ("geometry_msgs/Vector3", POINT_DEF),
-        ],
+        &deps,
     )
 }
 
