@@ -47,6 +47,7 @@ pub mod sources {
     pub mod mcap_read;
     pub mod recording;
     pub mod ros_msgs;
+    pub mod ros_pose;
     pub mod source;
 }
 
@@ -137,5 +138,4 @@ pub mod reports {
 pub mod ros {
     pub mod dds;
     pub mod play;
-    pub mod pose;
 }

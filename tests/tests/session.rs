@@ -250,8 +250,9 @@ fn under_drift_estimates_are_right_where_the_robots_met() {
 }
 
 /// `--mcap-out` writes the session as a recording: each robot's map every
-/// round, its odometry and the Converged estimates on /tf; the Python
-/// `mcap-ros2-support` decoder, where present, reads every message.
+/// round, its odometry and the Converged estimates on /tf, each as a pose
+/// with its covariance, and every estimate's status on /diagnostics; the
+/// Python `mcap-ros2-support` decoder, where present, reads every message.
 #[test]
 fn a_session_is_written_as_a_recording_to_view() {
     let dir = tempfile::tempdir().unwrap();
@@ -277,12 +278,21 @@ fn a_session_is_written_as_a_recording_to_view() {
     assert!(err.contains("--mcap-out"), "{err}");
     let py = "import sys\nfrom mcap.reader import make_reader\nfrom mcap_ros2.decoder import DecoderFactory\n\
               r = make_reader(open(sys.argv[1], 'rb'), decoder_factories=[DecoderFactory()])\n\
-              maps, edges = 0, 0\nfor schema, channel, message, ros in r.iter_decoded_messages():\n\
+              maps, edges, poses, good, diags, ok = 0, 0, 0, 0, 0, 0\n\
+              for schema, channel, message, ros in r.iter_decoded_messages():\n\
               \x20   if channel.topic == '/robot_0/map': maps += 1\n\
               \x20   if channel.topic == '/tf': edges += sum(t.child_frame_id == 'robot_1/odom' for t in ros.transforms)\n\
-              print(maps, edges)\n";
+              \x20   if channel.topic == '/robot_0/peers/robot_1/pose':\n\
+              \x20       poses += 1\n\
+              \x20       c = ros.pose.covariance\n\
+              \x20       good += ros.header.frame_id == 'robot_0/odom' and all(c[7 * k] > 0 for k in range(6))\n\
+              \x20   if channel.topic == '/diagnostics':\n\
+              \x20       diags += len(ros.status) == 2\n\
+              \x20       ok += sum(s.message == 'Converged' and s.level == 0 and s.hardware_id == 'robot_0' for s in ros.status)\n\
+              print(maps, edges, poses, good, diags, ok)\n";
     if let Some(text) = cosem_tests::python_or_skip(py, &[&b]) {
-        assert_eq!(text.trim(), format!("{rounds} {converged_pairs}"), "{text}");
+        let c = converged_pairs;
+        assert_eq!(text.trim(), format!("{rounds} {c} {c} {c} {rounds} {c}"), "{text}");
     }
 }
 

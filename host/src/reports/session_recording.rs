@@ -4,11 +4,20 @@
 //! robot_<i>/base_link`) and the estimates that are `Converged` (`/tf`:
 //! `robot_<i>/odom -> robot_<j>/odom`, robot i's estimate of robot j for
 //! i < j only, so the frames stay a tree), at one second a round.
+//!
+//! As the live node will publish them: each `Converged` estimate of robot
+//! i of robot j with its covariance (`/robot_<i>/peers/robot_<j>/pose`,
+//! `geometry_msgs/PoseWithCovarianceStamped` in `robot_<i>/odom`,
+//! [`crate::sources::ros_pose`]), and every estimate's status on
+//! `/diagnostics` (`diagnostic_msgs/DiagnosticArray`, one status per
+//! robot and peer: OK when `Converged` or `NoOverlap`, a warning
+//! otherwise), which Foxglove shows without a custom package.
 
 use crate::evaluation::session::RoundView;
 use crate::reports::match_recording::map_cloud;
 use crate::sources::recording::{transform_of, RecordingWriter};
 use crate::sources::ros_msgs::*;
+use crate::sources::ros_pose::pose_with_covariance;
 use cosem_core::matching::MatchStatus;
 use std::path::Path;
 
@@ -17,6 +26,10 @@ pub struct SessionRecorder<'p> {
     w: RecordingWriter<'p>,
     tf: u16,
     maps: Vec<u16>,
+    /// `/robot_<i>/peers/robot_<j>/pose`, by `i * robots + j`.
+    poses: Vec<u16>,
+    diagnostics: u16,
+    robots: usize,
     sequence: u32,
 }
 
@@ -29,7 +42,13 @@ impl<'p> SessionRecorder<'p> {
         let tf_schema = w.schema("tf2_msgs/msg/TFMessage", TFMESSAGE_SCHEMA)?;
         let tf = w.channel(tf_schema, "/tf")?;
         let maps = (0..robots).map(|i| w.channel(pc, &format!("/robot_{i}/map"))).collect::<Result<_, _>>()?;
-        Ok(SessionRecorder { w, tf, maps, sequence: 0 })
+        let pose = w.schema("geometry_msgs/msg/PoseWithCovarianceStamped", &pose_with_covariance_stamped_schema())?;
+        let poses = (0..robots * robots)
+            .map(|k| w.channel(pose, &format!("/robot_{}/peers/robot_{}/pose", k / robots, k % robots)))
+            .collect::<Result<_, _>>()?;
+        let diag = w.schema("diagnostic_msgs/msg/DiagnosticArray", &diagnostic_array_schema())?;
+        let diagnostics = w.channel(diag, "/diagnostics")?;
+        Ok(SessionRecorder { w, tf, maps, poses, diagnostics, robots, sequence: 0 })
     }
 
     /// Records one round.
@@ -60,7 +79,44 @@ impl<'p> SessionRecorder<'p> {
             self.w.write(channel, self.sequence, time, &cloud)?;
         }
         self.sequence += 1;
-        self.w.write(self.tf, self.sequence, time, &TfMessage { transforms })
+        self.w.write(self.tf, self.sequence, time, &TfMessage { transforms })?;
+        self.estimates(view, stamp, time)
+    }
+
+    /// Each Converged estimate as a pose with its covariance, and every
+    /// estimate's status.
+    fn estimates(&mut self, view: &RoundView<'_>, stamp: Time, time: u64) -> Result<(), crate::error::Error> {
+        let mut status = Vec::new();
+        for r in view.records {
+            let Some(e) = r.estimate.as_ref() else { continue };
+            let s = e.status();
+            let t: nalgebra::Isometry3<f64> = nalgebra::convert(e.result.transform);
+            let info: nalgebra::Matrix6<f64> = nalgebra::convert(e.result.information);
+            let channel = self.poses.get(r.robot * self.robots + r.peer).copied();
+            if let (MatchStatus::Converged, Some(pose), Some(channel)) = (s, pose_with_covariance(&t, &info), channel) {
+                let header = Header { stamp, frame_id: format!("robot_{}/odom", r.robot) };
+                self.sequence += 1;
+                self.w.write(channel, self.sequence, time, &PoseWithCovarianceStamped { header, pose })?;
+            }
+            let value = |key: &str, value: String| KeyValue { key: key.into(), value };
+            let well = matches!(s, MatchStatus::Converged | MatchStatus::NoOverlap);
+            status.push(DiagnosticStatus {
+                level: if well { DiagnosticStatus::OK } else { DiagnosticStatus::WARN },
+                name: format!("cosem: robot_{} / robot_{}", r.robot, r.peer),
+                message: s.as_str().into(),
+                hardware_id: format!("robot_{}", r.robot),
+                values: vec![
+                    value("kind", e.kind.as_str().into()),
+                    value("fix", e.fix.as_str().into()),
+                    value("confirmed", e.confirmed.to_string()),
+                    value("agreement", format!("{:.3}", e.result.agreement)),
+                    value("overlap", format!("{:.3}", e.result.overlap)),
+                ],
+            });
+        }
+        self.sequence += 1;
+        let header = Header { stamp, frame_id: String::new() };
+        self.w.write(self.diagnostics, self.sequence, time, &DiagnosticArray { header, status })
     }
 
     /// Finishes the file and renames it into place.
