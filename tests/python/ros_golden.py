@@ -29,6 +29,14 @@ def definition(own, deps):
 
 
 HDR = [("std_msgs/Header", HEADER), ("builtin_interfaces/Time", TIME)]
+# A header and a pose with covariance, as PoseWithCovarianceStamped and
+# Odometry list them.
+STAMPED_POSE = HDR + [
+    ("geometry_msgs/PoseWithCovariance", POSE_COV),
+    ("geometry_msgs/Pose", POSE),
+    ("geometry_msgs/Point", POINT),
+    ("geometry_msgs/Quaternion", QUATERNION),
+]
 DEFINITIONS = {
     "sensor_msgs/msg/PointCloud2": definition(
         "std_msgs/Header header\nuint32 height\nuint32 width\nPointField[] fields\n"
@@ -49,12 +57,8 @@ DEFINITIONS = {
     "nav_msgs/msg/Odometry": definition(
         "std_msgs/Header header\nstring child_frame_id\n"
         "geometry_msgs/PoseWithCovariance pose\ngeometry_msgs/TwistWithCovariance twist\n",
-        HDR
+        STAMPED_POSE
         + [
-            ("geometry_msgs/PoseWithCovariance", POSE_COV),
-            ("geometry_msgs/Pose", POSE),
-            ("geometry_msgs/Point", POINT),
-            ("geometry_msgs/Quaternion", QUATERNION),
             ("geometry_msgs/TwistWithCovariance", "Twist twist\nfloat64[36] covariance\n"),
             ("geometry_msgs/Twist", "Vector3 linear\nVector3 angular\n"),
             ("geometry_msgs/Vector3", POINT),
@@ -62,13 +66,7 @@ DEFINITIONS = {
     ),
     "geometry_msgs/msg/PoseWithCovarianceStamped": definition(
         "std_msgs/Header header\nPoseWithCovariance pose\n",
-        HDR
-        + [
-            ("geometry_msgs/PoseWithCovariance", POSE_COV),
-            ("geometry_msgs/Pose", POSE),
-            ("geometry_msgs/Point", POINT),
-            ("geometry_msgs/Quaternion", QUATERNION),
-        ],
+        STAMPED_POSE,
     ),
     "diagnostic_msgs/msg/DiagnosticArray": definition(
         "std_msgs/Header header\nDiagnosticStatus[] status\n",

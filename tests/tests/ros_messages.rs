@@ -9,8 +9,6 @@ use cosem_host::sources::ros_msgs::*;
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 use serde_json::Value;
-use std::path::Path;
-use std::process::Command;
 
 fn header(sec: i32, nanosec: u32, frame: &str) -> Header {
     Header { stamp: Time { sec, nanosec }, frame_id: frame.into() }
@@ -146,8 +144,8 @@ fn outputs() -> Vec<(&'static str, Vec<u8>)> {
     ]
 }
 
-fn root() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap()
+fn root() -> std::path::PathBuf {
+    cosem_tests::workspace_root()
 }
 
 fn check_against(golden: &Value, source: &str) {
@@ -166,33 +164,23 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// The kept golden bytes.
+fn kept() -> Value {
+    serde_json::from_str(&std::fs::read_to_string(root().join("tests/golden/ros_messages.json")).unwrap()).unwrap()
+}
+
 #[test]
 fn every_message_is_the_bytes_ros_2_makes() {
-    let path = root().join("tests/golden/ros_messages.json");
-    let golden: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
-    check_against(&golden, "the kept golden bytes");
+    check_against(&kept(), "the kept golden bytes");
 }
 
 #[test]
 fn the_kept_golden_bytes_are_mcap_ros2s() {
-    let script = root().join("tests/python/ros_golden.py");
-    let out = match Command::new("python3").arg(&script).output() {
-        Ok(o) if o.status.success() => o,
-        Ok(o) => {
-            let err = String::from_utf8_lossy(&o.stderr);
-            assert!(err.contains("mcap_ros2"), "the golden script failed: {err}");
-            eprintln!("skipped: Python's mcap_ros2 is not installed (pip install mcap-ros2-support)");
-            return;
-        }
-        Err(e) => {
-            eprintln!("skipped: python3 is not available ({e})");
-            return;
-        }
-    };
-    let made: Value = serde_json::from_slice(&out.stdout).unwrap();
-    let kept: Value =
-        serde_json::from_str(&std::fs::read_to_string(root().join("tests/golden/ros_messages.json")).unwrap()).unwrap();
-    assert_eq!(made, kept, "tests/golden/ros_messages.json is not what mcap_ros2 makes now: regenerate it");
+    let script = root().join("tests/python/ros_golden.py").display().to_string();
+    let run = "import runpy, sys\nrunpy.run_path(sys.argv[1], run_name='__main__')\n";
+    let Some(out) = cosem_tests::python_or_skip(run, &[&script]) else { return };
+    let made: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(made, kept(), "tests/golden/ros_messages.json is not what mcap_ros2 makes now: regenerate it");
     check_against(&made, "mcap_ros2");
 }
 

@@ -368,6 +368,11 @@ pub fn to_cdr<T: Serialize>(msg: &T) -> Result<Vec<u8>, String> {
     cdr::serialize::<_, _, cdr::CdrLe>(msg, cdr::Infinite).map_err(|e| format!("CDR: {e}"))
 }
 
+/// The bytes [`to_cdr`] would make of `msg`, counted without making them.
+pub fn cdr_size<T: Serialize>(msg: &T) -> u64 {
+    cdr::calc_serialized_size(msg)
+}
+
 /// A message of type `T` from its CDR bytes ([`to_cdr`]'s).
 pub fn from_cdr<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Result<T, String> {
     cdr::deserialize::<T>(bytes).map_err(|e| format!("CDR: {e}"))
