@@ -137,5 +137,7 @@ pub mod reports {
 #[cfg(feature = "ros")]
 pub mod ros {
     pub mod dds;
+    pub mod follow;
+    pub mod node;
     pub mod play;
 }

@@ -66,6 +66,8 @@ fn baselines() -> BTreeMap<&'static str, &'static str> {
         ("robots", "robots --data {SEQ} --a 0:1 --b 1:2 --firmware {A}"),
         // Run in a network namespace of its own (`run`).
         ("ros play", "ros play --robot {SEQ}:0:2 --delay 0 --domain 7"),
+        // Ends once nothing came for a second.
+        ("ros node", "ros node --domain 7 --idle 1"),
     ])
 }
 

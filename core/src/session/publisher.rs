@@ -309,6 +309,27 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         Ok(Written { len, digest, counts, candidates: upserts + changed as usize })
     }
 
+    /// Takes the update in flight as delivered: what a transport that
+    /// broadcasts to every peer, with no answers, does (a ROS 2 node's map
+    /// updates over DDS). The next update is made against it; a peer that
+    /// missed one waits for a snapshot ([`Publisher::snapshot_next`]).
+    pub fn delivered(&mut self) {
+        if let Some((version, digest)) = self.in_flight {
+            let capacity = self.peer_capacity;
+            self.on_ack(&UpdateAck { epoch: self.epoch, version, digest, capacity });
+        }
+    }
+
+    /// Makes the next update a snapshot (the whole map, against nothing):
+    /// on a broadcast, every so often, so that a peer that missed an
+    /// update or joined late catches up. The updates after it are made
+    /// against it.
+    pub fn snapshot_next(&mut self) {
+        self.in_flight = None;
+        self.acked = 0;
+        self.held_len = 0;
+    }
+
     /// Takes the peer's answer: what it holds now. The update in flight
     /// acknowledged, its records become what the peer holds; the version
     /// acknowledged before, the next update is again from it (the update

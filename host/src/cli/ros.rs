@@ -12,6 +12,79 @@ pub enum What {
     /// /tf_static (base_link -> velodyne). Prints each robot's odometry
     /// origin in the source's world (JSON lines), then what it published.
     Play(PlayArgs),
+    /// Run one robot live: read its labelled PointCloud2 and its motion
+    /// (/tf and /tf_static, or --odometry), keep its bounded map, trade map
+    /// updates with its peers over DDS, and publish where each peer is:
+    /// /tf (the robot's odometry frame under the lowest-named Converged
+    /// peer's below its own), /<name>/peers/<peer>/pose (with covariance)
+    /// and /diagnostics. Prints each estimate (JSON lines), then a summary.
+    Node(NodeArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct NodeArgs {
+    /// The robot's name: its topics' namespace, its frames' prefix; robots
+    /// are ordered by name (the lower one is the parent on /tf).
+    #[arg(long, default_value = "robot_0", value_parser = ros_name)]
+    name: String,
+    /// The DDS domain id (0-232).
+    #[arg(long, default_value_t = 0)]
+    domain: u16,
+    /// The labelled scans' topic [default: /<name>/points].
+    #[arg(long)]
+    points: Option<String>,
+    /// The scans' label field (SemanticKITTI ids).
+    #[arg(long, default_value = "label")]
+    label_field: String,
+    /// The odometry frame, the map's [default: <name>/odom].
+    #[arg(long)]
+    odom_frame: Option<String>,
+    /// Take the motion from this nav_msgs/Odometry topic, not /tf.
+    #[arg(long)]
+    odometry: Option<String>,
+    /// The topic of every robot's map updates.
+    #[arg(long, default_value = "/cosem/map_updates")]
+    updates: String,
+    /// The topic of every robot's map snapshots (transient local).
+    #[arg(long, default_value = "/cosem/map_snapshots")]
+    snapshots: String,
+    /// The topic of every robot's fixes of its peers (for their agreement).
+    #[arg(long, default_value = "/cosem/fixes")]
+    fixes: String,
+    /// Scans a round: each round publishes an update and re-estimates.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    every: u32,
+    /// Every this many updates, a snapshot.
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    snapshot_every: u32,
+    /// Voxel size (m).
+    #[arg(long, default_value_t = 0.5, value_parser = super::args::voxel)]
+    voxel: f32,
+    /// Voxels the map holds, and each copy of a peer's.
+    #[arg(long, default_value_t = 8000, value_parser = clap::value_parser!(u32).range(64..=1_048_576))]
+    capacity: u32,
+    /// Leave out points farther than this from their sensor (m).
+    #[arg(long, default_value_t = 25.0, value_parser = super::args::crop)]
+    crop: f32,
+    /// With nothing new for this long (s), a round runs on what came.
+    #[arg(long, default_value_t = 0.5, value_parser = delay)]
+    settle: f64,
+    /// Exit after this long (s) with no scan and no peer update (0: run
+    /// until stopped).
+    #[arg(long, default_value_t = 0.0, value_parser = delay)]
+    idle: f64,
+}
+
+/// A ROS 2 name segment: a letter or underscore, then letters, digits,
+/// underscores.
+fn ros_name(s: &str) -> Result<String, String> {
+    let mut c = s.chars();
+    let first = c.next().is_some_and(|f| f.is_ascii_alphabetic() || f == '_');
+    if first && c.all(|c| c.is_ascii_alphanumeric() || c == '_') && s.len() <= 64 {
+        Ok(s.to_string())
+    } else {
+        Err(format!("`{s}`: a robot's name is a letter or _, then letters, digits or _ (64 at most)"))
+    }
 }
 
 #[derive(clap::Args, Debug)]
@@ -68,6 +141,7 @@ fn delay(s: &str) -> Result<f64, String> {
 pub fn run(what: What) -> Result<(), Error> {
     match what {
         What::Play(a) => play(a),
+        What::Node(a) => node(a),
     }
 }
 
@@ -106,5 +180,62 @@ fn play(a: PlayArgs) -> Result<(), Error> {
 
 #[cfg(not(feature = "ros"))]
 fn play(_: PlayArgs) -> Result<(), Error> {
+    Err("cosem ros: built without the `ros` feature (cargo build --features ros)".into())
+}
+
+#[cfg(feature = "ros")]
+fn node(a: NodeArgs) -> Result<(), Error> {
+    use cosem_host::ros::node::{Event, NodeSpec, RosNode};
+    use std::io::Write;
+    let name = a.name;
+    let spec = NodeSpec {
+        points: a.points.unwrap_or_else(|| format!("/{name}/points")),
+        odom_frame: a.odom_frame.unwrap_or_else(|| format!("{name}/odom")),
+        domain: a.domain,
+        label_field: a.label_field,
+        odometry: a.odometry,
+        updates: a.updates,
+        snapshots: a.snapshots,
+        fixes: a.fixes,
+        every: a.every as usize,
+        snapshot_every: a.snapshot_every,
+        voxel: a.voxel,
+        capacity: a.capacity as usize,
+        crop: a.crop,
+        alignment: cosem_host::evaluation::session::DEFAULT_ALIGNMENT,
+        settle: a.settle,
+        idle: (a.idle > 0.0).then_some(a.idle),
+        name: name.clone(),
+    };
+    let node = RosNode::new(spec)?;
+    let summary = node.run(|event| match event {
+        Event::Estimate { round, peer, estimate: e, voxels, seconds } => {
+            let m = e.result.transform.to_homogeneous();
+            let t: Vec<f64> =
+                (0..3).flat_map(|i| (0..4).map(move |j| (i, j))).map(|(i, j)| f64::from(m[(i, j)])).collect();
+            let line = serde_json::json!({
+                "round": round, "robot": name, "peer": peer, "status": e.status().as_str(),
+                "kind": e.kind.as_str(), "fix": e.fix.as_str(), "confirmed": e.confirmed,
+                "T_own_peer": t, "overlap": e.result.overlap, "agreement": e.result.agreement,
+                "voxels": voxels.0, "peer_voxels": voxels.1, "seconds": seconds,
+            });
+            println!("{line}");
+            let _ = std::io::stdout().flush();
+        }
+        Event::Dropped(why) => eprintln!("warning: dropped: {why}"),
+    })?;
+    println!(
+        "{}",
+        serde_json::json!({ "summary": {
+            "scans": summary.scans, "rounds": summary.rounds, "updates": summary.updates,
+            "snapshots": summary.snapshots, "update_bytes": summary.update_bytes, "dropped": summary.dropped,
+            "applied": summary.applied,
+        }})
+    );
+    Ok(())
+}
+
+#[cfg(not(feature = "ros"))]
+fn node(_: NodeArgs) -> Result<(), Error> {
     Err("cosem ros: built without the `ros` feature (cargo build --features ros)".into())
 }

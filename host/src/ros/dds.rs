@@ -21,6 +21,9 @@ pub enum TopicKind {
     /// `/tf_static` and other latched state: reliable, transient local, the
     /// last one (tf2's static broadcaster): a late joiner gets it.
     Latched,
+    /// State a late joiner needs the recent history of (a robot's map
+    /// updates): reliable, transient local, the last this many.
+    History(usize),
 }
 
 impl TopicKind {
@@ -35,6 +38,9 @@ impl TopicKind {
             TopicKind::Tf => reliable.durability(Durability::Volatile).history(History::KeepLast { depth: 100 }),
             TopicKind::Latched => {
                 reliable.durability(Durability::TransientLocal).history(History::KeepLast { depth: 1 })
+            }
+            TopicKind::History(n) => {
+                reliable.durability(Durability::TransientLocal).history(History::KeepLast { depth: n })
             }
         }
     }
@@ -89,6 +95,30 @@ impl DdsNode {
             .create_topic(&name, MessageTypeName::new(package, type_name), &qos)
             .map_err(|e| dds(&format!("topic {topic}"), e))?;
         self.node.create_publisher::<T>(&t, None).map_err(|e| dds(&format!("publisher on {topic}"), e))
+    }
+}
+
+impl DdsNode {
+    /// A subscription to `T` (ROS type `package/msg/Type`) on `topic`, with
+    /// the QoS of `kind`.
+    pub fn subscription<T: serde::de::DeserializeOwned + 'static>(
+        &mut self,
+        topic: &str,
+        (package, type_name): (&str, &str),
+        kind: TopicKind,
+    ) -> Result<ros2_client::Subscription<T>, Error> {
+        let (namespace, base) = split_name(topic)?;
+        let name = Name::new(namespace, base).map_err(|e| dds(&format!("topic name {topic}"), e))?;
+        let t = self
+            .node
+            .create_topic(&name, MessageTypeName::new(package, type_name), &kind.qos())
+            .map_err(|e| dds(&format!("topic {topic}"), e))?;
+        self.node.create_subscription::<T>(&t, None).map_err(|e| dds(&format!("subscription to {topic}"), e))
+    }
+
+    /// Writers matched by `subscription` (one of this node's).
+    pub fn writers<T: 'static>(&self, subscription: &ros2_client::Subscription<T>) -> usize {
+        subscription.get_publisher_count(&self.node)
     }
 }
 

@@ -56,7 +56,9 @@ pub enum RecordingError {
 
 impl crate::error::LayerError for RecordingError {}
 
-fn iso_of(t: &Transform) -> Option<Isometry3<f64>> {
+/// A ROS transform as an isometry: `None` when a number is not finite or
+/// the quaternion is zero (normalised otherwise).
+pub fn iso_of(t: &Transform) -> Option<Isometry3<f64>> {
     let r = t.rotation;
     let q = NQuaternion::new(r.w, r.x, r.y, r.z);
     let n = q.norm();
@@ -81,22 +83,22 @@ pub fn transform_of(m: &Matrix4<f64>) -> Transform {
 }
 
 /// A (parent, child) frame pair.
-type Edge = (String, String);
+pub type Edge = (String, String);
 /// Stamped transforms of one edge (ns, `T_parent_child`).
 type Samples = Vec<(i64, Isometry3<f64>)>;
 
-/// The transforms of a recording: per (parent, child) edge, its stamped
-/// samples in time order, or one static transform.
+/// The transforms of a recording or of a live `/tf`: per (parent, child)
+/// edge, its stamped samples in time order, or one static transform.
 #[derive(Default)]
-struct Tree {
+pub struct TfTree {
     dynamic: BTreeMap<Edge, Samples>,
     fixed: BTreeMap<Edge, Isometry3<f64>>,
 }
 
-impl Tree {
+impl TfTree {
     /// Adds a transform: a static one replaces the edge's, a dynamic one
     /// joins its samples in stamp order.
-    fn add(&mut self, fixed: bool, edge: Edge, t: i64, iso: Isometry3<f64>) {
+    pub fn add(&mut self, fixed: bool, edge: Edge, t: i64, iso: Isometry3<f64>) {
         if fixed {
             self.fixed.insert(edge, iso);
         } else {
@@ -104,6 +106,21 @@ impl Tree {
             let i = samples.partition_point(|s| s.0 <= t);
             samples.insert(i, (t, iso));
         }
+    }
+
+    /// Forgets the dynamic samples older than `t` (ns), but the last one
+    /// before it (what a lookup at `t` interpolates from): a live buffer's
+    /// bound.
+    pub fn trim(&mut self, t: i64) {
+        for samples in self.dynamic.values_mut() {
+            let keep_from = samples.partition_point(|s| s.0 < t).saturating_sub(1);
+            samples.drain(..keep_from);
+        }
+    }
+
+    /// The newest stamp (ns) of the dynamic edge into `child`, if any.
+    pub fn newest(&self, child: &str) -> Option<i64> {
+        self.dynamic.iter().filter(|((_, c), _)| c == child).filter_map(|(_, s)| s.last().map(|s| s.0)).max()
     }
 
     /// The parent edge of `child`, if any.
@@ -142,7 +159,7 @@ impl Tree {
     }
 
     /// `T_root_frame` at `t`: the chain of edges from `frame` up to `root`.
-    fn pose(&self, root: &str, frame: &str, t: i64) -> Result<Isometry3<f64>, String> {
+    pub fn pose(&self, root: &str, frame: &str, t: i64) -> Result<Isometry3<f64>, String> {
         let mut pose = Isometry3::identity();
         let mut at = frame.to_owned();
         let mut steps = 0;
@@ -226,7 +243,7 @@ pub type ScansInWorld = (Vec<Frame>, usize, Vec<Matrix4<f64>>);
 /// (`T_world_sensor`, before the scans are put into the first one's frame).
 pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<ScansInWorld, RecordingError> {
     let msg_err = |what: String| RecordingError::Message { path: path.to_owned(), what };
-    let mut tree = Tree::default();
+    let mut tree = TfTree::default();
     let mut clouds: Vec<(usize, Vec<u8>)> = Vec::new();
     // The stamp and frame of each cloud kept, to know when the poses are in.
     let mut stamps: Vec<(i64, String)> = Vec::new();
@@ -292,7 +309,7 @@ pub fn read_scans_in_world(path: &Path, what: &RecordingScans<'_>) -> Result<Sca
 fn clouds_in_world(
     path: &Path,
     what: &RecordingScans<'_>,
-    tree: &Tree,
+    tree: &TfTree,
     clouds: Vec<(usize, Vec<u8>)>,
 ) -> Result<ScansInWorld, RecordingError> {
     let msg_err = |what: String| RecordingError::Message { path: path.to_owned(), what };
@@ -595,7 +612,7 @@ mod tests {
 
     #[test]
     fn transforms_interpolate_and_chain() {
-        let mut tree = Tree::default();
+        let mut tree = TfTree::default();
         let a = Isometry3::from_parts(Translation3::new(0.0, 0.0, 0.0), UnitQuaternion::identity());
         let b =
             Isometry3::from_parts(Translation3::new(2.0, 0.0, 0.0), UnitQuaternion::from_euler_angles(0.0, 0.0, 0.5));

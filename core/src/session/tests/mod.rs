@@ -490,3 +490,65 @@ fn a_voxel_is_resent_only_when_it_moved_beyond_the_deadband() {
 }
 
 mod tracking;
+
+/// A broadcast (a ROS 2 node's updates over DDS): no answers, each update
+/// taken as delivered, a snapshot every few. A follower that saw every
+/// update holds the map as published after each; one that missed an update
+/// is out of step until the next snapshot, and holds the map from there;
+/// one that joins late starts from the last snapshot and the updates after
+/// it.
+#[test]
+fn a_broadcast_with_snapshots_lets_followers_catch_up() {
+    let mut held = vec![ShadowEntry::default(); CAPACITY];
+    let mut sent = vec![ShadowEntry::default(); CAPACITY];
+    let mut publisher = Publisher::new(3, &mut held[..], &mut sent[..]);
+    let (mut map, mut rng) = (robot_map(), Lcg(5));
+    let mut scratch = vec![0u32; 2 * CAPACITY];
+    let mut out = vec![0u8; 64 * 1024];
+    let (mut all, mut lossy) = (Replica::new(robot_map()), Replica::new(robot_map()));
+    let mut late: Option<Replica<crate::map::VecStorage>> = None;
+    let mut log: Vec<Vec<u8>> = Vec::new();
+    let mut last_snapshot = 0usize;
+    for round in 0..30 {
+        drive(&mut map, round, &mut rng);
+        if round % 8 == 0 {
+            publisher.snapshot_next();
+        }
+        let n = publisher.next_update(&map, &mut scratch, &mut out).unwrap();
+        publisher.delivered();
+        assert_eq!(publisher.acked(), publisher.version(), "round {round}");
+        let bytes = out[..n].to_vec();
+        let snapshot = publisher.counts().snapshot;
+        assert_eq!(snapshot, round % 8 == 0, "round {round}");
+        if snapshot {
+            last_snapshot = log.len();
+        }
+        log.push(bytes.clone());
+        assert_eq!(all.apply(&bytes, &mut scratch), Applied::Applied, "round {round}");
+        assert_published(all.map(), publisher.published(), &map, &std::format!("round {round}"));
+        // The lossy follower misses round 3's update.
+        let lossy_got = if round == 3 { None } else { Some(lossy.apply(&bytes, &mut scratch)) };
+        match round {
+            3 => {}
+            4..=7 => assert_eq!(lossy_got, Some(Applied::OutOfStep), "round {round}"),
+            _ => assert_eq!(lossy_got, Some(Applied::Applied), "round {round}"),
+        }
+        if round >= 8 {
+            assert_eq!(records(lossy.map()), records(all.map()), "round {round}");
+        }
+        // The late one joins at round 20: the last snapshot, then the
+        // updates after it, as a transient-local history replays them.
+        if round == 20 {
+            let mut r = Replica::new(robot_map());
+            for b in &log[last_snapshot..] {
+                assert_eq!(r.apply(b, &mut scratch), Applied::Applied);
+            }
+            late = Some(r);
+        } else if let Some(r) = late.as_mut() {
+            assert_eq!(r.apply(&bytes, &mut scratch), Applied::Applied, "round {round}");
+        }
+    }
+    let late = late.unwrap();
+    assert_eq!(records(late.map()), records(all.map()));
+    assert_eq!(late.answer().digest, all.answer().digest);
+}

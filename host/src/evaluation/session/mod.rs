@@ -11,7 +11,7 @@
 pub mod bench;
 pub mod feed;
 mod figures;
-mod prepared;
+pub mod prepared;
 mod robot;
 
 pub use figures::{Summary, Truth};
@@ -542,7 +542,7 @@ fn estimate_one(
 /// fails; with the seconds of `own`'s preparations it used that were made
 /// before it, for another peer (counted for each; those made in it are in
 /// the caller's timing already).
-fn estimate_on(
+pub fn estimate_on(
     own: &mut Prepared<'_>,
     copy: &crate::maps::mapping::HostMap,
     tracker: &mut Tracker,

@@ -12,7 +12,7 @@ use std::time::Instant;
 
 /// One map, prepared as model or scene, tracked and whole each at most
 /// once, with the seconds each took.
-pub(super) struct Prepared<'m> {
+pub struct Prepared<'m> {
     map: &'m HostMap,
     role: Role,
     tracked: Option<(HostPyramid<'m>, f64)>,
@@ -21,13 +21,13 @@ pub(super) struct Prepared<'m> {
 
 impl<'m> Prepared<'m> {
     /// Nothing prepared yet.
-    pub(super) fn new(map: &'m HostMap, role: Role) -> Self {
+    pub fn new(map: &'m HostMap, role: Role) -> Self {
         Prepared { map, role, tracked: None, whole: None }
     }
 
     /// Prepared for tracking (the whole pyramid, when it is there: the same
     /// answers), and the seconds that took.
-    pub(super) fn tracked(&mut self) -> Result<(&HostPyramid<'m>, f64), Error> {
+    pub fn tracked(&mut self) -> Result<(&HostPyramid<'m>, f64), Error> {
         if let Some((p, s)) = &self.whole {
             return Ok((p, *s));
         }
@@ -41,17 +41,17 @@ impl<'m> Prepared<'m> {
     }
 
     /// Seconds spent preparing it so far (tracked and whole).
-    pub(super) fn spent(&self) -> f64 {
+    pub fn spent(&self) -> f64 {
         self.tracked.as_ref().map_or(0.0, |t| t.1) + self.whole.as_ref().map_or(0.0, |w| w.1)
     }
 
     /// Whether it has been prepared whole.
-    pub(super) fn is_whole(&self) -> bool {
+    pub fn is_whole(&self) -> bool {
         self.whole.is_some()
     }
 
     /// Prepared whole, and the seconds that took.
-    pub(super) fn whole(&mut self) -> Result<(&HostPyramid<'m>, f64), Error> {
+    pub fn whole(&mut self) -> Result<(&HostPyramid<'m>, f64), Error> {
         if self.whole.is_none() {
             let t = Instant::now();
             let p = match self.role {
