@@ -24,9 +24,9 @@ fn unavailable() -> Option<String> {
     if !ns.is_ok_and(|o| o.status.success()) {
         return Some("no network namespace with a veth pair (unshare -n as root, iproute2)".into());
     }
-    let py = Command::new("python3").args(["-c", "import cyclonedds.domain"]).output();
+    let py = Command::new("python3").args(["-c", "import cyclonedds.domain, numpy"]).output();
     if !py.is_ok_and(|o| o.status.success()) {
-        return Some("Python's cyclonedds is not installed (pip install cyclonedds)".into());
+        return Some("Python's cyclonedds or numpy is not installed (pip install cyclonedds numpy)".into());
     }
     None
 }
@@ -171,4 +171,215 @@ fn ros_play_reaches_a_cyclone_dds_client_kitti() {
         return;
     }
     check_play(&data, (0, 3), (5, 8));
+}
+
+/// Runs `tests/python/ros_robots.py` on `spec` (its domain set here) in a
+/// namespace of its own: the robots' drivers on Cyclone DDS, the nodes
+/// it starts; what it saw.
+fn robots_and_nodes(mut spec: Value, d: u16) -> Value {
+    spec["domain"] = d.into();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("spec.json");
+    std::fs::write(&path, spec.to_string()).unwrap();
+    let script = workspace_root().join("tests/python/ros_robots.py");
+    let command = format!("{NETNS} && timeout 180 python3 '{}' '{}'", script.display(), path.display());
+    let out = Command::new("unshare").args(["-n", "sh", "-c", &command]).output().expect("unshare");
+    assert!(out.status.success(), "the robots' side failed: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("the robots' side's JSON")
+}
+
+/// `cosem ros node` as robot `name` of domain `d`, started at `at` s.
+fn node(name: &str, d: u16, at: f64) -> Value {
+    let cmd = [cosem_bin().display().to_string(), "ros".into(), "node".into(), "--name".into(), name.into()];
+    let cmd: Vec<String> = cmd.into_iter().chain(["--domain".into(), d.to_string()]).collect();
+    serde_json::json!({ "cmd": cmd, "at": at })
+}
+
+/// A robot driving `frames` of `data` from `at` s.
+fn robot(name: &str, data: &Path, frames: &[usize], at: f64) -> Value {
+    serde_json::json!({ "name": name, "data": data.display().to_string(), "frames": frames, "at": at })
+}
+
+/// The truth `T_a_b` between two robots' odometry frames, from the
+/// drivers' origins.
+fn truth(got: &Value, a: &str, b: &str) -> Isometry3<f64> {
+    let world_odom = |name: &str| {
+        let rows = &got["truth"][name];
+        let mut m = Matrix4::identity();
+        for r in 0..3 {
+            let row = f64s(&rows[r]);
+            for c in 0..4 {
+                m[(r, c)] = row[c];
+            }
+        }
+        iso_of(&m)
+    };
+    world_odom(a).inverse() * world_odom(b)
+}
+
+/// The `/tf` edges between odometry frames received, as (parent, child,
+/// `T_parent_child`).
+fn edges(got: &Value) -> Vec<(String, String, Isometry3<f64>)> {
+    let e = got["edges"].as_array().unwrap();
+    e.iter()
+        .map(|e| (e[1].as_str().unwrap().into(), e[2].as_str().unwrap().into(), iso(&f64s(&e[3]), &f64s(&e[4]))))
+        .collect()
+}
+
+/// Every edge into `child`'s odometry frame is within 0.2 m and 0.5 degrees
+/// of the truth, its parent a robot named lower; how many there were.
+fn check_edges_into(got: &Value, child: &str) -> usize {
+    let into: Vec<_> = edges(got).into_iter().filter(|e| e.1 == format!("{child}/odom")).collect();
+    for (parent, _, t) in &into {
+        let p = parent.trim_end_matches("/odom");
+        assert!(p < child, "{child}: a parent named higher: {parent}");
+        let (e_t, e_r) = cosem_core::geometry::pose_errors(t, &truth(got, p, child));
+        assert!(e_t < 0.2 && e_r < 0.5, "{parent} -> {child}: {e_t:.3} m, {e_r:.3} deg from the truth");
+    }
+    into.len()
+}
+
+/// The last status each robot's `/diagnostics` gave each peer.
+fn last_status(got: &Value) -> std::collections::BTreeMap<String, String> {
+    let mut last = std::collections::BTreeMap::new();
+    for d in got["diagnostics"].as_array().unwrap() {
+        last.insert(d[1].as_str().unwrap().to_string(), d[3].as_str().unwrap().to_string());
+    }
+    last
+}
+
+/// The nodes ran until stopped (SIGTERM, -15 in Python's terms), none
+/// failed on its own.
+fn nodes_ran(got: &Value) -> Vec<String> {
+    let nodes = got["nodes"].as_array().unwrap();
+    for n in nodes {
+        assert_eq!(n["code"], -15, "a node ended on its own: {}", n["stderr"]);
+        assert!(!n["stderr"].as_str().unwrap().contains("panicked"), "{}", n["stderr"]);
+    }
+    nodes.iter().map(|n| n["stderr"].as_str().unwrap().to_string()).collect()
+}
+
+/// Two nodes, robot A on kitti00 0:5 and robot B on 5:10, their drivers
+/// on Cyclone DDS: they trade maps, find each other, and the `/tf` edge
+/// between their odometry frames is within 0.2 m and 0.5 degrees of the
+/// truth; each publishes its peer's pose with a covariance.
+fn two_nodes(data: &Path, a: &[usize], b: &[usize]) {
+    let d = domain();
+    let spec = serde_json::json!({
+        "rate": 10, "until": 12,
+        "robots": [robot("robot_0", data, a, 0.0), robot("robot_1", data, b, 0.0)],
+        "nodes": [node("robot_0", d, 0.0), node("robot_1", d, 0.0)],
+    });
+    let got = robots_and_nodes(spec, d);
+    nodes_ran(&got);
+    assert_eq!(got["published"].as_array().unwrap().len(), a.len() + b.len());
+    let n = check_edges_into(&got, "robot_1");
+    assert!(n > 0, "no /tf edge robot_0/odom -> robot_1/odom: {:?}", last_status(&got));
+    let status = last_status(&got);
+    for who in ["cosem: robot_0 / robot_1", "cosem: robot_1 / robot_0"] {
+        assert_eq!(status.get(who).map(String::as_str), Some("Converged"), "{who}: {status:?}");
+    }
+    let poses = got["poses"].as_array().unwrap();
+    for (a, b) in [("robot_0", "robot_1"), ("robot_1", "robot_0")] {
+        let p = poses.iter().rfind(|p| p[1] == a && p[2] == b).unwrap_or_else(|| panic!("no pose of {b} from {a}"));
+        assert_eq!(p[3], format!("{a}/odom"));
+        let position = f64s(&p[4]);
+        let t = truth(&got, a, b).translation.vector;
+        assert!((nalgebra::Vector3::new(position[0], position[1], position[2]) - t).norm() < 0.2, "{a}'s pose of {b}");
+        let cov = f64s(&p[5]);
+        assert!((0..6).all(|i| cov[7 * i].is_finite() && cov[7 * i] > 0.0), "{a}'s covariance of {b}: {cov:?}");
+    }
+}
+
+#[test]
+fn two_nodes_find_each_other_kitti() {
+    let Some(data) = real_data("kitti00") else { return };
+    if let Some(why) = unavailable() {
+        println!("skipped: {why}");
+        return;
+    }
+    two_nodes(&data, &[0, 1, 2, 3, 4], &[5, 6, 7, 8, 9]);
+}
+
+#[test]
+fn two_nodes_find_each_other_synthetic() {
+    if let Some(why) = unavailable() {
+        println!("skipped: {why}");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, 10, 3);
+    two_nodes(&seq, &[0, 1, 2, 3, 4], &[5, 6, 7, 8, 9]);
+}
+
+/// kitti00-loop's scans 88 and 850, 308 m apart: each node says
+/// `NoOverlap`, and `/tf` carries no edge between them.
+#[test]
+fn nodes_far_apart_say_no_overlap_and_tf_stays_silent() {
+    let Some(data) = real_data("kitti00-loop") else { return };
+    if let Some(why) = unavailable() {
+        println!("skipped: {why}");
+        return;
+    }
+    let d = domain() + 1;
+    let spec = serde_json::json!({
+        "rate": 10, "until": 9,
+        "robots": [robot("robot_0", &data, &[88], 0.0), robot("robot_1", &data, &[850], 0.0)],
+        "nodes": [node("robot_0", d, 0.0), node("robot_1", d, 0.0)],
+    });
+    let got = robots_and_nodes(spec, d);
+    nodes_ran(&got);
+    let status = last_status(&got);
+    for who in ["cosem: robot_0 / robot_1", "cosem: robot_1 / robot_0"] {
+        assert_eq!(status.get(who).map(String::as_str), Some("NoOverlap"), "{who}: {status:?}");
+    }
+    assert!(edges(&got).is_empty(), "a /tf edge between robots 308 m apart: {:?}", got["edges"]);
+    assert!(got["poses"].as_array().unwrap().is_empty());
+}
+
+/// A third node, started after the first two have traded maps, catches up
+/// from the snapshots and the updates after them and is placed: its `/tf`
+/// edge within the same tolerance. Meanwhile a foreign peer publishes
+/// garbage, a truncated update and one of another protocol version, and
+/// robot A's driver two scans that lie (more points than data; a field
+/// past the point): every node logs each and drops it, none stops.
+#[test]
+fn a_late_third_node_is_placed_and_bad_input_is_dropped() {
+    let Some(data) = real_data("kitti00") else { return };
+    if let Some(why) = unavailable() {
+        println!("skipped: {why}");
+        return;
+    }
+    let d = domain() + 2;
+    let spec = serde_json::json!({
+        "rate": 10, "until": 16,
+        "robots": [
+            robot("robot_0", &data, &[0, 1, 2, 3, 4], 0.0),
+            robot("robot_1", &data, &[5, 6, 7, 8, 9], 0.0),
+            robot("robot_2", &data, &[2, 3, 4, 5, 6, 7], 7.0),
+        ],
+        "nodes": [node("robot_0", d, 0.0), node("robot_1", d, 0.0), node("robot_2", d, 6.0)],
+        "inject": [
+            { "at": 3.0, "kind": "update_garbage" },
+            { "at": 3.2, "kind": "update_truncated" },
+            { "at": 3.4, "kind": "update_protocol" },
+            { "at": 3.6, "kind": "cloud_lies", "robot": 0 },
+        ],
+    });
+    let got = robots_and_nodes(spec, d);
+    let logs = nodes_ran(&got);
+    assert!(check_edges_into(&got, "robot_1") > 0, "robots 0 and 1 did not find each other");
+    assert!(check_edges_into(&got, "robot_2") > 0, "the late node was not placed: {:?}", last_status(&got));
+    // The late node's edge came after it started, from maps it caught up on.
+    let late = got["edges"].as_array().unwrap().iter().find(|e| e[2] == "robot_2/odom").unwrap();
+    assert!(late[0].as_f64().unwrap() > 7.0);
+    for (i, log) in logs.iter().enumerate().take(2) {
+        for why in ["a malformed map update (1024 bytes)", "a malformed map update (3 bytes)", "of protocol 99, not 1"]
+        {
+            assert!(log.contains(why), "node {i} did not log `{why}`: {log}");
+        }
+    }
+    assert!(logs[0].contains("/robot_0/points: data holds"), "{}", logs[0]);
+    assert!(logs[0].contains("beyond the point_step"), "{}", logs[0]);
 }

@@ -69,10 +69,18 @@ pub struct NodeArgs {
     /// With nothing new for this long (s), a round runs on what came.
     #[arg(long, default_value_t = 0.5, value_parser = delay)]
     settle: f64,
-    /// Exit after this long (s) with no scan and no peer update (0: run
-    /// until stopped).
-    #[arg(long, default_value_t = 0.0, value_parser = delay)]
-    idle: f64,
+    /// Exit after this long (s, more than 0) with no scan and no peer
+    /// update [default: run until stopped].
+    #[arg(long, value_parser = idle)]
+    idle: Option<f64>,
+}
+
+/// Seconds of idleness: more than 0, an hour at most.
+fn idle(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 3600.0 => Ok(v),
+        _ => Err(format!("`{s}`: expected seconds, more than 0 and 3600 at most")),
+    }
 }
 
 /// A ROS 2 name segment: a letter or underscore, then letters, digits,
@@ -204,7 +212,7 @@ fn node(a: NodeArgs) -> Result<(), Error> {
         crop: a.crop,
         alignment: cosem_host::evaluation::session::DEFAULT_ALIGNMENT,
         settle: a.settle,
-        idle: (a.idle > 0.0).then_some(a.idle),
+        idle: a.idle,
         name: name.clone(),
     };
     let node = RosNode::new(spec)?;

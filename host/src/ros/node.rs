@@ -193,7 +193,9 @@ struct Own {
     map: HostMap,
     publisher: Publisher<Vec<ShadowEntry>>,
     tree: TfTree,
-    clouds: VecDeque<(Instant, PointCloud2)>,
+    /// Scans read and checked, waiting for their pose: when they came,
+    /// their stamp (ns) and frame, their points.
+    clouds: VecDeque<(Instant, i64, String, crate::sources::kitti::Cloud)>,
     filter: PointFilter,
     /// Scans fused since the last round; the last one's stamp and place.
     fresh: usize,
@@ -231,6 +233,12 @@ fn fresh_epoch() -> u16 {
 fn stamp_now() -> Time {
     let d = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
     Time { sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX), nanosec: d.subsec_nanos() }
+}
+
+/// A stamp (ns) as a ROS time.
+fn time_of(ns: i64) -> Time {
+    let sec = i32::try_from(ns.div_euclid(1_000_000_000)).unwrap_or(i32::MAX);
+    Time { sec, nanosec: ns.rem_euclid(1_000_000_000) as u32 }
 }
 
 fn published(what: &str, e: impl std::fmt::Debug) -> Error {
@@ -331,7 +339,14 @@ impl RosNode {
         }
         for c in clouds {
             self.last_input = Instant::now();
-            self.own.clouds.push_back((Instant::now(), c));
+            match live_cloud(&c, &self.spec.label_field, &self.spec.points) {
+                Ok(cloud) if !cloud.points.is_empty() => {
+                    let (stamp, frame) = (c.header.stamp.nanos(), c.header.frame_id);
+                    self.own.clouds.push_back((Instant::now(), stamp, frame, cloud));
+                }
+                Ok(_) => self.drop_input(format!("{}: a scan with no point", self.spec.points), log),
+                Err(e) => self.drop_input(e.to_string(), log),
+            }
             if self.own.clouds.len() > CLOUD_QUEUE {
                 self.own.clouds.pop_front();
                 self.drop_input(format!("{}: a scan waited too long for its pose (queue full)", self.spec.points), log);
@@ -413,27 +428,25 @@ impl RosNode {
     /// Fuses each waiting scan whose pose the tree has; drops one that
     /// waited past [`POSE_WAIT`] or does not read.
     fn fuse_ready(&mut self, log: &mut impl FnMut(&Event)) -> Result<(), Error> {
-        while let Some((since, pc)) = self.own.clouds.front() {
-            let stamp = pc.header.stamp.nanos();
-            let pose = self.own.tree.pose(&self.spec.odom_frame, &pc.header.frame_id, stamp);
+        while let Some((since, stamp, frame, _)) = self.own.clouds.front() {
+            let pose = self.own.tree.pose(&self.spec.odom_frame, frame, *stamp);
             let waited = since.elapsed().as_secs_f64();
-            let Some((_, pc)) = (match pose {
-                Ok(_) => self.own.clouds.pop_front(),
+            match pose {
+                Ok(pose) => {
+                    if let Some((_, stamp, _, cloud)) = self.own.clouds.pop_front() {
+                        if let Err(e) = self.fuse(cloud, stamp, &pose) {
+                            self.drop_input(format!("{}: {e}", self.spec.points), log);
+                        }
+                    }
+                }
                 Err(why) if waited > POSE_WAIT => {
                     self.own.clouds.pop_front();
                     self.drop_input(
                         format!("{}: a scan with no pose after {POSE_WAIT} s: {why}", self.spec.points),
                         log,
                     );
-                    continue;
                 }
                 Err(_) => return Ok(()),
-            }) else {
-                return Ok(());
-            };
-            let Ok(pose) = pose else { continue };
-            if let Err(e) = self.fuse(&pc, &pose) {
-                self.drop_input(format!("{}: {e}", self.spec.points), log);
             }
         }
         Ok(())
@@ -441,11 +454,7 @@ impl RosNode {
 
     /// One scan (its sensor's pose `pose` in the odometry frame) into the
     /// map, the map kept around the sensor.
-    fn fuse(&mut self, pc: &PointCloud2, pose: &Isometry3<f64>) -> Result<(), Error> {
-        let cloud = live_cloud(pc, &self.spec.label_field, &self.spec.points)?;
-        if cloud.points.is_empty() {
-            return Err(Error::Invalid("a scan with no point".into()));
-        }
+    fn fuse(&mut self, cloud: crate::sources::kitti::Cloud, stamp: i64, pose: &Isometry3<f64>) -> Result<(), Error> {
         let index = self.summary.scans;
         let frame = crate::sources::kitti::frame_of(index, None, &pose.to_homogeneous(), cloud);
         let at = pose.translation.vector.cast::<f32>();
@@ -454,7 +463,7 @@ impl RosNode {
         fuse_frames(&mut self.own.map, std::slice::from_ref(&frame), &self.own.filter)?;
         self.summary.scans += 1;
         self.own.fresh += 1;
-        self.own.stamp = pc.header.stamp;
+        self.own.stamp = time_of(stamp);
         self.own.place = at;
         self.own.changed = true;
         self.dirty = true;
@@ -476,6 +485,11 @@ impl RosNode {
         }
         if m.robot.is_empty() || m.header.frame_id.is_empty() {
             self.drop_input("an update naming no robot or no odometry frame".into(), log);
+            return Ok(());
+        }
+        if let Err(e) = cosem_core::wire::update::UpdateView::parse(&m.payload) {
+            let why = format!("{}: a malformed map update ({} bytes): {e}", m.robot, m.payload.len());
+            self.drop_input(why, log);
             return Ok(());
         }
         if !self.peers.contains_key(&m.robot) {
@@ -553,7 +567,7 @@ impl RosNode {
         for name in order {
             let Some(peer) = self.peers.get_mut(name) else { continue };
             let copy = peer.follower.map();
-            if copy.is_empty() {
+            if copy.is_empty() || self.own.map.is_empty() {
                 continue;
             }
             let t = Instant::now();
