@@ -169,7 +169,7 @@ class Robot:
         tr = calib_tr(os.path.join(self.data, "calib.txt"))
         poses = matrix_rows(os.path.join(self.data, "poses.txt"))
         self.world = [np.linalg.inv(tr) @ poses[f] @ tr for f in self.frames]
-        self.world_odom = self.world[0] @ np.linalg.inv(offset(i))
+        self.world_odom = self.world[0] @ np.linalg.inv(offset(spec.get("seed", i)))
         self.points = DataWriter(dp, Topic(dp, f"rt/{self.name}/points", PointCloud2), qos=qos)
         self.next = 0
 
@@ -198,6 +198,7 @@ def main():
     tf_static.write(TFMessage([TransformStamped(Header(stamp_now(), f"{r.name}/base_link"), f"{r.name}/velodyne",
                                                 transform(identity)) for r in robots]))
     got = {"truth": {r.name: [list(map(float, row)) for row in r.world_odom[:3]] for r in robots},
+           "started": [], "stopped": [],
            "published": [], "edges": [], "diagnostics": [], "poses": [], "nodes": [], "injected": []}
     nodes, pending = [], sorted(spec["nodes"], key=lambda n: n["at"])
     injects = sorted(spec.get("inject", []), key=lambda n: n["at"])
@@ -206,7 +207,13 @@ def main():
         now = time.time() - t0
         while pending and pending[0]["at"] <= now:
             n = pending.pop(0)
-            nodes.append(subprocess.Popen(n["cmd"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+            p = subprocess.Popen(n["cmd"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            nodes.append((p, n.get("stop")))
+            got["started"].append([now, n["cmd"]])
+        for p, stop in nodes:
+            if stop is not None and now >= stop and p.poll() is None:
+                p.send_signal(signal.SIGTERM)  # a peer that vanishes
+                got["stopped"].append([now, p.args])
         while injects and injects[0]["at"] <= now:
             got["injected"].append(inject(injects.pop(0), updates, robots, now))
         for r in robots:
@@ -224,9 +231,10 @@ def main():
             r.next += 1
         read(got, t0, tf_in, diagnostics, poses)
         time.sleep(0.01)
-    for p in nodes:
-        p.send_signal(signal.SIGTERM)
-    for p in nodes:
+    for p, _ in nodes:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    for p, _ in nodes:
         try:
             out, err = p.communicate(timeout=10)
         except subprocess.TimeoutExpired:
@@ -236,9 +244,25 @@ def main():
     json.dump(got, sys.stdout)
 
 
+KEEP = []  # endpoints an injection made, kept alive to the end
+
+
 def inject(what, updates, robots, now):
     """Bad input, as a faulty or foreign peer or driver would send it."""
     kind = what["kind"]
+    if kind == "qos":
+        dp = updates.participant
+        best_effort = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(5))
+        volatile = Qos(Policy.Reliability.Reliable(1_000_000_000), Policy.Durability.Volatile, Policy.History.KeepLast(1))
+        latched = Qos(Policy.Reliability.Reliable(1_000_000_000), Policy.Durability.TransientLocal,
+                      Policy.History.KeepLast(1))
+        # A best-effort writer of /tf (the nodes read it reliably), a
+        # volatile writer of /tf_static (read transient local), a
+        # transient-local reader of /diagnostics (written volatile).
+        KEEP.append(DataWriter(dp, Topic(dp, "rt/tf", TFMessage), qos=best_effort))
+        KEEP.append(DataWriter(dp, Topic(dp, "rt/tf_static", TFMessage), qos=volatile))
+        KEEP.append(DataReader(dp, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=latched))
+        return [now, kind]
     header = Header(stamp_now(), "intruder/odom")
     if kind == "update_garbage":
         updates.write(MapUpdate(header, "intruder", "", 1, bytes(range(256)) * 4))

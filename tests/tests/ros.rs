@@ -383,3 +383,45 @@ fn a_late_third_node_is_placed_and_bad_input_is_dropped() {
     assert!(logs[0].contains("/robot_0/points: data holds"), "{}", logs[0]);
     assert!(logs[0].contains("beyond the point_step"), "{}", logs[0]);
 }
+
+/// QoS that cannot match is reported: a best-effort writer of `/tf` (the
+/// nodes read it reliably), a volatile writer of `/tf_static` (read
+/// transient local) and a transient-local reader of `/diagnostics`
+/// (written volatile), each named on every node's log. And a peer that
+/// vanishes and comes back (a restart: a new epoch, its scans driven
+/// again) is followed: its copy replaced, and placed again.
+#[test]
+fn qos_mismatches_are_reported_and_a_restarted_peer_is_placed_again() {
+    let Some(data) = real_data("kitti00") else { return };
+    if let Some(why) = unavailable() {
+        println!("skipped: {why}");
+        return;
+    }
+    let d = domain() + 3;
+    let mut again = robot("robot_1", &data, &[5, 6, 7, 8, 9], 11.0);
+    again["seed"] = 1.into();
+    let mut first = robot("robot_1", &data, &[5, 6, 7, 8, 9], 0.0);
+    first["seed"] = 1.into();
+    let mut vanishing = node("robot_1", d, 0.0);
+    vanishing["stop"] = 6.0.into();
+    let spec = serde_json::json!({
+        "rate": 10, "until": 19,
+        "robots": [robot("robot_0", &data, &[0, 1, 2, 3, 4], 0.0), first, again],
+        "nodes": [node("robot_0", d, 0.0), vanishing, node("robot_1", d, 9.0)],
+        "inject": [{ "at": 2.0, "kind": "qos" }],
+    });
+    let got = robots_and_nodes(spec, d);
+    let logs = nodes_ran(&got);
+    for why in [
+        "QoS: /tf: a writer offers best effort where this node's reader asks reliable",
+        "QoS: /tf_static: a writer offers volatile where this node's reader asks transient local",
+        "QoS: /diagnostics: a reader asks transient local where this node's writer offers volatile",
+    ] {
+        assert!(logs.iter().all(|l| l.contains(why)), "a node did not report `{why}`: {logs:?}");
+    }
+    assert!(logs[0].contains("robot_1: restarted"), "robot_0 did not notice robot_1's restart: {}", logs[0]);
+    assert!(check_edges_into(&got, "robot_1") > 0);
+    let after: Vec<f64> = got["edges"].as_array().unwrap().iter().map(|e| e[0].as_f64().unwrap()).collect();
+    assert!(after.iter().any(|&t| t < 6.0), "no edge before robot_1 vanished: {after:?}");
+    assert!(after.iter().any(|&t| t > 11.0), "robot_1 was not placed again after its restart: {after:?}");
+}

@@ -231,13 +231,15 @@ fn node(a: NodeArgs) -> Result<(), Error> {
             let _ = std::io::stdout().flush();
         }
         Event::Dropped(why) => eprintln!("warning: dropped: {why}"),
+        Event::Restarted(peer) => eprintln!("info: {peer}: restarted (a new epoch): its copy replaced"),
+        Event::Qos(m) => eprintln!("warning: QoS: {}: {} ({})", m.topic, m.what, m.remote),
     })?;
     println!(
         "{}",
         serde_json::json!({ "summary": {
             "scans": summary.scans, "rounds": summary.rounds, "updates": summary.updates,
             "snapshots": summary.snapshots, "update_bytes": summary.update_bytes, "dropped": summary.dropped,
-            "applied": summary.applied,
+            "applied": summary.applied, "qos_mismatches": summary.qos_mismatches,
         }})
     );
     Ok(())

@@ -53,6 +53,21 @@ fn dds(what: &str, e: impl std::fmt::Debug) -> Error {
 /// A node in one DDS domain.
 pub struct DdsNode {
     node: Node,
+    context: Context,
+    /// This node's endpoints: DDS topic name, a reader (or a writer), QoS.
+    endpoints: Vec<(String, bool, QosProfile)>,
+}
+
+/// A remote endpoint on one of this node's topics whose QoS cannot match
+/// its own: DDS matches neither way, and nothing flows.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct QosMismatch {
+    /// The ROS topic.
+    pub topic: String,
+    /// The remote endpoint (its GUID).
+    pub remote: String,
+    /// What does not match, said as a ROS 2 user would read it.
+    pub what: String,
 }
 
 impl DdsNode {
@@ -71,7 +86,7 @@ impl DdsNode {
         // matched); it ends when the node is dropped.
         let spinner = node.spinner().map_err(|e| dds("spinner", e))?;
         std::thread::spawn(move || futures::executor::block_on(spinner.spin()));
-        Ok(DdsNode { node })
+        Ok(DdsNode { node, context, endpoints: Vec::new() })
     }
 
     /// Readers matched by `publisher` (one of this node's).
@@ -90,6 +105,7 @@ impl DdsNode {
         let (namespace, base) = split_name(topic)?;
         let name = Name::new(namespace, base).map_err(|e| dds(&format!("topic name {topic}"), e))?;
         let qos = kind.qos();
+        self.endpoints.push((format!("rt{topic}"), false, qos.clone()));
         let t = self
             .node
             .create_topic(&name, MessageTypeName::new(package, type_name), &qos)
@@ -109,6 +125,7 @@ impl DdsNode {
     ) -> Result<ros2_client::Subscription<T>, Error> {
         let (namespace, base) = split_name(topic)?;
         let name = Name::new(namespace, base).map_err(|e| dds(&format!("topic name {topic}"), e))?;
+        self.endpoints.push((format!("rt{topic}"), true, kind.qos()));
         let t = self
             .node
             .create_topic(&name, MessageTypeName::new(package, type_name), &kind.qos())
@@ -116,9 +133,70 @@ impl DdsNode {
         self.node.create_subscription::<T>(&t, None).map_err(|e| dds(&format!("subscription to {topic}"), e))
     }
 
+    /// The remote endpoints discovered on this node's topics whose QoS
+    /// cannot match this node's (DDS's compatibility rules: a reliable
+    /// reader takes no best-effort writer, a transient-local reader no
+    /// volatile writer, ...): reported, since DDS drops them silently.
+    pub fn qos_mismatches(&self) -> Vec<QosMismatch> {
+        use ros2_client::dds::rustdds::QosPolicies;
+        let participant = self.context.domain_participant();
+        let mut found = Vec::new();
+        let ros = |dds: &str| dds.strip_prefix("rt").unwrap_or(dds).to_string();
+        for w in participant.discovered_writers() {
+            let t = &w.publication_topic_data;
+            for (_, _, ours) in self.endpoints.iter().filter(|(n, reader, _)| *reader && n == t.topic_name()) {
+                let (offered, requested) = (t.qos(), QosPolicies::from(ours));
+                if let Some(p) = offered.compliance_failure_wrt(&requested) {
+                    let what = format!(
+                        "a writer offers {} where this node's reader asks {}",
+                        said(p, &offered),
+                        said(p, &requested)
+                    );
+                    found.push(QosMismatch { topic: ros(t.topic_name()), remote: format!("{:?}", t.key), what });
+                }
+            }
+        }
+        for r in participant.discovered_readers() {
+            let t = &r.subscription_topic_data;
+            for (_, _, ours) in self.endpoints.iter().filter(|(n, reader, _)| !*reader && n == t.topic_name()) {
+                let (offered, requested) = (QosPolicies::from(ours), t.qos());
+                if let Some(p) = offered.compliance_failure_wrt(&requested) {
+                    let what = format!(
+                        "a reader asks {} where this node's writer offers {}",
+                        said(p, &requested),
+                        said(p, &offered)
+                    );
+                    found.push(QosMismatch { topic: ros(t.topic_name()), remote: format!("{:?}", t.key()), what });
+                }
+            }
+        }
+        found.sort();
+        found.dedup();
+        found
+    }
+
     /// Writers matched by `subscription` (one of this node's).
     pub fn writers<T: 'static>(&self, subscription: &ros2_client::Subscription<T>) -> usize {
         subscription.get_publisher_count(&self.node)
+    }
+}
+
+/// What `q` sets of the policy `p`, as a ROS 2 user names it.
+fn said(p: ros2_client::dds::rustdds::dds::qos::QosPolicyId, q: &ros2_client::dds::rustdds::QosPolicies) -> String {
+    use ros2_client::dds::rustdds::dds::qos::QosPolicyId as P;
+    use ros2_client::dds::rustdds::policy::{Durability as D, Reliability as R};
+    match p {
+        P::Reliability => match q.reliability() {
+            Some(R::Reliable { .. }) => "reliable".into(),
+            Some(R::BestEffort) | None => "best effort".into(),
+        },
+        P::Durability => match q.durability() {
+            Some(D::TransientLocal) => "transient local".into(),
+            Some(D::Transient) => "transient".into(),
+            Some(D::Persistent) => "persistent".into(),
+            Some(D::Volatile) | None => "volatile".into(),
+        },
+        other => format!("another {other:?} policy"),
     }
 }
 

@@ -112,6 +112,12 @@ pub enum Event {
     },
     /// An input dropped: what and why.
     Dropped(String),
+    /// A peer restarted (a new epoch's snapshot came): its copy replaced,
+    /// its track started again.
+    Restarted(String),
+    /// A remote endpoint on one of the node's topics whose QoS cannot
+    /// match (found once).
+    Qos(super::dds::QosMismatch),
 }
 
 /// What a node did, when it stops.
@@ -131,6 +137,8 @@ pub struct NodeSummary {
     pub dropped: usize,
     /// Per peer: updates applied.
     pub applied: BTreeMap<String, usize>,
+    /// Remote endpoints whose QoS could not match the node's.
+    pub qos_mismatches: usize,
 }
 
 /// One peer as this robot knows it.
@@ -143,6 +151,8 @@ struct Peer {
     /// The last estimate, and the copy's version it was made on.
     last: Option<Estimate>,
     estimated: u32,
+    /// When an update of it last came.
+    updated: Instant,
     pose: Option<ros2_client::Publisher<PoseWithCovarianceStamped>>,
 }
 
@@ -221,7 +231,13 @@ pub struct RosNode {
     /// when the last thing came.
     dirty: bool,
     last_input: Instant,
+    /// QoS mismatches found, and when the last look was.
+    mismatches: Vec<super::dds::QosMismatch>,
+    looked: Instant,
 }
+
+/// How often the node looks for endpoints whose QoS cannot match (s).
+pub const QOS_LOOK_EVERY: f64 = 1.0;
 
 /// A random epoch (never 0): a restarted node's differs from its last run's.
 fn fresh_epoch() -> u16 {
@@ -286,6 +302,8 @@ impl RosNode {
             summary: NodeSummary::default(),
             dirty: false,
             last_input: Instant::now(),
+            mismatches: Vec::new(),
+            looked: Instant::now(),
             spec,
         })
     }
@@ -299,11 +317,27 @@ impl RosNode {
             if self.own.fresh >= self.spec.every || (self.dirty && settled) {
                 self.round(&mut log)?;
             }
+            if self.looked.elapsed().as_secs_f64() >= QOS_LOOK_EVERY {
+                self.look_at_qos(&mut log);
+            }
             if self.spec.idle.is_some_and(|s| self.last_input.elapsed().as_secs_f64() > s) && !self.dirty {
                 return Ok(self.summary);
             }
             if !got {
                 std::thread::sleep(Duration::from_millis(5));
+            }
+        }
+    }
+
+    /// Reports each remote endpoint whose QoS cannot match, once; they
+    /// go on `/diagnostics` too.
+    fn look_at_qos(&mut self, log: &mut impl FnMut(&Event)) {
+        self.looked = Instant::now();
+        for m in self.dds.qos_mismatches() {
+            if !self.mismatches.contains(&m) {
+                log(&Event::Qos(m.clone()));
+                self.summary.qos_mismatches += 1;
+                self.mismatches.push(m);
             }
         }
     }
@@ -501,6 +535,7 @@ impl RosNode {
                 heard: None,
                 last: None,
                 estimated: 0,
+                updated: Instant::now(),
                 pose: None,
             };
             self.peers.insert(m.robot.clone(), peer);
@@ -511,7 +546,12 @@ impl RosNode {
                 if done.restarted || done.diverged > 0 {
                     peer.tracker.reset();
                     peer.last = None;
+                    peer.heard = None;
                 }
+                if done.restarted {
+                    log(&Event::Restarted(m.robot.clone()));
+                }
+                peer.updated = Instant::now();
                 peer.odom_frame = m.header.frame_id;
                 *self.summary.applied.entry(m.robot).or_default() += done.applied;
                 self.dirty |= done.applied > 0;
@@ -691,6 +731,7 @@ impl RosNode {
                 value("copy_version", p.follower.version().to_string()),
                 value("copy_voxels", p.follower.map().len().to_string()),
                 value("updates_waiting", p.follower.waiting().to_string()),
+                value("since_update_s", format!("{:.1}", p.updated.elapsed().as_secs_f64())),
             ];
             let (level, message) = match p.last {
                 Some(e) => {
@@ -715,6 +756,14 @@ impl RosNode {
                 values,
             });
         }
+        let value = |m: &super::dds::QosMismatch| KeyValue { key: m.topic.clone(), value: m.what.clone() };
+        status.push(DiagnosticStatus {
+            level: if self.mismatches.is_empty() { DiagnosticStatus::OK } else { DiagnosticStatus::ERROR },
+            name: format!("cosem: {} / qos", self.spec.name),
+            message: format!("{} endpoints whose QoS cannot match", self.mismatches.len()),
+            hardware_id: self.spec.name.clone(),
+            values: self.mismatches.iter().map(value).collect(),
+        });
         let header = Header { stamp: self.own.stamp, frame_id: String::new() };
         self.topics.diagnostics.publish(DiagnosticArray { header, status }).map_err(|e| published("/diagnostics", e))
     }
