@@ -76,6 +76,26 @@ class PoseWithCovarianceStamped(IdlStruct, typename="geometry_msgs::msg::dds_::P
 
 
 @dataclass
+class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+    linear: Vector3
+    angular: Vector3
+
+
+@dataclass
+class TwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
+    twist: Twist
+    covariance: array[float64, 36]
+
+
+@dataclass
+class Odometry(IdlStruct, typename="nav_msgs::msg::dds_::Odometry_"):
+    header: Header
+    child_frame_id: str
+    pose: PoseWithCovariance
+    twist: TwistWithCovariance
+
+
+@dataclass
 class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
     key: str
     value: str
@@ -171,6 +191,12 @@ class Robot:
         self.world = [np.linalg.inv(tr) @ poses[f] @ tr for f in self.frames]
         self.world_odom = self.world[0] @ np.linalg.inv(offset(spec.get("seed", i)))
         self.points = DataWriter(dp, Topic(dp, f"rt/{self.name}/points", PointCloud2), qos=qos)
+        # Its motion on a nav_msgs/Odometry topic (/<name>/odom), not /tf.
+        self.odometry = None
+        if spec.get("odometry"):
+            reliable = Qos(Policy.Reliability.Reliable(1_000_000_000), Policy.Durability.Volatile,
+                           Policy.History.KeepLast(100))
+            self.odometry = DataWriter(dp, Topic(dp, f"rt/{self.name}/odom", Odometry), qos=reliable)
         self.next = 0
 
     def odom_pose(self, k):
@@ -194,11 +220,14 @@ def main():
     updates = DataWriter(dp, Topic(dp, "rt/cosem/map_updates", MapUpdate),
                          qos=Qos(Policy.Reliability.Reliable(1_000_000_000), Policy.Durability.TransientLocal,
                                  Policy.History.KeepLast(32)))
+    map_readers = [DataReader(dp, Topic(dp, f"rt/cosem/{t}", MapUpdate), qos=Qos(
+        Policy.Reliability.Reliable(1_000_000_000), Policy.Durability.TransientLocal, Policy.History.KeepLast(d)))
+        for t, d in (("map_updates", 32), ("map_snapshots", 1))]
     identity = np.eye(4)
     tf_static.write(TFMessage([TransformStamped(Header(stamp_now(), f"{r.name}/base_link"), f"{r.name}/velodyne",
                                                 transform(identity)) for r in robots]))
     got = {"truth": {r.name: [list(map(float, row)) for row in r.world_odom[:3]] for r in robots},
-           "started": [], "stopped": [],
+           "started": [], "stopped": [], "map_payload": [],
            "published": [], "edges": [], "diagnostics": [], "poses": [], "nodes": [], "injected": []}
     nodes, pending = [], sorted(spec["nodes"], key=lambda n: n["at"])
     injects = sorted(spec.get("inject", []), key=lambda n: n["at"])
@@ -225,15 +254,32 @@ def main():
             k = r.next
             c = cloud(r.data, r.frames[k], f"{r.name}/velodyne")
             odom = TransformStamped(Header(c.header.stamp, f"{r.name}/odom"), f"{r.name}/base_link", transform(r.odom_pose(k)))
-            tf.write(TFMessage([odom]))
+            if r.odometry is None:
+                tf.write(TFMessage([odom]))
+            else:
+                t = odom.transform
+                pose = Pose(Point(t.translation.x, t.translation.y, t.translation.z), t.rotation)
+                zero = Vector3(0.0, 0.0, 0.0)
+                r.odometry.write(Odometry(odom.header, odom.child_frame_id, PoseWithCovariance(pose, [0.0] * 36),
+                                          TwistWithCovariance(Twist(zero, zero), [0.0] * 36)))
             r.points.write(c)
             got["published"].append([time.time() - t0, r.name, k, c.width])
             r.next += 1
         read(got, t0, tf_in, diagnostics, poses)
+        for kind, reader in zip(("update", "snapshot"), map_readers):
+            for m in reader.take(N=64):
+                if isinstance(m, MapUpdate) and m.robot != "intruder":
+                    got["map_payload"].append([time.time() - t0, m.robot, kind, len(m.payload)])
         time.sleep(0.01)
-    for p, _ in nodes:
+    got["usage"] = [usage(p.pid, t0) for p, _ in nodes]
+    for (p, _), u in zip(nodes, got["usage"]):
         if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
+            # The node itself (under strace, strace's child: strace ends
+            # with it, and the node never outlives the run).
+            try:
+                os.kill(u["pid"] if u else p.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
     for p, _ in nodes:
         try:
             out, err = p.communicate(timeout=10)
@@ -242,6 +288,24 @@ def main():
             out, err = p.communicate()
         got["nodes"].append({"code": p.returncode, "stdout": out, "stderr": err[-4000:]})
     json.dump(got, sys.stdout)
+
+
+def usage(pid, t0):
+    """A process's CPU seconds (user + system, its threads' and reaped
+    children's), peak and current resident memory (kB), from /proc; the
+    process's first child instead where it runs one (a node under strace)."""
+    try:
+        kids = open(f"/proc/{pid}/task/{pid}/children").read().split()
+        if kids and open(f"/proc/{pid}/comm").read().strip() == "strace":
+            pid = int(kids[0])
+        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+        tick = os.sysconf("SC_CLK_TCK")
+        cpu = (int(fields[11]) + int(fields[12])) / tick
+        status = dict(line.split(":", 1) for line in open(f"/proc/{pid}/status") if ":" in line)
+        kb = lambda k: int(status[k].split()[0]) if k in status else None
+        return {"pid": pid, "cpu_s": cpu, "wall_s": time.time() - t0, "vmhwm_kb": kb("VmHWM"), "vmrss_kb": kb("VmRSS")}
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 KEEP = []  # endpoints an injection made, kept alive to the end

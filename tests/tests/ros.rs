@@ -262,13 +262,21 @@ fn nodes_ran(got: &Value) -> Vec<String> {
 /// Two nodes, robot A on kitti00 0:5 and robot B on 5:10, their drivers
 /// on Cyclone DDS: they trade maps, find each other, and the `/tf` edge
 /// between their odometry frames is within 0.2 m and 0.5 degrees of the
-/// truth; each publishes its peer's pose with a covariance.
-fn two_nodes(data: &Path, a: &[usize], b: &[usize]) {
-    let d = domain();
+/// truth; each publishes its peer's pose with a covariance. With
+/// `odometry`, robot B's motion comes on a `nav_msgs/Odometry` topic, not
+/// `/tf`.
+fn two_nodes(data: &Path, a: &[usize], b: &[usize], odometry: bool) {
+    let d = domain() + u16::from(odometry) * 4;
+    let mut robot_b = robot("robot_1", data, b, 0.0);
+    let mut node_b = node("robot_1", d, 0.0);
+    if odometry {
+        robot_b["odometry"] = true.into();
+        node_b["cmd"].as_array_mut().unwrap().extend(["--odometry".into(), "/robot_1/odom".into()]);
+    }
     let spec = serde_json::json!({
         "rate": 10, "until": 12,
-        "robots": [robot("robot_0", data, a, 0.0), robot("robot_1", data, b, 0.0)],
-        "nodes": [node("robot_0", d, 0.0), node("robot_1", d, 0.0)],
+        "robots": [robot("robot_0", data, a, 0.0), robot_b],
+        "nodes": [node("robot_0", d, 0.0), node_b],
     });
     let got = robots_and_nodes(spec, d);
     nodes_ran(&got);
@@ -298,11 +306,13 @@ fn two_nodes_find_each_other_kitti() {
         println!("skipped: {why}");
         return;
     }
-    two_nodes(&data, &[0, 1, 2, 3, 4], &[5, 6, 7, 8, 9]);
+    two_nodes(&data, &[0, 1, 2, 3, 4], &[5, 6, 7, 8, 9], false);
 }
 
+/// The same on scans the project makes itself, robot B's motion from a
+/// `nav_msgs/Odometry` topic.
 #[test]
-fn two_nodes_find_each_other_synthetic() {
+fn two_nodes_find_each_other_synthetic_odometry() {
     if let Some(why) = unavailable() {
         println!("skipped: {why}");
         return;
@@ -310,7 +320,8 @@ fn two_nodes_find_each_other_synthetic() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
     synth(&seq, 10, 3);
-    two_nodes(&seq, &[0, 1, 2, 3, 4], &[5, 6, 7, 8, 9]);
+    // Robot B's motion from an Odometry topic.
+    two_nodes(&seq, &[0, 1, 2, 3, 4], &[5, 6, 7, 8, 9], true);
 }
 
 /// kitti00-loop's scans 88 and 850, 308 m apart: each node says
