@@ -168,14 +168,15 @@ def stamp_now():
     return Time(int(t), int((t - int(t)) * 1e9))
 
 
-def cloud(data, frame, frame_id, crop=50.0):
-    """A scan, its points within `crop` m, as a labelled PointCloud2."""
+def cloud(data, frame, frame_id, crop=50.0, label_offset=0):
+    """A scan, its points within `crop` m, as a labelled PointCloud2 (its
+    label ids moved by `label_offset`: a robot with labels of its own)."""
     pts = np.fromfile(os.path.join(data, "velodyne", f"{frame:06d}.bin"), dtype=np.float32).reshape(-1, 4)
     labels = np.fromfile(os.path.join(data, "labels", f"{frame:06d}.label"), dtype=np.uint32)
     keep = np.linalg.norm(pts[:, :3], axis=1) <= crop
     rec = np.zeros(int(keep.sum()), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("label", "<u4")])
     rec["x"], rec["y"], rec["z"] = pts[keep, 0], pts[keep, 1], pts[keep, 2]
-    rec["label"] = labels[keep]
+    rec["label"] = (labels[keep] & 0xFFFF) + label_offset
     fields = [PointField("x", 0, 7, 1), PointField("y", 4, 7, 1), PointField("z", 8, 7, 1),
               PointField("label", 12, 6, 1)]
     n = len(rec)
@@ -198,6 +199,7 @@ class Robot:
                            Policy.History.KeepLast(100))
             self.odometry = DataWriter(dp, Topic(dp, f"rt/{self.name}/odom", Odometry), qos=reliable)
         self.next = 0
+        self.label_offset = spec.get("label_offset", 0)
 
     def odom_pose(self, k):
         return np.linalg.inv(self.world_odom) @ self.world[k]
@@ -252,7 +254,7 @@ def main():
                 if now < r.at + 20:
                     continue  # its node's reader is not matched yet: a scan now would be lost
             k = r.next
-            c = cloud(r.data, r.frames[k], f"{r.name}/velodyne")
+            c = cloud(r.data, r.frames[k], f"{r.name}/velodyne", label_offset=r.label_offset)
             odom = TransformStamped(Header(c.header.stamp, f"{r.name}/odom"), f"{r.name}/base_link", transform(r.odom_pose(k)))
             if r.odometry is None:
                 tf.write(TFMessage([odom]))

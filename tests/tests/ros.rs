@@ -259,19 +259,38 @@ fn nodes_ran(got: &Value) -> Vec<String> {
     nodes.iter().map(|n| n["stderr"].as_str().unwrap().to_string()).collect()
 }
 
+/// A class table (`cosem map --classes`) for SemanticKITTI's ids moved
+/// by `offset`: each class's own id to it, every other id to unlabeled.
+fn offset_class_table(offset: u32) -> String {
+    use cosem_core::classes::Class;
+    let mut t = String::from("[ids]\n");
+    for id in 0..260u16 {
+        let class = (0..19u8).filter_map(Class::from_index).find(|c| c.semantic_kitti_id() == id);
+        t += &format!("\"{}\" = \"{}\"\n", u32::from(id) + offset, class.map_or("unlabeled", Class::name));
+    }
+    t
+}
+
 /// Two nodes, robot A on kitti00 0:5 and robot B on 5:10, their drivers
 /// on Cyclone DDS: they trade maps, find each other, and the `/tf` edge
 /// between their odometry frames is within 0.2 m and 0.5 degrees of the
 /// truth; each publishes its peer's pose with a covariance. With
 /// `odometry`, robot B's motion comes on a `nav_msgs/Odometry` topic, not
-/// `/tf`.
+/// `/tf`, and its labels are its own ids, read through a class table.
 fn two_nodes(data: &Path, a: &[usize], b: &[usize], odometry: bool) {
     let d = domain() + u16::from(odometry) * 4;
     let mut robot_b = robot("robot_1", data, b, 0.0);
     let mut node_b = node("robot_1", d, 0.0);
+    let table = tempfile::NamedTempFile::new().unwrap();
     if odometry {
         robot_b["odometry"] = true.into();
         node_b["cmd"].as_array_mut().unwrap().extend(["--odometry".into(), "/robot_1/odom".into()]);
+        // And labels of its own: SemanticKITTI's ids plus 1000, read
+        // through a class table.
+        robot_b["label_offset"] = 1000.into();
+        std::fs::write(table.path(), offset_class_table(1000)).unwrap();
+        let classes = ["--classes".into(), table.path().display().to_string()];
+        node_b["cmd"].as_array_mut().unwrap().extend(classes.map(Value::from));
     }
     let spec = serde_json::json!({
         "rate": 10, "until": 12,
@@ -310,7 +329,7 @@ fn two_nodes_find_each_other_kitti() {
 }
 
 /// The same on scans the project makes itself, robot B's motion from a
-/// `nav_msgs/Odometry` topic.
+/// `nav_msgs/Odometry` topic and its labels through a class table.
 #[test]
 fn two_nodes_find_each_other_synthetic_odometry() {
     if let Some(why) = unavailable() {

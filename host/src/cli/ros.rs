@@ -36,6 +36,10 @@ pub struct NodeArgs {
     /// The scans' label field (SemanticKITTI ids).
     #[arg(long, default_value = "label")]
     label_field: String,
+    /// A class table (TOML) mapping the label field's ids to classes, as
+    /// `cosem map --classes` [default: SemanticKITTI ids].
+    #[arg(long)]
+    classes: Option<std::path::PathBuf>,
     /// The odometry frame, the map's [default: <name>/odom].
     #[arg(long)]
     odom_frame: Option<String>,
@@ -196,7 +200,9 @@ fn node(a: NodeArgs) -> Result<(), Error> {
     use cosem_host::ros::node::{Event, NodeSpec, RosNode};
     use std::io::Write;
     let name = a.name;
+    let classes = a.classes.as_deref().map(cosem_host::sources::class_table::ClassTable::read).transpose()?;
     let spec = NodeSpec {
+        classes,
         points: a.points.unwrap_or_else(|| format!("/{name}/points")),
         odom_frame: a.odom_frame.unwrap_or_else(|| format!("{name}/odom")),
         domain: a.domain,

@@ -62,6 +62,9 @@ pub struct NodeSpec {
     pub points: String,
     /// The scans' label field (SemanticKITTI ids, as `cosem map` reads).
     pub label_field: String,
+    /// A class table mapping the label field's ids to classes (as
+    /// `cosem map --classes`); `None`: SemanticKITTI ids.
+    pub classes: Option<crate::sources::class_table::ClassTable>,
     /// The odometry frame (the map's frame, and the robot's on `/tf`).
     pub odom_frame: String,
     /// A `nav_msgs/Odometry` topic to take the motion from, instead of
@@ -490,7 +493,12 @@ impl RosNode {
     /// map, the map kept around the sensor.
     fn fuse(&mut self, cloud: crate::sources::kitti::Cloud, stamp: i64, pose: &Isometry3<f64>) -> Result<(), Error> {
         let index = self.summary.scans;
-        let frame = crate::sources::kitti::frame_of(index, None, &pose.to_homogeneous(), cloud);
+        let mut frame = crate::sources::kitti::frame_of(index, None, &pose.to_homogeneous(), cloud);
+        if let Some(table) = &self.spec.classes {
+            table.relabel(std::slice::from_mut(&mut frame)).map_err(|(_, point, id)| {
+                Error::Invalid(format!("point {point}: label id {id} is not in the class table"))
+            })?;
+        }
         let at = pose.translation.vector.cast::<f32>();
         let at = [at.x, at.y, at.z];
         self.own.map.move_anchor(at).map_err(|e| Error::Invalid(format!("scan {index}: {e}")))?;
