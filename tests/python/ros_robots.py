@@ -191,6 +191,8 @@ class Robot:
         poses = matrix_rows(os.path.join(self.data, "poses.txt"))
         self.world = [np.linalg.inv(tr) @ poses[f] @ tr for f in self.frames]
         self.world_odom = self.world[0] @ np.linalg.inv(offset(spec.get("seed", i)))
+        if spec.get("reliable"):
+            qos = Qos(Policy.Reliability.Reliable(1_000_000_000), Policy.Durability.Volatile, Policy.History.KeepLast(5))
         self.points = DataWriter(dp, Topic(dp, f"rt/{self.name}/points", PointCloud2), qos=qos)
         # Its motion on a nav_msgs/Odometry topic (/<name>/odom), not /tf.
         self.odometry = None

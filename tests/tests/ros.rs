@@ -370,7 +370,8 @@ fn nodes_far_apart_say_no_overlap_and_tf_stays_silent() {
 
 /// A third node, started after the first two have traded maps, catches up
 /// from the snapshots and the updates after them and is placed: its `/tf`
-/// edge within the same tolerance. Meanwhile a foreign peer publishes
+/// edge within the same tolerance (its scans read reliably, from a
+/// reliable driver). Meanwhile a foreign peer publishes
 /// garbage, a truncated update and one of another protocol version, and
 /// robot A's driver two scans that lie (more points than data; a field
 /// past the point): every node logs each and drops it, none stops.
@@ -382,14 +383,19 @@ fn a_late_third_node_is_placed_and_bad_input_is_dropped() {
         return;
     }
     let d = domain() + 2;
+    // The third robot's driver publishes reliably, and its node reads so.
+    let mut third = robot("robot_2", &data, &[2, 3, 4, 5, 6, 7], 7.0);
+    third["reliable"] = true.into();
+    let mut third_node = node("robot_2", d, 6.0);
+    third_node["cmd"].as_array_mut().unwrap().extend(["--points-qos".into(), "reliable".into()]);
     let spec = serde_json::json!({
         "rate": 10, "until": 16,
         "robots": [
             robot("robot_0", &data, &[0, 1, 2, 3, 4], 0.0),
             robot("robot_1", &data, &[5, 6, 7, 8, 9], 0.0),
-            robot("robot_2", &data, &[2, 3, 4, 5, 6, 7], 7.0),
+            third,
         ],
-        "nodes": [node("robot_0", d, 0.0), node("robot_1", d, 0.0), node("robot_2", d, 6.0)],
+        "nodes": [node("robot_0", d, 0.0), node("robot_1", d, 0.0), third_node],
         "inject": [
             { "at": 3.0, "kind": "update_garbage" },
             { "at": 3.2, "kind": "update_truncated" },

@@ -33,6 +33,11 @@ pub struct NodeArgs {
     /// The labelled scans' topic [default: /<name>/points].
     #[arg(long)]
     points: Option<String>,
+    /// The scans' QoS: best-effort (ROS 2's sensor data: takes a writer of
+    /// either kind) or reliable (every scan of a reliable driver; no
+    /// best-effort driver matches).
+    #[arg(long, default_value = "best-effort", value_parser = ["best-effort", "reliable"])]
+    points_qos: String,
     /// The scans' label field (SemanticKITTI ids).
     #[arg(long, default_value = "label")]
     label_field: String,
@@ -203,6 +208,7 @@ fn node(a: NodeArgs) -> Result<(), Error> {
     let classes = a.classes.as_deref().map(cosem_host::sources::class_table::ClassTable::read).transpose()?;
     let spec = NodeSpec {
         classes,
+        points_reliable: a.points_qos == "reliable",
         points: a.points.unwrap_or_else(|| format!("/{name}/points")),
         odom_frame: a.odom_frame.unwrap_or_else(|| format!("{name}/odom")),
         domain: a.domain,

@@ -16,6 +16,10 @@ pub enum TopicKind {
     /// (ROS 2's sensor-data profile): a late scan is worth less than the
     /// next one.
     Sensor,
+    /// Sensor data read reliably: reliable, volatile, the last 5. Every
+    /// scan of a reliable driver arrives (a best-effort driver's never:
+    /// DDS matches no reliable reader to a best-effort writer).
+    ReliableSensor,
     /// `/tf`: reliable, volatile, the last 100 (tf2's broadcaster).
     Tf,
     /// `/tf_static` and other latched state: reliable, transient local, the
@@ -35,6 +39,9 @@ impl TopicKind {
                 .reliability_best_effort()
                 .durability(Durability::Volatile)
                 .history(History::KeepLast { depth: 5 }),
+            TopicKind::ReliableSensor => {
+                reliable.durability(Durability::Volatile).history(History::KeepLast { depth: 5 })
+            }
             TopicKind::Tf => reliable.durability(Durability::Volatile).history(History::KeepLast { depth: 100 }),
             TopicKind::Latched => {
                 reliable.durability(Durability::TransientLocal).history(History::KeepLast { depth: 1 })

@@ -60,6 +60,9 @@ pub struct NodeSpec {
     pub domain: u16,
     /// The labelled scans' topic.
     pub points: String,
+    /// Read the scans reliably (else best effort, ROS 2's sensor-data QoS,
+    /// which takes a writer of either).
+    pub points_reliable: bool,
     /// The scans' label field (SemanticKITTI ids, as `cosem map` reads).
     pub label_field: String,
     /// A class table mapping the label field's ids to classes (as
@@ -185,7 +188,11 @@ impl Topics {
             None => None,
         };
         Ok(Topics {
-            points: dds.subscription(&spec.points, ("sensor_msgs", "PointCloud2"), TopicKind::Sensor)?,
+            points: dds.subscription(
+                &spec.points,
+                ("sensor_msgs", "PointCloud2"),
+                if spec.points_reliable { TopicKind::ReliableSensor } else { TopicKind::Sensor },
+            )?,
             tf: dds.subscription("/tf", TF, TopicKind::Tf)?,
             tf_static: dds.subscription("/tf_static", TF, TopicKind::Latched)?,
             odometry,
