@@ -18,7 +18,7 @@ pub enum What {
     /// /tf (the robot's odometry frame under the lowest-named Converged
     /// peer's below its own), /<name>/peers/<peer>/pose (with covariance)
     /// and /diagnostics. Prints each estimate (JSON lines), then a summary.
-    Node(NodeArgs),
+    Node(Box<NodeArgs>),
 }
 
 #[derive(clap::Args, Debug)]
@@ -158,7 +158,7 @@ fn delay(s: &str) -> Result<f64, String> {
 pub fn run(what: What) -> Result<(), Error> {
     match what {
         What::Play(a) => play(a),
-        What::Node(a) => node(a),
+        What::Node(a) => node(*a),
     }
 }
 
