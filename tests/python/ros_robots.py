@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32
+from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint8, uint32
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
@@ -122,6 +122,7 @@ class MapUpdate(IdlStruct, typename="cosem_msgs::msg::dds_::MapUpdate_"):
     robot: str
     peer: str
     protocol: uint32
+    voxel_size: float32
     payload: sequence[uint8]
 
 
@@ -333,11 +334,11 @@ def inject(what, updates, robots, now):
         return [now, kind]
     header = Header(stamp_now(), "intruder/odom")
     if kind == "update_garbage":
-        updates.write(MapUpdate(header, "intruder", "", 1, bytes(range(256)) * 4))
+        updates.write(MapUpdate(header, "intruder", "", 2, 0.5, bytes(range(256)) * 4))
     elif kind == "update_truncated":
-        updates.write(MapUpdate(header, "intruder", "", 1, b"\x05\x00\x01"))
+        updates.write(MapUpdate(header, "intruder", "", 2, 0.5, b"\x05\x00\x01"))
     elif kind == "update_protocol":
-        updates.write(MapUpdate(header, "intruder", "", 99, bytes(64)))
+        updates.write(MapUpdate(header, "intruder", "", 99, 0.5, bytes(64)))
     elif kind == "cloud_lies":
         r = robots[what.get("robot", 0)]
         c = cloud(r.data, r.frames[0], f"{r.name}/velodyne")

@@ -344,7 +344,8 @@ fn two_nodes_find_each_other_synthetic_odometry() {
 }
 
 /// kitti00-loop's scans 88 and 850, 308 m apart: each node says
-/// `NoOverlap`, and `/tf` carries no edge between them.
+/// `NoOverlap`, and `/tf` carries no edge between them. A third robot of
+/// another voxel size is refused by name, never matched.
 #[test]
 fn nodes_far_apart_say_no_overlap_and_tf_stays_silent() {
     let Some(data) = real_data("kitti00-loop") else { return };
@@ -353,13 +354,26 @@ fn nodes_far_apart_say_no_overlap_and_tf_stays_silent() {
         return;
     }
     let d = domain() + 1;
+    // And a third robot mapping with 0.7 m voxels: its maps are not
+    // matched by the others (the wire names cells, not metres).
+    let mut coarse = node("robot_2", d, 0.0);
+    coarse["cmd"].as_array_mut().unwrap().extend(["--voxel".into(), "0.7".into()]);
     let spec = serde_json::json!({
         "rate": 10, "until": 9,
-        "robots": [robot("robot_0", &data, &[88], 0.0), robot("robot_1", &data, &[850], 0.0)],
-        "nodes": [node("robot_0", d, 0.0), node("robot_1", d, 0.0)],
+        "robots": [
+            robot("robot_0", &data, &[88], 0.0),
+            robot("robot_1", &data, &[850], 0.0),
+            robot("robot_2", &data, &[52], 0.0),
+        ],
+        "nodes": [node("robot_0", d, 0.0), node("robot_1", d, 0.0), coarse],
     });
     let got = robots_and_nodes(spec, d);
-    nodes_ran(&got);
+    let logs = nodes_ran(&got);
+    for (i, log) in logs.iter().enumerate().take(2) {
+        let why = "robot_2: its map's voxels are 0.7 m, this robot's 0.5 m: not matched";
+        assert!(log.contains(why), "node {i} did not refuse the coarse peer: {log}");
+    }
+    assert!(logs[2].contains("robot_0: its map's voxels are 0.5 m, this robot's 0.7 m: not matched"), "{}", logs[2]);
     let status = last_status(&got);
     for who in ["cosem: robot_0 / robot_1", "cosem: robot_1 / robot_0"] {
         assert_eq!(status.get(who).map(String::as_str), Some("NoOverlap"), "{who}: {status:?}");

@@ -138,6 +138,7 @@ fn outputs() -> Vec<(&'static str, Vec<u8>)> {
                 robot: "robot_a".into(),
                 peer: String::new(),
                 protocol: MAP_UPDATE_PROTOCOL,
+                voxel_size: 0.5,
                 payload: vec![0xD8, 1, 0, 2, 3, 4, 5, 6, 7],
             }),
         ),

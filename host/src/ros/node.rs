@@ -152,13 +152,16 @@ struct Peer {
     odom_frame: String,
     follower: Follower,
     tracker: Tracker,
-    /// The peer's last estimate of `T_peer_own` that passed its verdict.
-    heard: Option<Isometry3<f32>>,
+    /// The peer's last estimate of `T_peer_own` that passed its verdict,
+    /// and when it came.
+    heard: Option<(Isometry3<f32>, Instant)>,
     /// The last estimate, and the copy's version it was made on.
     last: Option<Estimate>,
     estimated: u32,
     /// When an update of it last came.
     updated: Instant,
+    /// Why it is not estimated, if it is not (another voxel size).
+    refused: Option<String>,
     pose: Option<ros2_client::Publisher<PoseWithCovarianceStamped>>,
 }
 
@@ -245,6 +248,10 @@ pub struct RosNode {
     mismatches: Vec<super::dds::QosMismatch>,
     looked: Instant,
 }
+
+/// How long a peer's fix counts for the agreement (s): two rounds' worth
+/// at any pace a robot keeps, not a fix from a past meeting.
+pub const HEARD_FOR: f64 = 10.0;
 
 /// How often the node looks for endpoints whose QoS cannot match (s).
 pub const QOS_LOOK_EVERY: f64 = 1.0;
@@ -551,11 +558,27 @@ impl RosNode {
                 last: None,
                 estimated: 0,
                 updated: Instant::now(),
+                refused: None,
                 pose: None,
             };
             self.peers.insert(m.robot.clone(), peer);
         }
         let Some(peer) = self.peers.get_mut(&m.robot) else { return Ok(()) };
+        // The payload names cells, not metres: a peer of another voxel
+        // size is not matched (said once, on the log and on /diagnostics),
+        // never read as this robot's cells.
+        let own = self.spec.voxel;
+        if !(m.voxel_size.is_finite() && (m.voxel_size - own).abs() <= 1e-6) {
+            let why = format!("its map's voxels are {} m, this robot's {own} m: not matched", m.voxel_size);
+            if peer.refused.as_deref() != Some(why.as_str()) {
+                self.summary.dropped += 1;
+                log(&Event::Dropped(format!("{}: {why}", m.robot)));
+                peer.refused = Some(why);
+                peer.last = None;
+            }
+            return Ok(());
+        }
+        peer.refused = None;
         match peer.follower.offer(m.header.stamp.nanos(), m.payload, &mut self.words) {
             Ok(done) => {
                 if done.restarted || done.diverged > 0 {
@@ -565,6 +588,12 @@ impl RosNode {
                 }
                 if done.restarted {
                     log(&Event::Restarted(m.robot.clone()));
+                }
+                if done.diverged > 0 {
+                    let why = "an update did not come out as the peer's map (its digest, or more voxels than the copy \
+                               holds): the copy emptied until a snapshot";
+                    self.summary.dropped += 1;
+                    log(&Event::Dropped(format!("{}: {why}", m.robot)));
                 }
                 peer.updated = Instant::now();
                 peer.odom_frame = m.header.frame_id;
@@ -589,7 +618,7 @@ impl RosNode {
             let theirs: Isometry3<f32> = nalgebra::convert(iso);
             let place = self.own.place;
             let Some(peer) = self.peers.get_mut(&name) else { continue };
-            peer.heard = Some(theirs);
+            peer.heard = Some((theirs, Instant::now()));
             let Some(mut e) = peer.last.filter(|e| e.result.status == MatchStatus::Converged && !e.confirmed) else {
                 continue;
             };
@@ -626,10 +655,23 @@ impl RosNode {
                 continue;
             }
             let t = Instant::now();
-            let view = PeerView { estimate: peer.heard, at: self.own.place };
+            if peer.refused.is_some() {
+                continue;
+            }
+            let heard = peer.heard.filter(|h| h.1.elapsed().as_secs_f64() <= HEARD_FOR).map(|h| h.0);
+            let view = PeerView { estimate: heard, at: self.own.place };
             let room = (&mut self.search[..], &mut self.reach[..]);
-            let (mut e, _) = estimate_on(&mut mine, copy, &mut peer.tracker, &self.spec.alignment, &view, room)?;
-            if let Some(theirs) = peer.heard {
+            let (mut e, _) = match estimate_on(&mut mine, copy, &mut peer.tracker, &self.spec.alignment, &view, room) {
+                Ok(e) => e,
+                Err(why) => {
+                    // A peer's map this robot cannot match (another voxel
+                    // size, ...): said, and the other peers go on.
+                    self.summary.dropped += 1;
+                    log(&Event::Dropped(format!("{name}: no estimate: {why}")));
+                    continue;
+                }
+            };
+            if let Some(theirs) = heard {
                 peer.tracker.confirm(&mut e, &theirs, self.own.place);
             }
             peer.last = Some(e);
@@ -672,6 +714,7 @@ impl RosNode {
             robot: self.spec.name.clone(),
             peer: String::new(),
             protocol: MAP_UPDATE_PROTOCOL,
+            voxel_size: self.spec.voxel,
             payload,
         };
         let (topic, name) = if snapshot {
@@ -761,7 +804,10 @@ impl RosNode {
                     let well = matches!(s, MatchStatus::Converged | MatchStatus::NoOverlap);
                     (if well { DiagnosticStatus::OK } else { DiagnosticStatus::WARN }, s.as_str().to_string())
                 }
-                None => (DiagnosticStatus::WARN, "no estimate yet".to_string()),
+                None => match &p.refused {
+                    Some(why) => (DiagnosticStatus::ERROR, why.clone()),
+                    None => (DiagnosticStatus::WARN, "no estimate yet".to_string()),
+                },
             };
             status.push(DiagnosticStatus {
                 level,

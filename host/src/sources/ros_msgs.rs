@@ -264,13 +264,18 @@ pub struct MapUpdate {
     /// The protocol's version ([`MAP_UPDATE_PROTOCOL`]): a message of
     /// another is dropped before its payload is read.
     pub protocol: u32,
+    /// The sender's voxel size (m): the payload's cells are of this size
+    /// (the wire format names cells, not metres), and a robot of another
+    /// size does not match them.
+    pub voxel_size: f32,
     /// The wire message.
     pub payload: Vec<u8>,
 }
 
 /// The version of the map-update protocol a [`MapUpdate`] carries: raised
-/// whenever the payload's format changes.
-pub const MAP_UPDATE_PROTOCOL: u32 = 1;
+/// whenever the message's or the payload's format changes (2: the
+/// sender's voxel size joined the message).
+pub const MAP_UPDATE_PROTOCOL: u32 = 2;
 
 const SEPARATOR: &str = "================================================================================\n";
 const TIME_DEF: &str = "int32 sec\nuint32 nanosec\n";
@@ -341,7 +346,7 @@ pub fn odometry_schema() -> String {
 
 /// The text of `host/ros/cosem_msgs/msg/MapUpdate.msg` (its comments left out).
 pub const MAP_UPDATE_DEF: &str =
-    "uint32 PROTOCOL=1\nstd_msgs/Header header\nstring robot\nstring peer\nuint32 protocol\nuint8[] payload\n";
+    "uint32 PROTOCOL=2\nstd_msgs/Header header\nstring robot\nstring peer\nuint32 protocol\nfloat32 voxel_size\nuint8[] payload\n";
 
 /// The `ros2msg` definition of `cosem_msgs/msg/MapUpdate`.
 pub fn map_update_schema() -> String {
