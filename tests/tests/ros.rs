@@ -425,8 +425,8 @@ fn a_late_third_node_is_placed_and_bad_input_is_dropped() {
     let late = got["edges"].as_array().unwrap().iter().find(|e| e[2] == "robot_2/odom").unwrap();
     assert!(late[0].as_f64().unwrap() > 7.0);
     for (i, log) in logs.iter().enumerate().take(2) {
-        for why in ["a malformed map update (1024 bytes)", "a malformed map update (3 bytes)", "of protocol 99, not 1"]
-        {
+        let protocol = format!("of protocol 99, not {}", cosem_host::sources::ros_msgs::MAP_UPDATE_PROTOCOL);
+        for why in ["a malformed map update (1024 bytes)", "a malformed map update (3 bytes)", protocol.as_str()] {
             assert!(log.contains(why), "node {i} did not log `{why}`: {log}");
         }
     }
