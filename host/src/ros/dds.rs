@@ -101,42 +101,46 @@ impl DdsNode {
         publisher.get_subscription_count(&self.node)
     }
 
+    /// `topic` (an absolute ROS 2 name such as `/tf`) of ROS type
+    /// `package/msg/Type` with the QoS of `kind`, its endpoint (a reader
+    /// or a writer) recorded for [`DdsNode::qos_mismatches`].
+    fn topic(
+        &mut self,
+        topic: &str,
+        (package, type_name): (&str, &str),
+        kind: TopicKind,
+        reader: bool,
+    ) -> Result<ros2_client::dds::rustdds::Topic, Error> {
+        let (namespace, base) = split_name(topic)?;
+        let name = Name::new(namespace, base).map_err(|e| dds(&format!("topic name {topic}"), e))?;
+        let qos = kind.qos();
+        self.endpoints.push((format!("rt{topic}"), reader, qos.clone()));
+        self.node
+            .create_topic(&name, MessageTypeName::new(package, type_name), &qos)
+            .map_err(|e| dds(&format!("topic {topic}"), e))
+    }
+
     /// A publisher of `T` (ROS type `package/msg/Type`) on `topic` (an
     /// absolute ROS 2 name such as `/tf`).
     pub fn publisher<T: Serialize>(
         &mut self,
         topic: &str,
-        (package, type_name): (&str, &str),
+        ros_type: (&str, &str),
         kind: TopicKind,
     ) -> Result<ros2_client::Publisher<T>, Error> {
-        let (namespace, base) = split_name(topic)?;
-        let name = Name::new(namespace, base).map_err(|e| dds(&format!("topic name {topic}"), e))?;
-        let qos = kind.qos();
-        self.endpoints.push((format!("rt{topic}"), false, qos.clone()));
-        let t = self
-            .node
-            .create_topic(&name, MessageTypeName::new(package, type_name), &qos)
-            .map_err(|e| dds(&format!("topic {topic}"), e))?;
+        let t = self.topic(topic, ros_type, kind, false)?;
         self.node.create_publisher::<T>(&t, None).map_err(|e| dds(&format!("publisher on {topic}"), e))
     }
-}
 
-impl DdsNode {
     /// A subscription to `T` (ROS type `package/msg/Type`) on `topic`, with
     /// the QoS of `kind`.
     pub fn subscription<T: serde::de::DeserializeOwned + 'static>(
         &mut self,
         topic: &str,
-        (package, type_name): (&str, &str),
+        ros_type: (&str, &str),
         kind: TopicKind,
     ) -> Result<ros2_client::Subscription<T>, Error> {
-        let (namespace, base) = split_name(topic)?;
-        let name = Name::new(namespace, base).map_err(|e| dds(&format!("topic name {topic}"), e))?;
-        self.endpoints.push((format!("rt{topic}"), true, kind.qos()));
-        let t = self
-            .node
-            .create_topic(&name, MessageTypeName::new(package, type_name), &kind.qos())
-            .map_err(|e| dds(&format!("topic {topic}"), e))?;
+        let t = self.topic(topic, ros_type, kind, true)?;
         self.node.create_subscription::<T>(&t, None).map_err(|e| dds(&format!("subscription to {topic}"), e))
     }
 
@@ -205,6 +209,29 @@ fn said(p: ros2_client::dds::rustdds::dds::qos::QosPolicyId, q: &ros2_client::dd
         },
         other => format!("another {other:?} policy"),
     }
+}
+
+/// Now, as a ROS stamp (wall clock).
+pub fn stamp_now() -> crate::sources::ros_msgs::Time {
+    let d = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+    crate::sources::ros_msgs::Time { sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX), nanosec: d.subsec_nanos() }
+}
+
+/// `t` (`T_parent_child`) as a stamped `/tf` edge.
+pub fn edge(
+    stamp: crate::sources::ros_msgs::Time,
+    parent: String,
+    child: String,
+    t: &nalgebra::Isometry3<f64>,
+) -> crate::sources::ros_msgs::TransformStamped {
+    use crate::sources::ros_msgs::{Header, TransformStamped};
+    let transform = crate::sources::recording::transform_of(&t.to_homogeneous());
+    TransformStamped { header: Header { stamp, frame_id: parent }, child_frame_id: child, transform }
+}
+
+/// A publication that failed, naming the topic.
+pub fn published(what: &str, e: impl std::fmt::Debug) -> Error {
+    Error::Invalid(format!("DDS: publishing {what}: {e:?}"))
 }
 
 /// `/a/b/c` as (`/a/b`, `c`); `/tf` as (`/`, `tf`).

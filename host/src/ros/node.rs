@@ -23,13 +23,13 @@
 //!   parent and the edges form no cycle, as tf2 requires);
 //! - every estimate's status on `/diagnostics`.
 
-use super::dds::{DdsNode, TopicKind};
+use super::dds::{edge, published, stamp_now, DdsNode, TopicKind};
 use super::follow::Follower;
 use crate::error::Error;
 use crate::evaluation::session::estimate_on;
 use crate::evaluation::session::prepared::Prepared;
 use crate::maps::mapping::{fuse_frames, new_map, HostMap, PointFilter};
-use crate::sources::recording::{iso_of, live_cloud, transform_of, TfTree};
+use crate::sources::recording::{iso_of, live_cloud, TfTree};
 use crate::sources::ros_msgs::*;
 use crate::sources::ros_pose::pose_with_covariance;
 use cosem_core::map::{FullPolicy, MapConfig};
@@ -263,19 +263,10 @@ fn fresh_epoch() -> u16 {
     ((mixed >> 48) as u16).max(1)
 }
 
-fn stamp_now() -> Time {
-    let d = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
-    Time { sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX), nanosec: d.subsec_nanos() }
-}
-
 /// A stamp (ns) as a ROS time.
 fn time_of(ns: i64) -> Time {
     let sec = i32::try_from(ns.div_euclid(1_000_000_000)).unwrap_or(i32::MAX);
     Time { sec, nanosec: ns.rem_euclid(1_000_000_000) as u32 }
-}
-
-fn published(what: &str, e: impl std::fmt::Debug) -> Error {
-    Error::Invalid(format!("DDS: publishing {what}: {e:?}"))
 }
 
 impl RosNode {
@@ -422,21 +413,11 @@ fn drain<T: serde::de::DeserializeOwned + 'static>(
     summary: &mut NodeSummary,
     log: &mut impl FnMut(&Event),
 ) -> Vec<T> {
-    std::iter::from_fn(|| take(sub, topic, summary, log)).collect()
-}
-
-/// The next message of `sub`, if any; one that could not be read is
-/// logged and dropped.
-fn take<T: serde::de::DeserializeOwned + 'static>(
-    sub: &ros2_client::Subscription<T>,
-    topic: &str,
-    summary: &mut NodeSummary,
-    log: &mut impl FnMut(&Event),
-) -> Option<T> {
+    let mut got = Vec::new();
     loop {
         match sub.take() {
-            Ok(Some((m, _))) => return Some(m),
-            Ok(None) => return None,
+            Ok(Some((m, _))) => got.push(m),
+            Ok(None) => return got,
             Err(e) => {
                 summary.dropped += 1;
                 log(&Event::Dropped(format!("{topic}: a message that does not read: {e:?}")));
@@ -741,11 +722,7 @@ impl RosNode {
             return Ok(());
         }
         let t: Isometry3<f64> = nalgebra::convert(e.result.transform);
-        let fix = TransformStamped {
-            header: Header { stamp, frame_id: own_frame.clone() },
-            child_frame_id: peer.odom_frame.clone(),
-            transform: transform_of(&t.to_homogeneous()),
-        };
+        let fix = edge(stamp, own_frame.clone(), peer.odom_frame.clone(), &t);
         self.topics.fixes.publish(TfMessage { transforms: vec![fix] }).map_err(|e| published(&self.spec.fixes, e))?;
         let info: nalgebra::Matrix6<f64> = nalgebra::convert(e.result.information);
         let (Some(pose), MatchStatus::Converged) = (pose_with_covariance(&t, &info), e.status()) else { return Ok(()) };
@@ -772,11 +749,7 @@ impl RosNode {
         let Some((_, p)) = parent else { return Ok(()) };
         let Some(e) = p.last else { return Ok(()) };
         let t: Isometry3<f64> = nalgebra::convert(e.result.transform.inverse());
-        let edge = TransformStamped {
-            header: Header { stamp: self.own.stamp, frame_id: p.odom_frame.clone() },
-            child_frame_id: self.spec.odom_frame.clone(),
-            transform: transform_of(&t.to_homogeneous()),
-        };
+        let edge = edge(self.own.stamp, p.odom_frame.clone(), self.spec.odom_frame.clone(), &t);
         self.topics.tf_out.publish(TfMessage { transforms: vec![edge] }).map_err(|e| published("/tf", e))
     }
 

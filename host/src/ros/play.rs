@@ -10,16 +10,16 @@
 //! transform (seeded): the truth between two robots is never the
 //! identity, and [`PlayedRobot::world_odom`] says what it is.
 
-use super::dds::{DdsNode, TopicKind};
+use super::dds::{edge, published, stamp_now, DdsNode, TopicKind};
 use crate::error::Error;
 use crate::evaluation::team::RobotSpec;
 use crate::knobs::Knob;
 use crate::sources::kitti::Frame;
-use crate::sources::recording::{labelled_cloud, transform_of};
+use crate::sources::recording::labelled_cloud;
 use crate::sources::ros_msgs::*;
 use crate::sources::source::{Source, SourceOptions};
-use nalgebra::{Isometry3, Matrix4, Translation3, UnitQuaternion, Vector3 as V3};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3 as V3};
+use std::time::{Duration, Instant};
 
 /// The longest wait for readers (`PlaySpec::wait_readers`).
 pub const WAIT_LIMIT: Duration = Duration::from_secs(20);
@@ -131,20 +131,6 @@ fn track(i: usize, r: &RobotSpec, spec: &PlaySpec) -> Result<Track, Error> {
         name,
     };
     Ok(Track { played, scans })
-}
-
-fn stamp_now() -> Time {
-    let d = SystemTime::now().duration_since(UNIX_EPOCH).unwrap_or_default();
-    Time { sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX), nanosec: d.subsec_nanos() }
-}
-
-fn edge(stamp: Time, parent: String, child: String, t: &Isometry3<f64>) -> TransformStamped {
-    let m: Matrix4<f64> = t.to_homogeneous();
-    TransformStamped { header: Header { stamp, frame_id: parent }, child_frame_id: child, transform: transform_of(&m) }
-}
-
-fn published(what: &str, e: impl std::fmt::Debug) -> Error {
-    Error::Invalid(format!("DDS: publishing {what}: {e:?}"))
 }
 
 /// Plays `spec`: `ready` hears the robots once the publishers exist (before
