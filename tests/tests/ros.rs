@@ -356,8 +356,11 @@ fn nodes_far_apart_say_no_overlap_and_tf_stays_silent() {
     let d = domain() + 1;
     // And a third robot mapping with 0.7 m voxels: its maps are not
     // matched by the others (the wire names cells, not metres).
+    // It follows one peer at most: the other is not followed at all (each
+    // peer holds a copy of a map; a node's peers are bounded).
     let mut coarse = node("robot_2", d, 0.0);
-    coarse["cmd"].as_array_mut().unwrap().extend(["--voxel".into(), "0.7".into()]);
+    let extra = ["--voxel", "0.7", "--max-peers", "1"];
+    coarse["cmd"].as_array_mut().unwrap().extend(extra.map(Value::from));
     let spec = serde_json::json!({
         "rate": 10, "until": 9,
         "robots": [
@@ -373,7 +376,10 @@ fn nodes_far_apart_say_no_overlap_and_tf_stays_silent() {
         let why = "robot_2: its map's voxels are 0.7 m, this robot's 0.5 m: not matched";
         assert!(log.contains(why), "node {i} did not refuse the coarse peer: {log}");
     }
-    assert!(logs[2].contains("robot_0: its map's voxels are 0.5 m, this robot's 0.7 m: not matched"), "{}", logs[2]);
+    let refused = |who: &str| logs[2].contains(&format!("{who}: its map's voxels are 0.5 m, this robot's 0.7 m"));
+    let capped = |who: &str| logs[2].contains(&format!("{who}: not followed: this node follows 1 peer at most"));
+    let (zero, one) = (refused("robot_0") && capped("robot_1"), refused("robot_1") && capped("robot_0"));
+    assert!(zero ^ one, "robot_2 should follow one peer (refused by its voxels) and drop the other: {}", logs[2]);
     let status = last_status(&got);
     for who in ["cosem: robot_0 / robot_1", "cosem: robot_1 / robot_0"] {
         assert_eq!(status.get(who).map(String::as_str), Some("NoOverlap"), "{who}: {status:?}");

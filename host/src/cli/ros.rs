@@ -82,6 +82,11 @@ pub struct NodeArgs {
     /// update [default: run until stopped].
     #[arg(long, value_parser = idle)]
     idle: Option<f64>,
+    /// Peers followed at most (each holds a copy of a map); a new robot
+    /// beyond them takes the place of one silent for a minute, else its
+    /// updates are dropped.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
+    max_peers: u32,
 }
 
 /// Seconds of idleness: more than 0, an hour at most.
@@ -225,6 +230,7 @@ fn node(a: NodeArgs) -> Result<(), Error> {
         alignment: cosem_host::evaluation::session::DEFAULT_ALIGNMENT,
         settle: a.settle,
         idle: a.idle,
+        max_peers: a.max_peers as usize,
         name: name.clone(),
     };
     let node = RosNode::new(spec)?;
@@ -244,6 +250,9 @@ fn node(a: NodeArgs) -> Result<(), Error> {
         }
         Event::Dropped(why) => eprintln!("warning: dropped: {why}"),
         Event::Restarted(peer) => eprintln!("info: {peer}: restarted (a new epoch): its copy replaced"),
+        Event::Forgotten(peer, silent) => {
+            eprintln!("info: {peer}: forgotten after {silent:.0} s of silence, to follow a new peer");
+        }
         Event::Qos(m) => eprintln!("warning: QoS: {}: {} ({})", m.topic, m.what, m.remote),
     })?;
     println!(

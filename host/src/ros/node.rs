@@ -97,6 +97,10 @@ pub struct NodeSpec {
     /// Exit after this long (s) with no scan and no peer message (`None`:
     /// run until stopped).
     pub idle: Option<f64>,
+    /// Peers followed at most (1 to [`MAX_PEERS`]): each holds a copy of a
+    /// map of `capacity` voxels, so a network that names ever new robots
+    /// cannot grow the node without bound ([`room_for`]).
+    pub max_peers: usize,
 }
 
 /// What the node saw happen, for its log (JSON lines on stdout) and
@@ -121,6 +125,10 @@ pub enum Event {
     /// A peer restarted (a new epoch's snapshot came): its copy replaced,
     /// its track started again.
     Restarted(String),
+    /// A peer silent for longer than [`FORGET_AFTER`] forgotten, its copy
+    /// and track dropped, to follow another: who, and for how long (s) it
+    /// had been silent.
+    Forgotten(String, f64),
     /// A remote endpoint on one of the node's topics whose QoS cannot
     /// match (found once).
     Qos(super::dds::QosMismatch),
@@ -256,6 +264,45 @@ pub const HEARD_FOR: f64 = 10.0;
 /// How often the node looks for endpoints whose QoS cannot match (s).
 pub const QOS_LOOK_EVERY: f64 = 1.0;
 
+/// The most peers a node may be set to follow.
+pub const MAX_PEERS: usize = 64;
+
+/// A followed peer silent this long (s) gives its place to a new one when
+/// the node follows as many as it may: a robot gone for a minute is not in
+/// the meeting at hand.
+pub const FORGET_AFTER: f64 = 60.0;
+
+/// Whether a robot not yet followed can be, among `followed` (each peer's
+/// name and seconds since its last update), `max` at most.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Room {
+    /// Fewer than `max` followed.
+    Free,
+    /// As many as `max`; this one (the longest silent, over
+    /// [`FORGET_AFTER`]) is forgotten to make room.
+    Forget(String, f64),
+    /// As many as `max`, none silent long enough: the new robot is not
+    /// followed (its updates dropped).
+    Full,
+}
+
+/// See [`Room`]; ties in silence go to the lowest name (deterministic).
+pub fn room_for<'a>(followed: impl Iterator<Item = (&'a str, f64)>, max: usize) -> Room {
+    let mut count = 0usize;
+    let mut stalest: Option<(&str, f64)> = None;
+    for (name, silent) in followed {
+        count += 1;
+        if stalest.is_none_or(|(_, s)| silent > s) {
+            stalest = Some((name, silent));
+        }
+    }
+    match stalest {
+        _ if count < max => Room::Free,
+        Some((name, silent)) if silent > FORGET_AFTER => Room::Forget(name.to_owned(), silent),
+        _ => Room::Full,
+    }
+}
+
 /// A random epoch (never 0): a restarted node's differs from its last run's.
 fn fresh_epoch() -> u16 {
     let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
@@ -278,6 +325,9 @@ impl RosNode {
                  map holds 64 to 1048576 voxels (not {})",
                 spec.every, spec.snapshot_every, spec.capacity
             )));
+        }
+        if !(1..=MAX_PEERS).contains(&spec.max_peers) {
+            return Err(Error::Invalid(format!("a node follows 1 to {MAX_PEERS} peers (not {})", spec.max_peers)));
         }
         let mut dds = DdsNode::new(spec.domain, &spec.name.replace('/', "_"))?;
         let topics = Topics::new(&mut dds, &spec)?;
@@ -509,6 +559,48 @@ impl RosNode {
 }
 
 impl RosNode {
+    /// A robot's update heard: whether it is followed, met now if there is
+    /// room for it ([`room_for`]: a peer silent for [`FORGET_AFTER`] may
+    /// give its place), else its update dropped.
+    fn meet(&mut self, m: &MapUpdate, log: &mut impl FnMut(&Event)) -> Result<bool, Error> {
+        if self.peers.contains_key(&m.robot) {
+            return Ok(true);
+        }
+        let now = Instant::now();
+        let followed = self.peers.iter().map(|(n, p)| (n.as_str(), now.duration_since(p.updated).as_secs_f64()));
+        match room_for(followed, self.spec.max_peers) {
+            Room::Free => {}
+            Room::Forget(name, silent) => {
+                self.peers.remove(&name);
+                log(&Event::Forgotten(name, silent));
+            }
+            Room::Full => {
+                let max = self.spec.max_peers;
+                let why = format!(
+                    "{}: not followed: this node follows {max} peer{} at most, none silent for {FORGET_AFTER} s",
+                    m.robot,
+                    if max == 1 { "" } else { "s" }
+                );
+                self.drop_input(why, log);
+                return Ok(false);
+            }
+        }
+        let copy = new_map(self.spec.capacity, *self.own.map.config())?;
+        let peer = Peer {
+            odom_frame: m.header.frame_id.clone(),
+            follower: Follower::new(copy),
+            tracker: Tracker::new(),
+            heard: None,
+            last: None,
+            estimated: 0,
+            updated: Instant::now(),
+            refused: None,
+            pose: None,
+        };
+        self.peers.insert(m.robot.clone(), peer);
+        Ok(true)
+    }
+
     /// A peer's update: a new peer met, the update offered to its copy.
     fn peer_update(&mut self, m: MapUpdate, log: &mut impl FnMut(&Event)) -> Result<(), Error> {
         if m.robot == self.spec.name {
@@ -529,20 +621,8 @@ impl RosNode {
             self.drop_input(why, log);
             return Ok(());
         }
-        if !self.peers.contains_key(&m.robot) {
-            let copy = new_map(self.spec.capacity, *self.own.map.config())?;
-            let peer = Peer {
-                odom_frame: m.header.frame_id.clone(),
-                follower: Follower::new(copy),
-                tracker: Tracker::new(),
-                heard: None,
-                last: None,
-                estimated: 0,
-                updated: Instant::now(),
-                refused: None,
-                pose: None,
-            };
-            self.peers.insert(m.robot.clone(), peer);
+        if !self.meet(&m, log)? {
+            return Ok(());
         }
         let Some(peer) = self.peers.get_mut(&m.robot) else { return Ok(()) };
         // The payload names cells, not metres: a peer of another voxel
@@ -800,5 +880,24 @@ impl RosNode {
         });
         let header = Header { stamp: self.own.stamp, frame_id: String::new() };
         self.topics.diagnostics.publish(DiagnosticArray { header, status }).map_err(|e| published("/diagnostics", e))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_full_node_forgets_only_a_peer_silent_for_a_minute() {
+        let followed = [("robot_1", 3.0), ("robot_2", 61.0), ("robot_3", 90.0)];
+        assert_eq!(room_for(followed.iter().copied(), 4), Room::Free);
+        assert_eq!(room_for(followed.iter().copied(), 3), Room::Forget("robot_3".into(), 90.0));
+        assert_eq!(room_for(followed.iter().copied(), 1), Room::Forget("robot_3".into(), 90.0));
+        let busy = [("robot_1", 3.0), ("robot_2", FORGET_AFTER)];
+        assert_eq!(room_for(busy.iter().copied(), 2), Room::Full);
+        assert_eq!(room_for(std::iter::empty(), 1), Room::Free);
+        // Ties go to the first (lowest) name, as a BTreeMap lists them.
+        let tied = [("robot_1", 70.0), ("robot_2", 70.0)];
+        assert_eq!(room_for(tied.iter().copied(), 2), Room::Forget("robot_1".into(), 70.0));
     }
 }
