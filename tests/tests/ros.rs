@@ -481,3 +481,36 @@ fn qos_mismatches_are_reported_and_a_restarted_peer_is_placed_again() {
     assert!(after.iter().any(|&t| t < 6.0), "no edge before robot_1 vanished: {after:?}");
     assert!(after.iter().any(|&t| t > 11.0), "robot_1 was not placed again after its restart: {after:?}");
 }
+
+/// A node stopped as a launcher stops it (SIGINT, then in a second run
+/// SIGTERM) ends its loop, prints its summary as its last line and exits
+/// with success, instead of dying without a word.
+#[test]
+fn a_node_asked_to_stop_prints_its_summary() {
+    if let Some(why) = unavailable() {
+        println!("skipped: {why}");
+        return;
+    }
+    for (k, signal) in ["INT", "TERM"].into_iter().enumerate() {
+        let d = domain() + 6 + k as u16;
+        let command = format!("{NETNS} && exec '{}' ros node --name robot_0 --domain {d}", cosem_bin().display());
+        let child = Command::new("unshare")
+            .args(["-n", "sh", "-c", &command])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("unshare");
+        std::thread::sleep(std::time::Duration::from_secs(3));
+        let killed = Command::new("kill").args([&format!("-{signal}"), &child.id().to_string()]).status();
+        assert!(killed.is_ok_and(|s| s.success()), "kill -{signal}");
+        let started = std::time::Instant::now();
+        let out = child.wait_with_output().expect("the node's output");
+        assert!(started.elapsed().as_secs() < 10, "SIG{signal}: the node took {:?} to stop", started.elapsed());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "SIG{signal}: the node exited with {:?}: {stderr}", out.status);
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let last: Value = serde_json::from_str(stdout.lines().last().unwrap_or("")).expect("a JSON last line");
+        assert_eq!(last["summary"]["scans"], 0, "SIG{signal}: {stdout}");
+        assert_eq!(last["summary"]["rounds"], 0, "SIG{signal}: {stdout}");
+    }
+}

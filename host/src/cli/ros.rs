@@ -234,7 +234,8 @@ fn node(a: NodeArgs) -> Result<(), Error> {
         name: name.clone(),
     };
     let node = RosNode::new(spec)?;
-    let summary = node.run(|event| match event {
+    stop_on_signals();
+    let summary = node.run_until(&STOP, |event| match event {
         Event::Estimate { round, peer, estimate: e, voxels, seconds } => {
             let m = e.result.transform.to_homogeneous();
             let t: Vec<f64> =
@@ -264,6 +265,35 @@ fn node(a: NodeArgs) -> Result<(), Error> {
         }})
     );
     Ok(())
+}
+
+/// Set by SIGINT or SIGTERM: the node ends its loop and prints its
+/// summary, as a ROS 2 node stopped by its launcher does.
+#[cfg(feature = "ros")]
+static STOP: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+#[cfg(feature = "ros")]
+extern "C" fn on_stop(_: libc::c_int) {
+    // An atomic store is async-signal-safe.
+    STOP.store(true, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// SIGINT and SIGTERM set [`STOP`] once; a second one (the handler reset
+/// by `SA_RESETHAND`) ends the process as by default, should the loop not
+/// answer.
+#[cfg(feature = "ros")]
+fn stop_on_signals() {
+    for signal in [libc::SIGINT, libc::SIGTERM] {
+        // SAFETY: a zeroed sigaction with a handler that only stores to an
+        // atomic, installed before any thread of ours reads STOP.
+        unsafe {
+            let mut action: libc::sigaction = std::mem::zeroed();
+            action.sa_sigaction = on_stop as extern "C" fn(libc::c_int) as libc::sighandler_t;
+            action.sa_flags = libc::SA_RESETHAND;
+            libc::sigemptyset(&mut action.sa_mask);
+            libc::sigaction(signal, &action, std::ptr::null_mut());
+        }
+    }
 }
 
 #[cfg(not(feature = "ros"))]

@@ -38,6 +38,7 @@ use cosem_core::matching::{Alignment, MatchStatus, Reach, Role};
 use cosem_core::session::{Estimate, PeerView, Publisher, ShadowEntry, Tracker};
 use nalgebra::Isometry3;
 use std::collections::{BTreeMap, VecDeque};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 mod outputs;
@@ -371,8 +372,17 @@ impl RosNode {
 
     /// Runs until idle for `spec.idle` (or forever), telling `log` what
     /// happens; what it did.
-    pub fn run(mut self, mut log: impl FnMut(&Event)) -> Result<NodeSummary, Error> {
+    pub fn run(self, log: impl FnMut(&Event)) -> Result<NodeSummary, Error> {
+        self.run_until(&AtomicBool::new(false), log)
+    }
+
+    /// [`RosNode::run`], also ending, with its summary, once `stop` is set
+    /// (a signal's handler sets it: a node asked to stop says what it did).
+    pub fn run_until(mut self, stop: &AtomicBool, mut log: impl FnMut(&Event)) -> Result<NodeSummary, Error> {
         loop {
+            if stop.load(Ordering::Relaxed) {
+                return Ok(self.summary);
+            }
             let got = self.poll(&mut log)?;
             let settled = self.last_input.elapsed().as_secs_f64() >= self.spec.settle;
             if self.own.fresh >= self.spec.every || (self.dirty && settled) {
