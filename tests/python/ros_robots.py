@@ -235,6 +235,7 @@ def main():
            "started": [], "stopped": [], "map_payload": [],
            "published": [], "edges": [], "diagnostics": [], "poses": [], "nodes": [], "injected": []}
     nodes, pending = [], sorted(spec["nodes"], key=lambda n: n["at"])
+    stopped = set()  # the nodes this run stopped before its end (pids)
     injects = sorted(spec.get("inject", []), key=lambda n: n["at"])
     rate, t0 = spec.get("rate", 10.0), time.time()
     while time.time() - t0 < spec["until"]:
@@ -248,6 +249,7 @@ def main():
             if stop is not None and now >= stop and p.poll() is None:
                 p.send_signal(signal.SIGTERM)  # a peer that vanishes
                 got["stopped"].append([now, p.args])
+                stopped.add(p.pid)
         while injects and injects[0]["at"] <= now:
             got["injected"].append(inject(injects.pop(0), updates, robots, now))
         for r in robots:
@@ -277,6 +279,9 @@ def main():
                     got["map_payload"].append([time.time() - t0, m.robot, kind, len(m.payload)])
         time.sleep(0.01)
     got["usage"] = [usage(p.pid, t0) for p, _ in nodes]
+    # Which nodes were still running when the run ended (the rest ended on
+    # their own: a crash, or an error).
+    running = [p.poll() is None or p.pid in stopped for p, _ in nodes]
     for (p, _), u in zip(nodes, got["usage"]):
         if p.poll() is None:
             # The node itself (under strace, strace's child: strace ends
@@ -285,13 +290,13 @@ def main():
                 os.kill(u["pid"] if u else p.pid, signal.SIGTERM)
             except ProcessLookupError:
                 pass
-    for p, _ in nodes:
+    for (p, _), alive in zip(nodes, running):
         try:
             out, err = p.communicate(timeout=10)
         except subprocess.TimeoutExpired:
             p.kill()
             out, err = p.communicate()
-        got["nodes"].append({"code": p.returncode, "stdout": out, "stderr": err[-4000:]})
+        got["nodes"].append({"code": p.returncode, "running": alive, "stdout": out, "stderr": err[-4000:]})
     json.dump(got, sys.stdout)
 
 

@@ -248,13 +248,16 @@ fn last_status(got: &Value) -> std::collections::BTreeMap<String, String> {
     last
 }
 
-/// The nodes ran until stopped (SIGTERM, -15 in Python's terms), none
-/// failed on its own.
+/// The nodes ran until stopped (SIGTERM), none failed on its own, and
+/// each stopped cleanly: exit 0, its summary the last line.
 fn nodes_ran(got: &Value) -> Vec<String> {
     let nodes = got["nodes"].as_array().unwrap();
     for n in nodes {
-        assert_eq!(n["code"], -15, "a node ended on its own: {}", n["stderr"]);
+        assert_eq!(n["running"], true, "a node ended on its own: {}", n["stderr"]);
+        assert_eq!(n["code"], 0, "a node stopped by SIGTERM did not exit cleanly: {}", n["stderr"]);
         assert!(!n["stderr"].as_str().unwrap().contains("panicked"), "{}", n["stderr"]);
+        let last = n["stdout"].as_str().unwrap().lines().last().unwrap_or("");
+        assert!(last.starts_with("{\"summary\""), "a stopped node's last line is not its summary: {last}");
     }
     nodes.iter().map(|n| n["stderr"].as_str().unwrap().to_string()).collect()
 }
