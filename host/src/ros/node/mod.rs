@@ -300,8 +300,10 @@ pub fn room_for<'a>(followed: impl Iterator<Item = (&'a str, f64)>, max: usize) 
             stalest = Some((name, silent));
         }
     }
+    if count < max {
+        return Room::Free;
+    }
     match stalest {
-        _ if count < max => Room::Free,
         Some((name, silent)) if silent > FORGET_AFTER => Room::Forget(name.to_owned(), silent),
         _ => Room::Full,
     }
@@ -370,14 +372,9 @@ impl RosNode {
         })
     }
 
-    /// Runs until idle for `spec.idle` (or forever), telling `log` what
-    /// happens; what it did.
-    pub fn run(self, log: impl FnMut(&Event)) -> Result<NodeSummary, Error> {
-        self.run_until(&AtomicBool::new(false), log)
-    }
-
-    /// [`RosNode::run`], also ending, with its summary, once `stop` is set
-    /// (a signal's handler sets it: a node asked to stop says what it did).
+    /// Runs until idle for `spec.idle`, or until `stop` is set (a signal's
+    /// handler sets it: a node asked to stop says what it did), telling
+    /// `log` what happens; what it did.
     pub fn run_until(mut self, stop: &AtomicBool, mut log: impl FnMut(&Event)) -> Result<NodeSummary, Error> {
         loop {
             if stop.load(Ordering::Relaxed) {

@@ -38,7 +38,7 @@ impl RosNode {
             heard: None,
             last: None,
             estimated: 0,
-            updated: Instant::now(),
+            updated: now,
             refused: None,
             pose: None,
         };
