@@ -11,7 +11,7 @@ pub struct Args {
     #[arg(long, value_name = "OUT")]
     out: PathBuf,
     /// Number of frames, 1 to 100,000 (default 10; with --town, per
-    /// robot, default 120).
+    /// robot, default 280).
     #[arg(long, value_parser = super::args::frames_count)]
     frames: Option<usize>,
     /// Seed of scene, trajectory and noise.
@@ -23,7 +23,7 @@ pub struct Args {
     /// Fraction of points given a wrong random label, 0 to 1.
     #[arg(long, default_value_t = 0.0, value_parser = super::args::probability)]
     label_noise: f64,
-    /// Distance driven per frame (m), 0 to 50 (default 0.8; with --town 4).
+    /// Distance driven per frame (m), 0 to 50 (default 0.8; with --town 1).
     #[arg(long, value_parser = super::args::within::<0, 50>)]
     step: Option<f64>,
     /// A town instead of a street: a grid of blocks and a route per robot
@@ -44,7 +44,8 @@ pub struct Args {
     #[arg(long, default_value = "cityscapes", value_parser = super::args::seg)]
     seg: SegChoice,
     /// Corrupt the images as a real network would: displaced class
-    /// borders, blobs of a confusable wrong class.
+    /// borders, blobs of a confusable wrong class (a town's images always
+    /// are).
     #[arg(long)]
     seg_corrupt: bool,
     /// Also write per-pixel class probabilities (seg_2/NNNNNN.npy).
@@ -132,4 +133,22 @@ fn town(a: Args) -> Result<(), Error> {
         t0.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Args;
+    use cosem_host::worlds::town::TownConfig;
+
+    /// The help states the town's defaults as `TownConfig` has them (it
+    /// once said 120 frames 4 m apart, after the town had changed).
+    #[test]
+    fn the_help_states_the_towns_defaults() {
+        let d = TownConfig::default();
+        let mut cmd = <Args as clap::Args>::augment_args(clap::Command::new("synth"));
+        let help = cmd.render_long_help().to_string();
+        for said in [format!("with --town, per robot, default {})", d.frames), format!("with --town {})", d.step)] {
+            assert!(help.contains(&said), "the help does not say {said:?}: {help}");
+        }
+    }
 }

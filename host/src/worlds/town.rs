@@ -48,10 +48,10 @@ pub struct TownConfig {
 }
 
 impl Default for TownConfig {
-    /// Two blocks of 64 m a side, two robots, 120 scans 4 m apart each
-    /// (480 m: two meetings of robots 0 and 1, at 128 m and 384 m), the
-    /// LiDAR at 0.4 degrees to 60 m, camera segmentation as a real
-    /// network gives it (Cityscapes ids, corrupted).
+    /// Two blocks of 40 m a side, two robots, 280 scans 1 m apart each
+    /// (280 m: two meetings of robots 0 and 1), the LiDAR at 0.6 degrees
+    /// to 40 m, camera segmentation as a real network gives it
+    /// (Cityscapes ids, corrupted).
     fn default() -> Self {
         TownConfig {
             blocks: 2,
