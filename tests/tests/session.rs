@@ -173,6 +173,15 @@ fn session_arguments_are_checked() {
     assert!(e.contains("--drift") && e.contains("70%,1"), "{e}");
     let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", "--every", "0"]);
     assert!(e.contains("--every"), "{e}");
+    // A slip after the last round would never happen (and be reported
+    // caught at once): refused, naming the session's rounds.
+    let dir = tempfile::tempdir().unwrap();
+    let s = dir.path().join("street");
+    synth(&s, 12, 1);
+    let seq = s.display().to_string();
+    let (a, b) = (format!("{seq}:0:8"), format!("{seq}:4:12"));
+    let e = cosem_err(&["session", "--robot", &a, "--robot", &b, "--slip", "1,4"]);
+    assert!(e.contains("round 4") && e.contains("has 4 rounds"), "{e}");
     for budget in ["10", "0", "lots"] {
         let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", "--update-budget", budget]);
         assert!(e.contains("--update-budget") && e.contains(budget), "{e}");
