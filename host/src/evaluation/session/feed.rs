@@ -36,8 +36,7 @@ pub fn board_feeds(spec: &SessionSpec, silence_ms: u32) -> Result<BoardFeeds, Er
         spec.robots.iter().map(|r| Source::open(&r.data, &spec.source)).collect::<Result<_, _>>()?;
     let shared_world = sources[0].shares_world(&sources[1]);
     let mut robots: Vec<Robot> = (0..2).map(|i| Robot::load(spec, i, &sources[i])).collect::<Result<_, _>>()?;
-    let rounds = robots.iter().map(|r| r.scans().div_ceil(spec.every)).max().unwrap_or(0);
-    super::check_slip(spec, rounds)?;
+    let rounds = super::rounds_of(spec, &robots)?;
     let filter = PointFilter::default();
     let mut feeds = Vec::new();
     for (i, r) in robots.iter().enumerate() {

@@ -311,8 +311,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         spec.robots.iter().map(|r| Source::open(&r.data, &spec.source)).collect::<Result<_, _>>()?;
     let shared_world = (1..n).all(|j| sources[0].shares_world(&sources[j]));
     let mut robots: Vec<Robot> = (0..n).map(|i| Robot::load(spec, i, &sources[i])).collect::<Result<_, _>>()?;
-    let rounds = robots.iter().map(|r| r.scans().div_ceil(spec.every)).max().unwrap_or(0);
-    check_slip(spec, rounds)?;
+    let rounds = rounds_of(spec, &robots)?;
     let config = *robots[0].map.config();
     // links[i][j]: robot i's updates to robot j.
     let mut links: Vec<Vec<Option<Link>>> = (0..n)
@@ -409,15 +408,17 @@ fn checked_capacities(spec: &SessionSpec) -> Result<Vec<usize>, Error> {
     Ok(capacities)
 }
 
-/// A slip within the session's `rounds`: one after the last would never
+/// The session's rounds (its longest robot's, `spec.every` scans a
+/// round), with the slip within them: one after the last would never
 /// happen, and be reported caught at once.
-pub(super) fn check_slip(spec: &SessionSpec, rounds: usize) -> Result<(), Error> {
+fn rounds_of(spec: &SessionSpec, robots: &[Robot]) -> Result<usize, Error> {
+    let rounds = robots.iter().map(|r| r.scans().div_ceil(spec.every)).max().unwrap_or(0);
     match spec.slip.filter(|s| s.1 >= rounds) {
         Some((robot, round)) => Err(Error::Invalid(format!(
             "a slip of robot {robot} at round {round}: the session has {rounds} rounds (0 to {})",
             rounds.saturating_sub(1)
         ))),
-        None => Ok(()),
+        None => Ok(rounds),
     }
 }
 
