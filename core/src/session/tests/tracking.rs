@@ -244,3 +244,64 @@ fn a_fix_is_confirmed_by_the_peers_estimate_of_the_same_round() {
     let next = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
     assert_eq!(next.confirmed, next.result.status == MatchStatus::Converged, "{next:?}");
 }
+
+/// A prior-free answer the verdict refused only for a little agreement
+/// becomes the fix, confirmed, where the peer's estimate agrees with it
+/// (in the same round, [`Tracker::confirm`], or heard the round before);
+/// not where the peer's disagrees, nor when it agrees too little, nor when
+/// it is refused for anything else.
+#[test]
+fn an_answer_short_of_agreement_is_the_fix_where_the_peers_agrees() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchSettings, MatchStatus, Pyramid, Role};
+    let (here, again) = one_street_seen_twice();
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&here), prepare(&again));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let at = [9.0, 0.0, 0.0];
+    let mut estimate = |how: &Alignment, theirs: Option<crate::geometry::Isometry3<f32>>| {
+        let mut tracker = Tracker::new();
+        let view = PeerView { estimate: theirs, at };
+        let e = tracker.estimate(&own, &peer, how, &mut SearchScratch::new(&mut words), &view).unwrap();
+        (tracker, e)
+    };
+    let (_, found) = estimate(&Alignment::DEFAULT, None);
+    assert_eq!(found.result.status, MatchStatus::Converged);
+    assert!(!found.short_of_agreement);
+    let theirs = found.result.transform.inverse();
+    let off = crate::geometry::from_xyz_rpy(3.0, 0.0, 0.0, 0.0, 0.0, 0.09) * theirs;
+    // The verdict's least agreement just above this answer's: refused,
+    // short of agreement.
+    let asking = |share: f32| {
+        let settings = MatchSettings { min_agreement: found.result.agreement / share, ..Alignment::DEFAULT.settings };
+        Alignment { settings, ..Alignment::DEFAULT }
+    };
+    let short = asking(0.9);
+    let (mut tracker, mut e) = estimate(&short, None);
+    assert_eq!((e.result.status, e.fix, e.short_of_agreement), (MatchStatus::NoOverlap, Fix::None, true));
+    let refused = e;
+    tracker.confirm(&mut e, &off, at);
+    assert_eq!((e.result.status, tracker.fix()), (MatchStatus::NoOverlap, None), "a peer's estimate 3 m off");
+    tracker.confirm(&mut e, &theirs, at);
+    assert_eq!((e.status(), e.fix, e.confirmed), (MatchStatus::Converged, Fix::Held, true));
+    assert_eq!(tracker.fix(), Some(&refused.result.transform));
+    // The next round tracks from it, confirmed.
+    let view = PeerView { estimate: None, at };
+    let mut room = vec![0u32; SearchScratch::WINDOWED];
+    let next = tracker.estimate(&own, &peer, &short, &mut SearchScratch::new(&mut room), &view).unwrap();
+    assert_eq!(next.kind, Kind::Tracking);
+    // Heard the round before: the same.
+    let (tracker, heard) = estimate(&short, Some(theirs));
+    assert_eq!(
+        (heard.status(), heard.fix, tracker.fix()),
+        (MatchStatus::Converged, Fix::Held, Some(&heard.result.transform))
+    );
+    // Too little agreement, or refused for its overlap: not rescued.
+    let (mut tracker, mut far) = estimate(&asking(0.7), Some(theirs));
+    assert!(!far.short_of_agreement);
+    tracker.confirm(&mut far, &theirs, at);
+    assert_eq!((far.result.status, tracker.fix()), (MatchStatus::NoOverlap, None));
+    let thin = MatchSettings { min_overlap: found.result.overlap + 0.01, ..short.settings };
+    let (_, e) = estimate(&Alignment { settings: thin, ..short }, Some(theirs));
+    assert_eq!((e.result.status, e.short_of_agreement), (MatchStatus::NoOverlap, false));
+}
