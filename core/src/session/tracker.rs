@@ -90,18 +90,6 @@ pub const AGREE_DEG: f32 = 2.0;
 /// within 0.2-0.4 m, under the conventions' 0.5 m.
 pub const HOLD_M: f32 = 10.0;
 
-/// A prior-free estimate the verdict refused only for its agreement, by
-/// less than this share of the least, is the fix once the peer's estimate
-/// (one that passed the peer's verdict) agrees with it
-/// ([`Estimate::short_of_agreement`]): two robots' searches, each its own
-/// map the model, found the same placement. At a meeting's first rounds a
-/// right placement agrees 0.33-0.39 (a street seen along its length), the
-/// look-alikes the searches rank first 0.04-0.20 (junctions turned by a
-/// quarter). Only prior-free: a tracked fix refused as the robots part is
-/// where both robots' estimates drift off alike (camera labels: near
-/// misses), and its peer's agreement would keep it.
-pub const RESCUE_AGREEMENT_SHARE: f32 = 0.75;
-
 /// What a robot knows of its peer's estimate of it, and where it is.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PeerView {
@@ -124,10 +112,6 @@ pub struct Estimate {
     pub fix: Fix,
     /// The fix agrees with the peer's estimate (now or since it was made).
     pub confirmed: bool,
-    /// A prior-free answer the verdict refused only for its agreement, at
-    /// least [`RESCUE_AGREEMENT_SHARE`] of the least: it becomes the fix,
-    /// confirmed, where the peer's estimate agrees ([`Tracker::confirm`]).
-    pub short_of_agreement: bool,
 }
 
 impl Estimate {
@@ -152,19 +136,6 @@ pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3]) -> bo
     let loop_ = ours * theirs;
     let p = nalgebra::Point3::from(at);
     (loop_ * p - p).norm() < AGREE_M && loop_.rotation.angle() < AGREE_DEG.to_radians()
-}
-
-/// Whether `result` was refused by the verdict only for its agreement,
-/// and by a little ([`RESCUE_AGREEMENT_SHARE`]): the maps overlap and hold
-/// it in every direction, and EM settled.
-fn short_of_agreement(result: &MatchResult, s: &MatchSettings) -> bool {
-    result.status == MatchStatus::NoOverlap
-        && result.overlap >= s.min_overlap
-        && result.inliers >= s.min_inliers
-        && result.degeneracy >= s.degeneracy_threshold
-        && result.agreement < s.min_agreement
-        && result.agreement >= RESCUE_AGREEMENT_SHARE * s.min_agreement
-        && result.iterations < s.max_iterations
 }
 
 /// What tracking from the fix gave ([`Tracker::track`]): the round's
@@ -284,7 +255,7 @@ impl Tracker {
         };
         let tracked = self.limit_hold(Matcher::new(how.settings).track_in(own, peer, &fix, scratch)?, how, view);
         if tracked.status == MatchStatus::Converged {
-            let done = self.settle(Kind::Tracking, tracked, view, how);
+            let done = self.settle(Kind::Tracking, tracked, view);
             Ok(Tracked { done: Some(done), answer: None })
         } else {
             Ok(Tracked { done: None, answer: Some(tracked) })
@@ -347,7 +318,7 @@ impl Tracker {
                 }
             }
         };
-        Ok(self.settle(kind, result, view, how))
+        Ok(self.settle(kind, result, view))
     }
 
     /// The last fix's window searched ([`Tracker::search`]): the answer,
@@ -368,14 +339,8 @@ impl Tracker {
     }
 
     /// The fix after `result` (made from the fix for [`Kind::Tracking`]),
-    /// and the estimate reported: a prior-free answer short of agreement
-    /// that the peer's estimate in `view` agrees with is the fix.
-    fn settle(&mut self, kind: Kind, mut result: MatchResult, view: &PeerView, how: &Alignment) -> Estimate {
-        let short = kind == Kind::PriorFree && short_of_agreement(&result, &how.settings);
-        if short && view.estimate.is_some_and(|theirs| agree(&result.transform, &theirs, view.at)) {
-            result.status = MatchStatus::Converged;
-            self.whole_at = Some(view.at);
-        }
+    /// and the estimate reported.
+    fn settle(&mut self, kind: Kind, result: MatchResult, view: &PeerView) -> Estimate {
         let fix = match (result.status, kind == Kind::Tracking) {
             (MatchStatus::Converged, _) => {
                 (self.fix, self.unsettled) = (Some(result.transform), 0);
@@ -399,8 +364,7 @@ impl Tracker {
         if converged && view.estimate.is_some_and(|theirs| agree(&result.transform, &theirs, view.at)) {
             self.confirmed = true;
         }
-        let short_of_agreement = short && result.status != MatchStatus::Converged;
-        Estimate { kind, result, fix, confirmed: converged && self.confirmed, short_of_agreement }
+        Estimate { kind, result, fix, confirmed: converged && self.confirmed }
     }
 
     /// Confirms this round's fix (`estimate`, updated) with the peer's
@@ -409,16 +373,8 @@ impl Tracker {
     /// answers a peer's update after its own estimate can carry that
     /// estimate in the answer, so a fix both find in one round is reported
     /// in that round, not the next. The same test as [`Tracker::estimate`]'s
-    /// ([`agree`] at `at`). An estimate [`Estimate::short_of_agreement`]
-    /// that agrees is made the fix, confirmed, and reported `Converged`.
+    /// ([`agree`] at `at`).
     pub fn confirm(&mut self, estimate: &mut Estimate, theirs: &Isometry3<f32>, at: [f32; 3]) {
-        if estimate.short_of_agreement && self.fix.is_none() && agree(&estimate.result.transform, theirs, at) {
-            estimate.result.status = MatchStatus::Converged;
-            (self.fix, self.unsettled, self.whole_at) = (Some(estimate.result.transform), 0, Some(at));
-            self.last = self.fix;
-            estimate.fix = Fix::Held;
-            estimate.short_of_agreement = false;
-        }
         let current = estimate.result.status == MatchStatus::Converged && self.fix == Some(estimate.result.transform);
         if current && agree(&estimate.result.transform, theirs, at) {
             self.confirmed = true;

@@ -425,15 +425,8 @@ fn rounds_of(spec: &SessionSpec, robots: &[Robot]) -> Result<usize, Error> {
 /// Each fix of `round` not yet confirmed, confirmed by the peer's
 /// estimate of the same round where they agree ([`Tracker::confirm`]):
 /// what the peer's answer to the robot's update, sent after the peer's
-/// estimate, carries. Twice: an estimate short of agreement that the
-/// first pass made a fix confirms its peer's in the second.
+/// estimate, carries.
 fn confirm_in_round(round: &mut [Record], trackers: &mut [Vec<Tracker>], places: &[[f32; 3]]) {
-    for _ in 0..2 {
-        confirm_once(round, trackers, places);
-    }
-}
-
-fn confirm_once(round: &mut [Record], trackers: &mut [Vec<Tracker>], places: &[[f32; 3]]) {
     let theirs: Vec<(usize, usize, Isometry3<f32>)> = round
         .iter()
         .filter_map(|r| {

@@ -125,9 +125,7 @@ impl RosNode {
             let place = self.own.place;
             let Some(peer) = self.peers.get_mut(&name) else { continue };
             peer.heard = Some((theirs, Instant::now()));
-            let waits =
-                |e: &Estimate| (e.result.status == MatchStatus::Converged || e.short_of_agreement) && !e.confirmed;
-            let Some(mut e) = peer.last.filter(waits) else {
+            let Some(mut e) = peer.last.filter(|e| e.result.status == MatchStatus::Converged && !e.confirmed) else {
                 continue;
             };
             peer.tracker.confirm(&mut e, &theirs, place);
