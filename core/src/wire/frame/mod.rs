@@ -27,7 +27,7 @@
 //! ([`encode_frame_parity`]); the others use [`DEFAULT_PARITY`].
 
 use super::crc::crc32;
-use super::rs::{self, alpha_pow, mul, MAX_PARITY};
+use super::rs::{self, MAX_PARITY};
 
 mod deframe;
 mod repair;

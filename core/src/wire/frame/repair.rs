@@ -3,6 +3,7 @@
 //! or duplicated bytes) tried at each position, judged on syndromes shifted
 //! in place.
 
+use super::super::rs::{alpha_pow, mul};
 use super::*;
 
 /// The received codeword bytes, with the replacement value read as zero.
