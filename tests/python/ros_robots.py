@@ -246,7 +246,10 @@ def main():
             nodes.append((p, n.get("stop")))
             got["started"].append([now, n["cmd"]])
         for p, stop in nodes:
-            if stop is not None and now >= stop and p.poll() is None:
+            # Once: a second SIGTERM ends a node as by default (its handler
+            # is reset by the first), and the node may take longer than
+            # this loop's turn to exit.
+            if stop is not None and now >= stop and p.poll() is None and p.pid not in stopped:
                 p.send_signal(signal.SIGTERM)  # a peer that vanishes
                 got["stopped"].append([now, p.args])
                 stopped.add(p.pid)
