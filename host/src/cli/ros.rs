@@ -233,8 +233,11 @@ fn node(a: NodeArgs) -> Result<(), Error> {
         max_peers: a.max_peers as usize,
         name: name.clone(),
     };
-    let node = RosNode::new(spec)?;
+    // Before the node's set-up (its participant, readers and writers: a
+    // while on a loaded machine), so that a launcher's SIGTERM meanwhile
+    // ends it as cleanly as one later.
     stop_on_signals();
+    let node = RosNode::new(spec)?;
     let summary = node.run_until(&STOP, |event| match event {
         Event::Estimate { round, peer, estimate: e, voxels, seconds } => {
             let m = e.result.transform.to_homogeneous();
