@@ -56,7 +56,7 @@ fn kitti00_robots_are_tracked_round_after_round() {
         assert_eq!(r["kind"], if first { "prior-free" } else { "tracking" }, "{r}");
         assert!(r["overlap_true"].as_f64().unwrap() > 0.3, "{r}");
     }
-    assert_eq!(summary["schema_version"], 5);
+    assert_eq!(summary["schema_version"], 6);
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
     assert_eq!(summary["availability"], 1.0, "{summary}");
     assert_eq!(summary["first_fix_rounds"], 0, "{summary}");
@@ -126,6 +126,47 @@ fn one_shot_rounds_send_whole_maps_and_search_prior_free() {
     assert!(right(&records) >= records.len() / 2, "{summary}");
 }
 
+/// `--line lossy=P`: each pair's updates traded over a simulated line of
+/// `--baud` that damages bytes, by the boards' courier: every update gets
+/// across whole (the estimates are those of the same session without a
+/// line), at more bytes on the line than the updates hold, and in more
+/// time the more the line damages.
+#[test]
+fn updates_cross_a_lossy_line_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = dir.path().join("street");
+    synth(&s, 28, 1);
+    let seq = s.display().to_string();
+    let args = ["--robot", &format!("{seq}:0:18"), "--robot", &format!("{seq}:10:28"), "--drift", "1%,0.5"];
+    let (handed, plain) = session(&args);
+    assert!(plain["line_bytes"].is_null() && handed.iter().all(|r| r["line_ms"].is_null()), "{plain}");
+    let strip = |r: &Value| {
+        let mut r = r.clone();
+        for k in ["seconds", "line_bytes", "line_ms"] {
+            r.as_object_mut().unwrap().remove(k);
+        }
+        r
+    };
+    let mut slowest = Vec::new();
+    for line in ["lossy=0", "lossy=0.05"] {
+        let (records, summary) = session(&[&args[..], &["--line", line, "--baud", "57600"]].concat());
+        assert_eq!(records.len(), handed.len());
+        for (r, h) in records.iter().zip(&handed) {
+            assert_eq!(strip(r), strip(h), "{line}: the same estimate as without a line");
+            assert!(r["line_bytes"].as_u64().unwrap() > 0 && r["line_ms"].as_u64().unwrap() > 0, "{r}");
+        }
+        let on_line = summary["line_bytes"].as_u64().unwrap();
+        assert!(on_line > summary["bytes"].as_u64().unwrap(), "frames, parity, acks: {summary}");
+        let round_ms = 2 * 100;
+        let late = records.iter().filter(|r| r["robot"] == 1 && r["line_ms"].as_u64().unwrap() > round_ms).count();
+        assert_eq!(summary["line_late"].as_u64().unwrap() as usize, late, "{summary}");
+        slowest.push(summary["line_ms"][1].as_f64().unwrap());
+    }
+    assert!(slowest[1] > slowest[0], "a damaging line takes longer: {slowest:?}");
+    let e = cosem_err(&[&["session"][..], &args[..], &["--line", "silent"]].concat());
+    assert!(e.contains("--line silent"), "{e}");
+}
+
 /// Robots of different capacities: the larger sends the smaller the part
 /// of its map nearest itself, never more voxels than the smaller holds.
 #[test]
@@ -182,6 +223,10 @@ fn session_arguments_are_checked() {
     let (a, b) = (format!("{seq}:0:8"), format!("{seq}:4:12"));
     let e = cosem_err(&["session", "--robot", &a, "--robot", &b, "--slip", "1,4"]);
     assert!(e.contains("round 4") && e.contains("has 4 rounds"), "{e}");
+    for (flag, bad) in [("--line", "lossy=2"), ("--line", "fuzzy"), ("--baud", "0"), ("--baud", "fast")] {
+        let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", flag, bad]);
+        assert!(e.contains(flag) && e.contains(bad), "{e}");
+    }
     for budget in ["10", "0", "lots"] {
         let e = cosem_usage_err(&["session", "--robot", "x:0:5", "--robot", "y:0:5", "--update-budget", budget]);
         assert!(e.contains("--update-budget") && e.contains(budget), "{e}");

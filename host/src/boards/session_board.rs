@@ -326,6 +326,7 @@ mod tests {
             alignment: crate::evaluation::session::DEFAULT_ALIGNMENT,
             one_shot: false,
             update_budget: Some(crate::evaluation::session::DEFAULT_UPDATE_BUDGET),
+            line: None,
         };
         let feeds = board_feeds(&spec, 60_000).unwrap();
         let twin = host_session_twin(&feeds.feeds).unwrap();

@@ -2,6 +2,7 @@
 //! `cosem_host::evaluation::session`).
 
 use super::Error;
+use cosem_host::boards::pump::LineFault;
 use cosem_host::evaluation::session::{self, run, SessionSpec};
 use cosem_host::evaluation::team::RobotSpec;
 use cosem_host::reports::session::{record_text, summary_text, RecordJson, SummaryFields, SummaryJson, SESSION_SCHEMA};
@@ -85,11 +86,20 @@ pub struct Args {
     /// With --on-board: the session firmware.
     #[arg(long, requires = "on_board", default_value = cosem_host::boards::session_board::SESSION_FIRMWARE)]
     firmware: std::path::PathBuf,
-    /// With --on-board: what the line between the boards' UART0s does:
-    /// none, corrupt=P (a bit of each byte flipped with probability P) or
-    /// lossy=P (bytes substituted, dropped and duplicated alike).
-    #[arg(long, requires = "on_board", default_value = "none")]
-    line: cosem_host::boards::pump::LineFault,
+    /// A line between every two robots, what it does to bytes: corrupt=P
+    /// (a bit of each byte flipped with probability P) or lossy=P (bytes
+    /// substituted, dropped and duplicated alike; lossy=0: a clean line).
+    /// On the host each pair's updates are then traded over a simulated
+    /// line of --baud by the boards' courier, in virtual time, and each
+    /// round says the bytes it read and the milliseconds its pair's round
+    /// took; with --on-board, the line between the boards' UART0s. `none`:
+    /// the host hands updates over whole, the boards' UARTs are joined.
+    #[arg(long, default_value = "none")]
+    line: LineFault,
+    /// With --line on the host: the simulated line's rate (bits a second,
+    /// 8N1).
+    #[arg(long, default_value_t = 115_200, value_parser = clap::value_parser!(u32).range(1_200..=10_000_000))]
+    baud: u32,
     /// With --on-board: kill the emulators after this long (s).
     #[arg(long, requires = "on_board", default_value_t = 3600.0)]
     timeout: f64,
@@ -245,6 +255,14 @@ fn spec_of(a: &Args, robots: Vec<RobotSpec>) -> Result<SessionSpec, Error> {
         alignment: a.tuning.apply(session::DEFAULT_ALIGNMENT),
         one_shot: a.one_shot,
         update_budget: a.update_budget.0,
+        line: match (a.on_board, a.line) {
+            // The boards' line is their UARTs' own (the relay's fault).
+            (true, _) | (false, LineFault::None) => None,
+            (false, LineFault::Silent) => {
+                return Err("--line silent: a session's line must carry something (on the host; --on-board may)".into())
+            }
+            (false, l) => Some(session::line::SessionLine { fault: l.fault(), baud: a.baud }),
+        },
     })
 }
 

@@ -16,7 +16,7 @@ use serde::Serialize;
 /// budget (`--update-budget`, by default 1,024 bytes).
 ///
 /// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
-pub const SESSION_SCHEMA: u32 = 5;
+pub const SESSION_SCHEMA: u32 = 6;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]
@@ -70,6 +70,12 @@ pub struct RecordJson {
     pub degeneracy: Option<f32>,
     /// Bytes of the peer's update and the answer.
     pub bytes_sent: usize,
+    /// With a line: bytes the robot read from it this round.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub line_bytes: Option<u64>,
+    /// With a line: the pair's round on it (ms).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub line_ms: Option<u64>,
     /// The update ÷ the peer's whole map (once the copy was whole once).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub update_ratio: Option<f64>,
@@ -116,6 +122,8 @@ impl From<&Record> for RecordJson {
             iterations: e.map(|e| e.result.iterations),
             degeneracy: e.map(|e| e.result.degeneracy),
             bytes_sent: r.bytes_sent,
+            line_bytes: r.line.map(|l| l.bytes),
+            line_ms: r.line.map(|l| l.ms),
             update_ratio: r.update_ratio,
             update: format!("{:?}", r.applied),
             update_new: r.counts.new,
@@ -156,8 +164,12 @@ pub fn record_text(r: &Record) -> String {
     };
     let overlap = j.overlap_true.map_or(String::new(), |o| format!("  overlap_true {o:.2}"));
     let ratio = j.update_ratio.map_or(String::new(), |q| format!(" ({:.0}% of the map)", 100.0 * q));
+    let line = match (j.line_bytes, j.line_ms) {
+        (Some(b), Some(ms)) => format!("  line {b} B, {ms} ms"),
+        _ => String::new(),
+    };
     format!(
-        "round {:3}  robot {} <- {}  {:<12} {:<10} {:<9} {errors}{overlap}  update {} B{ratio} {}  {:.0} ms",
+        "round {:3}  robot {} <- {}  {:<12} {:<10} {:<9} {errors}{overlap}  update {} B{ratio} {}{line}  {:.0} ms",
         j.round,
         j.robot,
         j.peer,
@@ -190,6 +202,11 @@ pub fn summary_text(s: &Summary, rounds: usize) -> String {
     );
     if let Some(d) = s.slip_caught_rounds {
         out.push_str(&format!("slip caught in     {d} rounds\n"));
+    }
+    if let (Some(bytes), Some([a, b, c]), Some(late)) = (s.line_bytes, s.line_ms, s.line_late) {
+        out.push_str(&format!(
+            "on the lines      {bytes} bytes read; a pair's round p50 {a:.0}, p95 {b:.0}, max {c:.0} ms; {late} later than its scans\n"
+        ));
     }
     out
 }

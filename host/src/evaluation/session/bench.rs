@@ -153,6 +153,7 @@ pub fn bench_session(dir: &std::path::Path, seeds: &[u64], frames: Option<usize>
             alignment: super::DEFAULT_ALIGNMENT,
             one_shot: c.one_shot,
             update_budget: Some(super::DEFAULT_UPDATE_BUDGET),
+            line: None,
         };
         let t = std::time::Instant::now();
         let out = run(&spec, |_: &super::RoundView<'_>| {})?;

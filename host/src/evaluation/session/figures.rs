@@ -162,6 +162,18 @@ pub struct Summary {
     /// With a slip: the smallest d such that from round s + d on, every
     /// estimate of a pair with the slipped robot is not Converged or correct.
     pub slip_caught_rounds: Option<usize>,
+    /// With a line (`--line`): bytes the robots read from their lines.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub line_bytes: Option<u64>,
+    /// With a line: a pair's round on its line, from the round's start
+    /// until both updates were across and answered (ms): median, 95th
+    /// percentile, largest.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub line_ms: Option<[f64; 3]>,
+    /// With a line: the pairs' rounds that took longer on it than the
+    /// round's scans take (`every` scans at 10 Hz).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub line_late: Option<usize>,
 }
 
 impl Summary {
@@ -212,6 +224,12 @@ impl Summary {
             from_scratch_ms,
             tracking_cost_ratio: tracking_ms.filter(|_| from_scratch_ms > 0.0).map(|t| t / from_scratch_ms),
             slip_caught_rounds: spec.slip.map(|(s, at)| slip_caught(records, s, at, rounds)),
+            line_bytes: spec.line.map(|_| records.iter().filter_map(|r| r.line).map(|l| l.bytes).sum()),
+            line_ms: spec.line.and_then(|_| line_spread(records)),
+            line_late: spec.line.map(|_| {
+                let round_ms = (spec.every * 100) as u64;
+                records.iter().filter(|r| r.robot > r.peer).filter_map(|r| r.line).filter(|l| l.ms > round_ms).count()
+            }),
         }
     }
 }
@@ -227,6 +245,13 @@ pub(super) fn update_figures<'a>(
         spread(synced.clone().filter_map(|r| r.update_ratio).collect()),
         spread(synced.map(|r| f64::from(r.counts.deferred)).collect()),
     )
+}
+
+/// A pair's round on its line (counted once a pair: the record of its
+/// higher robot): median, p95, largest (ms).
+fn line_spread(records: &[Record]) -> Option<[f64; 3]> {
+    let v: Vec<f64> = records.iter().filter(|r| r.robot > r.peer).filter_map(|r| r.line).map(|l| l.ms as f64).collect();
+    (!v.is_empty()).then(|| [0.5, 0.95, 1.0].map(|q| quantile(&v, q).unwrap_or(0.0)))
 }
 
 /// The meetings of one ordered pair's records (in round order).

@@ -11,6 +11,7 @@
 pub mod bench;
 pub mod feed;
 mod figures;
+pub mod line;
 pub mod prepared;
 mod robot;
 
@@ -143,6 +144,9 @@ pub struct SessionSpec {
     /// what changed beyond it, farthest from the robot first, waits for
     /// the next rounds ([`Publisher::set_budget`]).
     pub update_budget: Option<u32>,
+    /// A simulated serial line between every two robots, their updates
+    /// traded over it by the boards' courier (`None`: handed over whole).
+    pub line: Option<line::SessionLine>,
 }
 
 /// One robot's estimate of one peer in one round.
@@ -180,6 +184,8 @@ pub struct Record {
     pub applied: Applied,
     /// What the update held (new, changed and removed voxels).
     pub counts: UpdateCounts,
+    /// With a line: what the peer's update cost on it.
+    pub line: Option<line::LineCost>,
     /// Seconds of the round's work for this estimate: the update applied,
     /// both maps prepared, the match (the sender's writing of the update
     /// left out: another robot's work).
@@ -317,6 +323,14 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
     let mut links: Vec<Vec<Option<Link>>> = (0..n)
         .map(|i| (0..n).map(|j| (i != j).then(|| Link::new((i, j), spec, config)).transpose()).collect())
         .collect::<Result<_, _>>()?;
+    // lines[a][b], a < b: the pair's line, when the session has one.
+    let mut lines: Vec<Vec<Option<line::PairLine>>> = (0..n)
+        .map(|a| {
+            (0..n)
+                .map(|b| spec.line.filter(|_| a < b).map(|l| line::PairLine::new(l, (a, b), spec.seed)).transpose())
+                .collect()
+        })
+        .collect::<Result<_, _>>()?;
     let mut trackers = vec![vec![Tracker::new(); n]; n];
     let mut scratch = Scratch {
         // Two words a voxel: the faster Morton ordering (wire::codec).
@@ -337,6 +351,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         // What each robot heard of its peers' estimates before its own: the
         // last round's, those that passed the verdict.
         let heard = last_estimates(&records, n);
+        let mut delivered = trade_round(spec, round, &robots, &mut links, &mut lines, &mut scratch)?;
         let start = records.len();
         let places: Vec<[f32; 3]> = robots.iter().map(Robot::place).collect();
         for (i, own) in trackers.iter_mut().enumerate() {
@@ -354,11 +369,13 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                 let tracker = &mut own[j];
                 if spec.one_shot {
                     tracker.reset();
-                    links[j][i] = Some(Link::new((j, i), spec, config)?);
                 }
                 let view = PeerView { estimate: heard[j][i], at: places[i] };
                 let at = Round { round, pair: (i, j), shared_world, view };
-                mine_records.push(estimate_one(spec, at, &robots, &mut mine, &mut links, tracker, &mut scratch)?);
+                let update = delivered[j][i].take().ok_or_else(|| Error::Invalid("no update".into()))?;
+                let copy =
+                    links[j][i].as_ref().map(|l| l.copy.map()).ok_or_else(|| Error::Invalid("no link".into()))?;
+                mine_records.push(estimate_one(spec, at, &robots, (&mut mine, copy, update), tracker, &mut scratch)?);
             }
             mine_records.sort_by_key(|r| r.peer);
             records.extend(mine_records);
@@ -489,32 +506,83 @@ fn last_estimates(records: &[Record], n: usize) -> Vec<Vec<Option<cosem_core::ge
     out
 }
 
-/// Robot `i`'s round with peer `j`: `j`'s update applied to `i`'s copy,
-/// the copy prepared, the estimate against `own` (the robot's map, prepared
-/// as far as the estimate needs: the seconds that took counted in); the
-/// truth and its figures.
+/// Every update of the round, each robot's to each peer: written, handed
+/// over (or traded over the pair's line) and applied to the peer's copy;
+/// `[from][to]`: what became of it.
+fn trade_round(
+    spec: &SessionSpec,
+    round: usize,
+    robots: &[Robot],
+    links: &mut [Vec<Option<Link>>],
+    lines: &mut [Vec<Option<line::PairLine>>],
+    scratch: &mut Scratch,
+) -> Result<Vec<Vec<Option<line::Delivered>>>, Error> {
+    let n = robots.len();
+    let no_link = || Error::Invalid("no link".into());
+    let mut out: Vec<Vec<Option<line::Delivered>>> = (0..n).map(|_| (0..n).map(|_| None).collect()).collect();
+    for a in 0..n {
+        for b in (0..n).filter(|&b| b != a) {
+            if spec.one_shot {
+                links[a][b] = Some(Link::new((a, b), spec, *robots[a].map.config())?);
+            }
+            let whole = |r: usize| scratch.whole.get(r).copied().unwrap_or(0);
+            match lines[a.min(b)][a.max(b)].as_mut() {
+                // A pair with a line trades both its updates at once.
+                Some(pair) if a < b => {
+                    let (mut ab, mut ba) =
+                        (links[a][b].take().ok_or_else(no_link)?, links[b][a].take().ok_or_else(no_link)?);
+                    // A round is `every` scans at 10 Hz.
+                    let start_ms = (round * spec.every * 100) as u64;
+                    let maps = [&robots[a].map, &robots[b].map];
+                    let traded = line::trade_pair(
+                        pair,
+                        [&mut ab, &mut ba],
+                        maps,
+                        [whole(a), whole(b)],
+                        start_ms,
+                        &mut scratch.words,
+                    );
+                    (links[a][b], links[b][a]) = (Some(ab), Some(ba));
+                    let [to_b, to_a] = traded?;
+                    (out[a][b], out[b][a]) = (Some(to_b), Some(to_a));
+                }
+                Some(_) => {}
+                None => {
+                    let link = links[a][b].as_mut().ok_or_else(no_link)?;
+                    let t = Instant::now();
+                    let (bytes, ratio, applied, writing) = link.exchange(&robots[a].map, whole(a), scratch)?;
+                    let applying = t.elapsed().as_secs_f64() - writing;
+                    let counts = link.publisher.counts();
+                    out[a][b] = Some(line::Delivered { bytes, ratio, applied, counts, applying, line: None });
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Robot `i`'s round with peer `j`: `j`'s update (applied to `i`'s copy,
+/// `copy`), the estimate against `own` (the robot's map, prepared as far as
+/// the estimate needs: the seconds that took counted in); the truth and
+/// its figures.
 fn estimate_one(
     spec: &SessionSpec,
     at: Round,
     robots: &[Robot],
-    own: &mut Prepared<'_>,
-    links: &mut [Vec<Option<Link>>],
+    (own, copy, update): (&mut Prepared<'_>, &crate::maps::mapping::HostMap, line::Delivered),
     tracker: &mut Tracker,
     scratch: &mut Scratch,
 ) -> Result<Record, Error> {
     let Round { round, pair: (i, j), shared_world, view } = at;
     let t0 = Instant::now();
-    let link = links[j][i].as_mut().ok_or_else(|| Error::Invalid("no link".into()))?;
     let whole = scratch.whole.get(j).copied().unwrap_or(0);
-    let (bytes_sent, mut update_ratio, applied, writing) = link.exchange(&robots[j].map, whole, scratch)?;
+    let line::Delivered { bytes: bytes_sent, ratio: mut update_ratio, applied, counts, applying, line } = update;
     if spec.one_shot {
         update_ratio = Some(bytes_sent as f64 / whole.max(1) as f64);
     }
-    let counts = link.publisher.counts();
     if matches!(applied, Applied::Diverged | Applied::Restarted) {
         tracker.reset();
     }
-    let copy = link.copy.map();
     let (estimate, preparing) = if copy.is_empty() {
         (None, 0.0)
     } else {
@@ -522,7 +590,7 @@ fn estimate_one(
         let (e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, room)?;
         (Some(e), own_s)
     };
-    let seconds = preparing + t0.elapsed().as_secs_f64() - writing;
+    let seconds = preparing + t0.elapsed().as_secs_f64() + applying;
     let found = shared_world.then(|| figures::truth(&robots[i], &robots[j])).flatten();
     let truth = found.map(|t| t.transform);
     let (errors, origin_error) = match (&estimate, &found) {
@@ -547,6 +615,7 @@ fn estimate_one(
         update_ratio,
         applied,
         counts,
+        line,
         seconds,
     })
 }

@@ -1,0 +1,188 @@
+//! A session's updates over simulated serial lines (`cosem session
+//! --line`): every two robots trade their round's two updates over one
+//! full-duplex [`SimLine`] of the fault and baud rate asked for, each side
+//! a [`Courier`] (the boards' transport: frames with parity and CRC-32,
+//! resends, the answer riding the acknowledgements), in virtual time. What
+//! arrives is what was sent, so it is applied and answered as without a
+//! line and the estimates are the same; the line adds what it cost: its
+//! bytes and its milliseconds, against the round's time.
+
+use super::{Applied, Link, UpdateCounts};
+use crate::error::Error;
+use cosem_core::link::courier::{Courier, CourierConfig, CourierError, Event};
+use cosem_core::sim::{Fault, SimConfig, SimLine, LINE_BYTES};
+use cosem_core::wire::update::UpdateAck;
+use std::cell::RefCell;
+use std::time::Instant;
+
+/// The line between every two robots of a session.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SessionLine {
+    /// What the line does to bytes (the one fault model).
+    pub fault: Fault,
+    /// Bits a second (8N1: ten a byte).
+    pub baud: u32,
+}
+
+/// Virtual milliseconds a pair's round may take on its line before the
+/// session gives up on it (a line that carries nothing).
+const GIVE_UP_MS: u64 = 600_000;
+
+/// What a pair's round on its line gave: each side's answer from its
+/// peer, the bytes each side read, and the milliseconds since the round's
+/// start.
+type Traded = ([Vec<u8>; 2], [u64; 2], u64);
+
+/// One pair's line: the simulated wire and each end's courier.
+pub(super) struct PairLine {
+    wire: Box<RefCell<SimLine<LINE_BYTES>>>,
+    ends: [Courier; 2],
+    inputs: [Vec<u8>; 2],
+    /// The line's virtual clock (ms).
+    now: u64,
+    round: u16,
+}
+
+/// What one update cost on its line, for the robot that received it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LineCost {
+    /// Bytes that robot read from the line this round (the update's
+    /// frames, resends and the peer's acknowledgements of its own).
+    pub bytes: u64,
+    /// Milliseconds from the round's start (its first scan) until both of
+    /// the pair's updates were across and answered: a line slower than
+    /// the rounds falls behind, and this grows.
+    pub ms: u64,
+}
+
+/// What became of one update: for the robot that received it.
+pub(super) struct Delivered {
+    pub bytes: usize,
+    pub ratio: Option<f64>,
+    pub applied: Applied,
+    pub counts: UpdateCounts,
+    /// Seconds the receiver took to apply and answer it.
+    pub applying: f64,
+    pub line: Option<LineCost>,
+}
+
+impl PairLine {
+    /// The line of robots `a` and `b` (`a < b`), seeded by the session's
+    /// seed and the pair.
+    pub(super) fn new(line: SessionLine, (a, b): (usize, usize), seed: u64) -> Result<Self, Error> {
+        let mut config = SimConfig::clean(line.baud, seed.wrapping_mul(31).wrapping_add((a * 3 + b) as u64));
+        (config.error_rate, config.mix) = (line.fault.rate, line.fault.mix);
+        let courier = || Courier::new(CourierConfig::default()).map_err(|e| Error::Invalid(format!("courier: {e}")));
+        Ok(PairLine {
+            wire: Box::new(RefCell::new(SimLine::new(config))),
+            ends: [courier()?, courier()?],
+            inputs: [vec![0; CourierConfig::MAX_MESSAGE], vec![0; CourierConfig::MAX_MESSAGE]],
+            now: 0,
+            round: 0,
+        })
+    }
+
+    /// Trades `out[0]` (side 0's update) and `out[1]` from `start_ms` on
+    /// (or when the last trade ended, if later): `deliver(side, bytes)`
+    /// takes what reached `side` and gives its answer. Each side's answer
+    /// from the peer, the bytes each side read, and the milliseconds
+    /// since `start_ms`.
+    fn trade(
+        &mut self,
+        out: [&[u8]; 2],
+        start_ms: u64,
+        mut deliver: impl FnMut(usize, &[u8]) -> Result<Vec<u8>, Error>,
+    ) -> Result<Traded, Error> {
+        let fail = |e: CourierError| Error::Invalid(format!("the line: {e}"));
+        // A line still busy with an earlier round starts this one late.
+        self.now = self.now.max(start_ms);
+        let start = self.now;
+        let before = [self.ends[0].stats().bytes_received, self.ends[1].stats().bytes_received];
+        for (end, o) in self.ends.iter_mut().zip(out) {
+            end.start(self.round, o.len(), self.now).map_err(fail)?;
+        }
+        let (mut p0, mut p1) = SimLine::ports(&self.wire);
+        let mut done = [false; 2];
+        while !(done[0] && done[1]) {
+            if self.now - start > GIVE_UP_MS {
+                return Err(Error::Invalid(format!("the line: round {} not across in {GIVE_UP_MS} ms", self.round)));
+            }
+            self.wire.borrow_mut().tick(self.now);
+            for (side, port) in [(0usize, &mut p0), (1, &mut p1)] {
+                if done[side] {
+                    // Answers the peer's resends of this round still.
+                    self.ends[side].step(port, &[], &mut self.inputs[side], self.now).map_err(fail)?;
+                    continue;
+                }
+                match self.ends[side].step(port, out[side], &mut self.inputs[side], self.now).map_err(fail)? {
+                    Event::Busy => {}
+                    Event::Delivered(n) => {
+                        let got = self.inputs[side]
+                            .get(..n)
+                            .ok_or_else(|| Error::Invalid(format!("the line: a message of {n} bytes")))?;
+                        let answer = deliver(side, got)?;
+                        self.ends[side].reply(&answer).map_err(fail)?;
+                        self.ends[side].send_answer(port).map_err(fail)?;
+                    }
+                    Event::Done => done[side] = true,
+                }
+            }
+            self.now += 1;
+        }
+        let answers = [0, 1].map(|s| self.ends[s].answer().map(<[u8]>::to_vec).unwrap_or_default());
+        let read = [0, 1].map(|s| self.ends[s].stats().bytes_received - before[s]);
+        self.round = self.round.wrapping_add(1);
+        Ok((answers, read, self.now - start_ms))
+    }
+}
+
+/// Robots `a` and `b`'s round over their line: each one's update written
+/// (from `maps`, each measured against `whole`), traded, applied to the
+/// other's copy and answered; what became of each, `[a to b, b to a]`.
+pub(super) fn trade_pair(
+    line: &mut PairLine,
+    links: [&mut Link; 2],
+    maps: [&crate::maps::mapping::HostMap; 2],
+    whole: [usize; 2],
+    start_ms: u64,
+    words: &mut [u32],
+) -> Result<[Delivered; 2], Error> {
+    let [ab, ba] = links;
+    let mut out = [Vec::new(), Vec::new()];
+    for ((link, map), o) in [&mut *ab, &mut *ba].into_iter().zip(maps).zip(&mut out) {
+        o.resize(CourierConfig::MAX_MESSAGE, 0);
+        let n = link.publisher.next_update(map, words, o).map_err(|e| Error::Invalid(format!("update: {e}")))?;
+        o.truncate(n);
+    }
+    // Side 0 is robot a: it receives b's update into its copy (`ba`).
+    let mut applied = [Applied::Applied; 2];
+    let mut applying = [0.0; 2];
+    let (answers, read, ms) = line.trade([&out[0], &out[1]], start_ms, |side, got| {
+        let link = if side == 0 { &mut *ba } else { &mut *ab };
+        let t = Instant::now();
+        applied[side] = link.copy.apply(got, words);
+        let answer = link.copy.answer().encode().to_vec();
+        applying[side] = t.elapsed().as_secs_f64();
+        Ok(answer)
+    })?;
+    let mut delivered = Vec::with_capacity(2);
+    // Direction 0 is a to b: b (side 1) received it, a (side 0) heard the answer.
+    for (dir, link) in [&mut *ab, &mut *ba].into_iter().enumerate() {
+        let (sender, receiver) = (dir, 1 - dir);
+        let ack = UpdateAck::decode(&answers[sender]).map_err(|e| Error::Invalid(format!("answer: {e}")))?;
+        link.publisher.on_ack(&ack);
+        let bytes = out[sender].len() + answers[sender].len();
+        let ratio = link.synced.then(|| bytes as f64 / whole[sender].max(1) as f64);
+        link.synced |= applied[receiver] == Applied::Applied;
+        delivered.push(Delivered {
+            bytes,
+            ratio,
+            applied: applied[receiver],
+            counts: link.publisher.counts(),
+            applying: applying[receiver],
+            line: Some(LineCost { bytes: read[receiver], ms }),
+        });
+    }
+    let [x, y]: [Delivered; 2] = delivered.try_into().map_err(|_| Error::Invalid("two updates".into()))?;
+    Ok([x, y])
+}
