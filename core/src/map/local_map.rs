@@ -179,6 +179,7 @@ pub enum Insertion {
 /// Capacity is fixed by the storage; nothing allocates. Voxels are kept in
 /// insertion order, so iteration, and everything built on it, is
 /// deterministic.
+#[derive(Clone)]
 pub struct LocalMap<S: VoxelStorage> {
     storage: S,
     len: usize,

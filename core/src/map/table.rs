@@ -219,6 +219,7 @@ impl VoxelStorage for WordStorage<'_> {
 /// Storage on the heap, sized at run time (feature `alloc`): what a host
 /// gives a map whose size it learns from its data.
 #[cfg(any(test, feature = "alloc"))]
+#[derive(Clone)]
 pub struct VecStorage {
     voxels: alloc::vec::Vec<SemanticVoxel>,
     slots: alloc::vec::Vec<u32>,

@@ -233,6 +233,9 @@ fn spec_of(a: &Args, robots: Vec<RobotSpec>) -> Result<SessionSpec, Error> {
             return Err(format!("--slip {robot},..: no robot {robot} of 0..{n}").into());
         }
     }
+    if a.one_shot && !a.on_board && a.line != LineFault::None {
+        return Err("--line with --one-shot: a one-shot round sends whole maps afresh; a line is for updates".into());
+    }
     let tuned = [a.tuning.em_iterations.is_some(), a.tuning.min_overlap.is_some(), a.tuning.min_agreement.is_some()];
     if a.on_board && (tuned.contains(&true) || a.tuning.search_nodes.is_some()) {
         return Err("--on-board: the boards run the session robots' own pipeline (no --em-iterations, --min-overlap, --min-agreement or --search-nodes)".into());

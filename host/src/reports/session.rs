@@ -125,7 +125,7 @@ impl From<&Record> for RecordJson {
             line_bytes: r.line.map(|l| l.bytes),
             line_ms: r.line.map(|l| l.ms),
             update_ratio: r.update_ratio,
-            update: format!("{:?}", r.applied),
+            update: r.applied.map_or_else(|| "OnTheLine".to_string(), |a| format!("{a:?}")),
             update_new: r.counts.new,
             update_changed: r.counts.changed,
             update_removed: r.counts.removed,

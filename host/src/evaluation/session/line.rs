@@ -3,12 +3,15 @@
 //! full-duplex [`SimLine`] of the fault and baud rate asked for, each side
 //! a [`Courier`] (the boards' transport: frames with parity and CRC-32,
 //! resends, the answer riding the acknowledgements), in virtual time. What
-//! arrives is what was sent, so it is applied and answered as without a
-//! line and the estimates are the same; the line adds what it cost: its
-//! bytes and its milliseconds, against the round's time.
+//! arrives is what was sent; it reaches the receiver's copy in the round
+//! by whose end it is across (each round is `every` scans at 10 Hz), and
+//! until then the receiver estimates on the copy it held. A line busy with
+//! a round's updates takes no new ones: what changed meanwhile goes in the
+//! next update, written when the line is free.
 
 use super::{Applied, Link, UpdateCounts};
 use crate::error::Error;
+use crate::maps::mapping::HostMap;
 use cosem_core::link::courier::{Courier, CourierConfig, CourierError, Event};
 use cosem_core::sim::{Fault, SimConfig, SimLine, LINE_BYTES};
 use cosem_core::wire::update::UpdateAck;
@@ -41,6 +44,17 @@ pub(super) struct PairLine {
     /// The line's virtual clock (ms).
     now: u64,
     round: u16,
+    /// A trade not across yet.
+    pending: Option<OnTheLine>,
+}
+
+/// A pair's trade still on the line: what it delivers once across (at
+/// `done_ms`), and each receiver's copy as it was before, which the
+/// receiver estimates on until then (`[a to b, b to a]`).
+struct OnTheLine {
+    done_ms: u64,
+    delivered: [Delivered; 2],
+    before: [HostMap; 2],
 }
 
 /// What one update cost on its line, for the robot that received it.
@@ -59,14 +73,28 @@ pub struct LineCost {
 pub(super) struct Delivered {
     pub bytes: usize,
     pub ratio: Option<f64>,
-    pub applied: Applied,
+    /// `None`: still on the line.
+    pub applied: Option<Applied>,
     pub counts: UpdateCounts,
     /// Seconds the receiver took to apply and answer it.
     pub applying: f64,
     pub line: Option<LineCost>,
 }
 
+impl Delivered {
+    /// Nothing this round: an update still on the line.
+    pub(super) fn on_the_line() -> Self {
+        Delivered { bytes: 0, ratio: None, applied: None, counts: UpdateCounts::default(), applying: 0.0, line: None }
+    }
+}
+
 impl PairLine {
+    /// The copy the receiver of direction `dir` (0: a to b) estimates on
+    /// while an update to it is on the line.
+    pub(super) fn before(&self, dir: usize) -> Option<&HostMap> {
+        self.pending.as_ref().and_then(|p| p.before.get(dir))
+    }
+
     /// The line of robots `a` and `b` (`a < b`), seeded by the session's
     /// seed and the pair.
     pub(super) fn new(line: SessionLine, (a, b): (usize, usize), seed: u64) -> Result<Self, Error> {
@@ -79,6 +107,7 @@ impl PairLine {
             inputs: [vec![0; CourierConfig::MAX_MESSAGE], vec![0; CourierConfig::MAX_MESSAGE]],
             now: 0,
             round: 0,
+            pending: None,
         })
     }
 
@@ -136,10 +165,40 @@ impl PairLine {
     }
 }
 
+/// Robots `a` and `b`'s round `[start_ms, end_ms)` on their line: with the
+/// line free, this round's updates written (from `maps`, each measured
+/// against `whole`) and traded; what reaches each receiver by the round's
+/// end (`[a to b, b to a]`; `None`: still on the line).
+pub(super) fn pair_round(
+    line: &mut PairLine,
+    [ab, ba]: [&mut Link; 2],
+    maps: [&HostMap; 2],
+    whole: [usize; 2],
+    (start_ms, end_ms): (u64, u64),
+    words: &mut [u32],
+) -> Result<[Option<Delivered>; 2], Error> {
+    if line.pending.is_none() {
+        let before = [ab.copy.map().clone(), ba.copy.map().clone()];
+        let delivered = trade_pair(line, [ab, ba], maps, whole, start_ms, words)?;
+        let done_ms = start_ms + delivered[0].line.map_or(0, |l| l.ms);
+        line.pending = Some(OnTheLine { done_ms, delivered, before });
+    }
+    match line.pending.take() {
+        Some(p) if p.done_ms <= end_ms => {
+            let [x, y] = p.delivered;
+            Ok([Some(x), Some(y)])
+        }
+        still => {
+            line.pending = still;
+            Ok([None, None])
+        }
+    }
+}
+
 /// Robots `a` and `b`'s round over their line: each one's update written
 /// (from `maps`, each measured against `whole`), traded, applied to the
 /// other's copy and answered; what became of each, `[a to b, b to a]`.
-pub(super) fn trade_pair(
+fn trade_pair(
     line: &mut PairLine,
     links: [&mut Link; 2],
     maps: [&crate::maps::mapping::HostMap; 2],
@@ -177,7 +236,7 @@ pub(super) fn trade_pair(
         delivered.push(Delivered {
             bytes,
             ratio,
-            applied: applied[receiver],
+            applied: Some(applied[receiver]),
             counts: link.publisher.counts(),
             applying: applying[receiver],
             line: Some(LineCost { bytes: read[receiver], ms }),

@@ -180,8 +180,8 @@ pub struct Record {
     /// The update as a fraction of the peer's whole map encoded (once the
     /// copy had been whole once: a repair counts).
     pub update_ratio: Option<f64>,
-    /// What became of the update.
-    pub applied: Applied,
+    /// What became of the update (`None`: it is still on the line).
+    pub applied: Option<Applied>,
     /// What the update held (new, changed and removed voxels).
     pub counts: UpdateCounts,
     /// With a line: what the peer's update cost on it.
@@ -332,6 +332,8 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         })
         .collect::<Result<_, _>>()?;
     let mut trackers = vec![vec![Tracker::new(); n]; n];
+    // copy_at[i][j]: where robot i was when its copy of j's map last changed.
+    let mut copy_at: Vec<Vec<Option<[f32; 3]>>> = vec![vec![None; n]; n];
     let mut scratch = Scratch {
         // Two words a voxel: the faster Morton ordering (wire::codec).
         words: vec![0; 2 * most],
@@ -354,6 +356,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         let mut delivered = trade_round(spec, round, &robots, &mut links, &mut lines, &mut scratch)?;
         let start = records.len();
         let places: Vec<[f32; 3]> = robots.iter().map(Robot::place).collect();
+        note_copies(&mut copy_at, &delivered, &places);
         for (i, own) in trackers.iter_mut().enumerate() {
             // The robot's own map prepared once a round, for every peer, as
             // far as they need it.
@@ -371,10 +374,18 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                     tracker.reset();
                 }
                 let view = PeerView { estimate: heard[j][i], at: places[i] };
-                let at = Round { round, pair: (i, j), shared_world, view };
+                let stale = copy_at[i][j].is_some_and(|p| distance(p, places[i]) > cosem_core::session::HOLD_M);
+                let at = Round { round, pair: (i, j), shared_world, view, stale };
                 let update = delivered[j][i].take().ok_or_else(|| Error::Invalid("no update".into()))?;
-                let copy =
-                    links[j][i].as_ref().map(|l| l.copy.map()).ok_or_else(|| Error::Invalid("no link".into()))?;
+                // While j's update is on the line, i estimates on the copy it held.
+                let dir = usize::from(j > i);
+                let late = lines[i.min(j)][i.max(j)].as_ref().and_then(|p| p.before(dir));
+                let copy = match late {
+                    Some(before) => before,
+                    None => {
+                        links[j][i].as_ref().map(|l| l.copy.map()).ok_or_else(|| Error::Invalid("no link".into()))?
+                    }
+                };
                 mine_records.push(estimate_one(spec, at, &robots, (&mut mine, copy, update), tracker, &mut scratch)?);
             }
             mine_records.sort_by_key(|r| r.peer);
@@ -394,6 +405,18 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
     let cost = figures::cost_denominator(&from_scratch, (&robots[0].map, &robots[1].map), &spec.alignment)?;
     let summary = Summary::of(&records, spec, rounds, cost);
     Ok(SessionRun { rounds, records, summary })
+}
+
+/// Where each robot is, for each copy of a peer's map an update reached
+/// this round (`copy_at[i][j]`: robot i's copy of j's).
+fn note_copies(copy_at: &mut [Vec<Option<[f32; 3]>>], delivered: &[Vec<Option<line::Delivered>>], places: &[[f32; 3]]) {
+    for (i, at) in copy_at.iter_mut().enumerate() {
+        for (j, at) in at.iter_mut().enumerate() {
+            if delivered[j][i].as_ref().is_some_and(|d| d.applied.is_some()) {
+                *at = places.get(i).copied();
+            }
+        }
+    }
 }
 
 /// The spec's robots' capacities, once its figures are checked: 2 or 3
@@ -491,6 +514,15 @@ struct Round {
     pair: (usize, usize),
     shared_world: bool,
     view: PeerView,
+    /// The copy of the peer's map has not changed while the robot drove
+    /// [`cosem_core::session::HOLD_M`] (its updates are on a slow line):
+    /// an estimate on it is not reported `Converged`.
+    stale: bool,
+}
+
+fn distance(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
 }
 
 /// Each robot's estimate of each peer in the last round (`[i][j]`:
@@ -532,18 +564,19 @@ fn trade_round(
                     let (mut ab, mut ba) =
                         (links[a][b].take().ok_or_else(no_link)?, links[b][a].take().ok_or_else(no_link)?);
                     // A round is `every` scans at 10 Hz.
-                    let start_ms = (round * spec.every * 100) as u64;
+                    let round_ms = (spec.every * 100) as u64;
+                    let start_ms = round as u64 * round_ms;
                     let maps = [&robots[a].map, &robots[b].map];
-                    let traded = line::trade_pair(
+                    let traded = line::pair_round(
                         pair,
                         [&mut ab, &mut ba],
                         maps,
                         [whole(a), whole(b)],
-                        start_ms,
+                        (start_ms, start_ms + round_ms),
                         &mut scratch.words,
                     );
                     (links[a][b], links[b][a]) = (Some(ab), Some(ba));
-                    let [to_b, to_a] = traded?;
+                    let [to_b, to_a] = traded?.map(|d| d.unwrap_or_else(line::Delivered::on_the_line));
                     (out[a][b], out[b][a]) = (Some(to_b), Some(to_a));
                 }
                 Some(_) => {}
@@ -553,7 +586,8 @@ fn trade_round(
                     let (bytes, ratio, applied, writing) = link.exchange(&robots[a].map, whole(a), scratch)?;
                     let applying = t.elapsed().as_secs_f64() - writing;
                     let counts = link.publisher.counts();
-                    out[a][b] = Some(line::Delivered { bytes, ratio, applied, counts, applying, line: None });
+                    out[a][b] =
+                        Some(line::Delivered { bytes, ratio, applied: Some(applied), counts, applying, line: None });
                 }
             }
         }
@@ -573,21 +607,27 @@ fn estimate_one(
     tracker: &mut Tracker,
     scratch: &mut Scratch,
 ) -> Result<Record, Error> {
-    let Round { round, pair: (i, j), shared_world, view } = at;
+    let Round { round, pair: (i, j), shared_world, view, stale } = at;
     let t0 = Instant::now();
     let whole = scratch.whole.get(j).copied().unwrap_or(0);
     let line::Delivered { bytes: bytes_sent, ratio: mut update_ratio, applied, counts, applying, line } = update;
     if spec.one_shot {
         update_ratio = Some(bytes_sent as f64 / whole.max(1) as f64);
     }
-    if matches!(applied, Applied::Diverged | Applied::Restarted) {
+    if matches!(applied, Some(Applied::Diverged | Applied::Restarted)) {
         tracker.reset();
     }
     let (estimate, preparing) = if copy.is_empty() {
         (None, 0.0)
     } else {
         let room = (&mut scratch.search[..], &mut scratch.reach[..]);
-        let (e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, room)?;
+        let (mut e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, room)?;
+        // What the peer's map was a stretch of driving ago says little of
+        // where its odometry frame is now: under drift, a fix on it goes
+        // wrong as the robots part (on a 10% line, 0.6 m and 1-2 degrees).
+        if stale && e.result.status == MatchStatus::Converged {
+            e.result.status = MatchStatus::NotConverged;
+        }
         (Some(e), own_s)
     };
     let seconds = preparing + t0.elapsed().as_secs_f64() + applying;
