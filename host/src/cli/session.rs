@@ -90,10 +90,12 @@ pub struct Args {
     /// (a bit of each byte flipped with probability P) or lossy=P (bytes
     /// substituted, dropped and duplicated alike; lossy=0: a clean line).
     /// On the host each pair's updates are then traded over a simulated
-    /// line of --baud by the boards' courier, in virtual time, and each
-    /// round says the bytes it read and the milliseconds its pair's round
-    /// took; with --on-board, the line between the boards' UART0s. `none`:
-    /// the host hands updates over whole, the boards' UARTs are joined.
+    /// line of --baud by the boards' courier, in virtual time: an update
+    /// reaches the peer in the round by whose end it is across (until
+    /// then the peer estimates on the copy it held: `OnTheLine`), and each
+    /// says the bytes it took on the line and its milliseconds; with
+    /// --on-board, the line between the boards' UART0s. `none`: the host
+    /// hands updates over whole, the boards' UARTs are joined.
     #[arg(long, default_value = "none")]
     line: LineFault,
     /// With --line on the host: the simulated line's rate (bits a second,
