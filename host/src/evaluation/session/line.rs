@@ -14,7 +14,6 @@ use crate::error::Error;
 use crate::maps::mapping::HostMap;
 use cosem_core::link::courier::{Courier, CourierConfig, CourierError, Event};
 use cosem_core::sim::{Fault, SimConfig, SimLine, LINE_BYTES};
-use cosem_core::wire::update::UpdateAck;
 use std::cell::RefCell;
 use std::time::Instant;
 
@@ -210,7 +209,7 @@ fn trade_pair(
     let mut out = [Vec::new(), Vec::new()];
     for ((link, map), o) in [&mut *ab, &mut *ba].into_iter().zip(maps).zip(&mut out) {
         o.resize(CourierConfig::MAX_MESSAGE, 0);
-        let n = link.publisher.next_update(map, words, o).map_err(|e| Error::Invalid(format!("update: {e}")))?;
+        let n = link.write(map, words, o)?;
         o.truncate(n);
     }
     // Side 0 is robot a: it receives b's update into its copy (`ba`).
@@ -219,29 +218,22 @@ fn trade_pair(
     let (answers, read, ms) = line.trade([&out[0], &out[1]], start_ms, |side, got| {
         let link = if side == 0 { &mut *ba } else { &mut *ab };
         let t = Instant::now();
-        applied[side] = link.copy.apply(got, words);
-        let answer = link.copy.answer().encode().to_vec();
-        applying[side] = t.elapsed().as_secs_f64();
+        let (done, answer) = link.receive(got, words);
+        (applied[side], applying[side]) = (done, t.elapsed().as_secs_f64());
         Ok(answer)
     })?;
-    let mut delivered = Vec::with_capacity(2);
     // Direction 0 is a to b: b (side 1) received it, a (side 0) heard the answer.
-    for (dir, link) in [&mut *ab, &mut *ba].into_iter().enumerate() {
+    let heard = |dir: usize, link: &mut Link| -> Result<Delivered, Error> {
         let (sender, receiver) = (dir, 1 - dir);
-        let ack = UpdateAck::decode(&answers[sender]).map_err(|e| Error::Invalid(format!("answer: {e}")))?;
-        link.publisher.on_ack(&ack);
-        let bytes = out[sender].len() + answers[sender].len();
-        let ratio = link.synced.then(|| bytes as f64 / whole[sender].max(1) as f64);
-        link.synced |= applied[receiver] == Applied::Applied;
-        delivered.push(Delivered {
+        let (bytes, ratio) = link.answered(&answers[sender], out[sender].len(), whole[sender], applied[receiver])?;
+        Ok(Delivered {
             bytes,
             ratio,
             applied: Some(applied[receiver]),
             counts: link.publisher.counts(),
             applying: applying[receiver],
             line: Some(LineCost { bytes: read[receiver], ms }),
-        });
-    }
-    let [x, y]: [Delivered; 2] = delivered.try_into().map_err(|_| Error::Invalid("two updates".into()))?;
-    Ok([x, y])
+        })
+    };
+    Ok([heard(0, ab)?, heard(1, ba)?])
 }

@@ -268,20 +268,47 @@ impl Link {
         s: &mut Scratch,
     ) -> Result<(usize, Option<f64>, Applied, f64), Error> {
         let t = Instant::now();
-        let n = self
-            .publisher
-            .next_update(map, &mut s.words, &mut s.out)
-            .map_err(|e| Error::Invalid(format!("update: {e}")))?;
+        let n = self.write(map, &mut s.words, &mut s.out)?;
         let writing = t.elapsed().as_secs_f64();
-        let applied = self.copy.apply(&s.out[..n], &mut s.words);
-        let answer = self.copy.answer().encode();
+        let (applied, answer) = self.receive(&s.out[..n], &mut s.words);
+        let (bytes, ratio) = self.answered(&answer, n, whole, applied)?;
+        Ok((bytes, ratio, applied, writing))
+    }
+
+    /// The sender's side: this round's update of `map` into `out`; its bytes.
+    fn write(
+        &mut self,
+        map: &crate::maps::mapping::HostMap,
+        words: &mut [u32],
+        out: &mut [u8],
+    ) -> Result<usize, Error> {
+        self.publisher.next_update(map, words, out).map_err(|e| Error::Invalid(format!("update: {e}")))
+    }
+
+    /// The receiver's side: `update` applied to the copy, and the copy's
+    /// answer.
+    fn receive(&mut self, update: &[u8], words: &mut [u32]) -> (Applied, Vec<u8>) {
+        let applied = self.copy.apply(update, words);
+        (applied, self.copy.answer().encode().to_vec())
+    }
+
+    /// The sender hears the receiver's `answer` to an update of `sent`
+    /// bytes (the receiver's copy `applied` it): the bytes both took, and
+    /// their ratio to `whole` once the copy was whole once.
+    fn answered(
+        &mut self,
+        answer: &[u8],
+        sent: usize,
+        whole: usize,
+        applied: Applied,
+    ) -> Result<(usize, Option<f64>), Error> {
         let ack =
-            cosem_core::wire::update::UpdateAck::decode(&answer).map_err(|e| Error::Invalid(format!("answer: {e}")))?;
+            cosem_core::wire::update::UpdateAck::decode(answer).map_err(|e| Error::Invalid(format!("answer: {e}")))?;
         self.publisher.on_ack(&ack);
-        let bytes = n + answer.len();
+        let bytes = sent + answer.len();
         let ratio = self.synced.then(|| bytes as f64 / whole.max(1) as f64);
         self.synced |= applied == Applied::Applied;
-        Ok((bytes, ratio, applied, writing))
+        Ok((bytes, ratio))
     }
 }
 
@@ -318,30 +345,11 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
     let shared_world = (1..n).all(|j| sources[0].shares_world(&sources[j]));
     let mut robots: Vec<Robot> = (0..n).map(|i| Robot::load(spec, i, &sources[i])).collect::<Result<_, _>>()?;
     let rounds = rounds_of(spec, &robots)?;
-    let config = *robots[0].map.config();
-    // links[i][j]: robot i's updates to robot j.
-    let mut links: Vec<Vec<Option<Link>>> = (0..n)
-        .map(|i| (0..n).map(|j| (i != j).then(|| Link::new((i, j), spec, config)).transpose()).collect())
-        .collect::<Result<_, _>>()?;
-    // lines[a][b], a < b: the pair's line, when the session has one.
-    let mut lines: Vec<Vec<Option<line::PairLine>>> = (0..n)
-        .map(|a| {
-            (0..n)
-                .map(|b| spec.line.filter(|_| a < b).map(|l| line::PairLine::new(l, (a, b), spec.seed)).transpose())
-                .collect()
-        })
-        .collect::<Result<_, _>>()?;
+    let (mut links, mut lines) = links_and_lines(spec, *robots[0].map.config())?;
     let mut trackers = vec![vec![Tracker::new(); n]; n];
     // copy_at[i][j]: where robot i was when its copy of j's map last changed.
     let mut copy_at: Vec<Vec<Option<[f32; 3]>>> = vec![vec![None; n]; n];
-    let mut scratch = Scratch {
-        // Two words a voxel: the faster Morton ordering (wire::codec).
-        words: vec![0; 2 * most],
-        out: vec![0; most * 24 + 4096],
-        search: vec![0; SearchScratch::WINDOWED],
-        reach: vec![Reach::EMPTY; crate::matching::align::reach_room(&spec.alignment)],
-        whole: vec![0; n],
-    };
+    let mut scratch = Scratch::new(spec, most);
     let mut records = Vec::new();
     let (mut tracked, mut from_scratch) = (0usize, Vec::new());
     for round in 0..rounds {
@@ -374,7 +382,8 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                     tracker.reset();
                 }
                 let view = PeerView { estimate: heard[j][i], at: places[i] };
-                let stale = copy_at[i][j].is_some_and(|p| distance(p, places[i]) > cosem_core::session::HOLD_M);
+                let driven = |p: [f32; 3]| nalgebra::distance(&p.into(), &places[i].into());
+                let stale = copy_at[i][j].is_some_and(|p| driven(p) > cosem_core::session::HOLD_M);
                 let at = Round { round, pair: (i, j), shared_world, view, stale };
                 let update = delivered[j][i].take().ok_or_else(|| Error::Invalid("no update".into()))?;
                 // While j's update is on the line, i estimates on the copy it held.
@@ -405,6 +414,43 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
     let cost = figures::cost_denominator(&from_scratch, (&robots[0].map, &robots[1].map), &spec.alignment)?;
     let summary = Summary::of(&records, spec, rounds, cost);
     Ok(SessionRun { rounds, records, summary })
+}
+
+/// Every direction's link, `[from][to]`.
+type Links = Vec<Vec<Option<Link>>>;
+/// Every pair's line, `[a][b]` with `a < b`.
+type Lines = Vec<Vec<Option<line::PairLine>>>;
+
+/// Each robot's updates to each other (`links[i][j]`: robot i's to robot
+/// j), and each pair's line when the session has one (`lines[a][b]`,
+/// `a < b`).
+fn links_and_lines(spec: &SessionSpec, config: cosem_core::map::MapConfig) -> Result<(Links, Lines), Error> {
+    let n = spec.robots.len();
+    let links = (0..n)
+        .map(|i| (0..n).map(|j| (i != j).then(|| Link::new((i, j), spec, config)).transpose()).collect())
+        .collect::<Result<_, _>>()?;
+    let lines = (0..n)
+        .map(|a| {
+            (0..n)
+                .map(|b| spec.line.filter(|_| a < b).map(|l| line::PairLine::new(l, (a, b), spec.seed)).transpose())
+                .collect()
+        })
+        .collect::<Result<_, _>>()?;
+    Ok((links, lines))
+}
+
+impl Scratch {
+    /// Room for maps of at most `most` voxels, and `spec`'s matcher.
+    fn new(spec: &SessionSpec, most: usize) -> Self {
+        Scratch {
+            // Two words a voxel: the faster Morton ordering (wire::codec).
+            words: vec![0; 2 * most],
+            out: vec![0; most * 24 + 4096],
+            search: vec![0; SearchScratch::WINDOWED],
+            reach: vec![Reach::EMPTY; crate::matching::align::reach_room(&spec.alignment)],
+            whole: vec![0; spec.robots.len()],
+        }
+    }
 }
 
 /// Where each robot is, for each copy of a peer's map an update reached
@@ -518,11 +564,6 @@ struct Round {
     /// [`cosem_core::session::HOLD_M`] (its updates are on a slow line):
     /// an estimate on it is not reported `Converged`.
     stale: bool,
-}
-
-fn distance(a: [f32; 3], b: [f32; 3]) -> f32 {
-    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
 }
 
 /// Each robot's estimate of each peer in the last round (`[i][j]`:
