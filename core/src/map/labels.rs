@@ -260,9 +260,34 @@ impl LabelDistribution {
         p
     }
 
-    /// Posterior probability of one class.
+    /// Posterior probability of one class: [`Self::probabilities`]'s
+    /// entry to the bit (the same terms summed in the same class order),
+    /// without the full posterior's division of every class. Preparing a
+    /// map and encoding an update ask it of every voxel.
     pub fn probability(&self, class: Class) -> f32 {
-        self.probabilities()[class.index() as usize]
+        let top = f32::from(slot_score(self.slots[0])) / SCORE_UNITS_PER_NAT;
+        let base = libm::expf(-top);
+        // The tracked classes' terms by class index (at most four).
+        let mut tracked = [(u8::MAX, 0.0f32); LABEL_SLOTS];
+        for (t, (c, score)) in tracked.iter_mut().zip(self.entries()) {
+            *t = (c.index(), libm::expf(f32::from(score) / SCORE_UNITS_PER_NAT - top));
+        }
+        tracked.sort_unstable_by_key(|t| t.0);
+        let (mut sum, mut next, mut own) = (0.0f32, 0, base);
+        for i in 0..NUM_CLASSES as u8 {
+            let term = match tracked.get(next) {
+                Some(&(c, v)) if c == i => {
+                    next += 1;
+                    v
+                }
+                _ => base,
+            };
+            if i == class.index() {
+                own = term;
+            }
+            sum += term;
+        }
+        own / sum
     }
 
     /// Probability that this voxel and `other` carry the same class,
@@ -277,6 +302,30 @@ impl LabelDistribution {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The one-class posterior is the full posterior's entry to the bit.
+    #[test]
+    fn probability_is_the_posteriors_entry_to_the_bit() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = |n: u64| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state % n
+        };
+        for _ in 0..20_000 {
+            let mut d = LabelDistribution::default();
+            for _ in 0..next(12) {
+                let class = Class::from_index(next(NUM_CLASSES as u64) as u8).unwrap();
+                d.observe(class, 1 + next(400) as u16);
+            }
+            let p = d.probabilities();
+            for c in 0..NUM_CLASSES as u8 {
+                let class = Class::from_index(c).unwrap();
+                assert_eq!(d.probability(class).to_bits(), p[c as usize].to_bits(), "{d:?} {class:?}");
+            }
+        }
+    }
 
     #[test]
     fn evidence_of_default_model() {
