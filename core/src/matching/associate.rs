@@ -9,7 +9,7 @@
 //! least-squares M-step: far pairs fade out instead of pulling.
 
 use super::footprint::GROUP_BITS;
-use super::pyramid::{Entry, Level, Reach};
+use super::pyramid::{normal_of, Entry, Level, PackedNormal, Reach};
 use super::settings::{Cost, Method};
 use crate::classes::NUM_CLASSES;
 use crate::map::VoxelKey;
@@ -184,8 +184,8 @@ fn block_code(key: VoxelKey, side: [i32; 3]) -> u64 {
     axis(key.x) | (axis(key.y) << 16) | (axis(key.z) << 32) | (sides << 48)
 }
 
-/// The model entry a moved scene entry associates with, its weight and
-/// squared distance. It looks at the 2x2x2 block of cells on `q`'s side of
+/// The model entry a moved scene entry associates with, its weight,
+/// squared distance and index in the level. It looks at the 2x2x2 block of cells on `q`'s side of
 /// its cell, which holds every model entry within half a cell of `q` (and
 /// some farther ones, up to `radius`); with `reach`, the block the last
 /// E-step found for this entry, looked up again only when it moved.
@@ -196,7 +196,7 @@ fn best_match(
     q: &Point3<f32>,
     (sigma, radius, method): (f32, f32, Method),
     reach: Option<&mut Reach>,
-) -> Option<(Entry, f32, f32)> {
+) -> Option<(Entry, f32, f32, u32)> {
     let cell = model.locate_with_fraction([q.x, q.y, q.z])?;
     let (key, f) = (cell.key, cell.fraction);
     let step = |v: f32| if v < 0.5 { -1 } else { 1 };
@@ -220,7 +220,7 @@ fn best_match(
     };
     let inv_two_sigma_sq = 0.5 / (sigma * sigma);
     let radius_sq = radius * radius;
-    let mut best: Option<(Entry, f32, f32)> = None;
+    let mut best: Option<(Entry, f32, f32, u32)> = None;
     for (a, b) in runs {
         for i in a..b {
             let Some(m) = model.entry(i as usize) else { break };
@@ -234,8 +234,8 @@ fn best_match(
                 continue;
             }
             let w = exp_weight(-d2 * inv_two_sigma_sq) * c;
-            if best.is_none_or(|(_, bw, _)| w > bw) {
-                best = Some((m, w, d2));
+            if best.is_none_or(|(_, bw, _, _)| w > bw) {
+                best = Some((m, w, d2, i));
             }
         }
     }
@@ -264,12 +264,14 @@ pub(crate) struct Pass {
 ///
 /// `reach`: the blocks of the last E-step at this level, one per entry taken
 /// in order (fewer: the rest looked up every time), kept for the next.
+/// `memo`: the normals fitted so far of a model whose normals are fitted as
+/// they are read ([`normal_of`]).
 pub(crate) fn accumulate(
     model: &Level<'_>,
     scene: &Level<'_>,
     t: &Isometry3<f32>,
     pass: &Pass,
-    reach: &mut [Reach],
+    (reach, memo): (&mut [Reach], &mut [PackedNormal]),
 ) -> Normal {
     let Pass { sigma, radius, method, cost, sampling, information } = *pass;
     let mut n = Normal::new();
@@ -288,7 +290,9 @@ pub(crate) fn accumulate(
         let Some(s) = scene.entry(i) else { continue };
         let scale = information.then_some(stride as f32);
         let q = t * Point3::new(s.position[0], s.position[1], s.position[2]);
-        let Some((m, w, _)) = best_match(model, &s, &q, (sigma, radius, method), reach.next()) else { continue };
+        let Some((m, w, _, index)) = best_match(model, &s, &q, (sigma, radius, method), reach.next()) else {
+            continue;
+        };
         if w.is_nan() || w <= 0.0 {
             continue;
         }
@@ -297,7 +301,7 @@ pub(crate) fn accumulate(
         n.sum_wq2 += w * q.coords.norm_squared();
         let mp = Vector3::new(m.position[0], m.position[1], m.position[2]);
         let diff = q.coords - mp;
-        let normal = if cost == Cost::PointToPlane { m.normal.unpack() } else { None };
+        let normal = if cost == Cost::PointToPlane { normal_of(model, &m, index, memo) } else { None };
         if let Some(nm) = normal {
             let nv = Vector3::new(nm[0], nm[1], nm[2]);
             let r = nv.dot(&diff);

@@ -386,10 +386,10 @@ impl Matcher {
                 break;
             }
             // Each level samples its own entries: what was reached is forgotten.
-            let reach = scratch.reach();
+            let room = scratch.em_room(model.is_lazy());
             for _ in 0..budget {
                 let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, sampling, information: l == 0 };
-                let n = accumulate(&m, &c, &t, &pass, reach);
+                let n = accumulate(&m, &c, &t, &pass, (&mut *room.0, &mut *room.1));
                 used += 1;
                 if let Some(p) = per_level.get_mut(l) {
                     *p = p.saturating_add(1);
@@ -457,7 +457,7 @@ impl Matcher {
                     sampling,
                     information: true,
                 };
-                accumulate(&m0, &c0, &t, &pass, &mut [])
+                accumulate(&m0, &c0, &t, &pass, (&mut [], &mut []))
             }
         };
         let floor = 0.01 * cell;

@@ -615,6 +615,20 @@ fn pyramids_prepared_for_tracking_track_as_whole_ones_and_refuse_a_search() {
             assert_eq!(m.track_in(&tm, &ts, &fix, scratch).unwrap(), whole);
             assert_eq!(m.track_in(&tm, &ps, &fix, scratch).unwrap(), whole);
         }
+        // The model's normals left to EM: kept for every entry, for a few
+        // (the rest fitted again each time) or for none; twice with one
+        // room (emptied for each match).
+        let lazy = Pyramid::build_vec_tracked_lazy(&model).unwrap();
+        assert!(lazy.is_lazy() && lazy.is_tracked() && !tm.is_lazy());
+        let unfit = lazy.level(0).unwrap().iter().filter(|e| e.normal == PackedNormal::UNFIT).count();
+        assert_eq!(unfit, model.len());
+        for n in [model.len(), 100, 0] {
+            let mut normals = vec![PackedNormal::NONE; n];
+            let mut reach = vec![Reach::EMPTY; m.settings.max_scene_entries as usize];
+            let scratch = &mut search::SearchScratch::new(&mut []).with_reach(&mut reach).with_normals(&mut normals);
+            assert_eq!(m.track_in(&lazy, &ts, &fix, scratch).unwrap(), whole);
+            assert_eq!(m.track_in(&lazy, &ts, &fix, scratch).unwrap(), whole);
+        }
     }
     assert_eq!(m.align(&tm, &ps, &gt), Err(MatchError::TrackingOnly));
     assert_eq!(m.align(&pm, &ts, &gt), Err(MatchError::TrackingOnly));

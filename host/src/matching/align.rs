@@ -53,11 +53,16 @@ pub fn prepare_scene(map: &HostMap, levels: usize) -> Result<HostPyramid<'_>, cr
 
 /// Prepares a map for tracking from a fix only
 /// ([`cosem_core::matching::Pyramid::build_tracked`]): a model's levels up
-/// to its cover with normals at level 0, a scene's level 0; what tracking
-/// reads, the same answers as from [`prepare`]'s and [`prepare_scene`]'s.
+/// to its cover, its level-0 normals left for EM to fit as it reads them
+/// ([`cosem_core::matching::Pyramid::build_tracked_lazy`]), a scene's
+/// level 0; what tracking reads, the same answers as from [`prepare`]'s
+/// and [`prepare_scene`]'s.
 pub fn prepare_tracked(map: &HostMap, role: Role) -> Result<HostPyramid<'_>, crate::error::Error> {
     voxel_checked(map)?;
-    Ok(Pyramid::build_vec_tracked(map, role)?)
+    Ok(match role {
+        Role::Model => Pyramid::build_vec_tracked_lazy(map)?,
+        Role::Scene => Pyramid::build_vec_tracked(map, role)?,
+    })
 }
 
 fn prepare_as(map: &HostMap, levels: usize, role: Role) -> Result<HostPyramid<'_>, crate::error::Error> {

@@ -38,6 +38,7 @@ use crate::region::Region;
 use core::mem::size_of;
 
 mod index;
+mod lazy;
 mod normals;
 mod storage;
 
@@ -46,6 +47,8 @@ pub use storage::*;
 pub use index::Reach;
 pub use index::NARROW_LIMIT;
 use index::*;
+pub(crate) use lazy::normal_of;
+use lazy::Prep;
 /// Writes into `words` the indices `0..len` sorted by their keys' sweep
 /// order ([`VoxelKey::sweep`]; [`sort_indices_by_code`] on the keys in
 /// offset binary, x then y then z: the same order in 48 bits); false when
@@ -460,6 +463,9 @@ pub struct Pyramid<'m, S: PyramidStorage> {
     footprint: Option<FootprintInfo>,
     /// Prepared only for tracking from a fix ([`Pyramid::build_tracked`]).
     tracked: bool,
+    /// Level 0's normals fitted as tracking reads them
+    /// ([`Pyramid::build_tracked_lazy`]).
+    lazy: bool,
 }
 
 #[derive(Clone, Copy)]
@@ -747,7 +753,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         storage: S,
     ) -> Result<Self, PyramidError> {
         let base = Base::Map { voxels: map.voxels(), index: map.index_slots() };
-        Self::build_base(base, map.resolution(), (levels, footprint_cell), role, false, storage)
+        Self::build_base(base, map.resolution(), (levels, footprint_cell), role, Prep::Whole, storage)
     }
 
     /// Prepares `map` only for tracking from a fix ([`Matcher::track_in`],
@@ -767,7 +773,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
     pub fn build_tracked<V: VoxelStorage>(map: &'m LocalMap<V>, role: Role, storage: S) -> Result<Self, PyramidError> {
         let base = Base::Map { voxels: map.voxels(), index: map.index_slots() };
         let levels = Self::tracked_levels(map.resolution(), role);
-        Self::build_base(base, map.resolution(), (levels, f32::NAN), role, true, storage)
+        Self::build_base(base, map.resolution(), (levels, f32::NAN), role, Prep::Tracked, storage)
     }
 
     /// Levels of a pyramid prepared for tracking ([`Pyramid::build_tracked`]):
@@ -819,7 +825,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         storage: S,
     ) -> Result<Self, PyramidError> {
         let base = Base::Copied { len: copied.len, slots: copied.slots };
-        Self::build_base(base, copied.resolution, (levels, footprint_cell), Role::Model, false, storage)
+        Self::build_base(base, copied.resolution, (levels, footprint_cell), Role::Model, Prep::Whole, storage)
     }
 
     /// Prepares a received [`SceneMap`] as a scene ([`Role::Scene`]): the
@@ -833,19 +839,21 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
         storage: S,
     ) -> Result<Self, PyramidError> {
         let base = Base::Scene { points: scene.points() };
-        Self::build_base(base, scene.resolution(), (levels, footprint_cell), Role::Scene, false, storage)
+        Self::build_base(base, scene.resolution(), (levels, footprint_cell), Role::Scene, Prep::Whole, storage)
     }
 
     /// The pyramid over `base`: `levels` levels and a footprint of cells of
-    /// `footprint_cell` (m); `tracked`, normals at level 0 only.
+    /// `footprint_cell` (m); as far as `prep` says (tracked: normals at
+    /// level 0 only).
     fn build_base(
         base: Base<'m>,
         resolution: f32,
         (levels, footprint_cell): (usize, f32),
         role: Role,
-        tracked: bool,
+        prep: Prep,
         mut storage: S,
     ) -> Result<Self, PyramidError> {
+        let tracked = prep != Prep::Whole;
         if base.len() == 0 {
             return Err(PyramidError::EmptyMap);
         }
@@ -905,13 +913,16 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 slot_start += slot_len;
             }
         }
-        let mut pyramid = Pyramid { base, role, storage, levels: info, count: levels, footprint: None, tracked };
+        let lazy = model && prep == Prep::Lazy;
+        let mut pyramid = Pyramid { base, role, storage, levels: info, count: levels, footprint: None, tracked, lazy };
         // Normals (a model's), level by level: fitted against the read-only
         // level, then written. Coarse levels are sorted in sweep order;
         // level 0 (the map, in insertion order) is visited through a
         // permutation sorted in the footprint's words (built after), or,
         // where they are too few, through hash lookups (the same normals).
-        if model {
+        if lazy {
+            pyramid.unfit_level0();
+        } else if model {
             pyramid.fit_normals()?;
         }
         if footprint_cell.is_finite() && footprint_cell > 0.0 {

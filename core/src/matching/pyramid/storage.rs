@@ -463,4 +463,12 @@ impl<'m> Pyramid<'m, VecPyramidStorage> {
         let storage = VecPyramidStorage::new(PyramidCapacity::for_map(map, levels, f32::NAN, role));
         Self::build_tracked(map, role, storage)
     }
+
+    /// Prepares `map` as a model for tracking with level 0's normals left
+    /// to fit ([`Pyramid::build_tracked_lazy`]) in storage sized for it.
+    pub fn build_vec_tracked_lazy<V: VoxelStorage>(map: &'m LocalMap<V>) -> Result<Self, PyramidError> {
+        let levels = Self::tracked_levels(map.resolution(), Role::Model);
+        let storage = VecPyramidStorage::new(PyramidCapacity::for_map(map, levels, f32::NAN, Role::Model));
+        Self::build_tracked_lazy(map, storage)
+    }
 }

@@ -3,7 +3,7 @@
 //! model's pooled grids by their common class groups.
 
 use super::super::footprint::{Footprint, Grid, POOL_LEVELS};
-use super::super::pyramid::Reach;
+use super::super::pyramid::{PackedNormal, Reach};
 use crate::region::{words_for, Region};
 
 /// Scene points whose cells are cached per yaw; more are thinned by stride.
@@ -88,6 +88,9 @@ pub struct SearchScratch<'s> {
     /// EM's memory of each scene entry's block between iterations
     /// ([`SearchScratch::with_reach`]).
     reach: &'s mut [Reach],
+    /// The normals EM fitted of a model that leaves them to it
+    /// ([`SearchScratch::with_normals`]).
+    normals: &'s mut [PackedNormal],
 }
 
 impl<'s> SearchScratch<'s> {
@@ -105,7 +108,7 @@ impl<'s> SearchScratch<'s> {
 
     /// Scratch in `words` (any contents).
     pub fn new(words: &'s mut [u32]) -> Self {
-        SearchScratch { words, reach: &mut [] }
+        SearchScratch { words, reach: &mut [], normals: &mut [] }
     }
 
     /// The same, with room for EM to remember, between its iterations, the
@@ -116,13 +119,29 @@ impl<'s> SearchScratch<'s> {
     ///
     /// [`MatchSettings::max_scene_entries`]: crate::matching::MatchSettings::max_scene_entries
     pub fn with_reach(self, reach: &'s mut [Reach]) -> Self {
-        SearchScratch { words: self.words, reach }
+        SearchScratch { reach, ..self }
     }
 
-    /// EM's room to remember blocks, emptied (a new level or new maps).
-    pub(crate) fn reach(&mut self) -> &mut [Reach] {
+    /// The same, with room for EM to keep the normals it fits of a model
+    /// prepared without them ([`Pyramid::build_tracked_lazy`]): one per
+    /// model entry for all of them; with fewer, the rest are fitted each
+    /// time they are read. The answers are the same bit for bit.
+    ///
+    /// [`Pyramid::build_tracked_lazy`]: crate::matching::Pyramid::build_tracked_lazy
+    pub fn with_normals(self, normals: &'s mut [PackedNormal]) -> Self {
+        SearchScratch { normals, ..self }
+    }
+
+    /// EM's room to remember blocks, emptied (a new level or new maps),
+    /// and to keep the normals it fits, emptied for a model that leaves
+    /// them to it (`lazy`).
+    pub(crate) fn em_room(&mut self, lazy: bool) -> (&mut [Reach], &mut [PackedNormal]) {
         self.reach.fill(Reach::EMPTY);
-        &mut *self.reach
+        if lazy {
+            self.normals.fill(PackedNormal::UNFIT);
+        }
+        let normals = if lazy { &mut *self.normals } else { &mut [] };
+        (&mut *self.reach, normals)
     }
 
     /// The scene cells a windowed search caches: all of them up to what the

@@ -24,7 +24,7 @@ use crate::sources::drift::Drift;
 use crate::sources::source::{Source, SourceOptions};
 use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
-use cosem_core::matching::{Alignment, MatchResult, MatchStatus, Reach, Role};
+use cosem_core::matching::{Alignment, MatchResult, MatchStatus, PackedNormal, Reach, Role};
 use cosem_core::session::{Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateCounts};
 use nalgebra::Isometry3;
 use prepared::Prepared;
@@ -228,12 +228,33 @@ struct Link {
 struct Scratch {
     words: Vec<u32>,
     out: Vec<u8>,
+    /// The matcher's.
+    room: MatchRoom,
+    /// Each robot's map sent whole this round (bytes): the updates' measure.
+    whole: Vec<usize>,
+}
+
+/// What a robot's estimates work in ([`estimate_on`]).
+pub struct MatchRoom {
     /// The windowed search's cache.
     search: Vec<u32>,
     /// EM's memory of the blocks its scene entries reached.
     reach: Vec<Reach>,
-    /// Each robot's map sent whole this round (bytes): the updates' measure.
-    whole: Vec<usize>,
+    /// The normals EM fits of the robot's own map, prepared for tracking
+    /// without them ([`crate::matching::align::prepare_tracked`]): one per
+    /// voxel.
+    normals: Vec<PackedNormal>,
+}
+
+impl MatchRoom {
+    /// Room for `how`'s matcher on maps of at most `most` voxels.
+    pub fn new(how: &Alignment, most: usize) -> Self {
+        MatchRoom {
+            search: vec![0; SearchScratch::WINDOWED],
+            reach: vec![Reach::EMPTY; crate::matching::align::reach_room(how)],
+            normals: vec![PackedNormal::UNFIT; most],
+        }
+    }
 }
 
 impl SessionSpec {
@@ -446,8 +467,7 @@ impl Scratch {
             // Two words a voxel: the faster Morton ordering (wire::codec).
             words: vec![0; 2 * most],
             out: vec![0; most * 24 + 4096],
-            search: vec![0; SearchScratch::WINDOWED],
-            reach: vec![Reach::EMPTY; crate::matching::align::reach_room(&spec.alignment)],
+            room: MatchRoom::new(&spec.alignment, most),
             whole: vec![0; spec.robots.len()],
         }
     }
@@ -661,8 +681,7 @@ fn estimate_one(
     let (estimate, preparing) = if copy.is_empty() {
         (None, 0.0)
     } else {
-        let room = (&mut scratch.search[..], &mut scratch.reach[..]);
-        let (mut e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, room)?;
+        let (mut e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, &mut scratch.room)?;
         // What the peer's map was a stretch of driving ago says little of
         // where its odometry frame is now: under drift, a fix on it goes
         // wrong as the robots part (on a 10% line, 0.6 m and 1-2 degrees).
@@ -712,8 +731,9 @@ pub fn estimate_on(
     tracker: &mut Tracker,
     how: &Alignment,
     view: &PeerView,
-    (search, reach): (&mut [u32], &mut [Reach]),
+    room: &mut MatchRoom,
 ) -> Result<(Estimate, f64), Error> {
+    let MatchRoom { search, reach, normals } = room;
     let matching = |e: cosem_core::matching::MatchError| Error::Invalid(format!("matching: {e}"));
     let mut peer = Prepared::new(copy, Role::Scene);
     // What `own` took to prepare before this call (for another peer) is
@@ -726,7 +746,7 @@ pub fn estimate_on(
     if tracker.fix().is_some() {
         let (o, s) = own.tracked()?;
         used = s;
-        let scratch = &mut SearchScratch::new(&mut []).with_reach(&mut *reach);
+        let scratch = &mut SearchScratch::new(&mut []).with_reach(reach).with_normals(normals);
         tracked = Some(tracker.track(o, peer.tracked()?.0, how, scratch, view).map_err(matching)?);
     }
     let e = match tracked.as_ref().and_then(|t| t.estimate()) {

@@ -26,15 +26,14 @@
 use super::dds::{edge, published, stamp_now, DdsNode, TopicKind};
 use super::follow::Follower;
 use crate::error::Error;
-use crate::evaluation::session::estimate_on;
 use crate::evaluation::session::prepared::Prepared;
+use crate::evaluation::session::{estimate_on, MatchRoom};
 use crate::maps::mapping::{fuse_frames, new_map, HostMap, PointFilter};
 use crate::sources::recording::{iso_of, live_cloud, TfTree};
 use crate::sources::ros_msgs::*;
 use crate::sources::ros_pose::pose_with_covariance;
 use cosem_core::map::{FullPolicy, MapConfig};
-use cosem_core::matching::search::SearchScratch;
-use cosem_core::matching::{Alignment, MatchStatus, Reach, Role};
+use cosem_core::matching::{Alignment, MatchStatus, Role};
 use cosem_core::session::{Estimate, PeerView, Publisher, ShadowEntry, Tracker};
 use nalgebra::Isometry3;
 use std::collections::{BTreeMap, VecDeque};
@@ -249,8 +248,7 @@ pub struct RosNode {
     peers: BTreeMap<String, Peer>,
     words: Vec<u32>,
     out: Vec<u8>,
-    search: Vec<u32>,
-    reach: Vec<Reach>,
+    room: MatchRoom,
     summary: NodeSummary,
     /// Something new (a scan, a peer's update) since the last round, and
     /// when the last thing came.
@@ -361,8 +359,7 @@ impl RosNode {
             peers: BTreeMap::new(),
             words: vec![0; 2 * capacity],
             out: vec![0; capacity * 24 + 4096],
-            search: vec![0; SearchScratch::WINDOWED],
-            reach: vec![Reach::EMPTY; crate::matching::align::reach_room(&spec.alignment)],
+            room: MatchRoom::new(&spec.alignment, capacity),
             summary: NodeSummary::default(),
             dirty: false,
             last_input: Instant::now(),

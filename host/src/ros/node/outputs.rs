@@ -32,7 +32,7 @@ impl RosNode {
             }
             let heard = peer.heard.filter(|h| h.1.elapsed().as_secs_f64() <= HEARD_FOR).map(|h| h.0);
             let view = PeerView { estimate: heard, at: self.own.place };
-            let room = (&mut self.search[..], &mut self.reach[..]);
+            let room = &mut self.room;
             let (mut e, _) = match estimate_on(&mut mine, copy, &mut peer.tracker, &self.spec.alignment, &view, room) {
                 Ok(e) => e,
                 Err(why) => {
