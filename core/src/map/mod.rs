@@ -30,7 +30,7 @@ pub const VOXEL_SIZES: core::ops::RangeInclusive<f32> = 0.02..=10.0;
 pub use labels::{LabelDistribution, LabelError, SensorModel, LABEL_SLOTS, SCORE_UNITS_PER_NAT};
 pub use local_map::{CoarsenError, ConfigError, FullPolicy, InsertError, Insertion, LocalMap, MapConfig, Neighbours};
 pub use overlap::overlap;
-pub use scene::{class_and_confidence, SceneMap, ScenePoint, VoxelSink};
+pub use scene::{class_and_confidence, ClassMemo, SceneMap, ScenePoint, VoxelSink};
 pub use table::{
     ArrayStorage, MapIndex, SliceStorage, SlotInt, VoxelStorage, WordStorage, BYTES_PER_VOXEL, SLOTS_PER_VOXEL,
 };

@@ -120,6 +120,46 @@ pub fn class_and_confidence(v: &SemanticVoxel) -> (u8, u8) {
     (class.map(|c| c.index()).unwrap_or(u8::MAX), (p * 255.0 + 0.5) as u8)
 }
 
+/// [`class_and_confidence`] remembered for the last label distributions
+/// seen (direct-mapped by their bits): a map's voxels repeat a few
+/// distributions (a surface seen as one class so many times), and
+/// preparing a map asks it of every voxel, each a few `expf`.
+pub struct ClassMemo {
+    /// A distribution's bits, its class and confidence.
+    slots: [([u16; 4], u8, u8); CLASS_MEMO_SLOTS],
+    /// A bit a slot: filled.
+    filled: u64,
+}
+
+/// Slots of a [`ClassMemo`] (at most 64: `filled` is a bit each).
+const CLASS_MEMO_SLOTS: usize = 64;
+
+impl Default for ClassMemo {
+    fn default() -> Self {
+        ClassMemo { slots: [([0; 4], 0, 0); CLASS_MEMO_SLOTS], filled: 0 }
+    }
+}
+
+impl ClassMemo {
+    /// [`class_and_confidence`] of `v`.
+    #[inline]
+    pub fn of(&mut self, v: &SemanticVoxel) -> (u8, u8) {
+        let bits: [u16; 4] = bytemuck::cast(v.labels);
+        let word = bits.iter().fold(0u64, |acc, &b| (acc << 16) | u64::from(b));
+        let k = (word.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize % CLASS_MEMO_SLOTS;
+        match self.slots.get_mut(k) {
+            Some(slot) if self.filled & (1 << k) != 0 && slot.0 == bits => (slot.1, slot.2),
+            Some(slot) => {
+                let (class, confidence) = class_and_confidence(v);
+                *slot = (bits, class, confidence);
+                self.filled |= 1 << k;
+                (class, confidence)
+            }
+            None => class_and_confidence(v),
+        }
+    }
+}
+
 impl ScenePoint {
     /// All zero (a `static` of them lands in `.bss`).
     pub const EMPTY: ScenePoint = ScenePoint { key: VoxelKey::new(0, 0, 0), packed: 0 };

@@ -414,3 +414,35 @@ fn sixteen_bit_slots_index_like_thirty_two_bit_ones() {
     let ok = SliceStorage { voxels: &mut voxels[..65_534], slots: &mut slots };
     assert!(LocalMap::new(ok, MapConfig::default()).is_ok());
 }
+
+/// The memo gives what it remembers for: the same class and confidence as
+/// [`class_and_confidence`], through repeats and colliding slots.
+#[test]
+fn the_class_memo_answers_as_the_posterior_does() {
+    use crate::map::labels::LabelDistribution;
+    use crate::map::{class_and_confidence, ClassMemo};
+    let mut memo = ClassMemo::default();
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = |n: u64| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state % n
+    };
+    let mut seen = std::vec::Vec::new();
+    for _ in 0..5_000 {
+        // Half of them a distribution seen before.
+        let labels = if !seen.is_empty() && next(2) == 0 {
+            seen[next(seen.len() as u64) as usize]
+        } else {
+            let mut d = LabelDistribution::default();
+            for _ in 0..1 + next(6) {
+                d.observe(Class::from_index(next(19) as u8).unwrap(), 1 + next(200) as u16);
+            }
+            seen.push(d);
+            d
+        };
+        let v = SemanticVoxel::from_parts(VoxelKey::new(0, 0, 0), [0; 3], 0, 1, labels);
+        assert_eq!(memo.of(&v), class_and_confidence(&v), "{labels:?}");
+    }
+}

@@ -185,10 +185,11 @@ fn block_code(key: VoxelKey, side: [i32; 3]) -> u64 {
 }
 
 /// The model entry a moved scene entry associates with, its weight,
-/// squared distance and index in the level. It looks at the 2x2x2 block of cells on `q`'s side of
-/// its cell, which holds every model entry within half a cell of `q` (and
-/// some farther ones, up to `radius`); with `reach`, the block the last
-/// E-step found for this entry, looked up again only when it moved.
+/// squared distance and index in the level. It looks at the 2x2x2 block
+/// of cells on `q`'s side of its cell, which holds every model entry
+/// within half a cell of `q` (and some farther ones, up to `radius`); with
+/// `reach`, the block the last E-step found for this entry, looked up
+/// again only when it moved.
 #[inline]
 fn best_match(
     model: &Level<'_>,

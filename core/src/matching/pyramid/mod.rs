@@ -32,7 +32,8 @@ use crate::map::key::sort_indices_by_code;
 use crate::map::table::{probe_index, probe_keys, walk, walk_by, MapIndex, Probe, Slot};
 use crate::map::voxel::mean_position;
 use crate::map::{
-    class_and_confidence, CellPoint, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage, WordStorage,
+    class_and_confidence, CellPoint, ClassMemo, LocalMap, SceneMap, ScenePoint, SemanticVoxel, VoxelKey, VoxelStorage,
+    WordStorage,
 };
 use crate::region::Region;
 use core::mem::size_of;
@@ -73,8 +74,9 @@ fn base_extras<'e>(base: &Base<'_>, extras: &'e mut [VoxelExtra]) -> Result<&'e 
     match base {
         Base::Map { voxels, .. } => {
             let extras = extras.get_mut(..voxels.len()).ok_or(PyramidError::Full)?;
+            let mut memo = ClassMemo::default();
             for (x, v) in extras.iter_mut().zip(voxels.iter()) {
-                let (class, confidence) = class_and_confidence(v);
+                let (class, confidence) = memo.of(v);
                 *x = VoxelExtra { normal: PackedNormal::NONE, class, confidence };
             }
             Ok(extras)
