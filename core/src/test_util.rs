@@ -69,3 +69,15 @@ fn selftest_converges_and_encodes_consistently() {
     let d = report.result.transform * report.truth.inverse();
     assert!(d.translation.vector.norm() < 0.05 && d.rotation.angle().to_degrees() < 0.2, "{d:?}");
 }
+
+/// A seeded xorshift draw below `n` for each call: the tests' random
+/// cases, the same on every run.
+pub fn draws(seed: u64) -> impl FnMut(u64) -> u64 {
+    let mut state = seed;
+    move |n| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state % n
+    }
+}

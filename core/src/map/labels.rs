@@ -306,13 +306,7 @@ mod tests {
     /// The one-class posterior is the full posterior's entry to the bit.
     #[test]
     fn probability_is_the_posteriors_entry_to_the_bit() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = |n: u64| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state % n
-        };
+        let mut next = crate::test_util::draws(0x2545_f491_4f6c_dd1du64);
         for _ in 0..20_000 {
             let mut d = LabelDistribution::default();
             for _ in 0..next(12) {

@@ -422,13 +422,7 @@ fn the_class_memo_answers_as_the_posterior_does() {
     use crate::map::labels::LabelDistribution;
     use crate::map::{class_and_confidence, ClassMemo};
     let mut memo = ClassMemo::default();
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut next = |n: u64| {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        state % n
-    };
+    let mut next = crate::test_util::draws(0x9e37_79b9_7f4a_7c15u64);
     let mut seen = std::vec::Vec::new();
     for _ in 0..5_000 {
         // Half of them a distribution seen before.

@@ -62,14 +62,4 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
     pub fn is_lazy(&self) -> bool {
         self.lazy
     }
-
-    /// Level 0's normals marked not fitted.
-    pub(super) fn unfit_level0(&mut self) {
-        let len = self.levels[0].len;
-        if let Base::Map { .. } = self.base {
-            for x in self.storage.parts_mut().extras.iter_mut().take(len) {
-                x.normal = PackedNormal::UNFIT;
-            }
-        }
-    }
 }

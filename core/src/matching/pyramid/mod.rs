@@ -68,16 +68,20 @@ fn sweep_permutation(words: &mut [u32], len: usize, key: impl Fn(usize) -> Optio
     sort_indices_by_code(words, len, len, code)
 }
 
-/// A map base's per-voxel extras (class, confidence; normals come later)
-/// written into `extras`; a scene or copied base has none.
-fn base_extras<'e>(base: &Base<'_>, extras: &'e mut [VoxelExtra]) -> Result<&'e [VoxelExtra], PyramidError> {
+/// A map base's per-voxel extras (class, confidence; each normal `normal`
+/// until fitted) written into `extras`; a scene or copied base has none.
+fn base_extras<'e>(
+    base: &Base<'_>,
+    extras: &'e mut [VoxelExtra],
+    normal: PackedNormal,
+) -> Result<&'e [VoxelExtra], PyramidError> {
     match base {
         Base::Map { voxels, .. } => {
             let extras = extras.get_mut(..voxels.len()).ok_or(PyramidError::Full)?;
             let mut memo = ClassMemo::default();
             for (x, v) in extras.iter_mut().zip(voxels.iter()) {
                 let (class, confidence) = memo.of(v);
-                *x = VoxelExtra { normal: PackedNormal::NONE, class, confidence };
+                *x = VoxelExtra { normal, class, confidence };
             }
             Ok(extras)
         }
@@ -863,6 +867,7 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
             return Err(PyramidError::Levels);
         }
         let model = role == Role::Model;
+        let lazy = model && prep == Prep::Lazy;
         let mut info = [LevelInfo::default(); MAX_LEVELS];
         info[0] = LevelInfo { start: 0, len: base.len(), slot_start: 0, slot_len: 0, resolution, narrow: false };
         {
@@ -877,7 +882,9 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
             {
                 return Err(PyramidError::Full);
             }
-            let extras = base_extras(&base, extras)?;
+            // A lazy model's normals stay unfitted for EM; others are fitted below.
+            let unfitted = if lazy { PackedNormal::UNFIT } else { PackedNormal::NONE };
+            let extras = base_extras(&base, extras, unfitted)?;
             let level0 = base.level0(extras, points, point_slots);
             // Coarse levels: each merged from the one below, then indexed
             // (a model's).
@@ -915,16 +922,13 @@ impl<'m, S: PyramidStorage> Pyramid<'m, S> {
                 slot_start += slot_len;
             }
         }
-        let lazy = model && prep == Prep::Lazy;
         let mut pyramid = Pyramid { base, role, storage, levels: info, count: levels, footprint: None, tracked, lazy };
         // Normals (a model's), level by level: fitted against the read-only
         // level, then written. Coarse levels are sorted in sweep order;
         // level 0 (the map, in insertion order) is visited through a
         // permutation sorted in the footprint's words (built after), or,
         // where they are too few, through hash lookups (the same normals).
-        if lazy {
-            pyramid.unfit_level0();
-        } else if model {
+        if model && !lazy {
             pyramid.fit_normals()?;
         }
         if footprint_cell.is_finite() && footprint_cell > 0.0 {

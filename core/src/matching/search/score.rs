@@ -137,10 +137,12 @@ impl<'s> SearchScratch<'s> {
     /// them to it (`lazy`).
     pub(crate) fn em_room(&mut self, lazy: bool) -> (&mut [Reach], &mut [PackedNormal]) {
         self.reach.fill(Reach::EMPTY);
-        if lazy {
+        let normals: &mut [PackedNormal] = if lazy {
             self.normals.fill(PackedNormal::UNFIT);
-        }
-        let normals = if lazy { &mut *self.normals } else { &mut [] };
+            &mut *self.normals
+        } else {
+            &mut []
+        };
         (&mut *self.reach, normals)
     }
 
