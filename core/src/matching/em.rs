@@ -19,6 +19,18 @@ use nalgebra::{Isometry3, Matrix6};
 /// keeps the whole sample: a first fix is judged on all it can read.
 pub const TRACKED_AGREEMENT_SHARE: u32 = 2;
 
+/// EM from a fix stops on a step this many times the settings' tolerances
+/// ([`MatchSettings::translation_tolerance`] and
+/// [`MatchSettings::rotation_tolerance`]): at 0.5 m cells, 2.5 cm and
+/// 0.06 degrees instead of 2.5 mm and 0.006. A tracked answer is estimated
+/// again next round from where it is, and what it is judged against (the
+/// odometry's drift between the two robots' scans) spreads over
+/// decimetres; the last millimetres took a fifth of a tracking round's
+/// iterations. On the town (ten sessions, 710 tracked estimates): 6.4 to
+/// 4.1 iterations on average, every status the same, the median, p95
+/// and largest `e_t` and `e_r` within a centimetre and 0.01 degrees.
+pub const TRACKED_TOLERANCE_SCALE: f32 = 10.0;
+
 /// A placement handed down to the finest level whose standing entries
 /// agree less than this share of [`MatchSettings::min_agreement`] (read on
 /// a fifth of the verdict's sample, as the look-alike check does) is not
@@ -197,7 +209,8 @@ impl Matcher {
     /// driving). Of `scratch`, only EM's room to remember blocks is used
     /// ([`SearchScratch::with_reach`]; none: the same answer, more lookups).
     /// Its verdict reads a [`TRACKED_AGREEMENT_SHARE`] of the scene entries
-    /// a match's does.
+    /// a match's does, and its EM stops on steps [`TRACKED_TOLERANCE_SCALE`]
+    /// times the settings' tolerances.
     pub fn track_in<A: PyramidStorage, B: PyramidStorage>(
         &self,
         model: &Pyramid<'_, A>,
@@ -207,7 +220,13 @@ impl Matcher {
     ) -> Result<MatchResult, MatchError> {
         let cell = model.level(0).map_or(0.0, |l| l.resolution());
         let share = (self.settings.max_agreement_entries / TRACKED_AGREEMENT_SHARE).max(1);
-        let tracking = Matcher::new(MatchSettings { max_agreement_entries: share, ..self.settings });
+        let s = &self.settings;
+        let tracking = Matcher::new(MatchSettings {
+            max_agreement_entries: share,
+            translation_tolerance: TRACKED_TOLERANCE_SCALE * s.translation_tolerance,
+            rotation_tolerance: TRACKED_TOLERANCE_SCALE * s.rotation_tolerance,
+            ..*s
+        });
         tracking.align_once(model, scene, fix, Some(cell), true, scratch)
     }
 
