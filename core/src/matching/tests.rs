@@ -582,6 +582,48 @@ fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
     assert_ne!((tracked.inliers, tracked.overlap), (read(300).inliers, read(300).overlap));
 }
 
+/// From a fix a round's drift off (a few centimetres, a tenth of a
+/// degree, or most of a cell and 0.4 degrees), tracking's looser stop
+/// ([`em::TRACKED_TOLERANCE_SCALE`]) lands within a centimetre and 0.02
+/// degrees of EM run to a tenth of that tolerance, in no more iterations
+/// (fewer over the three).
+#[test]
+fn tracking_stops_early_where_tighter_steps_would_not_move_it() {
+    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
+    let mut model = new_map();
+    crate::test_util::street(&mut model, &Isometry3::identity(), (0, 400), true);
+    let mut scene = new_map();
+    crate::test_util::street(&mut scene, &gt.inverse(), (100, 300), true);
+    let (pm, ps) = (pyramid(&model), pyramid(&scene));
+    let m = Matcher::default();
+    let s = m.settings;
+    let tight = Matcher::new(MatchSettings {
+        translation_tolerance: s.translation_tolerance / em::TRACKED_TOLERANCE_SCALE,
+        rotation_tolerance: s.rotation_tolerance / em::TRACKED_TOLERANCE_SCALE,
+        ..s
+    });
+    let none = &mut search::SearchScratch::new(&mut []);
+    let mut iterations = (0, 0);
+    for fix in [
+        from_xyz_rpy(0.05, -0.03, 0.0, 0.0, 0.0, 0.1f32.to_radians()) * gt,
+        from_xyz_rpy(-0.04, 0.06, 0.02, 0.0, 0.0, -0.15f32.to_radians()) * gt,
+        from_xyz_rpy(0.12, 0.1, 0.0, 0.0, 0.0, 0.4f32.to_radians()) * gt,
+    ] {
+        let (quick, slow) = (m.track_in(&pm, &ps, &fix, none).unwrap(), tight.track_in(&pm, &ps, &fix, none).unwrap());
+        assert_eq!((quick.status, slow.status), (MatchStatus::Converged, MatchStatus::Converged));
+        let apart = quick.transform * slow.transform.inverse();
+        assert!(apart.translation.vector.norm() < 0.01, "{apart:?}");
+        assert!(apart.rotation.angle().to_degrees() < 0.02, "{apart:?}");
+        assert!(quick.iterations <= slow.iterations, "{} against {}", quick.iterations, slow.iterations);
+        iterations.0 += quick.iterations;
+        iterations.1 += slow.iterations;
+        // Both right: the street's poles hold it along.
+        let off = quick.transform * gt.inverse();
+        assert!(off.translation.vector.norm() < 0.05 && off.rotation.angle().to_degrees() < 0.1, "{off:?}");
+    }
+    assert!(iterations.0 < iterations.1, "{iterations:?}");
+}
+
 /// Pyramids prepared for tracking only (a model's levels up to its cover,
 /// normals at level 0; a scene's level 0; no footprints) track as the
 /// whole ones do, bit for bit, from a fix right or off; a search, or EM
