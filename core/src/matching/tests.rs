@@ -23,6 +23,18 @@ fn pyramid<S: crate::map::VoxelStorage>(map: &LocalMap<S>) -> Pyramid<'_, Heap> 
     Pyramid::build(map, 4, 1.0, heap_pyramid(n, 3 * n, 400_000)).unwrap()
 }
 
+/// A street's model (0-400) and a scene of its middle (100-300) placed by
+/// the returned truth, `T_model_scene` (0.8 m, 0.3 m and 0.03 rad off);
+/// with poles, or walls and floor alone.
+fn street_pair(poles: bool) -> (Isometry3<f32>, Map, Map) {
+    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
+    let mut model = new_map();
+    crate::test_util::street(&mut model, &Isometry3::identity(), (0, 400), poles);
+    let mut scene = new_map();
+    crate::test_util::street(&mut scene, &gt.inverse(), (100, 300), poles);
+    (gt, model, scene)
+}
+
 /// An L-shaped street corner: floor, two walls, poles and a tree.
 fn corner(map: &mut Map, t: &Isometry3<f32>) {
     let mut put = |p: [f32; 3], c: Class| {
@@ -547,13 +559,9 @@ fn narrow_and_wide_coarse_indexes_agree() {
 /// the maps hold it. `align` from the same start finds it Degenerate.
 #[test]
 fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
-    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
-    let mut model = new_map();
-    crate::test_util::street(&mut model, &Isometry3::identity(), (0, 400), false);
     // The scene's part of the street ends well inside the model's: no end
     // holds it along the street.
-    let mut scene = new_map();
-    crate::test_util::street(&mut scene, &gt.inverse(), (100, 300), false);
+    let (gt, model, scene) = street_pair(false);
     let (pm, ps) = (pyramid(&model), pyramid(&scene));
     // The fix: 0.4 m along the street, 0.1 m across it and 0.3 degrees off
     // (within a cell: these maps are of 0.2 m).
@@ -589,11 +597,7 @@ fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
 /// (fewer over the three).
 #[test]
 fn tracking_stops_early_where_tighter_steps_would_not_move_it() {
-    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
-    let mut model = new_map();
-    crate::test_util::street(&mut model, &Isometry3::identity(), (0, 400), true);
-    let mut scene = new_map();
-    crate::test_util::street(&mut scene, &gt.inverse(), (100, 300), true);
+    let (gt, model, scene) = street_pair(true);
     let (pm, ps) = (pyramid(&model), pyramid(&scene));
     let m = Matcher::default();
     let s = m.settings;
@@ -630,11 +634,7 @@ fn tracking_stops_early_where_tighter_steps_would_not_move_it() {
 /// down the levels, refuses them.
 #[test]
 fn pyramids_prepared_for_tracking_track_as_whole_ones_and_refuse_a_search() {
-    let gt = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
-    let mut model = new_map();
-    crate::test_util::street(&mut model, &Isometry3::identity(), (0, 400), true);
-    let mut scene = new_map();
-    crate::test_util::street(&mut scene, &gt.inverse(), (100, 300), true);
+    let (gt, model, scene) = street_pair(true);
     let (pm, ps) = (pyramid(&model), pyramid(&scene));
     let tm = Pyramid::build_vec_tracked(&model, Role::Model).unwrap();
     let ts = Pyramid::build_vec_tracked(&scene, Role::Scene).unwrap();
