@@ -25,7 +25,7 @@ pub const TRACKED_AGREEMENT_SHARE: u32 = 2;
 /// 0.06 degrees instead of 2.5 mm and 0.006. A tracked answer is estimated
 /// again next round from where it is, and what it is judged against (the
 /// odometry's drift between the two robots' scans) spreads over
-/// decimetres; the last millimetres took a fifth of a tracking round's
+/// decimetres; the last millimetres took a third of a tracked EM's
 /// iterations. On the town (ten sessions, 710 tracked estimates): 6.4 to
 /// 4.1 iterations on average, every status the same, the median, p95
 /// and largest `e_t` and `e_r` within a centimetre and 0.01 degrees.
@@ -220,20 +220,16 @@ impl Matcher {
         scratch: &mut SearchScratch<'_>,
     ) -> Result<MatchResult, MatchError> {
         let cell = model.level(0).map_or(0.0, |l| l.resolution());
-        let share = (self.settings.max_agreement_entries / TRACKED_AGREEMENT_SHARE).max(1);
         let s = &self.settings;
         let tracking = Matcher::new(MatchSettings {
-            max_agreement_entries: share,
+            max_agreement_entries: (s.max_agreement_entries / TRACKED_AGREEMENT_SHARE).max(1),
             translation_tolerance: TRACKED_TOLERANCE_SCALE * s.translation_tolerance,
             rotation_tolerance: TRACKED_TOLERANCE_SCALE * s.rotation_tolerance,
             // No annealing: a fix is centimetres from the answer, well inside
             // the narrowest width (half a cell); annealing widens the reach
             // of a start a cell or more off, which tracking never has (a
-            // slip fails the verdict and is searched for). Ten 2-robot, ten
-            // 3-robot and ten camera-label sessions: iterations 4.1 to 2.8
-            // on average, every LiDAR status the same but two refused ones
-            // (NoOverlap and NotConverged traded, tens of metres off), the
-            // same wrong Converged with camera labels, slips caught alike.
+            // slip fails the verdict and is searched for). Measured in
+            // docs/session.md (sixth session).
             sigma_start: s.sigma_end,
             ..*s
         });
