@@ -173,6 +173,12 @@ pub fn transform_point(t: &Isometry3<f32>, p: [f32; 3]) -> [f32; 3] {
     [q.x, q.y, q.z]
 }
 
+/// Metres between two places given as arrays.
+pub fn distance(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    libm::sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -11,14 +11,18 @@
 //!   out-of-step update) is answered so that the sender resends or sends a
 //!   snapshot, never silently diverges;
 //! - [`tracker`]: the peer's relative pose, prior-free until a fix, then
-//!   tracked from it, withdrawn when it stops agreeing.
+//!   tracked from it, withdrawn when it stops agreeing;
+//! - [`smoother`]: the pose a fix's rounds report, their answers fused by
+//!   a filter that moves only as fast as the odometry drifts.
 
 pub mod publisher;
 pub mod replica;
+pub mod smoother;
 pub mod tracker;
 
 pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateCounts};
 pub use replica::{Applied, Replica};
+pub use smoother::Smoother;
 pub use tracker::{agree, Estimate, Fix, Kind, PeerView, Tracked, Tracker, AGREE_DEG, AGREE_M, HOLD_M};
 
 /// The verdict's least overlap in a session: 0.25, where a one-shot

@@ -12,7 +12,8 @@
 //! robot has driven less than [`HOLD_M`] since the last fix the maps held
 //! in every direction (beyond, the answer is `Degenerate`).
 
-use crate::geometry::Isometry3;
+use super::smoother::Smoother;
+use crate::geometry::{distance, Isometry3};
 use crate::matching::search::SearchScratch;
 use crate::matching::{
     align_prepared, Alignment, MatchError, MatchResult, MatchSettings, MatchStatus, Matcher, Pyramid, PyramidStorage,
@@ -125,11 +126,6 @@ impl Estimate {
     }
 }
 
-fn distance(a: [f32; 3], b: [f32; 3]) -> f32 {
-    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    libm::sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-}
-
 /// Whether `ours` (`T_own_peer`) and the peer's `theirs` (`T_peer_own`)
 /// compose to about the identity at `at`.
 pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3]) -> bool {
@@ -154,10 +150,14 @@ impl Tracked {
     }
 }
 
-/// A robot's track of one peer: its last fix, if any.
+/// A robot's track of one peer: its last fix, if any, and the pose it
+/// reports, smoothed over the fix's rounds ([`Smoother`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Tracker {
+    /// The last answer that passed the verdict: tracking's next start.
     fix: Option<Isometry3<f32>>,
+    /// The pose reported while the fix is held.
+    smoothed: Option<Smoother>,
     /// Rounds running in which EM did not settle from the fix, or its
     /// answer was Degenerate.
     unsettled: u8,
@@ -174,12 +174,19 @@ pub struct Tracker {
 impl Tracker {
     /// A track with no fix.
     pub const fn new() -> Self {
-        Tracker { fix: None, unsettled: 0, confirmed: false, whole_at: None, last: None }
+        Tracker { fix: None, smoothed: None, unsettled: 0, confirmed: false, whole_at: None, last: None }
     }
 
-    /// The fix held (`T_own_peer`), if any.
+    /// The fix held (`T_own_peer`), if any: the last answer that passed
+    /// the verdict, which the next round tracks from.
     pub fn fix(&self) -> Option<&Isometry3<f32>> {
         self.fix.as_ref()
+    }
+
+    /// The pose reported while the fix is held: the fix's answers
+    /// smoothed ([`Smoother`]).
+    pub fn reported(&self) -> Option<&Isometry3<f32>> {
+        self.smoothed.as_ref().map(Smoother::transform)
     }
 
     /// Forgets the fix and the last one held (the peer restarted, or its
@@ -339,11 +346,27 @@ impl Tracker {
     }
 
     /// The fix after `result` (made from the fix for [`Kind::Tracking`]),
-    /// and the estimate reported.
-    fn settle(&mut self, kind: Kind, result: MatchResult, view: &PeerView) -> Estimate {
+    /// and the estimate reported: an answer that passed the verdict is the
+    /// next fix, and reports its pose smoothed with the fix's before it
+    /// once the peer has confirmed the fix (a new or unconfirmed fix starts
+    /// the smoothing again).
+    fn settle(&mut self, kind: Kind, mut result: MatchResult, view: &PeerView) -> Estimate {
         let fix = match (result.status, kind == Kind::Tracking) {
             (MatchStatus::Converged, _) => {
-                (self.fix, self.unsettled) = (Some(result.transform), 0);
+                let answer = result.transform;
+                // Smoothed from the state of a fix the peer confirmed: an
+                // unconfirmed fix's answers, on a meeting's first sliver of
+                // overlap, are often off alike round after round, and a
+                // state built on them held the first right answer back.
+                let held = self.fix.is_some() && self.confirmed;
+                result.transform = match self.smoothed.as_mut().filter(|_| held) {
+                    Some(s) => s.update(answer, &result.information, view.at),
+                    None => {
+                        self.smoothed = Some(Smoother::start(answer, &result.information, view.at));
+                        answer
+                    }
+                };
+                (self.fix, self.unsettled) = (Some(answer), 0);
                 self.last = self.fix;
                 Fix::Held
             }
@@ -375,7 +398,8 @@ impl Tracker {
     /// in that round, not the next. The same test as [`Tracker::estimate`]'s
     /// ([`agree`] at `at`).
     pub fn confirm(&mut self, estimate: &mut Estimate, theirs: &Isometry3<f32>, at: [f32; 3]) {
-        let current = estimate.result.status == MatchStatus::Converged && self.fix == Some(estimate.result.transform);
+        let current =
+            estimate.result.status == MatchStatus::Converged && self.reported() == Some(&estimate.result.transform);
         if current && agree(&estimate.result.transform, theirs, at) {
             self.confirmed = true;
             estimate.confirmed = true;

@@ -489,6 +489,7 @@ fn a_voxel_is_resent_only_when_it_moved_beyond_the_deadband() {
     assert_eq!(exchange(&map, &mut publisher).0, 1);
 }
 
+mod smoothing;
 mod tracking;
 
 /// A broadcast (a ROS 2 node's updates over DDS): no answers, each update

@@ -34,6 +34,10 @@ fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
     assert!(first.result.transform.translation.vector.norm() < 0.3, "{:?}", first.result.transform);
     let next = estimate(&mut tracker, &same);
     assert_eq!((next.kind, next.fix), (Kind::Tracking, Fix::Held));
+    // The pose reported is the fix's answers smoothed; tracking goes on
+    // from the answer.
+    assert_eq!(tracker.reported(), Some(&next.result.transform));
+    assert!(tracker.fix().is_some());
     let gone = estimate(&mut tracker, &other);
     assert_eq!(gone.kind, Kind::Tracking);
     assert_ne!(gone.result.status, MatchStatus::Converged);
