@@ -130,14 +130,11 @@ fn estimates_agree_to_the_strict_thresholds_where_the_robot_is() {
     let at = [30.0, 5.0, 0.0];
     // `theirs` such that ours * theirs is `loop_`.
     let theirs = |loop_: crate::geometry::Isometry3<f32>| ours.inverse() * loop_;
+    // A turn about the robot's place, then a shift: x metres there.
     let about_robot = |x: f32, yaw_deg: f32| {
-        let p = nalgebra::Vector3::new(at[0], at[1], at[2]);
-        let turn = from_xyz_rpy(0.0, 0.0, 0.0, 0.0, 0.0, yaw_deg.to_radians());
-        // A turn about the robot's place, then a shift: x metres there.
+        let turn = nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_deg.to_radians());
         from_xyz_rpy(x, 0.0, 0.0, 0.0, 0.0, 0.0)
-            * crate::geometry::Isometry3::translation(p.x, p.y, p.z)
-            * turn
-            * crate::geometry::Isometry3::translation(-p.x, -p.y, -p.z)
+            * crate::geometry::Isometry3::rotation_wrt_point(turn, crate::geometry::Point3::from(at))
     };
     assert!(agree(&ours, &theirs(about_robot(0.3, 0.6)), at));
     assert!(!agree(&ours, &theirs(about_robot(0.7, 0.0)), at));
