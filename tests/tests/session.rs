@@ -33,6 +33,9 @@ fn check_record_fields(r: &Value) {
     }
     if !r["e_t"].is_null() {
         assert!(r["e_t_origin"].as_f64().is_some_and(|m| m >= 0.0), "an error at the odometry origin: {r}");
+        for key in ["e_t_local", "e_r_local"] {
+            assert!(r[key].as_f64().is_some_and(|m| m >= 0.0), "{key}: {r}");
+        }
     }
 }
 
@@ -56,7 +59,7 @@ fn kitti00_robots_are_tracked_round_after_round() {
         assert_eq!(r["kind"], if first { "prior-free" } else { "tracking" }, "{r}");
         assert!(r["overlap_true"].as_f64().unwrap() > 0.3, "{r}");
     }
-    assert_eq!(summary["schema_version"], 6);
+    assert_eq!(summary["schema_version"], 7);
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
     assert_eq!(summary["availability"], 1.0, "{summary}");
     assert_eq!(summary["first_fix_rounds"], 0, "{summary}");
@@ -305,6 +308,25 @@ fn under_drift_estimates_are_right_where_the_robots_met() {
         let lever = r["e_t_origin"].as_f64().unwrap() / r["e_r"].as_f64().unwrap().to_radians();
         assert!(lever > 30.0, "{r}");
     }
+}
+
+/// Under a heading walk four times the benchmark's (`--drift 2%,2`, the
+/// built-in town, seed 1), a rigid transform between the maps cannot
+/// follow the walk at the one pair of scans the truth is taken at: some
+/// Converged estimates miss the strict thresholds (19 when measured).
+/// Against the truth as the maps hold it about that pair (each robot's
+/// frame averaged over its scans within the crop) every one is right, and
+/// the summary counts both.
+#[test]
+fn under_heavy_drift_estimates_are_right_about_the_maps_they_match() {
+    let (records, summary) = session(&["--drift", "2%,2", "--seed", "1"]);
+    records.iter().for_each(check_record_fields);
+    let converged: Vec<&Value> = records.iter().filter(|r| r["status"] == "Converged").collect();
+    assert!(converged.len() >= 50, "{summary}");
+    let wrong_local = |r: &&&Value| r["e_t_local"].as_f64().unwrap() >= 0.5 || r["e_r_local"].as_f64().unwrap() >= 1.0;
+    assert_eq!(summary["wrong_converged_local"].as_u64(), Some(converged.iter().filter(wrong_local).count() as u64));
+    assert_eq!(summary["wrong_converged_local"], 0, "{summary}");
+    assert!(summary["wrong_converged"].as_u64().unwrap() > 0, "{summary}");
 }
 
 /// `--mcap-out` writes the session as a recording: each robot's map every

@@ -314,7 +314,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
     let cases = pool.install(|| bench_session(&tmp.0, &a.seeds, a.frames))?;
     let opt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
     println!(
-        "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>12} {:>8} {:>9} {:>5}",
+        "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>12} {:>8} {:>9} {:>5}",
         "robots",
         "labels",
         "slip",
@@ -322,6 +322,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
         "rounds",
         "wrong",
         "@origin",
+        "local",
         "avail",
         "min",
         "meets",
@@ -336,7 +337,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
         let upd = c.update_bytes_ratio.map_or("-".into(), |[p, q, m]| format!("{p:.3}/{q:.3}/{m:.3}"));
         let held = c.update_deferred.map_or("-".into(), |[p, q, _]| format!("{p:.0}/{q:.0}"));
         println!(
-            "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>12} {:>8} {:>9} {:>5}",
+            "  {:<7} {:<8} {:<5} {:<8} {:>6} {:>6} {:>6} {:>6} {:>7} {:>7} {:>6} {:>6} {:>22} {:>12} {:>8} {:>9} {:>5}",
             c.case.robots,
             c.case.labels,
             c.case.slip,
@@ -344,6 +345,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
             c.rounds,
             c.wrong_converged,
             c.wrong_at_origin,
+            c.wrong_converged_local,
             opt(c.availability),
             opt(c.availability_min),
             c.meetings,
@@ -356,7 +358,7 @@ fn bench_session(a: SessionArgs, json: Option<&Path>) -> Result<(), Error> {
         );
     }
     println!(
-        "  (wrong: Converged and e_t at the meeting place or e_r over the strict thresholds; @origin: with e_t at the odometry origins;\n   held: voxels an update held back for later rounds (its budget); B/round: bytes a robot received from a peer in a round, median; cost: a tracking round's median time /\n   a from-scratch match's, single thread; one-shot: whole maps every round, matched prior-free; {:.0} s in all)",
+        "  (wrong: Converged and e_t at the meeting place or e_r over the strict thresholds; @origin: with e_t at the odometry origins;\n   local: against the truth as the maps hold it about the closest pair of scans (each robot's frame averaged over its scans within the crop);\n   held: voxels an update held back for later rounds (its budget); B/round: bytes a robot received from a peer in a round, median; cost: a tracking round's median time /\n   a from-scratch match's, single thread; one-shot: whole maps every round, matched prior-free; {:.0} s in all)",
         t0.elapsed().as_secs_f64()
     );
     save(json, &cases)

@@ -13,10 +13,14 @@ use serde::Serialize;
 /// the maps of tracking rounds (every [`FROM_SCRATCH_EVERY`]th), not on
 /// the last round's; 5 since each line has `update_deferred` and the
 /// summary `update_deferred` (p50, p95, max), updates being bounded by a
-/// budget (`--update-budget`, by default 1,024 bytes).
+/// budget (`--update-budget`, by default 1,024 bytes); 6 since a line's
+/// figures (`line_bytes`, `line_ms`, the summary's `line_late`); 7 since
+/// each line has `e_t_local` and `e_r_local` and the summary
+/// `wrong_converged_local` (against the truth as the maps hold it about
+/// the closest pair of scans).
 ///
 /// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
-pub const SESSION_SCHEMA: u32 = 6;
+pub const SESSION_SCHEMA: u32 = 7;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]
@@ -52,6 +56,14 @@ pub struct RecordJson {
     /// Rotation error against the truth (degrees).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub e_r: Option<f64>,
+    /// `e_t` against the truth as the two maps hold it about the closest
+    /// pair of scans: each robot's odometry frame averaged over its scans
+    /// within the crop of its scan of the pair (m).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub e_t_local: Option<f64>,
+    /// `e_r` against the same (degrees).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub e_r_local: Option<f64>,
     /// Overlap of the peer's map in the robot's under the truth.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub overlap_true: Option<f64>,
@@ -116,6 +128,8 @@ impl From<&Record> for RecordJson {
             e_t: r.errors.map(|e| e.0),
             e_t_origin: r.origin_error,
             e_r: r.errors.map(|e| e.1),
+            e_t_local: r.local_errors.map(|e| e.0),
+            e_r_local: r.local_errors.map(|e| e.1),
             overlap_true: r.overlap_true,
             overlap: e.map(|e| e.result.overlap),
             agreement: e.map(|e| e.result.agreement),
@@ -188,10 +202,11 @@ pub fn summary_text(s: &Summary, rounds: usize) -> String {
     let ratio = s.update_bytes_ratio.map_or("-".into(), |[a, b, c]| format!("p50 {a:.3}, p95 {b:.3}, max {c:.3}"));
     let deferred = s.update_deferred.map_or("-".into(), |[a, b, c]| format!("p50 {a:.0}, p95 {b:.0}, max {c:.0}"));
     let mut out = format!(
-        "rounds {rounds}; estimates with a truth {}\nwrong Converged   {} (by e_t at the odometry origin: {})\nmeetings          {}\navailability      {}\nfirst fix         {} rounds (largest)\nupdate / map      {ratio}\nheld back         {deferred} voxels an update\nbytes             {}\ntracking round    {} (from scratch {:.1} ms; ratio {})\n",
+        "rounds {rounds}; estimates with a truth {}\nwrong Converged   {} (by e_t at the odometry origin: {}; against the maps' local truth: {})\nmeetings          {}\navailability      {}\nfirst fix         {} rounds (largest)\nupdate / map      {ratio}\nheld back         {deferred} voxels an update\nbytes             {}\ntracking round    {} (from scratch {:.1} ms; ratio {})\n",
         s.with_truth,
         s.wrong_converged,
         s.wrong_at_origin,
+        s.wrong_converged_local,
         s.meetings,
         opt(s.availability, ""),
         s.first_fix_rounds.map_or("-".into(), |v| v.to_string()),

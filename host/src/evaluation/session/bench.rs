@@ -61,6 +61,9 @@ pub struct CaseFigures {
     pub wrong_converged: usize,
     /// Converged and wrong by `e_t` at the odometry origin ([`super::Summary::wrong_at_origin`]).
     pub wrong_at_origin: usize,
+    /// Converged and wrong against the truth as the maps hold it about the
+    /// closest pair of scans ([`super::Summary::wrong_converged_local`]).
+    pub wrong_converged_local: usize,
     /// Correct Converged ÷ estimates in meetings (first 2 rounds of each
     /// left out), pooled over the seeds.
     pub availability: Option<f64>,
@@ -177,6 +180,7 @@ fn figures(case: usize, runs: &[&Run]) -> CaseFigures {
         rounds: runs.iter().map(|r| r.out.rounds).max().unwrap_or(0),
         wrong_converged: summaries.iter().map(|s| s.wrong_converged).sum(),
         wrong_at_origin: summaries.iter().map(|s| s.wrong_at_origin).sum(),
+        wrong_converged_local: summaries.iter().map(|s| s.wrong_converged_local).sum(),
         availability: (in_meetings > 0).then(|| available as f64 / in_meetings as f64),
         availability_min: per_seed.iter().copied().reduce(f64::min),
         meetings: summaries.iter().map(|s| s.meetings).sum(),

@@ -48,7 +48,9 @@ pub fn board_feeds(spec: &SessionSpec, silence_ms: u32) -> Result<BoardFeeds, Er
         for r in &mut robots {
             r.drive(spec.every)?;
         }
-        let at = |a: usize, b: usize| shared_world.then(|| figures::truth(&robots[a], &robots[b])).flatten();
+        let at = |a: usize, b: usize| {
+            shared_world.then(|| figures::truth(&robots[a], &robots[b], f64::from(spec.crop))).flatten()
+        };
         truth.push([at(0, 1), at(1, 0)]);
     }
     Ok(BoardFeeds { feeds, rounds, truth })

@@ -29,6 +29,13 @@ pub struct Truth {
     /// The meeting place: where the peer was at its scan of that pair, in
     /// the peer's odometry frame.
     pub place: nalgebra::Point3<f64>,
+    /// The same with each robot's `T_world_odom` as its map holds it about
+    /// its scan of the pair ([`local_world_odom`]): what one rigid
+    /// transform between the two maps can be right about. The odometry's
+    /// heading walks from scan to scan, and a map's voxels there average
+    /// the scans that saw them; `transform` carries the walk at one scan
+    /// of each robot, which no match of the maps can see.
+    pub local: Isometry3<f64>,
 }
 
 impl Truth {
@@ -41,10 +48,57 @@ impl Truth {
         let (origin, e_r) = pose_errors(estimate, &self.transform);
         ((estimate * self.place - self.transform * self.place).norm(), e_r, origin)
     }
+
+    /// `(e_t, e_r)` of an estimate against [`Truth::local`], `e_t` at the
+    /// meeting place as in [`Truth::errors`].
+    pub fn local_errors(&self, estimate: &Isometry3<f64>) -> (f64, f64) {
+        let (_, e_r) = pose_errors(estimate, &self.local);
+        ((estimate * self.place - self.local * self.place).norm(), e_r)
+    }
 }
 
-/// The truth of robot `a`'s estimate of robot `b` this round.
-pub(super) fn truth(a: &Robot, b: &Robot) -> Option<Truth> {
+/// A scan whose `T_world_odom` moves the pair's scan's place by more than
+/// this (m) from where that scan's own puts it, or turns by more than
+/// [`LOCAL_JUMP_DEG`], is left out of [`local_world_odom`]'s average: a
+/// slip, not the walk of the heading.
+const LOCAL_JUMP_M: f64 = 1.0;
+/// See [`LOCAL_JUMP_M`].
+const LOCAL_JUMP_DEG: f64 = 3.0;
+
+/// `T_world_odom` about scan `k0` of `scans` (each `(T_world_odom, true
+/// world position)`) as a map holds it there: the heading (about the
+/// vertical) and the translation averaged over the scans within `reach`
+/// (m; the session's crop: the scans that saw the place) of scan `k0` in
+/// the world, leaving out a jump ([`LOCAL_JUMP_M`]) at `place` (scan
+/// `k0`'s place in the odometry frame). Averaging the rotation's heading
+/// and the translation apart is the average of the frames' maps of a
+/// point to first order in the heading's spread (hundredths of a radian).
+pub(super) fn local_world_odom(
+    scans: &[(Isometry3<f64>, nalgebra::Vector3<f64>)],
+    k0: usize,
+    place: &nalgebra::Point3<f64>,
+    reach: f64,
+) -> Option<Isometry3<f64>> {
+    let (base, at) = scans.get(k0)?;
+    let (mut yaw, mut t, mut n) = (0.0, nalgebra::Vector3::zeros(), 0.0);
+    for (w, p) in scans {
+        let d = base.inverse() * w;
+        let jump = (w * place - base * place).norm() > LOCAL_JUMP_M || d.rotation.angle() > LOCAL_JUMP_DEG.to_radians();
+        if (p - at).norm() > reach || jump {
+            continue;
+        }
+        yaw += d.rotation.euler_angles().2;
+        t += w.translation.vector;
+        n += 1.0;
+    }
+    // Scan k0 itself is always counted, so n >= 1.
+    let rotation = base.rotation * nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, yaw / n);
+    Some(Isometry3::from_parts(nalgebra::Translation3::from(t / n), rotation))
+}
+
+/// The truth of robot `a`'s estimate of robot `b` this round; `reach`:
+/// the session's crop ([`Truth::local`]).
+pub(super) fn truth(a: &Robot, b: &Robot, reach: f64) -> Option<Truth> {
     let (sa, sb) = (a.scans_in_map(), b.scans_in_map());
     let mut best: Option<(f64, usize, usize)> = None;
     for &ka in &sa {
@@ -56,7 +110,16 @@ pub(super) fn truth(a: &Robot, b: &Robot) -> Option<Truth> {
         }
     }
     let (_, ka, kb) = best?;
-    Some(Truth { transform: a.world_odom(ka).inverse() * b.world_odom(kb), place: b.odometry_position(kb) })
+    let local = |r: &Robot, ks: &[usize], k0: usize| {
+        let scans: Vec<_> = ks.iter().map(|&k| (r.world_odom(k), r.world_position(k))).collect();
+        let at = ks.iter().position(|&k| k == k0)?;
+        local_world_odom(&scans, at, &r.odometry_position(k0), reach)
+    };
+    Some(Truth {
+        transform: a.world_odom(ka).inverse() * b.world_odom(kb),
+        place: b.odometry_position(kb),
+        local: local(a, &sa, ka)?.inverse() * local(b, &sb, kb)?,
+    })
 }
 
 /// The cost ratio's denominator (ms): the median of `timed` (from-scratch
@@ -123,6 +186,12 @@ pub struct Summary {
     /// rotation error counts times the distance to the meeting: a drift's
     /// lever arm, not a false accept.
     pub wrong_at_origin: usize,
+    /// The same against the truth as the two maps hold it about the
+    /// closest pair of scans ([`Truth::local`]): the estimator's own wrong
+    /// answers. What `wrong_converged` counts beyond these is the
+    /// odometry's heading walk at the pair's two scans, which no match of
+    /// the maps sees.
+    pub wrong_converged_local: usize,
     /// Estimates with a truth.
     pub with_truth: usize,
     /// Correct `Converged` ÷ estimates in meetings, each meeting's first 2
@@ -186,6 +255,12 @@ impl Summary {
         let wrong_converged =
             records.iter().filter(|r| converged(r) && r.errors.is_some() && !correct(r) && !exempt(r)).count();
         let wrong_at_origin = records.iter().filter(|r| wrong_at_origin(r) && !exempt(r)).count();
+        let wrong_converged_local = records
+            .iter()
+            .filter(|r| {
+                converged(r) && r.local_errors.is_some_and(|(t, a)| t >= STRICT.0 || a >= STRICT.1) && !exempt(r)
+            })
+            .count();
         let (mut in_meetings, mut available, mut meetings, mut first_fix) = (0usize, 0usize, 0usize, None::<usize>);
         for i in 0..n {
             for j in (0..n).filter(|&j| j != i) {
@@ -211,6 +286,7 @@ impl Summary {
         Summary {
             wrong_converged,
             wrong_at_origin,
+            wrong_converged_local,
             with_truth: records.iter().filter(|r| r.errors.is_some()).count(),
             availability: (in_meetings > 0).then(|| available as f64 / in_meetings as f64),
             in_meetings,
@@ -279,4 +355,58 @@ fn slip_caught(records: &[Record], s: usize, at: usize, rounds: usize) -> usize 
         .map(|r| r.round)
         .collect();
     bad_rounds.iter().max().map_or(0, |last| (last + 1 - at).min(rounds.saturating_sub(at)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Point3, Translation3, UnitQuaternion, Vector3};
+
+    /// A robot driving along x, 1 m a scan, whose odometry frame's heading
+    /// walks `yaw_deg[k]` at scan k (the frame turned about the world's
+    /// origin), and its scans' true places.
+    fn walk(yaw_deg: &[f64]) -> Vec<(Isometry3<f64>, Vector3<f64>)> {
+        yaw_deg
+            .iter()
+            .enumerate()
+            .map(|(k, y)| {
+                let frame = Isometry3::from_parts(
+                    Translation3::new(3.0, -2.0, 0.0),
+                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), y.to_radians()),
+                );
+                (frame, Vector3::new(k as f64, 0.0, 0.0))
+            })
+            .collect()
+    }
+
+    fn heading_deg(t: &Isometry3<f64>) -> f64 {
+        t.rotation.euler_angles().2.to_degrees()
+    }
+
+    #[test]
+    fn the_local_frame_averages_the_heading_walk_of_the_scans_that_saw_the_place() {
+        // The heading jitters by 0.5 degree about 10 degrees from scan to
+        // scan: the pair's scan (k0 = 20) sits at the top of the jitter.
+        let yaw: Vec<f64> = (0..41).map(|k| 10.0 + if k % 2 == 0 { 0.5 } else { -0.5 }).collect();
+        let scans = walk(&yaw);
+        let place = Point3::new(20.0, 0.0, 0.0);
+        let local = local_world_odom(&scans, 20, &place, 25.0).unwrap();
+        assert!((heading_deg(&scans[20].0) - 10.5).abs() < 1e-9);
+        // 41 scans within reach, 21 at +0.5 and 20 at -0.5.
+        assert!((heading_deg(&local) - (10.0 + 0.5 / 41.0)).abs() < 1e-6, "{}", heading_deg(&local));
+        // Only the scans within reach count: 5 m takes scans 15-25, 5 at
+        // +0.5 and 6 at -0.5.
+        let near = local_world_odom(&scans, 20, &place, 5.0).unwrap();
+        assert!((heading_deg(&near) - (10.0 - 0.5 / 11.0)).abs() < 1e-6, "{}", heading_deg(&near));
+    }
+
+    #[test]
+    fn a_slip_is_left_out_of_the_local_frame() {
+        // A steady heading, then a 10-degree slip from scan 25 on.
+        let yaw: Vec<f64> = (0..41).map(|k| if k < 25 { 2.0 } else { 12.0 }).collect();
+        let scans = walk(&yaw);
+        let local = local_world_odom(&scans, 20, &Point3::new(20.0, 0.0, 0.0), 25.0).unwrap();
+        assert!((heading_deg(&local) - 2.0).abs() < 1e-9, "{}", heading_deg(&local));
+        assert!(local_world_odom(&scans, 41, &Point3::origin(), 25.0).is_none());
+    }
 }

@@ -171,6 +171,10 @@ pub struct Record {
     /// rotation error counts times the distance to the meeting (the drift
     /// bends the odometry frames, so no one transform is right at both).
     pub origin_error: Option<f64>,
+    /// `(e_t, e_r)` against the truth as the two maps hold it about the
+    /// closest pair of scans ([`figures::Truth::local`]): the estimate's
+    /// own error, without the odometry's heading walk at those two scans.
+    pub local_errors: Option<(f64, f64)>,
     /// The conventions' overlap of the peer's map in the robot's under the
     /// truth, with ground-truth classes.
     pub overlap_true: Option<f64>,
@@ -691,14 +695,14 @@ fn estimate_one(
         (Some(e), own_s)
     };
     let seconds = preparing + t0.elapsed().as_secs_f64() + applying;
-    let found = shared_world.then(|| figures::truth(&robots[i], &robots[j])).flatten();
+    let found = shared_world.then(|| figures::truth(&robots[i], &robots[j], f64::from(spec.crop))).flatten();
     let truth = found.map(|t| t.transform);
-    let (errors, origin_error) = match (&estimate, &found) {
+    let (errors, origin_error, local_errors) = match (&estimate, &found) {
         (Some(e), Some(t)) => {
             let (e_t, e_r, origin) = t.errors(&e.result.transform.cast::<f64>());
-            (Some((e_t, e_r)), Some(origin))
+            (Some((e_t, e_r)), Some(origin), Some(t.local_errors(&e.result.transform.cast::<f64>())))
         }
-        _ => (None, None),
+        _ => (None, None, None),
     };
     let overlap_true = truth
         .map(|t| f64::from(cosem_core::map::overlap(robots[i].truth_map(), robots[j].truth_map(), &t.cast::<f32>())));
@@ -710,6 +714,7 @@ fn estimate_one(
         truth,
         errors,
         origin_error,
+        local_errors,
         overlap_true,
         bytes_sent,
         update_ratio,
