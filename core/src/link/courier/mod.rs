@@ -30,7 +30,8 @@
 //! starts it.
 
 use super::endpoint::line::{FrameShape, LineEstimate};
-use crate::wire::frame::{frame_len, max_payload, Deframer, MAX_FRAME};
+use crate::wire::block::{BlockDeframer, BlockShape, BLOCK_DATA};
+use crate::wire::frame::{frame_len, max_payload, MAX_FRAME};
 use crate::wire::rs::MAX_PARITY;
 use embedded_io::{Read, ReadReady, Write, WriteReady};
 
@@ -50,6 +51,9 @@ pub const COURIER_ACK: u8 = 0x0F;
 pub const UNIT: usize = 8;
 /// Most units of a message (a message of at most 128 KiB).
 pub const MAX_UNITS: usize = 16384;
+/// Most units a block carries (its data: the header, the units and the
+/// CRC-32, within [`BLOCK_DATA`]).
+const BLOCK_UNITS: usize = (BLOCK_DATA - DATA_HEADER - 4) / UNIT;
 /// Longest answer to a message.
 pub const MAX_REPLY: usize = 32;
 /// Bytes of a data frame before its units: kind, round, length (24 bits),
@@ -168,6 +172,8 @@ pub struct CourierStats {
     pub resent: u32,
     /// Frames refused (damaged beyond repair).
     pub bad_frames: u32,
+    /// Data sent in blocks (a line that damages many bytes), not frames.
+    pub blocks: u32,
 }
 
 /// An answer: its bytes and length.
@@ -198,7 +204,7 @@ struct Flight {
 /// [`Courier::step`]; the messages live in the caller's buffers.
 pub struct Courier {
     config: CourierConfig,
-    deframer: Deframer,
+    deframer: BlockDeframer,
     /// The round under way (`None` between rounds).
     round: Option<u16>,
     // Sending.
@@ -217,6 +223,10 @@ pub struct Courier {
     /// shape the line estimate chose.
     frame_units: u8,
     parity: u8,
+    /// Data goes in blocks of this shape ([`crate::wire::block`]), each of
+    /// `frame_units` units, where the line damages so many bytes that
+    /// blocks carry more than frames; `None`: in frames.
+    block: Option<BlockShape>,
     line: LineEstimate,
     /// Most units a frame carries while the peer is not heard: halved at
     /// each timeout that heard nothing, doubled at each acknowledgement
@@ -251,7 +261,7 @@ impl Courier {
         }
         Ok(Courier {
             config,
-            deframer: Deframer::new(),
+            deframer: BlockDeframer::new(),
             round: None,
             out_len: 0,
             acked: Bits::new(),
@@ -262,6 +272,7 @@ impl Courier {
             seq: 0,
             frame_units: config.max_units,
             parity: config.parity,
+            block: None,
             line: LineEstimate::default(),
             ceiling: config.max_units,
             last_sent_ms: 0,
@@ -371,9 +382,18 @@ impl Courier {
                 if b != 0 {
                     self.line.byte();
                 }
-                let len = match self.deframer.push_frame(b) {
+                let (pushed, pieces) = self.deframer.push(b);
+                // What a block's segments and descriptors told of the line
+                // (a frame tells below).
+                for o in pieces {
+                    self.line.piece(o.bytes, o.damage, o.parity);
+                    judged = true;
+                }
+                let len = match pushed {
                     Ok(Some(f)) => {
-                        self.line.frame(Some((f.damage, f.parity)));
+                        if f.segments == 0 {
+                            self.line.frame(Some((f.damage, f.parity)));
+                        }
                         judged = true;
                         let k = f.payload.len().min(payload.len());
                         payload.get_mut(..k).unwrap_or(&mut []).copy_from_slice(f.payload.get(..k).unwrap_or(&[]));
@@ -382,10 +402,11 @@ impl Courier {
                     Ok(None) => continue,
                     Err(e) => {
                         self.stats.bad_frames += 1;
-                        // No header read: its bytes tell nothing of the line.
+                        // No header read: its bytes tell nothing of the line
+                        // (or a block's segment whose descriptors were lost).
                         if e == crate::wire::DeframeError::Header {
                             self.line.skip();
-                        } else {
+                        } else if pieces.is_empty() {
                             self.line.frame(None);
                             judged = true;
                         }
@@ -443,7 +464,35 @@ impl Courier {
                 }
             }
         }
-        (self.frame_units, self.parity) = (best.1.min(self.ceiling), best.2);
+        // Blocks, weighed as the link weighs them against frames: a lost
+        // one's wait counts (its arrival twice), for frames too.
+        let frames = best.0
+            * line.arrival(FrameShape {
+                chunk: UNIT * usize::from(best.1) + DATA_HEADER - crate::wire::message::DATA_HEADER,
+                parity: usize::from(best.2),
+                arrival: 0.0,
+                block: None,
+                clean: false,
+            });
+        let units = BLOCK_UNITS.min(usize::from(self.config.window));
+        let data = UNIT * units;
+        let chunk = data + DATA_HEADER - crate::wire::message::DATA_HEADER;
+        let ack = frame_len(ACK_HEADER, best.2.into()) as f32;
+        let block = line.best_block(chunk).map(|(shape, _, arrival)| {
+            let bytes = shape.line_len(data + DATA_HEADER) as f32 + ack;
+            (shape, data as f32 / bytes * arrival * arrival)
+        });
+        // Only while the peer is heard: a silent line halves the frames.
+        match block {
+            Some((shape, goodput)) if goodput > frames && self.ceiling >= self.config.max_units => {
+                self.block = Some(shape);
+                (self.frame_units, self.parity) = (units as u8, best.2);
+            }
+            _ => {
+                self.block = None;
+                (self.frame_units, self.parity) = (best.1.min(self.ceiling), best.2);
+            }
+        }
     }
 }
 

@@ -3,6 +3,7 @@
 //! the line's parity.
 
 use super::{Courier, CourierError, Flight, COURIER_DATA, UNIT};
+use crate::wire::block::encode_block;
 use crate::wire::frame::{encode_frame_parity, MAX_FRAME};
 use embedded_io::{Write, WriteReady};
 
@@ -104,7 +105,24 @@ impl Courier {
             payload.get_mut(at..at + part.len()).ok_or(CourierError::Config)?.copy_from_slice(part);
             at += part.len();
         }
-        self.send(port, payload.get(..at).unwrap_or(&[]))?;
+        let payload = payload.get(..at).unwrap_or(&[]);
+        match self.block.filter(|b| b.fits(payload.len())) {
+            Some(shape) => {
+                let written = encode_block(payload, shape, |bytes: &[u8]| {
+                    port.write_all(bytes).map_err(|e| BlockOut::Io(embedded_io::Error::kind(&e)))
+                });
+                match written {
+                    Ok(n) => {
+                        self.stats.bytes_sent += n as u64;
+                        self.stats.blocks += 1;
+                    }
+                    Err(BlockOut::Io(kind)) => return Err(CourierError::Io(kind)),
+                    // Every byte value in its segments (rare): a frame.
+                    Err(BlockOut::Frame) => self.send(port, payload)?,
+                }
+            }
+            None => self.send(port, payload)?,
+        }
         self.seq = self.seq.wrapping_add(1);
         if self.flights.is_full() {
             // Forgotten: a timeout sends it again if it was lost.
@@ -122,5 +140,18 @@ impl Courier {
         port.write_all(bytes).map_err(|e| CourierError::Io(embedded_io::Error::kind(&e)))?;
         self.stats.bytes_sent += n as u64;
         Ok(())
+    }
+}
+
+/// Why a block was not written: the line, or a payload its shape does not
+/// carry (then it goes as a frame).
+enum BlockOut {
+    Io(embedded_io::ErrorKind),
+    Frame,
+}
+
+impl From<crate::wire::frame::FrameError> for BlockOut {
+    fn from(_: crate::wire::frame::FrameError) -> Self {
+        BlockOut::Frame
     }
 }

@@ -480,6 +480,7 @@ where
                     bytes_received: a.bytes_received - b.bytes_received,
                     resent: a.resent - b.resent,
                     bad_frames: a.bad_frames - b.bad_frames,
+                    blocks: a.blocks - b.blocks,
                 };
                 self.state = State::Estimate;
             }
