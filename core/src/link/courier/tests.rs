@@ -189,9 +189,10 @@ fn a_message_larger_than_the_receiving_buffer_is_refused() {
     );
 }
 
-/// Frames whose CRC holds but whose fields are anything (the courier's
-/// kinds with random rounds, lengths, units and runs, other kinds, empty
-/// payloads) and bytes that are no frame at all: the courier never panics,
+/// Frames and blocks whose CRC holds but whose fields are anything (the
+/// courier's kinds with random rounds, lengths, units and runs, other
+/// kinds, empty payloads) and bytes that are no frame at all: the courier
+/// never panics,
 /// and says what it refuses with a typed error.
 #[test]
 fn any_frame_is_taken_or_refused_never_a_panic() {
@@ -218,10 +219,27 @@ fn any_frame_is_taken_or_refused_never_a_panic() {
                 *first = [0x0E, 0x0F, 0x0E, 0x0F, next() as u8][(next() % 5) as usize];
             }
             let mut frame = [0u8; crate::wire::MAX_FRAME];
-            let bytes: Vec<u8> = match encode_frame_parity(&payload, [0, 4, 8][(next() % 3) as usize], &mut frame) {
-                Ok(n) if next() % 4 != 0 => frame[..n].to_vec(),
-                _ => (0..len).map(|_| next() as u8).collect(),
-            };
+            let bytes: Vec<u8> =
+                match (next() % 5, encode_frame_parity(&payload, [0, 4, 8][(next() % 3) as usize], &mut frame)) {
+                    // A block: its segments carry the payload (the data path of
+                    // a damaged line).
+                    (0, _) => {
+                        let shape = crate::wire::block::BlockShape { segment: 8, parity: 4, spares: 2 };
+                        let mut block = Vec::new();
+                        let encoded =
+                            crate::wire::block::encode_block::<crate::wire::frame::FrameError>(&payload, shape, |b| {
+                                block.extend_from_slice(b);
+                                Ok(())
+                            });
+                        if encoded.is_ok() {
+                            block
+                        } else {
+                            (0..len).map(|_| next() as u8).collect()
+                        }
+                    }
+                    (_, Ok(n)) if next() % 4 != 0 => frame[..n].to_vec(),
+                    _ => (0..len).map(|_| next() as u8).collect(),
+                };
             embedded_io::Write::write_all(&mut p1, &bytes).unwrap();
             for _ in 0..40 {
                 wire.borrow_mut().tick(now);
