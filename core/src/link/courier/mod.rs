@@ -383,33 +383,18 @@ impl Courier {
                     self.line.byte();
                 }
                 let (pushed, pieces) = self.deframer.push(b);
-                // What a block's segments and descriptors told of the line
-                // (a frame tells below).
-                for o in pieces {
-                    self.line.piece(o.bytes, o.damage, o.parity);
-                    judged = true;
-                }
+                // A header not read tells nothing of the line (or a
+                // block's segment whose descriptors were lost).
+                judged |= self.line.judge(pieces, &pushed, false);
                 let len = match pushed {
                     Ok(Some(f)) => {
-                        if f.segments == 0 {
-                            self.line.frame(Some((f.damage, f.parity)));
-                        }
-                        judged = true;
                         let k = f.payload.len().min(payload.len());
                         payload.get_mut(..k).unwrap_or(&mut []).copy_from_slice(f.payload.get(..k).unwrap_or(&[]));
                         k
                     }
                     Ok(None) => continue,
-                    Err(e) => {
+                    Err(_) => {
                         self.stats.bad_frames += 1;
-                        // No header read: its bytes tell nothing of the line
-                        // (or a block's segment whose descriptors were lost).
-                        if e == crate::wire::DeframeError::Header {
-                            self.line.skip();
-                        } else if pieces.is_empty() {
-                            self.line.frame(None);
-                            judged = true;
-                        }
                         continue;
                     }
                 };

@@ -106,7 +106,7 @@ impl Courier {
             at += part.len();
         }
         let payload = payload.get(..at).unwrap_or(&[]);
-        match self.block.filter(|b| b.fits(payload.len())) {
+        match self.block {
             Some(shape) => {
                 let written = encode_block(payload, shape, |bytes: &[u8]| {
                     port.write_all(bytes).map_err(|e| BlockOut::Io(embedded_io::Error::kind(&e)))
@@ -117,7 +117,8 @@ impl Courier {
                         self.stats.blocks += 1;
                     }
                     Err(BlockOut::Io(kind)) => return Err(CourierError::Io(kind)),
-                    // Every byte value in its segments (rare): a frame.
+                    // A payload the shape does not carry, or every byte
+                    // value in its segments (rare): a frame.
                     Err(BlockOut::Frame) => self.send(port, payload)?,
                 }
             }

@@ -307,32 +307,21 @@ fn take_frame<'d>(
     if b != 0 {
         line.byte();
     }
-    // What a block's segments told of the line (a frame tells below).
     let (pushed, pieces) = deframer.push(b);
-    for o in pieces {
-        line.piece(o.bytes, o.damage, o.parity);
-    }
+    // No header read: a frame with two of its first bytes hit, or a
+    // segment of a block whose descriptors were both lost (its bytes no
+    // frame's, and its errors unknown). Half duplex has no blocks, and
+    // there it is a frame a collision garbled.
+    line.judge(pieces, &pushed, config.half_duplex);
     let taken = match pushed {
         Ok(Some(f)) => {
-            if f.segments == 0 {
-                line.frame(Some((f.damage, f.parity)));
-            }
             stats.count_repairs(f.damage);
             Some((f.payload, f.repaired, f.segments > 0))
         }
         Ok(None) if pieces.is_empty() => return None,
         Ok(None) => None,
-        Err(e) => {
+        Err(_) => {
             stats.bad_frames += 1;
-            // No header read: a frame with two of its first bytes hit, or
-            // a segment of a block whose descriptors were both lost (its
-            // bytes no frame's, and its errors unknown). Half duplex has
-            // no blocks, and there it is a frame a collision garbled.
-            if e == crate::wire::DeframeError::Header && !config.half_duplex {
-                line.skip();
-            } else if pieces.is_empty() {
-                line.frame(None);
-            }
             None
         }
     };

@@ -3,9 +3,11 @@
 //! parity that carry the most data per byte of line.
 
 use crate::wire::block::{
-    BlockShape, BLOCK_DATA, BLOCK_SPARE, DESCRIPTOR_FRAME, DESCRIPTOR_PARITY, MAX_SEGMENTS, MAX_SPARES,
+    BlockShape, PieceOutcome, BLOCK_DATA, BLOCK_SPARE, DESCRIPTOR_FRAME, DESCRIPTOR_PARITY, MAX_SEGMENTS, MAX_SPARES,
 };
-use crate::wire::frame::{frame_len, max_payload, Damage, DEFAULT_PARITY, HEADER, PAIR_FULL, PAIR_MAX};
+use crate::wire::frame::{
+    frame_len, max_payload, Arrived, Damage, DeframeError, DEFAULT_PARITY, HEADER, PAIR_FULL, PAIR_MAX,
+};
 use crate::wire::message::{DATA_HEADER, DATA_OVERHEAD};
 use crate::wire::rs::MAX_PARITY;
 
@@ -247,6 +249,43 @@ impl LineEstimate {
             self.parity = parity;
         }
         self.record(len, damage.map(|d| d.0), self.parity);
+    }
+
+    /// What one byte pushed into a [`crate::wire::block::BlockDeframer`]
+    /// told of the line: the block's segments and descriptors it ended
+    /// (`pieces`), then the frame it completed or refused (`pushed`; a
+    /// block's payload tells nothing beyond its pieces). A refused frame
+    /// whose header could not be read tells nothing either, unless
+    /// `header_lost_is_a_frame` (half duplex: there it is a frame a
+    /// collision garbled). Whether the estimate changed. The byte itself
+    /// is counted before it is pushed ([`LineEstimate::byte`]).
+    pub(in crate::link) fn judge(
+        &mut self,
+        pieces: &[PieceOutcome],
+        pushed: &Result<Option<Arrived<'_>>, DeframeError>,
+        header_lost_is_a_frame: bool,
+    ) -> bool {
+        for o in pieces {
+            self.piece(o.bytes, o.damage, o.parity);
+        }
+        match pushed {
+            Ok(Some(f)) => {
+                if f.segments == 0 {
+                    self.frame(Some((f.damage, f.parity)));
+                }
+                true
+            }
+            Ok(None) => !pieces.is_empty(),
+            Err(DeframeError::Header) if !header_lost_is_a_frame => {
+                self.skip();
+                !pieces.is_empty()
+            }
+            Err(_) if pieces.is_empty() => {
+                self.frame(None);
+                true
+            }
+            Err(_) => true,
+        }
     }
 
     /// Bytes that told nothing of the line (no header could be read).
