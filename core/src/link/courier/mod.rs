@@ -7,15 +7,19 @@
 //! ([`crate::wire::frame`]: Reed-Solomon parity, CRC-32, COBS) carries a
 //! run of them, tagged with the round, the message's length and the first
 //! unit. The receiver acknowledges every data frame with what it holds
-//! (all units below a count, and three runs held beyond it: the first two
-//! and the last). The line keeps order, so a frame sent before one now
+//! (all units below a count, and up to three runs held beyond it: the
+//! first two and the last; only those it has, so that most
+//! acknowledgements are short frames, which survive a damaged line), and
+//! one of the whole message as many times as the line estimate says it
+//! takes for one to arrive but once in a hundred. The line keeps order, so a frame sent before one now
 //! acknowledged, and not acknowledged itself, was lost: it is sent again
 //! at once; a timeout (twice the round trip, doubling only while the peer
 //! is silent) sends everything unacknowledged again. The frames' size and
 //! parity follow the line as the peer's frames judge it (the link's
 //! estimate, [`super::Endpoint`]'s: what the deframer repaired and the
 //! frames lost), each data frame's acknowledgement counted in its cost;
-//! while nothing is heard, each timeout also halves the largest frame. A
+//! before any round trip was measured, or at a second silent timeout
+//! running, a timeout also halves the largest frame. A
 //! whole message is handed to the caller, who answers it
 //! ([`Courier::reply`]: an update's answer,
 //! [`crate::wire::update::UpdateAck`]); the answer rides the receiver's
@@ -59,9 +63,12 @@ pub const MAX_REPLY: usize = 32;
 /// Bytes of a data frame before its units: kind, round, length (24 bits),
 /// first unit.
 const DATA_HEADER: usize = 1 + 1 + 3 + 2;
-/// Bytes of an acknowledgement before its answer: kind, round, count,
-/// three runs held beyond it (first unit, units), flags.
-const ACK_HEADER: usize = 1 + 1 + 2 + 12 + 1;
+/// Bytes of an acknowledgement before its runs and answer: kind, round,
+/// count, flags (the number of runs held beyond the count in its top
+/// bits); each run then takes four bytes (first unit, units).
+const ACK_HEADER: usize = 1 + 1 + 2 + 1;
+/// Where the flags keep the number of runs.
+const RUNS_SHIFT: u8 = 4;
 /// Runs of units held beyond the count an acknowledgement tells: the
 /// first two after the gap and the last (the line keeps order: what was
 /// sent before the last run and is not held was lost).
@@ -72,6 +79,8 @@ const IN_FLIGHT: usize = 48;
 const COMPLETE: u8 = 1;
 /// Flag: the answer follows.
 const REPLIED: u8 = 2;
+/// Most copies of an acknowledgement of a whole message.
+const MAX_ANSWER_COPIES: u8 = 3;
 
 /// Sizes and timing of a courier.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -111,7 +120,7 @@ impl CourierConfig {
             && parity <= MAX_PARITY
             && parity.is_multiple_of(2)
             && DATA_HEADER + UNIT * usize::from(self.max_units) <= max_payload(parity)
-            && ACK_HEADER + MAX_REPLY <= max_payload(parity)
+            && ACK_HEADER + 4 * ACK_RUNS + MAX_REPLY <= max_payload(parity)
     }
 }
 
@@ -228,6 +237,9 @@ pub struct Courier {
     /// blocks carry more than frames; `None`: in frames.
     block: Option<BlockShape>,
     line: LineEstimate,
+    /// Copies of an acknowledgement of a whole message: enough that all
+    /// are lost once in a hundred, at most [`MAX_ANSWER_COPIES`].
+    answer_copies: u8,
     /// Most units a frame carries while the peer is not heard: halved at
     /// each timeout that heard nothing, doubled at each acknowledgement
     /// that moved.
@@ -274,6 +286,7 @@ impl Courier {
             parity: config.parity,
             block: None,
             line: LineEstimate::default(),
+            answer_copies: 1,
             ceiling: config.max_units,
             last_sent_ms: 0,
             backoff: 0,
@@ -449,6 +462,18 @@ impl Courier {
                 }
             }
         }
+        // An acknowledgement of a whole message (the answer, mostly) ends
+        // the peer's round; a lost one costs it a timeout and a resend.
+        let ack = line.arrival(FrameShape {
+            chunk: ACK_HEADER + MAX_REPLY - crate::wire::message::DATA_HEADER,
+            parity: usize::from(best.2),
+            arrival: 0.0,
+            block: None,
+            clean: false,
+        });
+        let lost = (1.0 - ack).max(1e-6);
+        let copies = libm::ceilf(libm::logf(0.01) / libm::logf(lost)).clamp(1.0, f32::from(MAX_ANSWER_COPIES));
+        self.answer_copies = copies as u8;
         // Blocks, weighed as the link weighs them against frames: a lost
         // one's wait counts (its arrival twice), for frames too.
         let frames = best.0

@@ -35,7 +35,11 @@ impl Courier {
             // Backing off only while the peer is silent: a line that
             // carries frames loses some, it is not down.
             self.backoff = if self.heard { 0 } else { self.backoff.saturating_add(1).min(8) };
-            if !self.heard {
+            // Once a round trip was measured, the peer's frames judge the
+            // line: one silent timeout is a lost acknowledgement (a third of
+            // them on a line that damages 10% of bytes), and halving there
+            // put a damaged line's data in frames of a few units, not blocks.
+            if !self.heard && (self.srtt8.is_none() || self.backoff >= 2) {
                 // Nothing came back: frames too long for the line, perhaps,
                 // before any of the peer's frames could say so.
                 self.ceiling = (self.ceiling / 2).max(1);

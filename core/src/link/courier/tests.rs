@@ -253,3 +253,36 @@ fn any_frame_is_taken_or_refused_never_a_panic() {
         }
     }
 }
+
+/// An acknowledgement holds only the runs held beyond its count (most hold
+/// none: a short frame is what survives a line that damages many bytes),
+/// and the sender reads each back: those units, and none besides, are
+/// acknowledged.
+#[test]
+fn an_acknowledgement_carries_only_the_runs_it_holds() {
+    use super::receive::AckView;
+    let cases: [[(u16, u16); 3]; 3] = [[(0, 0); 3], [(20, 5), (0, 0), (0, 0)], [(20, 5), (30, 2), (40, 10)]];
+    let mut lengths = Vec::new();
+    for runs in cases {
+        let wire = line(1, 0.0);
+        let (mut p0, mut p1) = Line::ports(&wire);
+        let mut receiver = Courier::new(CourierConfig::default()).unwrap();
+        let mut sender = Courier::new(CourierConfig::default()).unwrap();
+        let out = vec![5u8; 400];
+        let mut input = vec![0u8; 1000];
+        sender.start(0, out.len(), 0).unwrap();
+        let ack = AckView { round: 0, count: 10, runs, complete: false, reply: None };
+        receiver.send_ack(&mut p0, &ack).unwrap();
+        lengths.push(receiver.stats().bytes_sent);
+        for now in 0..5 {
+            wire.borrow_mut().tick(now);
+            sender.step(&mut p1, &out, &mut input, now).unwrap();
+        }
+        let held = |u: usize| u < 10 || runs.iter().any(|&(s, n)| (usize::from(s)..usize::from(s + n)).contains(&u));
+        for u in 0..50 {
+            assert_eq!(sender.acked.get(u), held(u), "runs {runs:?}: unit {u}");
+        }
+    }
+    // Four bytes a run (the frame's parity and stuffing aside).
+    assert!(lengths[0] < lengths[1] && lengths[1] + 8 <= lengths[2], "{lengths:?}");
+}
