@@ -5,7 +5,9 @@
 //! it, or EM does not settle from it or the answer is `Degenerate` twice
 //! running) is withdrawn, and the next round searches again: the last
 //! fix's window first (the robots meeting again, the transform between
-//! their odometry frames moved only by the drift), then prior-free.
+//! their odometry frames moved only by the drift), then prior-free. An
+//! unconfirmed fix that the peer's estimates refuse [`REFUSED_ROUNDS`]
+//! running is dropped with its window: the next round is prior-free.
 //!
 //! A street seen along its length does not hold the match along it: from a
 //! fix, that direction is held where the fix put it, for as long as the
@@ -100,6 +102,15 @@ pub const AGREE_DEG: f32 = 1.0;
 /// within 0.2-0.4 m, under the conventions' 0.5 m.
 pub const HOLD_M: f32 = 10.0;
 
+/// Rounds running an unconfirmed fix may disagree with the peer's estimate
+/// (one that passed the peer's verdict) before it is dropped and the next
+/// round searches prior-free. Why: a fix 1.5 m off along a street, found
+/// on a copy a round behind, held by tracking for eight rounds while its
+/// peer's right estimate refused it (town seed 2 over a 1% line); one of
+/// the two is wrong, and only a new search can tell which. Two rounds: a
+/// single disagreement is often a peer's estimate a round old.
+pub const REFUSED_ROUNDS: u8 = 2;
+
 /// What a robot knows of its peer's estimate of it, and where it is.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PeerView {
@@ -178,12 +189,15 @@ pub struct Tracker {
     /// The last fix held, kept when it is withdrawn: the transform between
     /// two odometry frames outlives a meeting.
     last: Option<Isometry3<f32>>,
+    /// Rounds running in which the fix, unconfirmed, disagreed with the
+    /// peer's estimate that passed the peer's verdict.
+    refused: u8,
 }
 
 impl Tracker {
     /// A track with no fix.
     pub const fn new() -> Self {
-        Tracker { fix: None, smoothed: None, unsettled: 0, confirmed: false, whole_at: None, last: None }
+        Tracker { fix: None, smoothed: None, unsettled: 0, confirmed: false, whole_at: None, last: None, refused: 0 }
     }
 
     /// The fix held (`T_own_peer`), if any: the last answer that passed
@@ -396,6 +410,17 @@ impl Tracker {
         if converged && view.estimate.is_some_and(|theirs| agree(&result.transform, &theirs, view.at)) {
             self.confirmed = true;
         }
+        // An unconfirmed fix the peer's own estimate keeps refusing is
+        // dropped, and not recalled: a fix that passes the verdict is
+        // tracked, not searched again, for as long as it keeps passing.
+        let refused = converged && !self.confirmed && view.estimate.is_some();
+        self.refused = if refused { self.refused.saturating_add(1) } else { 0 };
+        let fix = if self.refused >= REFUSED_ROUNDS {
+            self.reset();
+            Fix::Withdrawn
+        } else {
+            fix
+        };
         Estimate { kind, result, fix, confirmed: converged && self.confirmed }
     }
 
