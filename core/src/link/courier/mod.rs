@@ -11,9 +11,9 @@
 //! first two and the last; only those it has, so that most
 //! acknowledgements are short frames, which survive a damaged line), and
 //! one of the whole message as many times as the line estimate says it
-//! takes for one to arrive but once in a hundred. The line keeps order, so a frame sent before one now
-//! acknowledged, and not acknowledged itself, was lost: it is sent again
-//! at once; a timeout (twice the round trip, doubling only while the peer
+//! takes for one to arrive but once in a hundred. The line keeps order,
+//! so a frame sent before one now acknowledged, and not acknowledged
+//! itself, was lost: it is sent again at once; a timeout (twice the round trip, doubling only while the peer
 //! is silent) sends everything unacknowledged again. The frames' size and
 //! parity follow the line as the peer's frames judge it (the link's
 //! estimate, [`super::Endpoint`]'s: what the deframer repaired and the

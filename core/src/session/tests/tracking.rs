@@ -284,39 +284,35 @@ fn a_fix_is_confirmed_by_the_peers_estimate_of_the_same_round() {
 fn a_fix_the_peer_keeps_refusing_is_dropped() {
     use crate::matching::search::SearchScratch;
     use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
-    use crate::session::{Fix, Kind, REFUSED_ROUNDS};
+    use crate::session::REFUSED_ROUNDS;
     let (here, again) = one_street_seen_twice();
     let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
     let (own, peer) = (prepare(&here), prepare(&again));
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let how = Alignment::DEFAULT;
     let at = [9.0, 0.0, 0.0];
+    let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
+        let view = PeerView { estimate: theirs, at };
+        t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
     let mut tracker = Tracker::new();
-    let first = tracker
-        .estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &PeerView { estimate: None, at })
-        .unwrap();
+    let first = estimate(&mut tracker, None);
     assert_eq!((first.result.status, first.fix), (MatchStatus::Converged, Fix::Held));
     // The peer places this robot 3 m and 5 degrees away, round after round.
-    let off = crate::geometry::from_xyz_rpy(3.0, 0.0, 0.0, 0.0, 0.0, 0.09) * first.result.transform.inverse();
-    let refusing = PeerView { estimate: Some(off), at };
+    let off = Some(crate::geometry::from_xyz_rpy(3.0, 0.0, 0.0, 0.0, 0.0, 0.09) * first.result.transform.inverse());
     for round in 1..=REFUSED_ROUNDS {
-        let e = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &refusing).unwrap();
+        let e = estimate(&mut tracker, off);
         assert_eq!(e.kind, Kind::Tracking, "round {round}");
         assert_eq!(e.status(), MatchStatus::NotConverged, "round {round}");
         let dropped = round == REFUSED_ROUNDS;
         assert_eq!(e.fix, if dropped { Fix::Withdrawn } else { Fix::Held }, "round {round}");
         assert_eq!((tracker.fix().is_some(), tracker.last().is_some()), (!dropped, !dropped), "round {round}");
     }
-    let next = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &refusing).unwrap();
-    assert_eq!(next.kind, Kind::PriorFree);
+    assert_eq!(estimate(&mut tracker, off).kind, Kind::PriorFree);
     // A confirmed fix is kept whatever the peer says later.
     let mut tracker = Tracker::new();
-    let theirs = first.result.transform.inverse();
-    let agreeing = PeerView { estimate: Some(theirs), at };
-    let e = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &agreeing).unwrap();
-    assert!(e.confirmed);
+    assert!(estimate(&mut tracker, Some(first.result.transform.inverse())).confirmed);
     for _ in 0..=REFUSED_ROUNDS {
-        let e = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &refusing).unwrap();
-        assert_eq!(e.fix, Fix::Held);
+        assert_eq!(estimate(&mut tracker, off).fix, Fix::Held);
     }
 }
