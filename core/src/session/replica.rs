@@ -121,13 +121,15 @@ pub struct Replica<S: VoxelStorage> {
     /// The codec models as decoding the update that made `version` left
     /// them: the next update is decoded from them ([`crate::wire::update`]).
     model: UpdateModel,
+    /// Where the peer was when it last cut its map ([`Replica::peer_place`]).
+    peer_place: Option<[f32; 3]>,
 }
 
 impl<S: VoxelStorage> Replica<S> {
     /// An empty copy over `map` (its configuration: the peer's voxel size).
     pub fn new(mut map: LocalMap<S>) -> Self {
         map.clear();
-        Replica { map, epoch: None, version: 0, digest: 0, model: UpdateModel::new() }
+        Replica { map, epoch: None, version: 0, digest: 0, model: UpdateModel::new(), peer_place: None }
     }
 
     /// The copy (the peer's map at [`Replica::version`]).
@@ -138,6 +140,16 @@ impl<S: VoxelStorage> Replica<S> {
     /// The version held (0: none).
     pub fn version(&self) -> u32 {
         self.version
+    }
+
+    /// Where the peer was (its own frame), as the last applied update that
+    /// cut its map said (a full map cuts about where its robot is, every
+    /// round it drives; a scan or two behind at most); `None` before any,
+    /// or since the peer restarted. What a robot's agreement with its
+    /// peer's estimate is judged at besides its own place
+    /// ([`crate::session::PeerView::peer_at`]).
+    pub fn peer_place(&self) -> Option<[f32; 3]> {
+        self.peer_place
     }
 
     /// The answer that says what is held.
@@ -167,6 +179,7 @@ impl<S: VoxelStorage> Replica<S> {
         let h = view.header;
         if self.epoch != Some(h.epoch) {
             self.epoch = Some(h.epoch);
+            self.peer_place = None;
             self.forget();
             if h.base != 0 {
                 return Applied::Restarted;
@@ -193,6 +206,9 @@ impl<S: VoxelStorage> Replica<S> {
         }
         self.version = h.version;
         self.digest = h.digest;
+        if let Some(cut) = view.cut {
+            self.peer_place = Some(cut.centre_m(self.map.resolution()));
+        }
         Applied::Applied
     }
 

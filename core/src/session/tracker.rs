@@ -7,7 +7,9 @@
 //! fix's window first (the robots meeting again, the transform between
 //! their odometry frames moved only by the drift), then prior-free. An
 //! unconfirmed fix that the peer's estimates refuse [`REFUSED_ROUNDS`]
-//! running is dropped with its window: the next round is prior-free.
+//! running is dropped with its window: the next round is prior-free. Two
+//! robots' estimates agree ([`agree`]) when they compose to about the
+//! identity at both robots' places, so each robot judges a pair alike.
 //!
 //! A street seen along its length does not hold the match along it: from a
 //! fix, that direction is held where the fix put it, for as long as the
@@ -120,6 +122,11 @@ pub struct PeerView {
     /// Where the robot is (its own frame): the agreement is judged there,
     /// not at the odometry origins, which drift puts a lever arm away.
     pub at: [f32; 3],
+    /// Where the peer is (its own frame), if known: sent with its estimate,
+    /// or as its copy's last cut said
+    /// ([`crate::session::Replica::peer_place`]). The agreement is judged
+    /// there too, so that both robots judge a pair of estimates alike.
+    pub peer_at: Option<[f32; 3]>,
 }
 
 /// One round's estimate of `T_own_peer`.
@@ -147,11 +154,23 @@ impl Estimate {
 }
 
 /// Whether `ours` (`T_own_peer`) and the peer's `theirs` (`T_peer_own`)
-/// compose to about the identity at `at`.
-pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3]) -> bool {
+/// compose to about the identity at `at` (the robot's place, its own
+/// frame) and, when known, at `peer_at` (the peer's place, its frame) as
+/// `ours` puts it.
+///
+/// Why both: the loop's rotation moves points in proportion to their
+/// distance from where it is judged, and each robot judges at its own
+/// place. Judged at one place only, two robots 40 m apart could each
+/// decide differently about the same pair of estimates: over a line that
+/// damages 10% of bytes (town seed 1, network labels) one robot's fix
+/// 0.55 m off was confirmed at its place while its peer's, right, was
+/// refused at the other's, dropped, and the wrong one reported
+/// `Converged` for eight rounds.
+pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3], peer_at: Option<[f32; 3]>) -> bool {
     let loop_ = ours * theirs;
-    let p = nalgebra::Point3::from(at);
-    (loop_ * p - p).norm() < AGREE_M && loop_.rotation.angle() < AGREE_DEG.to_radians()
+    let closes = |p: nalgebra::Point3<f32>| (loop_ * p - p).norm() < AGREE_M;
+    let peer = peer_at.map(|q| ours * nalgebra::Point3::from(q));
+    loop_.rotation.angle() < AGREE_DEG.to_radians() && closes(at.into()) && peer.is_none_or(closes)
 }
 
 /// What tracking from the fix gave ([`Tracker::track`]): the round's
@@ -407,7 +426,7 @@ impl Tracker {
             (_, false) => Fix::None,
         };
         let converged = result.status == MatchStatus::Converged;
-        if converged && view.estimate.is_some_and(|theirs| agree(&result.transform, &theirs, view.at)) {
+        if converged && view.estimate.is_some_and(|theirs| agree(&result.transform, &theirs, view.at, view.peer_at)) {
             self.confirmed = true;
         }
         // An unconfirmed fix the peer's own estimate keeps refusing is
@@ -430,11 +449,17 @@ impl Tracker {
     /// answers a peer's update after its own estimate can carry that
     /// estimate in the answer, so a fix both find in one round is reported
     /// in that round, not the next. The same test as [`Tracker::estimate`]'s
-    /// ([`agree`] at `at`).
-    pub fn confirm(&mut self, estimate: &mut Estimate, theirs: &Isometry3<f32>, at: [f32; 3]) {
+    /// ([`agree`] at `at` and `peer_at`).
+    pub fn confirm(
+        &mut self,
+        estimate: &mut Estimate,
+        theirs: &Isometry3<f32>,
+        at: [f32; 3],
+        peer_at: Option<[f32; 3]>,
+    ) {
         let current =
             estimate.result.status == MatchStatus::Converged && self.reported() == Some(&estimate.result.transform);
-        if current && agree(&estimate.result.transform, theirs, at) {
+        if current && agree(&estimate.result.transform, theirs, at, peer_at) {
             self.confirmed = true;
             estimate.confirmed = true;
         }

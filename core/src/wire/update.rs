@@ -194,6 +194,12 @@ impl Cut {
         Cut { centre: centre.map(step), threshold: u64::MAX }
     }
 
+    /// The centre in map coordinates (metres) for a map of `resolution`:
+    /// where the sender was, to a 32nd of a cell.
+    pub fn centre_m(&self, resolution: f32) -> [f32; 3] {
+        self.centre.map(|c| c as f32 * resolution / CUT_STEPS as f32)
+    }
+
     /// The squared distance of a cell's centre from the cut's, in 32nds of
     /// a cell.
     pub fn distance_sq(&self, key: VoxelKey) -> u64 {

@@ -64,6 +64,12 @@ impl Follower {
         self.replica.map()
     }
 
+    /// Where the peer was, as its last update said
+    /// ([`Replica::peer_place`]).
+    pub fn peer_place(&self) -> Option<[f32; 3]> {
+        self.replica.peer_place()
+    }
+
     /// The version held (0: none yet).
     pub fn version(&self) -> u32 {
         self.replica.version()

@@ -503,7 +503,7 @@ where
             let pyramid = |e| RobotError::Align(super::AlignError::Pyramid(e));
             let matching = |e| RobotError::Align(super::AlignError::Match(e));
             let how = SESSION_PIPELINE.alignment;
-            let view = PeerView { estimate: self.heard, at: self.map.keep_centre() };
+            let view = PeerView { estimate: self.heard, at: self.map.keep_centre(), peer_at: replica.peer_place() };
             // From a fix, first only what tracking reads; the whole pyramids
             // when a search is needed (no fix, or EM did not settle from it).
             let tracked = match self.tracker.fix() {

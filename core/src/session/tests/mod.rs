@@ -123,13 +123,23 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
     let mut publisher = Publisher::new(7, &mut held[..], &mut sent[..]);
     let (mut map, mut rng) = (robot_map(), Lcg(1));
     let mut ratios = Vec::new();
-    let (mut removed, mut by_rank) = (0, 0);
+    let (mut removed, mut by_rank, mut cuts) = (0, 0, 0);
     for round in 0..40 {
         drive(&mut map, round, &mut rng);
         let n = publisher.next_update(&map, scratch, out).unwrap();
         removed += publisher.counts().removed;
-        by_rank += UpdateView::parse(&out[..n]).unwrap().header.removals;
+        let view = UpdateView::parse(&out[..n]).unwrap();
+        by_rank += view.header.removals;
+        let cut = view.cut.is_some();
         assert_eq!(replica.apply(&out[..n], scratch), Applied::Applied, "round {round}");
+        // A cut says where the sender was: the copy knows its peer's place
+        // to a 32nd of a cell (where it is, or where it last evicted).
+        if cut {
+            cuts += 1;
+            let at = replica.peer_place().unwrap();
+            let near = |c: [f32; 3]| (0..3).all(|k| (at[k] - c[k]).abs() <= map.resolution() / 64.0 + 1e-4);
+            assert!(near(map.keep_centre()) || map.last_cut_centre().is_some_and(near), "round {round}: {at:?}");
+        }
         publisher.on_ack(&replica.answer());
         assert_eq!(publisher.acked(), publisher.version());
         assert_published(replica.map(), publisher.published(), &map, &std::format!("round {round}"));
@@ -151,6 +161,7 @@ fn updates_keep_the_copy_equal_to_the_decoded_map() {
     assert!(map.evicted() > 0 && map.len() > CAPACITY / 2, "{} {}", map.len(), map.evicted());
     std::println!("removed {removed}, by rank {by_rank}");
     assert!(removed > 1_000 && by_rank * 10 < removed, "removed {removed}, by rank {by_rank}");
+    assert!(cuts > 10, "{cuts} cuts");
     ratios.sort_by(f32::total_cmp);
     let median = ratios[ratios.len() / 2];
     // An update is what changed, well below a whole map.

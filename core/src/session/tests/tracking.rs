@@ -26,7 +26,7 @@ fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
     let how = Alignment::DEFAULT;
     let mut tracker = Tracker::new();
     let mut estimate = |t: &mut Tracker, peer| {
-        let view = PeerView { estimate: None, at: [0.0; 3] };
+        let view = PeerView { estimate: None, at: [0.0; 3], peer_at: None };
         t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let first = estimate(&mut tracker, &same);
@@ -87,7 +87,7 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     let mut tracker = Tracker::new();
     let at = [9.0, 0.0, 0.0];
     let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
-        let view = PeerView { estimate: theirs, at };
+        let view = PeerView { estimate: theirs, at, peer_at: None };
         t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     // Nothing heard: held, not reported.
@@ -107,7 +107,7 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     for e in &agreeing {
         assert_eq!(e.status() == MatchStatus::Converged, e.result.status == MatchStatus::Converged && e.confirmed);
     }
-    assert!(converged.iter().all(|e| e.confirmed && agree(&e.result.transform, &theirs, at)));
+    assert!(converged.iter().all(|e| e.confirmed && agree(&e.result.transform, &theirs, at, None)));
     if tracker.fix().is_some() && agreeing.last().is_some_and(|e| e.confirmed) {
         let next = estimate(&mut tracker, None);
         assert_eq!(next.confirmed, next.result.status == MatchStatus::Converged, "stays confirmed");
@@ -115,7 +115,7 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     // A new chain (the fix forgotten) starts unconfirmed.
     tracker.reset();
     assert_eq!(estimate(&mut tracker, None).status(), MatchStatus::NotConverged);
-    assert!(agree(&first.result.transform, &first.result.transform.inverse(), at));
+    assert!(agree(&first.result.transform, &first.result.transform.inverse(), at, None));
 }
 
 /// Two estimates agree only to the conventions' strict thresholds, judged
@@ -136,13 +136,48 @@ fn estimates_agree_to_the_strict_thresholds_where_the_robot_is() {
         from_xyz_rpy(x, 0.0, 0.0, 0.0, 0.0, 0.0)
             * crate::geometry::Isometry3::rotation_wrt_point(turn, crate::geometry::Point3::from(at))
     };
-    assert!(agree(&ours, &theirs(about_robot(0.3, 0.6)), at));
-    assert!(!agree(&ours, &theirs(about_robot(0.7, 0.0)), at));
-    assert!(!agree(&ours, &theirs(about_robot(0.0, 1.2)), at));
-    assert!(!agree(&ours, &theirs(about_robot(0.87, 1.43)), at));
+    assert!(agree(&ours, &theirs(about_robot(0.3, 0.6)), at, None));
+    assert!(!agree(&ours, &theirs(about_robot(0.7, 0.0)), at, None));
+    assert!(!agree(&ours, &theirs(about_robot(0.0, 1.2)), at, None));
+    assert!(!agree(&ours, &theirs(about_robot(0.87, 1.43)), at, None));
     // Far from the robot a small turn moves the place a lot, but the
     // loop is judged at the robot: a turn about it leaves it in place.
-    assert!(agree(&ours, &theirs(about_robot(0.0, 0.9)), at));
+    assert!(agree(&ours, &theirs(about_robot(0.0, 0.9)), at, None));
+    // But the peer, 40 m away, judges the same pair at its own place,
+    // where that turn moves it 0.63 m: judged at both places, both robots
+    // refuse it; 20 m away (0.31 m), both take it.
+    let peer_at = |dx: f32| {
+        let q = ours.inverse() * crate::geometry::Point3::new(at[0] + dx, at[1], at[2]);
+        [q.x, q.y, q.z]
+    };
+    let turned = theirs(about_robot(0.0, 0.9));
+    assert!(!agree(&ours, &turned, at, Some(peer_at(40.0))));
+    assert!(agree(&ours, &turned, at, Some(peer_at(20.0))));
+}
+
+/// Both robots judge a pair of estimates alike when each knows the other's
+/// place: robot A's test of (`T_A_B`, `T_B_A`) at its place and B's, and
+/// B's test of (`T_B_A`, `T_A_B`) at its place and A's, give one answer.
+/// Judged at its own place alone, each robot answered differently for a
+/// loop that turns by half a degree, 40 m between them.
+#[test]
+fn both_robots_judge_a_pair_alike() {
+    use crate::geometry::from_xyz_rpy;
+    let t_ab = from_xyz_rpy(35.0, 12.0, 0.2, 0.0, 0.0, 0.4);
+    let (a_at, b_at) = ([10.0f32, 2.0, 0.0], [-8.0f32, 30.0, 0.0]);
+    let (mut one_place, mut differ) = (0, 0);
+    for i in 0..400 {
+        let f = i as f32;
+        let loop_ =
+            from_xyz_rpy(0.3 * libm::sinf(f), 0.3 * libm::cosf(1.7 * f), 0.0, 0.0, 0.0, 0.015 * (f % 41.0 - 20.0));
+        let t_ba = t_ab.inverse() * loop_;
+        let a = agree(&t_ab, &t_ba, a_at, Some(b_at));
+        let b = agree(&t_ba, &t_ab, b_at, Some(a_at));
+        differ += usize::from(a != b);
+        one_place += usize::from(agree(&t_ab, &t_ba, a_at, None) != agree(&t_ba, &t_ab, b_at, None));
+    }
+    assert_eq!(differ, 0, "judged at both places, the robots differ on {differ} of 400 pairs");
+    assert!(one_place >= 10, "judged at its own place, the robots differ on {one_place} of 400 pairs");
 }
 
 /// `test_util::street` in a map of its own.
@@ -173,7 +208,7 @@ fn a_street_is_held_where_the_fix_put_it_for_a_few_metres() {
     let how = Alignment::DEFAULT;
     let mut tracker = Tracker::new();
     let mut estimate = |t: &mut Tracker, (own, peer), x: f32| {
-        let view = PeerView { estimate: None, at: [x, 0.0, 0.0] };
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None };
         t.estimate(own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let error = |e: &Estimate| (e.result.transform * gt.inverse()).translation.vector.norm();
@@ -216,7 +251,7 @@ fn a_round_tracked_first_estimates_as_a_round_on_whole_pyramids() {
             .into_iter()
             .chain([(&bare, 1.5 * HOLD_M + 3.0)])
     {
-        let view = PeerView { estimate: None, at: [x, 0.0, 0.0] };
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None };
         let (own, peer) = (whole(&pair[0]), whole(&pair[1]));
         let expected = one.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
         let t = Pyramid::build_vec_tracked(&pair[0], Role::Model).unwrap();
@@ -253,24 +288,24 @@ fn a_fix_is_confirmed_by_the_peers_estimate_of_the_same_round() {
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let how = Alignment::DEFAULT;
     let at = [9.0, 0.0, 0.0];
-    let view = PeerView { estimate: None, at };
+    let view = PeerView { estimate: None, at, peer_at: None };
     let mut tracker = Tracker::new();
     let mut first = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
     assert_eq!((first.result.status, first.confirmed), (MatchStatus::Converged, false));
     // A peer's estimate 3 m and 5 degrees off: not confirmed.
     let off = crate::geometry::from_xyz_rpy(3.0, 0.0, 0.0, 0.0, 0.0, 0.09) * first.result.transform.inverse();
-    tracker.confirm(&mut first, &off, at);
+    tracker.confirm(&mut first, &off, at, None);
     assert!(!first.confirmed);
     // An estimate that is not the fix held is not confirmed either.
     let mut stale = first;
     stale.result.transform = crate::geometry::from_xyz_rpy(0.5, 0.0, 0.0, 0.0, 0.0, 0.0) * first.result.transform;
     let inverse = stale.result.transform.inverse();
-    tracker.confirm(&mut stale, &inverse, at);
+    tracker.confirm(&mut stale, &inverse, at, None);
     assert!(!stale.confirmed);
     // The inverse of the fix: confirmed now, reported Converged, and the
     // next round's estimate from the fix stays confirmed.
     let theirs = first.result.transform.inverse();
-    tracker.confirm(&mut first, &theirs, at);
+    tracker.confirm(&mut first, &theirs, at, None);
     assert!(first.confirmed && first.status() == MatchStatus::Converged);
     let next = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
     assert_eq!(next.confirmed, next.result.status == MatchStatus::Converged, "{next:?}");
@@ -292,7 +327,7 @@ fn a_fix_the_peer_keeps_refusing_is_dropped() {
     let how = Alignment::DEFAULT;
     let at = [9.0, 0.0, 0.0];
     let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
-        let view = PeerView { estimate: theirs, at };
+        let view = PeerView { estimate: theirs, at, peer_at: None };
         t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let mut tracker = Tracker::new();

@@ -406,7 +406,10 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                 if spec.one_shot {
                     tracker.reset();
                 }
-                let view = PeerView { estimate: heard[j][i], at: places[i] };
+                // The answer that carries the peer's estimate carries its
+                // place (a copy's last cut, `Replica::peer_place`, is
+                // rounds old while updates wait on a damaged line).
+                let view = PeerView { estimate: heard[j][i], at: places[i], peer_at: places.get(j).copied() };
                 let driven = |p: [f32; 3]| nalgebra::distance(&p.into(), &places[i].into());
                 let stale = copy_at[i][j].is_some_and(|p| driven(p) > cosem_core::session::HOLD_M);
                 let at = Round { round, pair: (i, j), shared_world, view, stale };
@@ -535,7 +538,8 @@ fn rounds_of(spec: &SessionSpec, robots: &[Robot]) -> Result<usize, Error> {
 /// Each fix of `round` not yet confirmed, confirmed by the peer's
 /// estimate of the same round where they agree ([`Tracker::confirm`]):
 /// what the peer's answer to the robot's update, sent after the peer's
-/// estimate, carries.
+/// estimate, carries, with the peer's place: judged at both robots'
+/// places.
 fn confirm_in_round(round: &mut [Record], trackers: &mut [Vec<Tracker>], places: &[[f32; 3]]) {
     let theirs: Vec<(usize, usize, Isometry3<f32>)> = round
         .iter()
@@ -550,7 +554,8 @@ fn confirm_in_round(round: &mut [Record], trackers: &mut [Vec<Tracker>], places:
             continue;
         };
         if let Some((_, _, t)) = theirs.iter().find(|(i, j, _)| (*i, *j) == (r.peer, r.robot)) {
-            tracker.confirm(e, t, places.get(r.robot).copied().unwrap_or([0.0; 3]));
+            let at = |k: usize| places.get(k).copied();
+            tracker.confirm(e, t, at(r.robot).unwrap_or([0.0; 3]), at(r.peer));
         }
     }
 }

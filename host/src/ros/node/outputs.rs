@@ -31,7 +31,7 @@ impl RosNode {
                 continue;
             }
             let heard = peer.heard.filter(|h| h.1.elapsed().as_secs_f64() <= HEARD_FOR).map(|h| h.0);
-            let view = PeerView { estimate: heard, at: self.own.place };
+            let view = PeerView { estimate: heard, at: self.own.place, peer_at: peer.follower.peer_place() };
             let room = &mut self.room;
             let (mut e, _) = match estimate_on(&mut mine, copy, &mut peer.tracker, &self.spec.alignment, &view, room) {
                 Ok(e) => e,
@@ -44,7 +44,7 @@ impl RosNode {
                 }
             };
             if let Some(theirs) = heard {
-                peer.tracker.confirm(&mut e, &theirs, self.own.place);
+                peer.tracker.confirm(&mut e, &theirs, self.own.place, view.peer_at);
             }
             peer.last = Some(e);
             peer.estimated = peer.follower.version();

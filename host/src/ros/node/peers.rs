@@ -128,7 +128,8 @@ impl RosNode {
             let Some(mut e) = peer.last.filter(|e| e.result.status == MatchStatus::Converged && !e.confirmed) else {
                 continue;
             };
-            peer.tracker.confirm(&mut e, &theirs, place);
+            let peer_at = peer.follower.peer_place();
+            peer.tracker.confirm(&mut e, &theirs, place, peer_at);
             if e.confirmed {
                 peer.last = Some(e);
                 self.publish_estimate(&name)?;
