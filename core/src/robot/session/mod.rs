@@ -186,6 +186,8 @@ where
     last_estimate: Option<Isometry3<f32>>,
     /// The peer's, as its last message said.
     heard: Option<Isometry3<f32>>,
+    /// Where the peer was (its frame) as its last message said.
+    heard_at: Option<[f32; 3]>,
 }
 
 impl<'a, S, C, R, P, Q> SessionRobot<'a, S, C, R, P, Q>
@@ -237,6 +239,7 @@ where
             stats_at_start: CourierStats::default(),
             last_estimate: None,
             heard: None,
+            heard_at: None,
         })
     }
 
@@ -422,7 +425,7 @@ where
         // The message: this robot's last estimate of its peer, then the update.
         let (head, rest) =
             self.out.split_at_mut_checked(ESTIMATE_BYTES).ok_or(RobotError::Update(PublisherError::Scratch))?;
-        write_estimate(self.last_estimate.as_ref(), head);
+        write_head(self.last_estimate.as_ref(), self.map.keep_centre(), head);
         let len = publisher.next_update(&self.map, self.scratch, rest).map_err(RobotError::Update)?;
         self.marks.counts = publisher.counts();
         self.marks.update_bytes = len as u32;
@@ -456,7 +459,7 @@ where
                 let replica = self.replica.as_mut().ok_or(RobotError::Feed(FeedError::Order))?;
                 let message = self.input.get(..n).unwrap_or(&[]);
                 let (head, update) = message.split_at_checked(ESTIMATE_BYTES).unwrap_or((&[], message));
-                self.heard = read_estimate(head);
+                (self.heard, self.heard_at) = read_head(head);
                 let applied = replica.apply(update, self.scratch);
                 if matches!(applied, Applied::Diverged | Applied::Restarted) {
                     self.tracker.reset();
@@ -503,7 +506,8 @@ where
             let pyramid = |e| RobotError::Align(super::AlignError::Pyramid(e));
             let matching = |e| RobotError::Align(super::AlignError::Match(e));
             let how = SESSION_PIPELINE.alignment;
-            let view = PeerView { estimate: self.heard, at: self.map.keep_centre(), peer_at: replica.peer_place() };
+            let peer_at = self.heard_at.or(replica.peer_place());
+            let view = PeerView { estimate: self.heard, at: self.map.keep_centre(), peer_at };
             // From a fix, first only what tracking reads; the whole pyramids
             // when a search is needed (no fix, or EM did not settle from it).
             let tracked = match self.tracker.fix() {
@@ -581,34 +585,49 @@ where
     }
 }
 
-/// Bytes of the estimate ahead of a round's update: a flag (1: an
-/// estimate follows), then `T_sender_receiver`'s top three rows, row by
-/// row, little-endian `f32`.
-pub const ESTIMATE_BYTES: usize = 1 + 48;
+/// Bytes of the head ahead of a round's update: a flag (1: an estimate
+/// follows), then `T_sender_receiver`'s top three rows, row by row, then
+/// where the sender is (its frame: the agreement of two estimates is
+/// judged at both robots' places, [`crate::session::agree`]), all
+/// little-endian `f32`.
+pub const ESTIMATE_BYTES: usize = 1 + 48 + 12;
 
-/// Writes `estimate` (or none) as a message's head.
-fn write_estimate(estimate: Option<&Isometry3<f32>>, out: &mut [u8]) {
+/// Writes `estimate` (or none) and the robot's place `at` as a message's
+/// head.
+fn write_head(estimate: Option<&Isometry3<f32>>, at: [f32; 3], out: &mut [u8]) {
     out.fill(0);
-    if let (Some(t), Some((flag, rows))) = (estimate, out.split_first_mut()) {
+    let Some((flag, rest)) = out.split_first_mut() else { return };
+    let (rows, place) = rest.split_at_mut(rest.len().min(48));
+    if let Some(t) = estimate {
         *flag = 1;
         for (o, v) in rows.chunks_exact_mut(4).zip(crate::geometry::rows(t)) {
             o.copy_from_slice(&v.to_le_bytes());
         }
     }
+    for (o, v) in place.chunks_exact_mut(4).zip(at) {
+        o.copy_from_slice(&v.to_le_bytes());
+    }
 }
 
-/// The estimate a message's head carries; `None` when it says none, or a
-/// number in it is not finite.
-fn read_estimate(head: &[u8]) -> Option<Isometry3<f32>> {
-    let (&flag, rest) = head.split_first()?;
-    if flag != 1 || rest.len() != 48 {
-        return None;
+/// The estimate a message's head carries (`None` when it says none) and
+/// the sender's place; each `None` where a number in it is not finite.
+fn read_head(head: &[u8]) -> (Option<Isometry3<f32>>, Option<[f32; 3]>) {
+    fn floats<const N: usize>(b: &[u8]) -> Option<[f32; N]> {
+        if b.len() != 4 * N {
+            return None;
+        }
+        let mut v = [0f32; N];
+        for (x, c) in v.iter_mut().zip(b.chunks_exact(4)) {
+            *x = f32::from_le_bytes(c.try_into().ok()?);
+        }
+        v.iter().all(|x| x.is_finite()).then_some(v)
     }
-    let mut rows = [0f32; 12];
-    for (r, b) in rows.iter_mut().zip(rest.chunks_exact(4)) {
-        *r = f32::from_le_bytes(b.try_into().ok()?);
-    }
-    rows.iter().all(|v| v.is_finite()).then(|| crate::geometry::from_rows(&rows))
+    let Some((&flag, rest)) = head.split_first().filter(|_| head.len() == ESTIMATE_BYTES) else {
+        return (None, None);
+    };
+    let (rows, place) = rest.split_at_checked(48).unwrap_or((&[], &[]));
+    let estimate = floats::<12>(rows).filter(|_| flag == 1).map(|r| crate::geometry::from_rows(&r));
+    (estimate, floats::<3>(place))
 }
 
 impl<S, C, R, P, Q, F, L, T> Machine<F, L, T> for SessionRobot<'_, S, C, R, P, Q>

@@ -296,3 +296,29 @@ fn a_robot_that_holds_less_is_sent_what_fits() {
     }
     assert!(ra.iter().any(|r| r.map_voxels > SMALL as u32), "robot 0's map outgrew what robot 1 holds");
 }
+
+/// A message's head carries the sender's estimate (when it has one) and
+/// its place; a head of another length, or a number that is not finite,
+/// says nothing of what it spoils.
+#[test]
+fn a_head_carries_the_estimate_and_the_place() {
+    use super::{read_head, write_head, ESTIMATE_BYTES};
+    let t = from_xyz_rpy(12.5, -3.0, 0.25, 0.01, -0.02, 0.7);
+    let at = [40.25, -7.5, 0.5];
+    let mut head = [0u8; ESTIMATE_BYTES];
+    write_head(Some(&t), at, &mut head);
+    let (estimate, place) = read_head(&head);
+    assert_eq!(estimate.map(|e| rows(&e)), Some(rows(&t)));
+    assert_eq!(place, Some(at));
+    write_head(None, at, &mut head);
+    assert_eq!(read_head(&head), (None, Some(at)));
+    // A place that is not finite: the estimate still read, no place.
+    write_head(Some(&t), [f32::NAN, 0.0, 0.0], &mut head);
+    let (estimate, place) = read_head(&head);
+    assert!(estimate.is_some() && place.is_none());
+    // An estimate that is not finite: none, the place still read.
+    write_head(Some(&t), at, &mut head);
+    head[1..5].copy_from_slice(&f32::INFINITY.to_le_bytes());
+    assert_eq!(read_head(&head), (None, Some(at)));
+    assert_eq!(read_head(&head[..ESTIMATE_BYTES - 1]), (None, None));
+}
