@@ -127,6 +127,13 @@ pub struct PeerView {
     /// ([`crate::session::Replica::peer_place`]). The agreement is judged
     /// there too, so that both robots judge a pair of estimates alike.
     pub peer_at: Option<[f32; 3]>,
+    /// Where the robot was when its copy of the peer's map last changed,
+    /// if known. What the peer's map was a stretch of driving ago says
+    /// little of where its odometry frame is now: under drift, a fix on
+    /// it goes wrong as the robots part (over a 10% line, 0.6 m and 1-2
+    /// degrees), so an estimate on a copy that has not changed for
+    /// [`HOLD_M`] of driving is not reported `Converged`.
+    pub copy_at: Option<[f32; 3]>,
 }
 
 /// One round's estimate of `T_own_peer`.
@@ -440,6 +447,9 @@ impl Tracker {
         } else {
             fix
         };
+        if converged && view.copy_at.is_some_and(|p| distance(p, view.at) > HOLD_M) {
+            result.status = MatchStatus::NotConverged;
+        }
         Estimate { kind, result, fix, confirmed: converged && self.confirmed }
     }
 

@@ -188,6 +188,8 @@ where
     heard: Option<Isometry3<f32>>,
     /// Where the peer was (its frame) as its last message said.
     heard_at: Option<[f32; 3]>,
+    /// Where this robot was when its copy last changed.
+    copy_at: Option<[f32; 3]>,
 }
 
 impl<'a, S, C, R, P, Q> SessionRobot<'a, S, C, R, P, Q>
@@ -240,6 +242,7 @@ where
             last_estimate: None,
             heard: None,
             heard_at: None,
+            copy_at: None,
         })
     }
 
@@ -461,6 +464,7 @@ where
                 let (head, update) = message.split_at_checked(ESTIMATE_BYTES).unwrap_or((&[], message));
                 (self.heard, self.heard_at) = read_head(head);
                 let applied = replica.apply(update, self.scratch);
+                self.copy_at = Some(self.map.keep_centre());
                 if matches!(applied, Applied::Diverged | Applied::Restarted) {
                     self.tracker.reset();
                 }
@@ -507,7 +511,7 @@ where
             let matching = |e| RobotError::Align(super::AlignError::Match(e));
             let how = SESSION_PIPELINE.alignment;
             let peer_at = self.heard_at.or(replica.peer_place());
-            let view = PeerView { estimate: self.heard, at: self.map.keep_centre(), peer_at };
+            let view = PeerView { estimate: self.heard, at: self.map.keep_centre(), peer_at, copy_at: self.copy_at };
             // From a fix, first only what tracking reads; the whole pyramids
             // when a search is needed (no fix, or EM did not settle from it).
             let tracked = match self.tracker.fix() {

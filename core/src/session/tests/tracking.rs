@@ -26,7 +26,7 @@ fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
     let how = Alignment::DEFAULT;
     let mut tracker = Tracker::new();
     let mut estimate = |t: &mut Tracker, peer| {
-        let view = PeerView { estimate: None, at: [0.0; 3], peer_at: None };
+        let view = PeerView { estimate: None, at: [0.0; 3], peer_at: None, copy_at: None };
         t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let first = estimate(&mut tracker, &same);
@@ -87,7 +87,7 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     let mut tracker = Tracker::new();
     let at = [9.0, 0.0, 0.0];
     let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
-        let view = PeerView { estimate: theirs, at, peer_at: None };
+        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None };
         t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     // Nothing heard: held, not reported.
@@ -116,6 +116,39 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     tracker.reset();
     assert_eq!(estimate(&mut tracker, None).status(), MatchStatus::NotConverged);
     assert!(agree(&first.result.transform, &first.result.transform.inverse(), at, None));
+}
+
+/// An estimate on a copy that has not changed while the robot drove more
+/// than [`HOLD_M`] is not reported `Converged`, and the fix stays held:
+/// the copy's next change brings `Converged` back.
+#[test]
+fn an_estimate_on_a_copy_left_behind_is_not_converged() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let (mut here, mut again, mut rng) = (robot_map(), robot_map(), Lcg(11));
+    for round in 0..4 {
+        drive(&mut here, round, &mut rng);
+        drive(&mut again, round, &mut Lcg(12 + round as u64));
+    }
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, same) = (prepare(&here), prepare(&again));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let mut tracker = Tracker::new();
+    let mut estimate = |t: &mut Tracker, copy_at: Option<[f32; 3]>| {
+        let view = PeerView { estimate: None, at: [0.0; 3], peer_at: None, copy_at };
+        t.estimate(&own, &same, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
+    let first = estimate(&mut tracker, Some([HOLD_M - 1.0, 0.0, 0.0]));
+    assert_eq!((first.result.status, first.fix), (MatchStatus::Converged, Fix::Held));
+    let left_behind = estimate(&mut tracker, Some([HOLD_M + 1.0, 0.0, 0.0]));
+    assert_eq!(
+        (left_behind.kind, left_behind.result.status, left_behind.fix),
+        (Kind::Tracking, MatchStatus::NotConverged, Fix::Held)
+    );
+    assert!(tracker.fix().is_some());
+    let changed = estimate(&mut tracker, Some([0.0; 3]));
+    assert_eq!((changed.result.status, changed.fix), (MatchStatus::Converged, Fix::Held));
 }
 
 /// Two estimates agree only to the conventions' strict thresholds, judged
@@ -208,7 +241,7 @@ fn a_street_is_held_where_the_fix_put_it_for_a_few_metres() {
     let how = Alignment::DEFAULT;
     let mut tracker = Tracker::new();
     let mut estimate = |t: &mut Tracker, (own, peer), x: f32| {
-        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None };
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None, copy_at: None };
         t.estimate(own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let error = |e: &Estimate| (e.result.transform * gt.inverse()).translation.vector.norm();
@@ -251,7 +284,7 @@ fn a_round_tracked_first_estimates_as_a_round_on_whole_pyramids() {
             .into_iter()
             .chain([(&bare, 1.5 * HOLD_M + 3.0)])
     {
-        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None };
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None, copy_at: None };
         let (own, peer) = (whole(&pair[0]), whole(&pair[1]));
         let expected = one.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
         let t = Pyramid::build_vec_tracked(&pair[0], Role::Model).unwrap();
@@ -288,7 +321,7 @@ fn a_fix_is_confirmed_by_the_peers_estimate_of_the_same_round() {
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let how = Alignment::DEFAULT;
     let at = [9.0, 0.0, 0.0];
-    let view = PeerView { estimate: None, at, peer_at: None };
+    let view = PeerView { estimate: None, at, peer_at: None, copy_at: None };
     let mut tracker = Tracker::new();
     let mut first = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
     assert_eq!((first.result.status, first.confirmed), (MatchStatus::Converged, false));
@@ -327,7 +360,7 @@ fn a_fix_the_peer_keeps_refusing_is_dropped() {
     let how = Alignment::DEFAULT;
     let at = [9.0, 0.0, 0.0];
     let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
-        let view = PeerView { estimate: theirs, at, peer_at: None };
+        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None };
         t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let mut tracker = Tracker::new();

@@ -409,10 +409,9 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                 // The answer that carries the peer's estimate carries its
                 // place (a copy's last cut, `Replica::peer_place`, is
                 // rounds old while updates wait on a damaged line).
-                let view = PeerView { estimate: heard[j][i], at: places[i], peer_at: places.get(j).copied() };
-                let driven = |p: [f32; 3]| nalgebra::distance(&p.into(), &places[i].into());
-                let stale = copy_at[i][j].is_some_and(|p| driven(p) > cosem_core::session::HOLD_M);
-                let at = Round { round, pair: (i, j), shared_world, view, stale };
+                let (peer_at, copy_at) = (places.get(j).copied(), copy_at[i][j]);
+                let view = PeerView { estimate: heard[j][i], at: places[i], peer_at, copy_at };
+                let at = Round { round, pair: (i, j), shared_world, view };
                 let update = delivered[j][i].take().ok_or_else(|| Error::Invalid("no update".into()))?;
                 // While j's update is on the line, i estimates on the copy it held.
                 let dir = usize::from(j > i);
@@ -589,10 +588,6 @@ struct Round {
     pair: (usize, usize),
     shared_world: bool,
     view: PeerView,
-    /// The copy of the peer's map has not changed while the robot drove
-    /// [`cosem_core::session::HOLD_M`] (its updates are on a slow line):
-    /// an estimate on it is not reported `Converged`.
-    stale: bool,
 }
 
 /// Each robot's estimate of each peer in the last round (`[i][j]`:
@@ -677,7 +672,7 @@ fn estimate_one(
     tracker: &mut Tracker,
     scratch: &mut Scratch,
 ) -> Result<Record, Error> {
-    let Round { round, pair: (i, j), shared_world, view, stale } = at;
+    let Round { round, pair: (i, j), shared_world, view } = at;
     let t0 = Instant::now();
     let whole = scratch.whole.get(j).copied().unwrap_or(0);
     let line::Delivered { bytes: bytes_sent, ratio: mut update_ratio, applied, counts, applying, line } = update;
@@ -690,13 +685,7 @@ fn estimate_one(
     let (estimate, preparing) = if copy.is_empty() {
         (None, 0.0)
     } else {
-        let (mut e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, &mut scratch.room)?;
-        // What the peer's map was a stretch of driving ago says little of
-        // where its odometry frame is now: under drift, a fix on it goes
-        // wrong as the robots part (on a 10% line, 0.6 m and 1-2 degrees).
-        if stale && e.result.status == MatchStatus::Converged {
-            e.result.status = MatchStatus::NotConverged;
-        }
+        let (e, own_s) = estimate_on(own, copy, tracker, &spec.alignment, &view, &mut scratch.room)?;
         (Some(e), own_s)
     };
     let seconds = preparing + t0.elapsed().as_secs_f64() + applying;

@@ -31,7 +31,8 @@ impl RosNode {
                 continue;
             }
             let heard = peer.heard.filter(|h| h.1.elapsed().as_secs_f64() <= HEARD_FOR).map(|h| h.0);
-            let view = PeerView { estimate: heard, at: self.own.place, peer_at: peer.follower.peer_place() };
+            let (peer_at, copy_at) = (peer.follower.peer_place(), peer.copy_at);
+            let view = PeerView { estimate: heard, at: self.own.place, peer_at, copy_at };
             let room = &mut self.room;
             let (mut e, _) = match estimate_on(&mut mine, copy, &mut peer.tracker, &self.spec.alignment, &view, room) {
                 Ok(e) => e,
