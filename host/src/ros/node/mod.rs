@@ -171,8 +171,6 @@ struct Peer {
     estimated: u32,
     /// When an update of it last came.
     updated: Instant,
-    /// Where this robot was when the copy last changed.
-    copy_at: Option<[f32; 3]>,
     /// Why it is not estimated, if it is not (another voxel size).
     refused: Option<String>,
     pose: Option<ros2_client::Publisher<PoseWithCovarianceStamped>>,

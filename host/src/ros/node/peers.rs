@@ -39,7 +39,6 @@ impl RosNode {
             last: None,
             estimated: 0,
             updated: now,
-            copy_at: None,
             refused: None,
             pose: None,
         };
@@ -86,7 +85,6 @@ impl RosNode {
             return Ok(());
         }
         peer.refused = None;
-        let place = self.own.place;
         match peer.follower.offer(m.header.stamp.nanos(), m.payload, &mut self.words) {
             Ok(done) => {
                 if done.restarted || done.diverged > 0 {
@@ -104,9 +102,6 @@ impl RosNode {
                     log(&Event::Dropped(format!("{}: {why}", m.robot)));
                 }
                 peer.updated = Instant::now();
-                if done.applied > 0 {
-                    peer.copy_at = Some(place);
-                }
                 peer.odom_frame = m.header.frame_id;
                 *self.summary.applied.entry(m.robot).or_default() += done.applied;
                 self.dirty |= done.applied > 0;
