@@ -125,11 +125,7 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
 fn an_estimate_on_a_copy_left_behind_is_not_converged() {
     use crate::matching::search::SearchScratch;
     use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
-    let (mut here, mut again, mut rng) = (robot_map(), robot_map(), Lcg(11));
-    for round in 0..4 {
-        drive(&mut here, round, &mut rng);
-        drive(&mut again, round, &mut Lcg(12 + round as u64));
-    }
+    let (here, again) = one_street_seen_twice();
     let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
     let (own, same) = (prepare(&here), prepare(&again));
     let mut words = vec![0u32; SearchScratch::WINDOWED];

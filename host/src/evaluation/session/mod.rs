@@ -409,8 +409,8 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                 // The answer that carries the peer's estimate carries its
                 // place (a copy's last cut, `Replica::peer_place`, is
                 // rounds old while updates wait on a damaged line).
-                let (peer_at, copy_at) = (places.get(j).copied(), copy_at[i][j]);
-                let view = PeerView { estimate: heard[j][i], at: places[i], peer_at, copy_at };
+                let (peer_at, copy_from) = (places.get(j).copied(), copy_at[i][j]);
+                let view = PeerView { estimate: heard[j][i], at: places[i], peer_at, copy_at: copy_from };
                 let at = Round { round, pair: (i, j), shared_world, view };
                 let update = delivered[j][i].take().ok_or_else(|| Error::Invalid("no update".into()))?;
                 // While j's update is on the line, i estimates on the copy it held.
