@@ -23,7 +23,9 @@ pub mod tracker;
 pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateCounts};
 pub use replica::{Applied, Replica};
 pub use smoother::Smoother;
-pub use tracker::{agree, Estimate, Fix, Kind, PeerView, Tracked, Tracker, AGREE_DEG, AGREE_M, HOLD_M, REFUSED_ROUNDS};
+pub use tracker::{
+    agree, Estimate, Fix, Kind, PeerView, Tracked, Tracker, ADOPT_MARGIN, AGREE_DEG, AGREE_M, HOLD_M, REFUSED_ROUNDS,
+};
 
 /// The verdict's least overlap in a session: 0.25, where a one-shot
 /// match takes 0.2 ([`crate::matching::MatchSettings::min_overlap`]). A

@@ -380,3 +380,57 @@ fn a_fix_the_peer_keeps_refusing_is_dropped() {
         assert_eq!(estimate(&mut tracker, off).fix, Fix::Held);
     }
 }
+
+/// A robot without a fix adopts its peer's fix of the same round: EM from
+/// its inverse passes the robot's verdict with the least agreement raised
+/// by [`ADOPT_MARGIN`], agrees with the peer's, and is the robot's fix,
+/// confirmed. An answer that passes the plain verdict but not the margin,
+/// a peer's fix on maps that do not hold it, and a robot that holds a fix
+/// of its own adopt nothing and leave the track as it was.
+#[test]
+fn a_peers_fix_is_adopted_only_with_the_margin() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchSettings, MatchStatus, Pyramid, Role};
+    use crate::session::ADOPT_MARGIN;
+    let (here, again) = one_street_seen_twice();
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&here), prepare(&again));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let at = [9.0, 0.0, 0.0];
+    let view = PeerView { estimate: None, at, peer_at: None, copy_at: None };
+    // The peer's fix of this robot: its own map the model.
+    let mut peers = Tracker::new();
+    let how = Alignment::DEFAULT;
+    let found = peers.estimate(&peer, &own, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
+    assert_eq!(found.result.status, MatchStatus::Converged);
+    let theirs = found.result.transform;
+    // How much the adopted answer agrees, with a verdict that takes it.
+    let lenient = Alignment { settings: MatchSettings { min_agreement: 0.0, ..how.settings }, ..how };
+    let mut probe = Tracker::new();
+    let probed = probe.adopt((&own, &peer), &lenient, &mut SearchScratch::new(&mut words), &view, &theirs).unwrap();
+    let agreement = probed.expect("adopted with no least agreement").result.agreement;
+    assert!(agreement > ADOPT_MARGIN, "{agreement}");
+    let with_least = |least: f32| Alignment { settings: MatchSettings { min_agreement: least, ..how.settings }, ..how };
+    // The plain verdict would take it, the margin does not: nothing adopted.
+    let mut tracker = Tracker::new();
+    let short = with_least(agreement - 0.5 * ADOPT_MARGIN);
+    let refused = tracker.adopt((&own, &peer), &short, &mut SearchScratch::new(&mut words), &view, &theirs).unwrap();
+    assert_eq!(refused, None);
+    assert_eq!(tracker, Tracker::new());
+    // With the margin met: the robot's fix, confirmed, agreeing with the peer's.
+    let enough = with_least(agreement - 1.5 * ADOPT_MARGIN);
+    let adopted = tracker.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &theirs).unwrap();
+    let adopted = adopted.expect("adopted");
+    assert_eq!((adopted.kind, adopted.fix, adopted.status()), (Kind::Tracking, Fix::Held, MatchStatus::Converged));
+    assert!(adopted.confirmed && agree(&adopted.result.transform, &theirs, at, None));
+    assert_eq!(tracker.fix(), Some(&adopted.result.transform));
+    // A robot that holds a fix adopts nothing.
+    let again = tracker.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &theirs).unwrap();
+    assert_eq!(again, None);
+    // A peer's fix 40 m along the street: not where the maps meet.
+    let far = crate::geometry::from_xyz_rpy(40.0, 0.0, 0.0, 0.0, 0.0, 0.0) * theirs;
+    let mut fresh = Tracker::new();
+    let wrong = fresh.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &far).unwrap();
+    assert_eq!(wrong, None);
+    assert_eq!(fresh, Tracker::new());
+}

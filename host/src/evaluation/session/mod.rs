@@ -8,6 +8,7 @@
 //! every answer through the verdict). The truth, where the robots share a
 //! world, is only for the figures ([`figures`]).
 
+mod adopt;
 pub mod bench;
 pub mod feed;
 mod figures;
@@ -259,6 +260,12 @@ impl MatchRoom {
             normals: vec![PackedNormal::UNFIT; most],
         }
     }
+
+    /// EM's scratch for an estimate from a fix (tracking, or adopting a
+    /// peer's): the room to remember blocks and to keep fitted normals.
+    pub fn tracking(&mut self) -> SearchScratch<'_> {
+        SearchScratch::new(&mut []).with_reach(&mut self.reach).with_normals(&mut self.normals)
+    }
 }
 
 impl SessionSpec {
@@ -413,22 +420,20 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                 let view = PeerView { estimate: heard[j][i], at: places[i], peer_at, copy_at: copy_from };
                 let at = Round { round, pair: (i, j), shared_world, view };
                 let update = delivered[j][i].take().ok_or_else(|| Error::Invalid("no update".into()))?;
-                // While j's update is on the line, i estimates on the copy it held.
-                let dir = usize::from(j > i);
-                let late = lines[i.min(j)][i.max(j)].as_ref().and_then(|p| p.before(dir));
-                let copy = match late {
-                    Some(before) => before,
-                    None => {
-                        links[j][i].as_ref().map(|l| l.copy.map()).ok_or_else(|| Error::Invalid("no link".into()))?
-                    }
-                };
+                let copy = copy_of((i, j), &links, &lines)?;
                 mine_records.push(estimate_one(spec, at, &robots, (&mut mine, copy, update), tracker, &mut scratch)?);
             }
             mine_records.sort_by_key(|r| r.peer);
             records.extend(mine_records);
         }
         // Then this round's, each robot's answer to its peer's update sent
-        // after its estimate, carrying it.
+        // after its estimate, carrying it: a robot without a fix may adopt
+        // its peer's, then every fix is confirmed where the two agree.
+        if !spec.one_shot {
+            let room = &mut scratch.room;
+            let mut adopting = adopt::Adopting { trackers: &mut trackers, places: &places, copy_at: &copy_at, room };
+            adopting.round(spec, shared_world, &mut records[start..], (&robots, &links, &lines))?;
+        }
         confirm_in_round(&mut records[start..], &mut trackers, &places);
         time_from_scratch(&records[start..], (&robots, &links), &spec.alignment, &mut tracked, &mut from_scratch)?;
         on_round(&RoundView {
@@ -691,13 +696,7 @@ fn estimate_one(
     let seconds = preparing + t0.elapsed().as_secs_f64() + applying;
     let found = shared_world.then(|| figures::truth(&robots[i], &robots[j], f64::from(spec.crop))).flatten();
     let truth = found.map(|t| t.transform);
-    let (errors, origin_error, local_errors) = match (&estimate, &found) {
-        (Some(e), Some(t)) => {
-            let (e_t, e_r, origin) = t.errors(&e.result.transform.cast::<f64>());
-            (Some((e_t, e_r)), Some(origin), Some(t.local_errors(&e.result.transform.cast::<f64>())))
-        }
-        _ => (None, None, None),
-    };
+    let (errors, origin_error, local_errors) = errors_of(estimate.as_ref(), found.as_ref());
     let overlap_true = truth
         .map(|t| f64::from(cosem_core::map::overlap(robots[i].truth_map(), robots[j].truth_map(), &t.cast::<f32>())));
     Ok(Record {
@@ -717,6 +716,35 @@ fn estimate_one(
         line,
         seconds,
     })
+}
+
+/// `(e_t, e_r)`, `e_t` at the origin and `(e_t, e_r)` against the local
+/// truth of `estimate` against `truth`, when both are there.
+fn errors_of(estimate: Option<&Estimate>, truth: Option<&figures::Truth>) -> Errors {
+    match (estimate, truth) {
+        (Some(e), Some(t)) => {
+            let (e_t, e_r, origin) = t.errors(&e.result.transform.cast::<f64>());
+            (Some((e_t, e_r)), Some(origin), Some(t.local_errors(&e.result.transform.cast::<f64>())))
+        }
+        _ => (None, None, None),
+    }
+}
+
+/// A record's errors ([`errors_of`]).
+type Errors = (Option<(f64, f64)>, Option<f64>, Option<(f64, f64)>);
+
+/// Robot `i`'s copy of `j`'s map to estimate on: while `j`'s update is on
+/// the line, the copy it held.
+fn copy_of<'a>(
+    (i, j): (usize, usize),
+    links: &'a [Vec<Option<Link>>],
+    lines: &'a [Vec<Option<line::PairLine>>],
+) -> Result<&'a crate::maps::mapping::HostMap, Error> {
+    let dir = usize::from(j > i);
+    match lines[i.min(j)][i.max(j)].as_ref().and_then(|p| p.before(dir)) {
+        Some(before) => Ok(before),
+        None => links[j][i].as_ref().map(|l| l.copy.map()).ok_or_else(|| Error::Invalid("no link".into())),
+    }
 }
 
 /// The round's estimate of the peer whose copy is `copy`: tracked on

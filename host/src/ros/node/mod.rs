@@ -456,7 +456,7 @@ impl RosNode {
             self.peer_update(m, log)?;
         }
         for m in &fixes {
-            self.peer_fixes(m)?;
+            self.peer_fixes(m, log)?;
         }
         Ok(got)
     }

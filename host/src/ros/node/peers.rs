@@ -112,8 +112,10 @@ impl RosNode {
     }
 
     /// Peers' fixes of this robot (`T_peer_own`): heard for their
-    /// estimates' agreement, and a fix of ours waiting for it confirmed.
-    pub(super) fn peer_fixes(&mut self, m: &TfMessage) -> Result<(), Error> {
+    /// estimates' agreement, and a fix of ours waiting for it confirmed;
+    /// with no fix of ours and our last estimate refused by our verdict,
+    /// the peer's adopted ([`Tracker::adopt`]).
+    pub(super) fn peer_fixes(&mut self, m: &TfMessage, log: &mut impl FnMut(&Event)) -> Result<(), Error> {
         let own_frame = self.spec.odom_frame.clone();
         for t in m.transforms.iter().filter(|t| t.child_frame_id == own_frame) {
             let Some(name) = self.peers.iter().find(|(_, p)| p.odom_frame == t.header.frame_id).map(|(n, _)| n.clone())
@@ -125,6 +127,11 @@ impl RosNode {
             let place = self.own.place;
             let Some(peer) = self.peers.get_mut(&name) else { continue };
             peer.heard = Some((theirs, Instant::now()));
+            let refused = peer.last.is_some_and(|e| e.result.status != MatchStatus::Converged);
+            if refused && peer.tracker.fix().is_none() {
+                self.adopt(&name, &theirs, log)?;
+                continue;
+            }
             let Some(mut e) = peer.last.filter(|e| e.result.status == MatchStatus::Converged && !e.confirmed) else {
                 continue;
             };
@@ -137,5 +144,30 @@ impl RosNode {
             }
         }
         Ok(())
+    }
+
+    /// The peer `name`'s fix of this robot, `theirs`, tried as ours
+    /// ([`Tracker::adopt`]): adopted, it is our estimate, confirmed, and
+    /// published.
+    fn adopt(&mut self, name: &str, theirs: &Isometry3<f32>, log: &mut impl FnMut(&Event)) -> Result<(), Error> {
+        let Some(peer) = self.peers.get_mut(name) else { return Ok(()) };
+        let copy = peer.follower.map();
+        if copy.is_empty() || self.own.map.is_empty() || peer.refused.is_some() {
+            return Ok(());
+        }
+        let t = Instant::now();
+        let (mut own, mut them) = (Prepared::new(&self.own.map, Role::Model), Prepared::new(copy, Role::Scene));
+        let view = PeerView { estimate: None, at: self.own.place, peer_at: peer.follower.peer_place(), copy_at: None };
+        let pyramids = (own.tracked()?.0, them.tracked()?.0);
+        let adopted = peer.tracker.adopt(pyramids, &self.spec.alignment, &mut self.room.tracking(), &view, theirs);
+        let Some(e) = adopted.map_err(|e| Error::Invalid(format!("{name}: matching: {e}")))? else { return Ok(()) };
+        peer.last = Some(e);
+        peer.estimated = peer.follower.version();
+        let voxels = (self.own.map.len(), copy.len());
+        let seconds = t.elapsed().as_secs_f64();
+        let round = self.summary.rounds;
+        log(&Event::Estimate { round, peer: name.to_string(), estimate: Box::new(e), voxels, seconds });
+        self.publish_estimate(name)?;
+        self.publish_edge()
     }
 }

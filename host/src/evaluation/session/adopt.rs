@@ -1,0 +1,75 @@
+//! A robot without a fix adopts its peer's fix of the same round
+//! ([`Tracker::adopt`]): the answer that carries the peer's estimate lets
+//! the robot try it before the round's fixes are confirmed.
+
+use super::{copy_of, errors_of, figures, Error, Lines, Links, MatchRoom, Record, Robot, SessionSpec};
+use cosem_core::geometry::Isometry3;
+use cosem_core::matching::{MatchStatus, Role};
+use cosem_core::session::{PeerView, Tracker};
+use std::time::Instant;
+
+use super::prepared::Prepared;
+
+/// What the round's adoptions work on: every robot's tracks, places, where
+/// each copy last changed, and the matcher's room.
+pub(super) struct Adopting<'a> {
+    pub trackers: &'a mut [Vec<Tracker>],
+    pub places: &'a [[f32; 3]],
+    pub copy_at: &'a [Vec<Option<[f32; 3]>>],
+    pub room: &'a mut MatchRoom,
+}
+
+impl Adopting<'_> {
+    /// Every estimate of the round (`records`) that did not pass its
+    /// robot's verdict, with no fix held, while the peer's estimate of the
+    /// robot passed the peer's and is unconfirmed: the peer's fix tried
+    /// ([`Tracker::adopt`]); where it is adopted, the record takes the new
+    /// estimate, its errors and the seconds it took.
+    pub fn round(
+        &mut self,
+        spec: &SessionSpec,
+        shared_world: bool,
+        records: &mut [Record],
+        (robots, links, lines): (&[Robot], &Links, &Lines),
+    ) -> Result<(), Error> {
+        let waiting: Vec<(usize, usize, Isometry3<f32>)> = records
+            .iter()
+            .filter_map(|r| {
+                let e = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged && !e.confirmed)?;
+                Some((r.robot, r.peer, e.result.transform))
+            })
+            .collect();
+        for r in records.iter_mut() {
+            let (i, j) = (r.robot, r.peer);
+            let failed = r.estimate.as_ref().is_some_and(|e| e.result.status != MatchStatus::Converged);
+            let tracker = &mut self.trackers[i][j];
+            let Some(&(.., theirs)) = waiting.iter().find(|w| (w.0, w.1) == (j, i)).filter(|_| failed) else {
+                continue;
+            };
+            if tracker.fix().is_some() {
+                continue;
+            }
+            let t0 = Instant::now();
+            let copy = copy_of((i, j), links, lines)?;
+            let (mut own, mut peer) = (Prepared::new(&robots[i].map, Role::Model), Prepared::new(copy, Role::Scene));
+            let view = PeerView {
+                estimate: None,
+                at: self.places[i],
+                peer_at: self.places.get(j).copied(),
+                copy_at: self.copy_at[i][j],
+            };
+            let pyramids = (own.tracked()?.0, peer.tracked()?.0);
+            let adopted = tracker
+                .adopt(pyramids, &spec.alignment, &mut self.room.tracking(), &view, &theirs)
+                .map_err(|e| Error::Invalid(format!("matching: {e}")))?;
+            r.seconds += t0.elapsed().as_secs_f64();
+            if let Some(e) = adopted {
+                let truth =
+                    shared_world.then(|| figures::truth(&robots[i], &robots[j], f64::from(spec.crop))).flatten();
+                (r.errors, r.origin_error, r.local_errors) = errors_of(Some(&e), truth.as_ref());
+                r.estimate = Some(e);
+            }
+        }
+        Ok(())
+    }
+}
