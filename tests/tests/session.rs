@@ -21,8 +21,19 @@ fn right(records: &[Value]) -> usize {
 }
 
 fn check_record_fields(r: &Value) {
-    for key in ["round", "robot", "peer", "status", "kind", "fix", "bytes_sent", "seconds", "update", "update_deferred"]
-    {
+    for key in [
+        "round",
+        "robot",
+        "peer",
+        "status",
+        "kind",
+        "fix",
+        "adopted",
+        "bytes_sent",
+        "seconds",
+        "update",
+        "update_deferred",
+    ] {
         assert!(!r[key].is_null(), "{key} missing: {r}");
     }
     let status = r["status"].as_str().unwrap();
@@ -59,7 +70,7 @@ fn kitti00_robots_are_tracked_round_after_round() {
         assert_eq!(r["kind"], if first { "prior-free" } else { "tracking" }, "{r}");
         assert!(r["overlap_true"].as_f64().unwrap() > 0.3, "{r}");
     }
-    assert_eq!(summary["schema_version"], 7);
+    assert_eq!(summary["schema_version"], 8);
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
     assert_eq!(summary["availability"], 1.0, "{summary}");
     assert_eq!(summary["first_fix_rounds"], 0, "{summary}");

@@ -17,10 +17,12 @@ use serde::Serialize;
 /// figures (`line_bytes`, `line_ms`, the summary's `line_late`); 7 since
 /// each line has `e_t_local` and `e_r_local` and the summary
 /// `wrong_converged_local` (against the truth as the maps hold it about
-/// the closest pair of scans).
+/// the closest pair of scans); 8 since each line has `adopted` (the
+/// estimate is the peer's fix of the round, adopted after the robot's own
+/// failed its verdict).
 ///
 /// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
-pub const SESSION_SCHEMA: u32 = 7;
+pub const SESSION_SCHEMA: u32 = 8;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]
@@ -40,6 +42,9 @@ pub struct RecordJson {
     /// The fix agreed with the peer's estimate of the robot (now or since
     /// it was made): only then is the status `Converged`.
     pub confirmed: bool,
+    /// The estimate is the peer's fix of this round, adopted after the
+    /// robot's own estimate failed its verdict (`Tracker::adopt`).
+    pub adopted: bool,
     /// `T_own_peer`, row-major 3x4, when there is an estimate.
     #[serde(rename = "T_own_peer", skip_serializing_if = "Option::is_none")]
     pub t_own_peer: Option<[f64; 12]>,
@@ -124,6 +129,7 @@ impl From<&Record> for RecordJson {
             kind: e.map_or("prior-free", |e| e.kind.as_str()),
             fix: e.map_or("none", |e| e.fix.as_str()),
             confirmed: e.is_some_and(|e| e.confirmed),
+            adopted: r.adopted,
             t_own_peer: t,
             e_t: r.errors.map(|e| e.0),
             e_t_origin: r.origin_error,
@@ -189,7 +195,7 @@ pub fn record_text(r: &Record) -> String {
         j.peer,
         j.status,
         j.kind,
-        j.fix,
+        if j.adopted { "adopted" } else { j.fix },
         j.bytes_sent,
         j.update,
         j.seconds * 1e3

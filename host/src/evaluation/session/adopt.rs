@@ -68,6 +68,7 @@ impl Adopting<'_> {
                     shared_world.then(|| figures::truth(&robots[i], &robots[j], f64::from(spec.crop))).flatten();
                 (r.errors, r.origin_error, r.local_errors) = errors_of(Some(&e), truth.as_ref());
                 r.estimate = Some(e);
+                r.adopted = true;
             }
         }
         Ok(())

@@ -185,6 +185,9 @@ pub struct Record {
     /// The update as a fraction of the peer's whole map encoded (once the
     /// copy had been whole once: a repair counts).
     pub update_ratio: Option<f64>,
+    /// The estimate is the peer's fix of the round, adopted
+    /// ([`Tracker::adopt`]) after the robot's own failed its verdict.
+    pub adopted: bool,
     /// What became of the update (`None`: it is still on the line).
     pub applied: Option<Applied>,
     /// What the update held (new, changed and removed voxels).
@@ -711,6 +714,7 @@ fn estimate_one(
         overlap_true,
         bytes_sent,
         update_ratio,
+        adopted: false,
         applied,
         counts,
         line,
