@@ -16,13 +16,17 @@ pub(super) struct Adopting<'a> {
     pub trackers: &'a mut [Vec<Tracker>],
     pub places: &'a [[f32; 3]],
     pub copy_at: &'a [Vec<Option<[f32; 3]>>],
+    /// What each robot heard of its peers' estimates in the last round
+    /// (`[j][i]`: j's of i, where it passed j's verdict).
+    pub heard: &'a [Vec<Option<Isometry3<f32>>>],
     pub room: &'a mut MatchRoom,
 }
 
 impl Adopting<'_> {
     /// Every estimate of the round (`records`) that did not pass its
     /// robot's verdict, with no fix held, while the peer's estimate of the
-    /// robot passed the peer's and is unconfirmed: the peer's fix tried
+    /// robot passed the peer's, is unconfirmed and was made this round
+    /// (not the fix its estimate of the last round was): the peer's fix tried
     /// ([`Tracker::adopt`]); where it is adopted, the record takes the new
     /// estimate, its errors and the seconds it took.
     pub fn round(
@@ -46,7 +50,11 @@ impl Adopting<'_> {
             let Some(&(.., theirs)) = waiting.iter().find(|w| (w.0, w.1) == (j, i)).filter(|_| failed) else {
                 continue;
             };
-            if tracker.fix().is_some() {
+            // Only a fix the peer made this round: one it held the round
+            // before, which this robot's own search did not find, is not
+            // adopted (town seed 19: a street slid 112 m, held by the peer
+            // unconfirmed for five rounds, adopted at agreement 0.50).
+            if tracker.fix().is_some() || self.heard[j][i].is_some_and(|b| made_before(&b, &theirs, self.places[i])) {
                 continue;
             }
             let t0 = Instant::now();
@@ -73,4 +81,10 @@ impl Adopting<'_> {
         }
         Ok(())
     }
+}
+
+/// Whether the peer's fix `now` (`T_peer_own`) is the one its estimate of
+/// the last round, `before`, was: they agree where the robot is, `at`.
+pub(crate) fn made_before(before: &Isometry3<f32>, now: &Isometry3<f32>, at: [f32; 3]) -> bool {
+    cosem_core::session::agree(&before.inverse(), now, at, None)
 }

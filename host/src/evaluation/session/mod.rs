@@ -8,7 +8,7 @@
 //! every answer through the verdict). The truth, where the robots share a
 //! world, is only for the figures ([`figures`]).
 
-mod adopt;
+pub(crate) mod adopt;
 pub mod bench;
 pub mod feed;
 mod figures;
@@ -434,7 +434,8 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
         // its peer's, then every fix is confirmed where the two agree.
         if !spec.one_shot {
             let room = &mut scratch.room;
-            let mut adopting = adopt::Adopting { trackers: &mut trackers, places: &places, copy_at: &copy_at, room };
+            let mut adopting =
+                adopt::Adopting { trackers: &mut trackers, places: &places, copy_at: &copy_at, heard: &heard, room };
             adopting.round(spec, shared_world, &mut records[start..], (&robots, &links, &lines))?;
         }
         confirm_in_round(&mut records[start..], &mut trackers, &places);

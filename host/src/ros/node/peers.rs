@@ -2,6 +2,7 @@
 //! is room for it) and their fixes of this robot.
 
 use super::*;
+use crate::evaluation::session::adopt::made_before;
 
 impl RosNode {
     /// A robot's update heard: whether it is followed, met now if there is
@@ -126,9 +127,13 @@ impl RosNode {
             let theirs: Isometry3<f32> = nalgebra::convert(iso);
             let place = self.own.place;
             let Some(peer) = self.peers.get_mut(&name) else { continue };
+            // Adopted only when the peer made it since its last fix heard:
+            // one it held, which our own searches did not find, is not.
+            let before = peer.heard.filter(|h| h.1.elapsed().as_secs_f64() <= HEARD_FOR);
+            let fresh = before.is_none_or(|(b, _)| !made_before(&b, &theirs, place));
             peer.heard = Some((theirs, Instant::now()));
             let refused = peer.last.is_some_and(|e| e.result.status != MatchStatus::Converged);
-            if refused && peer.tracker.fix().is_none() {
+            if fresh && refused && peer.tracker.fix().is_none() {
                 self.adopt(&name, &theirs, log)?;
                 continue;
             }
