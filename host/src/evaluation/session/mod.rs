@@ -765,7 +765,6 @@ pub fn estimate_on(
     view: &PeerView,
     room: &mut MatchRoom,
 ) -> Result<(Estimate, f64), Error> {
-    let MatchRoom { search, reach, normals } = room;
     let matching = |e: cosem_core::matching::MatchError| Error::Invalid(format!("matching: {e}"));
     let mut peer = Prepared::new(copy, Role::Scene);
     // What `own` took to prepare before this call (for another peer) is
@@ -778,15 +777,14 @@ pub fn estimate_on(
     if tracker.fix().is_some() {
         let (o, s) = own.tracked()?;
         used = s;
-        let scratch = &mut SearchScratch::new(&mut []).with_reach(reach).with_normals(normals);
-        tracked = Some(tracker.track(o, peer.tracked()?.0, how, scratch, view).map_err(matching)?);
+        tracked = Some(tracker.track(o, peer.tracked()?.0, how, &mut room.tracking(), view).map_err(matching)?);
     }
     let e = match tracked.as_ref().and_then(|t| t.estimate()) {
         Some(e) => *e,
         None => {
             let (o, s) = own.whole()?;
             used = if whole_first { s } else { used + s };
-            let mut scratch = SearchScratch::new(search).with_reach(reach);
+            let mut scratch = SearchScratch::new(&mut room.search).with_reach(&mut room.reach);
             let e = match tracked {
                 Some(t) => tracker.search(o, peer.whole()?.0, how, &mut scratch, view, t),
                 None => tracker.estimate(o, peer.whole()?.0, how, &mut scratch, view),
