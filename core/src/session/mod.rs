@@ -12,14 +12,18 @@
 //!   snapshot, never silently diverges;
 //! - [`tracker`]: the peer's relative pose, prior-free until a fix, then
 //!   tracked from it, withdrawn when it stops agreeing;
+//! - [`history`]: the confirmed fixes of a peer's pose so far, which a
+//!   new fix must be consistent with up to the drift;
 //! - [`smoother`]: the pose a fix's rounds report, their answers fused by
 //!   a filter that moves only as fast as the odometry drifts.
 
+pub mod history;
 pub mod publisher;
 pub mod replica;
 pub mod smoother;
 pub mod tracker;
 
+pub use history::{History, HISTORY_DEG, HISTORY_DEG_PER_M, HISTORY_M, HISTORY_SCALE};
 pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateCounts};
 pub use replica::{Applied, Replica};
 pub use smoother::Smoother;

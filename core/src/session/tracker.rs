@@ -11,13 +11,16 @@
 //! robots' estimates agree ([`agree`]) when they compose to about the
 //! identity at both robots' places, so each robot judges a pair alike. A
 //! robot without a fix may adopt its peer's ([`Tracker::adopt`]), judged
-//! by its own verdict with a margin.
+//! by its own verdict with a margin. A fix the robot's history of the
+//! peer contradicts ([`History`]) is held but contested: not reported
+//! `Converged` until its confirmed rounds outweigh that history.
 //!
 //! A street seen along its length does not hold the match along it: from a
 //! fix, that direction is held where the fix put it, for as long as the
 //! robot has driven less than [`HOLD_M`] since the last fix the maps held
 //! in every direction (beyond, the answer is `Degenerate`).
 
+use super::history::History;
 use super::smoother::Smoother;
 use crate::geometry::{distance, Isometry3};
 use crate::matching::search::SearchScratch;
@@ -160,14 +163,17 @@ pub struct Estimate {
     pub fix: Fix,
     /// The fix agrees with the peer's estimate (now or since it was made).
     pub confirmed: bool,
+    /// The fix contradicts the robot's history of the peer by more than
+    /// drift explains ([`History`]): held, not reported `Converged`.
+    pub contested: bool,
 }
 
 impl Estimate {
     /// The status reported: the match's, but `NotConverged` for a fix the
-    /// peer's estimate has not agreed with yet.
+    /// peer's estimate has not agreed with yet, or one contested.
     pub fn status(&self) -> MatchStatus {
         match self.result.status {
-            MatchStatus::Converged if !self.confirmed => MatchStatus::NotConverged,
+            MatchStatus::Converged if !self.confirmed || self.contested => MatchStatus::NotConverged,
             s => s,
         }
     }
@@ -231,12 +237,24 @@ pub struct Tracker {
     /// Rounds running in which the fix, unconfirmed, disagreed with the
     /// peer's estimate that passed the peer's verdict.
     refused: u8,
+    /// The confirmed fixes so far, which a new fix must be consistent
+    /// with: kept when a fix is withdrawn or dropped.
+    history: History,
 }
 
 impl Tracker {
     /// A track with no fix.
     pub const fn new() -> Self {
-        Tracker { fix: None, smoothed: None, unsettled: 0, confirmed: false, whole_at: None, last: None, refused: 0 }
+        Tracker {
+            fix: None,
+            smoothed: None,
+            unsettled: 0,
+            confirmed: false,
+            whole_at: None,
+            last: None,
+            refused: 0,
+            history: History::new(),
+        }
     }
 
     /// The fix held (`T_own_peer`), if any: the last answer that passed
@@ -251,16 +269,28 @@ impl Tracker {
         self.smoothed.as_ref().map(Smoother::transform)
     }
 
-    /// Forgets the fix and the last one held (the peer restarted, or its
-    /// map was resent whole; a one-shot exchange's every round).
+    /// Forgets the fix, the last one held and the history (the peer
+    /// restarted, or its map was resent whole; a one-shot exchange's every
+    /// round).
     pub fn reset(&mut self) {
         *self = Tracker::new();
     }
 
     /// Withdraws the fix; the last one held is kept to be searched around
-    /// when the robots meet again ([`Tracker::search`]).
+    /// when the robots meet again ([`Tracker::search`]), and the history.
     fn withdraw(&mut self) {
-        *self = Tracker { last: self.last, ..Tracker::new() };
+        *self = Tracker { last: self.last, history: self.history, ..Tracker::new() };
+    }
+
+    /// Drops the fix with its window; the history is kept.
+    fn drop_fix(&mut self) {
+        *self = Tracker { history: self.history, ..Tracker::new() };
+    }
+
+    /// The robot's history of the peer's pose: the confirmed fixes a new
+    /// one must be consistent with.
+    pub fn history(&self) -> &History {
+        &self.history
     }
 
     /// The last fix held, kept when it was withdrawn (until
@@ -455,7 +485,7 @@ impl Tracker {
         let refused = converged && !self.confirmed && view.estimate.is_some();
         self.refused = if refused { self.refused.saturating_add(1) } else { 0 };
         let fix = if self.refused >= REFUSED_ROUNDS {
-            self.reset();
+            self.drop_fix();
             Fix::Withdrawn
         } else {
             fix
@@ -463,7 +493,17 @@ impl Tracker {
         if converged && view.copy_at.is_some_and(|p| distance(p, view.at) > HOLD_M) {
             result.status = MatchStatus::NotConverged;
         }
-        Estimate { kind, result, fix, confirmed: converged && self.confirmed }
+        self.history.drive(view.at, view.peer_at);
+        let confirmed = converged && self.confirmed;
+        // A round counts in the history when it is reported: an estimate on
+        // a stale copy is not.
+        let contested = converged
+            && if confirmed && result.status == MatchStatus::Converged {
+                self.history.confirmed(&result.transform, result.overlap, view.at, view.peer_at)
+            } else {
+                self.history.contests(&result.transform, view.at, view.peer_at)
+            };
+        Estimate { kind, result, fix, confirmed, contested }
     }
 
     /// Adopts the peer's fix of this round, `theirs` (`T_peer_own`: one that
@@ -524,9 +564,11 @@ impl Tracker {
     ) {
         let current =
             estimate.result.status == MatchStatus::Converged && self.reported() == Some(&estimate.result.transform);
-        if current && agree(&estimate.result.transform, theirs, at, peer_at) {
+        if current && !estimate.confirmed && agree(&estimate.result.transform, theirs, at, peer_at) {
             self.confirmed = true;
             estimate.confirmed = true;
+            let (fix, overlap) = (estimate.result.transform, estimate.result.overlap);
+            estimate.contested = self.history.confirmed(&fix, overlap, at, peer_at);
         }
     }
 }

@@ -246,6 +246,7 @@ fn node(a: NodeArgs) -> Result<(), Error> {
             let line = serde_json::json!({
                 "round": round, "robot": name, "peer": peer, "status": e.status().as_str(),
                 "kind": e.kind.as_str(), "fix": e.fix.as_str(), "confirmed": e.confirmed,
+                "contested": e.contested,
                 "T_own_peer": t, "overlap": e.result.overlap, "agreement": e.result.agreement,
                 "voxels": voxels.0, "peer_voxels": voxels.1, "seconds": seconds,
             });

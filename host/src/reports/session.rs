@@ -19,10 +19,12 @@ use serde::Serialize;
 /// `wrong_converged_local` (against the truth as the maps hold it about
 /// the closest pair of scans); 8 since each line has `adopted` (the
 /// estimate is the peer's fix of the round, adopted after the robot's own
-/// failed its verdict).
+/// failed its verdict); 9 since each line has `contested` (the fix
+/// contradicts the robot's history of the peer by more than drift
+/// explains, so is not reported `Converged`).
 ///
 /// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
-pub const SESSION_SCHEMA: u32 = 8;
+pub const SESSION_SCHEMA: u32 = 9;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]
@@ -45,6 +47,11 @@ pub struct RecordJson {
     /// The estimate is the peer's fix of this round, adopted after the
     /// robot's own estimate failed its verdict (`Tracker::adopt`).
     pub adopted: bool,
+    /// The fix contradicts the robot's history of the peer (its fixes
+    /// confirmed before) by more than drift explains: held, but not
+    /// reported `Converged` until its confirmed rounds outweigh that
+    /// history (`cosem_core::session::History`).
+    pub contested: bool,
     /// `T_own_peer`, row-major 3x4, when there is an estimate.
     #[serde(rename = "T_own_peer", skip_serializing_if = "Option::is_none")]
     pub t_own_peer: Option<[f64; 12]>,
@@ -130,6 +137,7 @@ impl From<&Record> for RecordJson {
             fix: e.map_or("none", |e| e.fix.as_str()),
             confirmed: e.is_some_and(|e| e.confirmed),
             adopted: r.adopted,
+            contested: e.is_some_and(|e| e.contested),
             t_own_peer: t,
             e_t: r.errors.map(|e| e.0),
             e_t_origin: r.origin_error,
@@ -195,7 +203,11 @@ pub fn record_text(r: &Record) -> String {
         j.peer,
         j.status,
         j.kind,
-        if j.adopted { "adopted" } else { j.fix },
+        match (j.adopted, j.contested) {
+            (true, _) => "adopted",
+            (_, true) => "contested",
+            _ => j.fix,
+        },
         j.bytes_sent,
         j.update,
         j.seconds * 1e3

@@ -500,6 +500,7 @@ fn a_voxel_is_resent_only_when_it_moved_beyond_the_deadband() {
     assert_eq!(exchange(&map, &mut publisher).0, 1);
 }
 
+mod history;
 mod smoothing;
 mod tracking;
 

@@ -167,6 +167,7 @@ impl RosNode {
                         value("kind", e.kind.as_str().into()),
                         value("fix", e.fix.as_str().into()),
                         value("confirmed", e.confirmed.to_string()),
+                        value("contested", e.contested.to_string()),
                         value("agreement", format!("{:.3}", e.result.agreement)),
                         value("overlap", format!("{:.3}", e.result.overlap)),
                     ]);
