@@ -11,7 +11,8 @@
 //! blocks, like a real grid city's, repeat. A contested fix is not
 //! reported `Converged` until its confirmed rounds outweigh the history it
 //! contradicts (each round weighs its overlap: the share of the peer's map
-//! the fix explains); a fix consistent with the history continues it. The same test as the pairwise-consistency check of multi-robot
+//! the fix explains; a chain's weight halves over [`HISTORY_HALF_M`] of
+//! driving); a fix consistent with the history continues it. The same test as the pairwise-consistency check of multi-robot
 //! SLAM's inter-robot loop closures (PCM, Mangelson et al. 2018), here on
 //! one pair's fixes over time.
 
@@ -40,6 +41,16 @@ pub const HISTORY_M: f32 = 10.0;
 /// the distance): a scale error of 5%, several times the drift models'.
 pub const HISTORY_SCALE: f32 = 0.05;
 
+/// Metres of driving (both robots') over which a chain's weight halves
+/// when it is not confirmed again: what a transform that drift moves was
+/// is worth less the longer ago it was, so a history the world has moved
+/// away from (a robot's odometry jumping by more than [`HISTORY_DEG`], a
+/// wrong first fix) is outweighed sooner. 200 m: the town's parting
+/// between two meetings of a pair (60-80 rounds of 2 m each, both robots)
+/// halves it about once; a look-alike found a few rounds after a meeting
+/// (town seed 22: 4 rounds, 16 m) meets nearly all of it.
+pub const HISTORY_HALF_M: f32 = 200.0;
+
 /// A run of confirmed fixes consistent with each other.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Chain {
@@ -55,6 +66,12 @@ struct Chain {
 impl Chain {
     fn start(fix: Isometry3<f32>, weight: f32) -> Self {
         Chain { fix, weight, driven: 0.0 }
+    }
+
+    /// Its weight now: halved for each [`HISTORY_HALF_M`] driven since its
+    /// last fix.
+    fn weight_now(&self) -> f32 {
+        self.weight * libm::exp2f(-self.driven / HISTORY_HALF_M)
     }
 
     /// Whether `fix` continues this chain: it differs from the chain's
@@ -140,16 +157,16 @@ impl History {
             return false;
         };
         if trusted.holds(fix, at, peer_at) {
-            self.trusted = Some(Chain::start(*fix, trusted.weight + overlap));
+            self.trusted = Some(Chain::start(*fix, trusted.weight_now() + overlap));
             self.challenger = None;
             return false;
         }
         let weight = match self.challenger {
-            Some(c) if c.holds(fix, at, peer_at) => c.weight + overlap,
+            Some(c) if c.holds(fix, at, peer_at) => c.weight_now() + overlap,
             _ => overlap,
         };
         let chain = Chain::start(*fix, weight);
-        if weight > trusted.weight {
+        if weight > trusted.weight_now() {
             (self.trusted, self.challenger) = (Some(chain), None);
             false
         } else {

@@ -106,3 +106,20 @@ fn the_bounds_grow_with_the_driving() {
     // A junction turned by 90 degrees is still a look-alike.
     assert!(h.contests(&fix(0.0, 0.0, 90.0), at, peer_at));
 }
+
+#[test]
+fn an_old_history_weighs_less() {
+    let mut h = trusted(5);
+    let (at, peer_at) = places(&fix(0.0, 0.0, 0.0));
+    // Both robots drive 100 m out and back: 400 m together, two of
+    // HISTORY_HALF_M, so the history's 2.5 weigh 0.625 now.
+    for x in [50.0, 70.0, 90.0, 110.0, 130.0, 110.0, 90.0, 70.0, 50.0, 30.0] {
+        let peer = peer_at.map(|p| [p[0] - (x - 30.0), p[1], p[2]]);
+        h.drive([x, 5.0, 0.0], peer);
+    }
+    let turned = fix(0.0, 0.0, 90.0);
+    assert!(h.contests(&turned, at, peer_at));
+    assert!(h.confirmed(&turned, 0.4, at, peer_at));
+    assert!(!h.confirmed(&turned, 0.4, at, peer_at));
+    assert_eq!(h.trusted(), Some(&turned));
+}
