@@ -12,8 +12,10 @@
 //! identity at both robots' places, so each robot judges a pair alike. A
 //! robot without a fix may adopt its peer's ([`Tracker::adopt`]), judged
 //! by its own verdict with a margin. A fix the robot's history of the
-//! peer contradicts ([`History`]) is held but contested: not reported
-//! `Converged` until its confirmed rounds outweigh that history.
+//! peer contradicts ([`History`]), or a first fix whose overlap stops
+//! growing as the robots drive, is held but contested: not reported
+//! `Converged` until its confirmed rounds outweigh that history, or its
+//! overlap grows.
 //!
 //! A street seen along its length does not hold the match along it: from a
 //! fix, that direction is held where the fix put it, for as long as the
@@ -164,7 +166,8 @@ pub struct Estimate {
     /// The fix agrees with the peer's estimate (now or since it was made).
     pub confirmed: bool,
     /// The fix contradicts the robot's history of the peer by more than
-    /// drift explains ([`History`]): held, not reported `Converged`.
+    /// drift explains, or is a first fix whose overlap stopped growing
+    /// ([`History`]): held, not reported `Converged`.
     pub contested: bool,
 }
 

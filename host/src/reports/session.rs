@@ -48,9 +48,10 @@ pub struct RecordJson {
     /// robot's own estimate failed its verdict (`Tracker::adopt`).
     pub adopted: bool,
     /// The fix contradicts the robot's history of the peer (its fixes
-    /// confirmed before) by more than drift explains: held, but not
+    /// confirmed before) by more than drift explains, or is a first fix
+    /// whose overlap stopped growing as the robots drove: held, but not
     /// reported `Converged` until its confirmed rounds outweigh that
-    /// history (`cosem_core::session::History`).
+    /// history, or its overlap grows (`cosem_core::session::History`).
     pub contested: bool,
     /// `T_own_peer`, row-major 3x4, when there is an estimate.
     #[serde(rename = "T_own_peer", skip_serializing_if = "Option::is_none")]

@@ -19,14 +19,16 @@ fn places(t: &Isometry3<f32>) -> ([f32; 3], Option<[f32; 3]>) {
     ([30.0, 5.0, 0.0], Some([q.x, q.y, q.z]))
 }
 
-/// A history of `rounds` confirmed rounds of overlap 0.5 at `fix(0, 0, 0)`.
+/// A history of `rounds` (at least 2) confirmed rounds at `fix(0, 0, 0)`,
+/// the first of overlap 0.4, the others 0.5 (grown: past the first fix's
+/// test).
 fn trusted(rounds: usize) -> History {
     let mut h = History::new();
     let t = fix(0.0, 0.0, 0.0);
     let (at, peer_at) = places(&t);
-    for _ in 0..rounds {
+    for round in 0..rounds {
         h.drive(at, peer_at);
-        assert!(!h.confirmed(&t, 0.5, at, peer_at));
+        assert!(!h.confirmed(&t, if round == 0 { 0.4 } else { 0.5 }, at, peer_at));
     }
     h
 }
@@ -50,8 +52,8 @@ fn a_look_alike_is_contested_until_it_outweighs_the_history() {
         let mut h = trusted(3);
         let (at, peer_at) = places(&look_alike);
         assert!(h.contests(&look_alike, at, peer_at), "{look_alike:?}");
-        // Three rounds of 0.5 weigh 1.5: a challenger of 0.4 a round is
-        // contested for three rounds, not for the fourth.
+        // Three rounds weigh 1.4: a challenger of 0.4 a round is contested
+        // for three rounds, not for the fourth.
         for round in 0..3 {
             assert!(h.confirmed(&look_alike, 0.4, at, peer_at), "round {round}");
             assert_eq!(h.trusted(), Some(&fix(0.0, 0.0, 0.0)));
@@ -62,7 +64,7 @@ fn a_look_alike_is_contested_until_it_outweighs_the_history() {
         assert!(h.contests(&fix(0.0, 0.0, 0.0), at, peer_at));
     }
     // A challenger that changes starts again: two look-alikes do not add up.
-    let mut h = trusted(1);
+    let mut h = trusted(2);
     let (at, peer_at) = places(&fix(0.0, 0.0, 0.0));
     assert!(h.confirmed(&fix(0.0, 0.0, 90.0), 0.4, at, peer_at));
     assert!(h.confirmed(&fix(0.0, 0.0, 180.0), 0.4, at, peer_at));
@@ -112,7 +114,7 @@ fn an_old_history_weighs_less() {
     let mut h = trusted(5);
     let (at, peer_at) = places(&fix(0.0, 0.0, 0.0));
     // Both robots drive 100 m out and back: 400 m together, two of
-    // HISTORY_HALF_M, so the history's 2.5 weigh 0.625 now.
+    // HISTORY_HALF_M, so the history's 2.4 weigh 0.6 now.
     for x in [50.0, 70.0, 90.0, 110.0, 130.0, 110.0, 90.0, 70.0, 50.0, 30.0] {
         let peer = peer_at.map(|p| [p[0] - (x - 30.0), p[1], p[2]]);
         h.drive([x, 5.0, 0.0], peer);
@@ -122,4 +124,47 @@ fn an_old_history_weighs_less() {
     assert!(h.confirmed(&turned, 0.4, at, peer_at));
     assert!(!h.confirmed(&turned, 0.4, at, peer_at));
     assert_eq!(h.trusted(), Some(&turned));
+}
+
+/// A first fix (no history before it) whose overlap has not grown once the
+/// robots have driven `FIRST_GROWTH_M` is contested until it grows; robots
+/// that have not moved are not judged; a fix that contradicts a first
+/// chain not past its test starts a first chain of its own, uncontested.
+#[test]
+fn a_first_fix_that_stops_explaining_more_is_contested() {
+    use super::super::history::FIRST_GROWTH_M;
+    let t = fix(0.0, 0.0, 0.0);
+    let (at, peer_at) = places(&t);
+    // Parked: the same overlap round after round, not judged.
+    let mut parked = History::new();
+    for _ in 0..4 {
+        parked.drive(at, peer_at);
+        assert!(!parked.confirmed(&t, 0.44, at, peer_at));
+    }
+    // Driving on: the look-alike's overlap falls (town seed 19: 0.44, 0.34,
+    // 0.28) and it is contested from the second round; it does not contest
+    // another fix, which starts a first chain of its own.
+    let mut h = History::new();
+    let mut x = at[0];
+    let mut round = |h: &mut History, t: &Isometry3<f32>, overlap: f32| {
+        h.drive([x, at[1], at[2]], peer_at);
+        x += FIRST_GROWTH_M;
+        h.confirmed(t, overlap, at, peer_at)
+    };
+    assert!(!round(&mut h, &t, 0.44));
+    assert!(round(&mut h, &t, 0.34));
+    assert!(round(&mut h, &t, 0.28));
+    let other = fix(0.0, 0.0, 90.0);
+    assert!(!h.contests(&other, at, peer_at));
+    assert!(!round(&mut h, &other, 0.40));
+    assert_eq!(h.trusted(), Some(&other));
+    // A right first fix: its overlap grows; past the test for good.
+    assert!(!round(&mut h, &other, 0.45));
+    assert!(!round(&mut h, &other, 0.30));
+    assert!(h.contests(&t, at, peer_at));
+    // One that falls first and grows later is contested in between.
+    let mut late = History::new();
+    assert!(!round(&mut late, &t, 0.40));
+    assert!(round(&mut late, &t, 0.40));
+    assert!(!round(&mut late, &t, 0.41));
 }

@@ -436,7 +436,7 @@ fn a_peers_fix_is_adopted_only_with_the_margin() {
 }
 
 /// A fix the robot's history of the peer contradicts (the peer's frame
-/// turned by 90 degrees and 60 m away from where two confirmed rounds put
+/// turned by 90 degrees and 60 m away from where three confirmed rounds put
 /// it, as a junction's look-alike would have it) is held, confirmed by the
 /// peer, but contested: `NotConverged`, until its confirmed rounds
 /// outweigh the history; then it is the history, reported `Converged`.
@@ -447,32 +447,46 @@ fn a_fix_the_history_contradicts_is_contested_until_it_outweighs_it() {
     use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
     let before = from_xyz_rpy(0.8, 0.3, 0.0, 0.0, 0.0, 0.03);
     let after = from_xyz_rpy(60.0, -20.0, 0.0, 0.0, 0.0, core::f32::consts::FRAC_PI_2);
+    // The peer's street has two more poles, which the robot sees only from
+    // the second round: the overlap grows, as at a real first meeting.
+    let poles = |mut m: crate::map::VecMap, t: &Isometry3<f32>| {
+        for (x, k) in [14.5f32, 23.5].into_iter().flat_map(|x| (0..60).map(move |k| (x, k))) {
+            let p = crate::geometry::transform_point(t, [x, -3.5, k as f32 * 0.1]);
+            m.insert_point(p, crate::classes::Class::Pole).unwrap();
+        }
+        m
+    };
     let maps = [
         street(true, &Isometry3::identity(), (0, 400)),
-        street(true, &before.inverse(), (100, 300)),
+        poles(street(true, &Isometry3::identity(), (0, 400)), &Isometry3::identity()),
+        poles(street(true, &before.inverse(), (100, 300)), &before.inverse()),
         street(true, &after.inverse(), (100, 300)),
     ];
     let prepare = |m| Pyramid::build_vec(m, 4, 1.0, Role::Model).unwrap();
-    let (own, first, turned) = (prepare(&maps[0]), prepare(&maps[1]), prepare(&maps[2]));
+    let (sparse, own) = (prepare(&maps[0]), prepare(&maps[1]));
+    // (`sparse`: the robot's map before it saw the two poles.)
+    let (first, turned) = (prepare(&maps[2]), prepare(&maps[3]));
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let how = Alignment::DEFAULT;
-    let mut estimate = |t: &mut Tracker, peer, truth: &Isometry3<f32>| {
+    let mut estimate_on = |t: &mut Tracker, own, peer, truth: &Isometry3<f32>| {
         let view = PeerView { estimate: Some(truth.inverse()), at: [20.0, 0.0, 0.0], peer_at: None, copy_at: None };
-        t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+        t.estimate(own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let near =
         |e: &Estimate, truth: &Isometry3<f32>| (e.result.transform * truth.inverse()).translation.vector.norm() < 0.3;
     let mut tracker = Tracker::new();
-    for _ in 0..2 {
-        let e = estimate(&mut tracker, &first, &before);
+    let mut grown = 0.0;
+    for own in [&sparse, &own, &own] {
+        let e = estimate_on(&mut tracker, own, &first, &before);
         assert_eq!((e.status(), e.contested), (MatchStatus::Converged, false), "{e:?}");
-        assert!(near(&e, &before), "{e:?}");
+        assert!(near(&e, &before) && e.result.overlap >= grown, "{e:?}");
+        grown = e.result.overlap;
     }
     let (mut contested, mut rounds) = (0, 0);
     let accepted = loop {
         rounds += 1;
         assert!(rounds <= 8, "never accepted");
-        let e = estimate(&mut tracker, &turned, &after);
+        let e = estimate_on(&mut tracker, &own, &turned, &after);
         if e.result.status != MatchStatus::Converged {
             continue;
         }
@@ -484,8 +498,8 @@ fn a_fix_the_history_contradicts_is_contested_until_it_outweighs_it() {
         assert!(tracker.history().trusted().is_some_and(|t| (t * before.inverse()).translation.vector.norm() < 0.3));
         contested += 1;
     };
-    // Two rounds of history: the first two rounds of the new fix weigh no
-    // more (the same street, the same overlap).
+    // Three rounds of history: the first two rounds of the new fix weigh
+    // no more.
     assert!(contested >= 2, "{contested}");
     assert_eq!(accepted.status(), MatchStatus::Converged);
     assert_eq!(tracker.history().trusted(), Some(&accepted.result.transform));
