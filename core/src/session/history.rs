@@ -191,21 +191,26 @@ impl History {
     /// replaces the trusted chain once it weighs more.
     pub fn confirmed(&mut self, fix: &Isometry3<f32>, overlap: f32, at: [f32; 3], peer_at: Option<[f32; 3]>) -> bool {
         let overlap = if overlap.is_finite() { overlap.clamp(0.0, 1.0) } else { 0.0 };
-        // No history, or a first chain not past its test that this fix
-        // contradicts: a first chain starts.
-        let Some(trusted) = self.trusted.filter(|t| t.first.is_none() || t.holds(fix, at, peer_at)) else {
-            (self.trusted, self.challenger) = (Some(Chain::first(*fix, overlap)), None);
-            return false;
+        let trusted = match self.trusted {
+            Some(t) if t.holds(fix, at, peer_at) => {
+                // A first chain passes its test once its overlap grows
+                // above its first round's; until the robots have driven
+                // far enough to tell, it is not judged.
+                let first = t.first.filter(|&(o, _)| overlap <= o);
+                let next = Chain { first, ..Chain::start(*fix, t.weight_now() + overlap) };
+                (self.trusted, self.challenger) = (Some(next), None);
+                return next.unproven();
+            }
+            // A history past its first fix's test, which this fix
+            // contradicts.
+            Some(t) if t.first.is_none() => t,
+            // No history, or a first chain not past its test that this fix
+            // contradicts: a first chain starts.
+            _ => {
+                (self.trusted, self.challenger) = (Some(Chain::first(*fix, overlap)), None);
+                return false;
+            }
         };
-        if trusted.holds(fix, at, peer_at) {
-            // A first chain passes its test once its overlap grows above
-            // its first round's; until the robots have driven far enough
-            // to tell, it is not judged.
-            let first = trusted.first.filter(|&(o, _)| overlap <= o);
-            let next = Chain { first, ..Chain::start(*fix, trusted.weight_now() + overlap) };
-            (self.trusted, self.challenger) = (Some(next), None);
-            return next.unproven();
-        }
         let weight = match self.challenger {
             Some(c) if c.holds(fix, at, peer_at) => c.weight_now() + overlap,
             _ => overlap,

@@ -21,7 +21,8 @@ use serde::Serialize;
 /// estimate is the peer's fix of the round, adopted after the robot's own
 /// failed its verdict); 9 since each line has `contested` (the fix
 /// contradicts the robot's history of the peer by more than drift
-/// explains, so is not reported `Converged`).
+/// explains, or is a first fix whose overlap stopped growing, so is not
+/// reported `Converged`).
 ///
 /// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
 pub const SESSION_SCHEMA: u32 = 9;
