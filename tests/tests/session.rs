@@ -322,6 +322,18 @@ fn under_drift_estimates_are_right_where_the_robots_met() {
         let lever = r["e_t_origin"].as_f64().unwrap() / r["e_r"].as_f64().unwrap().to_radians();
         assert!(lever > 30.0, "{r}");
     }
+    // Robots that start together (both at frame 82, at the first meeting)
+    // part from their first fix: it explains most of both maps, so it is
+    // not contested as its overlap falls (7 of 18 records were, when a
+    // first fix had to grow). Every record in the meeting is right and
+    // Converged, from round 0.
+    let from = |i: usize| format!("{t}/robot_{i}:82:100");
+    let (records, summary) = session(&["--robot", &from(0), "--robot", &from(1), "--drift", "1%,0.5"]);
+    assert!(records.iter().all(|r| r["contested"] == false), "{summary}");
+    let meeting: Vec<&Value> = records.iter().filter(|r| r["overlap_true"].as_f64().unwrap() >= 0.3).collect();
+    assert!(meeting.len() >= 14, "{summary}");
+    assert!(meeting.iter().all(|r| r["status"] == "Converged"), "{summary}");
+    assert_eq!(summary["wrong_converged"], 0, "{summary}");
 }
 
 /// Under a heading walk four times the benchmark's (`--drift 2%,2`, the

@@ -23,7 +23,10 @@ pub mod replica;
 pub mod smoother;
 pub mod tracker;
 
-pub use history::{History, FIRST_GROWTH_M, HISTORY_DEG, HISTORY_DEG_PER_M, HISTORY_HALF_M, HISTORY_M, HISTORY_SCALE};
+pub use history::{
+    History, FIRST_APART_M, FIRST_GROWTH_M, FIRST_SURE, HISTORY_DEG, HISTORY_DEG_PER_M, HISTORY_HALF_M, HISTORY_M,
+    HISTORY_SCALE,
+};
 pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateCounts};
 pub use replica::{Applied, Replica};
 pub use smoother::Smoother;

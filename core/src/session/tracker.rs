@@ -502,7 +502,7 @@ impl Tracker {
         // a stale copy is not.
         let contested = converged
             && if confirmed && result.status == MatchStatus::Converged {
-                self.history.confirmed(&result.transform, result.overlap, view.at, view.peer_at)
+                self.history.confirmed(&result.transform, result.overlap, result.agreement, view.at, view.peer_at)
             } else {
                 self.history.contests(&result.transform, view.at, view.peer_at)
             };
@@ -570,8 +570,9 @@ impl Tracker {
         if current && !estimate.confirmed && agree(&estimate.result.transform, theirs, at, peer_at) {
             self.confirmed = true;
             estimate.confirmed = true;
-            let (fix, overlap) = (estimate.result.transform, estimate.result.overlap);
-            estimate.contested = self.history.confirmed(&fix, overlap, at, peer_at);
+            let r = &estimate.result;
+            let (fix, overlap, agreement) = (r.transform, r.overlap, r.agreement);
+            estimate.contested = self.history.confirmed(&fix, overlap, agreement, at, peer_at);
         }
     }
 }

@@ -6,6 +6,9 @@
 use super::super::history::{History, HISTORY_DEG, HISTORY_M};
 use crate::geometry::{from_xyz_rpy, Isometry3};
 
+/// A verdict's agreement at a meeting, under [`super::super::history::FIRST_SURE`].
+const AGREEMENT: f32 = 0.45;
+
 /// `T_own_peer` of a peer whose odometry frame is 80 m east of this
 /// robot's, turned by `yaw` degrees, moved by `(dx, dy)` more.
 fn fix(dx: f32, dy: f32, yaw: f32) -> Isometry3<f32> {
@@ -28,7 +31,7 @@ fn trusted(rounds: usize) -> History {
     let (at, peer_at) = places(&t);
     for round in 0..rounds {
         h.drive(at, peer_at);
-        assert!(!h.confirmed(&t, if round == 0 { 0.4 } else { 0.5 }, at, peer_at));
+        assert!(!h.confirmed(&t, if round == 0 { 0.4 } else { 0.5 }, AGREEMENT, at, peer_at));
     }
     h
 }
@@ -40,7 +43,7 @@ fn a_fix_drift_explains_continues_the_history() {
     let moved = fix(1.0, -0.5, 1.0);
     let (at, peer_at) = places(&moved);
     assert!(!h.contests(&moved, at, peer_at));
-    assert!(!h.confirmed(&moved, 0.5, at, peer_at));
+    assert!(!h.confirmed(&moved, 0.5, AGREEMENT, at, peer_at));
     assert_eq!(h.trusted(), Some(&moved));
     // No history: nothing is contested.
     assert!(!History::new().contests(&fix(0.0, 40.0, 90.0), at, peer_at));
@@ -55,10 +58,10 @@ fn a_look_alike_is_contested_until_it_outweighs_the_history() {
         // Three rounds weigh 1.4: a challenger of 0.4 a round is contested
         // for three rounds, not for the fourth.
         for round in 0..3 {
-            assert!(h.confirmed(&look_alike, 0.4, at, peer_at), "round {round}");
+            assert!(h.confirmed(&look_alike, 0.4, AGREEMENT, at, peer_at), "round {round}");
             assert_eq!(h.trusted(), Some(&fix(0.0, 0.0, 0.0)));
         }
-        assert!(!h.confirmed(&look_alike, 0.4, at, peer_at));
+        assert!(!h.confirmed(&look_alike, 0.4, AGREEMENT, at, peer_at));
         assert_eq!(h.trusted(), Some(&look_alike));
         // The old history is now the one contested.
         assert!(h.contests(&fix(0.0, 0.0, 0.0), at, peer_at));
@@ -66,11 +69,11 @@ fn a_look_alike_is_contested_until_it_outweighs_the_history() {
     // A challenger that changes starts again: two look-alikes do not add up.
     let mut h = trusted(2);
     let (at, peer_at) = places(&fix(0.0, 0.0, 0.0));
-    assert!(h.confirmed(&fix(0.0, 0.0, 90.0), 0.4, at, peer_at));
-    assert!(h.confirmed(&fix(0.0, 0.0, 180.0), 0.4, at, peer_at));
+    assert!(h.confirmed(&fix(0.0, 0.0, 90.0), 0.4, AGREEMENT, at, peer_at));
+    assert!(h.confirmed(&fix(0.0, 0.0, 180.0), 0.4, AGREEMENT, at, peer_at));
     assert_eq!(h.trusted(), Some(&fix(0.0, 0.0, 0.0)));
     // A non-finite overlap weighs nothing.
-    assert!(h.confirmed(&fix(0.0, 0.0, 180.0), f32::NAN, at, peer_at));
+    assert!(h.confirmed(&fix(0.0, 0.0, 180.0), f32::NAN, AGREEMENT, at, peer_at));
 }
 
 #[test]
@@ -121,8 +124,8 @@ fn an_old_history_weighs_less() {
     }
     let turned = fix(0.0, 0.0, 90.0);
     assert!(h.contests(&turned, at, peer_at));
-    assert!(h.confirmed(&turned, 0.4, at, peer_at));
-    assert!(!h.confirmed(&turned, 0.4, at, peer_at));
+    assert!(h.confirmed(&turned, 0.4, AGREEMENT, at, peer_at));
+    assert!(!h.confirmed(&turned, 0.4, AGREEMENT, at, peer_at));
     assert_eq!(h.trusted(), Some(&turned));
 }
 
@@ -139,7 +142,7 @@ fn a_first_fix_that_stops_explaining_more_is_contested() {
     let mut parked = History::new();
     for _ in 0..4 {
         parked.drive(at, peer_at);
-        assert!(!parked.confirmed(&t, 0.44, at, peer_at));
+        assert!(!parked.confirmed(&t, 0.44, AGREEMENT, at, peer_at));
     }
     // Driving on: the look-alike's overlap falls (town seed 19: 0.44, 0.34,
     // 0.28) and it is contested from the second round; it does not contest
@@ -149,7 +152,7 @@ fn a_first_fix_that_stops_explaining_more_is_contested() {
     let mut round = |h: &mut History, t: &Isometry3<f32>, overlap: f32| {
         h.drive([x, at[1], at[2]], peer_at);
         x += FIRST_GROWTH_M;
-        h.confirmed(t, overlap, at, peer_at)
+        h.confirmed(t, overlap, AGREEMENT, at, peer_at)
     };
     assert!(!round(&mut h, &t, 0.44));
     assert!(round(&mut h, &t, 0.34));
@@ -167,4 +170,44 @@ fn a_first_fix_that_stops_explaining_more_is_contested() {
     assert!(!round(&mut late, &t, 0.40));
     assert!(round(&mut late, &t, 0.40));
     assert!(!round(&mut late, &t, 0.41));
+}
+
+/// Robots that start together part from their first fix: one that
+/// explains most of both maps (`FIRST_SURE`) is not contested as its
+/// overlap falls; one that does not is, until it is found again at a
+/// second meeting, after both robots drove `FIRST_APART_M` without it
+/// (town seed 1, both robots starting where they first meet).
+#[test]
+fn a_first_fix_robots_part_from_passes_when_sure_or_found_again() {
+    use super::super::history::{FIRST_APART_M, FIRST_SURE};
+    let t = fix(0.0, 0.0, 0.0);
+    let (at, peer_at) = places(&t);
+    let mut x = at[0];
+    let mut round = |h: &mut History, overlap: f32, agreement: f32, drive: f32| {
+        x += drive;
+        h.drive([x, at[1], at[2]], peer_at);
+        h.confirmed(&t, overlap, agreement, at, peer_at)
+    };
+    // Sure: overlap 0.78, agreement 0.85, then falling as they part.
+    let mut sure = History::new();
+    assert!(!round(&mut sure, 0.78, 0.85, 0.0));
+    for overlap in [0.74, 0.61, 0.45, 0.32] {
+        assert!(!round(&mut sure, overlap, 0.8, 2.0));
+    }
+    // Just under in either: judged by its growth.
+    for (overlap, agreement) in [(FIRST_SURE - 0.01, 0.85), (0.78, FIRST_SURE - 0.01)] {
+        let mut h = History::new();
+        assert!(!round(&mut h, overlap, agreement, 0.0));
+        assert!(round(&mut h, overlap - 0.05, agreement, 2.0));
+        // Not confirmed while the robots drive apart; found again short of
+        // FIRST_APART_M since its last confirmation: still contested.
+        assert!(round(&mut h, 0.35, 0.5, FIRST_APART_M - 5.0));
+        // Found again after FIRST_APART_M: a second meeting, past its test.
+        assert!(!round(&mut h, 0.35, 0.5, FIRST_APART_M));
+        assert!(!round(&mut h, 0.30, 0.5, 2.0));
+    }
+    // Not a number: never sure.
+    let mut nan = History::new();
+    assert!(!round(&mut nan, f32::NAN, f32::NAN, 0.0));
+    assert!(round(&mut nan, 0.0, 0.9, 2.0));
 }
