@@ -22,7 +22,7 @@ use crate::matching::{MatchStatus, Pyramid, PyramidStorage, Role, SceneSource};
 use crate::pipeline::Pipeline;
 use crate::region::RegionError;
 use crate::session::{
-    Applied, Estimate, PeerView, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts,
+    agree, Applied, Estimate, PeerView, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts,
 };
 use crate::wire::feed::{FeedError, FeedMessage, RobotMessage, RoundReport, SessionEnd};
 use crate::wire::frame::MAX_PAYLOAD;
@@ -186,6 +186,9 @@ where
     last_estimate: Option<Isometry3<f32>>,
     /// The peer's, as its last message said.
     heard: Option<Isometry3<f32>>,
+    /// The peer's, as the message before it said: a fix it made in its
+    /// last round is one this does not agree with.
+    heard_before: Option<Isometry3<f32>>,
     /// Where the peer was (its frame) as its last message said.
     heard_at: Option<[f32; 3]>,
     /// Where this robot was when its copy last changed.
@@ -241,6 +244,7 @@ where
             stats_at_start: CourierStats::default(),
             last_estimate: None,
             heard: None,
+            heard_before: None,
             heard_at: None,
             copy_at: None,
         })
@@ -462,6 +466,7 @@ where
                 let replica = self.replica.as_mut().ok_or(RobotError::Feed(FeedError::Order))?;
                 let message = self.input.get(..n).unwrap_or(&[]);
                 let (head, update) = message.split_at_checked(ESTIMATE_BYTES).unwrap_or((&[], message));
+                self.heard_before = self.heard;
                 (self.heard, self.heard_at) = read_head(head);
                 let applied = replica.apply(update, self.scratch);
                 self.copy_at = Some(self.map.keep_centre());
@@ -540,6 +545,10 @@ where
                 }
             }
         };
+        let estimate = match estimate {
+            Some(e) if e.result.status != MatchStatus::Converged => Some(self.adopt_heard(e)?),
+            other => other,
+        };
         let t2 = meter.instructions();
         let passed = estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged);
         self.last_estimate = passed.map(|e| e.result.transform);
@@ -549,6 +558,36 @@ where
         self.marks = RoundMarks::default();
         self.state = State::Feed;
         Ok(())
+    }
+
+    /// A robot whose own estimate failed, with no fix, adopts the fix its
+    /// peer made in its last round, heard in this round's message
+    /// ([`Tracker::adopt`]: EM from it on both maps, this robot's verdict
+    /// with the margin): the host session's adoption, a round later, since
+    /// a board hears its peer's estimate of a round with the next round's
+    /// update. A fix the peer held before (its message before said the
+    /// same) is not adopted, as on the host. Returns the round's estimate:
+    /// the adopted one, or `own`.
+    #[inline(never)]
+    fn adopt_heard(&mut self, own: Estimate) -> Result<Estimate, RobotError> {
+        let at = self.map.keep_centre();
+        let fresh = |theirs: &Isometry3<f32>| self.heard_before.is_none_or(|b| !agree(&b.inverse(), theirs, at, None));
+        let Some(theirs) = self.heard.filter(|t| self.marks.applied.is_some() && fresh(t)) else {
+            return Ok(own);
+        };
+        let Some(replica) = self.replica.as_ref().filter(|_| self.tracker.fix().is_none()) else {
+            return Ok(own);
+        };
+        let pyramid = |e| RobotError::Align(super::AlignError::Pyramid(e));
+        let copy = replica.map();
+        let model = Pyramid::build_tracked(&self.map, Role::Model, &mut self.model).map_err(pyramid)?;
+        let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
+        let peer_at = self.heard_at.or(replica.peer_place());
+        let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at };
+        let scratch = &mut SearchScratch::new(&mut []);
+        let how = SESSION_PIPELINE.alignment;
+        let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs);
+        Ok(adopted.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?.unwrap_or(own))
     }
 
     fn round_report(&self, me: u8, e: Option<&Estimate>, t: [u64; 3], peak_stack: u32) -> RoundReport {
