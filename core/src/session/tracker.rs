@@ -202,6 +202,13 @@ pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3], peer_
     loop_.rotation.angle() < AGREE_DEG.to_radians() && closes(at.into()) && peer.is_none_or(closes)
 }
 
+/// Whether the peer's fix `now` (`T_peer_own`) is the one its estimate
+/// heard before, `before`, was: they agree where the robot is, `at`. A
+/// robot adopts only a fix its peer has just made ([`Tracker::adopt`]).
+pub fn made_before(before: &Isometry3<f32>, now: &Isometry3<f32>, at: [f32; 3]) -> bool {
+    agree(&before.inverse(), now, at, None)
+}
+
 /// What tracking from the fix gave ([`Tracker::track`]): the round's
 /// estimate, or what [`Tracker::search`] needs to finish the round.
 #[derive(Clone, Copy, Debug, PartialEq)]

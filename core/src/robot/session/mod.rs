@@ -22,7 +22,7 @@ use crate::matching::{MatchStatus, Pyramid, PyramidStorage, Role, SceneSource};
 use crate::pipeline::Pipeline;
 use crate::region::RegionError;
 use crate::session::{
-    agree, Applied, Estimate, PeerView, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts,
+    made_before, Applied, Estimate, PeerView, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts,
 };
 use crate::wire::feed::{FeedError, FeedMessage, RobotMessage, RoundReport, SessionEnd};
 use crate::wire::frame::MAX_PAYLOAD;
@@ -571,7 +571,7 @@ where
     #[inline(never)]
     fn adopt_heard(&mut self, own: Estimate) -> Result<Estimate, RobotError> {
         let at = self.map.keep_centre();
-        let fresh = |theirs: &Isometry3<f32>| self.heard_before.is_none_or(|b| !agree(&b.inverse(), theirs, at, None));
+        let fresh = |theirs: &Isometry3<f32>| self.heard_before.is_none_or(|b| !made_before(&b, theirs, at));
         let Some(theirs) = self.heard.filter(|t| self.marks.applied.is_some() && fresh(t)) else {
             return Ok(own);
         };

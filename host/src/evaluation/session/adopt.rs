@@ -5,7 +5,7 @@
 use super::{copy_of, errors_of, figures, Error, Lines, Links, MatchRoom, Record, Robot, SessionSpec};
 use cosem_core::geometry::Isometry3;
 use cosem_core::matching::{MatchStatus, Role};
-use cosem_core::session::{PeerView, Tracker};
+use cosem_core::session::{made_before, PeerView, Tracker};
 use std::time::Instant;
 
 use super::prepared::Prepared;
@@ -81,10 +81,4 @@ impl Adopting<'_> {
         }
         Ok(())
     }
-}
-
-/// Whether the peer's fix `now` (`T_peer_own`) is the one its estimate of
-/// the last round, `before`, was: they agree where the robot is, `at`.
-pub(crate) fn made_before(before: &Isometry3<f32>, now: &Isometry3<f32>, at: [f32; 3]) -> bool {
-    cosem_core::session::agree(&before.inverse(), now, at, None)
 }

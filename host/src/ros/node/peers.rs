@@ -2,7 +2,7 @@
 //! is room for it) and their fixes of this robot.
 
 use super::*;
-use crate::evaluation::session::adopt::made_before;
+use cosem_core::session::made_before;
 
 impl RosNode {
     /// A robot's update heard: whether it is followed, met now if there is
