@@ -17,8 +17,8 @@ extern void qemu_plugin_register_vcpu_tb_exec_inline(struct qemu_plugin_tb *, en
 extern void qemu_plugin_register_atexit_cb(qemu_plugin_id_t, udata_cb_t, void *);
 __attribute__((visibility("default"))) int qemu_plugin_version = 1;
 typedef struct { uint64_t pc, n, count, count1; } ent;
-static uint64_t split=~0ull; static int phase;
-static void on_exec(unsigned int v, void *u){ ent *e=u; if(e->pc==split) phase=1; if(phase) e->count1++; else e->count++; }
+static uint64_t split=~0ull, unsplit=~0ull; static int phase;
+static void on_exec(unsigned int v, void *u){ ent *e=u; if(e->pc==split) phase=1; else if(e->pc==unsplit) phase=0; if(phase) e->count1++; else e->count++; }
 static ent *ents; static size_t nents, cap; static char out[256] = "/tmp/prof/pcprof.txt";
 static void tb_trans(qemu_plugin_id_t id, struct qemu_plugin_tb *tb) {
     if (nents == cap) { cap = cap ? cap * 2 : 65536; ents = realloc(ents, cap * sizeof *ents); }
@@ -35,6 +35,7 @@ static void at_exit(qemu_plugin_id_t id, void *u) {
 __attribute__((visibility("default")))
 int qemu_plugin_install(qemu_plugin_id_t id, const qemu_info_t *info, int argc, char **argv) {
     for (int i = 0; i < argc; i++) { if (!strncmp(argv[i], "split=", 6)) split = strtoull(argv[i]+6,NULL,0)&~1ull;
+        if (!strncmp(argv[i], "unsplit=", 8)) unsplit = strtoull(argv[i]+8,NULL,0)&~1ull;
         if (!strncmp(argv[i], "out=", 4)) snprintf(out, sizeof out, "%s", argv[i] + 4); }
     qemu_plugin_register_vcpu_tb_trans_cb(id, tb_trans);
     qemu_plugin_register_atexit_cb(id, at_exit, NULL);

@@ -11,9 +11,10 @@ use crate::boards::pump::{pump, LineFault};
 use crate::error::Error;
 use cosem_core::link::courier::CourierConfig;
 use cosem_core::map::VecStorage;
-use cosem_core::matching::{PyramidCapacity, VecPyramidStorage};
+use cosem_core::matching::{PyramidCapacity, Reach, VecPyramidStorage};
 use cosem_core::robot::session::{
-    SessionParts, SessionRobot, SESSION_COARSE, SESSION_MODEL_WORDS, SESSION_UPDATE_BYTES, SESSION_VOXELS,
+    SessionParts, SessionRobot, SESSION_COARSE, SESSION_MODEL_WORDS, SESSION_REACH, SESSION_UPDATE_BYTES,
+    SESSION_VOXELS,
 };
 use cosem_core::robot::{RobotConfig, SCENE_WORDS};
 use cosem_core::session::ShadowEntry;
@@ -95,6 +96,7 @@ struct TwinMemory {
     out: Vec<u8>,
     input: Vec<u8>,
     search: Vec<u32>,
+    reach: Vec<Reach>,
 }
 
 type TwinRobot<'a> = SessionRobot<'a, VecStorage, VecStorage, Vec<ShadowEntry>, VecPyramidStorage, VecPyramidStorage>;
@@ -118,6 +120,7 @@ fn twin_robot(m: &mut TwinMemory) -> Result<TwinRobot<'_>, Error> {
         model: pyramid(SESSION_MODEL_WORDS),
         scene: pyramid(SCENE_WORDS),
         search: &mut m.search,
+        reach: &mut m.reach,
     };
     SessionRobot::new(RobotConfig::default(), CourierConfig::default(), parts)
         .map_err(|e| Error::Invalid(format!("host twin: {e}")))
@@ -133,6 +136,7 @@ pub fn host_session_twin(feeds: &[Vec<u8>]) -> Result<Vec<SessionReports>, Error
             out: vec![0; SESSION_UPDATE_BYTES],
             input: vec![0; SESSION_UPDATE_BYTES],
             search: vec![0; cosem_core::matching::search::SearchScratch::WINDOWED],
+            reach: vec![Reach::EMPTY; SESSION_REACH],
         })
         .collect();
     let mut robots = memory.iter_mut().map(twin_robot).collect::<Result<Vec<_>, _>>()?;

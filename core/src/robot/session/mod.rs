@@ -18,7 +18,7 @@ use crate::geometry::Isometry3;
 use crate::link::courier::{Courier, CourierConfig, CourierError, CourierStats, Event};
 use crate::map::{LocalMap, VoxelStorage};
 use crate::matching::search::SearchScratch;
-use crate::matching::{MatchStatus, Pyramid, PyramidStorage, Role, SceneSource};
+use crate::matching::{MatchStatus, Pyramid, PyramidStorage, Reach, Role, SceneSource};
 use crate::pipeline::Pipeline;
 use crate::region::RegionError;
 use crate::session::{
@@ -94,6 +94,9 @@ pub const SESSION_PIPELINE: Pipeline = Pipeline {
 };
 /// Nodes a session robot's prior-free search may score.
 pub const SESSION_SEARCH_NODES: u32 = 20_000;
+/// Scene entries whose blocks a session robot's EM remembers between its
+/// iterations ([`SessionParts::reach`]): every entry its matcher samples.
+pub const SESSION_REACH: usize = SESSION_PIPELINE.alignment.settings.max_scene_entries as usize;
 
 /// After its last round a robot answers its peer's resends this long (ms)
 /// before it reports its end: the peer may have missed its last answer.
@@ -121,6 +124,11 @@ pub struct SessionParts<'a, S, C, R, P, Q> {
     pub scene: Q,
     /// The windowed search's cache ([`SearchScratch::WINDOWED`] words).
     pub search: &'a mut [u32],
+    /// EM's memory of the block each sampled scene entry reached, between
+    /// its iterations ([`SearchScratch::with_reach`]; [`SESSION_REACH`]
+    /// for every entry the session's matcher samples; fewer, the rest are
+    /// looked up every iteration): the same answers, fewer lookups.
+    pub reach: &'a mut [Reach],
 }
 
 enum State {
@@ -179,6 +187,7 @@ where
     model: P,
     scene: Q,
     search: &'a mut [u32],
+    reach: &'a mut [Reach],
     round: u16,
     marks: RoundMarks,
     stats_at_start: CourierStats,
@@ -210,7 +219,7 @@ where
         courier: CourierConfig,
         parts: SessionParts<'a, S, C, R, P, Q>,
     ) -> Result<Self, RobotError> {
-        let SessionParts { map, copy, records, scratch, out, input, model, scene, search } = parts;
+        let SessionParts { map, copy, records, scratch, out, input, model, scene, search, reach } = parts;
         // The set-up names the voxel size; until then the map waits empty.
         let map = LocalMap::new(map, map_config(0.5)).map_err(RobotError::Config)?;
         let copy_capacity = copy.voxels().len();
@@ -239,6 +248,7 @@ where
             model,
             scene,
             search,
+            reach,
             round: 0,
             marks: RoundMarks::default(),
             stats_at_start: CourierStats::default(),
@@ -524,7 +534,7 @@ where
                     let model = Pyramid::build_tracked(&self.map, Role::Model, &mut self.model).map_err(pyramid)?;
                     let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
                     t1 = meter.instructions();
-                    let scratch = &mut SearchScratch::new(&mut []);
+                    let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach);
                     Some(self.tracker.track(&model, &scene, &how, scratch, &view).map_err(matching)?)
                 }
                 None => None,
@@ -536,7 +546,7 @@ where
                     let model = Pyramid::build_model(&self.map, levels, cell, &mut self.model).map_err(pyramid)?;
                     let scene = copy.prepare_scene(levels, cell, &mut self.scene).map_err(pyramid)?;
                     t1 = meter.instructions();
-                    let scratch = &mut SearchScratch::new(self.search);
+                    let scratch = &mut SearchScratch::new(self.search).with_reach(self.reach);
                     let e = match tracked {
                         Some(t) => self.tracker.search(&model, &scene, &how, scratch, &view, t),
                         None => self.tracker.estimate(&model, &scene, &how, scratch, &view),
@@ -584,7 +594,7 @@ where
         let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
         let peer_at = self.heard_at.or(replica.peer_place());
         let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at };
-        let scratch = &mut SearchScratch::new(&mut []);
+        let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach);
         let how = SESSION_PIPELINE.alignment;
         let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs);
         Ok(adopted.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?.unwrap_or(own))

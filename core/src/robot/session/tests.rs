@@ -113,6 +113,7 @@ struct Memory {
     out: Vec<u8>,
     input: Vec<u8>,
     search: Vec<u32>,
+    reach: Vec<crate::matching::Reach>,
 }
 
 impl Memory {
@@ -122,6 +123,7 @@ impl Memory {
             out: vec![0; 24 * CAPACITY],
             input: vec![0; 24 * CAPACITY],
             search: vec![0; crate::matching::search::SearchScratch::WINDOWED],
+            reach: vec![crate::matching::Reach::EMPTY; super::SESSION_REACH],
         }
     }
 }
@@ -144,6 +146,7 @@ fn robot_holding(memory: &mut Memory, copy: usize) -> TestRobot<'_> {
         model: heap_pyramid(CAPACITY, 4096, 20_000),
         scene: heap_pyramid(CAPACITY, 4096, 20_000),
         search: &mut memory.search,
+        reach: &mut memory.reach,
     };
     SessionRobot::new(RobotConfig::default(), CourierConfig::default(), parts).unwrap()
 }

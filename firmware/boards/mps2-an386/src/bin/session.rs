@@ -15,9 +15,10 @@
 use cortex_m_rt::{entry, exception};
 use cosem_core::link::courier::CourierConfig;
 use cosem_core::matching::search::SearchScratch;
+use cosem_core::matching::Reach;
 use cosem_core::robot::session::{
     SessionMapStorage, SessionModelStorage, SessionParts, SessionRecords, SessionRobot, SessionSceneStorage,
-    SESSION_UPDATE_BYTES, SESSION_VOXELS,
+    SESSION_REACH, SESSION_UPDATE_BYTES, SESSION_VOXELS,
 };
 use cosem_core::robot::RobotConfig;
 use cosem_core::session::ShadowEntry;
@@ -38,6 +39,9 @@ static IN: ConstStaticCell<[u8; SESSION_UPDATE_BYTES]> = ConstStaticCell::new([0
 static MODEL: ConstStaticCell<SessionModelStorage> = ConstStaticCell::new(SessionModelStorage::new());
 static SCENE: ConstStaticCell<SessionSceneStorage> = ConstStaticCell::new(SessionSceneStorage::new());
 static SEARCH: ConstStaticCell<[u32; SearchScratch::WINDOWED]> = ConstStaticCell::new([0; SearchScratch::WINDOWED]);
+/// EM's memory of each sampled entry's block (72 B an entry): a prior-free
+/// round's EM looks up far fewer cells.
+static REACH: ConstStaticCell<[Reach; SESSION_REACH]> = ConstStaticCell::new([Reach::EMPTY; SESSION_REACH]);
 static FEED_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 static LINK_RX: IrqReceiver<UartRx, RX_RING> = IrqReceiver::new();
 
@@ -84,6 +88,7 @@ fn main() -> ! {
         model: MODEL.take(),
         scene: SCENE.take(),
         search: SEARCH.take(),
+        reach: REACH.take(),
     };
     let Ok(mut robot) = SessionRobot::new(RobotConfig::default(), CourierConfig::default(), parts) else { exit(false) };
     let board = Board { link_bytes: || LINK_RX.ring().pushed() };
