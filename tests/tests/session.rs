@@ -459,3 +459,38 @@ fn two_session_robots_run_on_boards_equal_to_their_twin() {
         }
     }
 }
+
+/// Two session boards over a longer stretch of the town (seed 1, network
+/// labels, frames 0 to 118: the robots apart, their first meeting and
+/// their parting; 59 rounds, a clean line): every round equal to the
+/// twin, none wrong, and every round within 3e8 instructions, the rounds
+/// after the parting too, where each robot searches for its peer from no
+/// prior on maps that share little and EM slides on every placement it
+/// tries. Before a board's EM remembered the blocks of its sampled
+/// entries (`SESSION_REACH`), 6 of those robot-rounds took 3.0e8 to 3.34e8.
+#[test]
+fn a_longer_session_on_boards_keeps_every_round_within_the_instruction_budget() {
+    if cosem_tests::firmware_elves().is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let town = dir.path().join("town");
+    let t = town.display().to_string();
+    cosem_ok(&["synth", "--town", "--out", &t, "--frames", "118", "--seg", "none", "--seed", "1"]);
+    let (a, b) = (format!("{t}/robot_0:0:118"), format!("{t}/robot_1:0:118"));
+    let noise = ["--label-noise", "network", "--seed", "1", "--drift", "1%,0.5"];
+    let out = cosem_ok(&[&["session", "--on-board", "--json", "--robot", &a, "--robot", &b][..], &noise[..]].concat());
+    let mut lines: Vec<Value> = out.lines().map(|l| serde_json::from_str(l).expect("a JSON line")).collect();
+    let summary = lines.pop().expect("a summary line")["summary"].clone();
+    eprintln!("{summary}");
+    assert_eq!(summary["equal_to_twin"], true, "{summary}");
+    for (i, board) in summary["boards"].as_array().unwrap().iter().enumerate() {
+        assert_eq!(board["rounds"], 59, "board {i}: {board}");
+        assert!(board["failed"].is_null(), "board {i}: {board}");
+        assert!(board["most_round_instructions"].as_u64().unwrap() <= 300_000_000, "board {i}: {board}");
+        assert!(board["converged"].as_u64().unwrap() >= 10, "board {i}: {board}");
+        assert_eq!(board["wrong_converged"], 0, "board {i}: {board}");
+    }
+    let prior_free = lines.iter().filter(|l| l["kind"] == "prior-free" && l["round"].as_u64() > Some(52)).count();
+    assert!(prior_free > 0, "no prior-free round after the parting: the test no longer covers them");
+}
