@@ -258,6 +258,18 @@ fn nodes_ran(got: &Value) -> Vec<String> {
         assert!(!n["stderr"].as_str().unwrap().contains("panicked"), "{}", n["stderr"]);
         let last = n["stdout"].as_str().unwrap().lines().last().unwrap_or("");
         assert!(last.starts_with("{\"summary\""), "a stopped node's last line is not its summary: {last}");
+        // Its counts of estimates are those of the lines it printed.
+        let lines: Vec<Value> =
+            n["stdout"].as_str().unwrap().lines().filter_map(|l| serde_json::from_str(l).ok()).collect();
+        let estimates: Vec<&Value> = lines.iter().filter(|l| l.get("round").is_some()).collect();
+        let count = |f: &dyn Fn(&Value) -> bool| estimates.iter().filter(|e| f(e)).count();
+        let summary = &lines.last().unwrap()["summary"];
+        assert_eq!(summary["estimates"], count(&|e| e["confirmation"] == false), "{last}");
+        // A confirmation tells a waiting estimate again, `Converged`.
+        assert_eq!(summary["converged"], count(&|e| e["status"] == "Converged"), "{last}");
+        assert!(estimates.iter().all(|e| e["confirmation"] == false || e["status"] == "Converged"), "{last}");
+        assert_eq!(summary["adopted"], count(&|e| e["adopted"] == true), "{last}");
+        assert_eq!(summary["contested"], count(&|e| e["contested"] == true), "{last}");
     }
     nodes.iter().map(|n| n["stderr"].as_str().unwrap().to_string()).collect()
 }

@@ -207,7 +207,7 @@ fn play(_: PlayArgs) -> Result<(), Error> {
 
 #[cfg(feature = "ros")]
 fn node(a: NodeArgs) -> Result<(), Error> {
-    use cosem_host::ros::node::{Event, NodeSpec, RosNode};
+    use cosem_host::ros::node::{Event, NodeSpec, Origin, RosNode};
     use std::io::Write;
     let name = a.name;
     let classes = a.classes.as_deref().map(cosem_host::sources::class_table::ClassTable::read).transpose()?;
@@ -239,14 +239,15 @@ fn node(a: NodeArgs) -> Result<(), Error> {
     stop_on_signals();
     let node = RosNode::new(spec)?;
     let summary = node.run_until(&STOP, |event| match event {
-        Event::Estimate { round, peer, estimate: e, voxels, seconds } => {
+        Event::Estimate { round, peer, estimate: e, voxels, seconds, origin } => {
             let m = e.result.transform.to_homogeneous();
             let t: Vec<f64> =
                 (0..3).flat_map(|i| (0..4).map(move |j| (i, j))).map(|(i, j)| f64::from(m[(i, j)])).collect();
             let line = serde_json::json!({
                 "round": round, "robot": name, "peer": peer, "status": e.status().as_str(),
                 "kind": e.kind.as_str(), "fix": e.fix.as_str(), "confirmed": e.confirmed,
-                "contested": e.contested,
+                "contested": e.contested, "adopted": *origin == Origin::Adopted,
+                "confirmation": *origin == Origin::Confirmed,
                 "T_own_peer": t, "overlap": e.result.overlap, "agreement": e.result.agreement,
                 "voxels": voxels.0, "peer_voxels": voxels.1, "seconds": seconds,
             });
@@ -266,6 +267,8 @@ fn node(a: NodeArgs) -> Result<(), Error> {
             "scans": summary.scans, "rounds": summary.rounds, "updates": summary.updates,
             "snapshots": summary.snapshots, "update_bytes": summary.update_bytes, "dropped": summary.dropped,
             "applied": summary.applied, "qos_mismatches": summary.qos_mismatches,
+            "estimates": summary.estimates.made, "converged": summary.estimates.converged,
+            "adopted": summary.estimates.adopted, "contested": summary.estimates.contested,
         }})
     );
     Ok(())

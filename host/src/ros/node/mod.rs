@@ -122,6 +122,8 @@ pub enum Event {
         voxels: (usize, usize),
         /// Seconds the estimate took.
         seconds: f64,
+        /// How it came: made, adopted, or confirmed after it was made.
+        origin: Origin,
     },
     /// An input dropped: what and why.
     Dropped(String),
@@ -156,6 +158,52 @@ pub struct NodeSummary {
     pub applied: BTreeMap<String, usize>,
     /// Remote endpoints whose QoS could not match the node's.
     pub qos_mismatches: usize,
+    /// Estimates made (every peer's, every round), those `Converged`
+    /// (when made, or once the peer's fix confirmed them), those that
+    /// adopted the peer's fix, and those contested by the history
+    /// (`core::session::History`).
+    pub estimates: Tally,
+}
+
+/// How an estimate a node tells of came about.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Origin {
+    /// This robot's own estimate of the round.
+    Made,
+    /// The peer's fix of this robot, adopted ([`Tracker::adopt`]), not
+    /// this robot's own estimate of the round.
+    Adopted,
+    /// An estimate of the round it names that waited for the peer's
+    /// agreement, now confirmed (`Converged`) by the peer's fix heard
+    /// since: the same estimate, told again.
+    Confirmed,
+}
+
+/// How a node's estimates went, counted as they are made.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Tally {
+    /// Estimates made.
+    pub made: usize,
+    /// Of them, `Converged` when made or confirmed later.
+    pub converged: usize,
+    /// Of them, the peer's fix adopted.
+    pub adopted: usize,
+    /// Of them, contested.
+    pub contested: usize,
+}
+
+impl Tally {
+    /// `e` counted, as it came (a confirmation counts it `Converged`, not
+    /// made again).
+    pub fn count(&mut self, e: &Estimate, origin: Origin) {
+        self.converged += usize::from(e.status() == MatchStatus::Converged);
+        if origin == Origin::Confirmed {
+            return;
+        }
+        self.made += 1;
+        self.adopted += usize::from(origin == Origin::Adopted);
+        self.contested += usize::from(e.contested);
+    }
 }
 
 /// One peer as this robot knows it.
@@ -166,9 +214,11 @@ struct Peer {
     /// The peer's last estimate of `T_peer_own` that passed its verdict,
     /// and when it came.
     heard: Option<(Isometry3<f32>, Instant)>,
-    /// The last estimate, and the copy's version it was made on.
+    /// The last estimate, the copy's version it was made on, and the
+    /// round it was made in.
     last: Option<Estimate>,
     estimated: u32,
+    made_in: usize,
     /// When an update of it last came.
     updated: Instant,
     /// Why it is not estimated, if it is not (another voxel size).

@@ -53,14 +53,17 @@ impl RosNode {
             }
             peer.last = Some(e);
             peer.estimated = peer.follower.version();
+            peer.made_in = self.summary.rounds;
             let voxels = (self.own.map.len(), copy.len());
             let seconds = t.elapsed().as_secs_f64();
+            self.summary.estimates.count(&e, Origin::Made);
             log(&Event::Estimate {
                 round: self.summary.rounds,
                 peer: name.clone(),
                 estimate: Box::new(e),
                 voxels,
                 seconds,
+                origin: Origin::Made,
             });
             done.push(name.clone());
         }

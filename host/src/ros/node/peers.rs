@@ -39,6 +39,7 @@ impl RosNode {
             heard: None,
             last: None,
             estimated: 0,
+            made_in: 0,
             updated: now,
             refused: None,
             pose: None,
@@ -144,6 +145,18 @@ impl RosNode {
             peer.tracker.confirm(&mut e, &theirs, place, peer_at);
             if e.confirmed {
                 peer.last = Some(e);
+                // Told again, now `Converged`: its line said it waited.
+                let (round, voxels) = (peer.made_in, (self.own.map.len(), peer.follower.map().len()));
+                self.summary.estimates.count(&e, Origin::Confirmed);
+                let estimate = Box::new(e);
+                log(&Event::Estimate {
+                    round,
+                    peer: name.clone(),
+                    estimate,
+                    voxels,
+                    seconds: 0.0,
+                    origin: Origin::Confirmed,
+                });
                 self.publish_estimate(&name)?;
                 self.publish_edge()?;
             }
@@ -168,10 +181,13 @@ impl RosNode {
         let Some(e) = adopted.map_err(|e| Error::Invalid(format!("{name}: matching: {e}")))? else { return Ok(()) };
         peer.last = Some(e);
         peer.estimated = peer.follower.version();
+        peer.made_in = self.summary.rounds;
         let voxels = (self.own.map.len(), copy.len());
         let seconds = t.elapsed().as_secs_f64();
         let round = self.summary.rounds;
-        log(&Event::Estimate { round, peer: name.to_string(), estimate: Box::new(e), voxels, seconds });
+        self.summary.estimates.count(&e, Origin::Adopted);
+        let (peer, estimate) = (name.to_string(), Box::new(e));
+        log(&Event::Estimate { round, peer, estimate, voxels, seconds, origin: Origin::Adopted });
         self.publish_estimate(name)?;
         self.publish_edge()
     }
