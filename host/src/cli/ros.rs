@@ -207,7 +207,7 @@ fn play(_: PlayArgs) -> Result<(), Error> {
 
 #[cfg(feature = "ros")]
 fn node(a: NodeArgs) -> Result<(), Error> {
-    use cosem_host::ros::node::{Event, NodeSpec, Origin, RosNode};
+    use cosem_host::ros::node::{Event, NodeSpec, Origin, RosNode, NODE_SCHEMA};
     use std::io::Write;
     let name = a.name;
     let classes = a.classes.as_deref().map(cosem_host::sources::class_table::ClassTable::read).transpose()?;
@@ -264,7 +264,7 @@ fn node(a: NodeArgs) -> Result<(), Error> {
     println!(
         "{}",
         serde_json::json!({ "summary": {
-            "scans": summary.scans, "rounds": summary.rounds, "updates": summary.updates,
+            "schema_version": NODE_SCHEMA, "scans": summary.scans, "rounds": summary.rounds, "updates": summary.updates,
             "snapshots": summary.snapshots, "update_bytes": summary.update_bytes, "dropped": summary.dropped,
             "applied": summary.applied, "qos_mismatches": summary.qos_mismatches,
             "estimates": summary.estimates.made, "converged": summary.estimates.converged,

@@ -165,6 +165,14 @@ pub struct NodeSummary {
     pub estimates: Tally,
 }
 
+/// The version of what `cosem ros node` prints (its estimate lines and
+/// its summary, which says it): 1 before it was said; 2 since each line
+/// has `adopted` and `confirmation` (an estimate that waited for its
+/// peer, told again `Converged` when the peer's fix confirms it: a round
+/// and peer may have two lines, the last what the node held) and the
+/// summary counts `estimates`, `converged`, `adopted` and `contested`.
+pub const NODE_SCHEMA: u32 = 2;
+
 /// How an estimate a node tells of came about.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Origin {
