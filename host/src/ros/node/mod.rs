@@ -187,7 +187,7 @@ pub enum Origin {
     Confirmed,
 }
 
-/// How a node's estimates went, counted as they are made.
+/// How a node's estimates went, counted as they are told (`RosNode::run_until`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Tally {
     /// Estimates made.
@@ -431,9 +431,17 @@ impl RosNode {
     /// handler sets it: a node asked to stop says what it did), telling
     /// `log` what happens; what it did.
     pub fn run_until(mut self, stop: &AtomicBool, mut log: impl FnMut(&Event)) -> Result<NodeSummary, Error> {
+        // Every estimate is counted as it is told, whichever way it came.
+        let mut tally = Tally::default();
+        let mut log = |event: &Event| {
+            if let Event::Estimate { estimate, origin, .. } = event {
+                tally.count(estimate, *origin);
+            }
+            log(event);
+        };
         loop {
             if stop.load(Ordering::Relaxed) {
-                return Ok(self.summary);
+                break;
             }
             let got = self.poll(&mut log)?;
             let settled = self.last_input.elapsed().as_secs_f64() >= self.spec.settle;
@@ -444,12 +452,14 @@ impl RosNode {
                 self.look_at_qos(&mut log);
             }
             if self.spec.idle.is_some_and(|s| self.last_input.elapsed().as_secs_f64() > s) && !self.dirty {
-                return Ok(self.summary);
+                break;
             }
             if !got {
                 std::thread::sleep(Duration::from_millis(5));
             }
         }
+        self.summary.estimates = tally;
+        Ok(self.summary)
     }
 
     /// Reports each remote endpoint whose QoS cannot match, once; they

@@ -56,7 +56,6 @@ impl RosNode {
             peer.made_in = self.summary.rounds;
             let voxels = (self.own.map.len(), copy.len());
             let seconds = t.elapsed().as_secs_f64();
-            self.summary.estimates.count(&e, Origin::Made);
             log(&Event::Estimate {
                 round: self.summary.rounds,
                 peer: name.clone(),

@@ -147,7 +147,6 @@ impl RosNode {
                 peer.last = Some(e);
                 // Told again, now `Converged`: its line said it waited.
                 let (round, voxels) = (peer.made_in, (self.own.map.len(), peer.follower.map().len()));
-                self.summary.estimates.count(&e, Origin::Confirmed);
                 let estimate = Box::new(e);
                 log(&Event::Estimate {
                     round,
@@ -185,7 +184,6 @@ impl RosNode {
         let voxels = (self.own.map.len(), copy.len());
         let seconds = t.elapsed().as_secs_f64();
         let round = self.summary.rounds;
-        self.summary.estimates.count(&e, Origin::Adopted);
         let (peer, estimate) = (name.to_string(), Box::new(e));
         log(&Event::Estimate { round, peer, estimate, voxels, seconds, origin: Origin::Adopted });
         self.publish_estimate(name)?;
