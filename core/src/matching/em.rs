@@ -308,6 +308,11 @@ impl Matcher {
         if near.is_none() {
             whole(model, scene)?;
         }
+        // On a work budget: a placement that cannot be judged is not refined.
+        let placement = scratch.work().costs().placement;
+        if !scratch.work_mut().take(placement) {
+            return Ok(MatchResult::not_judged(*init));
+        }
         let (start, top) = self.start(model, scene, init, near, levels, scratch);
         let mut refined = self.refine(model, scene, start, top, hold, scratch);
         if !finite_iso(&refined.transform) {
@@ -411,8 +416,14 @@ impl Matcher {
                 break;
             }
             // Each level samples its own entries: what was reached is forgotten.
-            let room = scratch.em_room(model.is_lazy());
+            scratch.em_room(model.is_lazy());
+            let cost = scratch.work().costs().iteration(l);
             for _ in 0..budget {
+                // On a work budget, EM stops where it is: not converged.
+                if !scratch.work_mut().take(cost) {
+                    return Refined { transform: t, used, per_level, converged: false, last: None };
+                }
+                let room = scratch.em_room_kept(model.is_lazy());
                 let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, sampling, information: l == 0 };
                 let n = accumulate(&m, &c, &t, &pass, (&mut *room.0, &mut *room.1));
                 used += 1;

@@ -8,6 +8,7 @@
 
 use super::search::{search_global_in, Candidate, GlobalSearch, GlobalSearchOutcome, SearchScratch};
 use super::{MatchError, MatchResult, MatchSettings, MatchStatus, Matcher, Method, Pyramid, PyramidStorage};
+use nalgebra::Isometry3;
 
 /// What the prior-free alignment tried.
 #[derive(Clone, Debug, PartialEq)]
@@ -71,11 +72,20 @@ pub fn align_searched_in<A: PyramidStorage, B: PyramidStorage>(
         return Ok((MatchResult::no_overlap(), None));
     };
     let local = Matcher::new(MatchSettings { search: Some(settings.refinement_window()), ..matcher.settings });
+    // No search where a work budget could not pay for one: not judged.
+    let unpaid = |scratch: &SearchScratch<'_>| {
+        let r = if scratch.work().refused() {
+            MatchResult::not_judged(Isometry3::identity())
+        } else {
+            MatchResult::no_overlap()
+        };
+        Ok((r, None))
+    };
     // One search for the few best, each refined in turn (not the best
     // alone first: `GlobalSearch::best_alone_first`).
     if !settings.best_alone_first {
         let Some(search) = search_global_in(fm, fs, settings, semantic, scratch) else {
-            return Ok((MatchResult::no_overlap(), None));
+            return unpaid(scratch);
         };
         searched();
         return refine_in_turn(&local, model, scene, search, None, settings.exclusion, scratch);
@@ -90,7 +100,7 @@ pub fn align_searched_in<A: PyramidStorage, B: PyramidStorage>(
     // their runner-ups).
     let one = GlobalSearch { candidates: 1, ..*settings };
     let Some(search) = search_global_in(fm, fs, &one, semantic, scratch) else {
-        return Ok((MatchResult::no_overlap(), None));
+        return unpaid(scratch);
     };
     searched();
     // No placement at all (nothing in common, or the budget spent before

@@ -12,6 +12,7 @@
 //!   semantic weights;
 //! - [`solve`](mod@solve): the M-step, damped Gauss-Newton on SE(3) or 4-DoF;
 //! - [`em`]: [`Matcher`], the coarse-to-fine driver with annealing;
+//! - [`work`](mod@work): a round's work budget, charged step by step;
 //! - [`settings`], [`result`]: plain data in and out.
 //!
 //! ```
@@ -50,6 +51,7 @@ pub mod result;
 pub mod search;
 pub mod settings;
 pub mod solve;
+pub mod work;
 
 pub use align::{align_prepared, Alignment};
 pub use em::{MatchError, Matcher};
@@ -65,6 +67,7 @@ pub use pyramid::{VecPyramid, VecPyramidStorage};
 pub use result::{MatchResult, MatchStatus};
 pub use search::{SearchOutcome, SearchWindow};
 pub use settings::{Cost, Dof, MatchSettings, Method};
+pub use work::{Work, WorkCosts};
 
 #[cfg(test)]
 mod tests;

@@ -128,6 +128,12 @@ impl MatchResult {
             degeneracy: 0.0,
         }
     }
+
+    /// `NotConverged` at `at`, with nothing behind it: a placement a work
+    /// budget did not pay for ([`super::Work`]), neither refined nor judged.
+    pub fn not_judged(at: Isometry3<f32>) -> Self {
+        MatchResult { transform: at, status: MatchStatus::NotConverged, ..Self::no_overlap() }
+    }
 }
 
 #[cfg(feature = "defmt")]

@@ -251,6 +251,12 @@ pub struct RoundReport {
     pub prepare_instructions: u64,
     /// Instructions of the estimate (search, EM, verdict).
     pub match_instructions: u64,
+    /// The estimate's work as the round's meter counted it (instructions
+    /// at the fitted costs, [`crate::matching::Work`]).
+    pub match_work: u64,
+    /// Whether the round's work budget refused a step (the estimate was
+    /// cut short: not `Converged` where it was cut).
+    pub work_cut: bool,
     /// Peak stack so far (bytes).
     pub peak_stack: u32,
 }

@@ -55,6 +55,11 @@ pub struct BoardRoundJson {
     pub exchange_ms: u32,
     /// Instructions: fusing, the updates, preparing, the estimate.
     pub instructions: [u64; 4],
+    /// The estimate's work as the round's budget counted it (instructions
+    /// at the fitted costs; `cosem_core::matching::Work`).
+    pub work: u64,
+    /// Whether the round's work budget cut the estimate short.
+    pub work_cut: bool,
 }
 
 /// What a session on boards showed.
@@ -92,6 +97,8 @@ impl SessionBoardReport<'_> {
             line_bytes: r.line_bytes,
             exchange_ms: r.exchange_ms,
             instructions: [r.map_instructions, r.update_instructions, r.prepare_instructions, r.match_instructions],
+            work: r.match_work,
+            work_cut: r.work_cut,
         }
     }
 

@@ -369,18 +369,60 @@ pub fn search_global_in(
     let top = POOL_LEVELS - 1;
     let block = 1i32 << top;
     let roots = |b: (i32, i32)| (b.0..=b.1).step_by(block as usize);
+    // On a work budget (`SearchScratch::with_work`): the heading order
+    // scores every heading's roots, and each heading's roots are scored
+    // before the node budget is looked at again; what is left pays for
+    // those, or there is no search.
+    let per_heading = (roots(bounds.i).count() * roots(bounds.j).count()) as u64;
+    let cost = scratch.work().costs().global_node;
+    let cap = u64::from(scratch.work().nodes(cost));
+    let beyond = per_heading + 4;
+    let mut budget = settings.max_evaluations;
+    if cost > 0 && cap < n_yaw as u64 * per_heading + beyond {
+        scratch.work_mut().refuse();
+        return None;
+    }
+    let lowered = cost > 0 && cap - beyond < u64::from(budget);
+    if lowered {
+        budget = (cap - beyond) as u32;
+    }
+    let outcome = search_headings(&scorer, settings, (n_yaw, step, cell, &bounds, budget), &centre, scratch);
+    if let Some(o) = &outcome {
+        let work = scratch.work_mut();
+        work.charge_nodes(o.evaluations, cost);
+        if lowered && o.exhausted {
+            work.refuse();
+        }
+    }
+    outcome
+}
+
+/// [`search_global_in`]'s branch and bound, heading by heading, within
+/// `budget` nodes (and at most a heading's roots and a node's children
+/// beyond it).
+#[inline(always)]
+fn search_headings(
+    scorer: &Scorer<'_>,
+    settings: &GlobalSearch,
+    (n_yaw, step, cell, bounds, budget): (usize, f32, f32, &Bounds, u32),
+    centre: &Isometry3<f32>,
+    scratch: &mut SearchScratch<'_>,
+) -> Option<GlobalSearchOutcome> {
+    let points = settings.points.clamp(1, MAX_GLOBAL_POINTS);
+    let top = POOL_LEVELS - 1;
+    let block = 1i32 << top;
+    let roots = |b: (i32, i32)| (b.0..=b.1).step_by(block as usize);
     let mut region = scratch.region();
     let mut cells = YawCells::carve(&mut region, points)?;
     let order = region.take::<[u32; 2]>(n_yaw).ok()?;
     let mut evaluations = 0u32;
-    heading_order(&scorer, &mut cells, &bounds, order, &mut evaluations);
+    heading_order(scorer, &mut cells, bounds, order, &mut evaluations);
     let r = settings.exclusion.0 / cell;
     let sep =
         Separation { r2: (r * r) as i64, dyaw: libm::floorf(settings.exclusion.1 / step) as i32, turn: n_yaw as i32 };
     let mut kept =
         Kept { nodes: heapless::Vec::new(), capacity: settings.candidates.clamp(1, MAX_GLOBAL_CANDIDATES), sep };
     let mut yaw_roots: heapless::Vec<Node, MAX_YAW_ROOTS> = heapless::Vec::new();
-    let budget = settings.max_evaluations;
     for &[bound, k] in order.iter() {
         if bound <= kept.threshold() || bound == 0 {
             break;
@@ -394,7 +436,7 @@ pub fn search_global_in(
                 evaluations += 1;
                 let root = Node { yaw: k as i16, i: i as i16, j: j as i16, h: top as u8, score };
                 if yaw_roots.push(root).is_err() {
-                    descend(&scorer, &cells, root, &bounds, &mut kept, &mut evaluations, budget);
+                    descend(scorer, &cells, root, bounds, &mut kept, &mut evaluations, budget);
                 }
             }
         }
@@ -403,12 +445,12 @@ pub fn search_global_in(
             if root.score <= kept.threshold() {
                 break;
             }
-            descend(&scorer, &cells, *root, &bounds, &mut kept, &mut evaluations, budget);
+            descend(scorer, &cells, *root, bounds, &mut kept, &mut evaluations, budget);
         }
         if evaluations >= budget {
             break;
         }
     }
-    let candidates = kept.nodes.iter().map(|n| placement(n, step, cell, &centre)).collect();
+    let candidates = kept.nodes.iter().map(|n| placement(n, step, cell, centre)).collect();
     Some(GlobalSearchOutcome { candidates, evaluations, exhausted: evaluations >= budget })
 }

@@ -4,6 +4,7 @@
 
 use super::super::footprint::{Footprint, Grid, POOL_LEVELS};
 use super::super::pyramid::{PackedNormal, Reach};
+use super::super::work::Work;
 use crate::region::{words_for, Region};
 
 /// Scene points whose cells are cached per yaw; more are thinned by stride.
@@ -91,6 +92,8 @@ pub struct SearchScratch<'s> {
     /// The normals EM fitted of a model that leaves them to it
     /// ([`SearchScratch::with_normals`]).
     normals: &'s mut [PackedNormal],
+    /// What the searches and EM may still spend ([`SearchScratch::with_work`]).
+    work: Work,
 }
 
 impl<'s> SearchScratch<'s> {
@@ -108,7 +111,7 @@ impl<'s> SearchScratch<'s> {
 
     /// Scratch in `words` (any contents).
     pub fn new(words: &'s mut [u32]) -> Self {
-        SearchScratch { words, reach: &mut [], normals: &mut [] }
+        SearchScratch { words, reach: &mut [], normals: &mut [], work: Work::UNBOUNDED }
     }
 
     /// The same, with room for EM to remember, between its iterations, the
@@ -132,17 +135,38 @@ impl<'s> SearchScratch<'s> {
         SearchScratch { normals, ..self }
     }
 
+    /// The same, on a work budget: every search node, EM iteration and
+    /// placement judged with this scratch is charged to `work`, and a step
+    /// it cannot pay for is not taken ([`Work`]). Without one, nothing is
+    /// refused.
+    pub fn with_work(self, work: Work) -> Self {
+        SearchScratch { work, ..self }
+    }
+
+    /// The work meter, as spent so far.
+    pub fn work(&self) -> &Work {
+        &self.work
+    }
+
+    pub(crate) fn work_mut(&mut self) -> &mut Work {
+        &mut self.work
+    }
+
     /// EM's room to remember blocks, emptied (a new level or new maps),
     /// and to keep the normals it fits, emptied for a model that leaves
     /// them to it (`lazy`).
     pub(crate) fn em_room(&mut self, lazy: bool) -> (&mut [Reach], &mut [PackedNormal]) {
         self.reach.fill(Reach::EMPTY);
-        let normals: &mut [PackedNormal] = if lazy {
+        if lazy {
             self.normals.fill(PackedNormal::UNFIT);
-            &mut *self.normals
-        } else {
-            &mut []
-        };
+        }
+        self.em_room_kept(lazy)
+    }
+
+    /// EM's room as [`SearchScratch::em_room`] left it, and as EM's
+    /// iterations since filled it.
+    pub(crate) fn em_room_kept(&mut self, lazy: bool) -> (&mut [Reach], &mut [PackedNormal]) {
+        let normals: &mut [PackedNormal] = if lazy { &mut *self.normals } else { &mut [] };
         (&mut *self.reach, normals)
     }
 

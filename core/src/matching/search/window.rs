@@ -72,6 +72,14 @@ pub fn search_in(
     let t = prior.translation.vector;
     let p = [rm[(0, 0)], rm[(0, 1)], t.x, rm[(1, 0)], rm[(1, 1)], t.y];
     let grid = WindowGrid::of(cell, &scene, &p, window);
+    // The nodes the work budget pays for: at least the roots and the prior,
+    // else no search at all.
+    let cost = scratch.work().costs().window_node;
+    let cap = scratch.work().nodes(cost);
+    if u64::from(cap) <= grid.roots() {
+        scratch.work_mut().refuse();
+        return None;
+    }
     let points = scratch.windowed_points();
     let mut region = scratch.region();
     let mut cells = YawCells::carve(&mut region, points).filter(|c| c.capacity() > 0)?;
@@ -84,7 +92,13 @@ pub fn search_in(
     evaluations += 1;
     // The prior itself is a candidate: nothing worse than it is accepted.
     let start = (grid.w >= 0).then_some(Node { yaw: 0, i: 0, j: 0, h: 0, score: prior_score });
-    let best = branch_and_bound(&scorer, &roots, grid.w, start, &mut cells, &mut evaluations)?;
+    let (best, cut) = branch_and_bound(&scorer, &roots, (grid.w, cap), start, &mut cells, &mut evaluations);
+    let work = scratch.work_mut();
+    work.charge_nodes(evaluations, cost);
+    if cut {
+        work.refuse();
+    }
+    let best = best?;
     let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f32::from(best.yaw) * grid.step);
     let shift = Isometry3::from_parts(Translation3::new(f32::from(best.i) * cell, f32::from(best.j) * cell, 0.0), yaw);
     Some(SearchOutcome { transform: shift * prior, score: best.score, prior_score, evaluations })
@@ -124,6 +138,13 @@ impl WindowGrid {
         }
         WindowGrid { step, w, block, blocks, n_yaw }
     }
+
+    /// Nodes the roots and the prior take: scored before the branch and
+    /// bound starts.
+    fn roots(&self) -> u64 {
+        let n = u64::from((2 * self.n_yaw + 1).unsigned_abs()) * u64::from(self.blocks.unsigned_abs()).pow(2);
+        n.min(MAX_ROOTS as u64) + 1
+    }
 }
 
 /// Every heading's blocks of the coarsest level, scored, best first (ties
@@ -161,17 +182,21 @@ fn window_roots(
 }
 
 /// Branch and bound from the roots (best first) down to single cells
-/// within `w` of the prior: the best placement that beats `best`.
+/// within `w` of the prior: the best placement that beats `best`, and
+/// whether it stopped short of scoring more than `cap` nodes in all (the
+/// best found so far: a work budget's, [`SearchScratch::with_work`]).
 #[inline(always)]
 fn branch_and_bound(
     scorer: &Scorer<'_>,
     roots: &[Node],
-    w: i32,
+    (w, cap): (i32, u32),
     mut best: Option<Node>,
     cells: &mut YawCells<'_>,
     evaluations: &mut u32,
-) -> Option<Node> {
+) -> (Option<Node>, bool) {
     let beats = |n: &Node, best: &Option<Node>| best.is_none_or(|b| n.score > b.score);
+    // A node's children are four nodes more.
+    let last = cap.saturating_sub(4);
     for root in roots.iter() {
         if !beats(root, &best) {
             break;
@@ -184,6 +209,9 @@ fn branch_and_bound(
         while let Some(node) = stack.pop() {
             if !beats(&node, &best) {
                 continue;
+            }
+            if node.h > 0 && *evaluations > last {
+                return (best, true);
             }
             if node.h == 0 {
                 if i32::from(node.i).abs() <= w && i32::from(node.j).abs() <= w {
@@ -215,5 +243,5 @@ fn branch_and_bound(
             }
         }
     }
-    best
+    (best, false)
 }

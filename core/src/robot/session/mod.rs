@@ -19,6 +19,7 @@ use crate::link::courier::{Courier, CourierConfig, CourierError, CourierStats, E
 use crate::map::{LocalMap, VoxelStorage};
 use crate::matching::search::SearchScratch;
 use crate::matching::{MatchStatus, Pyramid, PyramidStorage, Reach, Role, SceneSource};
+use crate::matching::{Work, WorkCosts};
 use crate::pipeline::Pipeline;
 use crate::region::RegionError;
 use crate::session::{
@@ -94,6 +95,26 @@ pub const SESSION_PIPELINE: Pipeline = Pipeline {
 };
 /// Nodes a session robot's prior-free search may score.
 pub const SESSION_SEARCH_NODES: u32 = 20_000;
+/// What a session robot's search, EM and verdict steps cost on an
+/// mps2-an386 (instructions): a least-squares fit of the boards' counts
+/// of 780 robot-rounds of whole town sessions, times 1.25, so that they
+/// miss a round's count by at most 1.2e7 (docs/session.md "On the
+/// boards").
+pub const SESSION_WORK_COSTS: WorkCosts = WorkCosts {
+    fine_iteration: 2_500_000,
+    coarse_iteration: 1_600_000,
+    placement: 11_500_000,
+    global_node: 4_800,
+    window_node: 2_100,
+};
+/// What a session robot's estimate may spend a round, at
+/// [`SESSION_WORK_COSTS`] ([`Work`]): with the round's other work
+/// (fusing its scans, the updates, preparing both maps: at most 6.6e7
+/// instructions measured) and the costs' largest miss, about 2.93e8, within
+/// the boards' 3e8 instructions a round. On the town it cuts only
+/// prior-free rounds on maps that share little (361 of 3,360 robot-rounds
+/// of twelve whole sessions), and no `Converged` estimate changes.
+pub const SESSION_WORK: u64 = 215_000_000;
 /// Scene entries whose blocks a session robot's EM remembers between its
 /// iterations ([`SessionParts::reach`]): every entry its matcher samples.
 pub const SESSION_REACH: usize = SESSION_PIPELINE.alignment.settings.max_scene_entries as usize;
@@ -519,6 +540,8 @@ where
         let me = self.fed.me();
         let t0 = meter.instructions();
         let mut t1 = t0;
+        // One work budget for the round's every search, EM and verdict.
+        let mut work = Work::new(SESSION_WORK_COSTS, SESSION_WORK);
         let estimate = if copy.is_empty() || self.map.is_empty() {
             None
         } else {
@@ -534,8 +557,10 @@ where
                     let model = Pyramid::build_tracked(&self.map, Role::Model, &mut self.model).map_err(pyramid)?;
                     let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
                     t1 = meter.instructions();
-                    let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach);
-                    Some(self.tracker.track(&model, &scene, &how, scratch, &view).map_err(matching)?)
+                    let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(work);
+                    let tracked = self.tracker.track(&model, &scene, &how, scratch, &view).map_err(matching)?;
+                    work = *scratch.work();
+                    Some(tracked)
                 }
                 None => None,
             };
@@ -546,23 +571,24 @@ where
                     let model = Pyramid::build_model(&self.map, levels, cell, &mut self.model).map_err(pyramid)?;
                     let scene = copy.prepare_scene(levels, cell, &mut self.scene).map_err(pyramid)?;
                     t1 = meter.instructions();
-                    let scratch = &mut SearchScratch::new(self.search).with_reach(self.reach);
+                    let scratch = &mut SearchScratch::new(self.search).with_reach(self.reach).with_work(work);
                     let e = match tracked {
                         Some(t) => self.tracker.search(&model, &scene, &how, scratch, &view, t),
                         None => self.tracker.estimate(&model, &scene, &how, scratch, &view),
                     };
+                    work = *scratch.work();
                     Some(e.map_err(matching)?)
                 }
             }
         };
         let estimate = match estimate {
-            Some(e) if e.result.status != MatchStatus::Converged => Some(self.adopt_heard(e)?),
+            Some(e) if e.result.status != MatchStatus::Converged => Some(self.adopt_heard(e, &mut work)?),
             other => other,
         };
         let t2 = meter.instructions();
         let passed = estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged);
         self.last_estimate = passed.map(|e| e.result.transform);
-        let report = self.round_report(me, estimate.as_ref(), [t0, t1, t2], meter.peak_stack());
+        let report = self.round_report(me, estimate.as_ref(), [t0, t1, t2], meter.peak_stack(), &work);
         super::send(feed, &RobotMessage::Round(report));
         self.round = self.round.wrapping_add(1);
         self.marks = RoundMarks::default();
@@ -579,7 +605,7 @@ where
     /// same) is not adopted, as on the host. Returns the round's estimate:
     /// the adopted one, or `own`.
     #[inline(never)]
-    fn adopt_heard(&mut self, own: Estimate) -> Result<Estimate, RobotError> {
+    fn adopt_heard(&mut self, own: Estimate, work: &mut Work) -> Result<Estimate, RobotError> {
         let at = self.map.keep_centre();
         let fresh = |theirs: &Isometry3<f32>| self.heard_before.is_none_or(|b| !made_before(&b, theirs, at));
         let Some(theirs) = self.heard.filter(|t| self.marks.applied.is_some() && fresh(t)) else {
@@ -594,13 +620,14 @@ where
         let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
         let peer_at = self.heard_at.or(replica.peer_place());
         let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at };
-        let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach);
+        let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(*work);
         let how = SESSION_PIPELINE.alignment;
         let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs);
+        *work = *scratch.work();
         Ok(adopted.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?.unwrap_or(own))
     }
 
-    fn round_report(&self, me: u8, e: Option<&Estimate>, t: [u64; 3], peak_stack: u32) -> RoundReport {
+    fn round_report(&self, me: u8, e: Option<&Estimate>, t: [u64; 3], peak_stack: u32, work: &Work) -> RoundReport {
         let identity = crate::geometry::rows(&Isometry3::identity());
         let result = match e {
             Some(e) => MatchReport { status: e.status().code(), ..e.result.report(me) },
@@ -633,6 +660,8 @@ where
             update_instructions: m.update_instructions,
             prepare_instructions: t[1].saturating_sub(t[0]),
             match_instructions: t[2].saturating_sub(t[1]),
+            match_work: work.spent(),
+            work_cut: work.refused(),
             peak_stack,
         }
     }
