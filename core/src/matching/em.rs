@@ -310,7 +310,7 @@ impl Matcher {
         }
         // On a work budget: a placement that cannot be judged is not refined.
         let placement = scratch.work().costs().placement;
-        if !scratch.work_mut().take(placement) {
+        if !scratch.take_work(placement) {
             return Ok(MatchResult::not_judged(*init));
         }
         let (start, top) = self.start(model, scene, init, near, levels, scratch);
@@ -420,7 +420,7 @@ impl Matcher {
             let cost = scratch.work().costs().iteration(l);
             for _ in 0..budget {
                 // On a work budget, EM stops where it is: not converged.
-                if !scratch.work_mut().take(cost) {
+                if !scratch.take_work(cost) {
                     return Refined { transform: t, used, per_level, converged: false, last: None };
                 }
                 let room = scratch.em_room_kept(model.is_lazy());

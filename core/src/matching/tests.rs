@@ -723,8 +723,8 @@ fn a_work_budget_bounds_a_match_and_never_passes_a_cut_answer() {
     let search = crate::matching::search::GlobalSearch::default();
     let run = |limit: Option<u64>| {
         let mut words = vec![0u32; SearchScratch::WINDOWED];
-        let work = limit.map_or(Work::UNBOUNDED, |l| Work::new(costs, l));
-        let mut scratch = SearchScratch::new(&mut words).with_work(work);
+        let mut work = limit.map_or(Work::UNBOUNDED, |l| Work::new(costs, l));
+        let mut scratch = SearchScratch::new(&mut words).with_work(&mut work);
         let windowed = Matcher::default().align_in(&pm, &ps, &start, &mut scratch).unwrap();
         let after_windowed = *scratch.work();
         let global =

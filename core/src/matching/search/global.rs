@@ -379,7 +379,7 @@ pub fn search_global_in(
     let beyond = per_heading + 4;
     let mut budget = settings.max_evaluations;
     if cost > 0 && cap < n_yaw as u64 * per_heading + beyond {
-        scratch.work_mut().refuse();
+        scratch.refuse_work();
         return None;
     }
     let lowered = cost > 0 && cap - beyond < u64::from(budget);
@@ -388,10 +388,9 @@ pub fn search_global_in(
     }
     let outcome = search_headings(&scorer, settings, (n_yaw, step, cell, &bounds, budget), &centre, scratch);
     if let Some(o) = &outcome {
-        let work = scratch.work_mut();
-        work.charge_nodes(o.evaluations, cost);
+        scratch.charge_nodes(o.evaluations, cost);
         if lowered && o.exhausted {
-            work.refuse();
+            scratch.refuse_work();
         }
     }
     outcome

@@ -92,8 +92,9 @@ pub struct SearchScratch<'s> {
     /// The normals EM fitted of a model that leaves them to it
     /// ([`SearchScratch::with_normals`]).
     normals: &'s mut [PackedNormal],
-    /// What the searches and EM may still spend ([`SearchScratch::with_work`]).
-    work: Work,
+    /// What the searches and EM may still spend ([`SearchScratch::with_work`]):
+    /// the caller's meter (a reference: a robot's stack holds scratches).
+    work: Option<&'s mut Work>,
 }
 
 impl<'s> SearchScratch<'s> {
@@ -111,7 +112,7 @@ impl<'s> SearchScratch<'s> {
 
     /// Scratch in `words` (any contents).
     pub fn new(words: &'s mut [u32]) -> Self {
-        SearchScratch { words, reach: &mut [], normals: &mut [], work: Work::UNBOUNDED }
+        SearchScratch { words, reach: &mut [], normals: &mut [], work: None }
     }
 
     /// The same, with room for EM to remember, between its iterations, the
@@ -139,17 +140,36 @@ impl<'s> SearchScratch<'s> {
     /// placement judged with this scratch is charged to `work`, and a step
     /// it cannot pay for is not taken ([`Work`]). Without one, nothing is
     /// refused.
-    pub fn with_work(self, work: Work) -> Self {
-        SearchScratch { work, ..self }
+    pub fn with_work(self, work: &'s mut Work) -> Self {
+        SearchScratch { work: Some(work), ..self }
     }
 
-    /// The work meter, as spent so far.
+    /// The work meter, as spent so far ([`Work::UNBOUNDED`] without one).
     pub fn work(&self) -> &Work {
-        &self.work
+        match &self.work {
+            Some(w) => w,
+            None => &Work::UNBOUNDED,
+        }
     }
 
-    pub(crate) fn work_mut(&mut self) -> &mut Work {
-        &mut self.work
+    /// Takes a step of `cost` from the meter, if it allows it (always
+    /// without one).
+    pub(crate) fn take_work(&mut self, cost: u32) -> bool {
+        self.work.as_deref_mut().is_none_or(|w| w.take(cost))
+    }
+
+    /// Charges a search's `nodes`, `cost` each, to the meter.
+    pub(crate) fn charge_nodes(&mut self, nodes: u32, cost: u32) {
+        if let Some(w) = self.work.as_deref_mut() {
+            w.charge_nodes(nodes, cost);
+        }
+    }
+
+    /// Marks the meter's round cut short.
+    pub(crate) fn refuse_work(&mut self) {
+        if let Some(w) = self.work.as_deref_mut() {
+            w.refuse();
+        }
     }
 
     /// EM's room to remember blocks, emptied (a new level or new maps),

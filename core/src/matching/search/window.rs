@@ -77,7 +77,7 @@ pub fn search_in(
     let cost = scratch.work().costs().window_node;
     let cap = scratch.work().nodes(cost);
     if u64::from(cap) <= grid.roots() {
-        scratch.work_mut().refuse();
+        scratch.refuse_work();
         return None;
     }
     let points = scratch.windowed_points();
@@ -93,10 +93,9 @@ pub fn search_in(
     // The prior itself is a candidate: nothing worse than it is accepted.
     let start = (grid.w >= 0).then_some(Node { yaw: 0, i: 0, j: 0, h: 0, score: prior_score });
     let (best, cut) = branch_and_bound(&scorer, &roots, (grid.w, cap), start, &mut cells, &mut evaluations);
-    let work = scratch.work_mut();
-    work.charge_nodes(evaluations, cost);
+    scratch.charge_nodes(evaluations, cost);
     if cut {
-        work.refuse();
+        scratch.refuse_work();
     }
     let best = best?;
     let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f32::from(best.yaw) * grid.step);

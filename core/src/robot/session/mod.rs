@@ -557,10 +557,8 @@ where
                     let model = Pyramid::build_tracked(&self.map, Role::Model, &mut self.model).map_err(pyramid)?;
                     let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
                     t1 = meter.instructions();
-                    let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(work);
-                    let tracked = self.tracker.track(&model, &scene, &how, scratch, &view).map_err(matching)?;
-                    work = *scratch.work();
-                    Some(tracked)
+                    let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(&mut work);
+                    Some(self.tracker.track(&model, &scene, &how, scratch, &view).map_err(matching)?)
                 }
                 None => None,
             };
@@ -571,12 +569,11 @@ where
                     let model = Pyramid::build_model(&self.map, levels, cell, &mut self.model).map_err(pyramid)?;
                     let scene = copy.prepare_scene(levels, cell, &mut self.scene).map_err(pyramid)?;
                     t1 = meter.instructions();
-                    let scratch = &mut SearchScratch::new(self.search).with_reach(self.reach).with_work(work);
+                    let scratch = &mut SearchScratch::new(self.search).with_reach(self.reach).with_work(&mut work);
                     let e = match tracked {
                         Some(t) => self.tracker.search(&model, &scene, &how, scratch, &view, t),
                         None => self.tracker.estimate(&model, &scene, &how, scratch, &view),
                     };
-                    work = *scratch.work();
                     Some(e.map_err(matching)?)
                 }
             }
@@ -620,10 +617,9 @@ where
         let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
         let peer_at = self.heard_at.or(replica.peer_place());
         let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at };
-        let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(*work);
+        let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(work);
         let how = SESSION_PIPELINE.alignment;
         let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs);
-        *work = *scratch.work();
         Ok(adopted.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?.unwrap_or(own))
     }
 
