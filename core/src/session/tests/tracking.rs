@@ -507,3 +507,57 @@ fn a_fix_the_history_contradicts_is_contested_until_it_outweighs_it() {
     tracker.reset();
     assert_eq!(tracker.history().trusted(), None);
 }
+
+/// A fix found again in the window of the last fix the peer confirmed is
+/// confirmed at once (the peer vouched for that transform); not when the
+/// last fix was never confirmed, nor when the peer's estimate disagrees.
+#[test]
+fn a_fix_found_again_where_the_peer_confirmed_the_last_is_confirmed_at_once() {
+    use crate::geometry::{from_xyz_rpy, Isometry3};
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let (here, again) = one_street_seen_twice();
+    let (mut elsewhere, mut rng) = (robot_map(), Lcg(41));
+    for round in 0..4 {
+        drive(&mut elsewhere, round + 40, &mut rng);
+    }
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, same, other) = (prepare(&here), prepare(&again), prepare(&elsewhere));
+    let how = Alignment::DEFAULT;
+    let at = [9.0, 0.0, 0.0];
+    let estimate = |t: &mut Tracker, peer, theirs: Option<Isometry3<f32>>| {
+        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None };
+        let mut words = vec![0u32; SearchScratch::WINDOWED];
+        t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
+    // A fix, confirmed or not, then the robots part until it is withdrawn.
+    let met_and_parted = |confirm: bool| {
+        let mut tracker = Tracker::new();
+        let first = estimate(&mut tracker, &same, None);
+        assert_eq!((first.result.status, first.fix), (MatchStatus::Converged, Fix::Held));
+        let theirs = confirm.then(|| first.result.transform.inverse());
+        let held = estimate(&mut tracker, &same, theirs);
+        assert_eq!((held.fix, held.confirmed), (Fix::Held, confirm), "{held:?}");
+        while tracker.fix().is_some() {
+            estimate(&mut tracker, &other, None);
+        }
+        assert_eq!(estimate(&mut tracker, &other, None).fix, Fix::None);
+        (tracker, first.result.transform)
+    };
+    // Met again, nothing heard of the peer: Converged at once.
+    let (mut tracker, fix) = met_and_parted(true);
+    let found = estimate(&mut tracker, &same, None);
+    assert_eq!((found.kind, found.fix, found.confirmed), (Kind::Tracking, Fix::Held, true), "{found:?}");
+    assert_eq!(found.status(), MatchStatus::Converged);
+    assert!(agree(&found.result.transform, &fix.inverse(), at, None));
+    // The peer's estimate 3 m and 5 degrees off: it waits for the peer.
+    let (mut tracker, fix) = met_and_parted(true);
+    let off = from_xyz_rpy(3.0, 0.0, 0.0, 0.0, 0.0, 0.09) * fix.inverse();
+    let refused = estimate(&mut tracker, &same, Some(off));
+    assert_eq!((refused.kind, refused.fix, refused.confirmed), (Kind::Tracking, Fix::Held, false));
+    // A last fix the peer never confirmed vouches for nothing.
+    let (mut tracker, _) = met_and_parted(false);
+    let unvouched = estimate(&mut tracker, &same, None);
+    assert_eq!((unvouched.kind, unvouched.fix, unvouched.confirmed), (Kind::Tracking, Fix::Held, false));
+    assert_eq!(unvouched.status(), MatchStatus::NotConverged);
+}

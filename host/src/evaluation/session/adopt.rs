@@ -25,8 +25,9 @@ pub(super) struct Adopting<'a> {
 impl Adopting<'_> {
     /// Every estimate of the round (`records`) that did not pass its
     /// robot's verdict, with no fix held, while the peer's estimate of the
-    /// robot passed the peer's, is unconfirmed and was made this round
-    /// (not the fix its estimate of the last round was): the peer's fix tried
+    /// robot passed the peer's and was made this round (not the fix its
+    /// estimate of the last round was; unconfirmed, or confirmed by the
+    /// peer's history, `Tracker::search`'s recall): the peer's fix tried
     /// ([`Tracker::adopt`]); where it is adopted, the record takes the new
     /// estimate, its errors and the seconds it took.
     pub fn round(
@@ -39,7 +40,7 @@ impl Adopting<'_> {
         let waiting: Vec<(usize, usize, Isometry3<f32>)> = records
             .iter()
             .filter_map(|r| {
-                let e = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged && !e.confirmed)?;
+                let e = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged)?;
                 Some((r.robot, r.peer, e.result.transform))
             })
             .collect();
