@@ -416,14 +416,14 @@ impl Matcher {
                 break;
             }
             // Each level samples its own entries: what was reached is forgotten.
-            scratch.em_room(model.is_lazy());
+            scratch.clear_em_room(model.is_lazy());
             let cost = scratch.work().costs().iteration(l);
             for _ in 0..budget {
                 // On a work budget, EM stops where it is: not converged.
                 if !scratch.take_work(cost) {
                     return Refined { transform: t, used, per_level, converged: false, last: None };
                 }
-                let room = scratch.em_room_kept(model.is_lazy());
+                let room = scratch.em_room(model.is_lazy());
                 let pass = Pass { sigma, radius: cell, method: s.method, cost: s.cost, sampling, information: l == 0 };
                 let n = accumulate(&m, &c, &t, &pass, (&mut *room.0, &mut *room.1));
                 used += 1;

@@ -408,6 +408,8 @@ impl Tracker {
         if let Some(done) = tracked.done {
             return Ok(done);
         }
+        // A recalled fix the peer vouched for at the last meeting.
+        let mut vouched = false;
         let (kind, result) = match (self.fix, tracked.answer) {
             (Some(fix), Some(tracked)) => {
                 // The fix no longer explains the maps from where it is: its
@@ -426,12 +428,8 @@ impl Tracker {
                 self.withdraw();
                 match self.recall(own, peer, how, scratch, view)? {
                     Some(recalled) => {
-                        let vouched = self.last_confirmed;
-                        let mut e = self.settle(Kind::Tracking, recalled, view);
-                        if vouched {
-                            self.vouch(&mut e, view);
-                        }
-                        return Ok(e);
+                        vouched = self.last_confirmed;
+                        (Kind::Tracking, recalled)
                     }
                     None => {
                         let found = align_prepared(own, peer, None, how, scratch, || {})?.0;
@@ -440,7 +438,11 @@ impl Tracker {
                 }
             }
         };
-        Ok(self.settle(kind, result, view))
+        let mut estimate = self.settle(kind, result, view);
+        if vouched {
+            self.vouch(&mut estimate, view);
+        }
+        Ok(estimate)
     }
 
     /// The last fix's window searched ([`Tracker::search`]): the answer,
@@ -475,13 +477,19 @@ impl Tracker {
         let r = &estimate.result;
         let passed = r.status == MatchStatus::Converged && self.fix.is_some();
         let refused = view.estimate.is_some_and(|theirs| !agree(&r.transform, &theirs, view.at, view.peer_at));
-        if !passed || estimate.confirmed || refused {
-            return;
+        if passed && !estimate.confirmed && !refused {
+            self.confirm_now(estimate, view.at, view.peer_at);
         }
+    }
+
+    /// Confirms `estimate`'s fix now, after its round was settled: the
+    /// history counts it as confirmed ([`Tracker::confirm`], `vouch`).
+    fn confirm_now(&mut self, estimate: &mut Estimate, at: [f32; 3], peer_at: Option<[f32; 3]>) {
         self.confirmed = true;
         estimate.confirmed = true;
+        let r = &estimate.result;
         let (fix, overlap, agreement) = (r.transform, r.overlap, r.agreement);
-        estimate.contested = self.history.confirmed(&fix, overlap, agreement, view.at, view.peer_at);
+        estimate.contested = self.history.confirmed(&fix, overlap, agreement, at, peer_at);
     }
 
     /// The fix after `result` (made from the fix for [`Kind::Tracking`]),
@@ -612,11 +620,7 @@ impl Tracker {
         let current =
             estimate.result.status == MatchStatus::Converged && self.reported() == Some(&estimate.result.transform);
         if current && !estimate.confirmed && agree(&estimate.result.transform, theirs, at, peer_at) {
-            self.confirmed = true;
-            estimate.confirmed = true;
-            let r = &estimate.result;
-            let (fix, overlap, agreement) = (r.transform, r.overlap, r.agreement);
-            estimate.contested = self.history.confirmed(&fix, overlap, agreement, at, peer_at);
+            self.confirm_now(estimate, at, peer_at);
         }
     }
 }

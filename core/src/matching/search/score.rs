@@ -172,20 +172,19 @@ impl<'s> SearchScratch<'s> {
         }
     }
 
-    /// EM's room to remember blocks, emptied (a new level or new maps),
-    /// and to keep the normals it fits, emptied for a model that leaves
-    /// them to it (`lazy`).
-    pub(crate) fn em_room(&mut self, lazy: bool) -> (&mut [Reach], &mut [PackedNormal]) {
+    /// Empties EM's room to remember blocks (a new level or new maps), and
+    /// to keep the normals it fits for a model that leaves them to it
+    /// (`lazy`).
+    pub(crate) fn clear_em_room(&mut self, lazy: bool) {
         self.reach.fill(Reach::EMPTY);
         if lazy {
             self.normals.fill(PackedNormal::UNFIT);
         }
-        self.em_room_kept(lazy)
     }
 
-    /// EM's room as [`SearchScratch::em_room`] left it, and as EM's
-    /// iterations since filled it.
-    pub(crate) fn em_room_kept(&mut self, lazy: bool) -> (&mut [Reach], &mut [PackedNormal]) {
+    /// EM's room, as its iterations since [`SearchScratch::clear_em_room`]
+    /// filled it.
+    pub(crate) fn em_room(&mut self, lazy: bool) -> (&mut [Reach], &mut [PackedNormal]) {
         let normals: &mut [PackedNormal] = if lazy { &mut *self.normals } else { &mut [] };
         (&mut *self.reach, normals)
     }
