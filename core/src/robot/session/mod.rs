@@ -212,10 +212,13 @@ where
     round: u16,
     marks: RoundMarks,
     stats_at_start: CourierStats,
-    /// This robot's last estimate of its peer that passed the verdict.
-    last_estimate: Option<Isometry3<f32>>,
+    /// This robot's last estimate of its peer that passed the verdict, and
+    /// whether it was confirmed.
+    last_estimate: Option<(Isometry3<f32>, bool)>,
     /// The peer's, as its last message said.
     heard: Option<Isometry3<f32>>,
+    /// Whether the peer held that estimate confirmed.
+    heard_confirmed: bool,
     /// The peer's, as the message before it said: a fix it made in its
     /// last round is one this does not agree with.
     heard_before: Option<Isometry3<f32>>,
@@ -275,6 +278,7 @@ where
             stats_at_start: CourierStats::default(),
             last_estimate: None,
             heard: None,
+            heard_confirmed: false,
             heard_before: None,
             heard_at: None,
             copy_at: None,
@@ -463,7 +467,7 @@ where
         // The message: this robot's last estimate of its peer, then the update.
         let (head, rest) =
             self.out.split_at_mut_checked(ESTIMATE_BYTES).ok_or(RobotError::Update(PublisherError::Scratch))?;
-        write_head(self.last_estimate.as_ref(), self.map.keep_centre(), head);
+        write_head(self.last_estimate.as_ref().map(|(t, c)| (t, *c)), self.map.keep_centre(), head);
         let len = publisher.next_update(&self.map, self.scratch, rest).map_err(RobotError::Update)?;
         self.marks.counts = publisher.counts();
         self.marks.update_bytes = len as u32;
@@ -498,7 +502,9 @@ where
                 let message = self.input.get(..n).unwrap_or(&[]);
                 let (head, update) = message.split_at_checked(ESTIMATE_BYTES).unwrap_or((&[], message));
                 self.heard_before = self.heard;
-                (self.heard, self.heard_at) = read_head(head);
+                let (heard, at) = read_head(head);
+                (self.heard, self.heard_confirmed, self.heard_at) =
+                    (heard.map(|h| h.0), heard.is_some_and(|h| h.1), at);
                 let applied = replica.apply(update, self.scratch);
                 self.copy_at = Some(self.map.keep_centre());
                 if matches!(applied, Applied::Diverged | Applied::Restarted) {
@@ -584,7 +590,7 @@ where
         };
         let t2 = meter.instructions();
         let passed = estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged);
-        self.last_estimate = passed.map(|e| e.result.transform);
+        self.last_estimate = passed.map(|e| (e.result.transform, e.confirmed));
         let report = self.round_report(me, estimate.as_ref(), [t0, t1, t2], meter.peak_stack(), &work);
         super::send(feed, &RobotMessage::Round(report));
         self.round = self.round.wrapping_add(1);
@@ -619,7 +625,7 @@ where
         let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at };
         let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(work);
         let how = SESSION_PIPELINE.alignment;
-        let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs);
+        let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs, self.heard_confirmed);
         Ok(adopted.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?.unwrap_or(own))
     }
 
@@ -664,20 +670,21 @@ where
 }
 
 /// Bytes of the head ahead of a round's update: a flag (1: an estimate
-/// follows), then `T_sender_receiver`'s top three rows, row by row, then
+/// follows; 2: one the sender holds confirmed, which its peer may adopt
+/// with less agreement, [`Tracker::adopt`]), then `T_sender_receiver`'s top three rows, row by row, then
 /// where the sender is (its frame: the agreement of two estimates is
 /// judged at both robots' places, [`crate::session::agree`]), all
 /// little-endian `f32`.
 pub const ESTIMATE_BYTES: usize = 1 + 48 + 12;
 
-/// Writes `estimate` (or none) and the robot's place `at` as a message's
-/// head.
-fn write_head(estimate: Option<&Isometry3<f32>>, at: [f32; 3], out: &mut [u8]) {
+/// Writes `estimate` (or none; with whether it is confirmed) and the
+/// robot's place `at` as a message's head.
+fn write_head(estimate: Option<(&Isometry3<f32>, bool)>, at: [f32; 3], out: &mut [u8]) {
     out.fill(0);
     let Some((flag, rest)) = out.split_first_mut() else { return };
     let (rows, place) = rest.split_at_mut(rest.len().min(48));
-    if let Some(t) = estimate {
-        *flag = 1;
+    if let Some((t, confirmed)) = estimate {
+        *flag = if confirmed { 2 } else { 1 };
         for (o, v) in rows.chunks_exact_mut(4).zip(crate::geometry::rows(t)) {
             o.copy_from_slice(&v.to_le_bytes());
         }
@@ -687,9 +694,13 @@ fn write_head(estimate: Option<&Isometry3<f32>>, at: [f32; 3], out: &mut [u8]) {
     }
 }
 
+/// An estimate a message's head carries, and whether its sender holds it
+/// confirmed.
+type HeardEstimate = (Isometry3<f32>, bool);
+
 /// The estimate a message's head carries (`None` when it says none) and
 /// the sender's place; each `None` where a number in it is not finite.
-fn read_head(head: &[u8]) -> (Option<Isometry3<f32>>, Option<[f32; 3]>) {
+fn read_head(head: &[u8]) -> (Option<HeardEstimate>, Option<[f32; 3]>) {
     fn floats<const N: usize>(b: &[u8]) -> Option<[f32; N]> {
         if b.len() != 4 * N {
             return None;
@@ -704,7 +715,8 @@ fn read_head(head: &[u8]) -> (Option<Isometry3<f32>>, Option<[f32; 3]>) {
         return (None, None);
     };
     let (rows, place) = rest.split_at_checked(48).unwrap_or((&[], &[]));
-    let estimate = floats::<12>(rows).filter(|_| flag == 1).map(|r| crate::geometry::from_rows(&r));
+    let estimate =
+        floats::<12>(rows).filter(|_| flag == 1 || flag == 2).map(|r| (crate::geometry::from_rows(&r), flag == 2));
     (estimate, floats::<3>(place))
 }
 

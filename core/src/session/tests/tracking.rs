@@ -386,12 +386,14 @@ fn a_fix_the_peer_keeps_refusing_is_dropped() {
 /// by [`ADOPT_MARGIN`], agrees with the peer's, and is the robot's fix,
 /// confirmed. An answer that passes the plain verdict but not the margin,
 /// a peer's fix on maps that do not hold it, and a robot that holds a fix
-/// of its own adopt nothing and leave the track as it was.
+/// of its own adopt nothing and leave the track as it was. A fix the peer
+/// holds confirmed is adopted with the least agreement lowered by
+/// [`ADOPT_CONFIRMED_SLACK`] instead.
 #[test]
 fn a_peers_fix_is_adopted_only_with_the_margin() {
     use crate::matching::search::SearchScratch;
     use crate::matching::{Alignment, MatchSettings, MatchStatus, Pyramid, Role};
-    use crate::session::ADOPT_MARGIN;
+    use crate::session::{ADOPT_CONFIRMED_SLACK, ADOPT_MARGIN};
     let (here, again) = one_street_seen_twice();
     let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
     let (own, peer) = (prepare(&here), prepare(&again));
@@ -407,32 +409,52 @@ fn a_peers_fix_is_adopted_only_with_the_margin() {
     // How much the adopted answer agrees, with a verdict that takes it.
     let lenient = Alignment { settings: MatchSettings { min_agreement: 0.0, ..how.settings }, ..how };
     let mut probe = Tracker::new();
-    let probed = probe.adopt((&own, &peer), &lenient, &mut SearchScratch::new(&mut words), &view, &theirs).unwrap();
+    let probed =
+        probe.adopt((&own, &peer), &lenient, &mut SearchScratch::new(&mut words), &view, &theirs, false).unwrap();
     let agreement = probed.expect("adopted with no least agreement").result.agreement;
     assert!(agreement > ADOPT_MARGIN, "{agreement}");
     let with_least = |least: f32| Alignment { settings: MatchSettings { min_agreement: least, ..how.settings }, ..how };
     // The plain verdict would take it, the margin does not: nothing adopted.
     let mut tracker = Tracker::new();
     let short = with_least(agreement - 0.5 * ADOPT_MARGIN);
-    let refused = tracker.adopt((&own, &peer), &short, &mut SearchScratch::new(&mut words), &view, &theirs).unwrap();
+    let refused =
+        tracker.adopt((&own, &peer), &short, &mut SearchScratch::new(&mut words), &view, &theirs, false).unwrap();
     assert_eq!(refused, None);
     assert_eq!(tracker, Tracker::new());
     // With the margin met: the robot's fix, confirmed, agreeing with the peer's.
     let enough = with_least(agreement - 1.5 * ADOPT_MARGIN);
-    let adopted = tracker.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &theirs).unwrap();
+    let adopted =
+        tracker.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &theirs, false).unwrap();
     let adopted = adopted.expect("adopted");
     assert_eq!((adopted.kind, adopted.fix, adopted.status()), (Kind::Tracking, Fix::Held, MatchStatus::Converged));
     assert!(adopted.confirmed && agree(&adopted.result.transform, &theirs, at, None));
     assert_eq!(tracker.fix(), Some(&adopted.result.transform));
     // A robot that holds a fix adopts nothing.
-    let again = tracker.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &theirs).unwrap();
+    let again =
+        tracker.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &theirs, false).unwrap();
     assert_eq!(again, None);
     // A peer's fix 40 m along the street: not where the maps meet.
     let far = crate::geometry::from_xyz_rpy(40.0, 0.0, 0.0, 0.0, 0.0, 0.0) * theirs;
     let mut fresh = Tracker::new();
-    let wrong = fresh.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &far).unwrap();
+    let wrong = fresh.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &far, false).unwrap();
     assert_eq!(wrong, None);
     assert_eq!(fresh, Tracker::new());
+    // A fix the peer holds confirmed: adopted where the plain verdict
+    // would refuse it by less than the slack, not by more.
+    let above = with_least(agreement + 0.5 * ADOPT_CONFIRMED_SLACK);
+    let mut sure = Tracker::new();
+    let not = sure.adopt((&own, &peer), &above, &mut SearchScratch::new(&mut words), &view, &theirs, false).unwrap();
+    assert_eq!(not, None);
+    let taken = sure.adopt((&own, &peer), &above, &mut SearchScratch::new(&mut words), &view, &theirs, true).unwrap();
+    assert!(taken.is_some_and(|e| e.confirmed && e.status() == MatchStatus::Converged));
+    let beyond = with_least(agreement + 1.5 * ADOPT_CONFIRMED_SLACK);
+    let mut short_of_it = Tracker::new();
+    let words = &mut words;
+    let refused = short_of_it.adopt((&own, &peer), &beyond, &mut SearchScratch::new(words), &view, &theirs, true);
+    assert_eq!(refused.unwrap(), None);
+    // Nor is a confirmed fix where the maps do not meet.
+    let wrong = fresh.adopt((&own, &peer), &above, &mut SearchScratch::new(words), &view, &far, true).unwrap();
+    assert_eq!(wrong, None);
 }
 
 /// A fix the robot's history of the peer contradicts (the peer's frame
