@@ -213,12 +213,12 @@ where
     marks: RoundMarks,
     stats_at_start: CourierStats,
     /// This robot's last estimate of its peer that passed the verdict, and
-    /// whether it was confirmed.
+    /// whether it was reported `Converged` (confirmed, not contested).
     last_estimate: Option<(Isometry3<f32>, bool)>,
     /// The peer's, as its last message said.
     heard: Option<Isometry3<f32>>,
-    /// Whether the peer held that estimate confirmed.
-    heard_confirmed: bool,
+    /// Whether the peer reported that estimate `Converged`.
+    heard_converged: bool,
     /// The peer's, as the message before it said: a fix it made in its
     /// last round is one this does not agree with.
     heard_before: Option<Isometry3<f32>>,
@@ -278,7 +278,7 @@ where
             stats_at_start: CourierStats::default(),
             last_estimate: None,
             heard: None,
-            heard_confirmed: false,
+            heard_converged: false,
             heard_before: None,
             heard_at: None,
             copy_at: None,
@@ -503,7 +503,7 @@ where
                 let (head, update) = message.split_at_checked(ESTIMATE_BYTES).unwrap_or((&[], message));
                 self.heard_before = self.heard;
                 let (heard, at) = read_head(head);
-                (self.heard, self.heard_confirmed, self.heard_at) =
+                (self.heard, self.heard_converged, self.heard_at) =
                     (heard.map(|h| h.0), heard.is_some_and(|h| h.1), at);
                 let applied = replica.apply(update, self.scratch);
                 self.copy_at = Some(self.map.keep_centre());
@@ -590,7 +590,7 @@ where
         };
         let t2 = meter.instructions();
         let passed = estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged);
-        self.last_estimate = passed.map(|e| (e.result.transform, e.confirmed));
+        self.last_estimate = passed.map(|e| (e.result.transform, e.status() == MatchStatus::Converged));
         let report = self.round_report(me, estimate.as_ref(), [t0, t1, t2], meter.peak_stack(), &work);
         super::send(feed, &RobotMessage::Round(report));
         self.round = self.round.wrapping_add(1);
@@ -625,7 +625,7 @@ where
         let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at };
         let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(work);
         let how = SESSION_PIPELINE.alignment;
-        let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs, self.heard_confirmed);
+        let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs, self.heard_converged);
         Ok(adopted.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?.unwrap_or(own))
     }
 
@@ -670,21 +670,22 @@ where
 }
 
 /// Bytes of the head ahead of a round's update: a flag (1: an estimate
-/// follows; 2: one the sender holds confirmed, which its peer may adopt
-/// with less agreement, [`Tracker::adopt`]), then `T_sender_receiver`'s top three rows, row by row, then
+/// follows; 2: one the sender reports `Converged`, confirmed and not
+/// contested, which its peer may adopt with less agreement,
+/// [`Tracker::adopt`]), then `T_sender_receiver`'s top three rows, row by row, then
 /// where the sender is (its frame: the agreement of two estimates is
 /// judged at both robots' places, [`crate::session::agree`]), all
 /// little-endian `f32`.
 pub const ESTIMATE_BYTES: usize = 1 + 48 + 12;
 
-/// Writes `estimate` (or none; with whether it is confirmed) and the
-/// robot's place `at` as a message's head.
+/// Writes `estimate` (or none; with whether it is reported `Converged`)
+/// and the robot's place `at` as a message's head.
 fn write_head(estimate: Option<(&Isometry3<f32>, bool)>, at: [f32; 3], out: &mut [u8]) {
     out.fill(0);
     let Some((flag, rest)) = out.split_first_mut() else { return };
     let (rows, place) = rest.split_at_mut(rest.len().min(48));
-    if let Some((t, confirmed)) = estimate {
-        *flag = if confirmed { 2 } else { 1 };
+    if let Some((t, converged)) = estimate {
+        *flag = if converged { 2 } else { 1 };
         for (o, v) in rows.chunks_exact_mut(4).zip(crate::geometry::rows(t)) {
             o.copy_from_slice(&v.to_le_bytes());
         }
@@ -694,8 +695,8 @@ fn write_head(estimate: Option<(&Isometry3<f32>, bool)>, at: [f32; 3], out: &mut
     }
 }
 
-/// An estimate a message's head carries, and whether its sender holds it
-/// confirmed.
+/// An estimate a message's head carries, and whether its sender reports
+/// it `Converged`.
 type HeardEstimate = (Isometry3<f32>, bool);
 
 /// The estimate a message's head carries (`None` when it says none) and

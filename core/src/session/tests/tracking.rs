@@ -387,7 +387,7 @@ fn a_fix_the_peer_keeps_refusing_is_dropped() {
 /// confirmed. An answer that passes the plain verdict but not the margin,
 /// a peer's fix on maps that do not hold it, and a robot that holds a fix
 /// of its own adopt nothing and leave the track as it was. A fix the peer
-/// holds confirmed is adopted with the least agreement lowered by
+/// reports `Converged` is adopted with the least agreement lowered by
 /// [`ADOPT_CONFIRMED_SLACK`] instead.
 #[test]
 fn a_peers_fix_is_adopted_only_with_the_margin() {
@@ -439,7 +439,7 @@ fn a_peers_fix_is_adopted_only_with_the_margin() {
     let wrong = fresh.adopt((&own, &peer), &enough, &mut SearchScratch::new(&mut words), &view, &far, false).unwrap();
     assert_eq!(wrong, None);
     assert_eq!(fresh, Tracker::new());
-    // A fix the peer holds confirmed: adopted where the plain verdict
+    // A fix the peer reports `Converged`: adopted where the plain verdict
     // would refuse it by less than the slack, not by more.
     let above = with_least(agreement + 0.5 * ADOPT_CONFIRMED_SLACK);
     let mut sure = Tracker::new();

@@ -28,7 +28,7 @@ impl Adopting<'_> {
     /// robot passed the peer's and was made this round (not the fix its
     /// estimate of the last round was; unconfirmed, or confirmed by the
     /// peer's history, `Tracker::search`'s recall): the peer's fix tried
-    /// ([`Tracker::adopt`], told whether the peer holds it confirmed); where it is adopted, the record takes the new
+    /// ([`Tracker::adopt`], told whether the peer reports it `Converged`); where it is adopted, the record takes the new
     /// estimate, its errors and the seconds it took.
     pub fn round(
         &mut self,
@@ -41,15 +41,14 @@ impl Adopting<'_> {
             .iter()
             .filter_map(|r| {
                 let e = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged)?;
-                Some((r.robot, r.peer, e.result.transform, e.confirmed))
+                Some((r.robot, r.peer, e.result.transform, e.status() == MatchStatus::Converged))
             })
             .collect();
         for r in records.iter_mut() {
             let (i, j) = (r.robot, r.peer);
             let failed = r.estimate.as_ref().is_some_and(|e| e.result.status != MatchStatus::Converged);
             let tracker = &mut self.trackers[i][j];
-            let Some(&(.., theirs, confirmed)) = waiting.iter().find(|w| (w.0, w.1) == (j, i)).filter(|_| failed)
-            else {
+            let Some(&(.., theirs, reported)) = waiting.iter().find(|w| (w.0, w.1) == (j, i)).filter(|_| failed) else {
                 continue;
             };
             // Only a fix the peer made this round: one it held the round
@@ -70,7 +69,7 @@ impl Adopting<'_> {
             };
             let pyramids = (own.tracked()?.0, peer.tracked()?.0);
             let adopted = tracker
-                .adopt(pyramids, &spec.alignment, &mut self.room.tracking(), &view, &theirs, confirmed)
+                .adopt(pyramids, &spec.alignment, &mut self.room.tracking(), &view, &theirs, reported)
                 .map_err(|e| Error::Invalid(format!("matching: {e}")))?;
             r.seconds += t0.elapsed().as_secs_f64();
             if let Some(e) = adopted {

@@ -177,7 +177,7 @@ impl RosNode {
         let view = PeerView { estimate: None, at: self.own.place, peer_at: peer.follower.peer_place(), copy_at: None };
         let pyramids = (own.tracked()?.0, them.tracked()?.0);
         // A fix heard on the fixes topic (a tf edge) does not say whether
-        // the peer holds it confirmed: adopted with the margin.
+        // the peer reports it `Converged`: adopted with the margin.
         let adopted =
             peer.tracker.adopt(pyramids, &self.spec.alignment, &mut self.room.tracking(), &view, theirs, false);
         let Some(e) = adopted.map_err(|e| Error::Invalid(format!("{name}: matching: {e}")))? else { return Ok(()) };
