@@ -584,9 +584,8 @@ impl Tracker {
     /// tracking path, [`Matcher::track_in`]) and this robot's verdict with
     /// the least agreement raised by [`ADOPT_MARGIN`], or, when the peer
     /// reports its fix `Converged` (`reported`: confirmed, not contested),
-    /// lowered by [`ADOPT_CONFIRMED_SLACK`].
-    /// An answer that passes
-    /// and agrees with `theirs` ([`agree`] at `view`'s places) is this
+    /// lowered by [`ADOPT_CONFIRMED_SLACK`]. An answer that passes and
+    /// agrees with `theirs` ([`agree`] at `view`'s places) is this
     /// robot's fix, confirmed (`view.estimate` is ignored: `theirs` is
     /// the peer's estimate heard); the caller confirms the peer's fix with
     /// it ([`Tracker::confirm`]). `None`: not adopted, the track as it was.

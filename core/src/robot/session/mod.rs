@@ -214,7 +214,7 @@ where
     stats_at_start: CourierStats,
     /// This robot's last estimate of its peer that passed the verdict, and
     /// whether it was reported `Converged` (confirmed, not contested).
-    last_estimate: Option<(Isometry3<f32>, bool)>,
+    last_estimate: Option<HeadEstimate>,
     /// The peer's, as its last message said.
     heard: Option<Isometry3<f32>>,
     /// Whether the peer reported that estimate `Converged`.
@@ -467,7 +467,7 @@ where
         // The message: this robot's last estimate of its peer, then the update.
         let (head, rest) =
             self.out.split_at_mut_checked(ESTIMATE_BYTES).ok_or(RobotError::Update(PublisherError::Scratch))?;
-        write_head(self.last_estimate.as_ref().map(|(t, c)| (t, *c)), self.map.keep_centre(), head);
+        write_head(self.last_estimate.as_ref(), self.map.keep_centre(), head);
         let len = publisher.next_update(&self.map, self.scratch, rest).map_err(RobotError::Update)?;
         self.marks.counts = publisher.counts();
         self.marks.update_bytes = len as u32;
@@ -678,14 +678,18 @@ where
 /// little-endian `f32`.
 pub const ESTIMATE_BYTES: usize = 1 + 48 + 12;
 
-/// Writes `estimate` (or none; with whether it is reported `Converged`)
-/// and the robot's place `at` as a message's head.
-fn write_head(estimate: Option<(&Isometry3<f32>, bool)>, at: [f32; 3], out: &mut [u8]) {
+/// An estimate a message's head carries, and whether its sender reports
+/// it `Converged`.
+type HeadEstimate = (Isometry3<f32>, bool);
+
+/// Writes `estimate` (or none) and the robot's place `at` as a message's
+/// head.
+fn write_head(estimate: Option<&HeadEstimate>, at: [f32; 3], out: &mut [u8]) {
     out.fill(0);
     let Some((flag, rest)) = out.split_first_mut() else { return };
     let (rows, place) = rest.split_at_mut(rest.len().min(48));
     if let Some((t, converged)) = estimate {
-        *flag = if converged { 2 } else { 1 };
+        *flag = if *converged { 2 } else { 1 };
         for (o, v) in rows.chunks_exact_mut(4).zip(crate::geometry::rows(t)) {
             o.copy_from_slice(&v.to_le_bytes());
         }
@@ -695,13 +699,9 @@ fn write_head(estimate: Option<(&Isometry3<f32>, bool)>, at: [f32; 3], out: &mut
     }
 }
 
-/// An estimate a message's head carries, and whether its sender reports
-/// it `Converged`.
-type HeardEstimate = (Isometry3<f32>, bool);
-
 /// The estimate a message's head carries (`None` when it says none) and
 /// the sender's place; each `None` where a number in it is not finite.
-fn read_head(head: &[u8]) -> (Option<HeardEstimate>, Option<[f32; 3]>) {
+fn read_head(head: &[u8]) -> (Option<HeadEstimate>, Option<[f32; 3]>) {
     fn floats<const N: usize>(b: &[u8]) -> Option<[f32; N]> {
         if b.len() != 4 * N {
             return None;

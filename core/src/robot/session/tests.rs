@@ -312,24 +312,24 @@ fn a_head_carries_the_estimate_and_the_place() {
     let t = from_xyz_rpy(12.5, -3.0, 0.25, 0.01, -0.02, 0.7);
     let at = [40.25, -7.5, 0.5];
     let mut head = [0u8; ESTIMATE_BYTES];
-    for confirmed in [false, true] {
-        write_head(Some((&t, confirmed)), at, &mut head);
+    for converged in [false, true] {
+        write_head(Some(&(t, converged)), at, &mut head);
         let (estimate, place) = read_head(&head);
-        assert_eq!(estimate.map(|(e, c)| (rows(&e), c)), Some((rows(&t), confirmed)));
+        assert_eq!(estimate.map(|(e, c)| (rows(&e), c)), Some((rows(&t), converged)));
         assert_eq!(place, Some(at));
     }
     write_head(None, at, &mut head);
     assert_eq!(read_head(&head), (None, Some(at)));
     // A flag the format does not have: no estimate.
-    write_head(Some((&t, true)), at, &mut head);
+    write_head(Some(&(t, true)), at, &mut head);
     head[0] = 3;
     assert_eq!(read_head(&head), (None, Some(at)));
     // A place that is not finite: the estimate still read, no place.
-    write_head(Some((&t, false)), [f32::NAN, 0.0, 0.0], &mut head);
+    write_head(Some(&(t, false)), [f32::NAN, 0.0, 0.0], &mut head);
     let (estimate, place) = read_head(&head);
     assert!(estimate.is_some() && place.is_none());
     // An estimate that is not finite: none, the place still read.
-    write_head(Some((&t, false)), at, &mut head);
+    write_head(Some(&(t, false)), at, &mut head);
     head[1..5].copy_from_slice(&f32::INFINITY.to_le_bytes());
     assert_eq!(read_head(&head), (None, Some(at)));
     assert_eq!(read_head(&head[..ESTIMATE_BYTES - 1]), (None, None));

@@ -28,8 +28,9 @@ impl Adopting<'_> {
     /// robot passed the peer's and was made this round (not the fix its
     /// estimate of the last round was; unconfirmed, or confirmed by the
     /// peer's history, `Tracker::search`'s recall): the peer's fix tried
-    /// ([`Tracker::adopt`], told whether the peer reports it `Converged`); where it is adopted, the record takes the new
-    /// estimate, its errors and the seconds it took.
+    /// ([`Tracker::adopt`], told whether the peer reports it `Converged`);
+    /// where it is adopted, the record takes the new estimate, its errors
+    /// and the seconds it took.
     pub fn round(
         &mut self,
         spec: &SessionSpec,
