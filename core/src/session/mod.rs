@@ -24,8 +24,8 @@ pub mod smoother;
 pub mod tracker;
 
 pub use history::{
-    History, FIRST_APART_M, FIRST_GROWTH_M, FIRST_SURE, HISTORY_DEG, HISTORY_DEG_PER_M, HISTORY_HALF_M, HISTORY_M,
-    HISTORY_SCALE,
+    History, FIRST_APART_M, FIRST_GROWTH_M, FIRST_SEEN, FIRST_SURE, HISTORY_DEG, HISTORY_DEG_PER_M, HISTORY_HALF_M,
+    HISTORY_M, HISTORY_SCALE,
 };
 pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateCounts};
 pub use replica::{Applied, Replica};

@@ -22,7 +22,7 @@
 //! robot has driven less than [`HOLD_M`] since the last fix the maps held
 //! in every direction (beyond, the answer is `Degenerate`).
 
-use super::history::History;
+use super::history::{History, FIRST_GROWTH_M, FIRST_SEEN};
 use super::smoother::Smoother;
 use crate::geometry::{distance, Isometry3};
 use crate::matching::search::SearchScratch;
@@ -269,6 +269,56 @@ pub struct Tracker {
     /// The confirmed fixes so far, which a new fix must be consistent
     /// with: kept when a fix is withdrawn or dropped.
     history: History,
+    /// This round's estimate, whatever its status.
+    seen: Option<Seen>,
+    /// The round before's ([`History::confirmed_after`]).
+    seen_before: Option<Seen>,
+}
+
+/// A round's estimate, passed or not: its placement, the most the
+/// estimates at that placement explained of the peer's map, and where both
+/// robots were.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Seen {
+    transform: Isometry3<f32>,
+    /// The most any estimate explained over the run of rounds, this one's
+    /// included, whose estimates were at this placement one after another.
+    most: f32,
+    at: [f32; 3],
+    peer_at: Option<[f32; 3]>,
+}
+
+impl Seen {
+    /// This round's estimate, continuing the run of `before` when it was at
+    /// the same placement.
+    fn after(before: Option<&Seen>, result: &MatchResult, at: [f32; 3], peer_at: Option<[f32; 3]>) -> Self {
+        let (transform, overlap) = (result.transform, result.overlap);
+        let most = match before {
+            Some(b) if b.same_placement(&transform, at) => b.most.max(overlap),
+            _ => overlap,
+        };
+        Seen { transform, most, at, peer_at }
+    }
+
+    /// Whether `fix` is its placement ([`FIRST_SEEN`]), judged at the
+    /// robot's place `at`.
+    fn same_placement(&self, fix: &Isometry3<f32>, at: [f32; 3]) -> bool {
+        let turn = (self.transform.inverse() * fix).rotation.angle();
+        let here = fix.inverse() * nalgebra::Point3::from(at);
+        let apart = (fix * here - self.transform * here).norm();
+        turn <= FIRST_SEEN.1.to_radians() && apart <= FIRST_SEEN.0
+    }
+
+    /// The most its run explained of the peer's map, when `fix` is its
+    /// placement and the robots have driven [`FIRST_GROWTH_M`] since.
+    fn overlap_before(&self, fix: &Isometry3<f32>, at: [f32; 3], peer_at: Option<[f32; 3]>) -> Option<f32> {
+        let driven = distance(self.at, at)
+            + match (self.peer_at, peer_at) {
+                (Some(a), Some(b)) => distance(a, b),
+                _ => 0.0,
+            };
+        (self.same_placement(fix, at) && driven >= FIRST_GROWTH_M).then_some(self.most)
+    }
 }
 
 impl Tracker {
@@ -284,6 +334,8 @@ impl Tracker {
             last_confirmed: false,
             refused: 0,
             history: History::new(),
+            seen: None,
+            seen_before: None,
         }
     }
 
@@ -310,12 +362,14 @@ impl Tracker {
     /// when the robots meet again ([`Tracker::search`]), and the history.
     fn withdraw(&mut self) {
         let last_confirmed = if self.fix.is_some() { self.confirmed } else { self.last_confirmed };
-        *self = Tracker { last: self.last, last_confirmed, history: self.history, ..Tracker::new() };
+        let (last, history, seen, seen_before) = (self.last, self.history, self.seen, self.seen_before);
+        *self = Tracker { last, last_confirmed, history, seen, seen_before, ..Tracker::new() };
     }
 
     /// Drops the fix with its window; the history is kept.
     fn drop_fix(&mut self) {
-        *self = Tracker { history: self.history, ..Tracker::new() };
+        let (history, seen, seen_before) = (self.history, self.seen, self.seen_before);
+        *self = Tracker { history, seen, seen_before, ..Tracker::new() };
     }
 
     /// The robot's history of the peer's pose: the confirmed fixes a new
@@ -380,6 +434,8 @@ impl Tracker {
         scratch: &mut SearchScratch<'_>,
         view: &PeerView,
     ) -> Result<Tracked, MatchError> {
+        // A round begins: its estimate, once settled, is `seen`.
+        self.seen_before = self.seen.take();
         let Some(fix) = self.fix else {
             return Ok(Tracked { done: None, answer: None });
         };
@@ -506,7 +562,8 @@ impl Tracker {
         estimate.confirmed = true;
         let r = &estimate.result;
         let (fix, overlap, agreement) = (r.transform, r.overlap, r.agreement);
-        estimate.contested = self.history.confirmed(&fix, overlap, agreement, at, peer_at);
+        let before = self.seen_before.and_then(|s| s.overlap_before(&fix, at, peer_at));
+        estimate.contested = self.history.confirmed_after(&fix, overlap, agreement, (at, peer_at), before);
     }
 
     /// The fix after `result` (made from the fix for [`Kind::Tracking`]),
@@ -515,6 +572,8 @@ impl Tracker {
     /// once the peer has confirmed the fix (a new or unconfirmed fix starts
     /// the smoothing again).
     fn settle(&mut self, kind: Kind, mut result: MatchResult, view: &PeerView) -> Estimate {
+        let (at, peer_at) = (view.at, view.peer_at);
+        self.seen = Some(Seen::after(self.seen_before.as_ref(), &result, at, peer_at));
         let fix = match (result.status, kind == Kind::Tracking) {
             (MatchStatus::Converged, _) => {
                 let answer = result.transform;
@@ -567,13 +626,15 @@ impl Tracker {
         }
         self.history.drive(view.at, view.peer_at);
         let confirmed = converged && self.confirmed;
+        let before = self.seen_before.and_then(|s| s.overlap_before(&result.transform, at, peer_at));
         // A round counts in the history when it is reported: an estimate on
         // a stale copy is not.
+        let r = &result;
         let contested = converged
-            && if confirmed && result.status == MatchStatus::Converged {
-                self.history.confirmed(&result.transform, result.overlap, result.agreement, view.at, view.peer_at)
+            && if confirmed && r.status == MatchStatus::Converged {
+                self.history.confirmed_after(&r.transform, r.overlap, r.agreement, (at, peer_at), before)
             } else {
-                self.history.contests(&result.transform, view.at, view.peer_at)
+                self.history.contests(&r.transform, at, peer_at)
             };
         Estimate { kind, result, fix, confirmed, contested }
     }

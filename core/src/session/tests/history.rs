@@ -211,3 +211,31 @@ fn a_first_fix_robots_part_from_passes_when_sure_or_found_again() {
     assert!(!round(&mut nan, f32::NAN, f32::NAN, 0.0));
     assert!(round(&mut nan, 0.0, 0.9, 2.0));
 }
+
+/// A first fix whose placement the robot's estimate of the round before
+/// already had is judged at once against what that estimate explained
+/// (`History::confirmed_after`): not grown, contested until it grows (town
+/// seed 19, round 14: a junction turned by 90 degrees both robots' searches
+/// took, 0.44 after 0.46); grown, a first chain as any (and judged later
+/// as any); sure, passed; with no such estimate, as before.
+#[test]
+fn a_first_fix_seen_a_round_before_must_have_grown_since() {
+    let t = fix(0.0, 0.0, 90.0);
+    let places = places(&t);
+    let mut seen = History::new();
+    assert!(seen.confirmed_after(&t, 0.44, AGREEMENT, places, Some(0.46)));
+    assert_eq!(seen.trusted(), Some(&t));
+    // Still not above 0.46: contested; above it: past the test.
+    assert!(seen.confirmed_after(&t, 0.45, AGREEMENT, places, None));
+    assert!(!seen.confirmed_after(&t, 0.47, AGREEMENT, places, None));
+    assert!(seen.contests(&fix(0.0, 0.0, 0.0), places.0, places.1));
+    // Grown since the round before: not contested, a first chain.
+    let mut grown = History::new();
+    assert!(!grown.confirmed_after(&t, 0.44, AGREEMENT, places, Some(0.40)));
+    assert!(!grown.contests(&fix(0.0, 0.0, 0.0), places.0, places.1));
+    // Sure, or not seen before: not contested.
+    assert!(!History::new().confirmed_after(&t, 0.7, 0.7, places, Some(0.75)));
+    assert!(!History::new().confirmed_after(&t, 0.44, AGREEMENT, places, None));
+    // A non-finite overlap before counts as none explained.
+    assert!(!History::new().confirmed_after(&t, 0.44, AGREEMENT, places, Some(f32::NAN)));
+}

@@ -583,3 +583,65 @@ fn a_fix_found_again_where_the_peer_confirmed_the_last_is_confirmed_at_once() {
     assert_eq!((unvouched.kind, unvouched.fix, unvouched.confirmed), (Kind::Tracking, Fix::Held, false));
     assert_eq!(unvouched.status(), MatchStatus::NotConverged);
 }
+
+/// A first fix reported for the first time is judged against the robot's
+/// estimate of the round before at the same placement: when what the
+/// robots mapped since explains less of the peer's map under it, the fix
+/// is contested (not reported `Converged`) though the peer confirms it; when
+/// it explains more, or the robots have not driven since, it is reported.
+#[test]
+fn a_first_fix_that_explains_less_than_the_round_before_is_contested() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    use crate::session::FIRST_SURE;
+    let (here, _) = one_street_seen_twice();
+    // The peer's map with `clutter` points where this robot's map has
+    // nothing (behind a wall), so that its match is no sure one
+    // (`FIRST_SURE`): more clutter, less of it explained.
+    let peer_map = |clutter: usize| {
+        let mut map = robot_map();
+        for round in 0..4 {
+            drive(&mut map, round, &mut Lcg(30 + round as u64));
+        }
+        let mut rng = Lcg(7);
+        for _ in 0..clutter {
+            let p = [-20.0 + 40.0 * rng.unit(), 7.0 + 3.0 * rng.unit(), 3.0 * rng.unit()];
+            map.insert_point(p, Class::Vegetation).unwrap();
+        }
+        map
+    };
+    let (less, mid, more) = (peer_map(600), peer_map(900), peer_map(1_200));
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let own = prepare(&here);
+    let (less, mid, more) = (prepare(&less), prepare(&mid), prepare(&more));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    // Rounds against the peer's maps `peers`, the robot at `places`; the
+    // last round's estimate confirmed by the peer.
+    let mut rounds = |peers: &[&Pyramid<'_, _>], places: &[f32]| {
+        let mut tracker = Tracker::new();
+        let mut last = None;
+        for (peer, x) in peers.iter().zip(places) {
+            let view = PeerView { estimate: None, at: [*x, 0.0, 0.0], peer_at: None, copy_at: None };
+            let e = tracker.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
+            assert_eq!(e.result.status, MatchStatus::Converged);
+            last = Some((e, [*x, 0.0, 0.0]));
+        }
+        let (mut e, at) = last.unwrap();
+        let theirs = e.result.transform.inverse();
+        tracker.confirm(&mut e, &theirs, at, None);
+        assert!(e.confirmed && e.result.overlap < FIRST_SURE, "{e:?}");
+        e
+    };
+    let fell = rounds(&[&less, &more], &[9.0, 12.0]);
+    assert!(fell.contested && fell.status() == MatchStatus::NotConverged, "{fell:?}");
+    let grew = rounds(&[&more, &less], &[9.0, 12.0]);
+    assert!(!grew.contested && grew.status() == MatchStatus::Converged, "{grew:?}");
+    let parked = rounds(&[&less, &more], &[9.0, 9.0]);
+    assert!(!parked.contested && parked.status() == MatchStatus::Converged, "{parked:?}");
+    // Judged against the most the run of rounds explained, not the last.
+    let under_most = rounds(&[&less, &more, &mid], &[9.0, 12.0, 15.0]);
+    assert!(under_most.contested, "{under_most:?}");
+    let above_all = rounds(&[&more, &mid, &less], &[9.0, 12.0, 15.0]);
+    assert!(!above_all.contested, "{above_all:?}");
+}
