@@ -115,7 +115,9 @@ pub const FIRST_APART_M: f32 = 50.0;
 /// robots, true and network labels; the benchmark's 3 robots, slip and
 /// camera labels too), of 469 right fixes reported `Converged` for the
 /// first time none explained less than such estimates before them, while
-/// 8 of the 10 look-alike rounds so reported did (seeds 19, 25, 43, 46).
+/// 8 of the 10 look-alike rounds so reported did (seeds 19, 25, 43, 46);
+/// the other 2 were confirmed by such an estimate of the peer's, which is
+/// therefore not offered to it ([`crate::session::Estimate::offered`]).
 /// A look-alike's placement moves a little from round to round as the maps
 /// grow (2.1 degrees there), so the same placement is judged loosely, where
 /// the robot is.

@@ -186,9 +186,26 @@ pub struct Estimate {
     /// drift explains, or is a first fix whose overlap stopped growing
     /// ([`History`]): held, not reported `Converged`.
     pub contested: bool,
+    /// A first fix that explains no more of the peer's map than the robot's
+    /// own estimates at its placement did in the rounds just before
+    /// ([`crate::session::FIRST_SEEN`]): contested once confirmed, and not
+    /// offered to the peer ([`Estimate::offered`]).
+    pub doubted: bool,
 }
 
 impl Estimate {
+    /// Whether the peer may hear it as this robot's fix, to confirm its own
+    /// with or adopt: it passed the verdict and is not doubted. Why: two
+    /// robots' searches can take one look-alike in the same round; when
+    /// one robot's own estimates before it show it explaining less and
+    /// less, that robot contests it, and its estimate must not confirm the
+    /// other's (town seeds 25 and 43: a junction turned by 90 degrees and
+    /// a street slid 55 m, reported `Converged` by the robot that had not
+    /// seen them before).
+    pub fn offered(&self) -> bool {
+        self.result.status == MatchStatus::Converged && !self.doubted
+    }
+
     /// The status reported: the match's, but `NotConverged` for a fix the
     /// peer's estimate has not agreed with yet, or one contested.
     pub fn status(&self) -> MatchStatus {
@@ -630,13 +647,20 @@ impl Tracker {
         // A round counts in the history when it is reported: an estimate on
         // a stale copy is not.
         let r = &result;
+        // Contested, once confirmed, only for what the estimates before it
+        // explained: doubted now.
+        let doubted = converged && before.is_some() && {
+            let (mut with, mut without) = (self.history, self.history);
+            with.confirmed_after(&r.transform, r.overlap, r.agreement, (at, peer_at), before)
+                && !without.confirmed_after(&r.transform, r.overlap, r.agreement, (at, peer_at), None)
+        };
         let contested = converged
             && if confirmed && r.status == MatchStatus::Converged {
                 self.history.confirmed_after(&r.transform, r.overlap, r.agreement, (at, peer_at), before)
             } else {
                 self.history.contests(&r.transform, at, peer_at)
             };
-        Estimate { kind, result, fix, confirmed, contested }
+        Estimate { kind, result, fix, confirmed, contested, doubted }
     }
 
     /// Adopts the peer's fix of this round, `theirs` (`T_peer_own`: one that

@@ -589,7 +589,7 @@ where
             other => other,
         };
         let t2 = meter.instructions();
-        let passed = estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged);
+        let passed = estimate.as_ref().filter(|e| e.offered());
         self.last_estimate = passed.map(|e| (e.result.transform, e.status() == MatchStatus::Converged));
         let report = self.round_report(me, estimate.as_ref(), [t0, t1, t2], meter.peak_stack(), &work);
         super::send(feed, &RobotMessage::Round(report));

@@ -585,9 +585,10 @@ fn a_fix_found_again_where_the_peer_confirmed_the_last_is_confirmed_at_once() {
 }
 
 /// A first fix reported for the first time is judged against the robot's
-/// estimate of the round before at the same placement: when what the
-/// robots mapped since explains less of the peer's map under it, the fix
-/// is contested (not reported `Converged`) though the peer confirms it; when
+/// estimates of the rounds just before at the same placement: when what
+/// the robots mapped since explains less of the peer's map under it than
+/// the most they did, the fix is doubted (not offered to the peer) and
+/// contested (not reported `Converged`) though the peer confirms it; when
 /// it explains more, or the robots have not driven since, it is reported.
 #[test]
 fn a_first_fix_that_explains_less_than_the_round_before_is_contested() {
@@ -628,9 +629,14 @@ fn a_first_fix_that_explains_less_than_the_round_before_is_contested() {
             last = Some((e, [*x, 0.0, 0.0]));
         }
         let (mut e, at) = last.unwrap();
+        // Doubted before it is confirmed: not offered to the peer, and
+        // contested once confirmed.
+        assert_eq!(e.offered(), !e.doubted);
+        let doubted = e.doubted;
         let theirs = e.result.transform.inverse();
         tracker.confirm(&mut e, &theirs, at, None);
         assert!(e.confirmed && e.result.overlap < FIRST_SURE, "{e:?}");
+        assert_eq!(e.contested, doubted, "{e:?}");
         e
     };
     let fell = rounds(&[&less, &more], &[9.0, 12.0]);

@@ -41,7 +41,7 @@ impl Adopting<'_> {
         let waiting: Vec<(usize, usize, Isometry3<f32>, bool)> = records
             .iter()
             .filter_map(|r| {
-                let e = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged)?;
+                let e = r.estimate.as_ref().filter(|e| e.offered())?;
                 Some((r.robot, r.peer, e.result.transform, e.status() == MatchStatus::Converged))
             })
             .collect();

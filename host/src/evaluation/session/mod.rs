@@ -25,7 +25,7 @@ use crate::sources::drift::Drift;
 use crate::sources::source::{Source, SourceOptions};
 use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
-use cosem_core::matching::{Alignment, MatchResult, MatchStatus, PackedNormal, Reach, Role};
+use cosem_core::matching::{Alignment, MatchResult, PackedNormal, Reach, Role};
 use cosem_core::session::{Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateCounts};
 use nalgebra::Isometry3;
 use prepared::Prepared;
@@ -552,7 +552,7 @@ fn confirm_in_round(round: &mut [Record], trackers: &mut [Vec<Tracker>], places:
     let theirs: Vec<(usize, usize, Isometry3<f32>)> = round
         .iter()
         .filter_map(|r| {
-            let e = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged)?;
+            let e = r.estimate.as_ref().filter(|e| e.offered())?;
             Some((r.robot, r.peer, e.result.transform))
         })
         .collect();
@@ -605,7 +605,7 @@ fn last_estimates(records: &[Record], n: usize) -> Vec<Vec<Option<cosem_core::ge
     let mut out = vec![vec![None; n]; n];
     let last = records.last().map(|r| r.round);
     for r in records.iter().rev().take_while(|r| Some(r.round) == last) {
-        if let Some(e) = r.estimate.as_ref().filter(|e| e.result.status == MatchStatus::Converged) {
+        if let Some(e) = r.estimate.as_ref().filter(|e| e.offered()) {
             out[r.robot][r.peer] = Some(e.result.transform);
         }
     }

@@ -110,13 +110,14 @@ impl RosNode {
     }
 
     /// The peer's last estimate: on the fixes topic when it passed the
-    /// verdict; as a pose with covariance when `Converged`.
+    /// verdict and is not doubted (`Estimate::offered`); as a pose with
+    /// covariance when `Converged`.
     pub(super) fn publish_estimate(&mut self, name: &str) -> Result<(), Error> {
         let stamp = self.own.stamp;
         let own_frame = self.spec.odom_frame.clone();
         let Some(peer) = self.peers.get_mut(name) else { return Ok(()) };
         let Some(e) = peer.last else { return Ok(()) };
-        if e.result.status != MatchStatus::Converged {
+        if !e.offered() {
             return Ok(());
         }
         let t: Isometry3<f64> = nalgebra::convert(e.result.transform);
