@@ -253,6 +253,24 @@ impl History {
         self.confirmed_after(fix, overlap, agreement, (at, peer_at), None)
     }
 
+    /// Whether confirming `fix` now would contest it only for what the
+    /// robot's estimates before it explained (`before`,
+    /// [`History::confirmed_after`]): a first fix doubted before any
+    /// confirmation. The history is left as it is.
+    pub fn doubts(
+        &self,
+        fix: &Isometry3<f32>,
+        overlap: f32,
+        agreement: f32,
+        places: ([f32; 3], Option<[f32; 3]>),
+        before: Option<f32>,
+    ) -> bool {
+        let (mut with, mut without) = (*self, *self);
+        before.is_some()
+            && with.confirmed_after(fix, overlap, agreement, places, before)
+            && !without.confirmed_after(fix, overlap, agreement, places, None)
+    }
+
     /// [`History::confirmed`], where the robot's estimates of the rounds
     /// just before, at the same placement, explained at most `before` of
     /// the peer's map (`None`: no such estimate, or the robots have not

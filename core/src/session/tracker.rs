@@ -644,16 +644,10 @@ impl Tracker {
         self.history.drive(view.at, view.peer_at);
         let confirmed = converged && self.confirmed;
         let before = self.seen_before.and_then(|s| s.overlap_before(&result.transform, at, peer_at));
+        let r = &result;
+        let doubted = converged && self.history.doubts(&r.transform, r.overlap, r.agreement, (at, peer_at), before);
         // A round counts in the history when it is reported: an estimate on
         // a stale copy is not.
-        let r = &result;
-        // Contested, once confirmed, only for what the estimates before it
-        // explained: doubted now.
-        let doubted = converged && before.is_some() && {
-            let (mut with, mut without) = (self.history, self.history);
-            with.confirmed_after(&r.transform, r.overlap, r.agreement, (at, peer_at), before)
-                && !without.confirmed_after(&r.transform, r.overlap, r.agreement, (at, peer_at), None)
-        };
         let contested = converged
             && if confirmed && r.status == MatchStatus::Converged {
                 self.history.confirmed_after(&r.transform, r.overlap, r.agreement, (at, peer_at), before)
