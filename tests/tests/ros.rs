@@ -264,7 +264,7 @@ fn nodes_ran(got: &Value) -> Vec<String> {
         let estimates: Vec<&Value> = lines.iter().filter(|l| l.get("round").is_some()).collect();
         let count = |f: &dyn Fn(&Value) -> bool| estimates.iter().filter(|e| f(e)).count();
         let summary = &lines.last().unwrap()["summary"];
-        assert_eq!(summary["schema_version"], 2, "{last}");
+        assert_eq!(summary["schema_version"], 3, "{last}");
         assert_eq!(summary["estimates"], count(&|e| e["confirmation"] == false), "{last}");
         // A confirmation tells a waiting estimate again, `Converged`.
         assert_eq!(summary["converged"], count(&|e| e["status"] == "Converged"), "{last}");

@@ -30,6 +30,7 @@ fn check_record_fields(r: &Value) {
         "fix",
         "adopted",
         "contested",
+        "disputed",
         "bytes_sent",
         "seconds",
         "update",
@@ -41,6 +42,8 @@ fn check_record_fields(r: &Value) {
     assert!(["Converged", "NotConverged", "Degenerate", "NoOverlap"].contains(&status), "{r}");
     // A fix the robot's history contradicts is never reported Converged.
     assert!(r["contested"] == false || status != "Converged", "{r}");
+    // Nor one the peer's latest estimate disputes.
+    assert!(r["disputed"] == false || status != "Converged", "{r}");
     assert!(["prior-free", "tracking"].contains(&r["kind"].as_str().unwrap()), "{r}");
     if let Some(t) = r["T_own_peer"].as_array() {
         assert_eq!(t.len(), 12, "3x4 row-major: {r}");
@@ -73,7 +76,7 @@ fn kitti00_robots_are_tracked_round_after_round() {
         assert_eq!(r["kind"], if first { "prior-free" } else { "tracking" }, "{r}");
         assert!(r["overlap_true"].as_f64().unwrap() > 0.3, "{r}");
     }
-    assert_eq!(summary["schema_version"], 9);
+    assert_eq!(summary["schema_version"], 10);
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
     assert_eq!(summary["availability"], 1.0, "{summary}");
     assert_eq!(summary["first_fix_rounds"], 0, "{summary}");

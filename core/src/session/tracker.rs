@@ -191,6 +191,11 @@ pub struct Estimate {
     /// ([`crate::session::FIRST_SEEN`]): contested once confirmed, and not
     /// offered to the peer ([`Estimate::offered`]).
     pub doubted: bool,
+    /// The peer's latest estimate of this robot that passed its verdict
+    /// disagrees with this one ([`agree`]): one of the two is wrong, and
+    /// which the two robots cannot tell, so a confirmed fix is not
+    /// reported `Converged` in that round (it is held and tracked).
+    pub disputed: bool,
 }
 
 impl Estimate {
@@ -207,10 +212,11 @@ impl Estimate {
     }
 
     /// The status reported: the match's, but `NotConverged` for a fix the
-    /// peer's estimate has not agreed with yet, or one contested.
+    /// peer's estimate has not agreed with yet, one contested, or one the
+    /// peer's estimate disputes.
     pub fn status(&self) -> MatchStatus {
         match self.result.status {
-            MatchStatus::Converged if !self.confirmed || self.contested => MatchStatus::NotConverged,
+            MatchStatus::Converged if !self.confirmed || self.contested || self.disputed => MatchStatus::NotConverged,
             s => s,
         }
     }
@@ -654,7 +660,8 @@ impl Tracker {
             } else {
                 self.history.contests(&r.transform, at, peer_at)
             };
-        Estimate { kind, result, fix, confirmed, contested, doubted }
+        let disputed = converged && view.estimate.is_some_and(|t| !agree(&r.transform, &t, at, peer_at));
+        Estimate { kind, result, fix, confirmed, contested, doubted, disputed }
     }
 
     /// Adopts the peer's fix of this round, `theirs` (`T_peer_own`: one that
@@ -719,7 +726,14 @@ impl Tracker {
     ) {
         let current =
             estimate.result.status == MatchStatus::Converged && self.reported() == Some(&estimate.result.transform);
-        if current && !estimate.confirmed && agree(&estimate.result.transform, theirs, at, peer_at) {
+        if !current {
+            return;
+        }
+        let agreed = agree(&estimate.result.transform, theirs, at, peer_at);
+        // The peer's estimate of this round, not the last's, says whether
+        // the two dispute.
+        estimate.disputed = !agreed;
+        if agreed && !estimate.confirmed {
             self.confirm_now(estimate, at, peer_at);
         }
     }

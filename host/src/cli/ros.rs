@@ -246,7 +246,8 @@ fn node(a: NodeArgs) -> Result<(), Error> {
             let line = serde_json::json!({
                 "round": round, "robot": name, "peer": peer, "status": e.status().as_str(),
                 "kind": e.kind.as_str(), "fix": e.fix.as_str(), "confirmed": e.confirmed,
-                "contested": e.contested, "adopted": *origin == Origin::Adopted,
+                "contested": e.contested,
+                "disputed": e.disputed && e.confirmed, "adopted": *origin == Origin::Adopted,
                 "confirmation": *origin == Origin::Confirmed,
                 "T_own_peer": t, "overlap": e.result.overlap, "agreement": e.result.agreement,
                 "voxels": voxels.0, "peer_voxels": voxels.1, "seconds": seconds,
@@ -269,6 +270,7 @@ fn node(a: NodeArgs) -> Result<(), Error> {
             "applied": summary.applied, "qos_mismatches": summary.qos_mismatches,
             "estimates": summary.estimates.made, "converged": summary.estimates.converged,
             "adopted": summary.estimates.adopted, "contested": summary.estimates.contested,
+            "disputed": summary.estimates.disputed,
         }})
     );
     Ok(())

@@ -22,10 +22,12 @@ use serde::Serialize;
 /// failed its verdict); 9 since each line has `contested` (the fix
 /// contradicts the robot's history of the peer by more than drift
 /// explains, or is a first fix whose overlap stopped growing, so is not
-/// reported `Converged`).
+/// reported `Converged`); 10 since each line has `disputed` (the peer's
+/// latest estimate disagrees with the robot's confirmed fix, so it is not
+/// reported `Converged` in that round).
 ///
 /// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
-pub const SESSION_SCHEMA: u32 = 9;
+pub const SESSION_SCHEMA: u32 = 10;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]
@@ -54,6 +56,10 @@ pub struct RecordJson {
     /// reported `Converged` until its confirmed rounds outweigh that
     /// history, or its overlap grows (`cosem_core::session::History`).
     pub contested: bool,
+    /// The peer's latest estimate that passed its verdict disagrees with
+    /// this one: one of the two is wrong, and a confirmed fix is reported
+    /// `NotConverged` in that round (schema 10).
+    pub disputed: bool,
     /// `T_own_peer`, row-major 3x4, when there is an estimate.
     #[serde(rename = "T_own_peer", skip_serializing_if = "Option::is_none")]
     pub t_own_peer: Option<[f64; 12]>,
@@ -140,6 +146,7 @@ impl From<&Record> for RecordJson {
             confirmed: e.is_some_and(|e| e.confirmed),
             adopted: r.adopted,
             contested: e.is_some_and(|e| e.contested),
+            disputed: e.is_some_and(|e| e.disputed && e.confirmed),
             t_own_peer: t,
             e_t: r.errors.map(|e| e.0),
             e_t_origin: r.origin_error,
@@ -205,9 +212,10 @@ pub fn record_text(r: &Record) -> String {
         j.peer,
         j.status,
         j.kind,
-        match (j.adopted, j.contested) {
-            (true, _) => "adopted",
-            (_, true) => "contested",
+        match (j.adopted, j.contested, j.disputed) {
+            (true, ..) => "adopted",
+            (_, true, _) => "contested",
+            (.., true) => "disputed",
             _ => j.fix,
         },
         j.bytes_sent,

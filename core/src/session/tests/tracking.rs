@@ -118,6 +118,60 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     assert!(agree(&first.result.transform, &first.result.transform.inverse(), at, None));
 }
 
+/// A confirmed fix the peer's estimate disagrees with is disputed: held and
+/// tracked, still confirmed, but not reported `Converged` in that round; the
+/// peer's estimate of the same round ([`Tracker::confirm`]) settles it
+/// either way, and an agreeing one brings `Converged` back.
+#[test]
+fn a_confirmed_fix_the_peer_disputes_is_not_converged() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    let (here, again) = one_street_seen_twice();
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&here), prepare(&again));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let mut tracker = Tracker::new();
+    let at = [9.0, 0.0, 0.0];
+    let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
+        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None };
+        t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
+    let first = estimate(&mut tracker, None);
+    let theirs = first.result.transform.inverse();
+    // Confirmed by an agreeing estimate, then a round that converges.
+    let confirmed = (0..4)
+        .map(|_| estimate(&mut tracker, Some(theirs)))
+        .find(|e| e.status() == MatchStatus::Converged)
+        .expect("a confirmed round");
+    assert!(!confirmed.disputed);
+    // The peer's estimate turned by 2.5 degrees about where the robot is:
+    // disputed, the fix held and still confirmed.
+    let turn = crate::geometry::from_xyz_rpy(0.0, 0.0, 0.0, 0.0, 0.0, 2.5f32.to_radians());
+    let place = crate::geometry::from_xyz_rpy(at[0], at[1], at[2], 0.0, 0.0, 0.0);
+    let off = theirs * place * turn * place.inverse();
+    let disputed = (0..4)
+        .map(|_| estimate(&mut tracker, Some(off)))
+        .find(|e| e.result.status == MatchStatus::Converged)
+        .expect("a converged round");
+    assert!(disputed.disputed && disputed.confirmed, "{disputed:?}");
+    assert_eq!((disputed.status(), disputed.fix), (MatchStatus::NotConverged, Fix::Held));
+    assert!(tracker.fix().is_some());
+    // The peer's estimate of the same round agrees: no longer disputed.
+    let mut settled = disputed;
+    tracker.confirm(&mut settled, &theirs, at, None);
+    assert_eq!((settled.disputed, settled.status()), (false, MatchStatus::Converged));
+    // ... or disagrees: disputed again.
+    tracker.confirm(&mut settled, &off, at, None);
+    assert_eq!((settled.disputed, settled.status()), (true, MatchStatus::NotConverged));
+    // Heard agreeing again next round: Converged.
+    let back = (0..4)
+        .map(|_| estimate(&mut tracker, Some(theirs)))
+        .find(|e| e.result.status == MatchStatus::Converged)
+        .expect("a converged round");
+    assert_eq!((back.disputed, back.status()), (false, MatchStatus::Converged));
+}
+
 /// An estimate on a copy that has not changed while the robot drove more
 /// than [`HOLD_M`] is not reported `Converged`, and the fix stays held:
 /// the copy's next change brings `Converged` back.

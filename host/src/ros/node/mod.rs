@@ -170,8 +170,11 @@ pub struct NodeSummary {
 /// has `adopted` and `confirmation` (an estimate that waited for its
 /// peer, told again `Converged` when the peer's fix confirms it: a round
 /// and peer may have two lines, the last what the node held) and the
-/// summary counts `estimates`, `converged`, `adopted` and `contested`.
-pub const NODE_SCHEMA: u32 = 2;
+/// summary counts `estimates`, `converged`, `adopted` and `contested`; 3
+/// since each line has `disputed` (the peer's latest estimate disagrees
+/// with the node's confirmed fix, so it is not `Converged` then) and the
+/// summary counts them.
+pub const NODE_SCHEMA: u32 = 3;
 
 /// How an estimate a node tells of came about.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -198,6 +201,8 @@ pub struct Tally {
     pub adopted: usize,
     /// Of them, contested.
     pub contested: usize,
+    /// Of them, a confirmed fix disputed by the peer's estimate.
+    pub disputed: usize,
 }
 
 impl Tally {
@@ -211,6 +216,7 @@ impl Tally {
         self.made += 1;
         self.adopted += usize::from(origin == Origin::Adopted);
         self.contested += usize::from(e.contested);
+        self.disputed += usize::from(e.disputed && e.confirmed);
     }
 }
 
