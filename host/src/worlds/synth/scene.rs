@@ -49,6 +49,15 @@ impl Object {
         Object { shape, class, bound }
     }
 
+    /// The highest point of the object.
+    fn top(&self) -> f64 {
+        match self.shape {
+            Shape::Box { max, .. } => max[2],
+            Shape::Cylinder { z1, .. } => z1,
+            Shape::Sphere { c, r } => c[2] + r,
+        }
+    }
+
     /// Distance along the ray to the first hit, if any.
     fn hit(&self, o: &[f64; 3], d: &[f64; 3]) -> Option<f64> {
         match self.shape {
@@ -342,8 +351,14 @@ impl Scene {
 /// ray tests few of them.
 pub(super) struct Sectors {
     origin: [f64; 3],
-    lists: Vec<Vec<u32>>,
+    /// Per sector, its objects nearest first: the least horizontal
+    /// distance from the origin to each (its bounding circle's), and its
+    /// index.
+    lists: Vec<Vec<(f64, u32)>>,
     width: f64,
+    /// The highest any object reaches: a ray rising above it hits nothing
+    /// farther.
+    top: f64,
 }
 
 impl Sectors {
@@ -351,17 +366,18 @@ impl Sectors {
 
     pub(super) fn new(scene: &Scene, origin: [f64; 3], max_range: f64) -> Sectors {
         let width = std::f64::consts::TAU / Self::COUNT as f64;
-        let mut lists: Vec<Vec<u32>> = vec![Vec::new(); Self::COUNT];
+        let mut lists: Vec<Vec<(f64, u32)>> = vec![Vec::new(); Self::COUNT];
         for (i, ob) in scene.objects.iter().enumerate() {
             let (c, r) = ob.bound;
             let (dx, dy) = (c[0] - origin[0], c[1] - origin[1]);
             let d = dx.hypot(dy);
+            let near = (d - r).max(0.0);
             if d - r > max_range {
                 continue;
             }
             if d <= r + 0.5 {
                 for s in lists.iter_mut() {
-                    s.push(i as u32);
+                    s.push((near, i as u32));
                 }
                 continue;
             }
@@ -370,20 +386,36 @@ impl Sectors {
             let first = ((az - half) / width).floor() as i64;
             let last = ((az + half) / width).ceil() as i64;
             for s in first..=last {
-                lists[s.rem_euclid(Self::COUNT as i64) as usize].push(i as u32);
+                lists[s.rem_euclid(Self::COUNT as i64) as usize].push((near, i as u32));
             }
         }
-        Sectors { origin, lists, width }
+        for list in &mut lists {
+            list.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        }
+        let top = scene.objects.iter().map(Object::top).fold(f64::NEG_INFINITY, f64::max);
+        Sectors { origin, lists, width, top }
     }
 
     /// The first surface along unit direction `d` (world frame) from the
-    /// origin: distance and class.
+    /// origin: distance and class (of equally near objects, the first
+    /// made; an object only when nearer than the ground).
+    ///
+    /// The sector's objects are tried nearest first, and none after one
+    /// whose least distance is beyond the nearest hit so far: a ray
+    /// travels at least as far as it moves horizontally. The same answers
+    /// as trying all of them, faster where the ground or a near wall stops
+    /// the ray; and none once a rising ray has climbed above every object
+    /// (a camera image's sky).
     pub(super) fn cast(&self, scene: &Scene, d: [f64; 3]) -> Option<(f64, Class)> {
         let o = self.origin;
         let az = d[1].atan2(d[0]);
         let sector = ((az / self.width).floor() as i64).rem_euclid(Self::COUNT as i64) as usize;
         let mut best = f64::INFINITY;
         let mut class = None;
+        // The object hit at `best`, if the nearest hit is one.
+        let mut hit: Option<u32> = None;
+        // How fast a rising ray climbs per metre it moves horizontally.
+        let climb = if d[2] > 0.0 { d[2] / d[0].hypot(d[1]).max(1e-12) } else { 0.0 };
         if d[2] < -1e-9 {
             let t = -o[2] / d[2];
             if t < best {
@@ -391,12 +423,16 @@ impl Sectors {
                 class = Some(scene.ground_class(o[0] + t * d[0], o[1] + t * d[1]));
             }
         }
-        for &i in &self.lists[sector] {
+        for &(near, i) in &self.lists[sector] {
+            if near > best || o[2] + near * climb > self.top {
+                break;
+            }
             let ob = &scene.objects[i as usize];
             if let Some(t) = ob.hit(&o, &d) {
-                if t < best {
+                if t < best || (t == best && hit.is_some_and(|h| i < h)) {
                     best = t;
                     class = Some(ob.class);
+                    hit = Some(i);
                 }
             }
         }
