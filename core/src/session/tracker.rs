@@ -191,10 +191,10 @@ pub struct Estimate {
     /// ([`crate::session::FIRST_SEEN`]): contested once confirmed, and not
     /// offered to the peer ([`Estimate::offered`]).
     pub doubted: bool,
-    /// The peer's latest estimate of this robot that passed its verdict
-    /// disagrees with this one ([`agree`]): one of the two is wrong, and
-    /// which the two robots cannot tell, so a confirmed fix is not
-    /// reported `Converged` in that round (it is held and tracked).
+    /// A confirmed fix the peer's latest estimate of this robot that passed
+    /// its verdict disagrees with ([`agree`]): one of the two is wrong, and
+    /// which the two robots cannot tell, so it is not reported `Converged`
+    /// in that round (it is held and tracked).
     pub disputed: bool,
 }
 
@@ -660,7 +660,7 @@ impl Tracker {
             } else {
                 self.history.contests(&r.transform, at, peer_at)
             };
-        let disputed = converged && view.estimate.is_some_and(|t| !agree(&r.transform, &t, at, peer_at));
+        let disputed = confirmed && view.estimate.is_some_and(|t| !agree(&r.transform, &t, at, peer_at));
         Estimate { kind, result, fix, confirmed, contested, doubted, disputed }
     }
 
@@ -732,7 +732,7 @@ impl Tracker {
         let agreed = agree(&estimate.result.transform, theirs, at, peer_at);
         // The peer's estimate of this round, not the last's, says whether
         // the two dispute.
-        estimate.disputed = !agreed;
+        estimate.disputed = estimate.confirmed && !agreed;
         if agreed && !estimate.confirmed {
             self.confirm_now(estimate, at, peer_at);
         }

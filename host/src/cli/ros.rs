@@ -247,7 +247,7 @@ fn node(a: NodeArgs) -> Result<(), Error> {
                 "round": round, "robot": name, "peer": peer, "status": e.status().as_str(),
                 "kind": e.kind.as_str(), "fix": e.fix.as_str(), "confirmed": e.confirmed,
                 "contested": e.contested,
-                "disputed": e.disputed && e.confirmed, "adopted": *origin == Origin::Adopted,
+                "disputed": e.disputed, "adopted": *origin == Origin::Adopted,
                 "confirmation": *origin == Origin::Confirmed,
                 "T_own_peer": t, "overlap": e.result.overlap, "agreement": e.result.agreement,
                 "voxels": voxels.0, "peer_voxels": voxels.1, "seconds": seconds,

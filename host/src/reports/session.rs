@@ -146,7 +146,7 @@ impl From<&Record> for RecordJson {
             confirmed: e.is_some_and(|e| e.confirmed),
             adopted: r.adopted,
             contested: e.is_some_and(|e| e.contested),
-            disputed: e.is_some_and(|e| e.disputed && e.confirmed),
+            disputed: e.is_some_and(|e| e.disputed),
             t_own_peer: t,
             e_t: r.errors.map(|e| e.0),
             e_t_origin: r.origin_error,

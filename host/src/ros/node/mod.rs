@@ -216,7 +216,7 @@ impl Tally {
         self.made += 1;
         self.adopted += usize::from(origin == Origin::Adopted);
         self.contested += usize::from(e.contested);
-        self.disputed += usize::from(e.disputed && e.confirmed);
+        self.disputed += usize::from(e.disputed);
     }
 }
 

@@ -171,7 +171,7 @@ impl RosNode {
                         value("fix", e.fix.as_str().into()),
                         value("confirmed", e.confirmed.to_string()),
                         value("contested", e.contested.to_string()),
-                        value("disputed", (e.disputed && e.confirmed).to_string()),
+                        value("disputed", e.disputed.to_string()),
                         value("agreement", format!("{:.3}", e.result.agreement)),
                         value("overlap", format!("{:.3}", e.result.overlap)),
                     ]);
