@@ -26,7 +26,10 @@
 
 use crate::map::{LocalMap, VoxelStorage};
 use crate::wire::codec::{key_of, morton, update_record, within_step, EncodeError, MapEncoder};
-use crate::wire::update::{digest_of, write_update, Cut, Removed, UpdateAck, UpdateError, UpdateHeader, UpdateModel};
+use crate::wire::update::{
+    digest_of, write_update, Cut, Removed, UpdateAck, UpdateError, UpdateHeader, UpdateModel, ACK_BYTES,
+    MIN_UPDATE_BUDGET,
+};
 
 /// One voxel's record as a peer holds it: its cell (Morton code) and what
 /// the wire carried of it ([`update_record`]); where it is in the sender's
@@ -39,6 +42,45 @@ pub struct ShadowEntry {
     pub record: u32,
     /// Its index in the sender's map when the record was taken.
     pub index: u32,
+}
+
+/// How much a round's update may take ([`Publisher::set_budget`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum UpdateBudget {
+    /// At most this many bytes: a link's rate.
+    Bytes(u32),
+    /// At most this many thousandths of what the map would take sent
+    /// whole (a snapshot of the part the peer can hold), the peer's answer
+    /// ([`ACK_BYTES`]) included: a share of the map, whatever its labels
+    /// make a voxel cost. A cleaner map codes smaller, so a fixed number
+    /// of bytes is a larger share of it. Measured each round by writing
+    /// the snapshot, so it costs one more update's writing.
+    PerMille(u16),
+}
+
+impl UpdateBudget {
+    /// Whether the budget can be kept: at least [`MIN_UPDATE_BUDGET`]
+    /// bytes, or 1 to 1,000 thousandths.
+    pub fn is_valid(self) -> bool {
+        match self {
+            UpdateBudget::Bytes(b) => b >= MIN_UPDATE_BUDGET,
+            UpdateBudget::PerMille(m) => (1..=1000).contains(&m),
+        }
+    }
+
+    /// The bytes an update may take when the map sent whole takes `whole`
+    /// (never under [`MIN_UPDATE_BUDGET`]).
+    pub fn bytes(self, whole: usize) -> u32 {
+        match self {
+            UpdateBudget::Bytes(b) => b,
+            UpdateBudget::PerMille(m) => {
+                let share = (whole as u64).saturating_mul(u64::from(m)) / 1000;
+                let share = u32::try_from(share).unwrap_or(u32::MAX);
+                share.saturating_sub(ACK_BYTES as u32).max(MIN_UPDATE_BUDGET)
+            }
+        }
+    }
 }
 
 /// Why no update could be written.
@@ -112,8 +154,8 @@ pub struct Publisher<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> {
     /// coded from the first ([`crate::wire::update`]).
     held_model: UpdateModel,
     sent_model: UpdateModel,
-    /// Bytes an update (not a snapshot) may take, if bounded.
-    budget: Option<u32>,
+    /// What an update (not a snapshot) may take, if bounded.
+    budget: Option<UpdateBudget>,
 }
 
 impl ShadowEntry {
@@ -142,7 +184,7 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         }
     }
 
-    /// Bounds each update to `bytes` (`None`: unbounded; a snapshot never
+    /// Bounds each update to `budget` (`None`: unbounded; a snapshot never
     /// is: the peer needs it whole). A round that changed more sends what
     /// changed nearest the map's keep centre (the robot), changed voxels
     /// after new ones, and holds the rest back, as the peer holds it, for
@@ -152,8 +194,8 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
     /// an update exceeds the budget only when they alone do. Set in place:
     /// a publisher holds two codec models, which a board's stack should not
     /// carry by value.
-    pub fn set_budget(&mut self, bytes: Option<u32>) {
-        self.budget = bytes;
+    pub fn set_budget(&mut self, budget: Option<UpdateBudget>) {
+        self.budget = budget;
     }
 
     /// The session's epoch.
@@ -214,19 +256,29 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         self.sent_len = n;
         let snapshot = self.acked == 0;
         let held = if snapshot { 0 } else { self.held_len };
+        // A share is of the map as it is, before the deadband keeps records.
+        let budget = match self.budget.filter(|_| !snapshot) {
+            Some(b @ UpdateBudget::PerMille(_)) => Some(b.bytes(self.whole_len(map, scratch, out)?)),
+            Some(b) => Some(b.bytes(0)),
+            None => None,
+        };
+        let records = self.sent.as_mut().get_mut(..n).ok_or(PublisherError::Records)?;
         keep_held_within_step(self.held.as_ref().get(..held).unwrap_or(&[]), records);
         let mut written = self.write(map, held, scratch, out)?;
         let mut deferred = 0;
-        if let Some(budget) = self.budget.filter(|_| !snapshot) {
+        if let Some(budget) = budget {
             let centre = Cut::about(map.keep_centre(), map.resolution());
-            for _ in 0..MAX_BUDGET_PASSES {
+            for pass in 0..2 * MAX_BUDGET_PASSES {
                 if written.len <= budget as usize || written.candidates == 0 {
                     break;
                 }
                 // Bytes a voxel sent, over-counted by the header and the
                 // removals: a pass defers a little more than it must.
                 let over = written.len - budget as usize;
-                let want = (over * written.candidates).div_ceil(written.len) + 1;
+                // Passes that kept falling short (the voxels held back were
+                // the cheap ones) defer twice as many each from then on.
+                let more = 1 << pass.saturating_sub(MAX_BUDGET_PASSES - 1);
+                let want = ((over * written.candidates).div_ceil(written.len) + 1) * more;
                 let held_records = self.held.as_ref().get(..held).unwrap_or(&[]);
                 let records = self.sent.as_mut().get_mut(..self.sent_len).ok_or(PublisherError::Records)?;
                 let (kept, d) = defer_farthest(held_records, records, centre, want);
@@ -240,6 +292,21 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         self.in_flight = Some((version, written.digest));
         self.counts = UpdateCounts { deferred, snapshot, ..written.counts };
         Ok(written.len)
+    }
+
+    /// The bytes of the records in flight sent whole: the first update a
+    /// fresh publisher would send (a snapshot, version 1), written into
+    /// `out` and left there for the update that follows to overwrite.
+    fn whole_len<S: VoxelStorage>(
+        &mut self,
+        map: &LocalMap<S>,
+        scratch: &mut [u32],
+        out: &mut [u8],
+    ) -> Result<usize, PublisherError> {
+        let (acked, version) = (core::mem::replace(&mut self.acked, 0), core::mem::replace(&mut self.version, 0));
+        let written = self.write(map, 0, scratch, out);
+        (self.acked, self.version) = (acked, version);
+        Ok(written?.len)
     }
 
     /// Writes the update from the first `held` records the peer holds to
@@ -381,7 +448,9 @@ struct Written {
 }
 
 /// Passes of writing an update within its budget: each defers a little
-/// more than the last one's excess asked, so two mostly do.
+/// more than the last one's excess asked, so two mostly do; as many more
+/// again, each deferring twice the last, for the rare update these leave
+/// a few bytes over.
 const MAX_BUDGET_PASSES: usize = 6;
 
 /// Cells from the keep centre, at most: the histogram's last bin holds the

@@ -329,7 +329,7 @@ mod tests {
             source: Default::default(),
             alignment: crate::evaluation::session::DEFAULT_ALIGNMENT,
             one_shot: false,
-            update_budget: Some(crate::evaluation::session::DEFAULT_UPDATE_BUDGET),
+            update_budget: Some(cosem_core::session::UpdateBudget::Bytes(cosem_core::session::DEFAULT_UPDATE_BUDGET)),
             line: None,
         };
         let feeds = board_feeds(&spec, 60_000).unwrap();

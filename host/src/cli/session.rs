@@ -2,6 +2,7 @@
 //! `cosem_host::evaluation::session`).
 
 use super::Error;
+use cosem_core::session::UpdateBudget;
 use cosem_host::boards::pump::LineFault;
 use cosem_host::evaluation::session::{self, run, SessionSpec};
 use cosem_host::evaluation::team::RobotSpec;
@@ -64,11 +65,13 @@ pub struct Args {
     /// each robot's whole map sent afresh, each peer matched prior-free.
     #[arg(long)]
     one_shot: bool,
-    /// Bytes each robot's update to a peer may take a round, or `none`:
-    /// what changed beyond it waits for the next rounds, what is farthest
-    /// from the robot first (a snapshot is sent whole).
-    #[arg(long, default_value_t = Budget(Some(session::DEFAULT_UPDATE_BUDGET)))]
-    update_budget: Budget,
+    /// What each robot's update to a peer may take a round: bytes, a share
+    /// of the robot's map sent whole with the peer's answer (`15%`), or
+    /// `none`. What changed beyond it waits for the next rounds, what is
+    /// farthest from the robot first (a snapshot is sent whole). Default:
+    /// 15% on the host, 1024 bytes on the boards (which take bytes only).
+    #[arg(long)]
+    update_budget: Option<Budget>,
     /// JSON lines: one per robot, peer and round, then {"summary": {...}}.
     #[arg(long)]
     json: bool,
@@ -108,36 +111,36 @@ pub struct Args {
 }
 
 /// `--update-budget`: bytes (at least
-/// [`cosem_core::session::MIN_UPDATE_BUDGET`]), or `none`.
+/// [`cosem_core::session::MIN_UPDATE_BUDGET`]), a share of the map in
+/// percent (`15%`, to a tenth of a percent, more than 0 and at most 100),
+/// or `none`.
 #[derive(Clone, Copy, Debug)]
-struct Budget(Option<u32>);
-
-impl std::fmt::Display for Budget {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self.0 {
-            Some(b) => write!(f, "{b}"),
-            None => f.write_str("none"),
-        }
-    }
-}
+struct Budget(Option<UpdateBudget>);
 
 impl std::str::FromStr for Budget {
     type Err = String;
     fn from_str(s: &str) -> Result<Budget, String> {
-        match s.trim() {
-            "none" => Ok(Budget(None)),
-            t => t
-                .parse::<u32>()
-                .ok()
-                .filter(|&b| b >= cosem_core::session::MIN_UPDATE_BUDGET)
-                .map(|b| Budget(Some(b)))
-                .ok_or_else(|| {
-                    format!(
-                        "`{s}`: expected an update's bytes ({} or more), or `none`",
-                        cosem_core::session::MIN_UPDATE_BUDGET
-                    )
-                }),
+        let t = s.trim();
+        if t == "none" {
+            return Ok(Budget(None));
         }
+        let budget = match t.strip_suffix('%') {
+            Some(p) => p
+                .trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|p| p.is_finite())
+                .map(|p| (p * 10.0).round())
+                .filter(|m| (1.0..=1000.0).contains(m))
+                .map(|m| UpdateBudget::PerMille(m as u16)),
+            None => t.parse::<u32>().ok().map(UpdateBudget::Bytes),
+        };
+        budget.filter(|b| b.is_valid()).map(|b| Budget(Some(b))).ok_or_else(|| {
+            format!(
+                "`{s}`: expected an update's bytes ({} or more), a share of the map (`15%`: 0.1% to 100%), or `none`",
+                cosem_core::session::MIN_UPDATE_BUDGET
+            )
+        })
     }
 }
 
@@ -238,6 +241,9 @@ fn spec_of(a: &Args, robots: Vec<RobotSpec>) -> Result<SessionSpec, Error> {
     if a.one_shot && !a.on_board && a.line != LineFault::None {
         return Err("--line with --one-shot: a one-shot round sends whole maps afresh; a line is for updates".into());
     }
+    if a.on_board && matches!(a.update_budget, Some(Budget(Some(UpdateBudget::PerMille(_))))) {
+        return Err("--update-budget with --on-board: a board's budget is in bytes (or none), not a share".into());
+    }
     let tuned = [a.tuning.em_iterations.is_some(), a.tuning.min_overlap.is_some(), a.tuning.min_agreement.is_some()];
     if a.on_board && (tuned.contains(&true) || a.tuning.search_nodes.is_some()) {
         return Err("--on-board: the boards run the session robots' own pipeline (no --em-iterations, --min-overlap, --min-agreement or --search-nodes)".into());
@@ -259,7 +265,11 @@ fn spec_of(a: &Args, robots: Vec<RobotSpec>) -> Result<SessionSpec, Error> {
         source: a.source.options(),
         alignment: a.tuning.apply(session::DEFAULT_ALIGNMENT),
         one_shot: a.one_shot,
-        update_budget: a.update_budget.0,
+        update_budget: match a.update_budget {
+            Some(b) => b.0,
+            None if a.on_board => Some(UpdateBudget::Bytes(cosem_core::session::DEFAULT_UPDATE_BUDGET)),
+            None => Some(cosem_core::session::DEFAULT_UPDATE_SHARE),
+        },
         line: match (a.on_board, a.line) {
             // The boards' line is their UARTs' own (the relay's fault).
             (true, _) | (false, LineFault::None) => None,

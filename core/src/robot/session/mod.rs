@@ -401,7 +401,7 @@ where
             }
             FeedMessage::Session { update_budget } if self.fed.setup.is_some() && !self.session => {
                 self.session = true;
-                let budget = (update_budget > 0).then_some(update_budget);
+                let budget = (update_budget > 0).then_some(crate::session::UpdateBudget::Bytes(update_budget));
                 if let Some(p) = self.publisher.as_mut() {
                     p.set_budget(budget);
                 }

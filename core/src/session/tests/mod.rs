@@ -179,7 +179,7 @@ fn a_budget_bounds_each_update_and_what_waits_follows() {
     let mut ends = Ends::new();
     let Ends { held, sent, replica, scratch, out } = &mut ends;
     let mut publisher = Publisher::new(4, &mut held[..], &mut sent[..]);
-    publisher.set_budget(Some(BUDGET as u32));
+    publisher.set_budget(Some(UpdateBudget::Bytes(BUDGET as u32)));
     let (mut map, mut rng) = (robot_map(), Lcg(3));
     let (mut deferred_new, mut deferred) = (0, 0);
     let whole_cells = |code: u64, map: &VecMap| {
@@ -224,6 +224,50 @@ fn a_budget_bounds_each_update_and_what_waits_follows() {
         "the budget held back {deferred} ({deferred_new} rounds with new ones)"
     );
     // Standing still, everything that waited went: the copy is the map.
+    assert_eq!(publisher.counts().deferred, 0);
+    assert_published(replica.map(), publisher.published(), &map, "after the robot stopped");
+}
+
+/// A budget that is a share of the map: each update and its answer
+/// within that share of the map sent whole (measured as a fresh publisher
+/// sends it), the copy always the map as published, and some rounds
+/// bounded by it; once the robot stops, the copy is the map.
+#[test]
+fn a_share_of_the_map_bounds_each_update_with_its_answer() {
+    const PER_MILLE: u16 = 150;
+    let mut ends = Ends::new();
+    let Ends { held, sent, replica, scratch, out } = &mut ends;
+    let mut publisher = Publisher::new(6, &mut held[..], &mut sent[..]);
+    publisher.set_budget(Some(UpdateBudget::PerMille(PER_MILLE)));
+    let (mut map, mut rng) = (robot_map(), Lcg(5));
+    let (mut bounded, mut most) = (0, 0.0f64);
+    for round in 0..60 {
+        if round < 40 {
+            drive(&mut map, round, &mut rng);
+        }
+        let whole = {
+            let (mut h, mut s) = (vec![ShadowEntry::EMPTY; CAPACITY], vec![ShadowEntry::EMPTY; CAPACITY]);
+            let mut fresh = Publisher::new(6, &mut h[..], &mut s[..]);
+            let mut o = vec![0u8; out.len()];
+            fresh.next_update(&map, scratch, &mut o).unwrap()
+        };
+        let n = publisher.next_update(&map, scratch, out).unwrap();
+        let counts = publisher.counts();
+        assert_eq!(replica.apply(&out[..n], scratch), Applied::Applied, "round {round}");
+        publisher.on_ack(&replica.answer());
+        if round > 0 {
+            let share = (n + crate::wire::update::ACK_BYTES) as f64 / whole as f64;
+            assert!(
+                n + crate::wire::update::ACK_BYTES <= whole * usize::from(PER_MILLE) / 1000,
+                "round {round}: {n} of {whole}"
+            );
+            most = most.max(share);
+            bounded += usize::from(counts.deferred > 0);
+        }
+        let want: Vec<(u64, u32)> = publisher.published().iter().map(|r| (r.code, r.record)).collect();
+        assert_eq!(records(replica.map()), want, "round {round}: the copy is not the map as published");
+    }
+    assert!(bounded > 5 && most > 0.14, "{bounded} rounds bounded, the largest share {most}");
     assert_eq!(publisher.counts().deferred, 0);
     assert_published(replica.map(), publisher.published(), &map, "after the robot stopped");
 }

@@ -41,7 +41,12 @@ pub fn board_feeds(spec: &SessionSpec, silence_ms: u32) -> Result<BoardFeeds, Er
     let mut feeds = Vec::new();
     for (i, r) in robots.iter().enumerate() {
         let setup = Setup { robot_id: i as u8, resolution: spec.voxel, prior: None, silence_ms };
-        feeds.push(robot_feed(r, setup, (rounds, spec.every), spec.update_budget, spec.crop, &filter)?);
+        let budget = match spec.update_budget {
+            None => 0,
+            Some(cosem_core::session::UpdateBudget::Bytes(b)) => b,
+            Some(b) => return Err(Error::Invalid(format!("a board's update budget is in bytes (not {b:?})"))),
+        };
+        feeds.push(robot_feed(r, setup, (rounds, spec.every), budget, spec.crop, &filter)?);
     }
     let mut truth = Vec::new();
     for _ in 0..rounds {
@@ -62,7 +67,7 @@ fn robot_feed(
     r: &Robot,
     setup: Setup,
     (rounds, every): (usize, usize),
-    budget: Option<u32>,
+    budget: u32,
     crop: f32,
     filter: &PointFilter,
 ) -> Result<Vec<u8>, Error> {
@@ -74,7 +79,7 @@ fn robot_feed(
         Ok(())
     };
     push(FeedMessage::Setup(setup))?;
-    push(FeedMessage::Session { update_budget: budget.unwrap_or(0) })?;
+    push(FeedMessage::Session { update_budget: budget })?;
     let (mut scans, mut total) = (0u16, 0u32);
     for round in 0..rounds {
         let mut points = 0u32;

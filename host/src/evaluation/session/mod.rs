@@ -26,7 +26,9 @@ use crate::sources::source::{Source, SourceOptions};
 use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
 use cosem_core::matching::{Alignment, MatchResult, PackedNormal, Reach, Role};
-use cosem_core::session::{Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateCounts};
+use cosem_core::session::{
+    Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateBudget, UpdateCounts,
+};
 use nalgebra::Isometry3;
 use prepared::Prepared;
 use robot::Robot;
@@ -105,9 +107,10 @@ pub const MAX_CAPACITY: usize = 1 << 20;
 /// early).
 pub const FROM_SCRATCH_EVERY: usize = 10;
 
-/// Bytes an update may take by default (the robots'):
-/// [`cosem_core::session::DEFAULT_UPDATE_BUDGET`].
-pub const DEFAULT_UPDATE_BUDGET: u32 = cosem_core::session::DEFAULT_UPDATE_BUDGET;
+/// What an update may take by default on the host:
+/// [`cosem_core::session::DEFAULT_UPDATE_SHARE`] of the map sent whole (a
+/// board's, in bytes: [`cosem_core::session::DEFAULT_UPDATE_BUDGET`]).
+pub const DEFAULT_UPDATE_BUDGET: UpdateBudget = cosem_core::session::DEFAULT_UPDATE_SHARE;
 
 /// What `cosem session` runs.
 #[derive(Clone, Debug)]
@@ -141,10 +144,10 @@ pub struct SessionSpec {
     /// measured against: each robot's whole map sent afresh, each peer
     /// matched prior-free, nothing kept from the round before.
     pub one_shot: bool,
-    /// Bytes each update may take (`None`: unbounded; a snapshot never is):
+    /// What each update may take (`None`: unbounded; a snapshot never is):
     /// what changed beyond it, farthest from the robot first, waits for
-    /// the next rounds ([`Publisher::set_budget`]).
-    pub update_budget: Option<u32>,
+    /// the next rounds ([`Publisher::set_budget`]). Boards take bytes only.
+    pub update_budget: Option<UpdateBudget>,
     /// A simulated serial line between every two robots, their updates
     /// traded over it by the boards' courier (`None`: handed over whole).
     pub line: Option<line::SessionLine>,
@@ -517,9 +520,9 @@ fn checked_capacities(spec: &SessionSpec) -> Result<Vec<usize>, Error> {
             spec.capacity, spec.every
         )));
     }
-    if let Some(b) = spec.update_budget.filter(|&b| b < cosem_core::session::MIN_UPDATE_BUDGET) {
+    if let Some(b) = spec.update_budget.filter(|b| !b.is_valid()) {
         return Err(Error::Invalid(format!(
-            "an update's budget is {} bytes or more (not {b})",
+            "an update's budget is {} bytes or more, or 1 to 1000 thousandths of the map (not {b:?})",
             cosem_core::session::MIN_UPDATE_BUDGET
         )));
     }
