@@ -258,8 +258,8 @@ impl<R: AsRef<[ShadowEntry]> + AsMut<[ShadowEntry]>> Publisher<R> {
         let held = if snapshot { 0 } else { self.held_len };
         // A share is of the map as it is, before the deadband keeps records.
         let budget = match self.budget.filter(|_| !snapshot) {
-            Some(b @ UpdateBudget::PerMille(_)) => Some(b.bytes(self.whole_len(map, scratch, out)?)),
-            Some(b) => Some(b.bytes(0)),
+            Some(UpdateBudget::Bytes(b)) => Some(b),
+            Some(b) => Some(b.bytes(self.whole_len(map, scratch, out)?)),
             None => None,
         };
         let records = self.sent.as_mut().get_mut(..n).ok_or(PublisherError::Records)?;
