@@ -31,8 +31,8 @@ pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateBudget, Update
 pub use replica::{Applied, Replica};
 pub use smoother::Smoother;
 pub use tracker::{
-    agree, made_before, Estimate, Fix, Kind, PeerView, Tracked, Tracker, ADOPT_CONFIRMED_SLACK, ADOPT_MARGIN,
-    AGREE_DEG, AGREE_M, HOLD_M, REFUSED_ROUNDS,
+    adopt_backed, agree, made_before, Estimate, Fix, Kind, PeerView, Tracked, Tracker, ADOPT_CONFIRMED_SLACK,
+    ADOPT_MARGIN, AGREE_DEG, AGREE_M, HOLD_M, REFUSED_ROUNDS,
 };
 
 /// The verdict's least overlap in a session: 0.25, where a one-shot

@@ -145,7 +145,8 @@ pub const ADOPT_MARGIN: f32 = 0.10;
 /// these rounds were lost. A contested fix is not enough: two searches do
 /// find a look-alike alike (town seed 22, a street turned by half a turn
 /// 35 m off, confirmed and contested, adopted at 0.35 with a slack of
-/// 0.10).
+/// 0.10). A peer's recall that this robot's own search found too is
+/// adopted with it as well ([`adopt_backed`]).
 pub const ADOPT_CONFIRMED_SLACK: f32 = 0.05;
 
 /// What a robot knows of its peer's estimate of it, and where it is.
@@ -240,6 +241,32 @@ pub fn agree(ours: &Isometry3<f32>, theirs: &Isometry3<f32>, at: [f32; 3], peer_
     let closes = |p: nalgebra::Point3<f32>| (loop_ * p - p).norm() < AGREE_M;
     let peer = peer_at.map(|q| ours * nalgebra::Point3::from(q));
     loop_.rotation.angle() < AGREE_DEG.to_radians() && closes(at.into()) && peer.is_none_or(closes)
+}
+
+/// Whether a robot adopts the peer's fix `theirs` (`T_peer_own`) with
+/// [`ADOPT_CONFIRMED_SLACK`] rather than [`ADOPT_MARGIN`]
+/// ([`Tracker::adopt`]'s `reported`): the peer reports it `Converged`
+/// (`reported`), or it is the peer's recall of the fix the two confirmed
+/// at a meeting before ([`Tracker::recalling`], `recalling`) and this
+/// robot's own prior-free search of the round found it too (`own`: its
+/// estimate's kind and `T_own_peer`, refused by its verdict), judged by
+/// [`agree`] at `at` and `peer_at`.
+///
+/// Why: a recall and a second, independent search that finds the same
+/// placement are what a confirmed fix is, less this robot's verdict, which
+/// the adoption then asks at the slack. Town seed 5 (network labels, round
+/// 111): the peer's recall 0.15 m off, this robot's search 0.19 m off at
+/// agreement 0.39, refused; both waited a round.
+pub fn adopt_backed(
+    reported: bool,
+    recalling: bool,
+    own: Option<(Kind, &Isometry3<f32>)>,
+    theirs: &Isometry3<f32>,
+    at: [f32; 3],
+    peer_at: Option<[f32; 3]>,
+) -> bool {
+    let found_too = own.is_some_and(|(kind, ours)| kind == Kind::PriorFree && agree(ours, theirs, at, peer_at));
+    reported || (recalling && found_too)
 }
 
 /// Whether the peer's fix `now` (`T_peer_own`) is the one its estimate
@@ -371,6 +398,14 @@ impl Tracker {
     /// the verdict, which the next round tracks from.
     pub fn fix(&self) -> Option<&Isometry3<f32>> {
         self.fix.as_ref()
+    }
+
+    /// Whether the fix held is a recall not yet vouched for: found again,
+    /// this round or an earlier one, in the window of the last fix the
+    /// peer confirmed ([`Tracker::search`]), and confirmed once it passes
+    /// the verdict again or the peer's estimate agrees with it.
+    pub fn recalling(&self) -> bool {
+        self.vouch_pending && self.fix.is_some() && !self.confirmed
     }
 
     /// The pose reported while the fix is held: the fix's answers

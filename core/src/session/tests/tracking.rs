@@ -627,9 +627,11 @@ fn a_fix_found_again_where_the_peer_confirmed_the_last_is_confirmed_the_next_rou
     let found = estimate(&mut tracker, &same, None);
     assert_eq!((found.kind, found.fix, found.confirmed), (Kind::Tracking, Fix::Held, false), "{found:?}");
     assert_eq!(found.status(), MatchStatus::NotConverged);
+    assert!(tracker.recalling(), "a recall waiting for its vouch says so (a peer may adopt it)");
     let again = estimate(&mut tracker, &same, None);
     assert_eq!((again.kind, again.fix, again.confirmed), (Kind::Tracking, Fix::Held, true), "{again:?}");
     assert_eq!(again.status(), MatchStatus::Converged);
+    assert!(!tracker.recalling());
     assert!(agree(&again.result.transform, &fix.inverse(), at, None));
     // The peer's estimate 3 m and 5 degrees off: it waits for the peer.
     let (mut tracker, fix) = met_and_parted(true);
@@ -646,7 +648,31 @@ fn a_fix_found_again_where_the_peer_confirmed_the_last_is_confirmed_the_next_rou
         let unvouched = estimate(&mut tracker, &same, None);
         assert_eq!((unvouched.kind, unvouched.fix, unvouched.confirmed), (Kind::Tracking, Fix::Held, false));
         assert_eq!(unvouched.status(), MatchStatus::NotConverged, "{round}");
+        assert!(!tracker.recalling(), "{round}");
     }
+}
+
+/// The peer's fix is adopted with the slack where the peer reports it
+/// `Converged`, or where it is the peer's recall and this robot's own
+/// prior-free search of the round found the same placement; with the
+/// margin otherwise: a recall alone, a search elsewhere, or a tracked
+/// answer (not a second search).
+#[test]
+fn a_recall_this_robots_own_search_found_too_is_adopted_with_the_slack() {
+    use crate::geometry::from_xyz_rpy;
+    use crate::session::adopt_backed;
+    let ours = from_xyz_rpy(20.0, -3.0, 0.0, 0.0, 0.0, 0.4);
+    let theirs = ours.inverse();
+    let (at, peer_at) = ([5.0, 1.0, 0.0], Some([-14.0, 2.0, 0.0]));
+    // 0.1 m and 0.1 degrees off: the same placement; 2 m aside: not.
+    let near = from_xyz_rpy(0.1, 0.0, 0.0, 0.0, 0.0, 0.002) * ours;
+    let aside = from_xyz_rpy(0.0, 2.0, 0.0, 0.0, 0.0, 0.0) * ours;
+    assert!(adopt_backed(true, false, None, &theirs, at, peer_at));
+    assert!(adopt_backed(false, true, Some((Kind::PriorFree, &near)), &theirs, at, peer_at));
+    assert!(!adopt_backed(false, false, Some((Kind::PriorFree, &near)), &theirs, at, peer_at));
+    assert!(!adopt_backed(false, true, Some((Kind::PriorFree, &aside)), &theirs, at, peer_at));
+    assert!(!adopt_backed(false, true, Some((Kind::Tracking, &near)), &theirs, at, peer_at));
+    assert!(!adopt_backed(false, true, None, &theirs, at, peer_at));
 }
 
 /// A first fix reported for the first time is judged against the robot's

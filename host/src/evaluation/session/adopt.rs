@@ -5,7 +5,7 @@
 use super::{copy_of, errors_of, figures, Error, Lines, Links, MatchRoom, Record, Robot, SessionSpec};
 use cosem_core::geometry::Isometry3;
 use cosem_core::matching::{MatchStatus, Role};
-use cosem_core::session::{made_before, PeerView, Tracker};
+use cosem_core::session::{adopt_backed, made_before, PeerView, Tracker};
 use std::time::Instant;
 
 use super::prepared::Prepared;
@@ -28,7 +28,9 @@ impl Adopting<'_> {
     /// robot passed the peer's and was made this round (not the fix its
     /// estimate of the last round was; unconfirmed, or confirmed by the
     /// peer's history, `Tracker::search`'s recall): the peer's fix tried
-    /// ([`Tracker::adopt`], told whether the peer reports it `Converged`);
+    /// ([`Tracker::adopt`], with the slack where the peer reports it
+    /// `Converged` or it is the peer's recall that this robot's own search
+    /// found too: [`adopt_backed`]);
     /// where it is adopted, the record takes the new estimate, its errors
     /// and the seconds it took.
     pub fn round(
@@ -38,20 +40,29 @@ impl Adopting<'_> {
         records: &mut [Record],
         (robots, links, lines): (&[Robot], &Links, &Lines),
     ) -> Result<(), Error> {
-        let waiting: Vec<(usize, usize, Isometry3<f32>, bool)> = records
+        let trackers = &*self.trackers;
+        let waiting: Vec<(usize, usize, Isometry3<f32>, bool, bool)> = records
             .iter()
             .filter_map(|r| {
                 let e = r.estimate.as_ref().filter(|e| e.offered())?;
-                Some((r.robot, r.peer, e.result.transform, e.status() == MatchStatus::Converged))
+                let recall = trackers[r.robot][r.peer].recalling();
+                Some((r.robot, r.peer, e.result.transform, e.status() == MatchStatus::Converged, recall))
             })
             .collect();
         for r in records.iter_mut() {
             let (i, j) = (r.robot, r.peer);
             let failed = r.estimate.as_ref().is_some_and(|e| e.result.status != MatchStatus::Converged);
             let tracker = &mut self.trackers[i][j];
-            let Some(&(.., theirs, reported)) = waiting.iter().find(|w| (w.0, w.1) == (j, i)).filter(|_| failed) else {
+            let Some(&(.., theirs, reported, recall)) =
+                waiting.iter().find(|w| (w.0, w.1) == (j, i)).filter(|_| failed)
+            else {
                 continue;
             };
+            // The peer's recall, which this robot's own search found too, is
+            // adopted with the slack, as a fix the peer reports `Converged`.
+            let (at, peer_at) = (self.places[i], self.places.get(j).copied());
+            let own = r.estimate.as_ref().map(|e| (e.kind, &e.result.transform));
+            let backed = adopt_backed(reported, recall, own, &theirs, at, peer_at);
             // Only a fix the peer made this round: one it held the round
             // before, which this robot's own search did not find, is not
             // adopted (town seed 19: a street slid 112 m, held by the peer
@@ -62,15 +73,10 @@ impl Adopting<'_> {
             let t0 = Instant::now();
             let copy = copy_of((i, j), links, lines)?;
             let (mut own, mut peer) = (Prepared::new(&robots[i].map, Role::Model), Prepared::new(copy, Role::Scene));
-            let view = PeerView {
-                estimate: None,
-                at: self.places[i],
-                peer_at: self.places.get(j).copied(),
-                copy_at: self.copy_at[i][j],
-            };
+            let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at[i][j] };
             let pyramids = (own.tracked()?.0, peer.tracked()?.0);
             let adopted = tracker
-                .adopt(pyramids, &spec.alignment, &mut self.room.tracking(), &view, &theirs, reported)
+                .adopt(pyramids, &spec.alignment, &mut self.room.tracking(), &view, &theirs, backed)
                 .map_err(|e| Error::Invalid(format!("matching: {e}")))?;
             r.seconds += t0.elapsed().as_secs_f64();
             if let Some(e) = adopted {
