@@ -58,18 +58,18 @@ impl Adopting<'_> {
             else {
                 continue;
             };
-            // The peer's recall, which this robot's own search found too, is
-            // adopted with the slack, as a fix the peer reports `Converged`.
             let (at, peer_at) = (self.places[i], self.places.get(j).copied());
-            let own = r.estimate.as_ref().map(|e| (e.kind, &e.result.transform));
-            let backed = adopt_backed(reported, recall, own, &theirs, at, peer_at);
             // Only a fix the peer made this round: one it held the round
             // before, which this robot's own search did not find, is not
             // adopted (town seed 19: a street slid 112 m, held by the peer
             // unconfirmed for five rounds, adopted at agreement 0.50).
-            if tracker.fix().is_some() || self.heard[j][i].is_some_and(|b| made_before(&b, &theirs, self.places[i])) {
+            if tracker.fix().is_some() || self.heard[j][i].is_some_and(|b| made_before(&b, &theirs, at)) {
                 continue;
             }
+            // The peer's recall, which this robot's own search found too, is
+            // adopted with the slack, as a fix the peer reports `Converged`.
+            let mine = r.estimate.as_ref().map(|e| (e.kind, &e.result.transform));
+            let backed = adopt_backed(reported, recall, mine, &theirs, at, peer_at);
             let t0 = Instant::now();
             let copy = copy_of((i, j), links, lines)?;
             let (mut own, mut peer) = (Prepared::new(&robots[i].map, Role::Model), Prepared::new(copy, Role::Scene));
