@@ -23,7 +23,8 @@ use crate::matching::{Work, WorkCosts};
 use crate::pipeline::Pipeline;
 use crate::region::RegionError;
 use crate::session::{
-    made_before, Applied, Estimate, PeerView, Publisher, PublisherError, Replica, ShadowEntry, Tracker, UpdateCounts,
+    adopt_backed, made_before, Applied, Estimate, PeerView, Publisher, PublisherError, Replica, ShadowEntry, Tracker,
+    UpdateCounts,
 };
 use crate::wire::feed::{FeedError, FeedMessage, RobotMessage, RoundReport, SessionEnd};
 use crate::wire::frame::MAX_PAYLOAD;
@@ -213,12 +214,13 @@ where
     marks: RoundMarks,
     stats_at_start: CourierStats,
     /// This robot's last estimate of its peer that passed the verdict, and
-    /// whether it was reported `Converged` (confirmed, not contested).
+    /// what it said of it (reported `Converged`, confirmed and not
+    /// contested; or a recall waiting for its vouch).
     last_estimate: Option<HeadEstimate>,
     /// The peer's, as its last message said.
     heard: Option<Isometry3<f32>>,
-    /// Whether the peer reported that estimate `Converged`.
-    heard_converged: bool,
+    /// What the peer said of that estimate.
+    heard_said: Said,
     /// The peer's, as the message before it said: a fix it made in its
     /// last round is one this does not agree with.
     heard_before: Option<Isometry3<f32>>,
@@ -278,7 +280,7 @@ where
             stats_at_start: CourierStats::default(),
             last_estimate: None,
             heard: None,
-            heard_converged: false,
+            heard_said: Said::Passed,
             heard_before: None,
             heard_at: None,
             copy_at: None,
@@ -503,8 +505,8 @@ where
                 let (head, update) = message.split_at_checked(ESTIMATE_BYTES).unwrap_or((&[], message));
                 self.heard_before = self.heard;
                 let (heard, at) = read_head(head);
-                (self.heard, self.heard_converged, self.heard_at) =
-                    (heard.map(|h| h.0), heard.is_some_and(|h| h.1), at);
+                (self.heard, self.heard_said, self.heard_at) =
+                    (heard.map(|h| h.0), heard.map_or(Said::Passed, |h| h.1), at);
                 let applied = replica.apply(update, self.scratch);
                 self.copy_at = Some(self.map.keep_centre());
                 if matches!(applied, Applied::Diverged | Applied::Restarted) {
@@ -590,7 +592,12 @@ where
         };
         let t2 = meter.instructions();
         let passed = estimate.as_ref().filter(|e| e.offered());
-        self.last_estimate = passed.map(|e| (e.result.transform, e.status() == MatchStatus::Converged));
+        let said = match passed.map(Estimate::status) {
+            Some(MatchStatus::Converged) => Said::Converged,
+            _ if self.tracker.recalling() => Said::Recalling,
+            _ => Said::Passed,
+        };
+        self.last_estimate = passed.map(|e| (e.result.transform, said));
         let report = self.round_report(me, estimate.as_ref(), [t0, t1, t2], meter.peak_stack(), &work);
         super::send(feed, &RobotMessage::Round(report));
         self.round = self.round.wrapping_add(1);
@@ -625,7 +632,12 @@ where
         let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at };
         let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(work);
         let how = SESSION_PIPELINE.alignment;
-        let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs, self.heard_converged);
+        // With the slack where the peer reports its fix `Converged`, or it
+        // is the peer's recall that this robot's own search found too, as
+        // on the host.
+        let (converged, recalling) = (self.heard_said == Said::Converged, self.heard_said == Said::Recalling);
+        let backed = adopt_backed(converged, recalling, Some((own.kind, &own.result.transform)), &theirs, at, peer_at);
+        let adopted = self.tracker.adopt((&model, &scene), &how, scratch, &view, &theirs, backed);
         Ok(adopted.map_err(|e| RobotError::Align(super::AlignError::Match(e)))?.unwrap_or(own))
     }
 
@@ -669,18 +681,36 @@ where
     }
 }
 
-/// Bytes of the head ahead of a round's update: a flag (1: an estimate
-/// follows; 2: one the sender reports `Converged`, confirmed and not
-/// contested, which its peer may adopt with less agreement,
-/// [`Tracker::adopt`]), then `T_sender_receiver`'s top three rows, row by row, then
+/// Bytes of the head ahead of a round's update: a flag (0: no estimate;
+/// else one follows, and [`Said`] says what the sender says of it), then
+/// `T_sender_receiver`'s top three rows, row by row, then
 /// where the sender is (its frame: the agreement of two estimates is
 /// judged at both robots' places, [`crate::session::agree`]), all
 /// little-endian `f32`.
 pub const ESTIMATE_BYTES: usize = 1 + 48 + 12;
 
-/// An estimate a message's head carries, and whether its sender reports
-/// it `Converged`.
-type HeadEstimate = (Isometry3<f32>, bool);
+/// What a message's head says of the estimate it carries (its flag byte).
+/// The peer adopts a fix said `Converged`, or a recall its own search found
+/// too, with less agreement ([`Tracker::adopt`], [`adopt_backed`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Said {
+    /// 1: it passed the sender's verdict.
+    Passed = 1,
+    /// 2: the sender reports it `Converged` (confirmed, not contested).
+    Converged = 2,
+    /// 3: a recall, the fix the pair confirmed before found again, waiting
+    /// for its vouch ([`Tracker::recalling`]).
+    Recalling = 3,
+}
+
+impl Said {
+    fn of(flag: u8) -> Option<Said> {
+        [Said::Passed, Said::Converged, Said::Recalling].into_iter().find(|s| *s as u8 == flag)
+    }
+}
+
+/// An estimate a message's head carries, and what its sender says of it.
+type HeadEstimate = (Isometry3<f32>, Said);
 
 /// Writes `estimate` (or none) and the robot's place `at` as a message's
 /// head.
@@ -688,8 +718,8 @@ fn write_head(estimate: Option<&HeadEstimate>, at: [f32; 3], out: &mut [u8]) {
     out.fill(0);
     let Some((flag, rest)) = out.split_first_mut() else { return };
     let (rows, place) = rest.split_at_mut(rest.len().min(48));
-    if let Some((t, converged)) = estimate {
-        *flag = if *converged { 2 } else { 1 };
+    if let Some((t, said)) = estimate {
+        *flag = *said as u8;
         for (o, v) in rows.chunks_exact_mut(4).zip(crate::geometry::rows(t)) {
             o.copy_from_slice(&v.to_le_bytes());
         }
@@ -716,8 +746,7 @@ fn read_head(head: &[u8]) -> (Option<HeadEstimate>, Option<[f32; 3]>) {
         return (None, None);
     };
     let (rows, place) = rest.split_at_checked(48).unwrap_or((&[], &[]));
-    let estimate =
-        floats::<12>(rows).filter(|_| flag == 1 || flag == 2).map(|r| (crate::geometry::from_rows(&r), flag == 2));
+    let estimate = floats::<12>(rows).zip(Said::of(flag)).map(|(r, said)| (crate::geometry::from_rows(&r), said));
     (estimate, floats::<3>(place))
 }
 

@@ -303,33 +303,38 @@ fn a_robot_that_holds_less_is_sent_what_fits() {
     assert!(ra.iter().any(|r| r.map_voxels > SMALL as u32), "robot 0's map outgrew what robot 1 holds");
 }
 
-/// A message's head carries the sender's estimate (when it has one) and
-/// its place; a head of another length, or a number that is not finite,
-/// says nothing of what it spoils.
+/// A message's head carries the sender's estimate (when it has one), what
+/// the sender says of it, and its place; a head of another length, or a
+/// number that is not finite, says nothing of what it spoils. Golden bytes:
+/// the flag is 1 (passed), 2 (`Converged`) or 3 (a recall waiting for its
+/// vouch), the rows and the place little-endian `f32`.
 #[test]
 fn a_head_carries_the_estimate_and_the_place() {
-    use super::{read_head, write_head, ESTIMATE_BYTES};
+    use super::{read_head, write_head, Said, ESTIMATE_BYTES};
     let t = from_xyz_rpy(12.5, -3.0, 0.25, 0.01, -0.02, 0.7);
     let at = [40.25, -7.5, 0.5];
     let mut head = [0u8; ESTIMATE_BYTES];
-    for converged in [false, true] {
-        write_head(Some(&(t, converged)), at, &mut head);
+    for (said, flag) in [(Said::Passed, 1), (Said::Converged, 2), (Said::Recalling, 3)] {
+        write_head(Some(&(t, said)), at, &mut head);
+        assert_eq!(head[0], flag);
+        assert_eq!(head[49..53], 40.25f32.to_le_bytes());
         let (estimate, place) = read_head(&head);
-        assert_eq!(estimate.map(|(e, c)| (rows(&e), c)), Some((rows(&t), converged)));
+        assert_eq!(estimate.map(|(e, s)| (rows(&e), s)), Some((rows(&t), said)));
         assert_eq!(place, Some(at));
     }
     write_head(None, at, &mut head);
+    assert_eq!(head[0], 0);
     assert_eq!(read_head(&head), (None, Some(at)));
     // A flag the format does not have: no estimate.
-    write_head(Some(&(t, true)), at, &mut head);
-    head[0] = 3;
+    write_head(Some(&(t, Said::Converged)), at, &mut head);
+    head[0] = 4;
     assert_eq!(read_head(&head), (None, Some(at)));
     // A place that is not finite: the estimate still read, no place.
-    write_head(Some(&(t, false)), [f32::NAN, 0.0, 0.0], &mut head);
+    write_head(Some(&(t, Said::Passed)), [f32::NAN, 0.0, 0.0], &mut head);
     let (estimate, place) = read_head(&head);
     assert!(estimate.is_some() && place.is_none());
     // An estimate that is not finite: none, the place still read.
-    write_head(Some(&(t, false)), at, &mut head);
+    write_head(Some(&(t, Said::Passed)), at, &mut head);
     head[1..5].copy_from_slice(&f32::INFINITY.to_le_bytes());
     assert_eq!(read_head(&head), (None, Some(at)));
     assert_eq!(read_head(&head[..ESTIMATE_BYTES - 1]), (None, None));
