@@ -682,7 +682,8 @@ where
 }
 
 /// Bytes of the head ahead of a round's update: a flag (0: no estimate;
-/// else one follows, and [`Said`] says what the sender says of it), then
+/// 1: one follows that passed the sender's verdict; 2: one the sender
+/// reports `Converged`; 3: a recall waiting for its vouch), then
 /// `T_sender_receiver`'s top three rows, row by row, then
 /// where the sender is (its frame: the agreement of two estimates is
 /// judged at both robots' places, [`crate::session::agree`]), all
