@@ -14,7 +14,10 @@
 //! - each estimate that passed the verdict on a shared fixes topic
 //!   (`tf2_msgs/TFMessage`, own odometry frame the parent), from which the
 //!   peers confirm theirs: two robots' estimates that compose to the
-//!   identity ([`cosem_core::session::agree`]);
+//!   identity ([`cosem_core::session::agree`]), and from which a robot
+//!   with no fix adopts a peer's, with less agreement where the peer's
+//!   pose of it (below) says the peer reports it `Converged`
+//!   ([`reported_by`]);
 //! - while an estimate is `Converged` (passed and confirmed): the pose of
 //!   the peer's odometry frame in the robot's, with its covariance, on
 //!   `/<robot>/peers/<peer>/pose`; and on `/tf` one edge, the robot's
@@ -238,6 +241,35 @@ struct Peer {
     /// Why it is not estimated, if it is not (another voxel size).
     refused: Option<String>,
     pose: Option<ros2_client::Publisher<PoseWithCovarianceStamped>>,
+    /// The peer's pose of this robot (`/<peer>/peers/<robot>/pose`,
+    /// published only while the peer's estimate is `Converged`), and the
+    /// last one heard (`T_peer_own`, its stamp): a fix of the same stamp
+    /// is one the peer reports `Converged` ([`reported_by`]).
+    reports: ros2_client::Subscription<PoseWithCovarianceStamped>,
+    reported: Option<(Isometry3<f32>, Time)>,
+}
+
+/// The topic on which `robot` publishes its pose of `peer` while its
+/// estimate of it is `Converged`.
+fn pose_topic(robot: &str, peer: &str) -> String {
+    format!("/{}/peers/{}/pose", robot.trim_start_matches('/'), peer.trim_start_matches('/'))
+}
+
+/// Whether the peer reports its fix `theirs` (`T_peer_own`), stamped
+/// `stamp`, `Converged` ([`cosem_core::session::adopt_backed`]'s
+/// `reported`): its last pose of this robot, `reported`, has the fix's
+/// stamp and agrees with it where the robot is, `at`. Why the stamp: the
+/// peer publishes its pose and its fix of one estimate with one stamp,
+/// the pose first; a pose of another estimate, or one that comes after
+/// the fix, leaves the fix adopted with the margin, as a fix that does
+/// not say.
+pub fn reported_by(
+    reported: Option<&(Isometry3<f32>, Time)>,
+    theirs: &Isometry3<f32>,
+    stamp: Time,
+    at: [f32; 3],
+) -> bool {
+    reported.is_some_and(|(pose, s)| *s == stamp && cosem_core::session::made_before(pose, theirs, at))
 }
 
 /// The topics the node reads and writes.
@@ -258,6 +290,7 @@ struct Topics {
 
 const TF: (&str, &str) = ("tf2_msgs", "TFMessage");
 const UPDATE: (&str, &str) = ("cosem_msgs", "MapUpdate");
+const POSE: (&str, &str) = ("geometry_msgs", "PoseWithCovarianceStamped");
 
 impl Topics {
     fn new(dds: &mut DdsNode, spec: &NodeSpec) -> Result<Self, Error> {
@@ -529,6 +562,17 @@ impl RosNode {
         for m in snapshots.into_iter().chain(updates) {
             self.peer_update(m, log)?;
         }
+        // The peers' poses of this robot before their fixes: a peer
+        // publishes an estimate's pose before its fix.
+        for (name, peer) in &mut self.peers {
+            let topic = pose_topic(name, &self.spec.name);
+            for m in drain(&peer.reports, &topic, &mut self.summary, log) {
+                let t = Transform { translation: m.pose.pose.position, rotation: m.pose.pose.orientation };
+                if let Some(iso) = iso_of(&t) {
+                    peer.reported = Some((nalgebra::convert(iso), m.header.stamp));
+                }
+            }
+        }
         for m in &fixes {
             self.peer_fixes(m, log)?;
         }
@@ -560,6 +604,24 @@ fn drain<T: serde::de::DeserializeOwned + 'static>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_fix_is_reported_converged_only_by_a_pose_of_its_stamp_that_agrees() {
+        let theirs = Isometry3::new(nalgebra::Vector3::new(30.0, -4.0, 0.5), nalgebra::Vector3::z() * 0.8);
+        let (stamp, at) = (time_of(12_500_000_000), [3.0, 1.0, 0.0]);
+        // The peer's pose of this estimate: the same transform, the same stamp.
+        assert!(reported_by(Some(&(theirs, stamp)), &theirs, stamp, at));
+        // None heard, or the pose of an earlier estimate (another stamp).
+        assert!(!reported_by(None, &theirs, stamp, at));
+        assert!(!reported_by(Some(&(theirs, time_of(12_300_000_000))), &theirs, stamp, at));
+        // The same stamp, another placement: 1 m aside, or 2 degrees turned.
+        let aside = Isometry3::new(nalgebra::Vector3::new(31.0, -4.0, 0.5), nalgebra::Vector3::z() * 0.8);
+        let turned = Isometry3::new(nalgebra::Vector3::new(30.0, -4.0, 0.5), nalgebra::Vector3::z() * 0.835);
+        assert!(!reported_by(Some(&(aside, stamp)), &theirs, stamp, at));
+        assert!(!reported_by(Some(&(turned, stamp)), &theirs, stamp, at));
+        // Its topic: the peer's namespace, this robot's name.
+        assert_eq!(pose_topic("robot_1", "/robot_0"), "/robot_1/peers/robot_0/pose");
+    }
 
     #[test]
     fn a_full_node_forgets_only_a_peer_silent_for_a_minute() {

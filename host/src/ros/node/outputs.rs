@@ -109,9 +109,11 @@ impl RosNode {
         Ok(())
     }
 
-    /// The peer's last estimate: on the fixes topic when it passed the
-    /// verdict and is not doubted (`Estimate::offered`); as a pose with
-    /// covariance when `Converged`.
+    /// The peer's last estimate: as a pose with covariance when
+    /// `Converged`, then on the fixes topic, with the same stamp, when it
+    /// passed the verdict and is not doubted (`Estimate::offered`). The
+    /// pose first: a peer that hears it before the fix knows the fix is
+    /// reported `Converged` ([`reported_by`]).
     pub(super) fn publish_estimate(&mut self, name: &str) -> Result<(), Error> {
         let stamp = self.own.stamp;
         let own_frame = self.spec.odom_frame.clone();
@@ -121,20 +123,19 @@ impl RosNode {
             return Ok(());
         }
         let t: Isometry3<f64> = nalgebra::convert(e.result.transform);
-        let fix = edge(stamp, own_frame.clone(), peer.odom_frame.clone(), &t);
-        self.topics.fixes.publish(TfMessage { transforms: vec![fix] }).map_err(|e| published(&self.spec.fixes, e))?;
         let info: nalgebra::Matrix6<f64> = nalgebra::convert(e.result.information);
-        let (Some(pose), MatchStatus::Converged) = (pose_with_covariance(&t, &info), e.status()) else { return Ok(()) };
-        let topic = format!("/{}/peers/{}/pose", self.spec.name.trim_start_matches('/'), name.trim_start_matches('/'));
-        if peer.pose.is_none() {
-            peer.pose =
-                Some(self.dds.publisher(&topic, ("geometry_msgs", "PoseWithCovarianceStamped"), TopicKind::Tf)?);
+        if let (Some(pose), MatchStatus::Converged) = (pose_with_covariance(&t, &info), e.status()) {
+            let topic = pose_topic(&self.spec.name, name);
+            if peer.pose.is_none() {
+                peer.pose = Some(self.dds.publisher(&topic, POSE, TopicKind::Tf)?);
+            }
+            if let Some(p) = &peer.pose {
+                p.publish(PoseWithCovarianceStamped { header: Header { stamp, frame_id: own_frame.clone() }, pose })
+                    .map_err(|e| published(&topic, e))?;
+            }
         }
-        if let Some(p) = &peer.pose {
-            p.publish(PoseWithCovarianceStamped { header: Header { stamp, frame_id: own_frame }, pose })
-                .map_err(|e| published(&topic, e))?;
-        }
-        Ok(())
+        let fix = edge(stamp, own_frame, peer.odom_frame.clone(), &t);
+        self.topics.fixes.publish(TfMessage { transforms: vec![fix] }).map_err(|e| published(&self.spec.fixes, e))
     }
 
     /// The robot's odometry frame under the lowest-named peer's it holds

@@ -32,6 +32,7 @@ impl RosNode {
             }
         }
         let copy = new_map(self.spec.capacity, *self.own.map.config())?;
+        let reports = self.dds.subscription(&pose_topic(&m.robot, &self.spec.name), POSE, TopicKind::Tf)?;
         let peer = Peer {
             odom_frame: m.header.frame_id.clone(),
             follower: Follower::new(copy),
@@ -43,6 +44,8 @@ impl RosNode {
             updated: now,
             refused: None,
             pose: None,
+            reports,
+            reported: None,
         };
         self.peers.insert(m.robot.clone(), peer);
         Ok(true)
@@ -135,7 +138,8 @@ impl RosNode {
             peer.heard = Some((theirs, Instant::now()));
             let refused = peer.last.is_some_and(|e| e.result.status != MatchStatus::Converged);
             if fresh && refused && peer.tracker.fix().is_none() {
-                self.adopt(&name, &theirs, log)?;
+                let reported = reported_by(peer.reported.as_ref(), &theirs, t.header.stamp, place);
+                self.adopt(&name, &theirs, reported, log)?;
                 continue;
             }
             let Some(mut e) = peer.last.filter(|e| e.result.status == MatchStatus::Converged && !e.confirmed) else {
@@ -164,9 +168,16 @@ impl RosNode {
     }
 
     /// The peer `name`'s fix of this robot, `theirs`, tried as ours
-    /// ([`Tracker::adopt`]): adopted, it is our estimate, confirmed, and
-    /// published.
-    fn adopt(&mut self, name: &str, theirs: &Isometry3<f32>, log: &mut impl FnMut(&Event)) -> Result<(), Error> {
+    /// ([`Tracker::adopt`], with the slack where the peer reports it
+    /// `Converged`, `reported`): adopted, it is our estimate, confirmed,
+    /// and published.
+    fn adopt(
+        &mut self,
+        name: &str,
+        theirs: &Isometry3<f32>,
+        reported: bool,
+        log: &mut impl FnMut(&Event),
+    ) -> Result<(), Error> {
         let Some(peer) = self.peers.get_mut(name) else { return Ok(()) };
         let copy = peer.follower.map();
         if copy.is_empty() || self.own.map.is_empty() || peer.refused.is_some() {
@@ -176,10 +187,13 @@ impl RosNode {
         let (mut own, mut them) = (Prepared::new(&self.own.map, Role::Model), Prepared::new(copy, Role::Scene));
         let view = PeerView { estimate: None, at: self.own.place, peer_at: peer.follower.peer_place(), copy_at: None };
         let pyramids = (own.tracked()?.0, them.tracked()?.0);
-        // A fix heard on the fixes topic (a tf edge) does not say whether
-        // the peer reports it `Converged`: adopted with the margin.
+        // The peer's pose topic says whether it reports the fix
+        // `Converged`; whether it is a recall waiting for its vouch, which
+        // the session also adopts with the slack where this robot's own
+        // search found it too, nothing the node hears says: adopted with
+        // the margin then.
         let adopted =
-            peer.tracker.adopt(pyramids, &self.spec.alignment, &mut self.room.tracking(), &view, theirs, false);
+            peer.tracker.adopt(pyramids, &self.spec.alignment, &mut self.room.tracking(), &view, theirs, reported);
         let Some(e) = adopted.map_err(|e| Error::Invalid(format!("{name}: matching: {e}")))? else { return Ok(()) };
         peer.last = Some(e);
         peer.estimated = peer.follower.version();
