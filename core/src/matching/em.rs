@@ -31,6 +31,20 @@ pub const TRACKED_AGREEMENT_SHARE: u32 = 2;
 /// and largest `e_t` and `e_r` within a centimetre and 0.01 degrees.
 pub const TRACKED_TOLERANCE_SCALE: f32 = 10.0;
 
+/// Where EM from a fix ([`Matcher::track_in`]) stops.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrackStop {
+    /// On steps [`TRACKED_TOLERANCE_SCALE`] times the settings' tolerances:
+    /// for a fix that moves by a round's drift and is estimated again next
+    /// round from where it is.
+    Coarse,
+    /// On the settings' own tolerances, where a match's EM stops: for a fix
+    /// that may be a degree off (a meeting's first, not yet confirmed by
+    /// the peer), which the coarse stop moves a few iterations a round and
+    /// keeps off.
+    Fine,
+}
+
 /// A placement handed down to the finest level whose standing entries
 /// agree less than this share of [`MatchSettings::min_agreement`] (read on
 /// a fifth of the verdict's sample, as the look-alike check does) is not
@@ -209,22 +223,26 @@ impl Matcher {
     /// driving). Of `scratch`, only EM's room to remember blocks is used
     /// ([`SearchScratch::with_reach`]; none: the same answer, more lookups).
     /// Its verdict reads a [`TRACKED_AGREEMENT_SHARE`] of the scene entries
-    /// a match's does; its EM stops on steps [`TRACKED_TOLERANCE_SCALE`]
-    /// times the settings' tolerances and does not anneal (it starts at
-    /// [`MatchSettings::sigma_end`]).
+    /// a match's does; its EM stops where `stop` says and does not anneal
+    /// (it starts at [`MatchSettings::sigma_end`]).
     pub fn track_in<A: PyramidStorage, B: PyramidStorage>(
         &self,
         model: &Pyramid<'_, A>,
         scene: &Pyramid<'_, B>,
         fix: &Isometry3<f32>,
+        stop: TrackStop,
         scratch: &mut SearchScratch<'_>,
     ) -> Result<MatchResult, MatchError> {
         let cell = model.level(0).map_or(0.0, |l| l.resolution());
         let s = &self.settings;
+        let scale = match stop {
+            TrackStop::Coarse => TRACKED_TOLERANCE_SCALE,
+            TrackStop::Fine => 1.0,
+        };
         let tracking = Matcher::new(MatchSettings {
             max_agreement_entries: (s.max_agreement_entries / TRACKED_AGREEMENT_SHARE).max(1),
-            translation_tolerance: TRACKED_TOLERANCE_SCALE * s.translation_tolerance,
-            rotation_tolerance: TRACKED_TOLERANCE_SCALE * s.rotation_tolerance,
+            translation_tolerance: scale * s.translation_tolerance,
+            rotation_tolerance: scale * s.rotation_tolerance,
             // No annealing: a fix is centimetres from the answer, well inside
             // the narrowest width (half a cell); annealing widens the reach
             // of a start a cell or more off, which tracking never has (a

@@ -54,7 +54,7 @@ pub mod solve;
 pub mod work;
 
 pub use align::{align_prepared, Alignment};
-pub use em::{MatchError, Matcher};
+pub use em::{MatchError, Matcher, TrackStop};
 pub use footprint::Footprint;
 pub use pyramid::{
     ArrayPyramidStorage, ArraySceneStorage, CoarseEntry, CopiedBase, CopiedLevel, CopiedRoom, CopiedSlices, Entry,

@@ -26,9 +26,9 @@ use super::history::{History, FIRST_GROWTH_M, FIRST_SEEN};
 use super::smoother::Smoother;
 use crate::geometry::{distance, Isometry3};
 use crate::matching::search::SearchScratch;
-use crate::matching::em::TRACKED_TOLERANCE_SCALE;
 use crate::matching::{
     align_prepared, Alignment, MatchError, MatchResult, MatchSettings, MatchStatus, Matcher, Pyramid, PyramidStorage,
+    TrackStop,
 };
 
 /// How an estimate was made.
@@ -473,11 +473,9 @@ impl Tracker {
         Tracker { fix: Some(fix), last: Some(fix), confirmed, ..Tracker::new() }
     }
 
-    /// The settings EM from the fix runs with ([`Tracker::track`]): `how`'s
-    /// for a fix the peer has confirmed ([`Matcher::track_in`] stops on
-    /// [`TRACKED_TOLERANCE_SCALE`] times their tolerances), and for one it
-    /// has not, tolerances that make `track_in` stop where a match's EM
-    /// does.
+    /// Where EM from the fix stops ([`Tracker::track`]): coarsely for a fix
+    /// the peer has confirmed ([`TrackStop::Coarse`]), and where a match's
+    /// EM does for one it has not ([`TrackStop::Fine`]).
     ///
     /// Why: an unconfirmed fix is a meeting's first answer, found on its
     /// first sliver of overlap and often a degree off (town seed 5, 3
@@ -487,17 +485,16 @@ impl Tracker {
     /// run to the match's tolerances it was right a round sooner. On
     /// held-out town seed 41 a recalled fix 1.4 degrees off, tracked so,
     /// came right a round sooner (wrong `Converged` 2 to 1), and the
-    /// meeting's first fix from 4 rounds to 2. Such rounds are few (a meeting's first, and a
-    /// look-alike's), so the tracking round's median cost is unchanged;
-    /// a confirmed fix moves by a round's drift and keeps the coarse stop
-    /// (measured in docs/session.md).
-    fn tracking_settings(&self, how: &Alignment) -> MatchSettings {
-        let mut settings = how.settings;
-        if !self.confirmed {
-            settings.translation_tolerance /= TRACKED_TOLERANCE_SCALE;
-            settings.rotation_tolerance /= TRACKED_TOLERANCE_SCALE;
+    /// meeting's first fix from 4 rounds to 2. Such rounds are few (a
+    /// meeting's first, and a look-alike's), so the tracking round's median
+    /// cost is unchanged; a confirmed fix moves by a round's drift and
+    /// keeps the coarse stop (measured in docs/session.md).
+    fn tracking_stop(&self) -> TrackStop {
+        if self.confirmed {
+            TrackStop::Coarse
+        } else {
+            TrackStop::Fine
         }
-        settings
     }
 
     /// This round's estimate: `own` (the model) against the peer's copy
@@ -540,7 +537,11 @@ impl Tracker {
         let Some(fix) = self.fix else {
             return Ok(Tracked { done: None, answer: None });
         };
-        let tracked = self.limit_hold(Matcher::new(self.tracking_settings(how)).track_in(own, peer, &fix, scratch)?, how, view);
+        let tracked = self.limit_hold(
+            Matcher::new(how.settings).track_in(own, peer, &fix, self.tracking_stop(), scratch)?,
+            how,
+            view,
+        );
         if tracked.status == MatchStatus::Converged {
             let mut done = self.settle(Kind::Tracking, tracked, view);
             self.vouch(&mut done, view);
@@ -792,7 +793,7 @@ impl Tracker {
         }
         let margin = if reported { -ADOPT_CONFIRMED_SLACK } else { ADOPT_MARGIN };
         let strict = MatchSettings { min_agreement: how.settings.min_agreement + margin, ..how.settings };
-        let answer = Matcher::new(strict).track_in(own, peer, &theirs.inverse(), scratch)?;
+        let answer = Matcher::new(strict).track_in(own, peer, &theirs.inverse(), TrackStop::Coarse, scratch)?;
         let before = *self;
         let answer = self.limit_hold(answer, how, view);
         if answer.status != MatchStatus::Converged || !agree(&answer.transform, theirs, view.at, view.peer_at) {

@@ -18,7 +18,7 @@ fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
     let fix = from_xyz_rpy(0.4, 0.1, 0.0, 0.0, 0.0, 0.3f32.to_radians()) * gt;
     let m = Matcher::default();
     let none = &mut search::SearchScratch::new(&mut []);
-    let held = m.track_in(&pm, &ps, &fix, none).unwrap();
+    let held = m.track_in(&pm, &ps, &fix, TrackStop::Coarse, none).unwrap();
     assert_eq!(held.status, MatchStatus::Converged, "{held:?}");
     assert!(held.degeneracy < m.settings.degeneracy_threshold, "{held:?}");
     let off = held.transform * gt.inverse();
@@ -27,12 +27,12 @@ fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
     assert!(across.abs() < 0.05 && off.rotation.angle().to_degrees() < 0.2, "{off:?}");
     assert_eq!(m.align(&pm, &ps, &fix).unwrap().status, MatchStatus::Degenerate);
     // Bit for bit repeatable.
-    assert_eq!(m.track_in(&pm, &ps, &fix, none).unwrap(), held);
+    assert_eq!(m.track_in(&pm, &ps, &fix, TrackStop::Coarse, none).unwrap(), held);
     // Its verdict reads the scene at twice a match's stride (a matcher
     // whose sample is a few hundred entries, well under the scene's).
     use crate::matching::associate::agreement;
     let small = Matcher::new(MatchSettings { max_agreement_entries: 300, ..MatchSettings::DEFAULT });
-    let tracked = small.track_in(&pm, &ps, &fix, none).unwrap();
+    let tracked = small.track_in(&pm, &ps, &fix, TrackStop::Coarse, none).unwrap();
     let (m0, c0, cover) = (pm.level(0).unwrap(), ps.level(0).unwrap(), pm.level(3));
     assert!(c0.len() > 1000, "{}", c0.len());
     let read = |n: usize| agreement(&m0, cover.as_ref(), &c0, &tracked.transform, c0.len().div_ceil(n));
@@ -42,20 +42,14 @@ fn tracking_holds_what_a_street_leaves_free_at_the_fix() {
 
 /// From a fix a round's drift off (a few centimetres, a tenth of a
 /// degree, or most of a cell and 0.4 degrees), tracking's looser stop
-/// ([`crate::matching::em::TRACKED_TOLERANCE_SCALE`]) lands within a centimetre and 0.02
-/// degrees of EM run to a tenth of that tolerance, in no more iterations
-/// (fewer over the three).
+/// ([`TrackStop::Coarse`]) lands within a centimetre and 0.02 degrees of EM
+/// run to the match's own tolerances ([`TrackStop::Fine`]), in no more
+/// iterations (fewer over the three).
 #[test]
 fn tracking_stops_early_where_tighter_steps_would_not_move_it() {
     let (gt, model, scene) = street_pair(true);
     let (pm, ps) = (pyramid(&model), pyramid(&scene));
     let m = Matcher::default();
-    let s = m.settings;
-    let tight = Matcher::new(MatchSettings {
-        translation_tolerance: s.translation_tolerance / crate::matching::em::TRACKED_TOLERANCE_SCALE,
-        rotation_tolerance: s.rotation_tolerance / crate::matching::em::TRACKED_TOLERANCE_SCALE,
-        ..s
-    });
     let none = &mut search::SearchScratch::new(&mut []);
     let mut iterations = (0, 0);
     for fix in [
@@ -63,7 +57,10 @@ fn tracking_stops_early_where_tighter_steps_would_not_move_it() {
         from_xyz_rpy(-0.04, 0.06, 0.02, 0.0, 0.0, -0.15f32.to_radians()) * gt,
         from_xyz_rpy(0.12, 0.1, 0.0, 0.0, 0.0, 0.4f32.to_radians()) * gt,
     ] {
-        let (quick, slow) = (m.track_in(&pm, &ps, &fix, none).unwrap(), tight.track_in(&pm, &ps, &fix, none).unwrap());
+        let (quick, slow) = (
+            m.track_in(&pm, &ps, &fix, TrackStop::Coarse, none).unwrap(),
+            m.track_in(&pm, &ps, &fix, TrackStop::Fine, none).unwrap(),
+        );
         assert_eq!((quick.status, slow.status), (MatchStatus::Converged, MatchStatus::Converged));
         let apart = quick.transform * slow.transform.inverse();
         assert!(apart.translation.vector.norm() < 0.01, "{apart:?}");
@@ -99,13 +96,13 @@ fn pyramids_prepared_for_tracking_track_as_whole_ones_and_refuse_a_search() {
         from_xyz_rpy(0.4, 0.1, 0.0, 0.0, 0.0, 0.3f32.to_radians()) * gt,
         from_xyz_rpy(3.0, 2.0, 0.0, 0.0, 0.0, 0.2) * gt,
     ] {
-        let whole = m.track_in(&pm, &ps, &fix, &mut search::SearchScratch::new(&mut [])).unwrap();
+        let whole = m.track_in(&pm, &ps, &fix, TrackStop::Coarse, &mut search::SearchScratch::new(&mut [])).unwrap();
         // With EM's memory of the blocks, for every entry and for a few.
         for n in [m.settings.max_scene_entries as usize, 50] {
             let mut reach = vec![Reach::EMPTY; n];
             let scratch = &mut search::SearchScratch::new(&mut []).with_reach(&mut reach);
-            assert_eq!(m.track_in(&tm, &ts, &fix, scratch).unwrap(), whole);
-            assert_eq!(m.track_in(&tm, &ps, &fix, scratch).unwrap(), whole);
+            assert_eq!(m.track_in(&tm, &ts, &fix, TrackStop::Coarse, scratch).unwrap(), whole);
+            assert_eq!(m.track_in(&tm, &ps, &fix, TrackStop::Coarse, scratch).unwrap(), whole);
         }
         // The model's normals left to EM: kept for every entry, for a few
         // (the rest fitted again each time) or for none; twice with one
@@ -118,8 +115,8 @@ fn pyramids_prepared_for_tracking_track_as_whole_ones_and_refuse_a_search() {
             let mut normals = vec![PackedNormal::NONE; n];
             let mut reach = vec![Reach::EMPTY; m.settings.max_scene_entries as usize];
             let scratch = &mut search::SearchScratch::new(&mut []).with_reach(&mut reach).with_normals(&mut normals);
-            assert_eq!(m.track_in(&lazy, &ts, &fix, scratch).unwrap(), whole);
-            assert_eq!(m.track_in(&lazy, &ts, &fix, scratch).unwrap(), whole);
+            assert_eq!(m.track_in(&lazy, &ts, &fix, TrackStop::Coarse, scratch).unwrap(), whole);
+            assert_eq!(m.track_in(&lazy, &ts, &fix, TrackStop::Coarse, scratch).unwrap(), whole);
         }
     }
     assert_eq!(m.align(&tm, &ps, &gt), Err(MatchError::TrackingOnly));

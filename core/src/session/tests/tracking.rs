@@ -78,9 +78,8 @@ fn one_street_seen_twice() -> (VecMap, VecMap) {
 /// lands nearer the placement a match finds.
 #[test]
 fn an_unconfirmed_fix_is_tracked_to_the_matchs_tolerances() {
-    use crate::matching::em::TRACKED_TOLERANCE_SCALE;
     use crate::matching::search::SearchScratch;
-    use crate::matching::{Alignment, MatchSettings, MatchStatus, Matcher, Pyramid, Role};
+    use crate::matching::{Alignment, MatchStatus, Matcher, Pyramid, Role, TrackStop};
     let (here, again) = one_street_seen_twice();
     let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
     let (own, peer) = (prepare(&here), prepare(&again));
@@ -91,25 +90,25 @@ fn an_unconfirmed_fix_is_tracked_to_the_matchs_tolerances() {
     assert_eq!(found.result.status, MatchStatus::Converged);
     let truth = found.result.transform;
     let off = truth * crate::geometry::from_xyz_rpy(0.15, -0.1, 0.0, 0.0, 0.0, 0.6f32.to_radians());
-    let s = how.settings;
-    let fine = MatchSettings {
-        translation_tolerance: s.translation_tolerance / TRACKED_TOLERANCE_SCALE,
-        rotation_tolerance: s.rotation_tolerance / TRACKED_TOLERANCE_SCALE,
-        ..s
-    };
     let mut answers = vec![];
-    for (confirmed, settings) in [(false, fine), (true, s)] {
+    for (confirmed, stop) in [(false, TrackStop::Fine), (true, TrackStop::Coarse)] {
         let mut tracker = Tracker::holding(off, confirmed);
         let e = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
         assert_eq!((e.kind, e.result.status, e.fix), (Kind::Tracking, MatchStatus::Converged, Fix::Held));
-        let direct = Matcher::new(settings).track_in(&own, &peer, &off, &mut SearchScratch::new(&mut words)).unwrap();
+        let direct =
+            Matcher::new(how.settings).track_in(&own, &peer, &off, stop, &mut SearchScratch::new(&mut words)).unwrap();
         assert_eq!(e.result.transform, direct.transform, "confirmed: {confirmed}");
         answers.push(e.result);
     }
     let error = |t: &crate::geometry::Isometry3<f32>| (t.inverse() * truth).rotation.angle().to_degrees();
     let (unconfirmed, confirmed) = (&answers[0], &answers[1]);
     assert!(unconfirmed.iterations > confirmed.iterations, "{} {}", unconfirmed.iterations, confirmed.iterations);
-    assert!(error(&unconfirmed.transform) < error(&confirmed.transform), "{} {}", error(&unconfirmed.transform), error(&confirmed.transform));
+    assert!(
+        error(&unconfirmed.transform) < error(&confirmed.transform),
+        "{} {}",
+        error(&unconfirmed.transform),
+        error(&confirmed.transform)
+    );
 }
 
 /// A fix is reported Converged only once the peer's estimate agrees with
