@@ -31,6 +31,7 @@ fn check_record_fields(r: &Value) {
         "adopted",
         "contested",
         "disputed",
+        "walked",
         "bytes_sent",
         "seconds",
         "update",
@@ -44,6 +45,8 @@ fn check_record_fields(r: &Value) {
     assert!(r["contested"] == false || status != "Converged", "{r}");
     // Nor one the peer's latest estimate disputes.
     assert!(r["disputed"] == false || status != "Converged", "{r}");
+    // Nor any while the two robots' odometry walks too much.
+    assert!(r["walked"] == false || status != "Converged", "{r}");
     assert!(["prior-free", "tracking"].contains(&r["kind"].as_str().unwrap()), "{r}");
     if let Some(t) = r["T_own_peer"].as_array() {
         assert_eq!(t.len(), 12, "3x4 row-major: {r}");
@@ -76,7 +79,7 @@ fn kitti00_robots_are_tracked_round_after_round() {
         assert_eq!(r["kind"], if first { "prior-free" } else { "tracking" }, "{r}");
         assert!(r["overlap_true"].as_f64().unwrap() > 0.3, "{r}");
     }
-    assert_eq!(summary["schema_version"], 10);
+    assert_eq!(summary["schema_version"], 11);
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
     assert_eq!(summary["availability"], 1.0, "{summary}");
     assert_eq!(summary["first_fix_rounds"], 0, "{summary}");
@@ -318,6 +321,10 @@ fn under_drift_estimates_are_right_where_the_robots_met() {
         assert!(r["e_t"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0, "{r}");
     }
     assert_eq!(summary["wrong_converged"], 0, "{summary}");
+    // Each robot measures its odometry's walk, and at the benchmark's
+    // drift the pair's is under the limit: nothing is withheld for it.
+    assert!(records.iter().filter(|r| r["round"].as_u64().unwrap() >= 10).all(|r| r["walk"].as_f64().is_some()));
+    assert!(records.iter().all(|r| r["walked"] == false), "{summary}");
     // The origins' metric counts what is wrong at the origins (with the
     // fix tracked from the finest level, none on this town).
     let at_origin = converged.iter().filter(|r| r["e_t_origin"].as_f64().unwrap() >= 0.5).count();
@@ -344,24 +351,33 @@ fn under_drift_estimates_are_right_where_the_robots_met() {
 
 /// Under a heading walk four times the benchmark's (`--drift 2%,2`, the
 /// built-in town, seed 1), a rigid transform between the maps cannot
-/// follow the walk at the one pair of scans the truth is taken at: some
-/// Converged estimates miss the strict thresholds (19 when measured).
-/// Against the truth as the maps hold it about that pair (each robot's
-/// frame averaged over its scans within the crop) every one is right, and
-/// the summary counts both. With updates of 1,024 bytes: with the
-/// default, 15% of the map, more of the peer's far voxels wait, the copy
-/// is further from the map the local truth is taken on, and 2 of the
-/// estimates missed it by 0.01-0.1 degrees (rounds 37-38, measured).
+/// follow the walk at the one pair of scans the truth is taken at: of the
+/// estimates that pass (63 when measured) 19 miss the strict thresholds,
+/// though against the truth as the maps hold it about that pair (each
+/// robot's frame averaged over its scans within the crop) every one is
+/// right. Each robot measures its own walk (its scans against its map
+/// before they are fused, `walk`), the two together are over the limit,
+/// and none is reported Converged (`walked`): no false accept. With
+/// updates of 1,024 bytes: with the default, 15% of the map, more of the
+/// peer's far voxels wait, the copy is further from the map the local
+/// truth is taken on, and 2 of the estimates missed it by 0.01-0.1
+/// degrees (rounds 37-38, measured).
 #[test]
-fn under_heavy_drift_estimates_are_right_about_the_maps_they_match() {
+fn under_heavy_drift_the_robots_measure_their_walk_and_claim_nothing() {
     let (records, summary) = session(&["--drift", "2%,2", "--seed", "1", "--update-budget", "1024"]);
     records.iter().for_each(check_record_fields);
-    let converged: Vec<&Value> = records.iter().filter(|r| r["status"] == "Converged").collect();
-    assert!(converged.len() >= 50, "{summary}");
-    let wrong_local = |r: &&&Value| r["e_t_local"].as_f64().unwrap() >= 0.5 || r["e_r_local"].as_f64().unwrap() >= 1.0;
-    assert_eq!(summary["wrong_converged_local"].as_u64(), Some(converged.iter().filter(wrong_local).count() as u64));
-    assert_eq!(summary["wrong_converged_local"], 0, "{summary}");
-    assert!(summary["wrong_converged"].as_u64().unwrap() > 0, "{summary}");
+    let walked: Vec<&Value> = records.iter().filter(|r| r["walked"] == true).collect();
+    assert!(walked.len() >= 40, "{summary}");
+    let strict = |r: &&&Value| r["e_t"].as_f64().unwrap() < 0.5 && r["e_r"].as_f64().unwrap() < 1.0;
+    let local = |r: &&&Value| r["e_t_local"].as_f64().unwrap() < 0.5 && r["e_r_local"].as_f64().unwrap() < 1.0;
+    assert!(walked.iter().all(|r| local(&r)), "{summary}");
+    assert!(walked.iter().filter(|r| !strict(r)).count() >= 10, "{summary}");
+    assert_eq!(summary["wrong_converged"], 0, "{summary}");
+    // Each robot's figure, once it has its scans, is over what the
+    // benchmark's drift gives (0.06-0.14 degrees).
+    let late = records.iter().filter(|r| r["round"].as_u64().unwrap() >= 10);
+    assert!(late.clone().all(|r| r["walk"].as_f64().is_some_and(|w| w > 0.15)), "{summary}");
+    assert!(late.clone().all(|r| r["walk_peer"].as_f64().is_some_and(|w| w > 0.15)), "{summary}");
 }
 
 /// `--mcap-out` writes the session as a recording: each robot's map every

@@ -15,13 +15,16 @@
 //! - [`history`]: the confirmed fixes of a peer's pose so far, which a
 //!   new fix must be consistent with up to the drift;
 //! - [`smoother`]: the pose a fix's rounds report, their answers fused by
-//!   a filter that moves only as fast as the odometry drifts.
+//!   a filter that moves only as fast as the odometry drifts;
+//! - [`walk`]: how far a robot's odometry turns its scans from its own
+//!   map, the heading walk it measures itself.
 
 pub mod history;
 pub mod publisher;
 pub mod replica;
 pub mod smoother;
 pub mod tracker;
+pub mod walk;
 
 pub use history::{
     History, FIRST_APART_M, FIRST_GROWTH_M, FIRST_SEEN, FIRST_SURE, HISTORY_DEG, HISTORY_DEG_PER_M, HISTORY_HALF_M,
@@ -34,6 +37,7 @@ pub use tracker::{
     adopt_backed, agree, made_before, Estimate, Fix, Kind, PeerView, Tracked, Tracker, ADOPT_CONFIRMED_SLACK,
     ADOPT_MARGIN, AGREE_DEG, AGREE_M, HOLD_M, REFUSED_ROUNDS,
 };
+pub use walk::{pair_walk, OdometryWalk, ScanFit, WALK_LIMIT_DEG};
 
 /// The verdict's least overlap in a session: 0.25, where a one-shot
 /// match takes 0.2 ([`crate::matching::MatchSettings::min_overlap`]). A

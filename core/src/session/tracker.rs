@@ -171,6 +171,11 @@ pub struct PeerView {
     /// degrees), so an estimate on a copy that has not changed for
     /// [`HOLD_M`] of driving is not reported `Converged`.
     pub copy_at: Option<[f32; 3]>,
+    /// The two robots' odometry heading walk together, if known (degrees,
+    /// [`crate::session::pair_walk`]): over
+    /// [`crate::session::WALK_LIMIT_DEG`] no estimate is reported
+    /// `Converged` ([`Estimate::walked`]).
+    pub walk: Option<f32>,
 }
 
 /// One round's estimate of `T_own_peer`.
@@ -198,6 +203,11 @@ pub struct Estimate {
     /// which the two robots cannot tell, so it is not reported `Converged`
     /// in that round (it is held and tracked).
     pub disputed: bool,
+    /// The two robots' odometry walks more than
+    /// [`crate::session::WALK_LIMIT_DEG`] ([`PeerView::walk`]): the maps
+    /// may match, but their scans stray from them by about a degree, so
+    /// no estimate is reported `Converged` (it is held and tracked).
+    pub walked: bool,
 }
 
 impl Estimate {
@@ -214,11 +224,13 @@ impl Estimate {
     }
 
     /// The status reported: the match's, but `NotConverged` for a fix the
-    /// peer's estimate has not agreed with yet, one contested, or one the
-    /// peer's estimate disputes.
+    /// peer's estimate has not agreed with yet, one contested, one the
+    /// peer's estimate disputes, or any while the odometry walks too much.
     pub fn status(&self) -> MatchStatus {
         match self.result.status {
-            MatchStatus::Converged if !self.confirmed || self.contested || self.disputed => MatchStatus::NotConverged,
+            MatchStatus::Converged if !self.confirmed || self.contested || self.disputed || self.walked => {
+                MatchStatus::NotConverged
+            }
             s => s,
         }
     }
@@ -755,7 +767,8 @@ impl Tracker {
                 self.history.contests(&r.transform, at, peer_at)
             };
         let disputed = confirmed && view.estimate.is_some_and(|t| !agree(&r.transform, &t, at, peer_at));
-        Estimate { kind, result, fix, confirmed, contested, doubted, disputed }
+        let walked = converged && view.walk.is_some_and(|w| w > crate::session::WALK_LIMIT_DEG);
+        Estimate { kind, result, fix, confirmed, contested, doubted, disputed, walked }
     }
 
     /// Adopts the peer's fix of this round, `theirs` (`T_peer_own`: one that

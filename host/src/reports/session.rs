@@ -24,10 +24,12 @@ use serde::Serialize;
 /// explains, or is a first fix whose overlap stopped growing, so is not
 /// reported `Converged`); 10 since each line has `disputed` (the peer's
 /// latest estimate disagrees with the robot's confirmed fix, so it is not
-/// reported `Converged` in that round).
+/// reported `Converged` in that round); 11 since each line has `walked`,
+/// `walk` and `walk_peer` (the robots' figures of their odometry's heading
+/// walk, over whose limit no estimate is reported `Converged`).
 ///
 /// [`FROM_SCRATCH_EVERY`]: crate::evaluation::session::FROM_SCRATCH_EVERY
-pub const SESSION_SCHEMA: u32 = 10;
+pub const SESSION_SCHEMA: u32 = 11;
 
 /// One robot's estimate of one peer in one round, as a JSON line.
 #[derive(Clone, Debug, Serialize)]
@@ -60,6 +62,11 @@ pub struct RecordJson {
     /// this one: one of the two is wrong, and a confirmed fix is reported
     /// `NotConverged` in that round (schema 10).
     pub disputed: bool,
+    /// The two robots' odometry walks more than the figure a `Converged`
+    /// claim allows (`walk` and `walk_peer` together over
+    /// `cosem_core::session::WALK_LIMIT_DEG`): held, but not reported
+    /// `Converged` (schema 11).
+    pub walked: bool,
     /// `T_own_peer`, row-major 3x4, when there is an estimate.
     #[serde(rename = "T_own_peer", skip_serializing_if = "Option::is_none")]
     pub t_own_peer: Option<[f64; 12]>,
@@ -100,6 +107,14 @@ pub struct RecordJson {
     /// information; below the settings' threshold: `Degenerate`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub degeneracy: Option<f32>,
+    /// The robot's figure of its odometry's heading walk (degrees): the
+    /// root mean square of its last scans' turns against its map, less
+    /// their fits' own noise (schema 11).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub walk: Option<f32>,
+    /// The peer's figure of its odometry's heading walk (degrees).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub walk_peer: Option<f32>,
     /// Bytes of the peer's update and the answer.
     pub bytes_sent: usize,
     /// With a line: bytes the robot read from it this round.
@@ -147,6 +162,7 @@ impl From<&Record> for RecordJson {
             adopted: r.adopted,
             contested: e.is_some_and(|e| e.contested),
             disputed: e.is_some_and(|e| e.disputed),
+            walked: e.is_some_and(|e| e.walked),
             t_own_peer: t,
             e_t: r.errors.map(|e| e.0),
             e_t_origin: r.origin_error,
@@ -158,6 +174,8 @@ impl From<&Record> for RecordJson {
             agreement: e.map(|e| e.result.agreement),
             iterations: e.map(|e| e.result.iterations),
             degeneracy: e.map(|e| e.result.degeneracy),
+            walk: r.walk.0,
+            walk_peer: r.walk.1,
             bytes_sent: r.bytes_sent,
             line_bytes: r.line.map(|l| l.bytes),
             line_ms: r.line.map(|l| l.ms),
@@ -212,10 +230,11 @@ pub fn record_text(r: &Record) -> String {
         j.peer,
         j.status,
         j.kind,
-        match (j.adopted, j.contested, j.disputed) {
+        match (j.adopted, j.contested, j.disputed, j.walked) {
             (true, ..) => "adopted",
-            (_, true, _) => "contested",
-            (.., true) => "disputed",
+            (_, true, ..) => "contested",
+            (_, _, true, _) => "disputed",
+            (.., true) => "walked",
             _ => j.fix,
         },
         j.bytes_sent,

@@ -223,7 +223,7 @@ pub(super) const NEWTON_STEPS: usize = 24;
 /// hundred operations, where an iterative decomposition takes thousands:
 /// fitting normals is most of preparing a map. `None` for a multiple of
 /// the identity or when the eigenvector is not determined.
-pub(super) fn smallest_eigen(a: &[f32; 6]) -> Option<(f32, f32, [f32; 3])> {
+pub(crate) fn smallest_eigen(a: &[f32; 6]) -> Option<(f32, f32, [f32; 3])> {
     let [a00, a01, a02, a11, a12, a22] = *a;
     let p1 = a01 * a01 + a02 * a02 + a12 * a12;
     let q = (a00 + a11 + a22) / 3.0;

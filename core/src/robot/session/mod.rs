@@ -557,7 +557,13 @@ where
             let matching = |e| RobotError::Align(super::AlignError::Match(e));
             let how = SESSION_PIPELINE.alignment;
             let peer_at = self.heard_at.or(replica.peer_place());
-            let view = PeerView { estimate: self.heard, at: self.map.keep_centre(), peer_at, copy_at: self.copy_at };
+            let view = PeerView {
+                estimate: self.heard,
+                at: self.map.keep_centre(),
+                peer_at,
+                copy_at: self.copy_at,
+                walk: None,
+            };
             // From a fix, first only what tracking reads; the whole pyramids
             // when a search is needed (no fix, or EM did not settle from it).
             let tracked = match self.tracker.fix() {
@@ -629,7 +635,7 @@ where
         let model = Pyramid::build_tracked(&self.map, Role::Model, &mut self.model).map_err(pyramid)?;
         let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
         let peer_at = self.heard_at.or(replica.peer_place());
-        let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at };
+        let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at, walk: None };
         let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(work);
         let how = SESSION_PIPELINE.alignment;
         // With the slack where the peer reports its fix `Converged`, or it

@@ -547,6 +547,7 @@ fn a_voxel_is_resent_only_when_it_moved_beyond_the_deadband() {
 mod history;
 mod smoothing;
 mod tracking;
+mod walk;
 
 /// A broadcast (a ROS 2 node's updates over DDS): no answers, each update
 /// taken as delivered, a snapshot every few. A follower that saw every

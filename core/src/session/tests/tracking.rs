@@ -26,7 +26,7 @@ fn a_fix_is_tracked_and_withdrawn_when_it_stops_agreeing() {
     let how = Alignment::DEFAULT;
     let mut tracker = Tracker::new();
     let mut estimate = |t: &mut Tracker, peer| {
-        let view = PeerView { estimate: None, at: [0.0; 3], peer_at: None, copy_at: None };
+        let view = PeerView { estimate: None, at: [0.0; 3], peer_at: None, copy_at: None, walk: None };
         t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let first = estimate(&mut tracker, &same);
@@ -85,7 +85,7 @@ fn an_unconfirmed_fix_is_tracked_to_the_matchs_tolerances() {
     let (own, peer) = (prepare(&here), prepare(&again));
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let how = Alignment::DEFAULT;
-    let view = PeerView { estimate: None, at: [9.0, 0.0, 0.0], peer_at: None, copy_at: None };
+    let view = PeerView { estimate: None, at: [9.0, 0.0, 0.0], peer_at: None, copy_at: None, walk: None };
     let found = Tracker::new().estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
     assert_eq!(found.result.status, MatchStatus::Converged);
     let truth = found.result.transform;
@@ -126,7 +126,7 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     let mut tracker = Tracker::new();
     let at = [9.0, 0.0, 0.0];
     let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
-        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None };
+        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None, walk: None };
         t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     // Nothing heard: held, not reported.
@@ -157,6 +157,42 @@ fn a_fix_is_reported_once_the_peers_estimate_agrees() {
     assert!(agree(&first.result.transform, &first.result.transform.inverse(), at, None));
 }
 
+/// While the two robots' odometry walks more than the limit, a confirmed
+/// fix is held and tracked as before but not reported Converged
+/// (`walked`); at or under the limit, and with no figure, it is.
+#[test]
+fn a_fix_is_not_reported_while_the_odometry_walks_too_much() {
+    use crate::matching::search::SearchScratch;
+    use crate::matching::{Alignment, MatchStatus, Pyramid, Role};
+    use crate::session::WALK_LIMIT_DEG;
+    let (here, again) = one_street_seen_twice();
+    let prepare = |m| Pyramid::build_vec(m, 3, 1.0, Role::Model).unwrap();
+    let (own, peer) = (prepare(&here), prepare(&again));
+    let mut words = vec![0u32; SearchScratch::WINDOWED];
+    let how = Alignment::DEFAULT;
+    let at = [9.0, 0.0, 0.0];
+    let mut estimate = |t: &mut Tracker, theirs, walk| {
+        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None, walk };
+        t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
+    };
+    let mut reported = vec![];
+    for walk in [None, Some(0.1), Some(WALK_LIMIT_DEG), Some(WALK_LIMIT_DEG + 0.01), Some(1.0)] {
+        let mut tracker = Tracker::new();
+        let first = estimate(&mut tracker, None, walk);
+        let theirs = Some(first.result.transform.inverse());
+        let e = estimate(&mut tracker, theirs, walk);
+        assert_eq!((e.result.status, e.fix, e.confirmed), (MatchStatus::Converged, Fix::Held, true), "{walk:?}");
+        assert_eq!(e.walked, walk.is_some_and(|w| w > WALK_LIMIT_DEG));
+        assert!(e.offered(), "still offered to the peer");
+        reported.push((e.status(), e.result));
+    }
+    let converged = MatchStatus::Converged;
+    let statuses: Vec<MatchStatus> = reported.iter().map(|r| r.0).collect();
+    assert_eq!(statuses, [converged, converged, converged, MatchStatus::NotConverged, MatchStatus::NotConverged]);
+    // The same answers: only what is reported changes.
+    assert!(reported.iter().all(|r| r.1 == reported[0].1));
+}
+
 /// A confirmed fix the peer's estimate disagrees with is disputed: held and
 /// tracked, still confirmed, but not reported `Converged` in that round; the
 /// peer's estimate of the same round ([`Tracker::confirm`]) settles it
@@ -173,7 +209,7 @@ fn a_confirmed_fix_the_peer_disputes_is_not_converged() {
     let mut tracker = Tracker::new();
     let at = [9.0, 0.0, 0.0];
     let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
-        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None };
+        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None, walk: None };
         t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let first = estimate(&mut tracker, None);
@@ -225,7 +261,7 @@ fn an_estimate_on_a_copy_left_behind_is_not_converged() {
     let how = Alignment::DEFAULT;
     let mut tracker = Tracker::new();
     let mut estimate = |t: &mut Tracker, copy_at: Option<[f32; 3]>| {
-        let view = PeerView { estimate: None, at: [0.0; 3], peer_at: None, copy_at };
+        let view = PeerView { estimate: None, at: [0.0; 3], peer_at: None, copy_at, walk: None };
         t.estimate(&own, &same, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let first = estimate(&mut tracker, Some([HOLD_M - 1.0, 0.0, 0.0]));
@@ -330,7 +366,7 @@ fn a_street_is_held_where_the_fix_put_it_for_a_few_metres() {
     let how = Alignment::DEFAULT;
     let mut tracker = Tracker::new();
     let mut estimate = |t: &mut Tracker, (own, peer), x: f32| {
-        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None, copy_at: None };
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None, copy_at: None, walk: None };
         t.estimate(own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let error = |e: &Estimate| (e.result.transform * gt.inverse()).translation.vector.norm();
@@ -373,7 +409,7 @@ fn a_round_tracked_first_estimates_as_a_round_on_whole_pyramids() {
             .into_iter()
             .chain([(&bare, 1.5 * HOLD_M + 3.0)])
     {
-        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None, copy_at: None };
+        let view = PeerView { estimate: None, at: [x, 0.0, 0.0], peer_at: None, copy_at: None, walk: None };
         let (own, peer) = (whole(&pair[0]), whole(&pair[1]));
         let expected = one.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
         let t = Pyramid::build_vec_tracked(&pair[0], Role::Model).unwrap();
@@ -410,7 +446,7 @@ fn a_fix_is_confirmed_by_the_peers_estimate_of_the_same_round() {
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let how = Alignment::DEFAULT;
     let at = [9.0, 0.0, 0.0];
-    let view = PeerView { estimate: None, at, peer_at: None, copy_at: None };
+    let view = PeerView { estimate: None, at, peer_at: None, copy_at: None, walk: None };
     let mut tracker = Tracker::new();
     let mut first = tracker.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
     assert_eq!((first.result.status, first.confirmed), (MatchStatus::Converged, false));
@@ -449,7 +485,7 @@ fn a_fix_the_peer_keeps_refusing_is_dropped() {
     let how = Alignment::DEFAULT;
     let at = [9.0, 0.0, 0.0];
     let mut estimate = |t: &mut Tracker, theirs: Option<crate::geometry::Isometry3<f32>>| {
-        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None };
+        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None, walk: None };
         t.estimate(&own, &peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let mut tracker = Tracker::new();
@@ -492,7 +528,7 @@ fn a_peers_fix_is_adopted_only_with_the_margin() {
     let (own, peer) = (prepare(&here), prepare(&again));
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let at = [9.0, 0.0, 0.0];
-    let view = PeerView { estimate: None, at, peer_at: None, copy_at: None };
+    let view = PeerView { estimate: None, at, peer_at: None, copy_at: None, walk: None };
     // The peer's fix of this robot: its own map the model.
     let mut peers = Tracker::new();
     let how = Alignment::DEFAULT;
@@ -584,7 +620,13 @@ fn a_fix_the_history_contradicts_is_contested_until_it_outweighs_it() {
     let mut words = vec![0u32; SearchScratch::WINDOWED];
     let how = Alignment::DEFAULT;
     let mut estimate_on = |t: &mut Tracker, own, peer, truth: &Isometry3<f32>| {
-        let view = PeerView { estimate: Some(truth.inverse()), at: [20.0, 0.0, 0.0], peer_at: None, copy_at: None };
+        let view = PeerView {
+            estimate: Some(truth.inverse()),
+            at: [20.0, 0.0, 0.0],
+            peer_at: None,
+            copy_at: None,
+            walk: None,
+        };
         t.estimate(own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
     let near =
@@ -642,7 +684,7 @@ fn a_fix_found_again_where_the_peer_confirmed_the_last_is_confirmed_the_next_rou
     let how = Alignment::DEFAULT;
     let at = [9.0, 0.0, 0.0];
     let estimate = |t: &mut Tracker, peer, theirs: Option<Isometry3<f32>>| {
-        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None };
+        let view = PeerView { estimate: theirs, at, peer_at: None, copy_at: None, walk: None };
         let mut words = vec![0u32; SearchScratch::WINDOWED];
         t.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap()
     };
@@ -753,7 +795,7 @@ fn a_first_fix_that_explains_less_than_the_round_before_is_contested() {
         let mut tracker = Tracker::new();
         let mut last = None;
         for (peer, x) in peers.iter().zip(places) {
-            let view = PeerView { estimate: None, at: [*x, 0.0, 0.0], peer_at: None, copy_at: None };
+            let view = PeerView { estimate: None, at: [*x, 0.0, 0.0], peer_at: None, copy_at: None, walk: None };
             let e = tracker.estimate(&own, peer, &how, &mut SearchScratch::new(&mut words), &view).unwrap();
             assert_eq!(e.result.status, MatchStatus::Converged);
             last = Some((e, [*x, 0.0, 0.0]));

@@ -27,7 +27,7 @@ use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
 use cosem_core::matching::{Alignment, MatchResult, PackedNormal, Reach, Role};
 use cosem_core::session::{
-    Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateBudget, UpdateCounts,
+    pair_walk, Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateBudget, UpdateCounts,
 };
 use nalgebra::Isometry3;
 use prepared::Prepared;
@@ -182,6 +182,9 @@ pub struct Record {
     /// The conventions' overlap of the peer's map in the robot's under the
     /// truth, with ground-truth classes.
     pub overlap_true: Option<f64>,
+    /// The robot's figure of its odometry's heading walk and its peer's
+    /// (degrees, [`cosem_core::session::OdometryWalk::excess`]).
+    pub walk: (Option<f32>, Option<f32>),
     /// Bytes the peer's update to this robot took this round (its answer
     /// included).
     pub bytes_sent: usize,
@@ -423,7 +426,10 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                 // place (a copy's last cut, `Replica::peer_place`, is
                 // rounds old while updates wait on a damaged line).
                 let (peer_at, copy_from) = (places.get(j).copied(), copy_at[i][j]);
-                let view = PeerView { estimate: heard[j][i], at: places[i], peer_at, copy_at: copy_from };
+                // The two robots' walks: each measures its own, and the
+                // peer's comes with its update (in-process here).
+                let walk = pair_walk(robots[i].walk(), robots[j].walk());
+                let view = PeerView { estimate: heard[j][i], at: places[i], peer_at, copy_at: copy_from, walk };
                 let at = Round { round, pair: (i, j), shared_world, view };
                 let update = delivered[j][i].take().ok_or_else(|| Error::Invalid("no update".into()))?;
                 let copy = copy_of((i, j), &links, &lines)?;
@@ -716,6 +722,7 @@ fn estimate_one(
         origin_error,
         local_errors,
         overlap_true,
+        walk: (robots[i].walk(), robots[j].walk()),
         bytes_sent,
         update_ratio,
         adopted: false,

@@ -8,6 +8,7 @@ use crate::sources::drift::drifted;
 use crate::sources::kitti::Frame;
 use crate::sources::source::Source;
 use cosem_core::map::{FullPolicy, MapConfig};
+use cosem_core::session::{OdometryWalk, ScanFit};
 use nalgebra::{Isometry3, Point3};
 
 use super::SessionSpec;
@@ -28,6 +29,8 @@ pub(super) struct Robot {
     /// Scans fused so far.
     pub fused: usize,
     filter: PointFilter,
+    /// How far its odometry turned its last scans from its map.
+    walk: OdometryWalk,
 }
 
 impl Robot {
@@ -61,7 +64,7 @@ impl Robot {
         let map = new_map(spec.capacity_of(i), config)?;
         let truth_map = truth_frames.as_ref().map(|_| new_map(spec.capacity_of(i), config)).transpose()?;
         let filter = PointFilter { max_range: Some(spec.crop), ..PointFilter::default() };
-        Ok(Robot { frames, truth_frames, world, map, truth_map, fused: 0, filter })
+        Ok(Robot { frames, truth_frames, world, map, truth_map, fused: 0, filter, walk: OdometryWalk::new() })
     }
 
     /// Scan `k` (its points and pose in the odometry frame, drifted).
@@ -83,6 +86,15 @@ impl Robot {
             let at = f.pose.translation.vector.cast::<f32>();
             let at = [at.x, at.y, at.z];
             self.map.move_anchor(at).map_err(|e| Error::Invalid(format!("scan {}: {e}", f.index)))?;
+            // The scan against the map before it is fused: the points the
+            // map takes.
+            let mut fit = ScanFit::new(at);
+            for ((p, &range), &label) in f.points.iter().zip(&f.ranges).zip(&f.labels) {
+                if self.filter.keep(range, label).is_some() {
+                    fit.add(&self.map, *p);
+                }
+            }
+            self.walk.push(fit.turn());
             fuse_frames(&mut self.map, std::slice::from_ref(f), &self.filter)?;
             if let (Some(map), Some(frames)) = (self.truth_map.as_mut(), self.truth_frames.as_ref()) {
                 map.move_anchor(at).map_err(|e| Error::Invalid(format!("scan {}: {e}", f.index)))?;
@@ -92,6 +104,12 @@ impl Robot {
         let n = end - self.fused;
         self.fused = end;
         Ok(n)
+    }
+
+    /// Its figure of its odometry's heading walk (degrees,
+    /// [`OdometryWalk::excess`]), once it has one.
+    pub fn walk(&self) -> Option<f32> {
+        self.walk.excess()
     }
 
     /// The odometry pose (`T_odom_base`) of the last scan fused.

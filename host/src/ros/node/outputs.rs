@@ -35,8 +35,13 @@ impl RosNode {
             // at its own pace, which may be a second or more of driving
             // apart (its silence is judged by time: `HEARD_FOR`,
             // `FORGET_AFTER`).
-            let view =
-                PeerView { estimate: heard, at: self.own.place, peer_at: peer.follower.peer_place(), copy_at: None };
+            let view = PeerView {
+                estimate: heard,
+                at: self.own.place,
+                peer_at: peer.follower.peer_place(),
+                copy_at: None,
+                walk: None,
+            };
             let room = &mut self.room;
             let (mut e, _) = match estimate_on(&mut mine, copy, &mut peer.tracker, &self.spec.alignment, &view, room) {
                 Ok(e) => e,
