@@ -81,7 +81,7 @@ DEFINITIONS = {
         ],
     ),
     "cosem_msgs/msg/MapUpdate": definition(
-        "uint32 PROTOCOL=2\nstd_msgs/Header header\nstring robot\nstring peer\nuint32 protocol\nfloat32 voxel_size\nuint8[] payload\n",
+        "uint32 PROTOCOL=3\nstd_msgs/Header header\nstring robot\nstring peer\nuint32 protocol\nfloat32 voxel_size\nfloat32 heading_walk\nuint8[] payload\n",
         HDR,
     ),
 }
@@ -155,8 +155,9 @@ MESSAGES = {
         "header": header(13, 14, "robot_a/odom"),
         "robot": "robot_a",
         "peer": "",
-        "protocol": 2,
+        "protocol": 3,
         "voxel_size": 0.5,
+        "heading_walk": 0.125,
         "payload": bytes([0xD8, 1, 0, 2, 3, 4, 5, 6, 7]),
     },
 }

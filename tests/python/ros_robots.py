@@ -123,6 +123,7 @@ class MapUpdate(IdlStruct, typename="cosem_msgs::msg::dds_::MapUpdate_"):
     peer: str
     protocol: uint32
     voxel_size: float32
+    heading_walk: float32
     payload: sequence[uint8]
 
 
@@ -342,11 +343,11 @@ def inject(what, updates, robots, now):
         return [now, kind]
     header = Header(stamp_now(), "intruder/odom")
     if kind == "update_garbage":
-        updates.write(MapUpdate(header, "intruder", "", 2, 0.5, bytes(range(256)) * 4))
+        updates.write(MapUpdate(header, "intruder", "", 3, 0.5, -1.0, bytes(range(256)) * 4))
     elif kind == "update_truncated":
-        updates.write(MapUpdate(header, "intruder", "", 2, 0.5, b"\x05\x00\x01"))
+        updates.write(MapUpdate(header, "intruder", "", 3, 0.5, -1.0, b"\x05\x00\x01"))
     elif kind == "update_protocol":
-        updates.write(MapUpdate(header, "intruder", "", 99, 0.5, bytes(64)))
+        updates.write(MapUpdate(header, "intruder", "", 99, 0.5, -1.0, bytes(64)))
     elif kind == "cloud_lies":
         r = robots[what.get("robot", 0)]
         c = cloud(r.data, r.frames[0], f"{r.name}/velodyne")

@@ -5,6 +5,7 @@
 //! interfaces, with a domain id of its own. Where a namespace cannot be
 //! made, or Python lacks `cyclonedds`, the test says so and skips.
 
+use cosem_core::session::WALK_LIMIT_DEG;
 use cosem_host::sources::source::{Source, SourceOptions};
 use cosem_tests::{cosem_bin, real_data, synth, workspace_root};
 use nalgebra::{Isometry3, Matrix4, Quaternion, Translation3, UnitQuaternion};
@@ -264,13 +265,16 @@ fn nodes_ran(got: &Value) -> Vec<String> {
         let estimates: Vec<&Value> = lines.iter().filter(|l| l.get("round").is_some()).collect();
         let count = |f: &dyn Fn(&Value) -> bool| estimates.iter().filter(|e| f(e)).count();
         let summary = &lines.last().unwrap()["summary"];
-        assert_eq!(summary["schema_version"], 3, "{last}");
+        assert_eq!(summary["schema_version"], 4, "{last}");
         assert_eq!(summary["estimates"], count(&|e| e["confirmation"] == false), "{last}");
         // A confirmation tells a waiting estimate again, `Converged`.
         assert_eq!(summary["converged"], count(&|e| e["status"] == "Converged"), "{last}");
         assert!(estimates.iter().all(|e| e["confirmation"] == false || e["status"] == "Converged"), "{last}");
         assert_eq!(summary["adopted"], count(&|e| e["adopted"] == true), "{last}");
         assert_eq!(summary["contested"], count(&|e| e["contested"] == true), "{last}");
+        assert_eq!(summary["walked"], count(&|e| e["walked"] == true), "{last}");
+        // A walked estimate is never `Converged`.
+        assert!(estimates.iter().all(|e| e["walked"] == false || e["status"] != "Converged"), "{last}");
     }
     nodes.iter().map(|n| n["stderr"].as_str().unwrap().to_string()).collect()
 }
@@ -293,7 +297,7 @@ fn offset_class_table(offset: u32) -> String {
 /// truth; each publishes its peer's pose with a covariance. With
 /// `odometry`, robot B's motion comes on a `nav_msgs/Odometry` topic, not
 /// `/tf`, and its labels are its own ids, read through a class table.
-fn two_nodes(data: &Path, a: &[usize], b: &[usize], odometry: bool) {
+fn two_nodes(data: &Path, a: &[usize], b: &[usize], odometry: bool) -> Value {
     let d = domain() + u16::from(odometry) * 4;
     let mut robot_b = robot("robot_1", data, b, 0.0);
     let mut node_b = node("robot_1", d, 0.0);
@@ -332,6 +336,7 @@ fn two_nodes(data: &Path, a: &[usize], b: &[usize], odometry: bool) {
         let cov = f64s(&p[5]);
         assert!((0..6).all(|i| cov[7 * i].is_finite() && cov[7 * i] > 0.0), "{a}'s covariance of {b}: {cov:?}");
     }
+    got
 }
 
 #[test]
@@ -354,9 +359,24 @@ fn two_nodes_find_each_other_synthetic_odometry() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("seq");
-    synth(&seq, 10, 3);
-    // Robot B's motion from an Odometry topic.
-    two_nodes(&seq, &[0, 1, 2, 3, 4], &[5, 6, 7, 8, 9], true);
+    synth(&seq, 16, 3);
+    // Robot B's motion from an Odometry topic; ten scans each, so that
+    // each node has a figure of its heading walk (8 scans) to send.
+    let (a, b): (Vec<usize>, Vec<usize>) = ((0..10).collect(), (6..16).collect());
+    let got = two_nodes(&seq, &a, &b, true);
+    // Each node's figure reaches its peer with its updates: the last
+    // estimates carry both, small (no drift here), and none is walked.
+    for n in got["nodes"].as_array().unwrap() {
+        let out = n["stdout"].as_str().unwrap();
+        let lines: Vec<Value> = out.lines().filter_map(|l| serde_json::from_str(l).ok()).collect();
+        let last = lines.iter().rfind(|l| l.get("round").is_some()).unwrap_or_else(|| panic!("no estimate: {out}"));
+        for key in ["walk", "walk_peer"] {
+            let w = last[key].as_f64().unwrap_or_else(|| panic!("no {key} in the last estimate: {last}"));
+            assert!((0.0..f64::from(WALK_LIMIT_DEG)).contains(&w), "{key} {w}: {last}");
+        }
+        assert_eq!(last["walked"], false, "{last}");
+        println!("walk {} walk_peer {}", last["walk"], last["walk_peer"]);
+    }
 }
 
 /// kitti00-loop's scans 88 and 850, 308 m apart: each node says

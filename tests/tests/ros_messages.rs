@@ -139,6 +139,7 @@ fn outputs() -> Vec<(&'static str, Vec<u8>)> {
                 peer: String::new(),
                 protocol: MAP_UPDATE_PROTOCOL,
                 voxel_size: 0.5,
+                heading_walk: 0.125,
                 payload: vec![0xD8, 1, 0, 2, 3, 4, 5, 6, 7],
             }),
         ),

@@ -239,7 +239,7 @@ fn node(a: NodeArgs) -> Result<(), Error> {
     stop_on_signals();
     let node = RosNode::new(spec)?;
     let summary = node.run_until(&STOP, |event| match event {
-        Event::Estimate { round, peer, estimate: e, voxels, seconds, origin } => {
+        Event::Estimate { round, peer, estimate: e, voxels, seconds, origin, walk } => {
             let m = e.result.transform.to_homogeneous();
             let t: Vec<f64> =
                 (0..3).flat_map(|i| (0..4).map(move |j| (i, j))).map(|(i, j)| f64::from(m[(i, j)])).collect();
@@ -247,7 +247,8 @@ fn node(a: NodeArgs) -> Result<(), Error> {
                 "round": round, "robot": name, "peer": peer, "status": e.status().as_str(),
                 "kind": e.kind.as_str(), "fix": e.fix.as_str(), "confirmed": e.confirmed,
                 "contested": e.contested,
-                "disputed": e.disputed, "adopted": *origin == Origin::Adopted,
+                "disputed": e.disputed, "walked": e.walked, "walk": walk.0, "walk_peer": walk.1,
+                "adopted": *origin == Origin::Adopted,
                 "confirmation": *origin == Origin::Confirmed,
                 "T_own_peer": t, "overlap": e.result.overlap, "agreement": e.result.agreement,
                 "voxels": voxels.0, "peer_voxels": voxels.1, "seconds": seconds,
@@ -270,7 +271,7 @@ fn node(a: NodeArgs) -> Result<(), Error> {
             "applied": summary.applied, "qos_mismatches": summary.qos_mismatches,
             "estimates": summary.estimates.made, "converged": summary.estimates.converged,
             "adopted": summary.estimates.adopted, "contested": summary.estimates.contested,
-            "disputed": summary.estimates.disputed,
+            "disputed": summary.estimates.disputed, "walked": summary.estimates.walked, "walk": summary.walk,
         }})
     );
     Ok(())

@@ -228,6 +228,20 @@ impl BuildStats {
     }
 }
 
+/// How far the odometry turned scan `f` (in the anchor frame, the
+/// sensor at `at`) from `map`, before it is fused: the points the map
+/// would take, registered to it ([`cosem_core::session::ScanFit`]). What a
+/// robot's [`cosem_core::session::OdometryWalk`] is fed, scan by scan.
+pub fn scan_turn(map: &HostMap, f: &Frame, filter: &PointFilter, at: [f32; 3]) -> Option<(f32, f32)> {
+    let mut fit = cosem_core::session::ScanFit::new(at);
+    for ((p, &range), &label) in f.points.iter().zip(&f.ranges).zip(&f.labels) {
+        if filter.keep(range, label).is_some() {
+            fit.add(map, *p);
+        }
+    }
+    fit.turn()
+}
+
 /// Fuses frames (already in the anchor frame) into `map`.
 pub fn fuse_frames(map: &mut HostMap, frames: &[Frame], filter: &PointFilter) -> Result<BuildStats, BuildError> {
     let mut stats = BuildStats::default();

@@ -268,14 +268,19 @@ pub struct MapUpdate {
     /// (the wire format names cells, not metres), and a robot of another
     /// size does not match them.
     pub voxel_size: f32,
+    /// The sender's figure of its odometry's heading walk (degrees,
+    /// `cosem_core::session::OdometryWalk::excess`), negative while it has
+    /// none: a peer withholds its estimates while the two robots' walk
+    /// together passes `cosem_core::session::WALK_LIMIT_DEG`.
+    pub heading_walk: f32,
     /// The wire message.
     pub payload: Vec<u8>,
 }
 
 /// The version of the map-update protocol a [`MapUpdate`] carries: raised
 /// whenever the message's or the payload's format changes (2: the
-/// sender's voxel size joined the message).
-pub const MAP_UPDATE_PROTOCOL: u32 = 2;
+/// sender's voxel size joined the message; 3: its heading walk).
+pub const MAP_UPDATE_PROTOCOL: u32 = 3;
 
 const SEPARATOR: &str = "================================================================================\n";
 const TIME_DEF: &str = "int32 sec\nuint32 nanosec\n";
@@ -346,7 +351,7 @@ pub fn odometry_schema() -> String {
 
 /// The text of `host/ros/cosem_msgs/msg/MapUpdate.msg` (its comments left out).
 pub const MAP_UPDATE_DEF: &str =
-    "uint32 PROTOCOL=2\nstd_msgs/Header header\nstring robot\nstring peer\nuint32 protocol\nfloat32 voxel_size\nuint8[] payload\n";
+    "uint32 PROTOCOL=3\nstd_msgs/Header header\nstring robot\nstring peer\nuint32 protocol\nfloat32 voxel_size\nfloat32 heading_walk\nuint8[] payload\n";
 
 /// The `ros2msg` definition of `cosem_msgs/msg/MapUpdate`.
 pub fn map_update_schema() -> String {

@@ -3,12 +3,12 @@
 //! scans a round around where it is.
 
 use crate::error::Error;
-use crate::maps::mapping::{fuse_frames, new_map, HostMap, PointFilter};
+use crate::maps::mapping::{fuse_frames, new_map, scan_turn, HostMap, PointFilter};
 use crate::sources::drift::drifted;
 use crate::sources::kitti::Frame;
 use crate::sources::source::Source;
 use cosem_core::map::{FullPolicy, MapConfig};
-use cosem_core::session::{OdometryWalk, ScanFit};
+use cosem_core::session::OdometryWalk;
 use nalgebra::{Isometry3, Point3};
 
 use super::SessionSpec;
@@ -86,15 +86,7 @@ impl Robot {
             let at = f.pose.translation.vector.cast::<f32>();
             let at = [at.x, at.y, at.z];
             self.map.move_anchor(at).map_err(|e| Error::Invalid(format!("scan {}: {e}", f.index)))?;
-            // The scan against the map before it is fused: the points the
-            // map takes.
-            let mut fit = ScanFit::new(at);
-            for ((p, &range), &label) in f.points.iter().zip(&f.ranges).zip(&f.labels) {
-                if self.filter.keep(range, label).is_some() {
-                    fit.add(&self.map, *p);
-                }
-            }
-            self.walk.push(fit.turn());
+            self.walk.push(scan_turn(&self.map, f, &self.filter, at));
             fuse_frames(&mut self.map, std::slice::from_ref(f), &self.filter)?;
             if let (Some(map), Some(frames)) = (self.truth_map.as_mut(), self.truth_frames.as_ref()) {
                 map.move_anchor(at).map_err(|e| Error::Invalid(format!("scan {}: {e}", f.index)))?;

@@ -31,13 +31,13 @@ use super::follow::Follower;
 use crate::error::Error;
 use crate::evaluation::session::prepared::Prepared;
 use crate::evaluation::session::{estimate_on, MatchRoom};
-use crate::maps::mapping::{fuse_frames, new_map, HostMap, PointFilter};
+use crate::maps::mapping::{fuse_frames, new_map, scan_turn, HostMap, PointFilter};
 use crate::sources::recording::{iso_of, live_cloud, TfTree};
 use crate::sources::ros_msgs::*;
 use crate::sources::ros_pose::pose_with_covariance;
 use cosem_core::map::{FullPolicy, MapConfig};
 use cosem_core::matching::{Alignment, MatchStatus, Role};
-use cosem_core::session::{Estimate, PeerView, Publisher, ShadowEntry, Tracker};
+use cosem_core::session::{pair_walk, Estimate, OdometryWalk, PeerView, Publisher, ShadowEntry, Tracker};
 use nalgebra::Isometry3;
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -127,6 +127,10 @@ pub enum Event {
         seconds: f64,
         /// How it came: made, adopted, or confirmed after it was made.
         origin: Origin,
+        /// The two robots' figures of their heading walk when it was made
+        /// (this robot's, the peer's last heard; degrees,
+        /// `cosem_core::session::OdometryWalk::excess`).
+        walk: (Option<f32>, Option<f32>),
     },
     /// An input dropped: what and why.
     Dropped(String),
@@ -166,6 +170,8 @@ pub struct NodeSummary {
     /// adopted the peer's fix, and those contested by the history
     /// (`core::session::History`).
     pub estimates: Tally,
+    /// The node's last figure of its heading walk (degrees), if it has one.
+    pub walk: Option<f32>,
 }
 
 /// The version of what `cosem ros node` prints (its estimate lines and
@@ -176,8 +182,12 @@ pub struct NodeSummary {
 /// summary counts `estimates`, `converged`, `adopted` and `contested`; 3
 /// since each line has `disputed` (the peer's latest estimate disagrees
 /// with the node's confirmed fix, so it is not `Converged` then) and the
-/// summary counts them.
-pub const NODE_SCHEMA: u32 = 3;
+/// summary counts them; 4 since each line has `walked`, `walk` and
+/// `walk_peer` (the two robots' heading walk: over
+/// `cosem_core::session::WALK_LIMIT_DEG` together, no estimate is
+/// `Converged`) and the summary counts `walked` and gives the node's
+/// last `walk`.
+pub const NODE_SCHEMA: u32 = 4;
 
 /// How an estimate a node tells of came about.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -206,6 +216,9 @@ pub struct Tally {
     pub contested: usize,
     /// Of them, a confirmed fix disputed by the peer's estimate.
     pub disputed: usize,
+    /// Of them, withheld while the two robots' odometry walked too much
+    /// (`Estimate::walked`).
+    pub walked: usize,
 }
 
 impl Tally {
@@ -220,6 +233,7 @@ impl Tally {
         self.adopted += usize::from(origin == Origin::Adopted);
         self.contested += usize::from(e.contested);
         self.disputed += usize::from(e.disputed);
+        self.walked += usize::from(e.walked);
     }
 }
 
@@ -247,6 +261,8 @@ struct Peer {
     /// is one the peer reports `Converged` ([`reported_by`]).
     reports: ros2_client::Subscription<PoseWithCovarianceStamped>,
     reported: Option<(Isometry3<f32>, Time)>,
+    /// The peer's figure of its heading walk, from its last update.
+    walk: Option<f32>,
 }
 
 /// The topic on which `robot` publishes its pose of `peer` while its
@@ -334,6 +350,9 @@ struct Own {
     place: [f32; 3],
     /// The map changed since the last update.
     changed: bool,
+    /// How far its odometry turned its last scans from its map (sent with
+    /// every update: `MapUpdate::heading_walk`).
+    walk: OdometryWalk,
 }
 
 /// The node: its DDS side, its own map and its peers.
@@ -447,6 +466,7 @@ impl RosNode {
             stamp: Time::default(),
             place: [0.0; 3],
             changed: false,
+            walk: OdometryWalk::new(),
         };
         let capacity = spec.capacity;
         Ok(RosNode {

@@ -10,6 +10,7 @@ impl RosNode {
         self.dirty = false;
         self.own.fresh = 0;
         self.summary.rounds += 1;
+        self.summary.walk = self.own.walk.excess();
         if self.own.changed {
             self.publish_update()?;
         }
@@ -40,7 +41,7 @@ impl RosNode {
                 at: self.own.place,
                 peer_at: peer.follower.peer_place(),
                 copy_at: None,
-                walk: None,
+                walk: pair_walk(self.own.walk.excess(), peer.walk),
             };
             let room = &mut self.room;
             let (mut e, _) = match estimate_on(&mut mine, copy, &mut peer.tracker, &self.spec.alignment, &view, room) {
@@ -68,6 +69,7 @@ impl RosNode {
                 voxels,
                 seconds,
                 origin: Origin::Made,
+                walk: (self.own.walk.excess(), peer.walk),
             });
             done.push(name.clone());
         }
@@ -99,6 +101,7 @@ impl RosNode {
             peer: String::new(),
             protocol: MAP_UPDATE_PROTOCOL,
             voxel_size: self.spec.voxel,
+            heading_walk: self.own.walk.excess().unwrap_or(-1.0),
             payload,
         };
         let (topic, name) = if snapshot {
@@ -169,6 +172,9 @@ impl RosNode {
                 value("updates_waiting", p.follower.waiting().to_string()),
                 value("since_update_s", format!("{:.1}", p.updated.elapsed().as_secs_f64())),
             ];
+            // The two robots' heading walk (degrees), where known.
+            let figure = |w: Option<f32>| w.map_or_else(|| "unknown".into(), |w| format!("{w:.3}"));
+            values.extend([value("walk", figure(self.own.walk.excess())), value("walk_peer", figure(p.walk))]);
             let (level, message) = match p.last {
                 Some(e) => {
                     let s = e.status();
@@ -178,6 +184,7 @@ impl RosNode {
                         value("confirmed", e.confirmed.to_string()),
                         value("contested", e.contested.to_string()),
                         value("disputed", e.disputed.to_string()),
+                        value("walked", e.walked.to_string()),
                         value("agreement", format!("{:.3}", e.result.agreement)),
                         value("overlap", format!("{:.3}", e.result.overlap)),
                     ]);

@@ -79,6 +79,7 @@ impl RosNode {
         let at = pose.translation.vector.cast::<f32>();
         let at = [at.x, at.y, at.z];
         self.own.map.move_anchor(at).map_err(|e| Error::Invalid(format!("scan {index}: {e}")))?;
+        self.own.walk.push(scan_turn(&self.own.map, &frame, &self.own.filter, at));
         fuse_frames(&mut self.own.map, std::slice::from_ref(&frame), &self.own.filter)?;
         self.summary.scans += 1;
         self.own.fresh += 1;

@@ -46,6 +46,7 @@ impl RosNode {
             pose: None,
             reports,
             reported: None,
+            walk: None,
         };
         self.peers.insert(m.robot.clone(), peer);
         Ok(true)
@@ -64,6 +65,11 @@ impl RosNode {
         }
         if m.robot.is_empty() || m.header.frame_id.is_empty() {
             self.drop_input("an update naming no robot or no odometry frame".into(), log);
+            return Ok(());
+        }
+        if !m.heading_walk.is_finite() {
+            let why = format!("{}: an update whose heading walk is {}", m.robot, m.heading_walk);
+            self.drop_input(why, log);
             return Ok(());
         }
         if let Err(e) = cosem_core::wire::update::UpdateView::parse(&m.payload) {
@@ -108,6 +114,7 @@ impl RosNode {
                 }
                 peer.updated = Instant::now();
                 peer.odom_frame = m.header.frame_id;
+                peer.walk = (m.heading_walk >= 0.0).then_some(m.heading_walk);
                 *self.summary.applied.entry(m.robot).or_default() += done.applied;
                 self.dirty |= done.applied > 0;
             }
@@ -159,6 +166,7 @@ impl RosNode {
                     voxels,
                     seconds: 0.0,
                     origin: Origin::Confirmed,
+                    walk: (self.own.walk.excess(), peer.walk),
                 });
                 self.publish_estimate(&name)?;
                 self.publish_edge()?;
@@ -190,7 +198,7 @@ impl RosNode {
             at: self.own.place,
             peer_at: peer.follower.peer_place(),
             copy_at: None,
-            walk: None,
+            walk: pair_walk(self.own.walk.excess(), peer.walk),
         };
         let pyramids = (own.tracked()?.0, them.tracked()?.0);
         // The peer's pose topic says whether it reports the fix
@@ -208,7 +216,8 @@ impl RosNode {
         let seconds = t.elapsed().as_secs_f64();
         let round = self.summary.rounds;
         let (peer, estimate) = (name.to_string(), Box::new(e));
-        log(&Event::Estimate { round, peer, estimate, voxels, seconds, origin: Origin::Adopted });
+        let walk = (self.own.walk.excess(), self.peers.get(name).and_then(|p| p.walk));
+        log(&Event::Estimate { round, peer, estimate, voxels, seconds, origin: Origin::Adopted, walk });
         self.publish_estimate(name)?;
         self.publish_edge()
     }
