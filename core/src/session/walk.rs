@@ -12,7 +12,7 @@
 //! stray ([`ScanFit`], [`OdometryWalk`]).
 
 use crate::map::{LocalMap, VoxelStorage};
-use crate::matching::pyramid::smallest_eigen;
+use crate::matching::pyramid::Moments;
 
 /// A scan's points are taken one in this many ([`ScanFit::add`]): a
 /// few hundred point-to-plane pairs a scan, enough to fix a heading to a
@@ -172,33 +172,14 @@ fn plane_at<S: VoxelStorage>(map: &LocalMap<S>, p: [f32; 3]) -> Option<([f32; 3]
     }
     let res = map.resolution();
     let q = v.position(res);
-    let radius_sq = 2.25 * res * res;
-    let (mut count, mut m1, mut m2) = (0u32, [0.0f32; 3], [0.0f32; 6]);
+    let mut moments = Moments::around(q, res);
     for (_, o) in map.neighbours(v.key) {
-        let o = o.position(res);
-        let d = [o[0] - q[0], o[1] - q[1], o[2] - q[2]];
-        if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > radius_sq {
-            continue;
-        }
-        count += 1;
-        for (m, x) in m1.iter_mut().zip(d) {
-            *m += x;
-        }
-        m2[0] += d[0] * d[0];
-        m2[1] += d[0] * d[1];
-        m2[2] += d[0] * d[2];
-        m2[3] += d[1] * d[1];
-        m2[4] += d[1] * d[2];
-        m2[5] += d[2] * d[2];
+        moments.add((o.position(res), 1.0));
     }
-    if count < 6 {
+    if moments.count() < 6 {
         return None;
     }
-    let w = count as f32;
-    let mean = [m1[0] / w, m1[1] / w, m1[2] / w];
-    let c = |k: usize, i: usize, j: usize| m2[k] / w - mean[i] * mean[j];
-    let cov = [c(0, 0, 0), c(1, 0, 1), c(2, 0, 2), c(3, 1, 1), c(4, 1, 2), c(5, 2, 2)];
-    let (l0, l1, n) = smallest_eigen(&cov)?;
+    let (l0, l1, n) = moments.eigen()?;
     let planar = l0.is_finite() && l1.is_finite() && l1 > 0.0 && l0 < 0.1 * l1;
     let upright = n[0] * n[0] + n[1] * n[1] >= 0.25;
     (planar && upright).then_some((q, n))

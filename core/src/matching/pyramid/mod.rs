@@ -50,7 +50,7 @@ pub use index::NARROW_LIMIT;
 use index::*;
 pub(crate) use lazy::normal_of;
 use lazy::Prep;
-pub(crate) use normals::smallest_eigen;
+pub(crate) use normals::Moments;
 /// Writes into `words` the indices `0..len` sorted by their keys' sweep
 /// order ([`VoxelKey::sweep`]; [`sort_indices_by_code`] on the keys in
 /// offset binary, x then y then z: the same order in 48 bits); false when

@@ -7,7 +7,7 @@ use super::*;
 /// Weighted moments of a neighbourhood's offsets from its centre entry
 /// (centred: better conditioned than absolute positions), the six
 /// distinct second moments; entries farther than 1.5 cells are left out.
-pub(super) struct Moments {
+pub(crate) struct Moments {
     pub(super) centre: [f32; 3],
     pub(super) radius_sq: f32,
     pub(super) sum_w: f32,
@@ -18,12 +18,22 @@ pub(super) struct Moments {
 
 impl Moments {
     pub(super) fn new(e: &Entry, resolution: f32) -> Self {
+        Self::around(e.position, resolution)
+    }
+
+    /// Empty moments about `centre`, of the points within 1.5 cells of it.
+    pub(crate) fn around(centre: [f32; 3], resolution: f32) -> Self {
         let r = 1.5 * resolution;
-        Moments { centre: e.position, radius_sq: r * r, sum_w: 0.0, m1: [0.0; 3], m2: [0.0; 6], count: 0 }
+        Moments { centre, radius_sq: r * r, sum_w: 0.0, m1: [0.0; 3], m2: [0.0; 6], count: 0 }
+    }
+
+    /// Points taken so far.
+    pub(crate) fn count(&self) -> u32 {
+        self.count
     }
 
     #[inline]
-    pub(super) fn add(&mut self, (position, w): ([f32; 3], f32)) {
+    pub(crate) fn add(&mut self, (position, w): ([f32; 3], f32)) {
         let c = self.centre;
         let d = [position[0] - c[0], position[1] - c[1], position[2] - c[2]];
         if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > self.radius_sq {
@@ -47,18 +57,26 @@ impl Moments {
     /// The normal: planar when the smallest eigenvalue of the covariance
     /// is under a tenth of the middle one (and at least four entries).
     pub(super) fn normal(&self) -> PackedNormal {
-        let (sum_w, m1, m2) = (self.sum_w, self.m1, self.m2);
-        if self.count < 4 || sum_w <= 0.0 {
+        if self.count < 4 {
             return PackedNormal::NONE;
         }
-        let mean = [m1[0] / sum_w, m1[1] / sum_w, m1[2] / sum_w];
-        let c = |k: usize, a: usize, b: usize| m2[k] / sum_w - mean[a] * mean[b];
-        let cov = [c(0, 0, 0), c(1, 0, 1), c(2, 0, 2), c(3, 1, 1), c(4, 1, 2), c(5, 2, 2)];
-        let Some((l0, l1, v)) = smallest_eigen(&cov) else { return PackedNormal::NONE };
+        let Some((l0, l1, v)) = self.eigen() else { return PackedNormal::NONE };
         if !(l0.is_finite() && l1.is_finite()) || l1 <= 0.0 || l0 > 0.1 * l1 {
             return PackedNormal::NONE;
         }
         PackedNormal::pack(v)
+    }
+
+    /// The covariance's two smallest eigenvalues and the smallest one's
+    /// eigenvector ([`smallest_eigen`]); `None` with no weight.
+    pub(crate) fn eigen(&self) -> Option<(f32, f32, [f32; 3])> {
+        let (sum_w, m1, m2) = (self.sum_w, self.m1, self.m2);
+        if sum_w <= 0.0 {
+            return None;
+        }
+        let mean = [m1[0] / sum_w, m1[1] / sum_w, m1[2] / sum_w];
+        let c = |k: usize, a: usize, b: usize| m2[k] / sum_w - mean[a] * mean[b];
+        smallest_eigen(&[c(0, 0, 0), c(1, 0, 1), c(2, 0, 2), c(3, 1, 1), c(4, 1, 2), c(5, 2, 2)])
     }
 }
 
@@ -223,7 +241,7 @@ pub(super) const NEWTON_STEPS: usize = 24;
 /// hundred operations, where an iterative decomposition takes thousands:
 /// fitting normals is most of preparing a map. `None` for a multiple of
 /// the identity or when the eigenvector is not determined.
-pub(crate) fn smallest_eigen(a: &[f32; 6]) -> Option<(f32, f32, [f32; 3])> {
+pub(super) fn smallest_eigen(a: &[f32; 6]) -> Option<(f32, f32, [f32; 3])> {
     let [a00, a01, a02, a11, a12, a22] = *a;
     let p1 = a01 * a01 + a02 * a02 + a12 * a12;
     let q = (a00 + a11 + a22) / 3.0;

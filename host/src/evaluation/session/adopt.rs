@@ -73,7 +73,7 @@ impl Adopting<'_> {
             let t0 = Instant::now();
             let copy = copy_of((i, j), links, lines)?;
             let (mut own, mut peer) = (Prepared::new(&robots[i].map, Role::Model), Prepared::new(copy, Role::Scene));
-            let walk = cosem_core::session::pair_walk(robots[i].walk(), robots[j].walk());
+            let walk = robots[i].walk_with(&robots[j]);
             let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at[i][j], walk };
             let pyramids = (own.tracked()?.0, peer.tracked()?.0);
             let adopted = tracker

@@ -27,7 +27,7 @@ use cosem_core::map::VecStorage;
 use cosem_core::matching::search::SearchScratch;
 use cosem_core::matching::{Alignment, MatchResult, PackedNormal, Reach, Role};
 use cosem_core::session::{
-    pair_walk, Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateBudget, UpdateCounts,
+    Applied, Estimate, PeerView, Publisher, Replica, ShadowEntry, Tracker, UpdateBudget, UpdateCounts,
 };
 use nalgebra::Isometry3;
 use prepared::Prepared;
@@ -426,9 +426,7 @@ pub fn run(spec: &SessionSpec, mut on_round: impl FnMut(&RoundView<'_>)) -> Resu
                 // place (a copy's last cut, `Replica::peer_place`, is
                 // rounds old while updates wait on a damaged line).
                 let (peer_at, copy_from) = (places.get(j).copied(), copy_at[i][j]);
-                // The two robots' walks: each measures its own, and the
-                // peer's comes with its update (in-process here).
-                let walk = pair_walk(robots[i].walk(), robots[j].walk());
+                let walk = robots[i].walk_with(&robots[j]);
                 let view = PeerView { estimate: heard[j][i], at: places[i], peer_at, copy_at: copy_from, walk };
                 let at = Round { round, pair: (i, j), shared_world, view };
                 let update = delivered[j][i].take().ok_or_else(|| Error::Invalid("no update".into()))?;

@@ -8,7 +8,7 @@ use crate::sources::drift::drifted;
 use crate::sources::kitti::Frame;
 use crate::sources::source::Source;
 use cosem_core::map::{FullPolicy, MapConfig};
-use cosem_core::session::OdometryWalk;
+use cosem_core::session::{pair_walk, OdometryWalk};
 use nalgebra::{Isometry3, Point3};
 
 use super::SessionSpec;
@@ -102,6 +102,12 @@ impl Robot {
     /// [`OdometryWalk::excess`]), once it has one.
     pub fn walk(&self) -> Option<f32> {
         self.walk.excess()
+    }
+
+    /// Its walk and `peer`'s together ([`pair_walk`]): each robot measures
+    /// its own, and the peer's comes with its update (in-process here).
+    pub fn walk_with(&self, peer: &Robot) -> Option<f32> {
+        pair_walk(self.walk(), peer.walk())
     }
 
     /// The odometry pose (`T_odom_base`) of the last scan fused.

@@ -355,6 +355,18 @@ struct Own {
     walk: OdometryWalk,
 }
 
+impl Own {
+    /// How this robot sees `peer` for an estimate, with the peer's estimate
+    /// of it heard, if any. No staleness by distance (`copy_at`): a peer's
+    /// updates come at its own pace, which may be a second or more of
+    /// driving apart (its silence is judged by time: `HEARD_FOR`,
+    /// `FORGET_AFTER`).
+    fn view_of(&self, peer: &Peer, estimate: Option<Isometry3<f32>>) -> PeerView {
+        let walk = pair_walk(self.walk.excess(), peer.walk);
+        PeerView { estimate, at: self.place, peer_at: peer.follower.peer_place(), copy_at: None, walk }
+    }
+}
+
 /// The node: its DDS side, its own map and its peers.
 pub struct RosNode {
     spec: NodeSpec,

@@ -32,17 +32,7 @@ impl RosNode {
                 continue;
             }
             let heard = peer.heard.filter(|h| h.1.elapsed().as_secs_f64() <= HEARD_FOR).map(|h| h.0);
-            // No staleness by distance here (`copy_at`): a peer's updates come
-            // at its own pace, which may be a second or more of driving
-            // apart (its silence is judged by time: `HEARD_FOR`,
-            // `FORGET_AFTER`).
-            let view = PeerView {
-                estimate: heard,
-                at: self.own.place,
-                peer_at: peer.follower.peer_place(),
-                copy_at: None,
-                walk: pair_walk(self.own.walk.excess(), peer.walk),
-            };
+            let view = self.own.view_of(peer, heard);
             let room = &mut self.room;
             let (mut e, _) = match estimate_on(&mut mine, copy, &mut peer.tracker, &self.spec.alignment, &view, room) {
                 Ok(e) => e,

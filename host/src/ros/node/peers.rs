@@ -193,13 +193,7 @@ impl RosNode {
         }
         let t = Instant::now();
         let (mut own, mut them) = (Prepared::new(&self.own.map, Role::Model), Prepared::new(copy, Role::Scene));
-        let view = PeerView {
-            estimate: None,
-            at: self.own.place,
-            peer_at: peer.follower.peer_place(),
-            copy_at: None,
-            walk: pair_walk(self.own.walk.excess(), peer.walk),
-        };
+        let view = self.own.view_of(peer, None);
         let pyramids = (own.tracked()?.0, them.tracked()?.0);
         // The peer's pose topic says whether it reports the fix
         // `Converged`; whether it is a recall waiting for its vouch, which
