@@ -30,7 +30,7 @@ fn mapped(rng: &mut Lcg, points: usize) -> VecMap {
 fn turn_of(map: &VecMap, rng: &mut Lcg, centre: [f32; 3], deg: f32) -> Option<f32> {
     let (s, c) = libm::sincosf(deg.to_radians());
     let mut fit = ScanFit::new(centre);
-    for _ in 0..16_000 {
+    for _ in 0..32_000 {
         let p = place(rng.unit(), rng.unit(), rng.unit());
         let (dx, dy) = (p[0] - centre[0], p[1] - centre[1]);
         fit.add(map, [centre[0] + c * dx - s * dy, centre[1] + s * dx + c * dy, p[2]]);
