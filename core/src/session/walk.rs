@@ -25,6 +25,14 @@ use crate::matching::pyramid::Moments;
 /// (availability 0.863 against 0.695). One in 32 withholds right fixes
 /// there (docs/session.md).
 pub const WALK_STRIDE: u32 = 16;
+/// A scan thinned to a point a voxel (a board's feed: the voxel's mean, a
+/// few thousand points a scan) is taken one point in this many.
+///
+/// Why 2: on the boards' twin (town seeds 1-3) one point in two gives the
+/// same verdicts as every point at 0.5 and 1.5 degrees per 100 m, as many
+/// fixes held back at 1 degree, at about 5e6 instructions a scan on an
+/// mps2-an386 instead of 1e7 (docs/session.md "On the boards").
+pub const BOARD_WALK_STRIDE: u32 = 2;
 /// A scan with fewer pairs than this gives no heading ([`ScanFit::yaw`]):
 /// a scan in the open, or one the map has not seen before.
 pub const WALK_MIN_PAIRS: u32 = 50;
@@ -87,12 +95,21 @@ pub struct ScanFit {
     rr: f32,
     pairs: u32,
     seen: u32,
+    stride: u32,
 }
 
 impl ScanFit {
-    /// An empty fit of a scan taken at `centre` (the sensor, map frame).
+    /// An empty fit of a scan taken at `centre` (the sensor, map frame),
+    /// of its raw points: one in [`WALK_STRIDE`] is taken.
     pub fn new(centre: [f32; 3]) -> Self {
-        ScanFit { centre, h: [0.0; 6], g: [0.0; 3], rr: 0.0, pairs: 0, seen: 0 }
+        Self::with_stride(centre, WALK_STRIDE)
+    }
+
+    /// An empty fit that takes one point in `stride` (at least 1): a scan
+    /// thinned to a point a voxel, as a board is fed, takes more of its
+    /// points ([`BOARD_WALK_STRIDE`]).
+    pub fn with_stride(centre: [f32; 3], stride: u32) -> Self {
+        ScanFit { centre, h: [0.0; 6], g: [0.0; 3], rr: 0.0, pairs: 0, seen: 0, stride: stride.max(1) }
     }
 
     /// Pairs taken so far.
@@ -100,11 +117,11 @@ impl ScanFit {
         self.pairs
     }
 
-    /// Takes point `p` (map frame) of the scan, one in [`WALK_STRIDE`]
-    /// calls: its pair with the plane of the voxel it falls in, if that
+    /// Takes point `p` (map frame) of the scan, one in its stride's
+    /// calls ([`ScanFit::with_stride`]): its pair with the plane of the voxel it falls in, if that
     /// voxel has one. A point that is not finite is passed over.
     pub fn add<S: VoxelStorage>(&mut self, map: &LocalMap<S>, p: [f32; 3]) {
-        let take = self.seen.is_multiple_of(WALK_STRIDE);
+        let take = self.seen.is_multiple_of(self.stride);
         self.seen = self.seen.wrapping_add(1);
         if !take || !p.iter().all(|v| v.is_finite()) {
             return;

@@ -259,6 +259,14 @@ pub struct RoundReport {
     pub work_cut: bool,
     /// Peak stack so far (bytes).
     pub peak_stack: u32,
+    /// The robot's figure of its odometry's heading walk (degrees,
+    /// [`crate::session::OdometryWalk::excess`]); negative while it has
+    /// none.
+    pub walk: f32,
+    /// Whether the estimate passed the verdict but is not reported
+    /// `Converged` because the two robots' walk together passed
+    /// [`crate::session::WALK_LIMIT_DEG`] ([`crate::session::Estimate::walked`]).
+    pub walked: bool,
 }
 
 /// A session robot's end.
@@ -462,7 +470,7 @@ impl RobotMessage<'_> {
             RobotMessage::Report(r) => r.result.check().map_err(FeedError::from),
             RobotMessage::Matched { report, .. } => report.result.check().map_err(FeedError::from),
             RobotMessage::Placed(p) => finite(&p.transform).and(finite(&p.covariance)),
-            RobotMessage::Round(r) => r.result.check().map_err(FeedError::from),
+            RobotMessage::Round(r) => r.result.check().map_err(FeedError::from).and(finite(&[r.walk])),
             RobotMessage::Failed { .. }
             | RobotMessage::TeamEnd(_)
             | RobotMessage::Ready

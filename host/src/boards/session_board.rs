@@ -241,8 +241,8 @@ pub fn run_session_boards(
 
 /// The largest difference between two runs' rounds: metres between the
 /// translations of the same round's estimates, and whether every round's
-/// status, kind, fix and update agree (`None`: the rounds differ in
-/// number).
+/// status, kind, fix, update and walk figure agree (`None`: the rounds
+/// differ in number).
 pub fn round_difference(a: &[RoundReport], b: &[RoundReport]) -> Option<(f64, bool)> {
     if a.len() != b.len() {
         return None;
@@ -250,8 +250,9 @@ pub fn round_difference(a: &[RoundReport], b: &[RoundReport]) -> Option<(f64, bo
     let mut worst = 0.0f64;
     let mut same = true;
     for (p, q) in a.iter().zip(b) {
-        same &= (p.round, p.result.status, p.kind, p.fix, p.applied, p.update_bytes, p.copy_version)
-            == (q.round, q.result.status, q.kind, q.fix, q.applied, q.update_bytes, q.copy_version);
+        same &= (p.round, p.result.status, p.kind, p.fix, p.applied, p.update_bytes, p.copy_version, p.walked)
+            == (q.round, q.result.status, q.kind, q.fix, q.applied, q.update_bytes, q.copy_version, q.walked)
+            && p.walk.to_bits() == q.walk.to_bits();
         let d = (0..3)
             .map(|k| f64::from(p.result.transform[4 * k + 3] - q.result.transform[4 * k + 3]).powi(2))
             .sum::<f64>();
@@ -306,23 +307,19 @@ mod tests {
     use crate::evaluation::session::{feed::board_feeds, town_robots, SessionSpec};
 
     /// Town seed 1's robots on frames 44 to 104 (their first meeting),
-    /// drifted 1% and 0.5 degrees per 100 m, at the boards' 0.7 m: the
-    /// twin runs every round, applies every update, fixes the peer in the
-    /// meeting and tracks it, and no fix is wrong.
-    #[test]
-    fn the_twin_runs_a_town_meeting() {
-        let dir = crate::paths::TempDir::new("cosem-session-twin");
-        let mut robots = town_robots(&dir.0, 2, 1, None).unwrap();
+    /// drifted by `drift`, at the boards' 0.7 m.
+    fn meeting(dir: &std::path::Path, drift: &str) -> SessionSpec {
+        let mut robots = town_robots(dir, 2, 1, None).unwrap();
         for r in &mut robots {
             r.frames = crate::sources::kitti::FrameRange { start: 44, end: 104, stride: 1 };
         }
-        let spec = SessionSpec {
+        SessionSpec {
             robots,
             every: 2,
             voxel: BOARD_VOXEL,
             capacity: vec![SESSION_VOXELS],
             crop: 25.0,
-            drift: "1%,0.5".parse().unwrap(),
+            drift: drift.parse().unwrap(),
             slip: None,
             label_noise: crate::maps::noise::LabelNoise::None,
             seed: 1,
@@ -331,7 +328,17 @@ mod tests {
             one_shot: false,
             update_budget: Some(cosem_core::session::UpdateBudget::Bytes(cosem_core::session::DEFAULT_UPDATE_BUDGET)),
             line: None,
-        };
+        }
+    }
+
+    /// The meeting drifted 1% and 0.5 degrees per 100 m: the twin runs
+    /// every round, applies every update, fixes the peer in the meeting
+    /// and tracks it, no fix is wrong, and each robot measures its walk
+    /// (once it has eight scans that register) under the limit, holding nothing back.
+    #[test]
+    fn the_twin_runs_a_town_meeting() {
+        let dir = crate::paths::TempDir::new("cosem-session-twin");
+        let spec = meeting(&dir.0, "1%,0.5");
         let feeds = board_feeds(&spec, 60_000).unwrap();
         let twin = host_session_twin(&feeds.feeds).unwrap();
         for (i, r) in twin.iter().enumerate() {
@@ -352,6 +359,31 @@ mod tests {
             assert!(fixes.len() >= 12, "robot {i}: {} fixes", fixes.len());
             assert!(fixes.iter().all(|&(t, a)| t < 0.5 && a < 1.0), "robot {i}");
             assert!(r.rounds.iter().filter(|x| x.kind == 1).count() >= 10, "robot {i}: tracked");
+            let walks: Vec<f32> = r.rounds.iter().skip(6).map(|x| x.walk).collect();
+            eprintln!("robot {i}: walk figures {walks:.3?}");
+            assert!(walks.iter().all(|w| (0.0..cosem_core::session::WALK_LIMIT_DEG / 2.0).contains(w)), "robot {i}");
+            assert!(r.rounds.iter().all(|x| !x.walked), "robot {i}");
+        }
+    }
+
+    /// The meeting under a heading walk of 2 degrees per 100 m: each twin
+    /// robot measures its walk from its own scans (over what the
+    /// benchmark's drift gives), and while the pair's passes the limit it
+    /// reports nothing `Converged`: the fixes that pass its verdict are
+    /// held back (`walked`). (Over the town's whole drive such fixes miss
+    /// the truth at the scans by a degree and more: docs/session.md.)
+    #[test]
+    fn the_twins_measure_their_walk_and_hold_back_their_fixes() {
+        let dir = crate::paths::TempDir::new("cosem-session-twin-walk");
+        let feeds = board_feeds(&meeting(&dir.0, "2%,2"), 60_000).unwrap();
+        let twin = host_session_twin(&feeds.feeds).unwrap();
+        let converged = cosem_core::matching::MatchStatus::Converged.code();
+        for (i, r) in twin.iter().enumerate() {
+            assert!(r.failed.is_none(), "{:?}", r.failed);
+            assert!(r.rounds.iter().skip(6).all(|x| x.walk > cosem_core::session::WALK_LIMIT_DEG / 2.0), "robot {i}");
+            assert!(r.rounds.iter().all(|x| x.result.status != converged), "robot {i}");
+            let walked = r.rounds.iter().filter(|x| x.walked).count();
+            assert!(walked >= 10, "robot {i}: {walked} walked");
         }
     }
 }

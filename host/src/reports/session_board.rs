@@ -9,8 +9,9 @@ use cosem_core::wire::feed::RoundReport;
 use serde::Serialize;
 
 /// The JSON lines' schema version: 2 since `e_t` is taken at the meeting
-/// place, the odometry origin's in `e_t_origin`.
-pub const SESSION_BOARD_SCHEMA: u32 = 2;
+/// place, the odometry origin's in `e_t_origin`; 3 since the lines say the
+/// robots' walk figures (`walk`, `walk_peer`) and `walked`.
+pub const SESSION_BOARD_SCHEMA: u32 = 3;
 
 /// A board's figure must equal its twin's to this (m).
 pub const TWIN_TOLERANCE_M: f64 = 1e-4;
@@ -60,6 +61,14 @@ pub struct BoardRoundJson {
     pub work: u64,
     /// Whether the round's work budget cut the estimate short.
     pub work_cut: bool,
+    /// The robot's figure of its odometry's heading walk (degrees,
+    /// `cosem_core::session::OdometryWalk::excess`), once it has one.
+    pub walk: Option<f64>,
+    /// Its peer's, as the peer's board said it this round.
+    pub walk_peer: Option<f64>,
+    /// Whether the estimate passed the verdict but the pair's walk held it
+    /// back from `Converged` (`cosem_core::session::Estimate::walked`).
+    pub walked: bool,
 }
 
 /// What a session on boards showed.
@@ -70,6 +79,11 @@ pub struct SessionBoardReport<'a> {
 /// The report of `run`.
 pub fn report(run: &SessionBoardsRun) -> SessionBoardReport<'_> {
     SessionBoardReport { run }
+}
+
+/// A round report's walk figure: `None` while the robot had none (negative).
+fn figure(walk: f32) -> Option<f64> {
+    (walk >= 0.0).then_some(f64::from(walk))
 }
 
 fn status_name(code: u8) -> &'static str {
@@ -99,6 +113,14 @@ impl SessionBoardReport<'_> {
             instructions: [r.map_instructions, r.update_instructions, r.prepare_instructions, r.match_instructions],
             work: r.match_work,
             work_cut: r.work_cut,
+            walk: figure(r.walk),
+            walk_peer: self
+                .run
+                .boards
+                .get(1 - robot)
+                .and_then(|b| b.reports.rounds.iter().find(|x| x.round == r.round))
+                .and_then(|x| figure(x.walk)),
+            walked: r.walked,
         }
     }
 
@@ -146,6 +168,8 @@ impl SessionBoardReport<'_> {
                     "exit_code": b.exit_code,
                     "converged": fixes,
                     "wrong_converged": wrong,
+                    "walked": lines.iter().filter(|l| l.walked).count(),
+                    "walk": lines.last().and_then(|l| l.walk),
                     "twin_max_dt": diff.map(|d| d.0),
                     "twin_same_verdicts": diff.map(|d| d.1),
                     "most_round_instructions": most,

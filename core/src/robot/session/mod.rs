@@ -22,9 +22,10 @@ use crate::matching::{MatchStatus, Pyramid, PyramidStorage, Reach, Role, SceneSo
 use crate::matching::{Work, WorkCosts};
 use crate::pipeline::Pipeline;
 use crate::region::RegionError;
+use crate::session::walk::BOARD_WALK_STRIDE;
 use crate::session::{
-    adopt_backed, made_before, Applied, Estimate, PeerView, Publisher, PublisherError, Replica, ShadowEntry, Tracker,
-    UpdateCounts,
+    adopt_backed, made_before, pair_walk, Applied, Estimate, OdometryWalk, PeerView, Publisher, PublisherError,
+    Replica, ScanFit, ShadowEntry, Tracker, UpdateCounts,
 };
 use crate::wire::feed::{FeedError, FeedMessage, RobotMessage, RoundReport, SessionEnd};
 use crate::wire::frame::MAX_PAYLOAD;
@@ -110,12 +111,14 @@ pub const SESSION_WORK_COSTS: WorkCosts = WorkCosts {
 };
 /// What a session robot's estimate may spend a round, at
 /// [`SESSION_WORK_COSTS`] ([`Work`]): with the round's other work
-/// (fusing its scans, the updates, preparing both maps: at most 6.6e7
-/// instructions measured) and the costs' largest miss, about 2.93e8, within
-/// the boards' 3e8 instructions a round. On the town it cuts only
-/// prior-free rounds on maps that share little (361 of 3,360 robot-rounds
-/// of twelve whole sessions), and no `Converged` estimate changes.
-pub const SESSION_WORK: u64 = 215_000_000;
+/// (registering and fusing its scans, the updates, preparing both maps: at
+/// most 8.0e7 instructions measured, 1.3e7 of it the scans' registration)
+/// and the costs' largest miss, about 2.92e8, within the boards' 3e8
+/// instructions a round. On the town it cuts only prior-free rounds on
+/// maps that share little (361 of 3,360 robot-rounds of twelve whole
+/// sessions at 2.15e8; 2.0e8 since the boards register their scans: 226
+/// of 1,680 instead of 202 on six, every `Converged` estimate the same).
+pub const SESSION_WORK: u64 = 200_000_000;
 /// Scene entries whose blocks a session robot's EM remembers between its
 /// iterations ([`SessionParts::reach`]): every entry its matcher samples.
 pub const SESSION_REACH: usize = SESSION_PIPELINE.alignment.settings.max_scene_entries as usize;
@@ -228,6 +231,12 @@ where
     heard_at: Option<[f32; 3]>,
     /// Where this robot was when its copy last changed.
     copy_at: Option<[f32; 3]>,
+    /// Its odometry's heading walk, measured scan by scan.
+    walk: OdometryWalk,
+    /// The fit of the scan being fed, against the map before it.
+    scan_fit: Option<ScanFit>,
+    /// The peer's figure of its walk, as its last message said.
+    heard_walk: Option<f32>,
 }
 
 impl<'a, S, C, R, P, Q> SessionRobot<'a, S, C, R, P, Q>
@@ -284,6 +293,9 @@ where
             heard_before: None,
             heard_at: None,
             copy_at: None,
+            walk: OdometryWalk::new(),
+            scan_fit: None,
+            heard_walk: None,
         })
     }
 
@@ -415,9 +427,21 @@ where
                 self.state = State::Hello;
                 return Ok(true);
             }
-            FeedMessage::Anchor { at } if ready => self.map.move_anchor(at).map_err(RobotError::Config)?,
+            FeedMessage::Anchor { at } if ready => {
+                self.end_scan();
+                self.map.move_anchor(at).map_err(RobotError::Config)?;
+                self.scan_fit = Some(ScanFit::with_stride(at, BOARD_WALK_STRIDE));
+            }
             FeedMessage::Points { data, .. } if ready => {
                 let t0 = meter.instructions();
+                // Each part of a scan is registered to the map before it is
+                // fused (the parts are slabs of the scan's voxels in key
+                // order, so a part meets little of the ones before it).
+                if let Some(fit) = self.scan_fit.as_mut() {
+                    for (p, _) in crate::wire::feed::points(data).map_while(Result::ok) {
+                        fit.add(&self.map, p);
+                    }
+                }
                 let n = super::insert_points(&mut self.map, data).map_err(RobotError::Points)?;
                 self.fed.points += n;
                 self.marks.points += n;
@@ -427,6 +451,7 @@ where
                 if points != self.marks.points {
                     return Err(RobotError::PointCount { sent: points, received: self.marks.points });
                 }
+                self.end_scan();
                 self.start_round(now_ms, meter)?;
                 return Ok(true);
             }
@@ -440,6 +465,13 @@ where
             _ => return Err(RobotError::Feed(FeedError::Order)),
         }
         Ok(false)
+    }
+
+    /// Takes the fed scan's turn against the map into the walk.
+    fn end_scan(&mut self) {
+        if let Some(fit) = self.scan_fit.take() {
+            self.walk.push(fit.turn());
+        }
     }
 
     /// Trades the copies' first answers: the peer's capacity for the
@@ -469,7 +501,9 @@ where
         // The message: this robot's last estimate of its peer, then the update.
         let (head, rest) =
             self.out.split_at_mut_checked(ESTIMATE_BYTES).ok_or(RobotError::Update(PublisherError::Scratch))?;
-        write_head(self.last_estimate.as_ref(), self.map.keep_centre(), head);
+        let head_says =
+            Head { estimate: self.last_estimate, at: Some(self.map.keep_centre()), walk: self.walk.excess() };
+        head_says.write(head);
         let len = publisher.next_update(&self.map, self.scratch, rest).map_err(RobotError::Update)?;
         self.marks.counts = publisher.counts();
         self.marks.update_bytes = len as u32;
@@ -504,9 +538,9 @@ where
                 let message = self.input.get(..n).unwrap_or(&[]);
                 let (head, update) = message.split_at_checked(ESTIMATE_BYTES).unwrap_or((&[], message));
                 self.heard_before = self.heard;
-                let (heard, at) = read_head(head);
-                (self.heard, self.heard_said, self.heard_at) =
-                    (heard.map(|h| h.0), heard.map_or(Said::Passed, |h| h.1), at);
+                let Head { estimate: heard, at, walk } = Head::read(head);
+                (self.heard, self.heard_said, self.heard_at, self.heard_walk) =
+                    (heard.map(|h| h.0), heard.map_or(Said::Passed, |h| h.1), at, walk);
                 let applied = replica.apply(update, self.scratch);
                 self.copy_at = Some(self.map.keep_centre());
                 if matches!(applied, Applied::Diverged | Applied::Restarted) {
@@ -562,7 +596,7 @@ where
                 at: self.map.keep_centre(),
                 peer_at,
                 copy_at: self.copy_at,
-                walk: None,
+                walk: pair_walk(self.walk.excess(), self.heard_walk),
             };
             // From a fix, first only what tracking reads; the whole pyramids
             // when a search is needed (no fix, or EM did not settle from it).
@@ -635,7 +669,8 @@ where
         let model = Pyramid::build_tracked(&self.map, Role::Model, &mut self.model).map_err(pyramid)?;
         let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
         let peer_at = self.heard_at.or(replica.peer_place());
-        let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at, walk: None };
+        let walk = pair_walk(self.walk.excess(), self.heard_walk);
+        let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at, walk };
         let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(work);
         let how = SESSION_PIPELINE.alignment;
         // With the slack where the peer reports its fix `Converged`, or it
@@ -683,6 +718,8 @@ where
             match_work: work.spent(),
             work_cut: work.refused(),
             peak_stack,
+            walk: self.walk.excess().unwrap_or(-1.0),
+            walked: e.is_some_and(|e| e.walked),
         }
     }
 }
@@ -692,9 +729,11 @@ where
 /// reports `Converged`; 3: a recall waiting for its vouch), then
 /// `T_sender_receiver`'s top three rows, row by row, then
 /// where the sender is (its frame: the agreement of two estimates is
-/// judged at both robots' places, [`crate::session::agree`]), all
-/// little-endian `f32`.
-pub const ESTIMATE_BYTES: usize = 1 + 48 + 12;
+/// judged at both robots' places, [`crate::session::agree`]), then the
+/// sender's figure of its heading walk (degrees, negative while it has
+/// none: the pair's figure holds back `Converged`,
+/// [`crate::session::pair_walk`]), all little-endian `f32`.
+pub const ESTIMATE_BYTES: usize = 1 + 48 + 12 + 4;
 
 /// What a message's head says of the estimate it carries (its flag byte).
 /// The peer adopts a fix said `Converged`, or a recall its own search found
@@ -719,42 +758,59 @@ impl Said {
 /// An estimate a message's head carries, and what its sender says of it.
 type HeadEstimate = (Isometry3<f32>, Said);
 
-/// Writes `estimate` (or none) and the robot's place `at` as a message's
-/// head.
-fn write_head(estimate: Option<&HeadEstimate>, at: [f32; 3], out: &mut [u8]) {
-    out.fill(0);
-    let Some((flag, rest)) = out.split_first_mut() else { return };
-    let (rows, place) = rest.split_at_mut(rest.len().min(48));
-    if let Some((t, said)) = estimate {
-        *flag = *said as u8;
-        for (o, v) in rows.chunks_exact_mut(4).zip(crate::geometry::rows(t)) {
+/// What a message's head says ([`ESTIMATE_BYTES`]): each part `None`
+/// where the sender had none or a number in it is not finite.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Head {
+    /// The sender's last estimate of the receiver that passed its verdict.
+    estimate: Option<HeadEstimate>,
+    /// Where the sender is (its frame).
+    at: Option<[f32; 3]>,
+    /// The sender's figure of its heading walk (degrees, not negative).
+    walk: Option<f32>,
+}
+
+impl Head {
+    /// Writes the head to `out` ([`ESTIMATE_BYTES`]).
+    fn write(&self, out: &mut [u8]) {
+        out.fill(0);
+        let Some((flag, rest)) = out.split_first_mut() else { return };
+        let (rows, rest) = rest.split_at_mut(rest.len().min(48));
+        let (place, walk) = rest.split_at_mut(rest.len().min(12));
+        if let Some((t, said)) = self.estimate {
+            *flag = said as u8;
+            for (o, v) in rows.chunks_exact_mut(4).zip(crate::geometry::rows(&t)) {
+                o.copy_from_slice(&v.to_le_bytes());
+            }
+        }
+        for (o, v) in place.chunks_exact_mut(4).zip(self.at.unwrap_or([f32::NAN; 3])) {
+            o.copy_from_slice(&v.to_le_bytes());
+        }
+        for (o, v) in walk.chunks_exact_mut(4).zip([self.walk.unwrap_or(-1.0)]) {
             o.copy_from_slice(&v.to_le_bytes());
         }
     }
-    for (o, v) in place.chunks_exact_mut(4).zip(at) {
-        o.copy_from_slice(&v.to_le_bytes());
-    }
-}
 
-/// The estimate a message's head carries (`None` when it says none) and
-/// the sender's place; each `None` where a number in it is not finite.
-fn read_head(head: &[u8]) -> (Option<HeadEstimate>, Option<[f32; 3]>) {
-    fn floats<const N: usize>(b: &[u8]) -> Option<[f32; N]> {
-        if b.len() != 4 * N {
-            return None;
+    /// Reads a head: all `None` when it is not [`ESTIMATE_BYTES`] long.
+    fn read(head: &[u8]) -> Head {
+        fn floats<const N: usize>(b: &[u8]) -> Option<[f32; N]> {
+            if b.len() != 4 * N {
+                return None;
+            }
+            let mut v = [0f32; N];
+            for (x, c) in v.iter_mut().zip(b.chunks_exact(4)) {
+                *x = f32::from_le_bytes(c.try_into().ok()?);
+            }
+            v.iter().all(|x| x.is_finite()).then_some(v)
         }
-        let mut v = [0f32; N];
-        for (x, c) in v.iter_mut().zip(b.chunks_exact(4)) {
-            *x = f32::from_le_bytes(c.try_into().ok()?);
-        }
-        v.iter().all(|x| x.is_finite()).then_some(v)
+        let none = Head { estimate: None, at: None, walk: None };
+        let Some((&flag, rest)) = head.split_first().filter(|_| head.len() == ESTIMATE_BYTES) else { return none };
+        let (rows, rest) = rest.split_at_checked(48).unwrap_or((&[], &[]));
+        let (place, walk) = rest.split_at_checked(12).unwrap_or((&[], &[]));
+        let estimate = floats::<12>(rows).zip(Said::of(flag)).map(|(r, said)| (crate::geometry::from_rows(&r), said));
+        let walk = floats::<1>(walk).map(|[w]| w).filter(|w| *w >= 0.0);
+        Head { estimate, at: floats::<3>(place), walk }
     }
-    let Some((&flag, rest)) = head.split_first().filter(|_| head.len() == ESTIMATE_BYTES) else {
-        return (None, None);
-    };
-    let (rows, place) = rest.split_at_checked(48).unwrap_or((&[], &[]));
-    let estimate = floats::<12>(rows).zip(Said::of(flag)).map(|(r, said)| (crate::geometry::from_rows(&r), said));
-    (estimate, floats::<3>(place))
 }
 
 impl<S, C, R, P, Q, F, L, T> Machine<F, L, T> for SessionRobot<'_, S, C, R, P, Q>

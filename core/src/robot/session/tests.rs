@@ -304,38 +304,49 @@ fn a_robot_that_holds_less_is_sent_what_fits() {
 }
 
 /// A message's head carries the sender's estimate (when it has one), what
-/// the sender says of it, and its place; a head of another length, or a
-/// number that is not finite, says nothing of what it spoils. Golden bytes:
-/// the flag is 1 (passed), 2 (`Converged`) or 3 (a recall waiting for its
-/// vouch), the rows and the place little-endian `f32`.
+/// the sender says of it, its place and its walk figure; a head of another
+/// length, or a number that is not finite, says nothing of what it spoils.
+/// Golden bytes: the flag is 1 (passed), 2 (`Converged`) or 3 (a recall
+/// waiting for its vouch), the rows, the place and the walk little-endian
+/// `f32` (the walk -1 while the sender has none).
 #[test]
-fn a_head_carries_the_estimate_and_the_place() {
-    use super::{read_head, write_head, Said, ESTIMATE_BYTES};
+fn a_head_carries_the_estimate_the_place_and_the_walk() {
+    use super::{Head, Said, ESTIMATE_BYTES};
     let t = from_xyz_rpy(12.5, -3.0, 0.25, 0.01, -0.02, 0.7);
-    let at = [40.25, -7.5, 0.5];
+    let at = Some([40.25, -7.5, 0.5]);
     let mut head = [0u8; ESTIMATE_BYTES];
     for (said, flag) in [(Said::Passed, 1), (Said::Converged, 2), (Said::Recalling, 3)] {
-        write_head(Some(&(t, said)), at, &mut head);
+        Head { estimate: Some((t, said)), at, walk: Some(0.125) }.write(&mut head);
         assert_eq!(head[0], flag);
         assert_eq!(head[49..53], 40.25f32.to_le_bytes());
-        let (estimate, place) = read_head(&head);
-        assert_eq!(estimate.map(|(e, s)| (rows(&e), s)), Some((rows(&t), said)));
-        assert_eq!(place, Some(at));
+        assert_eq!(head[61..65], 0.125f32.to_le_bytes());
+        let read = Head::read(&head);
+        assert_eq!(read.estimate.map(|(e, s)| (rows(&e), s)), Some((rows(&t), said)));
+        assert_eq!((read.at, read.walk), (at, Some(0.125)));
     }
-    write_head(None, at, &mut head);
+    let bare = Head { estimate: None, at, walk: None };
+    bare.write(&mut head);
     assert_eq!(head[0], 0);
-    assert_eq!(read_head(&head), (None, Some(at)));
+    assert_eq!(head[61..65], (-1.0f32).to_le_bytes());
+    assert_eq!(Head::read(&head), bare);
     // A flag the format does not have: no estimate.
-    write_head(Some(&(t, Said::Converged)), at, &mut head);
+    Head { estimate: Some((t, Said::Converged)), at, walk: None }.write(&mut head);
     head[0] = 4;
-    assert_eq!(read_head(&head), (None, Some(at)));
+    assert_eq!(Head::read(&head), bare);
     // A place that is not finite: the estimate still read, no place.
-    write_head(Some(&(t, Said::Passed)), [f32::NAN, 0.0, 0.0], &mut head);
-    let (estimate, place) = read_head(&head);
-    assert!(estimate.is_some() && place.is_none());
+    Head { estimate: Some((t, Said::Passed)), at: Some([f32::NAN, 0.0, 0.0]), walk: None }.write(&mut head);
+    let read = Head::read(&head);
+    assert!(read.estimate.is_some() && read.at.is_none());
     // An estimate that is not finite: none, the place still read.
-    write_head(Some(&(t, Said::Passed)), at, &mut head);
+    Head { estimate: Some((t, Said::Passed)), at, walk: None }.write(&mut head);
     head[1..5].copy_from_slice(&f32::INFINITY.to_le_bytes());
-    assert_eq!(read_head(&head), (None, Some(at)));
-    assert_eq!(read_head(&head[..ESTIMATE_BYTES - 1]), (None, None));
+    assert_eq!(Head::read(&head), bare);
+    // A walk that is not finite, or negative: none.
+    for w in [f32::NAN, f32::INFINITY, -0.5] {
+        bare.write(&mut head);
+        head[61..65].copy_from_slice(&w.to_le_bytes());
+        assert_eq!(Head::read(&head), bare);
+    }
+    let nothing = Head { estimate: None, at: None, walk: None };
+    assert_eq!(Head::read(&head[..ESTIMATE_BYTES - 1]), nothing);
 }
