@@ -33,6 +33,10 @@ use crate::wire::report::MatchReport;
 use crate::wire::share::NO_EXCHANGE;
 use crate::wire::update::{UpdateAck, ACK_BYTES};
 use embedded_io::{Read, ReadReady, Write, WriteReady};
+pub use head::ESTIMATE_BYTES;
+use head::{Head, HeadEstimate, Said};
+
+mod head;
 
 /// Voxels of a session robot's map on a board, and of its copy of its
 /// peer's (an mps2-an386 in its 1 MiB budget). What a session robot keeps
@@ -467,6 +471,12 @@ where
         Ok(false)
     }
 
+    /// This robot's walk and its peer's as the peer last said it
+    /// ([`pair_walk`]).
+    fn pair_walk(&self) -> Option<f32> {
+        pair_walk(self.walk.excess(), self.heard_walk)
+    }
+
     /// Takes the fed scan's turn against the map into the walk.
     fn end_scan(&mut self) {
         if let Some(fit) = self.scan_fit.take() {
@@ -596,7 +606,7 @@ where
                 at: self.map.keep_centre(),
                 peer_at,
                 copy_at: self.copy_at,
-                walk: pair_walk(self.walk.excess(), self.heard_walk),
+                walk: self.pair_walk(),
             };
             // From a fix, first only what tracking reads; the whole pyramids
             // when a search is needed (no fix, or EM did not settle from it).
@@ -656,7 +666,7 @@ where
     /// the adopted one, or `own`.
     #[inline(never)]
     fn adopt_heard(&mut self, own: Estimate, work: &mut Work) -> Result<Estimate, RobotError> {
-        let at = self.map.keep_centre();
+        let (at, walk) = (self.map.keep_centre(), self.pair_walk());
         let fresh = |theirs: &Isometry3<f32>| self.heard_before.is_none_or(|b| !made_before(&b, theirs, at));
         let Some(theirs) = self.heard.filter(|t| self.marks.applied.is_some() && fresh(t)) else {
             return Ok(own);
@@ -669,7 +679,6 @@ where
         let model = Pyramid::build_tracked(&self.map, Role::Model, &mut self.model).map_err(pyramid)?;
         let scene = Pyramid::build_tracked(copy, Role::Scene, &mut self.scene).map_err(pyramid)?;
         let peer_at = self.heard_at.or(replica.peer_place());
-        let walk = pair_walk(self.walk.excess(), self.heard_walk);
         let view = PeerView { estimate: None, at, peer_at, copy_at: self.copy_at, walk };
         let scratch = &mut SearchScratch::new(&mut []).with_reach(self.reach).with_work(work);
         let how = SESSION_PIPELINE.alignment;
@@ -721,95 +730,6 @@ where
             walk: self.walk.excess().unwrap_or(-1.0),
             walked: e.is_some_and(|e| e.walked),
         }
-    }
-}
-
-/// Bytes of the head ahead of a round's update: a flag (0: no estimate;
-/// 1: one follows that passed the sender's verdict; 2: one the sender
-/// reports `Converged`; 3: a recall waiting for its vouch), then
-/// `T_sender_receiver`'s top three rows, row by row, then
-/// where the sender is (its frame: the agreement of two estimates is
-/// judged at both robots' places, [`crate::session::agree`]), then the
-/// sender's figure of its heading walk (degrees, negative while it has
-/// none: the pair's figure holds back `Converged`,
-/// [`crate::session::pair_walk`]), all little-endian `f32`.
-pub const ESTIMATE_BYTES: usize = 1 + 48 + 12 + 4;
-
-/// What a message's head says of the estimate it carries (its flag byte).
-/// The peer adopts a fix said `Converged`, or a recall its own search found
-/// too, with less agreement ([`Tracker::adopt`], [`adopt_backed`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Said {
-    /// 1: it passed the sender's verdict.
-    Passed = 1,
-    /// 2: the sender reports it `Converged` (confirmed, not contested).
-    Converged = 2,
-    /// 3: a recall, the fix the pair confirmed before found again, waiting
-    /// for its vouch ([`Tracker::recalling`]).
-    Recalling = 3,
-}
-
-impl Said {
-    fn of(flag: u8) -> Option<Said> {
-        [Said::Passed, Said::Converged, Said::Recalling].into_iter().find(|s| *s as u8 == flag)
-    }
-}
-
-/// An estimate a message's head carries, and what its sender says of it.
-type HeadEstimate = (Isometry3<f32>, Said);
-
-/// What a message's head says ([`ESTIMATE_BYTES`]): each part `None`
-/// where the sender had none or a number in it is not finite.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Head {
-    /// The sender's last estimate of the receiver that passed its verdict.
-    estimate: Option<HeadEstimate>,
-    /// Where the sender is (its frame).
-    at: Option<[f32; 3]>,
-    /// The sender's figure of its heading walk (degrees, not negative).
-    walk: Option<f32>,
-}
-
-impl Head {
-    /// Writes the head to `out` ([`ESTIMATE_BYTES`]).
-    fn write(&self, out: &mut [u8]) {
-        out.fill(0);
-        let Some((flag, rest)) = out.split_first_mut() else { return };
-        let (rows, rest) = rest.split_at_mut(rest.len().min(48));
-        let (place, walk) = rest.split_at_mut(rest.len().min(12));
-        if let Some((t, said)) = self.estimate {
-            *flag = said as u8;
-            for (o, v) in rows.chunks_exact_mut(4).zip(crate::geometry::rows(&t)) {
-                o.copy_from_slice(&v.to_le_bytes());
-            }
-        }
-        for (o, v) in place.chunks_exact_mut(4).zip(self.at.unwrap_or([f32::NAN; 3])) {
-            o.copy_from_slice(&v.to_le_bytes());
-        }
-        for (o, v) in walk.chunks_exact_mut(4).zip([self.walk.unwrap_or(-1.0)]) {
-            o.copy_from_slice(&v.to_le_bytes());
-        }
-    }
-
-    /// Reads a head: all `None` when it is not [`ESTIMATE_BYTES`] long.
-    fn read(head: &[u8]) -> Head {
-        fn floats<const N: usize>(b: &[u8]) -> Option<[f32; N]> {
-            if b.len() != 4 * N {
-                return None;
-            }
-            let mut v = [0f32; N];
-            for (x, c) in v.iter_mut().zip(b.chunks_exact(4)) {
-                *x = f32::from_le_bytes(c.try_into().ok()?);
-            }
-            v.iter().all(|x| x.is_finite()).then_some(v)
-        }
-        let none = Head { estimate: None, at: None, walk: None };
-        let Some((&flag, rest)) = head.split_first().filter(|_| head.len() == ESTIMATE_BYTES) else { return none };
-        let (rows, rest) = rest.split_at_checked(48).unwrap_or((&[], &[]));
-        let (place, walk) = rest.split_at_checked(12).unwrap_or((&[], &[]));
-        let estimate = floats::<12>(rows).zip(Said::of(flag)).map(|(r, said)| (crate::geometry::from_rows(&r), said));
-        let walk = floats::<1>(walk).map(|[w]| w).filter(|w| *w >= 0.0);
-        Head { estimate, at: floats::<3>(place), walk }
     }
 }
 
