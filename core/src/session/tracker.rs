@@ -712,7 +712,7 @@ impl Tracker {
                 // state built on them held the first right answer back.
                 let held = self.fix.is_some() && self.confirmed;
                 result.transform = match self.smoothed.as_mut().filter(|_| held) {
-                    Some(s) => s.update(answer, &result.information, view.at),
+                    Some(s) => s.update(answer, &result.information, view.at, view.walk),
                     None => {
                         self.smoothed = Some(Smoother::start(answer, &result.information, view.at));
                         answer

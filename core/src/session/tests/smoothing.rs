@@ -2,7 +2,7 @@
 //! that scatter or wander about a truth that moves as slowly as odometry
 //! drifts, and answers that jump (a slip).
 
-use super::super::smoother::{Smoother, GATE_M, INFO_SCALE};
+use super::super::smoother::{pair_drift_deg, Smoother, GATE_M, HEADING_DRIFT_DEG, INFO_SCALE, PAIR_DRIFT_FLOOR_DEG};
 use super::Lcg;
 use crate::geometry::{from_xyz_rpy, Isometry3};
 use nalgebra::{Matrix6, Vector6};
@@ -60,7 +60,7 @@ fn smoothing_reports_scattered_answers_closer_to_the_truth() {
         let at = place(round);
         let answer = off_at(&t, at, 0.25 * noise(), 0.25 * noise(), 0.5 * noise());
         let reported = match smoother.as_mut() {
-            Some(s) => s.update(answer, &information(0.5), at),
+            Some(s) => s.update(answer, &information(0.5), at, None),
             None => *smoother.insert(Smoother::start(answer, &information(0.5), at)).transform(),
         };
         if round >= 5 {
@@ -83,14 +83,14 @@ fn smoothing_follows_the_drift_and_holds_a_wandering_answer() {
     let mut smoother = Smoother::start(start, &information(0.5), place(0));
     for round in 1..30 {
         let t = truth(round, 0.1);
-        let reported = smoother.update(t, &information(0.5), place(round));
+        let reported = smoother.update(t, &information(0.5), place(round), None);
         assert!(apart(&reported, &t, place(round)).0 < 0.3, "round {round}: {reported:?}");
     }
     let mut smoother = Smoother::start(start, &information(0.5), place(0));
     for round in 1..12 {
         let t = truth(round, 0.0);
         let wandered = off_at(&t, place(round), 0.0, 0.0, 0.12 * round as f32);
-        let reported = smoother.update(wandered, &information(0.5), place(round));
+        let reported = smoother.update(wandered, &information(0.5), place(round), None);
         let (ours, theirs) = (apart(&reported, &t, place(round)).0, apart(&wandered, &t, place(round)).0);
         assert!(round < 6 || ours < theirs - 0.2, "round {round}: {ours} degrees off, the answer {theirs}");
     }
@@ -103,20 +103,56 @@ fn smoothing_follows_the_drift_and_holds_a_wandering_answer() {
 fn a_jump_or_an_unusable_information_starts_the_smoothing_again() {
     let mut smoother = Smoother::start(truth(0, 0.0), &information(0.5), place(0));
     for round in 1..10 {
-        smoother.update(truth(round, 0.0), &information(0.5), place(round));
+        smoother.update(truth(round, 0.0), &information(0.5), place(round), None);
     }
     let slipped = from_xyz_rpy(2.0, 0.0, 0.0, 0.0, 0.0, 10f32.to_radians()) * truth(10, 0.0);
-    assert_eq!(smoother.update(slipped, &information(0.5), place(10)), slipped);
+    assert_eq!(smoother.update(slipped, &information(0.5), place(10), None), slipped);
     // From the slipped pose on, a slightly different answer is smoothed.
     let next = from_xyz_rpy(0.0, 0.0, 0.0, 0.0, 0.0, 0.3f32.to_radians()) * slipped;
-    let smoothed = smoother.update(next, &information(0.5), place(11));
+    let smoothed = smoother.update(next, &information(0.5), place(11), None);
     assert!(apart(&smoothed, &next, place(11)).0 > 0.05, "{smoothed:?}");
     // A jump at the place beyond the gate alone, no rotation.
     let shifted = from_xyz_rpy(GATE_M + 0.1, 0.0, 0.0, 0.0, 0.0, 0.0) * next;
-    assert_eq!(smoother.update(shifted, &information(0.5), place(12)), shifted);
+    assert_eq!(smoother.update(shifted, &information(0.5), place(12), None), shifted);
     let singular = Matrix6::zeros();
     let again = from_xyz_rpy(0.0, 0.0, 0.0, 0.0, 0.0, 0.2f32.to_radians()) * shifted;
-    assert_eq!(smoother.update(again, &singular, place(13)), again);
+    assert_eq!(smoother.update(again, &singular, place(13), None), again);
     let nan = Matrix6::from_element(f32::NAN);
-    assert_eq!(smoother.update(shifted, &nan, place(14)), shifted);
+    assert_eq!(smoother.update(shifted, &nan, place(14), None), shifted);
+}
+
+/// The pair's walk figure sets the drift the filter assumes
+/// ([`pair_drift_deg`]): with the figure of odometry that walks half a
+/// degree per 100 m (0.1 degree) an answer wandering from a still truth is
+/// held closer to the truth than with none (the default assumes a degree
+/// per 100 m of each robot); with the figure of a heavy walk (0.4 degree)
+/// a truth turning 0.2 degree a round is followed closer than with none.
+#[test]
+fn the_pair_walk_sets_the_drift_the_smoothing_assumes() {
+    assert_eq!(pair_drift_deg(None), HEADING_DRIFT_DEG * core::f32::consts::SQRT_2);
+    assert_eq!(pair_drift_deg(Some(f32::NAN)), pair_drift_deg(None));
+    assert_eq!(pair_drift_deg(Some(0.0)), PAIR_DRIFT_FLOOR_DEG);
+    let wander = |walk: Option<f32>| {
+        let mut smoother = Smoother::start(truth(0, 0.0), &information(0.5), place(0));
+        let mut off = 0.0;
+        for round in 1..12 {
+            let t = truth(round, 0.0);
+            let wandered = off_at(&t, place(round), 0.0, 0.0, 0.1 * round as f32);
+            off = apart(&smoother.update(wandered, &information(0.5), place(round), walk), &t, place(round)).0;
+        }
+        off
+    };
+    let (measured, assumed) = (wander(Some(0.1)), wander(None));
+    assert!(measured < assumed - 0.1, "{measured} degrees off with the figure, {assumed} without");
+    let follow = |walk: Option<f32>| {
+        let mut smoother = Smoother::start(truth(0, 0.2), &information(0.5), place(0));
+        let mut off = 0.0f32;
+        for round in 1..20 {
+            let t = truth(round, 0.2);
+            off = off.max(apart(&smoother.update(t, &information(0.5), place(round), walk), &t, place(round)).0);
+        }
+        off
+    };
+    let (measured, assumed) = (follow(Some(0.4)), follow(None));
+    assert!(measured < assumed - 0.1, "{measured} degrees behind with the figure, {assumed} without");
 }
