@@ -37,7 +37,7 @@ pub use tracker::{
     adopt_backed, agree, made_before, Estimate, Fix, Kind, PeerView, Tracked, Tracker, ADOPT_CONFIRMED_SLACK,
     ADOPT_MARGIN, AGREE_DEG, AGREE_M, HOLD_M, REFUSED_ROUNDS,
 };
-pub use walk::{pair_walk, OdometryWalk, ScanFit, WALK_LIMIT_DEG};
+pub use walk::{pair_walk, walk_stride, OdometryWalk, ScanFit, WALK_LIMIT_DEG};
 
 /// The verdict's least overlap in a session: 0.25, where a one-shot
 /// match takes 0.2 ([`crate::matching::MatchSettings::min_overlap`]). A

@@ -233,7 +233,9 @@ impl BuildStats {
 /// would take, registered to it ([`cosem_core::session::ScanFit`]). What a
 /// robot's [`cosem_core::session::OdometryWalk`] is fed, scan by scan.
 pub fn scan_turn(map: &HostMap, f: &Frame, filter: &PointFilter, at: [f32; 3]) -> Option<(f32, f32)> {
-    let mut fit = cosem_core::session::ScanFit::new(at);
+    // A scan that keeps few points (a camera's view) is taken more densely.
+    let kept = f.ranges.iter().zip(&f.labels).filter(|&(&r, &l)| filter.keep(r, l).is_some()).count();
+    let mut fit = cosem_core::session::ScanFit::with_stride(at, cosem_core::session::walk_stride(kept));
     for ((p, &range), &label) in f.points.iter().zip(&f.ranges).zip(&f.labels) {
         if filter.keep(range, label).is_some() {
             fit.add(map, *p);
