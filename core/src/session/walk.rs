@@ -18,12 +18,11 @@ use crate::matching::pyramid::Moments;
 /// few hundred point-to-plane pairs a scan, enough to fix a heading to a
 /// few hundredths of a degree.
 ///
-/// Why 16: on the town (seeds 1-5) one point in 16 gives the same verdicts
-/// as one in 8 at every drift measured and the same benchmark, at half the
-/// cost, which a board's round needs; with camera labels (only the points
-/// in the camera's view register) it spreads the figure less at 1%,1
-/// (availability 0.863 against 0.695). One in 32 withholds right fixes
-/// there (docs/session.md).
+/// Why 16: on the town (seeds 1-5) one point in 16 of a LiDAR's scan gives
+/// the same verdicts as one in 8 at every drift measured and the same
+/// benchmark, at half the cost; one in 32 withholds right fixes at 1%,1
+/// (docs/session.md). A scan of few points (a camera's view) is taken
+/// more densely ([`walk_stride`]): one in 16 of it gave no turn at all.
 pub const WALK_STRIDE: u32 = 16;
 /// A scan with fewer points than [`WALK_STRIDE`] times this is taken one
 /// point in fewer ([`walk_stride`]): at least about this many of its
