@@ -444,6 +444,40 @@ fn labelled_town_robots_stay_in_their_world() {
     assert_eq!(std::fs::read(out.join("poses.txt")).unwrap(), std::fs::read(data.join("poses.txt")).unwrap());
 }
 
+/// A robot adopts only a fix its peer made in its latest round, not one
+/// the peer held the round before, wherever tracking moved it
+/// (`cosem_core::session::made_this_round`). Camera labels, town seed 6,
+/// drift `1%,1`, frames 0-20 (the robots far apart, no true overlap): the
+/// labels' errors give robot 0's search a street turned by about 100
+/// degrees (held, unconfirmed); tracked the next round it slid 9 degrees
+/// and 5 m, and robot 1, whose own search found nothing, adopted it as new
+/// (agreement 0.51 against the margin's 0.50): both reported it
+/// `Converged`, 77-81 m off. Now nothing the robots say is `Converged`.
+#[test]
+fn a_look_alike_that_slid_in_tracking_is_not_adopted() {
+    let dir = tempfile::tempdir().unwrap();
+    let town = dir.path().join("town");
+    let t = town.display().to_string();
+    cosem_ok(&["synth", "--town", "--out", &t, "--frames", "20", "--seed", "6"]);
+    let mut robots = vec![];
+    for i in 0..2 {
+        let data = town.join(format!("robot_{i}")).display().to_string();
+        let out = town.join(format!("labelled_{i}")).display().to_string();
+        cosem_ok(&["label", "--data", &data, "--seg", &format!("{data}/seg_2"), "--out", &out, "--frames", "0:20"]);
+        robots.push(format!("{out}:0:20"));
+    }
+    let args = ["--robot", &robots[0], "--robot", &robots[1], "--drift", "1%,1", "--seed", "6"];
+    let (records, summary) = session(&args);
+    assert_eq!(records.len(), 20);
+    // The case arises: a look-alike passes a robot's verdict and is held.
+    let held_wrong = |r: &&Value| r["fix"] == "held" && r["e_t"].as_f64().is_some_and(|e| e > 10.0);
+    assert!(records.iter().any(|r| held_wrong(&r)), "no look-alike held: the case no longer arises");
+    assert!(records.iter().all(|r| r["overlap_true"].as_f64().unwrap() < 0.05), "the robots are apart");
+    assert!(records.iter().all(|r| r["adopted"] == false), "a held fix adopted");
+    assert!(records.iter().all(|r| r["status"] != "Converged"), "a look-alike reported Converged");
+    assert_eq!(summary["wrong_converged"], 0);
+}
+
 /// Two session robots on emulated mps2-an386 boards (`--on-board`), over
 /// the town's first meeting (frames 44 to 104 of seed 1, drifted), their
 /// UARTs joined by a line that damages 2% of bytes (substituted, dropped,

@@ -34,7 +34,7 @@ pub use publisher::{Publisher, PublisherError, ShadowEntry, UpdateBudget, Update
 pub use replica::{Applied, Replica};
 pub use smoother::Smoother;
 pub use tracker::{
-    adopt_backed, agree, made_before, Estimate, Fix, Kind, PeerView, Tracked, Tracker, ADOPT_CONFIRMED_SLACK,
+    adopt_backed, agree, made_this_round, Estimate, Fix, Kind, PeerView, Tracked, Tracker, ADOPT_CONFIRMED_SLACK,
     ADOPT_MARGIN, AGREE_DEG, AGREE_M, HOLD_M, REFUSED_ROUNDS,
 };
 pub use walk::{pair_walk, walk_stride, OdometryWalk, ScanFit, WALK_LIMIT_DEG};

@@ -24,7 +24,7 @@ use crate::pipeline::Pipeline;
 use crate::region::RegionError;
 use crate::session::walk::BOARD_WALK_STRIDE;
 use crate::session::{
-    adopt_backed, made_before, pair_walk, Applied, Estimate, OdometryWalk, PeerView, Publisher, PublisherError,
+    adopt_backed, made_this_round, pair_walk, Applied, Estimate, OdometryWalk, PeerView, Publisher, PublisherError,
     Replica, ScanFit, ShadowEntry, Tracker, UpdateCounts,
 };
 use crate::wire::feed::{FeedError, FeedMessage, RobotMessage, RoundReport, SessionEnd};
@@ -229,7 +229,7 @@ where
     /// What the peer said of that estimate.
     heard_said: Said,
     /// The peer's, as the message before it said: a fix it made in its
-    /// last round is one this does not agree with.
+    /// last round is one heard when this was none ([`made_this_round`]).
     heard_before: Option<Isometry3<f32>>,
     /// Where the peer was (its frame) as its last message said.
     heard_at: Option<[f32; 3]>,
@@ -661,14 +661,14 @@ where
     /// ([`Tracker::adopt`]: EM from it on both maps, this robot's verdict
     /// with the margin): the host session's adoption, a round later, since
     /// a board hears its peer's estimate of a round with the next round's
-    /// update. A fix the peer held before (its message before said the
-    /// same) is not adopted, as on the host. Returns the round's estimate:
-    /// the adopted one, or `own`.
+    /// update. A fix the peer held before (its message before carried an
+    /// estimate: [`made_this_round`]) is not adopted, as on the host.
+    /// Returns the round's estimate: the adopted one, or `own`.
     #[inline(never)]
     fn adopt_heard(&mut self, own: Estimate, work: &mut Work) -> Result<Estimate, RobotError> {
         let (at, walk) = (self.map.keep_centre(), self.pair_walk());
-        let fresh = |theirs: &Isometry3<f32>| self.heard_before.is_none_or(|b| !made_before(&b, theirs, at));
-        let Some(theirs) = self.heard.filter(|t| self.marks.applied.is_some() && fresh(t)) else {
+        let fresh = made_this_round(self.heard_before.as_ref());
+        let Some(theirs) = self.heard.filter(|_| self.marks.applied.is_some() && fresh) else {
             return Ok(own);
         };
         let Some(replica) = self.replica.as_ref().filter(|_| self.tracker.fix().is_none()) else {

@@ -5,7 +5,7 @@
 use super::{copy_of, errors_of, figures, Error, Lines, Links, MatchRoom, Record, Robot, SessionSpec};
 use cosem_core::geometry::Isometry3;
 use cosem_core::matching::{MatchStatus, Role};
-use cosem_core::session::{adopt_backed, made_before, PeerView, Tracker};
+use cosem_core::session::{adopt_backed, made_this_round, PeerView, Tracker};
 use std::time::Instant;
 
 use super::prepared::Prepared;
@@ -25,8 +25,8 @@ pub(super) struct Adopting<'a> {
 impl Adopting<'_> {
     /// Every estimate of the round (`records`) that did not pass its
     /// robot's verdict, with no fix held, while the peer's estimate of the
-    /// robot passed the peer's and was made this round (not the fix its
-    /// estimate of the last round was; unconfirmed, or confirmed by the
+    /// robot passed the peer's and was made this round (its estimate of the
+    /// last round did not pass: [`made_this_round`]; unconfirmed, or confirmed by the
     /// peer's history, `Tracker::search`'s recall): the peer's fix tried
     /// ([`Tracker::adopt`], with the slack where the peer reports it
     /// `Converged` or it is the peer's recall that this robot's own search
@@ -61,9 +61,10 @@ impl Adopting<'_> {
             let (at, peer_at) = (self.places[i], self.places.get(j).copied());
             // Only a fix the peer made this round: one it held the round
             // before, which this robot's own search did not find, is not
-            // adopted (town seed 19: a street slid 112 m, held by the peer
-            // unconfirmed for five rounds, adopted at agreement 0.50).
-            if tracker.fix().is_some() || self.heard[j][i].is_some_and(|b| made_before(&b, &theirs, at)) {
+            // adopted, wherever tracking moved it (town seed 19: a street
+            // slid 112 m, held by the peer unconfirmed for five rounds,
+            // adopted at agreement 0.50; `made_this_round`).
+            if tracker.fix().is_some() || !made_this_round(self.heard[j][i].as_ref()) {
                 continue;
             }
             // The peer's recall, which this robot's own search found too, is

@@ -285,7 +285,7 @@ pub fn reported_by(
     stamp: Time,
     at: [f32; 3],
 ) -> bool {
-    reported.is_some_and(|(pose, s)| *s == stamp && cosem_core::session::made_before(pose, theirs, at))
+    reported.is_some_and(|(pose, s)| *s == stamp && cosem_core::session::agree(&pose.inverse(), theirs, at, None))
 }
 
 /// The topics the node reads and writes.

@@ -2,7 +2,7 @@
 //! is room for it) and their fixes of this robot.
 
 use super::*;
-use cosem_core::session::made_before;
+use cosem_core::session::made_this_round;
 
 impl RosNode {
     /// A robot's update heard: whether it is followed, met now if there is
@@ -138,10 +138,12 @@ impl RosNode {
             let theirs: Isometry3<f32> = nalgebra::convert(iso);
             let place = self.own.place;
             let Some(peer) = self.peers.get_mut(&name) else { continue };
-            // Adopted only when the peer made it since its last fix heard:
-            // one it held, which our own searches did not find, is not.
+            // Adopted only when no fix of the peer's was heard in the
+            // `HEARD_FOR` before it (the peer made it since): one it held,
+            // which our own searches did not find, is not, wherever its
+            // tracking moved it.
             let before = peer.heard.filter(|h| h.1.elapsed().as_secs_f64() <= HEARD_FOR);
-            let fresh = before.is_none_or(|(b, _)| !made_before(&b, &theirs, place));
+            let fresh = made_this_round(before.as_ref().map(|(b, _)| b));
             peer.heard = Some((theirs, Instant::now()));
             let refused = peer.last.is_some_and(|e| e.result.status != MatchStatus::Converged);
             if fresh && refused && peer.tracker.fix().is_none() {
